@@ -1,0 +1,54 @@
+"""Constraint patterns and their per-frame values for the FAST global step.
+
+A *pattern* says which handles are constrained and how; it is fixed per rig (changing it
+refactors the solver). *Values* are the per-frame targets for a pattern; changing them
+does not refactor.
+
+Layout reminder: T is (4m, 3) float32, rows 4j..4j+3 hold handle j's 3x4 affine transform
+transposed, so a rest point p moves to [p 1] @ T[4j:4j+4] under handle j alone.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class Pattern:
+    """Which handles are constrained, and how. Handles not named anywhere are free.
+
+    full:       handle indices whose whole transform is given each frame (12 values each).
+    relative:   (child, parent, pivot) triples: child's linear part = parent's linear part
+                times a per-frame rotation R, and both handles map the rest point ``pivot``
+                ((3,) model units) to the same place.
+    positional: vertex indices whose deformed position is given each frame.
+    """
+
+    full: tuple[int, ...] = ()
+    relative: tuple[tuple[int, int, tuple[float, float, float]], ...] = ()
+    positional: tuple[int, ...] = field(default=())
+
+    def values(self) -> "Values":
+        """Preallocated per-frame values for this pattern (identity rotations, zero targets)."""
+        return Values(
+            full=np.zeros((len(self.full), 4, 3), np.float32),
+            relative=np.tile(np.eye(3, dtype=np.float32), (len(self.relative), 1, 1)),
+            positional=np.zeros((len(self.positional), 3), np.float32),
+        )
+
+
+@dataclass
+class Values:
+    """Per-frame constraint values for a :class:`Pattern`; fill in place every frame.
+
+    full:       (len(pattern.full), 4, 3) float32: the target T_j block (transform transposed).
+    relative:   (len(pattern.relative), 3, 3) float32: the rotation R of each relative joint
+                (child linear part = parent linear part @ R).
+    positional: (len(pattern.positional), 3) float32: target positions, model units.
+    """
+
+    full: np.ndarray
+    relative: np.ndarray
+    positional: np.ndarray

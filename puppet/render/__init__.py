@@ -1,0 +1,1 @@
+"""Offscreen moderngl renderer with skinning in the vertex shader, and frame sinks."""

@@ -1,0 +1,1 @@
+"""The character: mesh, skeleton and forward kinematics, weights, servo map, loaders."""

@@ -1,0 +1,1 @@
+"""Takes: crash-safe recording of raw servo readings, and playback."""

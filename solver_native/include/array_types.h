@@ -1,0 +1,19 @@
+// Array types crossing the Python/C++ boundary, fixed once for every binding.
+//
+// All per-frame arrays are float32, C-contiguous, and bound without conversion
+// (`.noconvert()` on the argument): a wrong dtype or layout is a TypeError in
+// Python, never a silent copy.
+#pragma once
+
+#include <cstdint>
+#include <nanobind/ndarray.h>
+
+namespace puppet {
+
+namespace nb = nanobind;
+
+// (r, 3, 3) float32: a stack of 3x3 matrices, row-major per matrix.
+using Mat3Stack = nb::ndarray<float, nb::shape<-1, 3, 3>, nb::c_contig, nb::device::cpu>;
+using ConstMat3Stack = nb::ndarray<const float, nb::shape<-1, 3, 3>, nb::c_contig, nb::device::cpu>;
+
+}  // namespace puppet
