@@ -98,7 +98,39 @@ def rig() -> None:
 @click.option("--json", "as_json", is_flag=True, help="Print JSON instead of text.")
 def rig_info(rig_path: str | None, as_json: bool) -> None:
     """Vertices, bones, servos and constraint kinds of a rig (built-in when omitted)."""
-    _not_built("rig info", 5)
+    import json
+    import time
+
+    from puppet.rig import RigError, builtin, load_rig
+
+    start = time.perf_counter()
+    try:
+        loaded = builtin() if rig_path is None else load_rig(rig_path)
+    except RigError as err:
+        raise click.ClickException(str(err)) from None
+    load_s = time.perf_counter() - start
+    kinds = loaded.bone_kinds()
+    report = loaded.check_weights()
+    info = {"name": loaded.name, "vertices": len(loaded.V), "triangles": len(loaded.F),
+            "bones": loaded.skeleton.bone_count, "servos": len(loaded.servo_map),
+            "full": kinds["full"], "relative": kinds["relative"], "free": kinds["free"],
+            "weights_ok": report.ok, "load_s": round(load_s, 4)}
+    if as_json:
+        click.echo(json.dumps(info))
+        return
+    click.echo(f"rig        {loaded.name} ({loaded.path or 'built-in'})")
+    click.echo(f"vertices   {info['vertices']}")
+    click.echo(f"triangles  {info['triangles']}")
+    click.echo(f"bones      {info['bones']}")
+    click.echo(f"servos     {info['servos']}: " + ", ".join(
+        f"{s.id}:{s.model}->{s.joint}" for s in loaded.servo_map.servos))
+    for kind in ("full", "relative", "free"):
+        click.echo(f"{kind:<10} {', '.join(kinds[kind]) or '-'}")
+    click.echo(f"pins       {len(loaded.pins)}")
+    opts = loaded.solver_options
+    click.echo(f"solver     clusters={opts.clusters} extra_weights={opts.extra_weights} energy={opts.energy}")
+    click.echo(f"weights    {report.summary()}")
+    click.echo(f"load       {load_s:.3f} s")
 
 
 if __name__ == "__main__":

@@ -1,5 +1,18 @@
 """FAST (Jacobson et al. 2012): reduced ARAP in the linear-blend-skinning subspace V' = M T."""
 
+from puppet.fast.errors import FastError, MeshError, PatternError, ValuesError, WeightsError
+from puppet.fast.model import FastModel
 from puppet.fast.pattern import Pattern, Values
+from puppet.fast.solver import Solver
 
-__all__ = ["Pattern", "Values"]
+__all__ = [
+    "FastModel",
+    "Solver",
+    "Pattern",
+    "Values",
+    "FastError",
+    "MeshError",
+    "WeightsError",
+    "PatternError",
+    "ValuesError",
+]

@@ -14,6 +14,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from puppet.fast.errors import PatternError
+
 
 @dataclass(frozen=True)
 class Pattern:
@@ -29,6 +31,42 @@ class Pattern:
     full: tuple[int, ...] = ()
     relative: tuple[tuple[int, int, tuple[float, float, float]], ...] = ()
     positional: tuple[int, ...] = field(default=())
+
+    def validate(self, m: int, n: int) -> None:
+        """Raise PatternError unless the pattern fits m handles and n vertices and is consistent:
+        indices in range, no handle both full and a relative child, no child constrained twice,
+        no handle its own parent, finite pivots, no vertex pinned twice."""
+        def handle(j, what):
+            if not isinstance(j, (int, np.integer)) or not 0 <= int(j) < m:
+                raise PatternError(f"pattern.{what}: handle {j!r} is not in 0..{m - 1}")
+            return int(j)
+
+        full = [handle(j, "full") for j in self.full]
+        if len(set(full)) != len(full):
+            raise PatternError(f"pattern.full: handles {sorted(j for j in set(full) if full.count(j) > 1)} repeated")
+        children = []
+        for q, item in enumerate(self.relative):
+            if len(item) != 3:
+                raise PatternError(f"pattern.relative[{q}]: expected (child, parent, (px, py, pz)), got {item!r}")
+            c, p, pivot = item
+            c, p = handle(c, f"relative[{q}] child"), handle(p, f"relative[{q}] parent")
+            if c == p:
+                raise PatternError(f"pattern.relative[{q}]: handle {c} is its own parent")
+            if c in full:
+                raise PatternError(f"pattern.relative[{q}]: child {c} is also a full handle")
+            piv = np.asarray(pivot, dtype=np.float64)
+            if piv.shape != (3,) or not np.isfinite(piv).all():
+                raise PatternError(f"pattern.relative[{q}]: pivot {pivot!r} is not 3 finite numbers")
+            children.append(c)
+        if len(set(children)) != len(children):
+            raise PatternError("pattern.relative: a child handle appears in two relative constraints")
+        pos = []
+        for v in self.positional:
+            if not isinstance(v, (int, np.integer)) or not 0 <= int(v) < n:
+                raise PatternError(f"pattern.positional: vertex {v!r} is not in 0..{n - 1}")
+            pos.append(int(v))
+        if len(set(pos)) != len(pos):
+            raise PatternError("pattern.positional: a vertex is pinned twice")
 
     def values(self) -> "Values":
         """Preallocated per-frame values for this pattern (identity rotations, zero targets)."""

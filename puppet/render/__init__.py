@@ -1,1 +1,30 @@
-"""Offscreen moderngl renderer with skinning in the vertex shader, and frame sinks."""
+"""Offscreen moderngl renderer with skinning in the vertex shader, and frame sinks.
+
+    from puppet.render import Renderer, VideoSink
+    with Renderer(V, F, W, width=640, height=480) as renderer, VideoSink("take.mp4", 30) as video:
+        video.write(renderer.draw(T))      # T: (4m, 3) float32 handle transforms
+"""
+
+from puppet.render.camera import Camera
+from puppet.render.context import create_context
+from puppet.render.errors import EGL_PACKAGES, RenderError, RenderInputError, SinkError
+from puppet.render.overlay import BONE_STATE_COLORS
+from puppet.render.renderer import SKINNING_MODES, Renderer
+from puppet.render.sinks import PngSink, VideoSink
+from puppet.render.skin_weights import lbs_matrix, pack_weights
+
+__all__ = [
+    "BONE_STATE_COLORS",
+    "Camera",
+    "EGL_PACKAGES",
+    "PngSink",
+    "RenderError",
+    "RenderInputError",
+    "Renderer",
+    "SKINNING_MODES",
+    "SinkError",
+    "VideoSink",
+    "create_context",
+    "lbs_matrix",
+    "pack_weights",
+]

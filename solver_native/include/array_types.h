@@ -17,3 +17,17 @@ using Mat3Stack = nb::ndarray<float, nb::shape<-1, 3, 3>, nb::c_contig, nb::devi
 using ConstMat3Stack = nb::ndarray<const float, nb::shape<-1, 3, 3>, nb::c_contig, nb::device::cpu>;
 
 }  // namespace puppet
+
+namespace puppet {
+
+// (4m, 3) float32 transforms T, handle j's transform transposed in rows 4j..4j+3.
+using TransformsF = nb::ndarray<float, nb::shape<-1, 3>, nb::c_contig, nb::device::cpu>;
+// (kf, 4, 3) full-transform targets and (kp, 3) positional targets.
+using FullValues = nb::ndarray<const float, nb::shape<-1, 4, 3>, nb::c_contig, nb::device::cpu>;
+using PosValues = nb::ndarray<const float, nb::shape<-1, 3>, nb::c_contig, nb::device::cpu>;
+// Precompute matrices (constructor only, converted freely).
+using ConstMatrixF = nb::ndarray<const float, nb::ndim<2>, nb::c_contig, nb::device::cpu>;
+using ConstMatrixD = nb::ndarray<const double, nb::ndim<2>, nb::c_contig, nb::device::cpu>;
+using ConstIndexVec = nb::ndarray<const int32_t, nb::ndim<1>, nb::c_contig, nb::device::cpu>;
+
+}  // namespace puppet

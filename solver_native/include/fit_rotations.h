@@ -4,6 +4,13 @@
 //   R: r proper rotations, R_k = argmin_{R in SO(3)} ||R - S_k||_F,
 //      i.e. R_k = U diag(1, 1, det(U V^T)) V^T for S_k = U Sigma V^T.
 //
+// Method (branch-free, vectorised over matrices, float32): normalise S by its
+// largest entry, cyclic Jacobi eigen-decomposition of S^T S with exact Givens
+// angles (a fixed number of sweeps) giving V, sort the columns of S V by norm
+// (signed swaps keep det V = +1), Givens QR of S V = U R giving U with det +1;
+// the result is U V^T. A negative smallest singular value lands in R's last
+// diagonal entry, so reflections give the closest *proper* rotation.
+//
 // Degenerate covariances (rank < 3, zero, non-finite) still give a proper
 // rotation: zero or non-finite S gives the identity.
 #pragma once
@@ -12,6 +19,12 @@
 
 namespace puppet {
 
+// Array-of-structures form: S and R are `count` row-major 3x3 matrices.
 void fit_rotations(const float* S, float* R, std::ptrdiff_t count);
+
+// Structure-of-arrays form used by the solver: entry (i, j) of matrix g lives at
+// S[(3 * i + j) * stride + g] (same for R); `count` must be a multiple of 8 and
+// stride >= count. Lanes are independent; S and R may not alias.
+void fit_rotations_soa(const float* S, float* R, std::ptrdiff_t count, std::ptrdiff_t stride);
 
 }  // namespace puppet

@@ -4,11 +4,13 @@
 // release the GIL while they run.
 #include <nanobind/nanobind.h>
 #include <nanobind/ndarray.h>
+#include <nanobind/stl/string.h>
 
 #include <stdexcept>
 #include <string>
 
 #include "array_types.h"
+#include "fast_solver.h"
 #include "fit_rotations.h"
 
 namespace nb = nanobind;
@@ -23,6 +25,49 @@ void fit_rotations_py(ConstMat3Stack S, Mat3Stack R) {
   fit_rotations(S.data(), R.data(), static_cast<std::ptrdiff_t>(S.shape(0)));
 }
 
+std::string shape_msg(const char* name, size_t got, size_t want) {
+  return std::string("solve: ") + name + " has " + std::to_string(got) + " rows, the pattern needs " +
+         std::to_string(want);
+}
+
+FastSolver* make_solver(int m, int r, int kf, int kp, int kr, ConstMatrixF csm, ConstMatrixF g, ConstMatrixF p2,
+                        ConstMatrixF q, ConstMatrixD h, double c0, ConstIndexVec rel_child,
+                        ConstIndexVec rel_parent, int anderson_window, int history_capacity) {
+  const size_t n4 = 4 * static_cast<size_t>(m), r3 = 3 * static_cast<size_t>(r);
+  auto need = [](const char* name, size_t a, size_t b, size_t ea, size_t eb) {
+    if (a != ea || b != eb)
+      throw std::invalid_argument(std::string("FastSolver: ") + name + " is (" + std::to_string(a) + ", " +
+                                  std::to_string(b) + "), expected (" + std::to_string(ea) + ", " +
+                                  std::to_string(eb) + ")");
+  };
+  if (m <= 0 || r <= 0 || kf < 0 || kp < 0 || kr < 0) throw std::invalid_argument("FastSolver: bad sizes");
+  need("csm", csm.shape(0), csm.shape(1), n4, r3);
+  need("g", g.shape(0), g.shape(1), n4, r3);
+  need("p2", p2.shape(0), p2.shape(1), n4, 4 * static_cast<size_t>(kf) + kp);
+  need("q", q.shape(0), q.shape(1), n4, n4);
+  need("h", h.shape(0), h.shape(1), n4, n4);
+  if (rel_child.shape(0) != static_cast<size_t>(kr) || rel_parent.shape(0) != static_cast<size_t>(kr))
+    throw std::invalid_argument("FastSolver: rel_child/rel_parent need kr entries");
+  for (int i = 0; i < kr; ++i)
+    if (rel_child.data()[i] < 0 || rel_child.data()[i] >= m || rel_parent.data()[i] < 0 ||
+        rel_parent.data()[i] >= m)
+      throw std::invalid_argument("FastSolver: relative handle index out of range");
+  return new FastSolver(m, r, kf, kp, kr, csm.data(), g.data(), p2.data(), q.data(), h.data(), c0,
+                        rel_child.data(), rel_parent.data(), anderson_window, history_capacity);
+}
+
+void solve_py(FastSolver& s, FullValues full, ConstMat3Stack rel, PosValues pos, TransformsF T, int iterations,
+              double tol, bool accelerate, bool record_history) {
+  // Counts are checked by the Python facade against the pattern too; this guards the raw binding.
+  if (T.shape(0) != 4 * static_cast<size_t>(s.m()))
+    throw std::invalid_argument("solve: T has " + std::to_string(T.shape(0)) + " rows, expected 4m = " +
+                                std::to_string(4 * s.m()));
+  if (full.shape(0) != s.kf()) throw std::invalid_argument(shape_msg("values.full", full.shape(0), s.kf()));
+  if (rel.shape(0) != s.kr()) throw std::invalid_argument(shape_msg("values.relative", rel.shape(0), s.kr()));
+  if (pos.shape(0) != s.kp()) throw std::invalid_argument(shape_msg("values.positional", pos.shape(0), s.kp()));
+  s.solve(full.data(), rel.data(), pos.data(), T.data(), iterations, tol, accelerate, record_history);
+}
+
 }  // namespace
 
 NB_MODULE(_native, m) {
@@ -34,4 +79,45 @@ NB_MODULE(_native, m) {
         "S: (r, 3, 3) float32 C-contiguous covariances.\n"
         "R: (r, 3, 3) float32 C-contiguous output, R[k] in SO(3) minimising ||R[k] - S[k]||_F.\n"
         "Zero or non-finite S[k] gives the identity; reflections are corrected (det R = +1).");
+
+  nb::class_<SolveStats>(m, "SolveStats", "Statistics of the last FastSolver.solve call (updated in place).")
+      .def_ro("iterations", &SolveStats::iterations, "global steps run")
+      .def_ro("energy", &SolveStats::energy, "reduced ARAP energy of the returned T (model units^2)")
+      .def_ro("rejected", &SolveStats::rejected, "accelerated steps rejected by the energy safeguard")
+      .def_ro("history_size", &SolveStats::history_size, "entries of FastSolver.history filled")
+      .def("__repr__", [](const SolveStats& s) {
+        return "SolveStats(iterations=" + std::to_string(s.iterations) + ", energy=" + std::to_string(s.energy) +
+               ", rejected=" + std::to_string(s.rejected) + ")";
+      });
+
+  nb::class_<FastSolver>(m, "FastSolver",
+                         "Per-pattern FAST solver state (see solver_native/include/fast_solver.h). "
+                         "Build it through puppet.fast.FastModel.solver().")
+      .def("__init__",
+           [](FastSolver* self, int m_, int r, int kf, int kp, int kr, ConstMatrixF csm, ConstMatrixF g,
+              ConstMatrixF p2, ConstMatrixF q, ConstMatrixD h, double c0, ConstIndexVec rel_child,
+              ConstIndexVec rel_parent, int anderson_window, int history_capacity) {
+             FastSolver* tmp = make_solver(m_, r, kf, kp, kr, csm, g, p2, q, h, c0, rel_child, rel_parent,
+                                           anderson_window, history_capacity);
+             new (self) FastSolver(std::move(*tmp));
+             delete tmp;
+           },
+           nb::arg("m"), nb::arg("r"), nb::arg("kf"), nb::arg("kp"), nb::arg("kr"), nb::arg("csm"), nb::arg("g"),
+           nb::arg("p2"), nb::arg("q"), nb::arg("h"), nb::arg("c0"), nb::arg("rel_child"), nb::arg("rel_parent"),
+           nb::arg("anderson_window") = 5, nb::arg("history_capacity") = 1024)
+      .def("solve", &solve_py, nb::arg("full").noconvert(), nb::arg("relative").noconvert(),
+           nb::arg("positional").noconvert(), nb::arg("T").noconvert(), nb::arg("iterations"), nb::arg("tol"),
+           nb::arg("accelerate"), nb::arg("record_history"), nb::call_guard<nb::gil_scoped_release>(),
+           "Run FAST iterations, updating T (4m, 3) float32 in place (warm start from T).")
+      .def_prop_ro("stats", [](FastSolver& s) -> const SolveStats& { return s.stats(); },
+                   nb::rv_policy::reference_internal)
+      .def_prop_ro("history",
+                   [](FastSolver& s) {
+                     return nb::ndarray<nb::numpy, const double, nb::ndim<1>>(
+                         s.history(), {static_cast<size_t>(s.history_capacity())}, nb::handle());
+                   },
+                   nb::rv_policy::reference_internal,
+                   "(capacity,) float64 view: energies recorded by solve(record_history=True)")
+      .def_prop_ro("m", &FastSolver::m)
+      .def_prop_ro("r", &FastSolver::r);
 }

@@ -1,0 +1,210 @@
+"""Benchmark of puppet.render: frames per second (draw + read back) on this machine's renderer.
+
+    python bench/render.py [--json FILE] [--frames 120] [--samples 4] [--extra 0]
+
+Cases: 640x480 and 1280x720, skinning on the GPU (vertex shader) and on the CPU (M @ T in NumPy,
+uploaded each frame). The character is puppet.rig.builtin() when it exists, else a procedural
+one (~40k triangles, 17 bones, dense smooth weights: every vertex weighted by every bone, the
+worst case for the shader). Each frame poses the bones anew (a new T), draws, and reads back
+RGB into the renderer's preallocated image. Prints a table; writes
+{"renderer", "character", "cases": [{"width", "height", "skinning", "fps", ...}]} as JSON.
+"""
+
+import argparse
+import json
+import time
+
+import numpy as np
+
+from puppet.render import Renderer, create_context
+
+TARGET_FPS_640 = 60.0
+
+# Procedural character: bones as (parent, head, tail, tube radius); +Y up, facing +Z, ~1.7 tall.
+BONES = [
+    (None, (0, 0.95, 0), (0, 1.1, 0), 0.14),  # hips
+    (0, (0, 1.1, 0), (0, 1.3, 0), 0.13),  # spine
+    (1, (0, 1.3, 0), (0, 1.45, 0), 0.15),  # chest
+    (2, (0, 1.45, 0), (0, 1.55, 0), 0.05),  # neck
+    (3, (0, 1.55, 0), (0, 1.75, 0.02), 0.1),  # head
+    (2, (0.17, 1.42, 0), (0.42, 1.4, 0), 0.05),  # upper arm L
+    (5, (0.42, 1.4, 0), (0.66, 1.4, 0.02), 0.042),  # forearm L
+    (6, (0.66, 1.4, 0.02), (0.76, 1.4, 0.03), 0.035),  # hand L
+    (2, (-0.17, 1.42, 0), (-0.42, 1.4, 0), 0.05),  # upper arm R
+    (8, (-0.42, 1.4, 0), (-0.66, 1.4, 0.02), 0.042),  # forearm R
+    (9, (-0.66, 1.4, 0.02), (-0.76, 1.4, 0.03), 0.035),  # hand R
+    (0, (0.1, 0.95, 0), (0.11, 0.52, 0.01), 0.07),  # thigh L
+    (11, (0.11, 0.52, 0.01), (0.11, 0.08, 0), 0.055),  # shin L
+    (12, (0.11, 0.08, 0), (0.11, 0.04, 0.16), 0.04),  # foot L
+    (0, (-0.1, 0.95, 0), (-0.11, 0.52, 0.01), 0.07),  # thigh R
+    (14, (-0.11, 0.52, 0.01), (-0.11, 0.08, 0), 0.055),  # shin R
+    (15, (-0.11, 0.08, 0), (-0.11, 0.04, 0.16), 0.04),  # foot R
+]
+
+
+def _frame(axis: np.ndarray) -> np.ndarray:
+    """(3, 3) orthonormal columns: two perpendiculars of axis, then axis."""
+    axis = axis / np.linalg.norm(axis)
+    helper = np.array([1.0, 0, 0]) if abs(axis[0]) < 0.9 else np.array([0, 1.0, 0])
+    a = np.cross(axis, helper)
+    a /= np.linalg.norm(a)
+    return np.stack([a, np.cross(axis, a), axis], axis=1)
+
+
+def procedural_character(rings: int = 44, sides: int = 28):
+    """V (n, 3), F (f, 3), W (n, 17) dense smooth weights, bones (17, 2, 3), parents (17,)."""
+    V_parts, F_parts, offset = [], [], 0
+    for _, head, tail, radius in BONES:
+        head, tail = np.array(head, float), np.array(tail, float)
+        axis = tail - head
+        length = np.linalg.norm(axis)
+        frame = _frame(axis)
+        # A capsule: tube rings plus hemispherical caps, as a latitude-longitude sphere stretched.
+        lat = np.linspace(-np.pi / 2, np.pi / 2, rings)
+        lon = np.linspace(0, 2 * np.pi, sides, endpoint=False)
+        z = np.where(lat < 0, np.sin(lat) * radius, length + np.sin(lat) * radius)
+        z = np.where(np.abs(lat) < 1e-9, length / 2, z)
+        rho = np.cos(lat) * radius
+        local = np.stack(
+            [np.outer(rho, np.cos(lon)), np.outer(rho, np.sin(lon)), np.repeat(z[:, None], sides, 1)], axis=-1
+        ).reshape(-1, 3)
+        V_parts.append(head + local @ frame.T)
+        i, j = np.meshgrid(np.arange(rings - 1), np.arange(sides), indexing="ij")
+        a = i * sides + j
+        b = i * sides + (j + 1) % sides
+        F_parts.append(np.concatenate([np.stack([a, b, a + sides], -1), np.stack([b, b + sides, a + sides], -1)]).reshape(-1, 3) + offset)
+        offset += rings * sides
+    V, F = np.concatenate(V_parts), np.concatenate(F_parts)
+    bones = np.array([[head, tail] for _, head, tail, _ in BONES], dtype=float)
+    # Dense smooth weights from the distance to each bone segment (every weight nonzero).
+    d = np.empty((len(V), len(bones)))
+    for k, (head, tail) in enumerate(bones):
+        seg = tail - head
+        t = np.clip((V - head) @ seg / (seg @ seg), 0, 1)
+        d[:, k] = np.linalg.norm(V - (head + t[:, None] * seg), axis=1)
+    W = 1.0 / (d + 0.01) ** 4
+    W /= W.sum(axis=1, keepdims=True)
+    parents = np.array([-1 if p is None else p for p, _, _, _ in BONES])
+    return V, F, W, bones, parents
+
+
+def builtin_character():
+    """(V, F, W, name) of puppet.rig.builtin() when it exists, else None."""
+    try:
+        import puppet.rig as rig
+    except ImportError:
+        return None
+    make = getattr(rig, "builtin", None)
+    if not callable(make):
+        return None
+    from puppet.rig.errors import RigError
+
+    try:
+        character = make()
+    except (RigError, OSError) as err:  # the character's data files may not be built yet
+        print(f"puppet.rig.builtin() unavailable ({err}); using the procedural character")
+        return None
+    return np.asarray(character.V), np.asarray(character.F), np.asarray(character.W), "puppet.rig.builtin()"
+
+
+def pose_T(bones: np.ndarray, parents: np.ndarray, m: int, phase: float) -> np.ndarray:
+    """T (4m, 3) float32: every bone swings about its head (forward kinematics), extras identity."""
+    A = np.tile(np.eye(4), (m, 1, 1))
+    for k in range(len(bones)):
+        angle = 0.35 * np.sin(phase + 0.7 * k)
+        c, s = np.cos(angle), np.sin(angle)
+        R = np.array([[c, -s, 0], [s, c, 0], [0, 0, 1.0]])
+        local = np.eye(4)
+        local[:3, :3] = R
+        local[:3, 3] = bones[k, 0] - R @ bones[k, 0]
+        A[k] = (A[parents[k]] if parents[k] >= 0 else np.eye(4)) @ local
+    return np.ascontiguousarray(A[:, :3, :].transpose(0, 2, 1).reshape(-1, 3), dtype=np.float32)
+
+
+def add_extra_weights(V: np.ndarray, W: np.ndarray, count: int, seed: int = 0) -> np.ndarray:
+    """W with `count` compactly supported bumps appended (stand-ins for FAST's extra weights)."""
+    if count == 0:
+        return W
+    rng = np.random.default_rng(seed)
+    centers = V[rng.choice(len(V), count, replace=False)]
+    radius = 0.25 * np.linalg.norm(V.max(0) - V.min(0))
+    x = np.linalg.norm(V[:, None, :] - centers[None], axis=2) / radius
+    bumps = np.where(x < 1, (1 - x) ** 3, 0.0)
+    full = np.concatenate([W, bumps], axis=1)
+    return full / full.sum(axis=1, keepdims=True)
+
+
+def measure(renderer: Renderer, Ts: list[np.ndarray], frames: int) -> tuple[float, float]:
+    """(fps over all frames, median ms per frame) of draw(T) including the read back."""
+    for T in Ts[:5]:
+        renderer.draw(T)
+    times = np.empty(frames)
+    start = time.perf_counter()
+    for k in range(frames):
+        t0 = time.perf_counter()
+        renderer.draw(Ts[k % len(Ts)])
+        times[k] = time.perf_counter() - t0
+    return frames / (time.perf_counter() - start), float(np.median(times) * 1e3)
+
+
+def main(argv=None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--json", help="write the results to this JSON file")
+    parser.add_argument("--frames", type=int, default=120)
+    parser.add_argument("--samples", type=int, default=4, help="MSAA samples")
+    parser.add_argument("--extra", type=int, default=0, help="extra weights appended to the procedural character")
+    parser.add_argument("--png", help="save one rendered frame of the character (with skeleton) here")
+    args = parser.parse_args(argv)
+
+    found = builtin_character()
+    V_proc, F_proc, W_proc, bones, parents = procedural_character()
+    if found is not None:
+        V, F, W, name = found
+        bones, parents = None, None
+    else:
+        V, F, W = V_proc, F_proc, add_extra_weights(V_proc, W_proc, args.extra)
+        name = f"procedural ({len(BONES)} bones, {args.extra} extra weights)"
+    m = W.shape[1]
+    if bones is not None:
+        Ts = [pose_T(bones, parents, m, phase) for phase in np.linspace(0, 2 * np.pi, 30)]
+    else:
+        rng = np.random.default_rng(0)
+        identity = np.tile(np.vstack([np.eye(3), np.zeros((1, 3))]), (m, 1)).astype(np.float32)
+        Ts = [identity + rng.normal(scale=0.01, size=identity.shape).astype(np.float32) for _ in range(30)]
+
+    ctx = create_context()
+    gl_renderer = str(ctx.info["GL_RENDERER"])
+    print(f"renderer: {gl_renderer}")
+    print(f"character: {name}: {len(V)} vertices, {len(F)} triangles, {m} handles, "
+          f"{np.count_nonzero(W) / len(V):.1f} weights per vertex; MSAA {args.samples}x")
+    cases = []
+    for width, height in ((640, 480), (1280, 720)):
+        for skinning in ("gpu", "cpu"):
+            with Renderer(V, F, W, width=width, height=height, samples=args.samples, skinning=skinning,
+                          context=ctx) as renderer:
+                fps, median_ms = measure(renderer, Ts, args.frames)
+                if args.png and (width, height, skinning) == (640, 480, "gpu"):
+                    import imageio.v3 as iio
+
+                    image = renderer.draw(Ts[7], bones=bones, bone_states=(
+                        None if bones is None else ["sensed"] * 11 + ["relative"] * 2 + ["free"] * 3 + ["faulted"]))
+                    iio.imwrite(args.png, image)
+            cases.append({"width": width, "height": height, "skinning": skinning, "fps": round(fps, 1),
+                          "median_ms": round(median_ms, 2), "samples": args.samples})
+
+    print(f"{'size':>10} {'skinning':>9} {'fps':>8} {'median ms':>10}")
+    for c in cases:
+        print(f"{c['width']:>5}x{c['height']:<4} {c['skinning']:>9} {c['fps']:>8.1f} {c['median_ms']:>10.2f}")
+    gpu640 = next(c for c in cases if (c["width"], c["skinning"]) == (640, "gpu"))
+    cpu640 = next(c for c in cases if (c["width"], c["skinning"]) == (640, "cpu"))
+    print(f"640x480 GPU skinning: {gpu640['fps']:.1f} fps (target >= {TARGET_FPS_640:.0f}); "
+          f"GPU / CPU skinning: {gpu640['fps'] / cpu640['fps']:.2f}x")
+    if args.json:
+        with open(args.json, "w") as f:
+            json.dump({"renderer": gl_renderer, "character": name, "vertices": len(V), "triangles": len(F),
+                       "handles": m, "cases": cases}, f, indent=2)
+    ctx.release()
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,231 @@
+"""Motion sources: where each servo's shaft is (encoder counts, continuous) at time t (s).
+
+A MotionSource has ``position(joint: int, t: float) -> float``; ``t`` is seconds since the bus
+started, ``joint`` the id the servo was created with. Positions are continuous counts
+(4096 per turn) and may leave 0..4095 (the servo then counts past the wrap).
+
+- ``Hold``: every joint still (2048 unless told otherwise).
+- ``Programmatic``: positions set by tests (``SimBus.set_positions``).
+- ``Wave`` / ``Walk`` / ``Spin``: built-in performances.
+- ``Keyframes``: linear interpolation of a keyframe file, looping.
+- ``Replay``: sample-and-hold replay of recorded ticks (a take exported as CSV or NPZ).
+
+Keyframe / replay CSV format (``#`` starts a comment)::
+
+    t, 1, 2, 3          # header: 't' then servo ids
+    0.0, 2048, 2048, 1000
+    0.5, 2300, 1800, 5000
+"""
+
+from __future__ import annotations
+
+import bisect
+import csv
+import math
+from pathlib import Path
+from typing import Protocol
+
+from hw_sim.errors import MotionFileError
+
+CENTER = 2048.0
+
+
+class MotionSource(Protocol):
+    def position(self, joint: int, t: float) -> float: ...
+
+
+class Hold:
+    """Every joint holds ``center`` counts (or its own entry in ``positions``)."""
+
+    def __init__(self, positions: dict[int, float] | None = None, center: float = CENTER):
+        self.positions = dict(positions or {})
+        self.center = center
+
+    def position(self, joint: int, t: float) -> float:
+        return self.positions.get(joint, self.center)
+
+
+class Programmatic:
+    """Positions set from code override ``fallback`` (default: hold 2048) joint by joint."""
+
+    def __init__(self, fallback: MotionSource | None = None):
+        self.positions: dict[int, float] = {}
+        self.fallback = fallback or Hold()
+
+    def position(self, joint: int, t: float) -> float:
+        p = self.positions.get(joint)
+        return self.fallback.position(joint, t) if p is None else p
+
+    def set_positions(self, ticks: dict[int, float]) -> None:
+        self.positions.update({int(k): float(v) for k, v in ticks.items()})
+
+
+class Wave:
+    """A travelling sine wave down the chain: amplitude (counts), period (s), phase per joint."""
+
+    def __init__(self, amplitude: float = 600.0, period_s: float = 2.0, phase: float = 0.5):
+        self.amplitude, self.period_s, self.phase = amplitude, period_s, phase
+
+    def position(self, joint: int, t: float) -> float:
+        w = 2.0 * math.pi / self.period_s
+        return CENTER + self.amplitude * math.sin(w * t - self.phase * joint)
+
+
+class Walk:
+    """A walk cycle: joints in groups of 3 per leg (hip, knee, ankle), legs half a cycle apart;
+    odd-numbered legs mirror. Period in seconds."""
+
+    def __init__(self, period_s: float = 1.2):
+        self.period_s = period_s
+
+    def position(self, joint: int, t: float) -> float:
+        leg, part = divmod(joint - 1, 3)
+        phase = 2.0 * math.pi * (t / self.period_s) + (math.pi if leg % 2 else 0.0)
+        if part == 0:    # hip: swing +-25 deg
+            deg = 25.0 * math.sin(phase)
+        elif part == 1:  # knee: bends only during swing
+            deg = 50.0 * max(0.0, math.sin(phase + 0.6)) ** 2
+        else:            # ankle: follows the hip, smaller
+            deg = -12.0 * math.sin(phase + 0.3)
+        return CENTER + deg * 4096.0 / 360.0
+
+
+class Spin:
+    """Continuous rotation: ``rpm`` turns per minute, so Present Position passes 4095 and 0."""
+
+    def __init__(self, rpm: float = 30.0):
+        self.rpm = rpm
+
+    def position(self, joint: int, t: float) -> float:
+        direction = 1.0 if joint % 2 else -1.0
+        return CENTER + direction * self.rpm / 60.0 * 4096.0 * t
+
+
+def _read_table(path: Path) -> tuple[list[int], list[float], list[list[float]]]:
+    """Parse the CSV format above: (ids, times, rows of positions)."""
+    try:
+        text = path.read_text()
+    except OSError as exc:
+        raise MotionFileError(path, None, f"cannot read: {exc.strerror}") from exc
+    ids: list[int] | None = None
+    times: list[float] = []
+    rows: list[list[float]] = []
+    for lineno, line in enumerate(text.splitlines(), 1):
+        line = line.split("#", 1)[0].strip()
+        if not line:
+            continue
+        cells = [c.strip() for c in next(csv.reader([line]))]
+        if ids is None:
+            if cells[0].lower() not in ("t", "t_s", "time"):
+                raise MotionFileError(path, lineno, f"header must start with 't', got {cells[0]!r}")
+            try:
+                ids = [int(c) for c in cells[1:]]
+            except ValueError:
+                raise MotionFileError(path, lineno, f"servo ids must be integers: {cells[1:]}") from None
+            if not ids:
+                raise MotionFileError(path, lineno, "header names no servo ids")
+            continue
+        if len(cells) != len(ids) + 1:
+            raise MotionFileError(path, lineno, f"expected {len(ids) + 1} columns, got {len(cells)}")
+        try:
+            values = [float(c) for c in cells]
+        except ValueError:
+            raise MotionFileError(path, lineno, f"not a number in {cells}") from None
+        if times and values[0] <= times[-1]:
+            raise MotionFileError(path, lineno, f"time {values[0]} is not after {times[-1]}")
+        times.append(values[0])
+        rows.append(values[1:])
+    if ids is None or not times:
+        raise MotionFileError(path, None, "no keyframes (need a header line and at least one row)")
+    return ids, times, rows
+
+
+class _Table:
+    def __init__(self, ids: list[int], times: list[float], rows: list[list[float]],
+                 loop: bool) -> None:
+        self.ids = {j: k for k, j in enumerate(ids)}
+        self.times, self.rows, self.loop = times, rows, loop
+        self.duration = times[-1] - times[0]
+
+    def _local_t(self, t: float) -> float:
+        t0 = self.times[0]
+        if self.loop and self.duration > 0:
+            return t0 + (t - t0) % self.duration if t > t0 else t0
+        return t
+
+
+class Keyframes(_Table):
+    """Linear interpolation between keyframes; loops over its duration by default.
+    Joints not in the file hold 2048."""
+
+    @classmethod
+    def from_file(cls, path: str | Path, loop: bool = True) -> "Keyframes":
+        return cls(*_read_table(Path(path)), loop=loop)
+
+    def position(self, joint: int, t: float) -> float:
+        col = self.ids.get(joint)
+        if col is None:
+            return CENTER
+        t = self._local_t(t)
+        times = self.times
+        k = bisect.bisect_right(times, t)
+        if k == 0:
+            return self.rows[0][col]
+        if k >= len(times):
+            return self.rows[-1][col]
+        t0, t1 = times[k - 1], times[k]
+        a = (t - t0) / (t1 - t0)
+        return self.rows[k - 1][col] * (1 - a) + self.rows[k][col] * a
+
+
+class Replay(_Table):
+    """Sample-and-hold replay of recorded ticks (raw Present Position counts), played once then
+    holding the last sample (``loop=True`` to repeat). From CSV (format above) or NPZ with
+    arrays ``t`` (seconds, or ``t_ns``), ``ids`` (k,) and ``ticks`` (N, k)."""
+
+    @classmethod
+    def from_file(cls, path: str | Path, loop: bool = False) -> "Replay":
+        path = Path(path)
+        if path.suffix == ".npz":
+            import numpy as np
+            try:
+                data = np.load(path)
+                t = data["t"] if "t" in data else data["t_ns"] * 1e-9
+                ids = [int(i) for i in data["ids"]]
+                ticks = np.asarray(data["ticks"], dtype=float)
+            except (OSError, KeyError, ValueError) as exc:
+                raise MotionFileError(path, None, f"need arrays t|t_ns, ids, ticks: {exc}") from exc
+            if ticks.shape != (len(t), len(ids)):
+                raise MotionFileError(path, None, f"ticks shape {ticks.shape} != ({len(t)}, {len(ids)})")
+            t = [float(x) - float(t[0]) for x in t]
+            return cls(ids, t, ticks.tolist(), loop=loop)
+        return cls(*_read_table(path), loop=loop)
+
+    def position(self, joint: int, t: float) -> float:
+        col = self.ids.get(joint)
+        if col is None:
+            return CENTER
+        k = bisect.bisect_right(self.times, self._local_t(t))
+        return self.rows[max(k - 1, 0)][col]
+
+
+BUILTIN = {"hold": Hold, "still": Hold, "wave": Wave, "walk": Walk, "spin": Spin}
+
+
+def make_motion(spec) -> MotionSource:
+    """A motion source from None (hold), a built-in name, "replay:PATH", a keyframe file path,
+    or an object with ``position(joint, t)``."""
+    if spec is None:
+        return Hold()
+    if hasattr(spec, "position"):
+        return spec
+    text = str(spec)
+    if text in BUILTIN:
+        return BUILTIN[text]()
+    if text.startswith("replay:"):
+        return Replay.from_file(text[len("replay:"):])
+    path = Path(text)
+    if not path.exists():
+        raise MotionFileError(path, None, f"not a built-in motion ({', '.join(sorted(BUILTIN))}) "
+                                          "and no such file")
+    return Keyframes.from_file(path)

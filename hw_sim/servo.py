@@ -1,0 +1,325 @@
+"""One simulated servo: its control table (bytes), reads/writes with the real error rules, and its
+behaviour in time (motion source with torque off, profile motion with torque on, ticks, reboot).
+
+Positions are encoder counts (4096 per turn). ``shaft`` is the physical shaft angle as a
+continuous count; Present Position = shaft - base + Homing Offset, where ``base`` (a multiple of
+4096) is re-chosen at boot, reboot, Clear and torque-on in position mode ("re-basing").
+"""
+
+from __future__ import annotations
+
+import math
+import random
+
+from hw_sim import codec
+from hw_sim.control_table import (EEPROM_END, IDLE_TEMPERATURE, NOMINAL_VOLTAGE,
+                                  OPERATING_MODES, Field, ServoModel)
+
+TICKS_PER_REV = 4096
+VELOCITY_UNIT_TICKS_S = 0.229 / 60.0 * TICKS_PER_REV   # one 0.229 rpm unit in ticks/s
+ACCEL_UNIT_TICKS_S2 = 214.577 / 3600.0 * TICKS_PER_REV  # one 214.577 rev/min^2 unit in ticks/s^2
+
+# Hardware Error Status (70) bits.
+HW_ERROR_BITS = {"input_voltage": 0x01, "overheating": 0x04, "encoder": 0x08,
+                 "electrical_shock": 0x10, "overload": 0x20}
+
+_DYNAMIC_START, _DYNAMIC_END = 120, 148  # Realtime Tick .. Backup Ready
+
+
+def _addr_map(model: ServoModel) -> list:
+    """address -> (Field, offset within field) or None for undefined bytes."""
+    amap: list = [None] * model.size
+    for f in model.fields:
+        for k in range(f.size):
+            amap[f.addr + k] = (f, k)
+    return amap
+
+
+class Servo:
+    """A simulated servo.
+
+    model: its ServoModel; joint: the physical joint key its motion source is asked about (the
+    id it was created with; it does not change when the ID item is rewritten).
+    """
+
+    def __init__(self, model: ServoModel, dxl_id: int, *, motion, now: float = 0.0,
+                 baud_index: int | None = None, return_delay: int | None = None,
+                 rng: random.Random | None = None) -> None:
+        self.model = model
+        self.joint = dxl_id
+        self.motion = motion
+        self.mem = bytearray(model.size)
+        self._amap = _addr_map(model)
+        self._rng = rng or random.Random(dxl_id)
+        for f in model.fields:
+            self._store(f, f.default)
+        self._store(model.field("ID"), dxl_id)
+        if baud_index is not None:
+            self._store(model.field("Baud Rate"), baud_index)
+        if return_delay is not None:
+            self._store(model.field("Return Delay Time"), return_delay)
+        self.eeprom_defaults = bytes(self.mem[:EEPROM_END])  # what factory reset restores
+        self.eeprom_defaults = bytearray(self.eeprom_defaults)
+        for f in model.fields:  # factory EEPROM: ID 1 etc., but keep our configured bus values
+            if f.eeprom:
+                self._store_into(self.eeprom_defaults, f, f.default)
+        self.powered = True
+        self.noise = 0  # +- ticks of Present Position jitter (fault "noise")
+        self.temperature = float(IDLE_TEMPERATURE)
+        self.voltage = NOMINAL_VOLTAGE.get(model.name, 50)
+        self.registered: tuple[int, bytes] | None = None
+        self._boot(now)
+
+    # ---- raw control-table access -------------------------------------------------------
+    @staticmethod
+    def _store_into(mem: bytearray, f: Field, value: int) -> None:
+        mem[f.addr:f.addr + f.size] = int(value).to_bytes(f.size, "little", signed=value < 0)
+
+    def _store(self, f: Field, value: int) -> None:
+        self._store_into(self.mem, f, value)
+
+    def get(self, name: str) -> int:
+        """The current value of item ``name`` (signed where the item is), refreshed first."""
+        f = self.model.field(name)
+        if f.addr >= _DYNAMIC_START:
+            self.refresh(self.now)
+        return int.from_bytes(self.mem[f.addr:f.addr + f.size], "little", signed=f.signed)
+
+    def set(self, name: str, value: int) -> None:
+        """Store ``value`` in item ``name`` directly (test setup; no access rules)."""
+        self._store(self.model.field(name), value)
+
+    def _get_raw(self, addr: int, size: int, signed: bool = False) -> int:
+        return int.from_bytes(self.mem[addr:addr + size], "little", signed=signed)
+
+    @property
+    def dxl_id(self) -> int:
+        return self.mem[7]
+
+    @property
+    def torque(self) -> bool:
+        return self.mem[64] == 1
+
+    @property
+    def return_delay_s(self) -> float:
+        return self.mem[9] * 2e-6
+
+    @property
+    def status_return_level(self) -> int:
+        return self.mem[68]
+
+    @property
+    def hardware_error(self) -> int:
+        return self.mem[70]
+
+    @property
+    def alert(self) -> int:
+        return codec.ALERT if self.mem[70] else 0
+
+    # ---- boot / reboot -------------------------------------------------------------------
+    def _boot(self, now: float) -> None:
+        """Power-up: RAM defaults, Realtime Tick from 0, Present Position re-based."""
+        for f in self.model.fields:
+            if not f.eeprom:
+                self._store(f, f.default)
+        self.boot_t = now
+        self.now = now
+        self.registered = None
+        self.shaft = float(self.motion.position(self.joint, now))
+        self.velocity = 0.0  # ticks/s
+        self._last_t = now
+        self._last_shaft = self.shaft
+        self._rebase()
+        self.temperature = float(IDLE_TEMPERATURE)
+        self.refresh(now)
+
+    def reboot(self, now: float) -> None:
+        self.shaft = float(self.motion.position(self.joint, now)) if not self.torque else self.shaft
+        self._boot(now)
+
+    def power_off(self) -> None:
+        self.powered = False
+
+    def power_on(self, now: float) -> None:
+        self.powered = True
+        self._boot(now)
+
+    def factory_reset(self, option: int, now: float) -> None:
+        """Factory Reset: 0xFF all, 0x01 all but ID, 0x02 all but ID and baud; then reboot."""
+        keep_id, keep_baud = self.mem[7], self.mem[8]
+        self.mem[:EEPROM_END] = self.eeprom_defaults
+        if option in (0x01, 0x02):
+            self.mem[7] = keep_id
+        if option == 0x02:
+            self.mem[8] = keep_baud
+        self._boot(now)
+
+    def _rebase(self) -> None:
+        self.base = math.floor(self.shaft / TICKS_PER_REV) * TICKS_PER_REV
+
+    def latch_hardware_error(self, bits: int) -> None:
+        """Set Hardware Error Status bits; torque goes off when Shutdown enables one of them."""
+        self.mem[70] |= bits
+        if bits & self.mem[63]:
+            self.mem[64] = 0
+
+    # ---- time ----------------------------------------------------------------------------
+    def _present_position(self) -> int:
+        homing = self._get_raw(20, 4, True)
+        pos = int(round(self.shaft)) - self.base + homing
+        if self.noise:
+            pos += self._rng.randint(-self.noise, self.noise)
+        return pos
+
+    def refresh(self, now: float) -> None:
+        """Advance behaviour to ``now`` (seconds) and update the read-only RAM items."""
+        dt = now - self._last_t
+        self.now = now
+        mem = self.mem
+        if self.powered and dt > 0:
+            if mem[64]:
+                self._profile_step(dt)
+            else:
+                self.shaft = float(self.motion.position(self.joint, now))
+                self.velocity = (self.shaft - self._last_shaft) / dt if dt > 1e-4 else self.velocity
+            self._last_t = now
+            self._last_shaft = self.shaft
+            if mem[64]:
+                self.temperature = min(self.temperature + dt * 0.02, 90.0)
+        tick = int((now - self.boot_t) * 1000.0) % 32768
+        vel_units = int(self.velocity / VELOCITY_UNIT_TICKS_S)
+        moving = 1 if abs(vel_units) > self._get_raw(24, 4) else 0
+        pos = self._present_position()
+        mem[120:122] = tick.to_bytes(2, "little")
+        mem[122] = moving
+        mem[128:132] = vel_units.to_bytes(4, "little", signed=True)
+        mem[132:136] = pos.to_bytes(4, "little", signed=True)
+        if mem[64]:
+            goal = self._get_raw(116, 4, True)
+            mem[123] = (0x01 if abs(goal - pos) <= 1 else 0) | (0x02 if moving else 0)
+            mem[136:140] = vel_units.to_bytes(4, "little", signed=True)
+            mem[140:144] = pos.to_bytes(4, "little", signed=True)
+        else:
+            mem[123] = 0
+        mem[144:146] = int(self.voltage).to_bytes(2, "little")
+        mem[146] = max(0, min(255, int(self.temperature)))
+
+    def _profile_step(self, dt: float) -> None:
+        """Move the shaft toward Goal Position under Profile Velocity / Acceleration."""
+        homing = self._get_raw(20, 4, True)
+        target = self._get_raw(116, 4, True) - homing + self.base
+        pv = self._get_raw(112, 4)
+        pa = self._get_raw(108, 4)
+        vmax = (pv or max(self._get_raw(44, 4), 1)) * VELOCITY_UNIT_TICKS_S
+        amax = pa * ACCEL_UNIT_TICKS_S2 if pa else math.inf
+        err = target - self.shaft
+        steps = max(1, int(dt / 0.001))
+        h = dt / steps
+        v = self.velocity
+        for _ in range(steps):
+            err = target - self.shaft
+            if abs(err) < 0.5 and abs(v) * h < 1.0:
+                self.shaft, v = float(target), 0.0
+                break
+            stop = math.sqrt(2.0 * amax * abs(err)) if amax != math.inf else math.inf
+            v_des = math.copysign(min(vmax, stop, abs(err) / h), err)
+            dv = v_des - v
+            if amax != math.inf and abs(dv) > amax * h:
+                dv = math.copysign(amax * h, dv)
+            v += dv
+            self.shaft += v * h
+        self.velocity = v
+
+    # ---- protocol-level reads and writes ------------------------------------------------
+    def read(self, addr: int, length: int, now: float) -> tuple[int, bytes]:
+        """(error, data) for a Read of ``length`` bytes at ``addr``; data empty on error."""
+        end = addr + length
+        if length == 0 or end > self.model.size:
+            return codec.ERR_ACCESS, b""
+        if end > _DYNAMIC_START and addr < _DYNAMIC_END:
+            self.refresh(now)
+        data = bytes(self.mem[addr:end])
+        for a_item, d_item, count in self.model.indirect:
+            if addr < d_item + count and end > d_item:
+                data = bytearray(data)
+                for k in range(max(addr, d_item), min(end, d_item + count)):
+                    target = self._get_raw(a_item + 2 * (k - d_item), 2)
+                    if _DYNAMIC_START <= target < _DYNAMIC_END:
+                        self.refresh(now)
+                    data[k - addr] = self.mem[target] if target < self.model.size else 0
+                data = bytes(data)
+        return 0, data
+
+    def check_write(self, addr: int, data: bytes) -> int:
+        """The error a Write of ``data`` at ``addr`` would get (0 if it is accepted)."""
+        end = addr + len(data)
+        if not data or end > self.model.size:
+            return codec.ERR_ACCESS
+        amap = self._amap
+        k = addr
+        while k < end:
+            entry = amap[k]
+            if entry is None:
+                return codec.ERR_ACCESS
+            f, off = entry
+            if off != 0 or f.addr + f.size > end:
+                return codec.ERR_DATA_LENGTH
+            if not f.writable:
+                return codec.ERR_ACCESS
+            if f.eeprom and self.mem[64]:
+                return codec.ERR_ACCESS
+            value = int.from_bytes(data[k - addr:k - addr + f.size], "little", signed=f.signed)
+            if f.lo is not None and not f.lo <= value <= f.hi:
+                return codec.ERR_DATA_RANGE
+            if f.addr == 11 and value not in OPERATING_MODES.get(self.model.name, {value}):
+                return codec.ERR_DATA_RANGE
+            if f.addr == 116 and self.mem[11] == 3:
+                lo, hi = self._get_raw(52, 4), self._get_raw(48, 4)
+                if not lo <= value <= hi:
+                    return codec.ERR_DATA_LIMIT
+            k += f.size
+        return 0
+
+    def write(self, addr: int, data: bytes, now: float) -> int:
+        """Apply a Write (all-or-nothing); returns the error number (0 = done)."""
+        err = self.check_write(addr, data)
+        if err:
+            return err
+        self.refresh(now)
+        end = addr + len(data)
+        torque_before, mode_before = self.mem[64], self.mem[11]
+        if addr <= 64 < end and data[64 - addr] == 1 and self.mem[70]:
+            data = bytearray(data)
+            data[64 - addr] = 0  # a latched hardware error keeps torque off until reboot
+        for a_item, d_item, count in self.model.indirect:
+            if addr < d_item + count and end > d_item:
+                for k in range(max(addr, d_item), min(end, d_item + count)):
+                    target = self._get_raw(a_item + 2 * (k - d_item), 2)
+                    entry = self._amap[target] if target < self.model.size else None
+                    if entry is not None and entry[0].writable and not entry[0].eeprom:
+                        self.mem[target] = data[k - addr]
+        self.mem[addr:end] = data
+        if self.mem[11] != mode_before:
+            self._rebase()
+            for name in ("Profile Acceleration", "Profile Velocity"):
+                self.set(name, 0)
+        if self.mem[64] and not torque_before:
+            if self.mem[11] == 3:
+                self._rebase()
+            self.velocity = 0.0
+            # The servo holds where it is: Goal Position takes Present Position (no jump).
+            if not (addr <= 116 < end):
+                self.mem[116:120] = self._present_position().to_bytes(4, "little", signed=True)
+        if (self.mem[10] & 0x08) and addr <= 116 < end and not self.mem[64] and not self.mem[70]:
+            self.mem[64] = 1  # Drive Mode bit 3: Torque On by Goal Update
+        self.refresh(now)
+        return 0
+
+    def clear_multi_turn(self, now: float) -> int:
+        """Clear instruction: re-base Present Position into one turn; Result Fail if moving."""
+        self.refresh(now)
+        if self.mem[122]:
+            return codec.ERR_RESULT_FAIL
+        self._rebase()
+        self.refresh(now)
+        return 0

@@ -1,0 +1,114 @@
+"""Bus setup: find the mapped servos, check their models, configure them, report changes."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+
+from puppet.bus import control_table as ct
+from puppet.bus.errors import PortError, ServoError, ServoModelMismatch
+from puppet.bus.link import BusLink
+
+
+@dataclass(frozen=True)
+class Change:
+    """One control-table write made during setup: servo id, item name, old and new value."""
+
+    id: int
+    item: str
+    old: int
+    new: int
+
+
+@dataclass
+class ServoInfo:
+    """What setup learned about one servo: model number and firmware version."""
+
+    id: int
+    model_number: int
+    firmware: int
+
+
+@dataclass
+class SetupReport:
+    """The outcome of ``ServoReader.open``.
+
+    found:      {id: ServoInfo} for every mapped servo that answered.
+    missing:    mapped ids that did not answer (they are flagged and probed later).
+    unexpected: {id: model number} answering a broadcast ping but absent from the map
+                (only filled when a broadcast ping was asked for).
+    changes:    every write made (torque off, return delay 0, ...).
+    hardware_errors: {id: Hardware Error Status bits} for servos with a latched error.
+    read_mode:  'fast_sync_read' or 'sync_read'.
+    """
+
+    found: dict[int, ServoInfo] = field(default_factory=dict)
+    missing: list[int] = field(default_factory=list)
+    unexpected: dict[int, int] = field(default_factory=dict)
+    changes: list[Change] = field(default_factory=list)
+    hardware_errors: dict[int, int] = field(default_factory=dict)
+    read_mode: str = "sync_read"
+
+
+def identify(link: BusLink, servos: Mapping[int, str], report: SetupReport, attempts: int = 3) -> None:
+    """Ping each mapped servo (up to ``attempts`` times), read its firmware, check its model.
+
+    Fills ``report.found``/``report.missing``; raises ServoModelMismatch naming every servo
+    whose model number differs from the map (the map is wrong or the wiring is).
+    """
+    mismatched: list[str] = []
+    mismatched_ids: list[int] = []
+    for dxl_id, model_name in servos.items():
+        model = ct.model_named(model_name)
+        for attempt in range(attempts):
+            try:
+                number = link.ping(dxl_id)
+                firmware = link.read(dxl_id, ct.FIRMWARE_VERSION)
+                break
+            except ServoError:
+                continue
+        else:
+            report.missing.append(dxl_id)
+            continue
+        report.found[dxl_id] = ServoInfo(dxl_id, number, firmware)
+        if number != model.number:
+            found = ct.MODELS_BY_NUMBER.get(number)
+            mismatched_ids.append(dxl_id)
+            mismatched.append(f"id {dxl_id}: map says {model.name} ({model.number}), servo reports "
+                              f"{found.name if found else 'model'} ({number})")
+    if mismatched:
+        raise ServoModelMismatch(mismatched_ids, "ping", "; ".join(mismatched))
+
+
+def supports_fast_sync_read(servos: Mapping[int, str], found: Mapping[int, ServoInfo]) -> bool:
+    """True when every found servo's firmware has Fast Sync Read (X330 FW >= 46, X430 >= 45)."""
+    return bool(found) and all(
+        info.firmware >= ct.model_named(servos[i]).fast_sync_read_firmware for i, info in found.items())
+
+
+def configure_servo(link: BusLink, dxl_id: int, actuator: bool, changes: list[Change]) -> None:
+    """Sensor: torque off. Actuator: torque on at its present position. Both: return delay 0.
+
+    Appends every write to ``changes``. Raises ServoError/PortError on a failed transaction.
+    """
+    torque = link.read(dxl_id, ct.TORQUE_ENABLE)
+    delay = link.read(dxl_id, ct.RETURN_DELAY_TIME)
+    if delay != 0:
+        if torque:  # EEPROM is locked while torque is on
+            link.write(dxl_id, ct.TORQUE_ENABLE, 0)
+            changes.append(Change(dxl_id, ct.TORQUE_ENABLE.name, torque, 0))
+            torque = 0
+        link.write(dxl_id, ct.RETURN_DELAY_TIME, 0)
+        changes.append(Change(dxl_id, ct.RETURN_DELAY_TIME.name, delay, 0))
+    if actuator and not torque:
+        present = link.read(dxl_id, ct.PRESENT_POSITION)
+        link.write(dxl_id, ct.GOAL_POSITION, present)
+        link.write(dxl_id, ct.TORQUE_ENABLE, 1)
+        changes.append(Change(dxl_id, ct.TORQUE_ENABLE.name, 0, 1))
+    elif not actuator and torque:
+        link.write(dxl_id, ct.TORQUE_ENABLE, 0)
+        changes.append(Change(dxl_id, ct.TORQUE_ENABLE.name, torque, 0))
+
+
+__all__ = ["Change", "ServoInfo", "SetupReport", "identify", "supports_fast_sync_read",
+           "configure_servo", "PortError"]

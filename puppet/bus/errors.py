@@ -1,0 +1,84 @@
+"""Typed bus errors. Each carries the servo ids and the instruction it concerns."""
+
+from __future__ import annotations
+
+from collections.abc import Iterable
+
+
+class BusError(Exception):
+    """Base of every error raised by ``puppet.bus``."""
+
+
+class PortError(BusError):
+    """The serial port could not be opened, or was lost (USB unplug).
+
+    port:  the port name, e.g. '/dev/ttyUSB0'.
+    cause: the underlying exception (SerialException, OSError) or None.
+    """
+
+    def __init__(self, port: str, reason: str, cause: BaseException | None = None):
+        self.port = port
+        self.reason = reason
+        self.cause = cause
+        detail = f" ({type(cause).__name__}: {cause})" if cause is not None else ""
+        super().__init__(f"port {port}: {reason}{detail}")
+
+
+class ServoError(BusError):
+    """A failed transaction with one or more servos.
+
+    ids:         the servo ids at fault.
+    instruction: what was sent: 'ping', 'read', 'write', 'sync_read', 'fast_sync_read', ...
+    """
+
+    kind = "servo error"
+
+    def __init__(self, ids: Iterable[int], instruction: str, detail: str = ""):
+        self.ids = sorted(int(i) for i in ids)
+        self.instruction = instruction
+        self.detail = detail
+        text = f"{self.kind}: servo{'s' if len(self.ids) != 1 else ''} {self.ids} during {instruction}"
+        super().__init__(text + (f": {detail}" if detail else ""))
+
+    def __reduce__(self):
+        return (type(self), (self.ids, self.instruction, self.detail))
+
+
+class ServoTimeout(ServoError):
+    """No status packet came back before the SDK's deadline."""
+
+    kind = "timeout"
+
+
+class ServoCorrupt(ServoError):
+    """A reply came back but was unusable: bad CRC, partial, wrong length, malformed."""
+
+    kind = "corrupt reply"
+
+
+class ServoStatusError(ServoError):
+    """The servo answered with a non-zero error number (and possibly no data).
+
+    error: the status packet's error byte.
+    """
+
+    kind = "error status"
+
+    def __init__(self, ids: Iterable[int], instruction: str, detail: str = "", error: int = 0):
+        self.error = error
+        super().__init__(ids, instruction, detail)
+
+    def __reduce__(self):
+        return (type(self), (self.ids, self.instruction, self.detail, self.error))
+
+
+class ServoModelMismatch(ServoError):
+    """A servo reports a model number other than the one the map declares."""
+
+    kind = "model mismatch"
+
+
+class ServoMissing(ServoError):
+    """Servos listed in the map did not answer a ping."""
+
+    kind = "missing"

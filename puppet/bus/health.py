@@ -1,0 +1,96 @@
+"""Health of each servo and the log of bus events."""
+
+from __future__ import annotations
+
+import time
+from collections import deque
+from dataclasses import dataclass, field
+
+from puppet.bus.errors import BusError
+
+# Servo states.
+OK = "ok"
+FAILING = "failing"            # its last read failed; it is still in the group read
+MISSING = "missing"            # it stopped answering; out of the group read, probed now and then
+DUPLICATE = "duplicate_id"     # its replies collide, yet ping answers: another servo shares its id
+CORRUPT = "corrupt"            # its replies keep arriving corrupt (CRC, truncated), ping too
+PORT_DOWN = "port_down"        # the port itself is gone
+
+
+@dataclass
+class ServoHealth:
+    """What the bus knows about one servo.
+
+    state:             OK, FAILING, MISSING, DUPLICATE, CORRUPT or PORT_DOWN.
+    consecutive_failures, failures: failed reads in a row, and in all.
+    corrupt_in_a_row:  consecutive corrupt replies (a duplicate id shows as collisions).
+    last_error:        the last BusError for this servo, or None.
+    last_ok_ns:        monotonic time of its last good reading (0: never).
+    hardware_error:    Hardware Error Status bits latched now (0: none).
+    alert:             True when its last status packet carried the alert bit.
+    out_of_limits:     its last raw value fell outside its tick limits (value not taken).
+    reboots, rebases:  reboots detected; turn re-bases applied by the unwrapper.
+    jitter:            running mean of |second difference| of its ticks (sensor noise), ticks.
+    noisy:             jitter above the reader's noise threshold.
+    """
+
+    id: int
+    model: str
+    state: str = OK
+    consecutive_failures: int = 0
+    failures: int = 0
+    corrupt_in_a_row: int = 0
+    last_error: BusError | None = None
+    last_ok_ns: int = 0
+    hardware_error: int = 0
+    alert: bool = False
+    out_of_limits: bool = False
+    reboots: int = 0
+    rebases: int = 0
+    jitter: float = 0.0
+    noisy: bool = False
+
+
+@dataclass(frozen=True)
+class BusEvent:
+    """Something that happened on the bus.
+
+    t_ns:   monotonic time, ns.
+    kind:   'port_lost', 'port_restored', 'servo_failed', 'servo_missing', 'servo_recovered',
+            'duplicate_id', 'corrupt', 'noisy', 'hardware_error', 'hardware_error_cleared', 'reboot_sent', 'rebooted',
+            'rebased', 'reconfigured', 'out_of_limits', 'fast_read_disabled'.
+    ids:    the servos concerned (empty for port events).
+    detail: human-readable context.
+    """
+
+    t_ns: int
+    kind: str
+    ids: tuple[int, ...]
+    detail: str = ""
+
+
+@dataclass
+class EventLog:
+    """A bounded log of BusEvents (oldest dropped first) and a running count per kind."""
+
+    maxlen: int = 1000
+    events: deque = field(init=False)
+    counts: dict[str, int] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        self.events = deque(maxlen=self.maxlen)
+
+    def add(self, kind: str, ids=(), detail: str = "") -> BusEvent:
+        event = BusEvent(time.monotonic_ns(), kind, tuple(int(i) for i in ids), detail)
+        self.events.append(event)
+        self.counts[kind] = self.counts.get(kind, 0) + 1
+        return event
+
+    def drain(self) -> list[BusEvent]:
+        """All events since the last drain, oldest first."""
+        out = []
+        while True:
+            try:
+                out.append(self.events.popleft())
+            except IndexError:
+                return out

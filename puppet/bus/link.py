@@ -1,0 +1,298 @@
+"""One serial link to a Dynamixel Protocol 2.0 bus, through the official dynamixel_sdk.
+
+Every SDK call goes through here. The SDK's crash paths are absorbed and turned into typed
+errors: ``SerialException``/``OSError`` (USB unplug) -> ``PortError``; ``IndexError`` on
+short or error-only replies -> ``ServoCorrupt``/``ServoStatusError``; result codes ->
+``ServoTimeout``/``ServoCorrupt``. The SDK's ``port.is_using`` flag, left True when a call
+raises, is reset before every transaction (this link is the port's only user).
+"""
+
+from __future__ import annotations
+
+import contextlib
+from collections.abc import Iterable, Iterator, Mapping
+from dataclasses import dataclass, field
+
+import dynamixel_sdk
+import dynamixel_sdk.port_handler as sdk_port_handler
+import serial
+import termios
+from dynamixel_sdk import robotis_def as rd
+
+from puppet.bus.control_table import ALERT_BIT, MODEL_NUMBER, Item, describe_status_error
+from puppet.bus.errors import PortError, ServoCorrupt, ServoError, ServoStatusError, ServoTimeout
+
+PROTOCOL = 2.0
+PORT_ERRORS = (serial.SerialException, OSError, termios.error)
+"""What pyserial raises when the adapter vanishes: SerialException ('device reports readiness to
+read but returned no data'), OSError (EIO on write), termios.error (EIO from tcflush)."""
+DEFAULT_LATENCY_MS = 1
+"""The adapter latency the SDK's timeouts assume, ms. FTDI adapters (U2D2) need their
+latency_timer set to 1 (udev rule) for this to hold; hw_sim's pty answers at once."""
+
+
+def set_latency_assumption(ms: int) -> None:
+    """Set the SDK's LATENCY_TIMER (ms). A failed read then costs ~2·ms + 2.5 ms.
+
+    It must be set on the submodule ``dynamixel_sdk.port_handler``: the package-level name is a
+    copy and has no effect. The value is process-wide (the SDK keeps it as a module global).
+    """
+    if not 0 < ms <= 255:
+        raise ValueError(f"latency assumption {ms} ms: must be in 1..255")
+    sdk_port_handler.LATENCY_TIMER = int(ms)
+
+
+def _failure(code: int, ids: Iterable[int], instruction: str, detail: str = "") -> ServoError:
+    """An SDK result code -> the matching typed error."""
+    text = dynamixel_sdk.PacketHandler(PROTOCOL).getTxRxResult(code)
+    detail = f"{text}{'; ' + detail if detail else ''}"
+    if code == rd.COMM_RX_TIMEOUT:
+        return ServoTimeout(ids, instruction, detail)
+    return ServoCorrupt(ids, instruction, detail)
+
+
+@dataclass
+class GroupRead:
+    """Result of one group read of one item.
+
+    values: {id: decoded value} for every servo that answered cleanly.
+    errors: {id: status error byte} for every servo that answered (0 = clean; bit 7 = alert).
+    failed: {id: ServoError} for every servo without a usable value.
+    """
+
+    values: dict[int, int] = field(default_factory=dict)
+    errors: dict[int, int] = field(default_factory=dict)
+    failed: dict[int, ServoError] = field(default_factory=dict)
+
+
+class BusLink:
+    """The port plus the Protocol 2.0 packet handler, with narrow error handling.
+
+    port:  a port name ('/dev/ttyUSB0', '/dev/serial/by-id/...', a pty) or an already-open
+           ``dynamixel_sdk.PortHandler``.
+    baud:  bits per second (an SDK-supported rate, e.g. 1_000_000 or 4_000_000).
+    latency_ms: the SDK's latency assumption (see ``set_latency_assumption``).
+    poll_block_s: how long one non-blocking SDK serial read may wait in select() for bytes,
+           seconds. The SDK busy-polls a ``timeout=0`` serial port; a short blocking read
+           releases the GIL instead of spinning. 0 keeps the SDK's spinning.
+    """
+
+    def __init__(
+        self,
+        port: str | dynamixel_sdk.PortHandler,
+        baud: int = 1_000_000,
+        latency_ms: int = DEFAULT_LATENCY_MS,
+        poll_block_s: float = 0.0002,
+    ):
+        set_latency_assumption(latency_ms)
+        if isinstance(port, dynamixel_sdk.PortHandler):
+            self.port = port
+            self.port_name: str = port.getPortName()
+        else:
+            self.port = dynamixel_sdk.PortHandler(str(port))
+            self.port_name = str(port)
+        self.baud = int(baud)
+        self.poll_block_s = float(poll_block_s)
+        self.ph = dynamixel_sdk.PacketHandler(PROTOCOL)
+
+    # ---- port lifetime -------------------------------------------------------------------
+    @property
+    def is_open(self) -> bool:
+        return bool(self.port.is_open) and self.port.ser is not None
+
+    def open(self) -> None:
+        """Open the port (if needed) at ``baud``. PortError if it cannot."""
+        try:
+            if not self.port.is_open or self.port.getBaudRate() != self.baud or self.port.ser is None:
+                if not self.port.setBaudRate(self.baud):
+                    raise PortError(self.port_name, f"baud rate {self.baud} refused by the SDK")
+            if self.poll_block_s > 0:
+                self.port.ser.timeout = self.poll_block_s
+        except (*PORT_ERRORS, ValueError) as exc:
+            self.port.is_open = False
+            raise PortError(self.port_name, "cannot open", exc) from exc
+        self.port.is_using = False
+
+    def close(self) -> None:
+        """Close the port, ignoring the errors of a port that is already gone."""
+        ser = self.port.ser
+        self.port.is_open = False
+        self.port.is_using = False
+        if ser is not None:
+            with contextlib.suppress(*PORT_ERRORS):
+                ser.close()
+
+    def rebuild(self) -> None:
+        """Drop the PortHandler (left busy by an unplug) and open a fresh one on the same name."""
+        self.close()
+        self.port = dynamixel_sdk.PortHandler(self.port_name)
+        self.open()
+
+    @contextlib.contextmanager
+    def _transaction(self, ids: Iterable[int], instruction: str) -> Iterator[None]:
+        """Run one SDK call: clear the busy flag before; map exceptions after."""
+        if not self.is_open:
+            raise PortError(self.port_name, "not open")
+        self.port.is_using = False
+        try:
+            yield
+        except PORT_ERRORS as exc:
+            self.port.is_using = False
+            raise PortError(self.port_name, f"lost during {instruction}", exc) from exc
+        except (IndexError, TypeError, ValueError) as exc:
+            # The SDK indexes into replies without checking their length.
+            self.port.is_using = False
+            raise ServoCorrupt(ids, instruction, f"malformed reply ({type(exc).__name__} in the SDK)") from exc
+
+    # ---- single-servo instructions -------------------------------------------------------
+    def ping(self, dxl_id: int) -> int:
+        """Ping one servo -> its model number."""
+        with self._transaction([dxl_id], "ping"):
+            model, code, error = self.ph.ping(self.port, dxl_id)
+        if code != rd.COMM_SUCCESS:
+            raise _failure(code, [dxl_id], "ping")
+        if error & 0x7F:
+            # An error status carries no model number: the SDK would hand back CRC bytes.
+            raise ServoStatusError([dxl_id], "ping", describe_status_error(error), error=error)
+        return int(model)
+
+    def broadcast_ping(self) -> dict[int, tuple[int, int]]:
+        """Ping every id at once -> {id: (model number, firmware)}. Costs ~0.8 s (the SDK waits)."""
+        with self._transaction([], "broadcast_ping"):
+            found, code = self.ph.broadcastPing(self.port)
+        if code not in (rd.COMM_SUCCESS, rd.COMM_RX_TIMEOUT):
+            raise _failure(code, [], "broadcast_ping")
+        return {int(i): (int(v[0]), int(v[1])) for i, v in found.items()}
+
+    def read(self, dxl_id: int, item: Item) -> int:
+        """Read one item of one servo -> value. The reply's length is checked (the SDK does not)."""
+        instruction = f"read {item.name}"
+        with self._transaction([dxl_id], instruction):
+            data, code, error = self.ph.readTxRx(self.port, dxl_id, item.address, item.size)
+        if code != rd.COMM_SUCCESS:
+            raise _failure(code, [dxl_id], instruction)
+        if error & 0x7F or len(data) != item.size:
+            raise ServoStatusError([dxl_id], instruction, describe_status_error(error)
+                                   + f", {len(data)} of {item.size} data bytes", error=error)
+        return item.decode(data)
+
+    def read_with_status(self, dxl_id: int, item: Item) -> tuple[int, int]:
+        """Like ``read`` but also return the status error byte (its alert bit)."""
+        instruction = f"read {item.name}"
+        with self._transaction([dxl_id], instruction):
+            data, code, error = self.ph.readTxRx(self.port, dxl_id, item.address, item.size)
+        if code != rd.COMM_SUCCESS:
+            raise _failure(code, [dxl_id], instruction)
+        if error & 0x7F or len(data) != item.size:
+            raise ServoStatusError([dxl_id], instruction, describe_status_error(error)
+                                   + f", {len(data)} of {item.size} data bytes", error=error)
+        return item.decode(data), int(error)
+
+    def write(self, dxl_id: int, item: Item, value: int) -> None:
+        """Write one item of one servo and wait for its status."""
+        instruction = f"write {item.name}"
+        with self._transaction([dxl_id], instruction):
+            code, error = self.ph.writeTxRx(self.port, dxl_id, item.address, item.size, item.encode(value))
+        if code != rd.COMM_SUCCESS:
+            raise _failure(code, [dxl_id], instruction)
+        if error & 0x7F:
+            raise ServoStatusError([dxl_id], instruction, describe_status_error(error), error=error)
+
+    def reboot(self, dxl_id: int) -> None:
+        """Send Reboot to one servo (clears a latched hardware error; RAM returns to defaults)."""
+        with self._transaction([dxl_id], "reboot"):
+            code, error = self.ph.reboot(self.port, dxl_id)
+        if code != rd.COMM_SUCCESS:
+            raise _failure(code, [dxl_id], "reboot")
+        if error & 0x7F:
+            raise ServoStatusError([dxl_id], "reboot", describe_status_error(error), error=error)
+
+    # ---- group instructions --------------------------------------------------------------
+    def sync_read(self, ids: list[int], item: Item) -> GroupRead:
+        """Sync Read (0x82) of one item -> GroupRead with per-servo values, errors and failures.
+
+        Unlike ``GroupSyncRead``, every servo that answered keeps its value when another one
+        fails, and each status error byte (alert bit) is kept.
+        """
+        out = GroupRead()
+        instruction = "sync_read"
+        with self._transaction(ids, instruction):
+            code = self.ph.syncReadTx(self.port, item.address, item.size, ids, len(ids), False)
+        if code != rd.COMM_SUCCESS:
+            raise _failure(code, ids, instruction)
+        for dxl_id in ids:
+            # The deadline is shared by all replies; after it expires, each readRx returns at
+            # once with whatever is already buffered.
+            with self._transaction([dxl_id], instruction):
+                data, code, error = self.ph.readRx(self.port, dxl_id, item.size)
+            if code != rd.COMM_SUCCESS:
+                out.failed[dxl_id] = _failure(code, [dxl_id], instruction)
+                continue
+            out.errors[dxl_id] = int(error)
+            if error & 0x7F or len(data) != item.size:
+                out.failed[dxl_id] = ServoStatusError(
+                    [dxl_id], instruction,
+                    describe_status_error(error) + f", {len(data)} of {item.size} data bytes", error=error)
+                continue
+            out.values[dxl_id] = item.decode(data)
+        return out
+
+    def fast_sync_read(self, ids: list[int], item: Item) -> GroupRead:
+        """Fast Sync Read (0x8A) of one item: one reply packet holding every servo's segment.
+
+        Each segment ``[ERR ID data CRC]`` is checked here (the SDK checks neither the segment
+        CRCs nor their count). A failed packet fails every servo (there is no partial answer).
+        """
+        out = GroupRead()
+        instruction = "fast_sync_read"
+        with self._transaction(ids, instruction):
+            code = self.ph.syncReadTx(self.port, item.address, item.size, ids, len(ids), True)
+            if code == rd.COMM_SUCCESS:
+                rx, code = self.ph.rxPacket(self.port, True)
+        if code != rd.COMM_SUCCESS:
+            err = _failure(code, ids, instruction)
+            out.failed = dict.fromkeys(ids, err)
+            return out
+        seg = item.size + 4
+        if rx[4] != rd.BROADCAST_ID or len(rx) != 8 + seg * len(ids):
+            # A normal status (e.g. Instruction Error from old firmware) or a short packet.
+            error = rx[8] if len(rx) > 8 else 0
+            err = ServoStatusError(
+                [rx[4]] if rx[4] != rd.BROADCAST_ID else ids, instruction,
+                f"reply from id {rx[4]} with {len(rx)} bytes, expected {8 + seg * len(ids)}"
+                + (f" ({describe_status_error(error)})" if error else ""), error=error)
+            out.failed = dict.fromkeys(ids, err)
+            return out
+        crc = self.ph.updateCRC(0, rx, 8)
+        pos = 8
+        for expected_id in ids:
+            error, dxl_id = rx[pos], rx[pos + 1]
+            crc = self.ph.updateCRC(crc, rx[pos: pos + seg - 2], seg - 2)
+            got_crc = rx[pos + seg - 2] | (rx[pos + seg - 1] << 8)
+            if dxl_id != expected_id or crc != got_crc:
+                out.failed[expected_id] = ServoCorrupt([expected_id], instruction, "bad segment")
+            else:
+                out.errors[dxl_id] = int(error)
+                if error & 0x7F:
+                    out.failed[dxl_id] = ServoStatusError(
+                        [dxl_id], instruction, describe_status_error(error), error=error)
+                else:
+                    out.values[dxl_id] = item.decode(rx[pos + 2: pos + 2 + item.size])
+            crc = self.ph.updateCRC(crc, rx[pos + seg - 2: pos + seg], 2)
+            pos += seg
+        return out
+
+    def sync_write(self, item: Item, values: Mapping[int, int]) -> None:
+        """Sync Write (0x83) of one item to several servos (no reply)."""
+        ids = list(values)
+        param: list[int] = []
+        for dxl_id, value in values.items():
+            param.append(int(dxl_id))
+            param.extend(item.encode(value))
+        with self._transaction(ids, "sync_write"):
+            code = self.ph.syncWriteTxOnly(self.port, item.address, item.size, param, len(param))
+        if code != rd.COMM_SUCCESS:
+            raise _failure(code, ids, "sync_write")
+
+
+__all__ = ["BusLink", "GroupRead", "set_latency_assumption", "DEFAULT_LATENCY_MS", "MODEL_NUMBER"]

@@ -1,0 +1,541 @@
+"""ServoReader: one group read of Present Position per call, with fault isolation and recovery.
+
+Per ``read()``:
+1. If the port is down, try to rebuild it (at most every ``reconnect_period_s``).
+2. One group read (Fast Sync Read where every servo's firmware has it, Sync Read otherwise) of
+   the servos in the group. Servos that answered keep their values even if others failed.
+3. Each servo the group read failed for gets one individual read; a servo that still fails
+   holds its last good value, is flagged (``ok`` False), and after ``missing_after`` failures
+   in a row leaves the group read: it is then probed alone every ``probe_period_s``, so a dead
+   servo costs the others one timeout per probe, not one per frame.
+4. Every ``health_period_s`` (and at once when a status packet carries the alert bit): Hardware
+   Error Status and Realtime Tick of every servo. A latched hardware error is reported (and the
+   servo rebooted when ``auto_reboot`` allows); a Realtime Tick behind its expected value means
+   the servo rebooted: it is reconfigured.
+A servo that comes back (from missing, a reboot, a rebuilt port) is reconfigured; its turn count
+is unwrapped to stay continuous (see ``unwrap``). Nothing the SDK raises escapes ``read()``.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Iterable, Mapping
+
+import dynamixel_sdk
+import numpy as np
+
+from puppet.bus import control_table as ct
+from puppet.bus import health as hs
+from puppet.bus.configure import SetupReport, configure_servo, identify, supports_fast_sync_read
+from puppet.bus.errors import BusError, PortError, ServoCorrupt, ServoError, ServoMissing, ServoTimeout
+from puppet.bus.link import DEFAULT_LATENCY_MS, BusLink, GroupRead
+from puppet.bus.reading import Reading
+from puppet.bus.unwrap import TurnUnwrapper
+
+READ_MODES = ("auto", "fast_sync_read", "sync_read")
+
+
+class ServoReader:
+    """Reads the Present Position of a fixed list of servos, surviving bus faults.
+
+    port:      port name ('/dev/ttyUSB0', '/dev/serial/by-id/...', a pty) or an open
+               ``dynamixel_sdk.PortHandler``.
+    servos:    {id: model name} ('XL330-M288', 'XL430-W250', 'XM430-W350'), in reading order.
+    baud:      bits per second.
+    latency_ms: the SDK's latency assumption (module global ``LATENCY_TIMER``), ms.
+    read_mode: 'auto' (fast sync read if all firmware supports it), 'fast_sync_read', 'sync_read'.
+    actuators: ids that get torque on and accept goal positions (``write_goals``).
+    limits:    {id: (lo, hi)} continuous tick limits; a value outside is flagged, not taken.
+    auto_reboot: reboot a sensor (never an actuator) whose hardware error is latched (at most
+               once per ``reboot_holdoff_s``).
+    noise_threshold: jitter (ticks) above which a servo is flagged noisy.
+    max_jump_ticks, max_speed_ticks_s: a change larger than max_jump + max_speed·dt between two
+               consecutive readings is taken as a corrupt reply (held, flagged, re-read).
+    """
+
+    def __init__(
+        self,
+        port: str | dynamixel_sdk.PortHandler,
+        servos: Mapping[int, str],
+        *,
+        baud: int = 1_000_000,
+        latency_ms: int = DEFAULT_LATENCY_MS,
+        read_mode: str = "auto",
+        actuators: Iterable[int] = (),
+        limits: Mapping[int, tuple[int, int]] | None = None,
+        auto_reboot: bool = True,
+        missing_after: int = 2,
+        duplicate_after: int = 3,
+        probe_period_s: float = 0.05,
+        health_period_s: float = 0.5,
+        reconnect_period_s: float = 0.2,
+        poll_block_s: float = 0.0002,
+        noise_threshold: float = 6.0,
+        max_jump_ticks: int = 1024,
+        max_speed_ticks_s: float = 20000.0,
+        reboot_holdoff_s: float = 2.0,
+    ):
+        if not servos:
+            raise ValueError("ServoReader: the servo map is empty")
+        if read_mode not in READ_MODES:
+            raise ValueError(f"ServoReader: read_mode {read_mode!r} not in {READ_MODES}")
+        for dxl_id, name in servos.items():
+            if not 0 <= int(dxl_id) <= 252:
+                raise ValueError(f"ServoReader: servo id {dxl_id} outside 0..252")
+            ct.model_named(name)
+        self.servos = {int(i): str(m) for i, m in servos.items()}
+        self.actuators = frozenset(int(i) for i in actuators)
+        unknown = self.actuators - set(self.servos)
+        if unknown:
+            raise ValueError(f"ServoReader: actuators {sorted(unknown)} are not in the servo map")
+        self.limits = {int(i): (int(lo), int(hi)) for i, (lo, hi) in (limits or {}).items()}
+        self.link = BusLink(port, baud=baud, latency_ms=latency_ms, poll_block_s=poll_block_s)
+        self.read_mode_requested = read_mode
+        self.read_mode = "sync_read"
+        self.auto_reboot = auto_reboot
+        self.noise_threshold = float(noise_threshold)
+        self.max_jump_ticks = int(max_jump_ticks)
+        self.max_speed_ticks_s = float(max_speed_ticks_s)
+        self.reboot_holdoff_ns = int(reboot_holdoff_s * 1e9)
+        self._last_reboot_ns: dict[int, int] = {}
+        self.missing_after = missing_after
+        self.duplicate_after = duplicate_after
+        self.probe_period_ns = int(probe_period_s * 1e9)
+        self.health_period_ns = int(health_period_s * 1e9)
+        self.reconnect_period_ns = int(reconnect_period_s * 1e9)
+
+        self.ids = np.array(list(self.servos), dtype=np.int64)
+        self.ids.setflags(write=False)
+        self._index = {int(i): k for k, i in enumerate(self.ids)}
+        self._ticks = np.zeros(len(self.ids), dtype=np.int32)
+        self._ok = np.zeros(len(self.ids), dtype=bool)
+        self._prev = [0] * len(self.ids)          # last two good values, for jitter
+        self._prev2 = [0] * len(self.ids)
+        self._run = [0] * len(self.ids)           # good readings in a row
+        self.unwrap = {i: TurnUnwrapper() for i in self.servos}
+        self.health = {i: hs.ServoHealth(i, m) for i, m in self.servos.items()}
+        self.log = hs.EventLog()
+        self.report: SetupReport | None = None
+
+        self._group: list[int] = list(self.servos)     # ids in the group read, map order
+        self._next_probe_ns: dict[int, int] = {}
+        self._tick_seen: dict[int, tuple[int, int]] = {}  # id -> (realtime tick ms, host ns)
+        self._next_health_ns = 0
+        self._health_due = False
+        self._port_up = False
+        self._next_reconnect_ns = 0
+        self.reads = 0
+
+    # ---- setup ---------------------------------------------------------------------------
+    def open(self, broadcast_ping: bool = False, strict: bool = False) -> SetupReport:
+        """Open the port, find and check the servos, configure them, take a first reading.
+
+        broadcast_ping: also list servos on the bus that the map lacks (costs ~0.8 s).
+        strict: raise ServoMissing when a mapped servo does not answer (otherwise it is
+                flagged and probed until it appears).
+        Raises PortError (no port), ServoModelMismatch (map and bus disagree).
+        """
+        self.link.open()
+        self._port_up = True
+        report = SetupReport()
+        if broadcast_ping:
+            found = self.link.broadcast_ping()
+            report.unexpected = {i: m for i, (m, _) in found.items() if i not in self.servos}
+        identify(self.link, self.servos, report)
+        if report.missing and strict:
+            raise ServoMissing(report.missing, "ping", f"on {self.link.port_name}")
+        fast_ok = supports_fast_sync_read(self.servos, report.found)
+        if self.read_mode_requested == "auto":
+            self.read_mode = "fast_sync_read" if fast_ok else "sync_read"
+        else:
+            self.read_mode = self.read_mode_requested
+        report.read_mode = self.read_mode
+        for dxl_id in self.servos:
+            if dxl_id in report.missing:
+                self._mark_missing(dxl_id, ServoTimeout([dxl_id], "ping", "no answer at setup"))
+                continue
+            try:
+                configure_servo(self.link, dxl_id, dxl_id in self.actuators, report.changes)
+                bits = self.link.read(dxl_id, ct.HARDWARE_ERROR_STATUS)
+            except ServoError as exc:
+                self._mark_missing(dxl_id, exc)
+                report.missing.append(dxl_id)
+                continue
+            if bits:
+                report.hardware_errors[dxl_id] = bits
+                self._on_hardware_error(dxl_id, bits)
+        self.report = report
+        self._next_health_ns = 0
+        self.read()
+        return report
+
+    def close(self) -> None:
+        """Close the port (torque is left as configured)."""
+        self.link.close()
+        self._port_up = False
+
+    def __enter__(self) -> ServoReader:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    # ---- per frame -----------------------------------------------------------------------
+    def read(self) -> Reading:
+        """One reading of every servo: t_ns (monotonic ns, taken just before the group read),
+        ticks (k,) int32 continuous, ok (k,) bool. Never raises for bus faults."""
+        self.reads += 1
+        now = time.monotonic_ns()
+        self._ok[:] = False
+        if not self._port_up and not self._reconnect(now):
+            return self._reading(now)
+        try:
+            self._read_group(now)
+            self._probe_missing(now)
+            if self._health_due or now >= self._next_health_ns:
+                self._check_health(now)
+        except PortError as exc:
+            self._port_lost(exc)
+        return self._reading(now)
+
+    def read_clean(self, samples: int = 1, timeout_s: float = 2.0) -> Reading:
+        """A reading where every servo is ok; with ``samples`` > 1 the per-servo median of that
+        many clean readings (for zero-pose capture). ServoTimeout naming the servos that never
+        read cleanly when ``timeout_s`` runs out."""
+        deadline = time.monotonic() + timeout_s
+        clean: list[Reading] = []
+        bad: set[int] = set()
+        while len(clean) < samples:
+            reading = self.read()
+            if reading.ok.all():
+                clean.append(reading)
+            else:
+                bad = {int(i) for i in reading.ids[~reading.ok]}
+            if time.monotonic() > deadline:
+                raise ServoTimeout(bad or set(self.servos), "read_clean",
+                                   f"{len(clean)} of {samples} clean readings in {timeout_s} s")
+        ticks = np.median(np.stack([r.ticks for r in clean]), axis=0).round().astype(np.int32)
+        return Reading(clean[-1].t_ns, self.ids, ticks, np.ones(len(self.ids), dtype=bool))
+
+    def _reading(self, t_ns: int) -> Reading:
+        return Reading(t_ns, self.ids, self._ticks.copy(), self._ok.copy())
+
+    def _group_read(self, ids: list[int], item: ct.Item) -> GroupRead:
+        if self.read_mode == "fast_sync_read":
+            result = self.link.fast_sync_read(ids, item)
+            if self._fast_unsupported(result):
+                self.read_mode = "sync_read"
+                self.log.add("fast_read_disabled", ids, "servos answered Fast Sync Read with an error")
+                result = self.link.sync_read(ids, item)
+            return result
+        return self.link.sync_read(ids, item)
+
+    @staticmethod
+    def _fast_unsupported(result: GroupRead) -> bool:
+        """Fast Sync Read answered by a normal status with Instruction Error (old firmware)."""
+        errs = {getattr(e, "error", 0) & 0x7F for e in result.failed.values()}
+        return not result.values and errs == {0x02}
+
+    def _read_group(self, now: int) -> None:
+        if not self._group:
+            return
+        result = self._group_read(self._group, ct.PRESENT_POSITION)
+        for dxl_id, error in result.errors.items():
+            self._note_alert(dxl_id, error)
+        for dxl_id, raw in result.values.items():
+            implausible = self._implausible(dxl_id, raw, now)
+            if implausible is None:
+                self._accept(dxl_id, raw, now)
+            else:
+                self._read_alone(dxl_id, implausible, now)
+        for dxl_id, exc in result.failed.items():
+            self._read_alone(dxl_id, exc, now)
+
+    def _read_alone(self, dxl_id: int, group_exc: ServoError, now: int) -> None:
+        """Individual read of a servo the group read failed for."""
+        try:
+            raw, error = self.link.read_with_status(dxl_id, ct.PRESENT_POSITION)
+        except ServoError as exc:
+            self._failed(dxl_id, exc, now)
+            return
+        self._note_alert(dxl_id, error)
+        implausible = self._implausible(dxl_id, raw, now)
+        if implausible is not None:
+            self._failed(dxl_id, implausible, now)
+            return
+        self._accept(dxl_id, raw, now)
+
+    def _implausible(self, dxl_id: int, raw: int, now: int) -> ServoCorrupt | None:
+        """A jump no shaft can make between two readings (a reply with a valid CRC but wrong
+        data, e.g. two servos' segments colliding) -> ServoCorrupt; None when plausible.
+        Only checked against a good reading less than 0.1 s old."""
+        h = self.health[dxl_id]
+        value, _ = self.unwrap[dxl_id].peek(raw)  # a re-base must land near the last value too
+        last = self.unwrap[dxl_id].last
+        if last is None:
+            return None
+        dt_s = max(0.0, (now - h.last_ok_ns) / 1e9)
+        if dt_s > 0.1:
+            return None
+        bound = self.max_jump_ticks + self.max_speed_ticks_s * dt_s
+        if abs(value - last) <= bound:
+            return None
+        return ServoCorrupt([dxl_id], "read Present Position",
+                            f"implausible jump {last} -> {value} ticks in {dt_s * 1e3:.1f} ms")
+
+    def _probe_missing(self, now: int) -> None:
+        """Probe at most one missing servo per frame, each at most every probe period."""
+        for dxl_id, due in self._next_probe_ns.items():
+            if now >= due:
+                break
+        else:
+            return
+        self._next_probe_ns[dxl_id] = now + self.probe_period_ns
+        try:
+            raw, error = self.link.read_with_status(dxl_id, ct.PRESENT_POSITION)
+        except ServoError as exc:
+            self._failed(dxl_id, exc, now)
+            return
+        self._returned(dxl_id, now)
+        self._note_alert(dxl_id, error)
+        self._accept(dxl_id, raw, now)
+
+    # ---- per-servo bookkeeping -----------------------------------------------------------
+    def _accept(self, dxl_id: int, raw: int, now: int) -> None:
+        h = self.health[dxl_id]
+        unwrapper = self.unwrap[dxl_id]
+        value, offset = unwrapper.peek(raw)
+        lo_hi = self.limits.get(dxl_id)
+        if lo_hi is not None and not lo_hi[0] <= value <= lo_hi[1]:
+            if not h.out_of_limits:
+                self.log.add("out_of_limits", [dxl_id], f"{value} ticks outside {lo_hi[0]}..{lo_hi[1]}")
+            h.out_of_limits = True
+            h.last_error = ServoCorrupt([dxl_id], "read Present Position",
+                                        f"{value} ticks outside limits {lo_hi[0]}..{lo_hi[1]}")
+            return
+        h.out_of_limits = False
+        value, rebased = unwrapper.accept(raw)
+        if rebased:
+            h.rebases += 1
+            self.log.add("rebased", [dxl_id], f"raw {raw}: turn offset now {unwrapper.offset} ticks")
+        k = self._index[dxl_id]
+        self._track_jitter(h, k, value)
+        self._ticks[k] = value
+        self._ok[k] = True
+        if h.state != hs.OK:
+            self.log.add("servo_recovered", [dxl_id], f"was {h.state}")
+            h.state = hs.OK
+        h.consecutive_failures = 0
+        h.corrupt_in_a_row = 0
+        h.last_ok_ns = now
+
+    def _track_jitter(self, h: hs.ServoHealth, k: int, value: int) -> None:
+        """Running mean of |x_t - 2 x_{t-1} + x_{t-2}| over consecutive good readings: zero at
+        rest or in steady motion, about the noise amplitude for a jittering encoder."""
+        if self._run[k] >= 2:
+            d2 = abs(value - 2 * self._prev[k] + self._prev2[k])
+            h.jitter += 0.05 * (min(d2, 4 * self.noise_threshold) - h.jitter)
+            noisy = h.jitter > self.noise_threshold
+            if noisy != h.noisy:
+                h.noisy = noisy
+                self.log.add("noisy" if noisy else "quiet", [h.id],
+                             f"jitter {h.jitter:.1f} ticks (threshold {self.noise_threshold})")
+        self._prev2[k], self._prev[k] = self._prev[k], value
+        self._run[k] += 1
+
+    def _failed(self, dxl_id: int, exc: ServoError, now: int) -> None:
+        """Book one failed read. Timeouts in a row -> MISSING; corrupt replies in a row ->
+        DUPLICATE (ping still answers) or CORRUPT; both leave the group read and are probed.
+        Error-status replies -> FAILING (they cost the group nothing)."""
+        h = self.health[dxl_id]
+        self._run[self._index[dxl_id]] = 0
+        h.failures += 1
+        h.consecutive_failures += 1
+        h.last_error = exc
+        h.corrupt_in_a_row = h.corrupt_in_a_row + 1 if isinstance(exc, ServoCorrupt) else 0
+        if h.state in (hs.MISSING, hs.DUPLICATE, hs.CORRUPT):
+            return
+        if h.corrupt_in_a_row >= self.duplicate_after:
+            h.state = hs.DUPLICATE if self._ping_answers(dxl_id) else hs.CORRUPT
+            self._leave_group(dxl_id, now)
+            if h.state == hs.DUPLICATE:
+                self.log.add("duplicate_id", [dxl_id], f"{h.corrupt_in_a_row} corrupt replies in a row while "
+                             f"ping answers: replies collide, two servos answer to id {dxl_id}?")
+            else:
+                self.log.add("corrupt", [dxl_id], f"{h.corrupt_in_a_row} corrupt replies in a row: {exc}")
+        elif isinstance(exc, ServoTimeout) and h.consecutive_failures >= self.missing_after:
+            self._mark_missing(dxl_id, exc)
+        elif h.state == hs.OK or h.state == hs.PORT_DOWN:
+            h.state = hs.FAILING
+            self.log.add("servo_failed", [dxl_id], str(exc))
+
+    def _ping_answers(self, dxl_id: int) -> bool:
+        """Two servos on one id send identical ping replies (same model) that survive the
+        collision, while their differing position replies do not."""
+        for _ in range(3):
+            try:
+                self.link.ping(dxl_id)
+                return True
+            except ServoError:
+                continue
+        return False
+
+    def _mark_missing(self, dxl_id: int, exc: ServoError) -> None:
+        h = self.health[dxl_id]
+        h.state = hs.MISSING
+        h.last_error = exc
+        self._leave_group(dxl_id, time.monotonic_ns())
+        self.log.add("servo_missing", [dxl_id], str(exc))
+
+    def _leave_group(self, dxl_id: int, now: int) -> None:
+        if dxl_id in self._group:
+            self._group.remove(dxl_id)
+        self._next_probe_ns[dxl_id] = now + self.probe_period_ns
+
+    def _returned(self, dxl_id: int, now: int) -> None:
+        """A probed servo answered again: reconfigure it (it may have rebooted), rejoin the group."""
+        self._next_probe_ns.pop(dxl_id, None)
+        self._group = [i for i in self.servos if i in self._group or i == dxl_id]
+        self._reconfigure(dxl_id, "answered again")
+        self._health_due = True  # its Realtime Tick tells whether it rebooted meanwhile
+
+    def _reconfigure(self, dxl_id: int, why: str) -> None:
+        changes: list = []
+        try:
+            configure_servo(self.link, dxl_id, dxl_id in self.actuators, changes)
+        except ServoError as exc:
+            self.health[dxl_id].last_error = exc
+            self.log.add("reconfigure_failed", [dxl_id], f"{why}: {exc}")
+            return
+        self.log.add("reconfigured", [dxl_id],
+                     f"{why}: " + (", ".join(f"{c.item} {c.old}->{c.new}" for c in changes) or "no change"))
+
+    def _note_alert(self, dxl_id: int, error: int) -> None:
+        alert = bool(error & ct.ALERT_BIT)
+        h = self.health[dxl_id]
+        if alert and not h.alert:
+            self._health_due = True
+        h.alert = alert
+
+    # ---- periodic health: hardware errors and reboots ------------------------------------
+    def _check_health(self, now: int) -> None:
+        self._health_due = False
+        self._next_health_ns = now + self.health_period_ns
+        ids = list(self._group)
+        if not ids:
+            return
+        errors = self.link.sync_read(ids, ct.HARDWARE_ERROR_STATUS)
+        for dxl_id, bits in errors.values.items():
+            self._on_hardware_error(dxl_id, bits)
+        t0 = time.monotonic_ns()
+        ticks = self.link.sync_read(ids, ct.REALTIME_TICK)
+        for dxl_id, tick in ticks.values.items():
+            self._check_tick(dxl_id, tick, t0)
+
+    def _on_hardware_error(self, dxl_id: int, bits: int) -> None:
+        h = self.health[dxl_id]
+        if bits == h.hardware_error:
+            return
+        if bits == 0:
+            self.log.add("hardware_error_cleared", [dxl_id], f"was {ct.describe_hardware_error(h.hardware_error)}")
+            h.hardware_error = 0
+            return
+        h.hardware_error = bits
+        self.log.add("hardware_error", [dxl_id], f"Hardware Error Status 0x{bits:02x}: {ct.describe_hardware_error(bits)}")
+        now = time.monotonic_ns()
+        last = self._last_reboot_ns.get(dxl_id)
+        if self.auto_reboot and dxl_id not in self.actuators and (
+                last is None or now - last > self.reboot_holdoff_ns):
+            self._last_reboot_ns[dxl_id] = now
+            self.reboot(dxl_id)
+
+    def _check_tick(self, dxl_id: int, tick: int, t_ns: int) -> None:
+        """A Realtime Tick (ms, wraps at 32768) behind its expected value means a reboot."""
+        seen = self._tick_seen.get(dxl_id)
+        self._tick_seen[dxl_id] = (tick, t_ns)
+        if seen is None:
+            return
+        elapsed_ms = (t_ns - seen[1]) / 1e6
+        if elapsed_ms >= ct.REALTIME_TICK_WRAP / 2:
+            return  # too long ago to tell a wrap from a reboot
+        expected = (seen[0] + elapsed_ms) % ct.REALTIME_TICK_WRAP
+        behind = (expected - tick) % ct.REALTIME_TICK_WRAP
+        if behind > ct.REALTIME_TICK_WRAP / 2:
+            behind -= ct.REALTIME_TICK_WRAP
+        if behind > max(100.0, 0.25 * elapsed_ms):
+            h = self.health[dxl_id]
+            h.reboots += 1
+            self.log.add("rebooted", [dxl_id], f"Realtime Tick {tick} ms, expected about {expected:.0f}")
+            self._reconfigure(dxl_id, "rebooted")
+
+    def reboot(self, dxl_id: int) -> None:
+        """Send Reboot to one servo (clears a latched hardware error). Its position re-bases;
+        the reader unwraps it. Failures are logged, never raised (PortError aside)."""
+        try:
+            self.link.reboot(dxl_id)
+        except ServoError as exc:
+            self.log.add("reboot_failed", [dxl_id], str(exc))
+            return
+        self.log.add("reboot_sent", [dxl_id], ct.describe_hardware_error(self.health[dxl_id].hardware_error))
+        self.health[dxl_id].reboots += 1
+        self._tick_seen.pop(dxl_id, None)
+        self._reconfigure(dxl_id, "after reboot")
+
+    # ---- port loss and recovery ----------------------------------------------------------
+    def _port_lost(self, exc: PortError) -> None:
+        self._port_up = False
+        self.link.close()
+        self._ok[:] = False
+        self._run = [0] * len(self.ids)
+        for h in self.health.values():
+            h.last_error = exc
+            if h.state == hs.OK or h.state == hs.FAILING:
+                h.state = hs.PORT_DOWN
+        self._next_reconnect_ns = time.monotonic_ns() + self.reconnect_period_ns
+        self.log.add("port_lost", (), str(exc))
+
+    def _reconnect(self, now: int) -> bool:
+        if now < self._next_reconnect_ns:
+            return False
+        self._next_reconnect_ns = now + self.reconnect_period_ns
+        try:
+            self.link.rebuild()
+            for dxl_id in self._group:
+                self._reconfigure(dxl_id, "port restored")
+        except PortError:
+            self.link.close()
+            return False
+        self._port_up = True
+        self._tick_seen.clear()
+        self._health_due = True
+        self.log.add("port_restored", (), self.link.port_name)
+        return True
+
+    # ---- drive-back ----------------------------------------------------------------------
+    def write_goals(self, goals: Mapping[int, int]) -> None:
+        """Sync-write Goal Position (continuous ticks, same frame as readings) to actuators.
+
+        ValueError for an id that is not an actuator; PortError/ServoError are logged.
+        """
+        bad = sorted(set(goals) - self.actuators)
+        if bad:
+            raise ValueError(f"write_goals: servos {bad} are not actuators")
+        if not self._port_up:
+            return
+        raw = {i: self.unwrap[i].to_raw(int(t)) for i, t in goals.items()}
+        try:
+            self.link.sync_write(ct.GOAL_POSITION, raw)
+        except PortError as exc:
+            self._port_lost(exc)
+        except BusError as exc:
+            self.log.add("write_failed", list(goals), str(exc))
+
+    # ---- views ---------------------------------------------------------------------------
+    @property
+    def port_up(self) -> bool:
+        return self._port_up
+
+    @property
+    def group(self) -> tuple[int, ...]:
+        """Ids in the group read now (the others are missing or colliding and being probed)."""
+        return tuple(self._group)

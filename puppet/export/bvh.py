@@ -1,0 +1,245 @@
+"""BVH motion capture files of a skeleton's joint rotations: a streaming writer.
+
+A BVH file has a HIERARCHY (ROOT, JOINT and End Site blocks with OFFSET and CHANNELS) and a
+MOTION section (Frames, Frame Time, then one line of channel values per frame). A joint's
+world transform is parent_world @ translate(OFFSET) @ R, with R = R_axis1 @ R_axis2 @ R_axis3
+for the channel order axis1 axis2 axis3 (degrees). The root also has X/Y/Zposition channels:
+its position in the world, which replaces its OFFSET while the motion plays.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Iterable
+
+import numpy as np
+
+from puppet.export.errors import ExportError
+from puppet.export.euler import ORDERS, matrix_to_euler
+
+_FRAMES_FIELD = 12  # "Frames:" is padded to this width so close() can patch the count in place
+
+
+class BvhWriter:
+    """Writes a skeleton's hierarchy, then one frame of joint rotations at a time.
+
+    path:      output .bvh file.
+    names:     b joint names (unique, no whitespace).
+    parents:   (b,) int, parent joint index, -1 for the one root.
+    offsets:   (b, 3) float, each joint's rest position relative to its parent's joint (the
+               root's: its rest position in the world), in the skeleton's length unit.
+    frame_time: seconds per frame (1 / fps).
+    order:     Euler order of the rotation channels, one of XYZ XZY YXZ YZX ZXY ZYX.
+    end_sites: (b, 3) float or None: End Site offset of each leaf joint (rows of other joints
+               are unused); None: a leaf's End Site continues its own offset direction.
+    precision: decimals written for every value.
+    Joints are written depth first from the root, children in index order; motion channels
+    follow that order.
+    """
+
+    def __init__(
+        self,
+        path,
+        *,
+        names,
+        parents,
+        offsets,
+        frame_time: float,
+        order: str = "ZXY",
+        end_sites=None,
+        precision: int = 6,
+    ):
+        self.path = Path(path)
+        self.names = [str(n) for n in names]
+        self.parents = np.asarray(parents, dtype=np.int64).ravel()
+        self.offsets = np.asarray(offsets, dtype=np.float64)
+        self.order = order
+        self.frame_time = float(frame_time)
+        self.b = len(self.names)
+        self.num_frames = 0
+        self._fmt = f"{{:.{int(precision)}f}}"
+        self._check_skeleton(end_sites)
+        self.dfs = self._depth_first()
+        self._previous = None
+        self._closed = False
+        try:
+            self._file = open(self.path, "w", encoding="ascii", newline="\n")
+        except OSError as e:
+            raise ExportError(self.path, f"cannot create BVH file: {e.strerror}") from e
+        self._file.write(self._hierarchy_text(end_sites))
+        self._file.write("MOTION\n")
+        self._frames_at = self._file.tell()
+        self._file.write(f"Frames: {'0'.ljust(_FRAMES_FIELD)}\n")
+        self._file.write(f"Frame Time: {self.frame_time:.9f}\n")
+
+    # ---- skeleton ----
+    def _check_skeleton(self, end_sites) -> None:
+        p = self.path
+        if self.b == 0:
+            raise ExportError(p, "skeleton has no joints")
+        for i, n in enumerate(self.names):
+            if not n or any(ch.isspace() for ch in n) or not n.isascii():
+                raise ExportError(p, f"joint {i} name {n!r}: BVH names must be non-empty ASCII "
+                                     "without whitespace")
+        dup = sorted({n for n in self.names if self.names.count(n) > 1})
+        if dup:
+            raise ExportError(p, f"duplicate joint names {dup}")
+        if self.parents.shape != (self.b,):
+            raise ExportError(p, f"parents has {self.parents.size} entries, names {self.b}")
+        if self.offsets.shape != (self.b, 3) or not np.isfinite(self.offsets).all():
+            raise ExportError(p, f"offsets must be finite ({self.b}, 3), got {self.offsets.shape}")
+        roots = np.flatnonzero(self.parents == -1).tolist()
+        if len(roots) != 1:
+            raise ExportError(p, f"a BVH skeleton has one root (parent -1), got joints {roots}")
+        for i, q in enumerate(self.parents.tolist()):
+            if q != -1 and not 0 <= q < self.b or q == i:
+                raise ExportError(p, f"joint {self.names[i]!r} has bad parent {q}")
+        if self.order not in ORDERS:
+            raise ExportError(p, f"Euler order must be one of {ORDERS}, got {self.order!r}")
+        if not (np.isfinite(self.frame_time) and self.frame_time > 0):
+            raise ExportError(p, f"frame_time must be > 0 seconds, got {self.frame_time}")
+        if end_sites is not None and np.shape(end_sites) != (self.b, 3):
+            raise ExportError(p, f"end_sites must be ({self.b}, 3), got {np.shape(end_sites)}")
+
+    def _children(self) -> list[list[int]]:
+        children: list[list[int]] = [[] for _ in range(self.b)]
+        for i, q in enumerate(self.parents.tolist()):
+            if q >= 0:
+                children[q].append(i)
+        return children
+
+    def _depth_first(self) -> list[int]:
+        children = self._children()
+        root = int(np.flatnonzero(self.parents == -1)[0])
+        out, stack = [], [root]
+        while stack:
+            j = stack.pop()
+            out.append(j)
+            stack.extend(reversed(children[j]))
+        if len(out) != self.b:
+            cut = sorted(set(range(self.b)) - set(out))
+            raise ExportError(self.path, f"joints {[self.names[j] for j in cut]} are not "
+                                         "connected to the root (a cycle in parents)")
+        return out
+
+    def _hierarchy_text(self, end_sites) -> str:
+        children = self._children()
+        f = self._fmt
+        rot = " ".join(f"{a}rotation" for a in self.order)
+        lines = ["HIERARCHY"]
+
+        def vec(v) -> str:
+            return " ".join(f.format(float(x)) for x in v)
+
+        def emit(j: int, depth: int) -> None:
+            pad = "\t" * depth
+            if self.parents[j] == -1:
+                lines.append(f"{pad}ROOT {self.names[j]}")
+                channels = f"CHANNELS 6 Xposition Yposition Zposition {rot}"
+            else:
+                lines.append(f"{pad}JOINT {self.names[j]}")
+                channels = f"CHANNELS 3 {rot}"
+            lines.append(pad + "{")
+            lines.append(f"{pad}\tOFFSET {vec(self.offsets[j])}")
+            lines.append(f"{pad}\t{channels}")
+            for c in children[j]:
+                emit(c, depth + 1)
+            if not children[j]:
+                if end_sites is not None:
+                    tip = np.asarray(end_sites[j], dtype=np.float64)
+                else:
+                    tip = self.offsets[j] if self.parents[j] != -1 else np.array([0.0, 1.0, 0.0])
+                lines.append(f"{pad}\tEnd Site")
+                lines.append(f"{pad}\t{{")
+                lines.append(f"{pad}\t\tOFFSET {vec(tip)}")
+                lines.append(f"{pad}\t}}")
+            lines.append(pad + "}")
+
+        emit(self.dfs[0], 0)
+        return "\n".join(lines) + "\n"
+
+    # ---- motion ----
+    def write(self, rotations: np.ndarray, root_position=None) -> None:
+        """Append one frame.
+
+        rotations:     (b, 3, 3) rotation matrices, each joint's rotation relative to its
+                       parent (identity = rest pose), or (b, 3) Euler angles in degrees in the
+                       writer's order.
+        root_position: (3,) root position in the world; None: the root's rest offset.
+        """
+        if self._closed:
+            raise ExportError(self.path, "write() after close()")
+        n = self.num_frames
+        rotations = np.asarray(rotations, dtype=np.float64)
+        if rotations.shape == (self.b, 3, 3):
+            dev = np.abs(rotations @ np.swapaxes(rotations, -1, -2) - np.eye(3)).max(axis=(1, 2))
+            det = np.linalg.det(rotations)
+            bad = np.flatnonzero(~(dev < 1e-4) | ~(det > 0))
+            if bad.size:
+                j = int(bad[0])
+                raise ExportError(self.path, f"frame {n}, joint {self.names[j]!r}: not a rotation "
+                                             f"matrix (|R R^T - I| = {dev[j]:.3g}, det {det[j]:.3g})")
+            angles = matrix_to_euler(rotations, self.order)
+            if self._previous is not None:  # continuous curves: the nearest turn to last frame
+                angles += 2 * np.pi * np.round((self._previous - angles) / (2 * np.pi))
+            self._previous = angles
+            degrees = np.degrees(angles)
+        elif rotations.shape == (self.b, 3):
+            if not np.isfinite(rotations).all():
+                raise ExportError(self.path, f"frame {n}: Euler angles are not finite")
+            degrees = rotations
+        else:
+            raise ExportError(self.path, f"frame {n}: rotations have shape {rotations.shape}, "
+                                         f"expected ({self.b}, 3, 3) or ({self.b}, 3)")
+        root = self.dfs[0]
+        pos = self.offsets[root] if root_position is None else np.asarray(root_position, float)
+        if pos.shape != (3,) or not np.isfinite(pos).all():
+            raise ExportError(self.path, f"frame {n}: root_position must be finite (3,)")
+        f = self._fmt
+        values = [f.format(float(x)) for x in pos]
+        for j in self.dfs:
+            values.extend(f.format(float(x)) for x in degrees[j])
+        self._file.write(" ".join(values) + "\n")
+        self.num_frames += 1
+
+    def close(self) -> None:
+        """Patch the frame count in and close. Safe to call twice."""
+        if self._closed:
+            return
+        self._closed = True
+        try:
+            self._file.seek(self._frames_at)
+            self._file.write(f"Frames: {str(self.num_frames).ljust(_FRAMES_FIELD)}")
+        finally:
+            self._file.close()
+
+    def __enter__(self) -> "BvhWriter":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+
+def write_bvh(
+    path,
+    *,
+    names,
+    parents,
+    offsets,
+    frames: Iterable[np.ndarray],
+    frame_time: float,
+    order: str = "ZXY",
+    root_positions=None,
+    end_sites=None,
+    precision: int = 6,
+) -> int:
+    """Write a BVH file in one call; returns the number of frames written.
+
+    frames: (N, b, 3, 3) rotation matrices or (N, b, 3) Euler degrees (or an iterable of the
+    per-frame arrays); root_positions: (N, 3) or None. Other arguments as in BvhWriter.
+    """
+    with BvhWriter(path, names=names, parents=parents, offsets=offsets, frame_time=frame_time,
+                   order=order, end_sites=end_sites, precision=precision) as w:
+        for n, rotations in enumerate(frames):
+            w.write(rotations, None if root_positions is None else root_positions[n])
+    return w.num_frames

@@ -1,0 +1,424 @@
+"""Offscreen renderer of a skinned character: skinning in the vertex shader, one shaded pass.
+
+Per frame: T (4m, 3) is copied into one uniform buffer (handle transforms), the ground's shadow
+spheres are moved (Q @ T, k x 4m, tiny), the scene is drawn into a multisampled framebuffer,
+resolved, and read back as RGB into a preallocated array. The projection is flipped vertically
+so that the read-back rows are already in image order (top row first): no copy, no flip.
+"""
+
+import moderngl
+import numpy as np
+
+from puppet.render import shaders
+from puppet.render.camera import Camera
+from puppet.render.contact_shadow import shadow_spheres
+from puppet.render.context import create_context
+from puppet.render.errors import RenderError, RenderInputError
+from puppet.render.overlay import BONE_CORNERS, rest_segments, state_color
+from puppet.render.skin_weights import TEXTURE_WIDTH, lbs_matrix, pack_weights
+
+SKINNING_MODES = ("gpu", "cpu")
+
+
+def _vertex_normals(V: np.ndarray, F: np.ndarray) -> np.ndarray:
+    """Area-weighted vertex normals (n, 3) float32 of the rest mesh (zero for lone vertices)."""
+    face_normals = np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]])
+    normals = np.zeros_like(V)
+    for corner in range(3):
+        np.add.at(normals, F[:, corner], face_normals)
+    length = np.linalg.norm(normals, axis=1, keepdims=True)
+    return (normals / np.maximum(length, 1e-20)).astype(np.float32)
+
+
+def _check_mesh(V, F, W) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    V = np.asarray(V)
+    F = np.asarray(F)
+    W = np.asarray(W)
+    if V.ndim != 2 or V.shape[1] != 3 or len(V) == 0:
+        raise RenderInputError(f"V: expected (n, 3) rest positions, got shape {V.shape}")
+    if not np.all(np.isfinite(V)):
+        raise RenderInputError(f"V: non-finite position at vertex {int(np.argwhere(~np.isfinite(V))[0, 0])}")
+    if F.ndim != 2 or F.shape[1] != 3 or len(F) == 0 or not np.issubdtype(F.dtype, np.integer):
+        raise RenderInputError(f"F: expected (f, 3) integer triangles, got shape {F.shape}, dtype {F.dtype}")
+    if F.min() < 0 or F.max() >= len(V):
+        raise RenderInputError(f"F: vertex index out of range [0, {len(V)}): min {F.min()}, max {F.max()}")
+    if W.ndim != 2 or W.shape[0] != len(V):
+        raise RenderInputError(f"W: expected ({len(V)}, m) weights for {len(V)} vertices, got shape {W.shape}")
+    return V.astype(np.float64), F.astype(np.uint32), W
+
+
+class Renderer:
+    """Draws a character skinned by T into RGB images.
+
+    V: (n, 3) rest positions [scene units]; F: (f, 3) int triangles (counter-clockwise seen from
+    outside); W: (n, m) weights of all m handles (skeleton bones, then extra weights).
+    width, height: image size [px]; samples: MSAA samples (0 or 1: none; clamped to the
+    driver's maximum); camera: a Camera, or None to frame the rest pose automatically;
+    skinning: "gpu" (vertex shader) or "cpu" (M @ T in NumPy, uploaded; face normals);
+    up: (3,) world up; ground: draw the ground plane with its contact shadow;
+    albedo, background: linear RGB in [0, 1]; context: a moderngl.Context to share (else an EGL
+    context is created and owned); weight_tolerance: drop |w| <= this (0: exact).
+    """
+
+    def __init__(
+        self,
+        V,
+        F,
+        W,
+        *,
+        width: int = 640,
+        height: int = 480,
+        samples: int = 4,
+        camera: Camera | None = None,
+        skinning: str = "gpu",
+        up=(0.0, 1.0, 0.0),
+        ground: bool = True,
+        albedo=(0.78, 0.52, 0.36),
+        background=(0.16, 0.17, 0.2),
+        context: moderngl.Context | None = None,
+        weight_tolerance: float = 0.0,
+        shadow_sphere_count: int = 24,
+        shadow_resolution: int = 256,
+        bone_width_px: float = 5.0,
+    ):
+        if skinning not in SKINNING_MODES:
+            raise RenderInputError(f"skinning: expected one of {SKINNING_MODES}, got {skinning!r}")
+        if int(width) < 1 or int(height) < 1:
+            raise RenderInputError(f"width, height: must be positive, got {width} x {height}")
+        V, F, W = _check_mesh(V, F, W)
+        self.width, self.height = int(width), int(height)
+        self.skinning = skinning
+        self.n, self.m = W.shape
+        self.ground = bool(ground)
+        self.bone_width_px = float(bone_width_px)
+        self._up = np.asarray(up, dtype=np.float64) / np.linalg.norm(up)
+        self._owns_ctx = context is None
+        self.ctx = create_context() if context is None else context
+        ctx = self.ctx
+        self._released = False
+
+        max_block = int(ctx.info["GL_MAX_UNIFORM_BLOCK_SIZE"])
+        if 48 * self.m > max_block:
+            raise RenderError(f"W: {self.m} handles need {48 * self.m} bytes of uniforms, the driver allows {max_block}")
+
+        # Scene extent, for framing, clip planes and the ground.
+        lo, hi = V.min(axis=0), V.max(axis=0)
+        self._rest_points = V
+        self._center = (lo + hi) / 2
+        self._radius = max(float(np.linalg.norm(hi - lo)) / 2, 1e-6)
+        floor = float((V @ self._up).min())
+        self._ground_center = self._center + self._up * (floor - self._center @ self._up - 1e-3 * self._radius)
+        self._ground_extent = 2.2 * self._radius
+
+        # Per-frame buffers (allocated once).
+        self._rows = np.zeros((self.m, 3, 4), dtype=np.float32)  # A_j = T block j transposed
+        self.image = np.zeros((self.height, self.width, 3), dtype=np.uint8)
+
+        # Skinning data: rest positions, normals, per-vertex spans into the weights texture.
+        packed = pack_weights(W, tolerance=weight_tolerance)
+        self.max_weights_per_vertex = packed.max_per_vertex
+        self.dropped_weight_abs_max = packed.dropped_abs_max
+        self._vbo_rest = ctx.buffer(V.astype(np.float32))
+        self._vbo_normal = ctx.buffer(_vertex_normals(V, F.astype(np.int64)))
+        self._vbo_span = ctx.buffer(packed.spans)
+        self._ibo = ctx.buffer(F)
+        self._weights = ctx.texture((TEXTURE_WIDTH, packed.entries.shape[0]), 2, packed.entries, dtype="f4")
+        self._weights.filter = (moderngl.NEAREST, moderngl.NEAREST)
+        self._ubo = ctx.buffer(reserve=self._rows.nbytes)
+        defines = dict(HANDLES=self.m, WEIGHTS_WIDTH=TEXTURE_WIDTH, WEIGHTS_SHIFT=TEXTURE_WIDTH.bit_length() - 1)
+
+        self._capture_prog = ctx.program(
+            vertex_shader=shaders.source(shaders.SKIN, shaders.MESH_CAPTURE_VERTEX, **defines),
+            varyings=["out_position"],
+        )
+        self._capture_vao = ctx.vertex_array(
+            self._capture_prog, [(self._vbo_rest, "3f", "in_position"), (self._vbo_span, "2u", "in_span")]
+        )
+        self._capture_buffer = ctx.buffer(reserve=self.n * 12)
+        self._captured = np.zeros((self.n, 3), dtype=np.float32)
+        self._bind_skin(self._capture_prog)
+
+        fragment = shaders.source(shaders.LIGHTING, shaders.MESH_FRAGMENT)
+        if skinning == "gpu":
+            self._mesh_prog = ctx.program(
+                vertex_shader=shaders.source(shaders.SKIN, shaders.MESH_GPU_VERTEX, **defines),
+                fragment_shader=fragment,
+            )
+            self._bind_skin(self._mesh_prog)
+            content = [
+                (self._vbo_rest, "3f", "in_position"),
+                (self._vbo_normal, "3f", "in_normal"),
+                (self._vbo_span, "2u", "in_span"),
+            ]
+            self._mesh_prog["u_face_normals"].value = False
+        else:
+            self._M = lbs_matrix(V, W)
+            self._positions = np.zeros((self.n, 3), dtype=np.float32)
+            self._vbo_positions = ctx.buffer(reserve=self._positions.nbytes, dynamic=True)
+            self._mesh_prog = ctx.program(
+                vertex_shader=shaders.source(shaders.MESH_CPU_VERTEX), fragment_shader=fragment
+            )
+            content = [(self._vbo_positions, "3f", "in_position")]
+            self._mesh_prog["u_face_normals"].value = True
+        self._mesh_vao = ctx.vertex_array(self._mesh_prog, content, index_buffer=self._ibo, index_element_size=4)
+        self._mesh_prog["u_albedo"].value = tuple(float(c) for c in albedo)
+        self._background = tuple(float(c) for c in background)
+
+        # Ground plane with contact shadow spheres, their occlusion drawn into a small texture.
+        spheres = shadow_spheres(V, W, count=shadow_sphere_count)
+        self._shadow_Q = spheres.Q
+        self._spheres = np.zeros((len(spheres.radii), 4), dtype=np.float32)
+        self._spheres[:, 3] = spheres.radii
+        axis_a, axis_b = self._ground_axes()
+        ground_uniforms = {
+            "u_center": tuple(self._ground_center),
+            "u_axis_a": tuple(axis_a * self._ground_extent),
+            "u_axis_b": tuple(axis_b * self._ground_extent),
+            "u_extent": self._ground_extent,
+            "u_ground_color": (0.62, 0.62, 0.6),
+            "u_background": self._background,
+            "u_up": tuple(self._up),
+        }
+        self._occlusion_prog = ctx.program(
+            vertex_shader=shaders.source(shaders.OCCLUSION_VERTEX),
+            fragment_shader=shaders.source(shaders.OCCLUSION_FRAGMENT, SPHERES=len(self._spheres)),
+        )
+        self._occlusion_quad = ctx.buffer(np.array([[-1, -1], [1, -1], [-1, 1], [1, 1]], dtype=np.float32))
+        self._occlusion_vao = ctx.vertex_array(self._occlusion_prog, [(self._occlusion_quad, "2f", "in_corner")])
+        self._occlusion_texture = ctx.texture((shadow_resolution, shadow_resolution), 1, dtype="f1")
+        self._occlusion_texture.repeat_x = self._occlusion_texture.repeat_y = False
+        self._occlusion_fbo = ctx.framebuffer(self._occlusion_texture)
+        self._ground_prog = ctx.program(
+            vertex_shader=shaders.source(shaders.GROUND_VERTEX),
+            fragment_shader=shaders.source(shaders.LIGHTING, shaders.GROUND_FRAGMENT),
+        )
+        self._ground_vbo = ctx.buffer(self._ground_quad(axis_a, axis_b))
+        self._ground_vao = ctx.vertex_array(self._ground_prog, [(self._ground_vbo, "3f", "in_position")])
+        for prog in (self._occlusion_prog, self._ground_prog):
+            for name, value in ground_uniforms.items():
+                uniform = prog.get(name, None)
+                if uniform is not None:
+                    uniform.value = value
+        self._ground_prog["u_visibility"].value = 1
+
+        # Skeleton overlay (instance data grows on demand).
+        self._bone_prog = ctx.program(
+            vertex_shader=shaders.source(shaders.BONE_VERTEX), fragment_shader=shaders.source(shaders.BONE_FRAGMENT)
+        )
+        self._bone_corners = ctx.buffer(BONE_CORNERS)
+        self._bone_vbo = None
+        self._bone_vao = None
+        self._bone_source = None
+        self._bone_rest = None
+        self._bone_instances = None
+
+        # Framebuffers: multisampled target, resolved into a single-sample one that is read back.
+        self.samples = 0 if samples <= 1 else min(int(samples), int(ctx.max_samples))
+        size = (self.width, self.height)
+        self._resolved = ctx.framebuffer(ctx.renderbuffer(size, 4), ctx.depth_renderbuffer(size))
+        if self.samples:
+            self._target = ctx.framebuffer(
+                ctx.renderbuffer(size, 4, samples=self.samples), ctx.depth_renderbuffer(size, samples=self.samples)
+            )
+        else:
+            self._target = self._resolved
+
+        self.camera = camera if camera is not None else Camera.framing(V, aspect=self.width / self.height, up=self._up)
+
+    # -- setup helpers ---------------------------------------------------------------------------
+
+    def _bind_skin(self, prog: moderngl.Program) -> None:
+        prog["Handles"].binding = 0
+        prog["u_weights"].value = 0
+
+    def _ground_axes(self) -> tuple[np.ndarray, np.ndarray]:
+        """Two unit axes (3,) spanning the ground plane (perpendicular to up)."""
+        helper = np.array([1.0, 0.0, 0.0]) if abs(self._up[0]) < 0.9 else np.array([0.0, 0.0, 1.0])
+        a = np.cross(self._up, helper)
+        a /= np.linalg.norm(a)
+        return a, np.cross(self._up, a)
+
+    def _ground_quad(self, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+        """Two triangles (6, 3) float32 spanning the ground square, perpendicular to up."""
+        e = self._ground_extent
+        c = self._ground_center
+        corners = [c + e * (sa * a + sb * b) for sa, sb in ((-1, -1), (1, -1), (1, 1), (-1, 1))]
+        return np.array([corners[i] for i in (0, 1, 2, 0, 2, 3)], dtype=np.float32)
+
+    @property
+    def camera(self) -> Camera:
+        """The camera; assign a Camera (again, after changing its fields) to apply it."""
+        return self._camera
+
+    @camera.setter
+    def camera(self, camera: Camera) -> None:
+        if not isinstance(camera, Camera):
+            raise RenderInputError(f"camera: expected a Camera, got {type(camera).__name__}")
+        self._camera = camera
+        flip = np.diag([1.0, -1.0, 1.0, 1.0]).astype(np.float32)  # rows come back top row first
+        view_proj = flip @ camera.projection_matrix(self.width / self.height, self._radius) @ camera.view_matrix()
+        self._view_proj_gl = np.ascontiguousarray(view_proj.T, dtype=np.float32)  # column-major for GL
+        right, up, back = camera.basis()
+        key = 0.55 * right + 0.75 * up + 0.6 * back  # above, right of and in front of the character
+        fill = -0.7 * right + 0.1 * up + 0.5 * back
+        lights = {
+            "u_eye": camera.eye,
+            "u_up": self._up,
+            "u_key_dir": key / np.linalg.norm(key),
+            "u_fill_dir": fill / np.linalg.norm(fill),
+            "u_sky": np.array([0.62, 0.68, 0.8]),
+            "u_ground_bounce": np.array([0.32, 0.28, 0.25]),
+        }
+        for prog in (self._mesh_prog, self._ground_prog):
+            prog["u_view_proj"].write(self._view_proj_gl)
+            for name, value in lights.items():
+                uniform = prog.get(name, None)  # None where the shader does not use it
+                if uniform is not None:
+                    uniform.value = tuple(float(x) for x in value)
+        self._bone_prog["u_view_proj"].write(self._view_proj_gl)
+        self._bone_prog["u_viewport"].value = (float(self.width), float(self.height))
+
+    # -- per frame -------------------------------------------------------------------------------
+
+    def _upload(self, T: np.ndarray) -> np.ndarray:
+        """Check T (4m, 3) and upload it once; returns T viewed as (m, 4, 3)."""
+        if not isinstance(T, np.ndarray) or T.shape != (4 * self.m, 3):
+            shape = getattr(T, "shape", None)
+            raise RenderInputError(f"T: expected shape ({4 * self.m}, 3) for {self.m} handles, got {shape}")
+        blocks = T.reshape(self.m, 4, 3)
+        np.copyto(self._rows, blocks.transpose(0, 2, 1), casting="same_kind")
+        self._ubo.write(self._rows)
+        return blocks
+
+    def _bind_frame_resources(self) -> None:
+        self._ubo.bind_to_uniform_block(0)
+        self._weights.use(location=0)
+
+    def skinned_positions(self, T: np.ndarray) -> np.ndarray:
+        """Positions (n, 3) float32 as the vertex shader computes them (transform feedback).
+
+        The returned array is reused by the next call; copy it to keep it.
+        """
+        self._upload(T)
+        self._bind_frame_resources()
+        self._resolved.use()  # EGL without a surface has no default framebuffer to fall back to
+        self._capture_vao.transform(self._capture_buffer, mode=moderngl.POINTS, vertices=self.n)
+        self._capture_buffer.read_into(self._captured)
+        return self._captured
+
+    def draw(self, T: np.ndarray, *, bones=None, bone_states=None, out: np.ndarray | None = None) -> np.ndarray:
+        """Render the character skinned by T and read it back.
+
+        T: (4m, 3) float32, rows 4j..4j+3 are handle j's 3x4 affine transform transposed
+        (v' = [v 1] @ T[4j:4j+4]). bones: optional (b, 2, 3) rest heads and tails, bone i moves
+        with handle i, drawn over the character; bone_states: b states ("sensed", "relative",
+        "free", "faulted") or None. out: optional (height, width, 3) uint8 C-contiguous array.
+        Returns (height, width, 3) uint8 RGB, top row first: `out`, or the renderer's own
+        `image` array, which the next draw overwrites.
+        """
+        ctx = self.ctx
+        blocks = self._upload(T)
+        if self.skinning == "cpu":
+            M = self._M
+            np.matmul(M, T, out=self._positions, casting="same_kind")
+            self._vbo_positions.write(self._positions)
+        ctx.disable(moderngl.CULL_FACE)
+        ctx.disable(moderngl.DEPTH_TEST)
+        if self.ground:
+            np.matmul(self._shadow_Q, T, out=self._spheres[:, :3], casting="same_kind")
+            self._occlusion_prog["u_spheres"].write(self._spheres)
+            self._occlusion_fbo.use()
+            self._occlusion_vao.render(moderngl.TRIANGLE_STRIP)
+        self._target.use()
+        self._target.clear(*self._background, 1.0)
+        ctx.enable(moderngl.DEPTH_TEST)
+        ctx.front_face = "cw"  # the vertical flip in the projection mirrors the winding
+        if self.ground:
+            self._occlusion_texture.use(location=1)
+            self._ground_vao.render(moderngl.TRIANGLES)
+        self._bind_frame_resources()
+        self._mesh_vao.render(moderngl.TRIANGLES)
+        if bones is not None:
+            ctx.disable(moderngl.DEPTH_TEST)
+            self._draw_bones(bones, bone_states, blocks)
+        ctx.front_face = "ccw"
+        ctx.disable(moderngl.DEPTH_TEST)
+        if self.samples:
+            ctx.copy_framebuffer(self._resolved, self._target)
+        image = self.image if out is None else out
+        if image.shape != self.image.shape or image.dtype != np.uint8 or not image.flags.c_contiguous:
+            raise RenderInputError(f"out: expected C-contiguous uint8 {self.image.shape}, got {image.dtype} {image.shape}")
+        self._resolved.read_into(image, components=3, alignment=1)
+        return image
+
+    def _draw_bones(self, bones, bone_states, blocks: np.ndarray) -> None:
+        if bones is not self._bone_source:
+            rest = rest_segments(bones)
+            if len(rest) > self.m:
+                raise RenderInputError(f"bones: {len(rest)} bones but only {self.m} handles")
+            if self._bone_rest is None or len(rest) != len(self._bone_rest):
+                self._bone_instances = np.zeros((len(rest), 9), dtype=np.float32)
+                if self._bone_vbo is not None:
+                    self._bone_vao.release()
+                    self._bone_vbo.release()
+                self._bone_vbo = self.ctx.buffer(reserve=self._bone_instances.nbytes, dynamic=True)
+                self._bone_vao = self.ctx.vertex_array(
+                    self._bone_prog,
+                    [
+                        (self._bone_corners, "2f", "in_corner"),
+                        (self._bone_vbo, "3f 3f 3f/i", "in_head", "in_tail", "in_color"),
+                    ],
+                )
+            self._bone_rest = rest
+            self._bone_source = bones
+        rest = self._bone_rest
+        count = len(rest)
+        if bone_states is not None and len(bone_states) != count:
+            raise RenderInputError(f"bone_states: {len(bone_states)} states for {count} bones")
+        inst = self._bone_instances
+        posed = inst[:, :6].reshape(count, 2, 3)
+        np.matmul(rest, blocks[:count], out=posed, casting="same_kind")  # (b,2,4) @ (b,4,3)
+        for i in range(count):
+            inst[i, 6:9] = state_color(None if bone_states is None else bone_states[i], i)
+        self._bone_vbo.write(inst)
+        self._bone_prog["u_width_px"].value = self.bone_width_px
+        self._bone_vao.render(moderngl.TRIANGLE_STRIP, instances=count)
+
+    # -- lifetime --------------------------------------------------------------------------------
+
+    @property
+    def gl_renderer(self) -> str:
+        """GL_RENDERER of the context, e.g. 'llvmpipe (LLVM 15.0.6, 256 bits)'."""
+        return str(self.ctx.info["GL_RENDERER"])
+
+    def release(self) -> None:
+        """Free every GL object of this renderer (and its context when it owns it)."""
+        if self._released:
+            return
+        self._released = True
+        objects = [
+            self._capture_vao, self._capture_prog, self._capture_buffer, self._mesh_vao, self._mesh_prog,
+            self._ground_vao, self._ground_prog, self._ground_vbo, self._bone_prog, self._bone_corners,
+            self._occlusion_vao, self._occlusion_prog, self._occlusion_quad, self._occlusion_fbo,
+            self._occlusion_texture,
+            self._vbo_rest, self._vbo_normal, self._vbo_span, self._ibo, self._weights, self._ubo,
+        ]
+        if self.skinning == "cpu":
+            objects.append(self._vbo_positions)
+        if self._bone_vao is not None:
+            objects += [self._bone_vao, self._bone_vbo]
+        for fbo in {id(self._target): self._target, id(self._resolved): self._resolved}.values():
+            objects += list(fbo.color_attachments) + [fbo.depth_attachment, fbo]
+        # Bind framebuffer 0 first: moderngl rebinds the current framebuffer after creating one, and
+        # rebinding a deleted framebuffer would raise GL_INVALID_OPERATION in a shared context.
+        self.ctx.detect_framebuffer(0).use()
+        for obj in objects:
+            obj.release()
+        if self._owns_ctx:
+            self.ctx.release()
+
+    def __enter__(self) -> "Renderer":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.release()

@@ -1,0 +1,215 @@
+"""GLSL sources of the renderer (GLSL 330 core). Each program is assembled by `source()`.
+
+Skinning (the `SKIN` chunk): vertex i's blended transform is sum_k w_k * A_{h_k} over its
+(weight, handle) pairs, read from the `u_weights` texture; A_j (3x4, rows u_rows[3j..3j+2])
+is handle j's affine transform, i.e. block j of T (4m, 3) transposed. Positions are A [v 1]
+(= row i of M @ T), normals are the cofactor of A's linear part times the rest normal.
+"""
+
+SKIN = """
+layout(std140) uniform Handles { vec4 u_rows[3 * HANDLES]; };
+uniform sampler2D u_weights;   // RG32F texel k: (weight, handle index)
+
+void blend_transform(uvec2 span, out vec4 r0, out vec4 r1, out vec4 r2) {
+    r0 = vec4(0.0); r1 = vec4(0.0); r2 = vec4(0.0);
+    int first = int(span.x);
+    int last = first + int(span.y);
+    for (int k = first; k < last; ++k) {
+        vec2 pair = texelFetch(u_weights, ivec2(k & (WEIGHTS_WIDTH - 1), k >> WEIGHTS_SHIFT), 0).xy;
+        int j = 3 * int(pair.y);
+        r0 += pair.x * u_rows[j];
+        r1 += pair.x * u_rows[j + 1];
+        r2 += pair.x * u_rows[j + 2];
+    }
+}
+
+vec3 apply_affine(vec4 r0, vec4 r1, vec4 r2, vec3 p) {
+    vec4 h = vec4(p, 1.0);
+    return vec3(dot(r0, h), dot(r1, h), dot(r2, h));
+}
+
+vec3 transform_normal(vec4 r0, vec4 r1, vec4 r2, vec3 n) {
+    // Columns of the linear part A; cofactor(A) = det(A) A^-T has columns c1xc2, c2xc0, c0xc1.
+    vec3 c0 = vec3(r0.x, r1.x, r2.x), c1 = vec3(r0.y, r1.y, r2.y), c2 = vec3(r0.z, r1.z, r2.z);
+    return mat3(cross(c1, c2), cross(c2, c0), cross(c0, c1)) * n;
+}
+"""
+
+# Mesh skinned on the GPU, for drawing.
+MESH_GPU_VERTEX = """
+uniform mat4 u_view_proj;
+in vec3 in_position;
+in vec3 in_normal;
+in uvec2 in_span;
+out vec3 v_world;
+out vec3 v_normal;
+void main() {
+    vec4 r0, r1, r2;
+    blend_transform(in_span, r0, r1, r2);
+    v_world = apply_affine(r0, r1, r2, in_position);
+    v_normal = transform_normal(r0, r1, r2, in_normal);
+    gl_Position = u_view_proj * vec4(v_world, 1.0);
+}
+"""
+
+# Mesh skinned on the GPU, captured by transform feedback (skinned_positions).
+MESH_CAPTURE_VERTEX = """
+in vec3 in_position;
+in uvec2 in_span;
+out vec3 out_position;
+void main() {
+    vec4 r0, r1, r2;
+    blend_transform(in_span, r0, r1, r2);
+    out_position = apply_affine(r0, r1, r2, in_position);
+}
+"""
+
+# Mesh skinned on the CPU (positions uploaded each frame); normals from screen derivatives.
+MESH_CPU_VERTEX = """
+uniform mat4 u_view_proj;
+in vec3 in_position;
+out vec3 v_world;
+out vec3 v_normal;
+void main() {
+    v_world = in_position;
+    v_normal = vec3(0.0);
+    gl_Position = u_view_proj * vec4(v_world, 1.0);
+}
+"""
+
+LIGHTING = """
+uniform vec3 u_eye;
+uniform vec3 u_up;
+uniform vec3 u_key_dir;     // toward the light, world space
+uniform vec3 u_fill_dir;
+uniform vec3 u_sky;
+uniform vec3 u_ground_bounce;
+
+// Display encoding with gamma 2 (sqrt): close to sRGB and much cheaper than pow on llvmpipe.
+vec3 to_display(vec3 linear) { return sqrt(clamp(linear, 0.0, 1.0)); }
+"""
+
+MESH_FRAGMENT = """
+uniform vec3 u_albedo;
+uniform bool u_face_normals;
+in vec3 v_world;
+in vec3 v_normal;
+out vec4 f_color;
+void main() {
+    vec3 n = u_face_normals ? cross(dFdx(v_world), dFdy(v_world)) : v_normal;
+    n = normalize(n);
+    if (!u_face_normals && !gl_FrontFacing) n = -n;
+    vec3 v = normalize(u_eye - v_world);
+    if (u_face_normals && dot(n, v) < 0.0) n = -n;
+    float up = dot(n, u_up);
+    vec3 ambient = mix(u_ground_bounce, u_sky, 0.5 + 0.5 * up);
+    float key = max(dot(n, u_key_dir), 0.0);
+    float fill = max(dot(n, u_fill_dir), 0.0);
+    float spec = max(dot(n, normalize(u_key_dir + v)), 0.0);
+    spec *= spec; spec *= spec; spec *= spec; spec *= spec; spec *= spec * key;  // ^32, no pow
+    float rim = 1.0 - max(dot(n, v), 0.0);
+    rim = rim * rim * rim;
+    vec3 light = ambient * 0.55 + key * vec3(1.0, 0.94, 0.86) * 0.95 + fill * vec3(0.55, 0.65, 0.85) * 0.35;
+    vec3 color = u_albedo * light + spec * 0.18 + rim * vec3(0.6, 0.7, 0.9) * 0.35;
+    f_color = vec4(to_display(color), 1.0);
+}
+"""
+
+GROUND_VERTEX = """
+uniform mat4 u_view_proj;
+in vec3 in_position;
+out vec3 v_world;
+void main() {
+    v_world = in_position;
+    gl_Position = u_view_proj * vec4(in_position, 1.0);
+}
+"""
+
+# Occlusion of the ground by the shadow spheres, rendered into a small texture over the ground
+# square (one fragment per texel: cheap), then sampled bilinearly by GROUND_FRAGMENT.
+OCCLUSION_VERTEX = """
+uniform vec3 u_center;            // middle of the ground square
+uniform vec3 u_axis_a;            // ground axes scaled by the half extent
+uniform vec3 u_axis_b;
+in vec2 in_corner;                // -1..1
+out vec3 v_world;
+void main() {
+    v_world = u_center + in_corner.x * u_axis_a + in_corner.y * u_axis_b;
+    gl_Position = vec4(in_corner, 0.0, 1.0);
+}
+"""
+
+OCCLUSION_FRAGMENT = """
+uniform vec4 u_spheres[SPHERES];  // xyz: center, w: radius
+uniform vec3 u_up;
+in vec3 v_world;
+out vec4 f_visible;
+void main() {
+    float visible = 1.0;
+    for (int s = 0; s < SPHERES; ++s) {
+        vec3 d = u_spheres[s].xyz - v_world;
+        float r2 = u_spheres[s].w * u_spheres[s].w;
+        float h = max(dot(d, u_up), 0.0);
+        // Cosine-weighted solid angle of a sphere, (r / dist)^2 cos(theta), with dist^2 softened
+        // to dist^2 + r^2 so that overlapping spheres blend into one smooth shadow.
+        float s2 = dot(d, d) + r2;
+        visible *= 1.0 - min(2.0 * r2 * h * inversesqrt(s2) / s2, 0.9);
+    }
+    f_visible = vec4(visible);
+}
+"""
+
+GROUND_FRAGMENT = """
+uniform sampler2D u_visibility;
+uniform vec3 u_center;
+uniform vec3 u_axis_a;            // ground axes scaled by the half extent
+uniform vec3 u_axis_b;
+uniform float u_extent;           // half extent of the ground square
+uniform vec3 u_ground_color;
+uniform vec3 u_background;       // display-space RGB, like the clear color
+in vec3 v_world;
+out vec4 f_color;
+void main() {
+    vec3 rel = v_world - u_center;
+    vec2 uv = 0.5 + 0.5 * vec2(dot(rel, u_axis_a), dot(rel, u_axis_b)) / (u_extent * u_extent);
+    float occlusion = 1.0 - texture(u_visibility, uv).r;
+    vec3 lit = u_ground_color * mix(u_ground_bounce, u_sky, 0.85) * (1.0 - 0.85 * occlusion);
+    float fade = 1.0 - smoothstep(0.45 * u_extent, u_extent, length(rel));
+    f_color = vec4(mix(u_background, to_display(lit), fade), 1.0);
+}
+"""
+
+BONE_VERTEX = """
+uniform mat4 u_view_proj;
+uniform vec2 u_viewport;   // width, height [px]
+uniform float u_width_px;
+in vec2 in_corner;         // x: 0 at head, 1 at tail; y: -1..1 across
+in vec3 in_head;
+in vec3 in_tail;
+in vec3 in_color;
+out vec3 v_color;
+void main() {
+    vec4 a = u_view_proj * vec4(in_head, 1.0);
+    vec4 b = u_view_proj * vec4(in_tail, 1.0);
+    vec2 sa = a.xy / a.w * 0.5 * u_viewport, sb = b.xy / b.w * 0.5 * u_viewport;
+    vec2 dir = sb - sa;
+    dir = length(dir) > 1e-6 ? normalize(dir) : vec2(1.0, 0.0);
+    vec2 across = vec2(-dir.y, dir.x) * in_corner.y * u_width_px;
+    vec4 p = mix(a, b, in_corner.x);
+    p.xy += across * 2.0 / u_viewport * p.w;
+    gl_Position = p;
+    v_color = in_color * (0.8 + 0.2 * in_corner.y);
+}
+"""
+
+BONE_FRAGMENT = """
+in vec3 v_color;
+out vec4 f_color;
+void main() { f_color = vec4(v_color, 1.0); }
+"""
+
+
+def source(*chunks: str, **defines) -> str:
+    """GLSL 330 source: #define NAME value for each keyword, then the chunks in order."""
+    lines = ["#version 330 core"] + [f"#define {name} {value}" for name, value in defines.items()]
+    return "\n".join(lines + list(chunks))

@@ -1,0 +1,103 @@
+"""Calibration: host-side zero ticks per servo id (TOML or JSON), never written to a servo.
+
+File layout (TOML; JSON has the same shape)::
+
+    # puppet calibration: encoder ticks at the rig's rest pose
+    [zero_ticks]
+    1 = 2051
+    2 = 2040
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import tomllib
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from puppet.rig.errors import RigError
+
+
+@dataclass
+class Calibration:
+    """Zero ticks per servo id.
+
+    zero_ticks: {servo id: int32 encoder ticks at the rest pose}.
+    path:       the file this came from or was saved to, if any.
+    """
+
+    zero_ticks: dict[int, int] = field(default_factory=dict)
+    path: Path | None = None
+
+    @classmethod
+    def capture(cls, ids, ticks) -> "Calibration":
+        """Zero pose capture: the puppet is held in the rest pose and read once.
+
+        ids: (k,) servo ids; ticks: (k,) int32 readings in the same order.
+        """
+        ids = np.asarray(ids).reshape(-1)
+        ticks = np.asarray(ticks).reshape(-1)
+        if len(ids) != len(ticks):
+            raise RigError(f"{len(ids)} ids but {len(ticks)} tick readings", field="calibration.capture")
+        if len(set(ids.tolist())) != len(ids):
+            raise RigError(f"duplicate servo ids in {ids.tolist()}", field="calibration.capture")
+        return cls({int(i): int(t) for i, t in zip(ids, ticks)})
+
+    def zero_for(self, servo_id: int, default: int) -> int:
+        return self.zero_ticks.get(int(servo_id), int(default))
+
+    def save(self, path) -> Path:
+        """Write to ``path`` (.json for JSON, anything else TOML) atomically; returns the path."""
+        path = Path(path)
+        items = sorted(self.zero_ticks.items())
+        if path.suffix.lower() == ".json":
+            text = json.dumps({"zero_ticks": {str(i): t for i, t in items}}, indent=2) + "\n"
+        else:
+            lines = ["# puppet calibration: encoder ticks at the rig's rest pose", "[zero_ticks]"]
+            lines += [f"{i} = {t}" for i, t in items]
+            text = "\n".join(lines) + "\n"
+        tmp = path.with_name(path.name + ".tmp")
+        try:
+            tmp.write_text(text)
+            os.replace(tmp, path)
+        except OSError as err:
+            raise RigError(f"cannot write calibration: {err.strerror}", path=path) from err
+        self.path = path
+        return path
+
+    @classmethod
+    def load(cls, path) -> "Calibration":
+        """Read a calibration file; errors name the file and the servo entry at fault."""
+        path = Path(path)
+        try:
+            raw = path.read_bytes()
+        except FileNotFoundError:
+            raise RigError("calibration file not found", path=path) from None
+        except OSError as err:
+            raise RigError(f"cannot read calibration: {err.strerror}", path=path) from err
+        try:
+            if path.suffix.lower() == ".json":
+                doc = json.loads(raw)
+            else:
+                doc = tomllib.loads(raw.decode("utf-8"))
+        except (json.JSONDecodeError, tomllib.TOMLDecodeError, UnicodeDecodeError) as err:
+            raise RigError(f"not valid {'JSON' if path.suffix.lower() == '.json' else 'TOML'}: {err}",
+                           path=path) from err
+        table = doc.get("zero_ticks") if isinstance(doc, dict) else None
+        if not isinstance(table, dict):
+            raise RigError("missing table [zero_ticks]", path=path, field="zero_ticks")
+        zero = {}
+        for key, value in table.items():
+            try:
+                servo_id = int(key)
+            except ValueError:
+                raise RigError(f"servo id {key!r} is not an integer", path=path,
+                               field=f"zero_ticks.{key}") from None
+            if isinstance(value, bool) or not isinstance(value, int):
+                raise RigError(f"zero ticks must be an integer, got {value!r}", path=path,
+                               field=f"zero_ticks.{key}")
+            zero[servo_id] = value
+        return cls(zero, path)

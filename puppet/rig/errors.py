@@ -1,0 +1,24 @@
+"""Typed errors of the rig part: every message names the file and the field at fault."""
+
+from __future__ import annotations
+
+
+class RigError(ValueError):
+    """A rig file or rig object is invalid.
+
+    path:  the file at fault, or None for in-memory data.
+    field: the field, key or record at fault (e.g. "servo 7 limits", "accessor 3").
+    line:  1-based line in ``path`` where the fault is, when known.
+    """
+
+    def __init__(self, message: str, *, path: object = None, field: str | None = None,
+                 line: int | None = None) -> None:
+        self.path = None if path is None else str(path)
+        self.field = field
+        self.line = line
+        where = self.path or "<rig>"
+        if line is not None:
+            where += f":{line}"
+        if field:
+            where += f": {field}"
+        super().__init__(f"{where}: {message}")

@@ -1,0 +1,111 @@
+"""Loading rigs: a TOML rig file (servo map naming its character files), a glTF file, or the
+built-in character."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from puppet.rig.calibration import Calibration
+from puppet.rig.errors import RigError
+from puppet.rig.rig import Rig
+from puppet.rig.rig_file import read_rig_file
+from puppet.rig.servo_map import ServoMap
+from puppet.rig.skeleton import Skeleton
+from puppet.rig.weight_check import normalize_weights
+
+BUILTIN_RIG = Path(__file__).resolve().parent / "builtin" / "critter.toml"
+CHARACTER_KEYS = ("V", "F", "W", "names", "parents", "heads", "tails", "frames")
+
+
+def builtin() -> Rig:
+    """The built-in character "critter" (precomputed weights; loads in well under 2 s)."""
+    return load_rig(BUILTIN_RIG)
+
+
+def read_character_npz(path):
+    """(V, F, W, skeleton) from the compact .npz character format written by
+    ``puppet/rig/builtin/make_character.py`` (keys: CHARACTER_KEYS)."""
+    path = Path(path)
+    try:
+        with np.load(path, allow_pickle=False) as data:
+            missing = [k for k in CHARACTER_KEYS if k not in data.files]
+            if missing:
+                raise RigError(f"missing arrays {missing}", path=path, field="npz")
+            arrays = {k: data[k] for k in CHARACTER_KEYS}
+    except FileNotFoundError:
+        raise RigError("character file not found", path=path) from None
+    except (OSError, ValueError) as err:
+        raise RigError(f"not a character .npz: {err}", path=path) from err
+    skeleton = Skeleton(tuple(str(n) for n in arrays["names"]), arrays["parents"], arrays["heads"],
+                        arrays["tails"], arrays["frames"])
+    W = normalize_weights(arrays["W"], path=path, field_name="W")
+    return arrays["V"].astype(np.float64), arrays["F"].astype(np.int32), W, skeleton
+
+
+def _read_character(spec):
+    """(V, F, W, skeleton) for a rig file's mesh/skeleton/weights entries."""
+    from puppet.rig.tgf_dmat import read_dmat, read_tgf
+
+    suffix = spec.mesh.suffix.lower()
+    if suffix == ".npz":
+        return read_character_npz(spec.mesh)
+    if suffix in (".glb", ".gltf"):
+        from puppet.rig.gltf import read_gltf
+
+        character = read_gltf(spec.mesh)
+        return character.V, character.F, character.W, character.skeleton
+    if suffix in (".obj", ".ply"):
+        from puppet.rig.mesh_io import read_mesh
+
+        V, F = read_mesh(spec.mesh)
+        if spec.skeleton is None:
+            raise RigError("an .obj/.ply mesh needs 'skeleton = \"....tgf\"'", path=spec.path, field="skeleton")
+        skeleton, columns = read_tgf(spec.skeleton)
+        if spec.weights is not None:
+            raw = read_dmat(spec.weights)
+            if raw.shape != (len(V), skeleton.bone_count):
+                raise RigError(f"{raw.shape[0]} rows x {raw.shape[1]} columns, mesh has {len(V)} vertices "
+                               f"and skeleton {skeleton.bone_count} handles", path=spec.weights, field="weights")
+            W = normalize_weights(raw[:, columns], path=spec.weights)
+        else:
+            from puppet.rig.bbw import bbw_weights
+
+            W = bbw_weights(V, F, skeleton, path=spec.mesh)
+        return V, F, W, skeleton
+    raise RigError(f"unknown character format {suffix!r} (known: .npz, .glb, .gltf, .obj, .ply)",
+                   path=spec.path, field="mesh")
+
+
+def load_rig(path) -> Rig:
+    """Load a rig: a TOML rig file, or a bare .glb/.gltf/.npz character (no servos)."""
+    path = Path(path)
+    suffix = path.suffix.lower()
+    if suffix in (".glb", ".gltf"):
+        from puppet.rig.gltf import read_gltf
+
+        c = read_gltf(path)
+        return Rig(path.stem, c.V, c.F, c.skeleton, c.W, ServoMap([], path=path), path=path)
+    if suffix == ".npz":
+        V, F, W, skeleton = read_character_npz(path)
+        return Rig(path.stem, V, F, skeleton, W, ServoMap([], path=path), path=path)
+    if suffix != ".toml":
+        raise RigError(f"unknown rig format {suffix!r} (known: .toml, .glb, .gltf, .npz)", path=path)
+    spec = read_rig_file(path)
+    V, F, W, skeleton = _read_character(spec)
+    pins = []
+    for vertex, line in spec.pin_vertices:
+        if vertex >= len(V):
+            raise RigError(f"pin vertex {vertex} out of range: mesh has {len(V)} vertices",
+                           path=path, line=line, field="pin vertex")
+        pins.append(vertex)
+    for point, _ in spec.pin_points:
+        pins.append(int(np.argmin(((V - point) ** 2).sum(axis=1))))
+    if spec.calibration is not None and spec.calibration.exists():
+        calibration = Calibration.load(spec.calibration)
+    else:
+        calibration = Calibration(path=spec.calibration)
+    # Joint errors (unknown joint, >3 servos, repeated order) name the rig file's line.
+    return Rig(spec.name, V, F, skeleton, W, spec.servo_map, calibration, spec.solver,
+               np.array(pins, np.int64), spec.fixed, path)

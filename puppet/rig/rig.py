@@ -1,0 +1,154 @@
+"""Rig: a character (mesh, skeleton, weights) joined to its servo map, and its constraint pattern.
+
+Bone classification, fixed once per rig:
+- *sensed*: the bone has a joint driven by servos, or it is declared ``fixed`` (held rigidly to
+  its parent or, for a root, to the stand: identity joint rotation).
+- *full*: sensed, and every ancestor is full; its whole transform comes from forward kinematics.
+- *relative*: sensed, with a free bone somewhere above it: only its rotation relative to its
+  parent is known (FAST couples the two handles at the joint pivot).
+- *free*: not sensed (e.g. a flexible spine or tail); the solver decides it.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from puppet.fast.pattern import Pattern, Values
+from puppet.rig.calibration import Calibration
+from puppet.rig.errors import RigError
+from puppet.rig.servo_map import ServoMap
+from puppet.rig.skeleton import Skeleton
+from puppet.rig.weight_check import WeightReport, check_weights
+
+ENERGIES = ("spokes", "spokes_and_rims", "elements")
+
+
+@dataclass(frozen=True)
+class SolverOptions:
+    """Options the rig hands to ``puppet.fast.FastModel``.
+
+    clusters:      number of rotation clusters r (k-means in weight space).
+    extra_weights: number of extra (free) weight functions.
+    energy:        one of ENERGIES.
+    """
+
+    clusters: int = 100
+    extra_weights: int = 0
+    energy: str = "spokes_and_rims"
+
+
+@dataclass
+class Rig:
+    """A character ready for the solver, the renderer and the bus.
+
+    name:           rig name.
+    V:              (n, 3) float64 rest vertices, model units.
+    F:              (f, 3) int32 triangles.
+    skeleton:       bones and the servo map's joints (dof i = servo i).
+    W:              (n, bones) float64 weights, column j = bone j = solver handle j.
+    servo_map:      servos in bus order.
+    calibration:    zero ticks in use (also applied to ``servo_map``).
+    solver_options: clusters, extra weights, energy.
+    pins:           (p,) int64 vertex indices held at their rest positions.
+    fixed:          names of bones declared fixed (sensed, identity joint).
+    path:           the file the rig was loaded from, if any.
+    """
+
+    name: str
+    V: np.ndarray
+    F: np.ndarray
+    skeleton: Skeleton
+    W: np.ndarray
+    servo_map: ServoMap
+    calibration: Calibration = field(default_factory=Calibration)
+    solver_options: SolverOptions = field(default_factory=SolverOptions)
+    pins: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
+    fixed: tuple[str, ...] = ()
+    path: Path | None = None
+
+    def __post_init__(self) -> None:
+        self.V = np.ascontiguousarray(self.V, np.float64)
+        self.F = np.ascontiguousarray(self.F, np.int32)
+        self.W = np.ascontiguousarray(self.W, np.float64)
+        self.pins = np.asarray(self.pins, np.int64).reshape(-1)
+        n = len(self.V)
+        if self.V.ndim != 2 or self.V.shape[1] != 3:
+            raise RigError(f"vertices have shape {self.V.shape}, expected (n, 3)", path=self.path, field="mesh")
+        if self.F.ndim != 2 or self.F.shape[1] != 3 or (len(self.F) and (self.F.min() < 0 or self.F.max() >= n)):
+            raise RigError(f"triangles must be (f, 3) indices below {n}", path=self.path, field="mesh")
+        if self.W.shape != (n, self.skeleton.bone_count):
+            raise RigError(f"weights have shape {self.W.shape}, mesh has {n} vertices and "
+                           f"skeleton {self.skeleton.bone_count} bones", path=self.path, field="weights")
+        bad_pins = self.pins[(self.pins < 0) | (self.pins >= n)]
+        if len(bad_pins):
+            raise RigError(f"pin vertex {int(bad_pins[0])} out of range (mesh has {n} vertices)",
+                           path=self.path, field="pin")
+        for name in self.fixed:
+            if name not in self.skeleton.names:
+                raise RigError(f"unknown fixed bone {name!r}; bones are {list(self.skeleton.names)}",
+                               path=self.path, field="fixed")
+        self.skeleton = self.skeleton.with_joints(self.servo_map.joints(self.skeleton))
+        self.servo_map.calibrate(self.calibration)
+        self._classify()
+        b = self.skeleton.bone_count
+        self._rotations = np.empty((b, 3, 3))
+        self._pose = np.empty((b, 3, 4))
+
+    # ---- classification -------------------------------------------------------------------
+    def _classify(self) -> None:
+        sk = self.skeleton
+        sensed = np.zeros(sk.bone_count, bool)
+        for j in sk.joints:
+            sensed[j.bone] = True
+        for name in self.fixed:
+            sensed[sk.index(name)] = True
+        full = np.zeros_like(sensed)
+        for i, p in enumerate(sk.parents):
+            full[i] = sensed[i] and (p < 0 or full[p])
+        self.sensed = sensed
+        self.full_bones = np.flatnonzero(full)
+        self.relative_bones = np.flatnonzero(sensed & ~full)
+        self.free_bones = np.flatnonzero(~sensed)
+
+    def bone_kinds(self) -> dict[str, list[str]]:
+        """{'full': [...], 'relative': [...], 'free': [...]} bone names."""
+        names = self.skeleton.names
+        return {"full": [names[i] for i in self.full_bones],
+                "relative": [names[i] for i in self.relative_bones],
+                "free": [names[i] for i in self.free_bones]}
+
+    def check_weights(self) -> WeightReport:
+        return check_weights(self.W, len(self.V), self.skeleton.names)
+
+    # ---- constraint pattern and per-frame values -------------------------------------------
+    def pattern(self) -> Pattern:
+        """The solver's constraint pattern: handle j = bone j (extra weights come after)."""
+        sk = self.skeleton
+        relative = tuple((int(c), int(sk.parents[c]), tuple(float(x) for x in sk.heads[c]))
+                         for c in self.relative_bones)
+        return Pattern(full=tuple(int(j) for j in self.full_bones), relative=relative,
+                       positional=tuple(int(v) for v in self.pins))
+
+    def fill_values(self, angles: np.ndarray, values: Values) -> None:
+        """Write this frame's constraint values in place.
+
+        angles: (k,) radians in servo-map order (``servo_map.angles(ticks)``).
+        values: ``self.pattern().values()``; full blocks get ``[A_jᵀ; t_jᵀ]`` (4, 3) from forward
+                kinematics, relative entries the joint rotation R (child linear = parent linear
+                @ R, model space), positional entries the pins' rest positions.
+        """
+        rot = self.skeleton.joint_rotations(angles, self._rotations)
+        pose = self.skeleton.pose_from_rotations(rot, self._pose)
+        for i, j in enumerate(self.full_bones):
+            values.full[i] = pose[j].T
+        for i, j in enumerate(self.relative_bones):
+            values.relative[i] = rot[j]
+        for i, v in enumerate(self.pins):
+            values.positional[i] = self.V[v]
+
+    def pose(self, angles: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
+        """Forward kinematics of every bone, (bones, 3, 4); see :meth:`Skeleton.pose`."""
+        return self.skeleton.pose(angles, out)

@@ -1,0 +1,147 @@
+"""Servo map: which servo senses which joint axis, and ticks -> joint angles.
+
+``angle = sign · (ticks − zero) · 2π / 4096 / gear``, clamped to the servo's limits. For a
+direct-drive servo (gear 1) the difference is first wrapped into one turn around zero, so a
+servo that rebooted (its multi-turn count reset) still reads the right angle.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from puppet.rig.calibration import Calibration
+from puppet.rig.errors import RigError
+from puppet.rig.skeleton import Joint, Skeleton
+
+TICKS_PER_TURN = 4096
+
+# X-series models a rig may name (the bus layer owns their control tables).
+X_SERIES_MODELS = ("XL330-M077", "XL330-M288", "XC330-M288", "XL430-W250", "2XL430-W250",
+                   "XM430-W210", "XM430-W350", "XM540-W270", "XH430-W350")
+
+
+@dataclass(frozen=True)
+class Servo:
+    """One servo used as a joint-angle sensor.
+
+    id:         bus id (0..252).
+    model:      model name, e.g. "XL330-M288".
+    joint:      name of the bone whose joint it senses.
+    axis:       (3,) unit axis in that bone's rest frame.
+    order:      composition order within the joint (1 = outermost).
+    sign:       +1 or -1.
+    gear:       joint turns per servo turn is 1/gear (> 0).
+    zero_ticks: ticks at the rest pose (a Calibration overrides it).
+    limits:     (lo, hi) joint angle limits, radians, lo < hi.
+    line:       line of the servo's table in the map file (0 when built in code).
+    """
+
+    id: int
+    model: str
+    joint: str
+    axis: np.ndarray
+    order: int = 1
+    sign: int = 1
+    gear: float = 1.0
+    zero_ticks: int = 2048
+    limits: tuple[float, float] = (-np.pi, np.pi)
+    line: int = 0
+
+
+class ServoMap:
+    """Ordered servos of a rig; index i of every per-servo array is ``servos[i]``.
+
+    ids:    (k,) int64 servo ids, in map order (the bus reads in this order).
+    models: {id: model name}.
+    zero:   (k,) int64 zero ticks in use (map values, overridden by a calibration).
+    """
+
+    def __init__(self, servos, calibration: Calibration | None = None, path=None) -> None:
+        self.servos = tuple(servos)
+        self.path = path
+        seen: dict[int, Servo] = {}
+        for s in self.servos:
+            if s.id in seen:
+                raise RigError(f"duplicate servo id {s.id} (first at line {seen[s.id].line})",
+                               path=path, line=s.line or None, field=f"servo {s.id} id")
+            seen[s.id] = s
+        self.ids = np.array([s.id for s in self.servos], np.int64)
+        self.models = {s.id: s.model for s in self.servos}
+        k = len(self.servos)
+        self.zero = np.array([s.zero_ticks for s in self.servos], np.int64)
+        self._scale = np.array([s.sign * 2 * np.pi / TICKS_PER_TURN / s.gear for s in self.servos])
+        self._lo = np.array([s.limits[0] for s in self.servos])
+        self._hi = np.array([s.limits[1] for s in self.servos])
+        self._wrap = np.array([s.gear == 1.0 for s in self.servos], bool)
+        self._any_wrap = bool(self._wrap.any())
+        self._diff = np.empty(k, np.int64)
+        self._wrapped = np.empty(k, np.int64)
+        self.calibration = Calibration()
+        if calibration is not None:
+            self.calibrate(calibration)
+
+    def __len__(self) -> int:
+        return len(self.servos)
+
+    def calibrate(self, calibration: Calibration) -> None:
+        """Use ``calibration``'s zero ticks (servos it does not name keep the map's zero)."""
+        self.calibration = calibration
+        self.zero[:] = [calibration.zero_for(s.id, s.zero_ticks) for s in self.servos]
+
+    def angles(self, ticks: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
+        """Joint angles from raw ticks.
+
+        ticks: (k,) int32 encoder counts in map order. out: optional (k,) float64.
+        Returns (k,) float64 radians, clamped to each servo's limits.
+        """
+        if out is None:
+            out = np.empty(len(self.servos))
+        diff = self._diff
+        np.subtract(ticks, self.zero, out=diff)
+        if self._any_wrap:
+            wrapped = self._wrapped
+            np.add(diff, TICKS_PER_TURN // 2, out=wrapped)
+            np.remainder(wrapped, TICKS_PER_TURN, out=wrapped)
+            wrapped -= TICKS_PER_TURN // 2
+            np.copyto(diff, wrapped, where=self._wrap)
+        np.multiply(diff, self._scale, out=out)
+        np.clip(out, self._lo, self._hi, out=out)
+        return out
+
+    def ticks_for(self, angles: np.ndarray) -> np.ndarray:
+        """Inverse of :meth:`angles` (no clamping): (k,) radians -> (k,) int32 ticks."""
+        return np.rint(np.asarray(angles) / self._scale + self.zero).astype(np.int32)
+
+    def joints(self, skeleton: Skeleton) -> tuple[Joint, ...]:
+        """Group servos by joint into skeleton joints; dof i is servo i.
+
+        Raises RigError naming the line for an unknown joint, more than three servos on one
+        joint, or two servos with the same order on one joint.
+        """
+        by_bone: dict[int, list[int]] = {}
+        for i, s in enumerate(self.servos):
+            if s.joint not in skeleton.names:
+                raise RigError(f"unknown joint {s.joint!r}; bones are {list(skeleton.names)}",
+                               path=self.path, line=s.line or None, field=f"servo {s.id} joint")
+            by_bone.setdefault(skeleton.index(s.joint), []).append(i)
+        joints = []
+        for bone, members in sorted(by_bone.items()):
+            name = skeleton.names[bone]
+            if len(members) > 3:
+                ids = [self.servos[i].id for i in members]
+                raise RigError(f"joint {name!r} has {len(members)} servos {ids}; at most 3",
+                               path=self.path, line=self.servos[members[3]].line or None,
+                               field=f"servo {self.servos[members[3]].id} joint")
+            orders = [self.servos[i].order for i in members]
+            if len(set(orders)) != len(orders):
+                dup = next(i for i in members if orders.count(self.servos[i].order) > 1
+                           and i != members[orders.index(self.servos[i].order)])
+                raise RigError(f"joint {name!r}: two servos with order {self.servos[dup].order}",
+                               path=self.path, line=self.servos[dup].line or None,
+                               field=f"servo {self.servos[dup].id} order")
+            members.sort(key=lambda i: self.servos[i].order)
+            joints.append(Joint(bone, np.array([self.servos[i].axis for i in members], float),
+                                np.array(members, np.int64)))
+        return tuple(joints)

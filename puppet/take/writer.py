@@ -1,0 +1,157 @@
+"""TakeWriter: crash-safe, append-only recording of raw servo readings into an MCAP take."""
+
+from __future__ import annotations
+
+import json
+import os
+import time
+from pathlib import Path
+
+import numpy as np
+from mcap.writer import CompressionType, IndexType, Writer
+
+import puppet
+from puppet.bus.reading import Reading
+from puppet.take import format as fmt
+from puppet.take.errors import TakeError
+
+
+class TakeWriter:
+    """Records Readings of one rig into an MCAP take file.
+
+    Crash safety: messages are written unchunked and every write() hands its record to the
+    operating system before returning, so a process killed with SIGKILL leaves every reading
+    whose write() returned. fsync (for power loss) runs at most every fsync_interval_s seconds,
+    inside write(), and at close(); call write() from a sink thread, not the bus thread.
+
+    path:             take file to create (.mcap); an existing file is an error unless overwrite.
+    ids:              (k,) int servo ids, in the order of Reading.ticks.
+    models:           servo id -> model name (e.g. "XL430-W250"), one per id.
+    rig_map_text:     the rig map TOML the take is recorded with (stored verbatim).
+    calibration_text: the calibration text the take is recorded with (stored verbatim).
+    rig_name:         a name for the rig.
+    fsync_interval_s: seconds between fsyncs; None never fsyncs before close().
+    overwrite:        replace an existing file.
+    """
+
+    def __init__(
+        self,
+        path,
+        *,
+        ids,
+        models: dict[int, str],
+        rig_map_text: str,
+        calibration_text: str,
+        rig_name: str,
+        fsync_interval_s: float | None = 1.0,
+        overwrite: bool = False,
+    ):
+        self.path = Path(path)
+        self.ids = np.asarray(ids)
+        if self.ids.ndim != 1 or self.ids.size == 0 or not np.issubdtype(self.ids.dtype, np.integer):
+            raise TakeError(self.path, f"ids must be a non-empty 1-D array of integers, got {ids!r}")
+        if len(set(self.ids.tolist())) != self.ids.size:
+            raise TakeError(self.path, f"duplicate servo ids in {self.ids.tolist()}")
+        model_ids = {int(i) for i in models}
+        if model_ids != set(self.ids.tolist()):
+            raise TakeError(
+                self.path,
+                f"models name servos {sorted(model_ids)}, ids are {sorted(self.ids.tolist())}",
+            )
+        self.models = {int(i): str(models[i]) for i in models}
+        self.k = int(self.ids.size)
+        self.count = 0
+        self.fsync_interval_s = fsync_interval_s
+        self._codec = fmt.ReadingCodec(self.k)
+        self._ids_checked = None
+        self._last_t_ns: int | None = None
+        self._closed = False
+        try:
+            self._file = open(self.path, "wb" if overwrite else "xb")
+        except FileExistsError:
+            raise TakeError(self.path, "file exists; pass overwrite=True to replace it") from None
+        except OSError as e:
+            raise TakeError(self.path, f"cannot create take file: {e.strerror}") from e
+        self._mcap = Writer(
+            self._file,
+            compression=CompressionType.NONE,
+            use_chunking=False,
+            index_types=IndexType.METADATA,
+        )
+        self._mcap.start(profile="", library=f"puppet/{puppet.__version__}")
+        self._mcap.add_metadata(
+            fmt.TAKE_METADATA,
+            {
+                "format_version": str(fmt.FORMAT_VERSION),
+                "rig_name": str(rig_name),
+                "ids": json.dumps([int(i) for i in self.ids]),
+                "models": json.dumps({str(i): self.models[i] for i in sorted(self.models)}),
+                "servo_count": str(self.k),
+                "created_unix_ns": str(time.time_ns()),
+            },
+        )
+        self._mcap.add_metadata(fmt.RIG_MAP_METADATA, {"text": str(rig_map_text)})
+        self._mcap.add_metadata(fmt.CALIBRATION_METADATA, {"text": str(calibration_text)})
+        schema_id = self._mcap.register_schema(
+            fmt.SCHEMA_NAME, fmt.SCHEMA_ENCODING, fmt.SCHEMA_TEXT.encode()
+        )
+        self._channel = self._mcap.register_channel(
+            fmt.TOPIC,
+            fmt.MESSAGE_ENCODING,
+            schema_id,
+            {"ids": ",".join(str(int(i)) for i in self.ids)},
+        )
+        self._mcap.flush()  # schema and channel records wait in mcap's builder until a flush
+        os.fsync(self._file.fileno())
+        self._last_sync = time.monotonic()
+
+    def write(self, reading: Reading) -> None:
+        """Append one reading; it is in the file (OS page cache) when this returns.
+
+        reading: Reading of this take's servos (same ids, same order); t_ns never decreasing.
+        """
+        if self._closed:
+            raise TakeError(self.path, "write() after close()")
+        if reading.ids is not self._ids_checked:
+            if not np.array_equal(reading.ids, self.ids):
+                raise TakeError(
+                    self.path,
+                    f"reading has servo ids {np.asarray(reading.ids).tolist()}, "
+                    f"take has {self.ids.tolist()}",
+                )
+            self._ids_checked = reading.ids
+        t_ns = int(reading.t_ns)
+        if self._last_t_ns is not None and t_ns < self._last_t_ns:
+            raise TakeError(
+                self.path, f"reading t_ns {t_ns} is earlier than the previous {self._last_t_ns}"
+            )
+        payload = self._codec.encode(t_ns, reading.ticks, reading.ok)
+        self._mcap.add_message(
+            self._channel, log_time=t_ns, data=payload, publish_time=t_ns, sequence=self.count
+        )
+        self._file.flush()
+        self._last_t_ns = t_ns
+        self.count += 1
+        if self.fsync_interval_s is not None:
+            now = time.monotonic()
+            if now - self._last_sync >= self.fsync_interval_s:
+                os.fsync(self._file.fileno())
+                self._last_sync = now
+
+    def close(self) -> None:
+        """Write the MCAP summary and footer, fsync and close. Safe to call twice."""
+        if self._closed:
+            return
+        self._closed = True
+        try:
+            self._mcap.finish()
+            self._file.flush()
+            os.fsync(self._file.fileno())
+        finally:
+            self._file.close()
+
+    def __enter__(self) -> "TakeWriter":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()

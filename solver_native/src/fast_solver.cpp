@@ -1,0 +1,331 @@
+#include "fast_solver.h"
+
+#include <algorithm>
+#include <cmath>
+#include <cstring>
+#include <stdexcept>
+#include <string>
+
+#include "fit_rotations.h"
+
+namespace puppet {
+
+namespace {
+
+constexpr int kPad = 8;
+inline int round_up(int x) { return (x + kPad - 1) / kPad * kPad; }
+
+// out[c*ldo + i] (+)= sum_k A[k*lda + i] * B[k*bk + c*bc] for c = 0..2 and i < rows.
+// rows is a multiple of 8; A's padding rows must be zero or finite.
+template <int TILE>
+inline void gemm3_tile(const float* __restrict A, std::ptrdiff_t lda, int K, const float* __restrict B,
+                       std::ptrdiff_t bk, std::ptrdiff_t bc, float* __restrict out, std::ptrdiff_t ldo,
+                       bool accumulate) {
+  float a0[TILE], a1[TILE], a2[TILE];
+  for (int t = 0; t < TILE; ++t) a0[t] = a1[t] = a2[t] = 0.0f;
+  for (int k = 0; k < K; ++k) {
+    const float* a = A + k * lda;
+    const float x = B[k * bk], y = B[k * bk + bc], z = B[k * bk + 2 * bc];
+#pragma GCC unroll 32
+    for (int t = 0; t < TILE; ++t) {
+      a0[t] += a[t] * x;
+      a1[t] += a[t] * y;
+      a2[t] += a[t] * z;
+    }
+  }
+  if (accumulate) {
+    for (int t = 0; t < TILE; ++t) {
+      out[t] += a0[t];
+      out[ldo + t] += a1[t];
+      out[2 * ldo + t] += a2[t];
+    }
+  } else {
+    for (int t = 0; t < TILE; ++t) {
+      out[t] = a0[t];
+      out[ldo + t] = a1[t];
+      out[2 * ldo + t] = a2[t];
+    }
+  }
+}
+
+void gemm3(const float* A, std::ptrdiff_t lda, int rows, int K, const float* B, std::ptrdiff_t bk,
+           std::ptrdiff_t bc, float* out, std::ptrdiff_t ldo, bool accumulate) {
+  int i = 0;
+  for (; i + 32 <= rows; i += 32) gemm3_tile<32>(A + i, lda, K, B, bk, bc, out + i, ldo, accumulate);
+  for (; i + 8 <= rows; i += 8) gemm3_tile<8>(A + i, lda, K, B, bk, bc, out + i, ldo, accumulate);
+}
+
+bool all_finite(const float* p, std::ptrdiff_t n) {
+  float poison = 0.0f;
+  for (std::ptrdiff_t i = 0; i < n; ++i) poison += p[i] * 0.0f;
+  return poison == 0.0f;
+}
+
+// In-place Cholesky of an n x n SPD matrix (column-major, lower). False if not SPD.
+bool cholesky(double* a, int n) {
+  for (int j = 0; j < n; ++j) {
+    double d = a[j * n + j];
+    for (int k = 0; k < j; ++k) d -= a[k * n + j] * a[k * n + j];
+    if (!(d > 0.0) || !std::isfinite(d)) return false;
+    d = std::sqrt(d);
+    a[j * n + j] = d;
+    for (int i = j + 1; i < n; ++i) {
+      double s = a[j * n + i];
+      for (int k = 0; k < j; ++k) s -= a[k * n + i] * a[k * n + j];
+      a[j * n + i] = s / d;
+    }
+  }
+  return true;
+}
+
+// Solve L L^T x = b in place with the factor from cholesky().
+void cholesky_solve(const double* l, int n, double* b) {
+  for (int i = 0; i < n; ++i) {
+    double s = b[i];
+    for (int k = 0; k < i; ++k) s -= l[k * n + i] * b[k];
+    b[i] = s / l[i * n + i];
+  }
+  for (int i = n - 1; i >= 0; --i) {
+    double s = b[i];
+    for (int k = i + 1; k < n; ++k) s -= l[i * n + k] * b[k];
+    b[i] = s / l[i * n + i];
+  }
+}
+
+}  // namespace
+
+FastSolver::FastSolver(int m, int r, int kf, int kp, int kr, const float* csm, const float* g,
+                       const float* p2, const float* q, const double* h, double c0,
+                       const int32_t* rel_child, const int32_t* rel_parent, int anderson_window,
+                       int history_capacity)
+    : m_(m), r_(r), kf_(kf), kp_(kp), kr_(kr), mp_(round_up(4 * m)), rp_(round_up(r)),
+      window_(std::max(1, anderson_window)), c0_(c0) {
+  const int n4 = 4 * m, rr = 3 * rp_, nb = 4 * kf + kp, nR = 3 * kr;
+  csm_.assign(static_cast<size_t>(n4) * rr, 0.0f);
+  g_.assign(static_cast<size_t>(rr) * mp_, 0.0f);
+  for (int k = 0; k < n4; ++k)
+    for (int gg = 0; gg < r; ++gg)
+      for (int i = 0; i < 3; ++i) {
+        const int rho = i * rp_ + gg;
+        csm_[static_cast<size_t>(k) * rr + rho] = csm[static_cast<size_t>(k) * 3 * r + 3 * gg + i];
+        g_[static_cast<size_t>(rho) * mp_ + k] = g[static_cast<size_t>(k) * 3 * r + 3 * gg + i];
+      }
+  p2_.assign(static_cast<size_t>(std::max(nb, 1)) * mp_, 0.0f);
+  for (int k = 0; k < n4; ++k)
+    for (int j = 0; j < nb; ++j) p2_[static_cast<size_t>(j) * mp_ + k] = p2[static_cast<size_t>(k) * nb + j];
+  q_.assign(static_cast<size_t>(n4) * mp_, 0.0f);
+  for (int k = 0; k < n4; ++k)
+    for (int j = 0; j < n4; ++j) q_[static_cast<size_t>(j) * mp_ + k] = q[static_cast<size_t>(k) * n4 + j];
+  h_.assign(h, h + static_cast<size_t>(n4) * n4);
+  child_.assign(rel_child, rel_child + kr);
+  parent_.assign(rel_parent, rel_parent + kr);
+
+  tb_.assign(3 * static_cast<size_t>(mp_), 0.0f);
+  z_.assign(static_cast<size_t>(std::max(nR, 1)) * mp_, 0.0f);
+  w_.assign(static_cast<size_t>(std::max(nR, 1)) * n4, 0.0);
+  schur_.assign(static_cast<size_t>(std::max(nR * nR, 1)), 0.0);
+  relR_.assign(static_cast<size_t>(std::max(kr, 1)) * 9, 0.0f);
+  s_.assign(3 * static_cast<size_t>(rr), 0.0f);
+  rot_.assign(3 * static_cast<size_t>(rr), 0.0f);
+  qx_.assign(3 * static_cast<size_t>(mp_), 0.0f);
+  y_.assign(static_cast<size_t>(std::max(nR, 1)) * 3, 0.0f);
+  const size_t D = 3 * static_cast<size_t>(mp_);
+  for (auto* v : {&x_, &gx_, &f_, &gprev_, &fprev_, &xacc_}) v->assign(D, 0.0f);
+  dG_.assign(D * window_, 0.0f);
+  dF_.assign(D * window_, 0.0f);
+  gram_.assign(static_cast<size_t>(window_) * window_, 0.0);
+  rhs_.assign(window_, 0.0);
+  gamma_.assign(window_, 0.0);
+  history_.assign(std::max(history_capacity, 1), 0.0);
+}
+
+void FastSolver::set_values(const float* full, const float* rel, const float* pos) {
+  if (!all_finite(full, 12 * kf_)) throw std::invalid_argument("solve: values.full contains NaN or inf");
+  if (!all_finite(rel, 9 * kr_)) throw std::invalid_argument("solve: values.relative contains NaN or inf");
+  if (!all_finite(pos, 3 * kp_)) throw std::invalid_argument("solve: values.positional contains NaN or inf");
+  // Tb = Pi_2 b, b = [full rows; positional rows].
+  std::fill(tb_.begin(), tb_.end(), 0.0f);
+  if (kf_ > 0) gemm3(p2_.data(), mp_, mp_, 4 * kf_, full, 3, 1, tb_.data(), mp_, true);
+  if (kp_ > 0) gemm3(p2_.data() + static_cast<size_t>(4 * kf_) * mp_, mp_, mp_, kp_, pos, 3, 1, tb_.data(), mp_, true);
+  if (kr_ == 0) return;
+  std::memcpy(relR_.data(), rel, sizeof(float) * 9 * kr_);
+  const int n4 = 4 * m_, nR = 3 * kr_;
+  // W = H A_R^T (column (q,i) = H[:,4c+i] - sum_k R[k][i] H[:,4p+k]).
+  for (int qq = 0; qq < kr_; ++qq) {
+    const float* R = rel + 9 * qq;
+    for (int i = 0; i < 3; ++i) {
+      double* wcol = w_.data() + static_cast<size_t>(3 * qq + i) * n4;
+      const double* hc = h_.data() + static_cast<size_t>(4 * child_[qq] + i) * n4;
+      for (int row = 0; row < n4; ++row) wcol[row] = hc[row];
+      for (int k = 0; k < 3; ++k) {
+        const double coef = R[3 * k + i];
+        const double* hp = h_.data() + static_cast<size_t>(4 * parent_[qq] + k) * n4;
+        for (int row = 0; row < n4; ++row) wcol[row] -= coef * hp[row];
+      }
+    }
+  }
+  // S = A_R W (nR x nR, column-major).
+  for (int col = 0; col < nR; ++col) {
+    const double* wcol = w_.data() + static_cast<size_t>(col) * n4;
+    for (int qq = 0; qq < kr_; ++qq) {
+      const float* R = rel + 9 * qq;
+      for (int i = 0; i < 3; ++i) {
+        double v = wcol[4 * child_[qq] + i];
+        for (int k = 0; k < 3; ++k) v -= static_cast<double>(R[3 * k + i]) * wcol[4 * parent_[qq] + k];
+        schur_[static_cast<size_t>(col) * nR + 3 * qq + i] = v;
+      }
+    }
+  }
+  if (!cholesky(schur_.data(), nR))
+    throw std::invalid_argument(
+        "solve: values.relative makes the relative constraints dependent (Schur complement not positive definite)");
+  // Z = W S^{-1}: solve S z_row = W_row for every row of W.
+  double buf[3 * 64];
+  std::vector<double> tmp;  // only for more than 64 relative joints (not per-frame in practice)
+  double* b = buf;
+  if (nR > 3 * 64) { tmp.resize(nR); b = tmp.data(); }
+  for (int row = 0; row < n4; ++row) {
+    for (int j = 0; j < nR; ++j) b[j] = w_[static_cast<size_t>(j) * n4 + row];
+    cholesky_solve(schur_.data(), nR, b);
+    for (int j = 0; j < nR; ++j) z_[static_cast<size_t>(j) * mp_ + row] = static_cast<float>(b[j]);
+  }
+}
+
+double FastSolver::quad_energy(const float* x) {
+  gemm3(q_.data(), mp_, mp_, 4 * m_, x, 1, mp_, qx_.data(), mp_, false);
+  double e = 0.0;
+  for (int i = 0; i < 3 * mp_; ++i) e += static_cast<double>(x[i]) * qx_[i];
+  return e;
+}
+
+double FastSolver::local_step(const float* x, bool energy) {
+  const int rr = 3 * rp_;
+  gemm3(csm_.data(), rr, rr, 4 * m_, x, 1, mp_, s_.data(), rr, false);
+  fit_rotations_soa(s_.data(), rot_.data(), rp_, rp_);
+  if (!energy) return 0.0;
+  double lin = 0.0;
+  for (int i = 0; i < 3 * rr; ++i) lin += static_cast<double>(s_[i]) * rot_[i];
+  return quad_energy(x) - 2.0 * lin + c0_;
+}
+
+void FastSolver::global_step(float* out) {
+  const int rr = 3 * rp_;
+  gemm3(g_.data(), mp_, mp_, rr, rot_.data(), 1, rr, out, mp_, false);
+  for (int i = 0; i < 3 * mp_; ++i) out[i] += tb_[i];
+  if (kr_ == 0) return;
+  // y = -(A_R out), then out += Z y.
+  for (int qq = 0; qq < kr_; ++qq) {
+    const float* R = relR_.data() + 9 * qq;
+    for (int i = 0; i < 3; ++i)
+      for (int c = 0; c < 3; ++c) {
+        const float* oc = out + c * mp_;
+        float v = oc[4 * child_[qq] + i];
+        for (int k = 0; k < 3; ++k) v -= R[3 * k + i] * oc[4 * parent_[qq] + k];
+        y_[3 * (3 * qq + i) + c] = -v;
+      }
+  }
+  gemm3(z_.data(), mp_, mp_, 3 * kr_, y_.data(), 3, 1, out, mp_, true);
+}
+
+void FastSolver::solve(const float* full, const float* rel, const float* pos, float* T, int iterations,
+                       double tol, bool accelerate, bool record_history) {
+  if (iterations < 0) throw std::invalid_argument("solve: iterations must be >= 0");
+  if (!all_finite(T, 12 * m_))
+    throw std::invalid_argument("solve: T contains NaN or inf (warm start from model.rest_T() instead)");
+  set_values(full, rel, pos);
+  const int n4 = 4 * m_;
+  const size_t D = 3 * static_cast<size_t>(mp_);
+  for (int k = 0; k < n4; ++k)
+    for (int c = 0; c < 3; ++c) x_[c * mp_ + k] = T[3 * k + c];
+
+  const bool use_tol = tol > 0.0;
+  const bool need_energy = accelerate || use_tol || record_history;
+  const int cap = static_cast<int>(history_.size());
+  stats_ = SolveStats{};
+  double E = local_step(x_.data(), true);
+  if (record_history && cap > 0) history_[stats_.history_size++] = E;
+  int nh = 0, head = 0;
+  bool have_prev = false;
+
+  int it = 0;
+  for (; it < iterations; ++it) {
+    const double E_old = E;
+    const bool last = it + 1 == iterations;
+    if (!accelerate) {
+      global_step(x_.data());
+      E = local_step(x_.data(), need_energy || last);
+    } else {
+      global_step(gx_.data());
+      for (size_t i = 0; i < D; ++i) f_[i] = gx_[i] - x_[i];
+      if (have_prev) {
+        float* dg = dG_.data() + head * D;
+        float* df = dF_.data() + head * D;
+        for (size_t i = 0; i < D; ++i) {
+          dg[i] = gx_[i] - gprev_[i];
+          df[i] = f_[i] - fprev_[i];
+        }
+        head = (head + 1) % window_;
+        nh = std::min(nh + 1, window_);
+      }
+      std::memcpy(gprev_.data(), gx_.data(), D * sizeof(float));
+      std::memcpy(fprev_.data(), f_.data(), D * sizeof(float));
+      have_prev = true;
+      bool accel = false;
+      if (nh > 0) {
+        double dmax = 0.0;
+        for (int a = 0; a < nh; ++a) {
+          const float* fa = dF_.data() + a * D;
+          for (int b = 0; b <= a; ++b) {
+            const float* fb = dF_.data() + b * D;
+            double s = 0.0;
+            for (size_t i = 0; i < D; ++i) s += static_cast<double>(fa[i]) * fb[i];
+            gram_[a * nh + b] = gram_[b * nh + a] = s;
+          }
+          double s = 0.0;
+          for (size_t i = 0; i < D; ++i) s += static_cast<double>(fa[i]) * f_[i];
+          rhs_[a] = s;
+          dmax = std::max(dmax, gram_[a * nh + a]);
+        }
+        for (int a = 0; a < nh; ++a) gram_[a * nh + a] += 1e-10 * dmax + 1e-300;
+        if (dmax > 0.0 && cholesky(gram_.data(), nh)) {
+          for (int a = 0; a < nh; ++a) gamma_[a] = rhs_[a];
+          cholesky_solve(gram_.data(), nh, gamma_.data());
+          std::memcpy(xacc_.data(), gx_.data(), D * sizeof(float));
+          for (int a = 0; a < nh; ++a) {
+            const float ga = static_cast<float>(gamma_[a]);
+            const float* dg = dG_.data() + a * D;
+            for (size_t i = 0; i < D; ++i) xacc_[i] -= ga * dg[i];
+          }
+          accel = all_finite(xacc_.data(), static_cast<std::ptrdiff_t>(D));
+        }
+      }
+      if (accel) {
+        const double Ea = local_step(xacc_.data(), true);
+        if (Ea <= E_old) {
+          std::swap(x_, xacc_);
+          E = Ea;
+        } else {
+          ++stats_.rejected;
+          nh = 0;
+          head = 0;
+          std::memcpy(x_.data(), gx_.data(), D * sizeof(float));
+          E = local_step(x_.data(), true);
+        }
+      } else {
+        std::memcpy(x_.data(), gx_.data(), D * sizeof(float));
+        E = local_step(x_.data(), true);
+      }
+    }
+    if (record_history && stats_.history_size < cap) history_[stats_.history_size++] = E;
+    if (use_tol && E_old - E <= tol * std::max(std::fabs(E_old), 1e-300)) {
+      ++it;
+      break;
+    }
+  }
+  stats_.iterations = it;
+  stats_.energy = E;
+  for (int k = 0; k < n4; ++k)
+    for (int c = 0; c < 3; ++c) T[3 * k + c] = x_[c * mp_ + k];
+}
+
+}  // namespace puppet

@@ -1,0 +1,137 @@
+"""ServoReader against hw_sim through the real dynamixel_sdk: setup and normal reading."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from puppet.bus import ServoMissing, ServoModelMismatch, ServoReader
+from puppet.bus import health as hs
+
+MODEL = "XL330-M288"
+
+
+def test_open_configures_and_reports_changes(sim, open_reader):
+    bus = sim()
+    bus.servo(2).set("Torque Enable", 1)
+    reader = open_reader(bus)
+    report = reader.report
+    assert sorted(report.found) == [1, 2, 3, 4]
+    assert report.missing == []
+    assert report.read_mode == "fast_sync_read"  # XL330 firmware 52 >= 46
+    changed = {(c.id, c.item, c.old, c.new) for c in report.changes}
+    assert {(i, "Return Delay Time", 250, 0) for i in (1, 2, 3, 4)} <= changed
+    assert (2, "Torque Enable", 1, 0) in changed
+    for i in (1, 2, 3, 4):
+        assert bus.servo(i).get("Return Delay Time") == 0
+        assert bus.servo(i).get("Torque Enable") == 0
+
+
+def test_open_again_changes_nothing(sim, open_reader):
+    bus = sim()
+    open_reader(bus).close()
+    assert open_reader(bus).report.changes == []
+
+
+def test_model_mismatch_names_the_servo(sim):
+    bus = sim()
+    reader = ServoReader(bus.link, {1: MODEL, 2: "XM430-W350", 3: MODEL}, latency_ms=2)
+    with pytest.raises(ServoModelMismatch) as info:
+        reader.open()
+    assert info.value.ids == [2]
+    assert "XM430-W350 (1020)" in str(info.value) and "XL330-M288 (1200)" in str(info.value)
+    reader.close()
+
+
+def test_missing_servo_is_flagged_and_others_flow(sim, open_reader):
+    bus = sim(ids=(1, 2, 3))
+    reader = open_reader(bus, ids=(1, 2, 9, 3))
+    assert reader.report.missing == [9]
+    reading = reader.read()
+    assert reading.ok.tolist() == [True, True, False, True]
+    assert reader.health[9].state == hs.MISSING
+    assert reader.group == (1, 2, 3)
+    strict = ServoReader(bus.link, {1: MODEL, 9: MODEL}, latency_ms=2)
+    with pytest.raises(ServoMissing) as info:
+        strict.open(strict=True)
+    assert info.value.ids == [9]
+    strict.close()
+
+
+def test_broadcast_ping_lists_servos_the_map_lacks(sim):
+    bus = sim(ids=(1, 2, 5))
+    reader = ServoReader(bus.link, {1: MODEL, 2: MODEL}, latency_ms=2)
+    report = reader.open(broadcast_ping=True)
+    assert report.unexpected == {5: 1200}
+    reader.close()
+
+
+@pytest.mark.parametrize("mode", ["fast_sync_read", "sync_read"])
+def test_reading_at_rest_is_exact_signed_and_continuous(sim, open_reader, mode):
+    bus = sim()
+    # -5: negative count; 5000: past one turn; 0x00FDFFFF: data bytes FF FF FD 00 need stuffing.
+    positions = {1: 100, 2: -5, 3: 5000, 4: 0x00FDFFFF}
+    bus.set_positions(positions)
+    reader = open_reader(bus, read_mode=mode)
+    assert reader.read_mode == mode
+    readings = [reader.read() for _ in range(20)]
+    for r in readings:
+        assert r.ticks.dtype == np.int32 and r.ok.dtype == bool
+        assert r.ids.tolist() == [1, 2, 3, 4]
+    good = [r for r in readings if r.ok.all()]
+    assert len(good) >= 15
+    for r in good:
+        assert r.ticks.tolist() == [100, -5, 5000, 0x00FDFFFF]
+    stamps = [r.t_ns for r in readings]
+    assert stamps == sorted(stamps) and len(set(stamps)) == len(stamps)
+
+
+def test_reading_in_motion_follows_the_simulated_shafts(sim, open_reader, read_for):
+    bus = sim(motion="wave")
+    reader = open_reader(bus)
+    readings = [r for r in read_for(reader, 0.4) if r.ok.all()]
+    assert len(readings) >= 20
+    ticks = np.stack([r.ticks for r in readings])
+    span = ticks.max(axis=0) - ticks.min(axis=0)
+    assert (span > 50).all()                      # every joint moved
+    # wave amplitude 600 counts, period 2 s: at most ~1.9 counts per ms between readings
+    # (plus up to 10 ms of scheduling skew between host stamps and the simulator's clock)
+    dt_ms = np.diff([r.t_ns for r in readings]) / 1e6
+    step = np.abs(np.diff(ticks, axis=0)).max(axis=1)
+    assert (step <= 2.0 * (dt_ms + 10)).all()
+    now = reader.read()
+    sim_now = [bus.servo(i).get("Present Position") for i in (1, 2, 3, 4)]
+    if now.ok.all():
+        assert np.abs(now.ticks - np.array(sim_now)).max() < 200
+
+
+def test_read_clean_takes_the_median(sim, open_reader):
+    bus = sim()
+    bus.set_positions({1: 10, 2: 20, 3: 30, 4: 40})
+    reader = open_reader(bus)
+    zero = reader.read_clean(samples=5)
+    assert zero.ok.all()
+    assert zero.ticks.tolist() == [10, 20, 30, 40]
+
+
+def test_read_clean_names_the_servo_that_never_reads(sim, open_reader):
+    from puppet.bus import ServoTimeout
+    bus = sim(ids=(1, 2))
+    reader = open_reader(bus, ids=(1, 2, 7))
+    with pytest.raises(ServoTimeout) as info:
+        reader.read_clean(timeout_s=0.2)
+    assert info.value.ids == [7]
+    assert info.value.instruction == "read_clean"
+
+
+def test_actuators_get_torque_and_follow_goals(sim, open_reader):
+    bus = sim(ids=(1, 2))
+    bus.set_positions({1: 1000, 2: 1000})
+    reader = open_reader(bus, ids=(1, 2), actuators=[1])
+    assert bus.servo(1).get("Torque Enable") == 1
+    assert bus.servo(2).get("Torque Enable") == 0
+    assert bus.servo(1).get("Goal Position") == 1000
+    reader.write_goals({1: 1500})
+    assert bus.servo(1).get("Goal Position") == 1500
+    with pytest.raises(ValueError, match=r"\[2\] are not actuators"):
+        reader.write_goals({2: 10})

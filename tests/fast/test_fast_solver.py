@@ -1,0 +1,175 @@
+"""FAST solver invariants: rigid motions are exact, energy never rises, acceleration helps,
+every constraint kind is met."""
+
+import numpy as np
+import pytest
+
+from puppet.fast import FastModel, Pattern
+
+
+def rigid_T(m, R, t):
+    """(4m, 3) float32: every handle = the rigid map p -> R p + t (transposed layout)."""
+    block = np.vstack([R.T, t[None, :]])
+    return np.tile(block, (m, 1)).astype(np.float32)
+
+
+def size(model):
+    return float(np.linalg.norm(model.V.max(0) - model.V.min(0)))
+
+
+@pytest.mark.parametrize("kind", ["full", "relative", "positional"])
+def test_rigid_motion_is_reproduced_by_every_handle(bar_model, helpers, kind):
+    model = bar_model
+    rng = np.random.default_rng(3)
+    R = helpers.random_rotation(rng)
+    t = rng.normal(size=3) * 2.0
+    target = rigid_T(model.m, R, t)
+    bones = range(model.m_bones)
+    if kind == "full":
+        pattern = Pattern(full=tuple(bones))
+    elif kind == "relative":
+        pattern = Pattern(full=(0,), relative=tuple((j, j - 1, tuple(model.V[j * 100])) for j in range(1, model.m_bones)))
+    else:
+        # Four non-coplanar pinned points per bone region determine each bone's affine map.
+        verts = []
+        for j in bones:
+            order = np.argsort(-model.weights[:, j])
+            verts += [int(v) for v in order[[0, 7, 13, 29]]]
+        pattern = Pattern(positional=tuple(verts))
+    values = pattern.values()
+    values.full[:] = target[:4][None]
+    values.relative[:] = np.eye(3, dtype=np.float32)
+    Vh = np.hstack([model.V[list(pattern.positional)], np.ones((len(pattern.positional), 1))])
+    values.positional[:] = (Vh @ target[:4].astype(np.float64)).astype(np.float32)
+    solver = model.solver(pattern)
+    T = model.rest_T()
+    stats = solver.solve(values, T, iterations=30)
+    assert np.abs(T - target).max() <= 1e-5 * size(model)
+    assert abs(stats.energy) <= 1e-6 * model.c0
+
+
+def test_energy_never_increases_and_acceleration_reaches_it(bar_model, helpers):
+    model = bar_model
+    tip = int(np.argmax(model.V[:, 0]))
+    pattern = Pattern(full=(0,), relative=((1, 0, (4.0 / 3, 0, 0)),), positional=(tip,))
+    values = pattern.values()
+    values.full[0] = model.rest_T()[:4]
+    values.relative[0] = helpers.rot_z(0.8).astype(np.float32)
+    values.positional[0] = (model.V[tip] + np.array([-1.5, 1.5, 0.5])).astype(np.float32)
+    solver = model.solver(pattern)
+    T_plain = model.rest_T()
+    solver.solve(values, T_plain, iterations=60, accelerate=False, history=True)
+    plain = solver.history.copy()
+    assert len(plain) == 61
+    noise = 1e-6 * model.c0  # float32 energy resolution
+    assert np.all(np.diff(plain[1:]) <= noise)
+    assert plain[-1] < plain[1]
+    T_acc = model.rest_T()
+    stats = solver.solve(values, T_acc, iterations=60, accelerate=True, history=True)
+    accel = solver.history.copy()
+    assert np.all(np.diff(accel[1:]) <= noise)  # the safeguard keeps it monotone
+    assert accel[-1] <= plain[-1] + noise
+    # ... and it gets there in fewer iterations.
+    first = lambda h: int(np.argmax(h[1:] <= plain[30] + noise))  # noqa: E731
+    assert first(accel) < first(plain)
+    assert stats.iterations == 60
+
+
+def test_tolerance_stops_early(bar_model):
+    model = bar_model
+    pattern = Pattern(full=(0, 2))
+    values = pattern.values()
+    values.full[0] = model.rest_T()[:4]
+    values.full[1] = model.rest_T()[8:12]
+    values.full[1, 3] += np.float32(0.5)
+    stats = model.solver(pattern).solve(values, model.rest_T(), iterations=500, tol=1e-6)
+    assert 1 <= stats.iterations < 500
+
+
+def residuals(model, pattern, values, T):
+    T64 = T.astype(np.float64).reshape(model.m, 4, 3)
+    out = [0.0]
+    for q, j in enumerate(pattern.full):
+        out.append(np.abs(T64[j] - values.full[q]).max())
+    for q, (c, p, piv) in enumerate(pattern.relative):
+        R = values.relative[q].astype(np.float64)
+        out.append(np.abs(T64[c, :3] - R.T @ T64[p, :3]).max())
+        ph = np.append(piv, 1.0)
+        out.append(np.abs(ph @ T64[c] - ph @ T64[p]).max())
+    if pattern.positional:
+        Vd = model.deform(T)
+        out.append(np.abs(Vd[list(pattern.positional)] - values.positional).max())
+    return max(out)
+
+
+@pytest.mark.parametrize("kind", ["full", "relative", "positional", "mixed"])
+def test_constraint_residuals_vanish(bar_model, helpers, kind):
+    model = bar_model
+    rng = np.random.default_rng(7)
+    V = model.V
+    tip = int(np.argmax(V[:, 0]))
+    mid = int(np.argmin(np.abs(V[:, 0] - 2.0) + np.abs(V[:, 1] - 0.5)))
+    full = (0,) if kind in ("full", "relative", "mixed") else ()
+    relative = ((2, 1, (8.0 / 3, 0, 0)), (1, 0, (4.0 / 3, 0, 0))) if kind == "relative" else ()
+    if kind == "mixed":  # bone 2 stays free so that the pinned tip is not over-determined
+        relative = ((1, 0, (4.0 / 3, 0, 0)),)
+    positional = (tip, mid, 0) if kind == "positional" else ((tip,) if kind == "mixed" else ())
+    if kind == "full":
+        full = (0, 2)
+    pattern = Pattern(full=full, relative=relative, positional=positional)
+    values = pattern.values()
+    for q in range(len(full)):
+        A = helpers.random_rotation(rng) * (1 + 0.1 * q)
+        values.full[q, :3] = A.T
+        values.full[q, 3] = rng.normal(size=3)
+    for q in range(len(relative)):
+        values.relative[q] = helpers.random_rotation(rng)
+    for q, v in enumerate(positional):
+        values.positional[q] = V[v] + rng.normal(size=3) * 0.5
+    solver = model.solver(pattern)
+    T = model.rest_T()
+    for accelerate in (False, True):
+        solver.solve(values, T, iterations=7, accelerate=accelerate)
+        assert np.isfinite(T).all()
+        assert residuals(model, pattern, values, T) <= 1e-5 * size(model)
+
+
+@pytest.mark.parametrize("energy", ["spokes", "spokes_and_rims", "elements"])
+def test_every_energy_type_reproduces_rigid_motion(bar, helpers, energy):
+    V, F, W = bar
+    model = FastModel(V, F, W, clusters=8, extra_weights=2, energy=energy, cache_dir=False)
+    R = helpers.random_rotation(np.random.default_rng(11))
+    target = rigid_T(model.m, R, np.array([0.3, -0.2, 1.0]))
+    pattern = Pattern(full=(0, 1, 2))
+    values = pattern.values()
+    values.full[:] = target[:4][None]
+    T = model.rest_T()
+    model.solver(pattern).solve(values, T, iterations=40)
+    assert np.abs(T - target).max() <= 1e-5 * size(model)
+
+
+@pytest.mark.parametrize("energy", ["spokes", "elements"])
+def test_tet_mesh_energies(helpers, energy):
+    V, tets, W = helpers.make_tet_block()
+    F = tets[:, :3]  # any surface triangles; the energy uses the tets
+    model = FastModel(V, F, W, clusters=6, extra_weights=1, energy=energy, tets=tets, cache_dir=False)
+    R = helpers.random_rotation(np.random.default_rng(5))
+    target = rigid_T(model.m, R, np.array([1.0, 2.0, 3.0]))
+    pattern = Pattern(full=(0, 1, 2))
+    values = pattern.values()
+    values.full[:] = target[:4][None]
+    T = model.rest_T()
+    model.solver(pattern).solve(values, T, iterations=40)
+    assert np.abs(T - target).max() <= 1e-5 * size(model)
+    # A bend lowers the energy monotonically too.
+    pattern = Pattern(full=(0, 2))
+    values = pattern.values()
+    values.full[0] = model.rest_T()[:4]
+    values.full[1] = model.rest_T()[8:12]
+    values.full[1, :3] = helpers.rot_z(0.7).T
+    solver = model.solver(pattern)
+    T = model.rest_T()
+    solver.solve(values, T, iterations=20, accelerate=False, history=True)
+    h = solver.history[1:]
+    assert np.all(np.diff(h) <= 1e-6 * model.c0)
+    assert h[-1] < h[0]

@@ -1,0 +1,125 @@
+"""Rendered images: silhouettes move where the bones go, overlay colors, contact shadow, framing.
+
+Images are compared through masks and tolerances, never byte for byte.
+"""
+
+import numpy as np
+import pytest
+
+import puppet.render.context as render_context
+from puppet.render import EGL_PACKAGES, Camera, Renderer, RenderError, RenderInputError
+
+BLACK = (0.0, 0.0, 0.0)
+
+
+def pixel_of(renderer: Renderer, point) -> tuple[int, int]:
+    """(row, column) of a world point in renderer's images (top row first)."""
+    cam = renderer.camera
+    clip = cam.projection_matrix(renderer.width / renderer.height, renderer._radius) @ cam.view_matrix() @ np.append(point, 1.0)
+    ndc = clip[:3] / clip[3]
+    return int((1 - ndc[1]) / 2 * renderer.height), int((ndc[0] + 1) / 2 * renderer.width)
+
+
+def front_camera() -> Camera:
+    return Camera(eye=[1.0, 0.5, 6.0], target=[1.0, 0.5, 0.0], fov_deg=35.0)
+
+
+def test_bending_one_bone_moves_the_silhouette(gl_context, bar, helpers):
+    V, F, W = bar
+    rest = helpers.handle_T([helpers.IDENTITY, helpers.IDENTITY])
+    bent = helpers.handle_T([helpers.IDENTITY, helpers.rotation_about(helpers.rotation_z(np.pi / 2), [1, 0, 0])])
+    with Renderer(V, F, W, width=160, height=120, camera=front_camera(), ground=False, background=BLACK,
+                  context=gl_context) as renderer:
+        rest_mask = renderer.draw(rest).max(axis=2) > 20
+        bent_mask = renderer.draw(bent).max(axis=2) > 20
+        tip, raised, root = (pixel_of(renderer, p) for p in ([1.75, 0, 0], [1.0, 0.75, 0], [0.3, 0, 0]))
+    assert raised[0] < root[0]  # up in the world is up in the image
+    assert (rest_mask[tip], bent_mask[tip]) == (True, False)  # the tip left its rest place...
+    assert (rest_mask[raised], bent_mask[raised]) == (False, True)  # ...and went up
+    assert (rest_mask[root], bent_mask[root]) == (True, True)  # bone 0 did not move
+    upper = slice(0, root[0] - 8)
+    assert rest_mask[upper].sum() == 0
+    assert bent_mask[upper].sum() > 300
+
+
+def test_skeleton_overlay_colors_bones_by_state(gl_context, bar, helpers):
+    V, F, W = bar
+    T = helpers.handle_T([helpers.IDENTITY, helpers.rotation_about(helpers.rotation_z(np.pi / 2), [1, 0, 0])])
+    bones = np.array([[[0.0, 0, 0], [1.0, 0, 0]], [[1.0, 0, 0], [2.0, 0, 0]]])
+    with Renderer(V, F, W, width=160, height=120, camera=front_camera(), ground=False, context=gl_context) as renderer:
+        plain = renderer.draw(T).astype(int)
+        image = renderer.draw(T, bones=bones, bone_states=["sensed", "faulted"]).astype(int)
+        sensed_px = pixel_of(renderer, [0.5, 0, 0])
+        faulted_px = pixel_of(renderer, [1.0, 0.5, 0])  # bone 1 moved with handle 1
+        with pytest.raises(RenderInputError, match=r"bone_states\[1\]: unknown state 'broken'"):
+            renderer.draw(T, bones=bones, bone_states=["sensed", "broken"])
+        with pytest.raises(RenderInputError, match="bone_states: 1 states for 2 bones"):
+            renderer.draw(T, bones=bones, bone_states=["free"])
+    r, g, b = image[sensed_px]
+    assert g > 150 and r < 80 and b < 100
+    r, g, b = image[faulted_px]
+    assert r > 150 and g < 80 and b < 80
+    assert np.abs(plain[faulted_px] - image[faulted_px]).max() > 60
+
+
+def test_contact_shadow_darkens_the_ground_under_the_character_and_follows_the_pose(gl_context, bar, helpers):
+    V, F, W = bar  # the tube's lowest points are at y = -0.2: it lies on the ground
+    rest = helpers.handle_T([helpers.IDENTITY, helpers.IDENTITY])
+    bent = helpers.handle_T([helpers.IDENTITY, helpers.rotation_about(helpers.rotation_z(np.pi / 2), [1, 0, 0])])
+    camera = Camera(eye=[1.0, 2.5, 3.5], target=[1.0, -0.2, 0.0], fov_deg=40.0)
+    with Renderer(V, F, W, width=200, height=150, camera=camera, context=gl_context) as renderer:
+        rest_img = renderer.draw(rest).astype(float).mean(axis=2)
+        bent_img = renderer.draw(bent).astype(float).mean(axis=2)
+        beside_root = pixel_of(renderer, [0.4, -0.2, 0.26])
+        beside_tip = pixel_of(renderer, [1.75, -0.2, 0.26])
+        open_ground = pixel_of(renderer, [1.0, -0.2, 1.3])
+    assert rest_img[beside_root] < rest_img[open_ground] - 12
+    assert rest_img[beside_tip] < rest_img[open_ground] - 12
+    # The tip went up: the ground beside its rest place is lit again; the root stays shaded.
+    tip_change = bent_img[beside_tip] - rest_img[beside_tip]
+    assert tip_change > 8
+    assert abs(bent_img[beside_root] - rest_img[beside_root]) < tip_change / 2
+
+
+def test_automatic_framing_shows_the_whole_rest_pose(gl_context, bar, helpers):
+    V, F, W = bar
+    with Renderer(V, F, W, width=120, height=160, context=gl_context) as renderer:  # portrait
+        cam = renderer.camera
+        clip = (cam.projection_matrix(120 / 160, renderer._radius) @ cam.view_matrix() @ np.c_[V, np.ones(len(V))].T).T
+        ndc = clip[:, :2] / clip[:, 3:]
+        assert np.abs(ndc).max() <= 1.0
+        assert np.abs(ndc).max() > 0.75  # and fills the frame
+        image = renderer.draw(helpers.handle_T([helpers.IDENTITY, helpers.IDENTITY]))
+    assert image.shape == (160, 120, 3) and image.dtype == np.uint8
+
+
+def test_draw_reads_into_out_and_reuses_its_own_buffer(gl_context, bar, helpers):
+    V, F, W = bar
+    T = helpers.handle_T([helpers.IDENTITY, helpers.IDENTITY])
+    with Renderer(V, F, W, width=64, height=48, samples=64, context=gl_context) as renderer:
+        assert renderer.samples == gl_context.max_samples
+        first = renderer.draw(T)
+        assert renderer.draw(T) is first
+        out = np.zeros((48, 64, 3), np.uint8)
+        assert renderer.draw(T, out=out) is out
+        assert np.abs(out.astype(int) - first.astype(int)).max() <= 2
+        with pytest.raises(RenderInputError, match="out: expected C-contiguous uint8"):
+            renderer.draw(T, out=np.zeros((64, 48, 3), np.uint8))
+
+
+def test_missing_egl_library_names_the_packages_to_install(monkeypatch):
+    monkeypatch.setattr(render_context.ctypes.util, "find_library", lambda name: None)
+    with pytest.raises(RenderError, match="libEGL not found") as info:
+        render_context.create_context()
+    for package in EGL_PACKAGES:
+        assert package in str(info.value)
+
+
+def test_failing_egl_context_names_the_packages_to_install(monkeypatch):
+    def no_display(**kwargs):
+        raise Exception("eglGetDisplay failed")  # what glcontext raises
+
+    monkeypatch.setattr(render_context.moderngl, "create_standalone_context", no_display)
+    with pytest.raises(RenderError, match="eglGetDisplay failed") as info:
+        render_context.create_context()
+    assert "libgl1-mesa-dri" in str(info.value)

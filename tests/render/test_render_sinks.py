@@ -1,0 +1,67 @@
+"""PNG and MP4 sinks: files written, read back with the right count, size and content."""
+
+import imageio.v3 as iio
+import imageio_ffmpeg
+import numpy as np
+import pytest
+
+from puppet.render import PngSink, Renderer, SinkError, VideoSink
+
+
+def bending_frames(gl_context, bar, helpers, count: int, width: int, height: int) -> list[np.ndarray]:
+    V, F, W = bar
+    frames = []
+    with Renderer(V, F, W, width=width, height=height, context=gl_context) as renderer:
+        for k in range(count):
+            bend = helpers.rotation_about(helpers.rotation_z(np.pi / 2 * k / max(count - 1, 1)), [1, 0, 0])
+            frames.append(renderer.draw(helpers.handle_T([helpers.IDENTITY, bend])).copy())
+    return frames
+
+
+def test_mp4_has_the_written_frame_count_size_and_content(gl_context, bar, helpers, tmp_path):
+    frames = bending_frames(gl_context, bar, helpers, count=12, width=160, height=120)
+    path = tmp_path / "take.mp4"
+    with VideoSink(path, fps=24) as video:
+        for frame in frames:
+            video.write(frame)
+    assert video.count == 12
+    reader = imageio_ffmpeg.read_frames(str(path))
+    meta = reader.__next__()
+    decoded = [np.frombuffer(raw, np.uint8).reshape(120, 160, 3) for raw in reader]
+    assert meta["size"] == (160, 120)
+    assert meta["fps"] == pytest.approx(24)
+    assert len(decoded) == 12
+    for original, back in zip(frames, decoded):  # lossy codec: compare with a tolerance
+        assert np.abs(original.astype(float) - back.astype(float)).mean() < 4.0
+    # The frames differ from each other (the bone bends), and the video kept that order.
+    assert np.abs(decoded[0].astype(float) - decoded[-1].astype(float)).mean() > 2.0
+
+
+def test_png_sink_writes_numbered_frames(gl_context, bar, helpers, tmp_path):
+    frames = bending_frames(gl_context, bar, helpers, count=3, width=64, height=48)
+    with PngSink(tmp_path / "frames") as sink:
+        paths = [sink.write(frame) for frame in frames]
+    assert [p.name for p in paths] == ["frame_000000.png", "frame_000001.png", "frame_000002.png"]
+    assert sorted(p.name for p in (tmp_path / "frames").iterdir()) == [p.name for p in paths]
+    for frame, path in zip(frames, paths):
+        back = iio.imread(path)
+        assert back.shape == (48, 64, 3)
+        assert np.abs(back.astype(int) - frame.astype(int)).max() <= 1  # PNG is lossless
+
+
+def test_sinks_refuse_bad_frames_and_sizes(tmp_path):
+    with pytest.raises(SinkError, match="must be even"):
+        VideoSink(tmp_path / "odd.mp4", fps=30, size=(161, 120))
+    with pytest.raises(SinkError, match="fps must be positive"):
+        VideoSink(tmp_path / "still.mp4", fps=0)
+    with pytest.raises(SinkError, match="does not exist"):
+        VideoSink(tmp_path / "missing" / "take.mp4", fps=30)
+    with VideoSink(tmp_path / "take.mp4", fps=30) as video:
+        video.write(np.zeros((48, 64, 3), np.uint8))
+        with pytest.raises(SinkError, match="frame is 32x48, the sink was opened at 64x48"):
+            video.write(np.zeros((48, 32, 3), np.uint8))
+    with pytest.raises(SinkError, match="closed"):
+        video.write(np.zeros((48, 64, 3), np.uint8))
+    with PngSink(tmp_path / "frames") as sink:
+        with pytest.raises(SinkError, match=r"expected a \(height, width, 3\) uint8 RGB image, got float64"):
+            sink.write(np.zeros((48, 64, 3)))

@@ -1,0 +1,92 @@
+"""The vertex shader's positions equal M @ T computed on the CPU, for any weights."""
+
+import numpy as np
+import pytest
+
+from puppet.render import Renderer, RenderInputError, lbs_matrix, pack_weights
+
+
+def random_affine_T(rng, m: int) -> np.ndarray:
+    """T (4m, 3) float32: random rotations-and-stretches plus translations."""
+    blocks = []
+    for _ in range(m):
+        q, _ = np.linalg.qr(rng.normal(size=(3, 3)))
+        linear = q @ np.diag(rng.uniform(0.7, 1.4, 3))
+        blocks.append(np.vstack([linear.T, rng.normal(scale=0.5, size=(1, 3))]))
+    return np.concatenate(blocks).astype(np.float32)
+
+
+def test_shader_positions_equal_M_T_for_two_bones(gl_context, bar, helpers):
+    V, F, W = bar
+    T = helpers.handle_T([helpers.IDENTITY, helpers.rotation_about(helpers.rotation_z(np.pi / 2), [1, 0, 0])])
+    with Renderer(V, F, W, width=64, height=48, context=gl_context) as renderer:
+        positions = renderer.skinned_positions(T)
+    expected = lbs_matrix(V, W) @ T
+    np.testing.assert_allclose(positions, expected, atol=1e-4)
+    # The tip of the bar (x = 2, bone 1 only) went up to (1, 1, 0).
+    tip = np.argmin(np.linalg.norm(V - [2.0, 0.0, 0.0], axis=1))
+    np.testing.assert_allclose(positions[tip], [1.0, 1.0, 0.0], atol=1e-5)
+
+
+def test_shader_positions_equal_M_T_for_many_handles_and_mixed_sparsity(gl_context, helpers):
+    """60 handles (bones and extra weights): dense rows, sparse rows, one-handle rows, negatives."""
+    rng = np.random.default_rng(7)
+    V, F = helpers.tube(segments=30, sides=12)
+    m = 60
+    W = rng.uniform(-0.1, 1.0, size=(len(V), m))
+    W[rng.random(W.shape) < 0.6] = 0.0  # sparse rows
+    W[::5] = rng.uniform(0.0, 1.0, size=(len(W[::5]), m))  # fully dense rows
+    W[1::7] = 0.0
+    W[1::7, 13] = 1.0  # rows with one handle
+    T = random_affine_T(rng, m)
+    with Renderer(V, F, W, width=64, height=48, context=gl_context) as renderer:
+        assert renderer.max_weights_per_vertex == m
+        assert renderer.dropped_weight_abs_max == 0.0
+        positions = renderer.skinned_positions(T).copy()
+        # T is uploaded per call: a second pose gives the second M @ T, not the first.
+        T2 = random_affine_T(rng, m)
+        positions2 = renderer.skinned_positions(T2)
+        M = lbs_matrix(V, W).astype(np.float64)
+        np.testing.assert_allclose(positions, M @ T, atol=1e-4)
+        np.testing.assert_allclose(positions2, M @ T2, atol=1e-4)
+
+
+def test_cpu_skinning_mode_draws_the_same_silhouette(gl_context, bar, helpers):
+    V, F, W = bar
+    T = helpers.handle_T([helpers.IDENTITY, helpers.rotation_about(helpers.rotation_z(1.0), [1, 0, 0])])
+    masks = []
+    for mode in ("gpu", "cpu"):
+        with Renderer(V, F, W, width=160, height=120, skinning=mode, ground=False, samples=0,
+                      background=(0, 0, 0), context=gl_context) as renderer:
+            masks.append(renderer.draw(T).max(axis=2) > 8)
+    assert masks[0].sum() > 500
+    assert np.mean(masks[0] != masks[1]) < 0.002
+
+
+def test_pack_weights_keeps_every_nonzero_and_reports_what_a_tolerance_drops():
+    W = np.array([[0.5, 0.0, 0.5], [0.0, 0.0, 1.0], [1e-7, 0.3, 0.7]])
+    exact = pack_weights(W)
+    assert exact.spans.tolist() == [[0, 2], [2, 1], [3, 3]]
+    np.testing.assert_allclose(
+        exact.entries.reshape(-1, 2)[: exact.count], [[0.5, 0], [0.5, 2], [1.0, 2], [1e-7, 0], [0.3, 1], [0.7, 2]],
+        rtol=1e-6,
+    )
+    assert exact.dropped_abs_max == 0.0
+    loose = pack_weights(W, tolerance=1e-6)
+    assert loose.spans[:, 1].tolist() == [2, 1, 2]
+    assert loose.dropped_abs_max == pytest.approx(1e-7)
+
+
+def test_bad_T_and_bad_weights_name_the_field(gl_context, bar):
+    V, F, W = bar
+    with Renderer(V, F, W, width=32, height=32, context=gl_context) as renderer:
+        with pytest.raises(RenderInputError, match=r"T: expected shape \(8, 3\)"):
+            renderer.draw(np.zeros((12, 3), np.float32))
+    with pytest.raises(RenderInputError, match="W: expected"):
+        Renderer(V, F, W[:-1], context=gl_context)
+    bad = W.copy()
+    bad[5, 1] = np.nan
+    with pytest.raises(RenderInputError, match="W: non-finite weight at vertex 5, handle 1"):
+        Renderer(V, F, bad, context=gl_context)
+    with pytest.raises(RenderInputError, match="F: vertex index out of range"):
+        Renderer(V, F + len(V), W, context=gl_context)

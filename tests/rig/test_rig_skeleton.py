@@ -1,0 +1,97 @@
+"""Forward kinematics of known poses, against hand-computed transforms."""
+
+import numpy as np
+import pytest
+
+from puppet.rig import RigError, Skeleton
+from puppet.rig.skeleton import Joint, axis_angle_matrices, frame_from_direction
+
+
+def chain(joints=()):
+    """Three bones along +Y: root at origin, mid at y=1, tip at y=2."""
+    heads = np.array([[0, 0, 0], [0, 1, 0], [0, 2, 0]], float)
+    tails = heads + [0, 1, 0]
+    frames = np.tile(np.eye(3), (3, 1, 1))
+    return Skeleton(("root", "mid", "tip"), np.array([-1, 0, 1]), heads, tails, frames, tuple(joints))
+
+
+def apply(T, p):
+    return T[:, :3] @ p + T[:, 3]
+
+
+def test_rest_angles_give_identity_transforms():
+    sk = chain([Joint(1, np.array([[0, 0, 1.0]]), np.array([0]))])
+    np.testing.assert_allclose(sk.pose(np.zeros(1)), sk.rest_pose(), atol=1e-15)
+
+
+def test_single_hinge_rotates_children_about_its_pivot():
+    sk = chain([Joint(1, np.array([[0, 0, 1.0]]), np.array([0]))])
+    T = sk.pose(np.array([np.pi / 2]))
+    # root untouched; mid rotates 90° about +Z through (0,1,0): its tip (0,2,0) goes to (-1,1,0).
+    np.testing.assert_allclose(T[0], sk.rest_pose()[0], atol=1e-12)
+    np.testing.assert_allclose(apply(T[1], [0, 2, 0]), [-1, 1, 0], atol=1e-12)
+    np.testing.assert_allclose(apply(T[1], [0, 1, 0]), [0, 1, 0], atol=1e-12)
+    # the child follows rigidly: its tip (0,3,0) goes to (-2,1,0).
+    np.testing.assert_allclose(apply(T[2], [0, 3, 0]), [-2, 1, 0], atol=1e-12)
+
+
+def test_two_joints_compose_down_the_chain():
+    sk = chain([Joint(0, np.array([[0, 0, 1.0]]), np.array([0])),
+                Joint(2, np.array([[0, 0, 1.0]]), np.array([1]))])
+    T = sk.pose(np.array([np.pi / 2, -np.pi / 2]))
+    # root turns the whole chain to point along -X; the tip joint turns it back to +Y.
+    np.testing.assert_allclose(apply(T[2], [0, 2, 0]), [-2, 0, 0], atol=1e-12)
+    np.testing.assert_allclose(apply(T[2], [0, 3, 0]), [-2, 1, 0], atol=1e-12)
+    np.testing.assert_allclose(T[2][:, :3], np.eye(3), atol=1e-12)
+
+
+def test_axes_compose_in_declared_order_in_the_bone_frame():
+    # Bone frame rotated so local x = model z: an axis "x" in the bone frame is model z.
+    frame = np.array([[0, 1, 0], [0, 0, 1], [1, 0, 0]], float).T  # columns: x->Z, y->X, z->Y
+    assert np.isclose(np.linalg.det(frame), 1)
+    sk = Skeleton(("b",), [-1], [[0, 0, 0]], [[1, 0, 0]], [frame],
+                  (Joint(0, np.array([[1.0, 0, 0], [0, 1.0, 0]]), np.array([0, 1])),))
+    a, b = 0.3, -0.7
+    T = sk.pose(np.array([a, b]))
+    q = axis_angle_matrices(np.eye(3)[:2], np.array([a, b]))
+    expected = frame @ (q[0] @ q[1]) @ frame.T
+    np.testing.assert_allclose(T[0][:, :3], expected, atol=1e-12)
+    assert not np.allclose(expected, frame @ (q[1] @ q[0]) @ frame.T)
+
+
+def test_rigid_transforms_are_rotations():
+    rng = np.random.default_rng(1)
+    sk = chain([Joint(i, rng.normal(size=(3, 3)) / 2, np.arange(3 * i, 3 * i + 3)) for i in range(3)])
+    axes = np.concatenate([j.axes for j in sk.joints])
+    sk = chain([Joint(i, axes[3 * i:3 * i + 3] / np.linalg.norm(axes[3 * i:3 * i + 3], axis=1)[:, None],
+                      np.arange(3 * i, 3 * i + 3)) for i in range(3)])
+    T = sk.pose(rng.uniform(-2, 2, 9))
+    for t in T:
+        np.testing.assert_allclose(t[:, :3] @ t[:, :3].T, np.eye(3), atol=1e-12)
+        assert np.linalg.det(t[:, :3]) == pytest.approx(1.0)
+    # joints stay connected: each child's pivot is where its parent takes it.
+    for i in (1, 2):
+        np.testing.assert_allclose(apply(T[i], sk.heads[i]), apply(T[i - 1], sk.heads[i]), atol=1e-12)
+
+
+def test_pose_writes_into_out_buffer():
+    sk = chain([Joint(1, np.array([[1.0, 0, 0]]), np.array([0]))])
+    out = np.empty((3, 3, 4))
+    assert sk.pose(np.array([0.4]), out) is out
+
+
+def test_frame_from_direction_is_orthonormal_with_y_along_bone():
+    f = frame_from_direction(np.array([0.0, -2.0, 0.0]))
+    np.testing.assert_allclose(f[:, 1], [0, -1, 0])
+    np.testing.assert_allclose(f.T @ f, np.eye(3), atol=1e-12)
+    assert np.linalg.det(f) == pytest.approx(1.0)
+
+
+def test_parents_must_come_first():
+    with pytest.raises(RigError, match="parents must come before children"):
+        Skeleton(("a", "b"), [1, -1], np.zeros((2, 3)), np.ones((2, 3)), np.tile(np.eye(3), (2, 1, 1)))
+
+
+def test_duplicate_bone_names_are_refused():
+    with pytest.raises(RigError, match="duplicate bone names"):
+        Skeleton(("a", "a"), [-1, 0], np.zeros((2, 3)), np.ones((2, 3)), np.tile(np.eye(3), (2, 1, 1)))
