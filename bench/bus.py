@@ -11,7 +11,7 @@ precomputed bytes: the floor for this pty + SDK + machine. ``ratio`` = hw_sim / 
 If bench/bus_reader.py exists, its ``reader_cases() -> list[dict]`` cases ("read": "reader")
 are appended to the table and the JSON.
 
-Usage: python bench/bus.py [--json FILE] [--iterations N]
+Usage: python bench/bus.py [--json FILE] [--iterations N] [--no-reader]
 JSON: {"cases": [{"servos", "read", "timing", "baud", "median_ms", "p99_ms", "reads_per_s"}],
        "baseline": [{"servos", "read", "median_ms", "p99_ms"}]}
 """
@@ -146,10 +146,12 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--json", default=None, help="write results to this JSON file")
     parser.add_argument("--iterations", type=int, default=300, help="reads per case")
+    parser.add_argument("--no-reader", action="store_true",
+                        help="skip bench/bus_reader.py's cases even if it exists")
     args = parser.parse_args(argv)
     cases, baseline = run_cases(args.iterations)
     _report(cases, baseline, args.json)  # ours first: a failing reader bench loses nothing
-    reader = _reader_cases()
+    reader = [] if args.no_reader else _reader_cases()
     if reader:
         print("bus_reader cases (bench/bus_reader.py):")
         _report(cases + reader, baseline, args.json, rows=reader)

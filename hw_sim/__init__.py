@@ -6,13 +6,30 @@ imports nothing from ``puppet``.
 In-process API (tests, demos)::
 
     from hw_sim import serve
-    with serve(range(1, 4), motion="wave") as bus:
-        port = dynamixel_sdk.PortHandler(bus.port)      # bus.port: '/dev/pts/N'
+    with serve(range(1, 4), motion="wave") as bus:          # or {id: "XL430-W250", ...}
+        port = dynamixel_sdk.PortHandler(bus.port)          # bus.port: '/dev/pts/N'
         port.openPort(); port.setBaudRate(1_000_000)
         ...
-        bus.inject("drop", ids=[2], duration_s=0.5)      # immediate fault
-        bus.set_positions({1: 5000})                     # programmatic motion (torque off)
-        assert bus.servo(1).read_field("Present Position") == 5000
+        bus.inject("drop", ids=[2], duration_s=0.5)          # immediate fault
+        bus.clear_faults()
+        bus.set_positions({1: 5000})                         # programmatic motion (torque off)
+        assert bus.servo(1).get("Present Position") == 5000  # control table, for assertions
+
+``serve(servos, *, model="XL330-M288", motion=None, faults=None, timing=False, baud=1_000_000,
+return_delay_us=None, echo=False, strict_baud=False, process=True, seed=0)`` yields a
+``SimBus``: ``port`` (current pty path; None while unplugged, a new path after a replug),
+``link`` (a stable symlink to the current pty that works again after a replug, like
+/dev/serial/by-id), ``inject(kind, ids=None, *, duration_s=None, **params)``,
+``clear_faults()``, ``set_positions({id: counts})``, ``servo(id) -> ServoView``
+(``get(name)``, ``set(name, value)``, ``read(addr, size)``, ``powered``, ``model``,
+``hardware_error``), ``traffic()`` (bytes seen, both ways) and ``counts()``.
+
+Fault kinds (see ``hw_sim.faults``): drop, bad_crc, truncate, error_status, power_cycle,
+power_off, power_on, unplug, replug, duplicate_id, hardware_error, noise, echo. An unplug closes
+the pty's master: an SDK call waiting for a reply raises ``serial.SerialException`` ("device
+reports readiness to read but returned no data") and leaves ``port.is_using`` True (later calls
+return COMM_PORT_BUSY); an SDK call started after the unplug fails in ``clearPort()`` with
+``termios.error`` (EIO), as on a hung-up USB tty.
 
 The bus server runs in a forked child process (the SDK busy-polls while holding the GIL, so a
 responder thread in the same process would compete with it); ``SimBus`` talks to it over a pipe.
@@ -20,13 +37,16 @@ Pass ``process=False`` to run it in a thread instead.
 
 Modules: ``codec`` (packet bytes, CRC-16, stuffing, device-side parser), ``control_table``
 (X-series tables as data), ``servo`` (one servo's state and behaviour), ``device_bus``
-(instruction dispatch for a set of servos), ``motion`` (motion sources), ``faults`` (fault kinds
-and schedules), ``server`` (the pty server, ``serve`` and ``SimBus``), ``cli`` (``hw-sim``).
+(instruction dispatch for the servos on a bus), ``motion`` (motion sources), ``faults`` (fault
+kinds, schedules, the fault file), ``server`` (the pty server, ``serve`` and ``SimBus``),
+``cli`` (``hw-sim``).
 """
 
-from hw_sim.server import SimBus, ServoView, serve
-from hw_sim.errors import HwSimError, MotionFileError, FaultFileError
+from hw_sim.errors import FaultFileError, HwSimError, MotionFileError
+from hw_sim.faults import Fault, FaultError, FaultSchedule
+from hw_sim.server import ServoView, SimBus, serve
 
 __version__ = "0.1.0"
 
-__all__ = ["serve", "SimBus", "ServoView", "HwSimError", "MotionFileError", "FaultFileError"]
+__all__ = ["serve", "SimBus", "ServoView", "Fault", "FaultSchedule", "HwSimError", "FaultError",
+           "MotionFileError", "FaultFileError"]

@@ -30,6 +30,8 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--return-delay-us", type=int, default=None,
                         help="Return Delay Time in us (default: the model's 500 us)")
     parser.add_argument("--echo", action="store_true", help="half-duplex echo of instructions")
+    parser.add_argument("--strict-baud", action="store_true",
+                        help="servos answer only when the port's speed matches their Baud Rate")
     return parser
 
 
@@ -44,7 +46,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         server = Server({i: args.model for i in ids}, motion=args.motion, faults=args.faults,
                         timing=args.timing, baud=args.baud, return_delay_us=args.return_delay_us,
-                        echo=args.echo)
+                        echo=args.echo, strict_baud=args.strict_baud)
     except (HwSimError, ValueError) as exc:
         print(f"hw-sim: {exc}", file=sys.stderr)
         return 2

@@ -37,6 +37,9 @@ class DeviceBus:
         self.servos = list(servos)
         self.twins: list[Servo] = []
         self.reply_faults: list[Fault] = []
+        # The host's line speed (bit/s) when known: servos whose Baud Rate item differs hear
+        # only noise and stay silent. None = everyone listens (the pty's speed is not checked).
+        self.port_baud: int | None = None
         self.rng = rng or random.Random(1)
         self._reindex()
         self._handlers = {
@@ -63,14 +66,19 @@ class DeviceBus:
                 return s
         raise KeyError(f"no simulated servo with id {dxl_id} (ids: {sorted(self.by_id)})")
 
+    def _listening(self, s: Servo) -> bool:
+        return s.powered and (self.port_baud is None
+                              or s.model.baud_rates.get(s.mem[8]) == self.port_baud)
+
     def _targets(self, dxl_id: int) -> list[Servo]:
-        return [s for s in self.by_id.get(dxl_id, ()) if s.powered]
+        return [s for s in self.by_id.get(dxl_id, ()) if self._listening(s)]
 
     def _shadows(self, dxl_id: int) -> list[Servo]:
         """Servos whose Secondary ID is ``dxl_id``: they execute but never reply."""
         if not self._secondary:
             return []
-        return [s for s in self.servos if s.powered and s.mem[12] == dxl_id and s.dxl_id != dxl_id]
+        return [s for s in self.servos
+                if self._listening(s) and s.mem[12] == dxl_id and s.dxl_id != dxl_id]
 
     # ---- faults on replies -------------------------------------------------------------------
     def _reply_fault(self, dxl_id: int) -> Fault | None:
@@ -117,7 +125,7 @@ class DeviceBus:
         reply when Status Return Level >= ``need`` and the target was unicast; ``after(servo)``
         runs once the reply is built (reboot, reset)."""
         if dxl_id == codec.BROADCAST_ID:
-            for s in [s for s in self.servos + self.twins if s.powered]:
+            for s in [s for s in self.servos + self.twins if self._listening(s)]:
                 fn(s)
                 if after:
                     after(s)

@@ -17,6 +17,7 @@ import random
 import select
 import signal
 import tempfile
+import termios
 import threading
 import time
 import tty
@@ -53,12 +54,15 @@ class Server:
     servos: {id: model_name}; motion: a motion spec (see motion.make_motion); faults: a fault
     spec (see faults.make_schedule); timing: model return delay + byte time; baud: bits/s for the
     timing model (servos' Baud Rate item is set to match); return_delay_us: Return Delay Time
-    (even, 0..508 us; None = the model default 500 us); echo: half-duplex echo from the start.
+    (even, 0..508 us; None = the model default 500 us); echo: half-duplex echo from the start;
+    strict_baud: servos answer only when the host's port speed (read from the pty's termios,
+    as set by ``PortHandler.setBaudRate``) equals their Baud Rate item, and the timing model
+    uses that speed, as on a real bus.
     """
 
     def __init__(self, servos: dict[int, str], *, motion=None, faults=None, timing: bool = False,
                  baud: int = 1_000_000, return_delay_us: int | None = None, echo: bool = False,
-                 seed: int = 0) -> None:
+                 strict_baud: bool = False, seed: int = 0) -> None:
         if not servos:
             raise HwSimError("a bus needs at least one servo")
         self.t0 = time.monotonic()
@@ -68,6 +72,7 @@ class Server:
         self.baud = baud
         self.byte_s = BITS_PER_BYTE / baud
         self.echo = echo
+        self.strict_baud = strict_baud
         rng = random.Random(seed)
         rd = None if return_delay_us is None else int(return_delay_us) // 2
         if rd is not None and not 0 <= rd <= 254:
@@ -125,6 +130,8 @@ class Server:
 
     def close(self) -> None:
         self.unplug()
+        if os.path.lexists(self.link):  # a child that was killed leaves its link behind
+            os.unlink(self.link)
         try:
             os.rmdir(self.link_dir)
         except OSError:
@@ -241,6 +248,10 @@ class Server:
             return
         now = t_rx - self.t0
         self.traffic.append((now, "rx", bytes(data)))
+        if self.strict_baud:
+            speed = _port_speed(self.slave)
+            self.bus.port_baud = speed
+            self.byte_s = BITS_PER_BYTE / (speed or self.baud)
         if self.echo:
             self._send(data)
         line_free = t_rx
@@ -279,15 +290,22 @@ class Server:
                 return False
 
     def _send(self, data: bytes) -> None:
-        if self.master < 0:
-            return
-        try:
-            os.write(self.master, data)
-        except BlockingIOError:
-            self.counts["tx_overflow"] += 1
-        except OSError as exc:
-            if exc.errno != errno.EIO:
-                raise
+        """Write all of ``data`` to the host; if nobody drains the pty for 50 ms, drop the rest
+        (counted as tx_overflow) rather than stall the bus."""
+        view = memoryview(data)
+        while view and self.master >= 0:
+            try:
+                n = os.write(self.master, view)
+            except BlockingIOError:
+                n = 0
+            except OSError as exc:
+                if exc.errno != errno.EIO:
+                    raise
+                return
+            view = view[n:]
+            if view and not select.select([], [self.master], [], 0.05)[1]:
+                self.counts["tx_overflow"] += 1
+                return
 
     def run(self, conn=None) -> None:
         """Serve until ``stop`` arrives on ``conn`` (or it closes); with no conn, until stop()."""
@@ -381,6 +399,19 @@ class Server:
 def _child_main(server: Server, conn) -> None:
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     server.run(conn)
+
+
+_TERMIOS_SPEEDS = {getattr(termios, f"B{rate}"): rate for rate in (
+    9600, 19200, 38400, 57600, 115200, 230400, 460800, 500000, 576000, 921600, 1000000,
+    1152000, 1500000, 2000000, 2500000, 3000000, 3500000, 4000000) if hasattr(termios, f"B{rate}")}
+
+
+def _port_speed(fd: int) -> int | None:
+    """The line speed the host set on the pty (bit/s), or None if not a standard rate."""
+    try:
+        return _TERMIOS_SPEEDS.get(termios.tcgetattr(fd)[5])
+    except termios.error:
+        return None
 
 
 class ServoView:
@@ -513,7 +544,7 @@ def _servo_models(servos, model: str) -> dict[int, str]:
 @contextmanager
 def serve(servos, *, model: str = "XL330-M288", motion=None, faults=None, timing: bool = False,
           baud: int = 1_000_000, return_delay_us: int | None = None, echo: bool = False,
-          process: bool = True, seed: int = 0) -> Iterator[SimBus]:
+          strict_baud: bool = False, process: bool = True, seed: int = 0) -> Iterator[SimBus]:
     """Run a simulated bus for the duration of the block.
 
     servos: iterable of ids, or {id: model_name}. model: model for plain ids ("XL330-M288",
@@ -522,11 +553,14 @@ def serve(servos, *, model: str = "XL330-M288", motion=None, faults=None, timing
     ``position(joint, t) -> counts``. faults: None, a fault file path, a FaultSchedule or a list
     of Faults (times in seconds from the start). timing: delay replies by return delay + byte
     time at ``baud``. return_delay_us: Return Delay Time (None = 500 us model default).
-    echo: half-duplex echo. process: serve from a forked child (default) or a thread.
+    echo: half-duplex echo. strict_baud: servos answer only when the host's port speed equals
+    their Baud Rate item (as on a real bus; off by default). seed: fault randomness.
+    process: serve from a forked child (default) or a thread.
     Yields a running SimBus; stops it on exit.
     """
     server = Server(_servo_models(servos, model), motion=motion, faults=faults, timing=timing,
-                    baud=baud, return_delay_us=return_delay_us, echo=echo, seed=seed)
+                    baud=baud, return_delay_us=return_delay_us, echo=echo,
+                    strict_baud=strict_baud, seed=seed)
     bus = SimBus(server, process=process)
     try:
         yield bus

@@ -58,9 +58,8 @@ class Servo:
             self._store(model.field("Baud Rate"), baud_index)
         if return_delay is not None:
             self._store(model.field("Return Delay Time"), return_delay)
-        self.eeprom_defaults = bytes(self.mem[:EEPROM_END])  # what factory reset restores
-        self.eeprom_defaults = bytearray(self.eeprom_defaults)
-        for f in model.fields:  # factory EEPROM: ID 1 etc., but keep our configured bus values
+        self.eeprom_defaults = bytearray(EEPROM_END)  # what Factory Reset restores
+        for f in model.fields:
             if f.eeprom:
                 self._store_into(self.eeprom_defaults, f, f.default)
         self.powered = True
@@ -134,7 +133,7 @@ class Servo:
         self.refresh(now)
 
     def reboot(self, now: float) -> None:
-        self.shaft = float(self.motion.position(self.joint, now)) if not self.torque else self.shaft
+        """Reboot instruction: the same as a power cycle (RAM defaults, re-based position)."""
         self._boot(now)
 
     def power_off(self) -> None:

@@ -62,8 +62,7 @@ def identify(link: BusLink, servos: Mapping[int, str], report: SetupReport, atte
         model = ct.model_named(model_name)
         for attempt in range(attempts):
             try:
-                number = link.ping(dxl_id)
-                firmware = link.read(dxl_id, ct.FIRMWARE_VERSION)
+                number, firmware = link.ping(dxl_id)
                 break
             except ServoError:
                 continue

@@ -10,6 +10,7 @@ raises, is reset before every transaction (this link is the port's only user).
 from __future__ import annotations
 
 import contextlib
+import os
 from collections.abc import Iterable, Iterator, Mapping
 from dataclasses import dataclass, field
 
@@ -17,9 +18,10 @@ import dynamixel_sdk
 import dynamixel_sdk.port_handler as sdk_port_handler
 import serial
 import termios
+from dynamixel_sdk import protocol2_packet_handler as p2
 from dynamixel_sdk import robotis_def as rd
 
-from puppet.bus.control_table import ALERT_BIT, MODEL_NUMBER, Item, describe_status_error
+from puppet.bus.control_table import Item, describe_status_error
 from puppet.bus.errors import PortError, ServoCorrupt, ServoError, ServoStatusError, ServoTimeout
 
 PROTOCOL = 2.0
@@ -29,6 +31,17 @@ read but returned no data'), OSError (EIO on write), termios.error (EIO from tcf
 DEFAULT_LATENCY_MS = 1
 """The adapter latency the SDK's timeouts assume, ms. FTDI adapters (U2D2) need their
 latency_timer set to 1 (udev rule) for this to hold; hw_sim's pty answers at once."""
+
+
+def adapter_latency_ms(port_name: str) -> int | None:
+    """The FTDI latency timer (ms) of a USB serial adapter (U2D2, USB2DYNAMIXEL), read from
+    ``/sys/bus/usb-serial/devices/ttyUSBn/latency_timer``; None for other ports (pty, ACM)."""
+    try:
+        device = os.path.basename(os.path.realpath(port_name))
+        with open(f"/sys/bus/usb-serial/devices/{device}/latency_timer") as f:
+            return int(f.read().strip())
+    except (OSError, ValueError):
+        return None
 
 
 def set_latency_assumption(ms: int) -> None:
@@ -71,7 +84,9 @@ class BusLink:
     port:  a port name ('/dev/ttyUSB0', '/dev/serial/by-id/...', a pty) or an already-open
            ``dynamixel_sdk.PortHandler``.
     baud:  bits per second (an SDK-supported rate, e.g. 1_000_000 or 4_000_000).
-    latency_ms: the SDK's latency assumption (see ``set_latency_assumption``).
+    latency_ms: the SDK's latency assumption (see ``set_latency_assumption``), ms; None: the
+           adapter's own FTDI latency timer when the port has one (a U2D2 left at the
+           driver's 16 ms needs 16 here, or a udev rule setting it to 1), else 1.
     poll_block_s: how long one non-blocking SDK serial read may wait in select() for bytes,
            seconds. The SDK busy-polls a ``timeout=0`` serial port; a short blocking read
            releases the GIL instead of spinning. 0 keeps the SDK's spinning.
@@ -81,16 +96,19 @@ class BusLink:
         self,
         port: str | dynamixel_sdk.PortHandler,
         baud: int = 1_000_000,
-        latency_ms: int = DEFAULT_LATENCY_MS,
+        latency_ms: int | None = None,
         poll_block_s: float = 0.0002,
     ):
-        set_latency_assumption(latency_ms)
         if isinstance(port, dynamixel_sdk.PortHandler):
             self.port = port
             self.port_name: str = port.getPortName()
         else:
             self.port = dynamixel_sdk.PortHandler(str(port))
             self.port_name = str(port)
+        if latency_ms is None:
+            latency_ms = adapter_latency_ms(self.port_name) or DEFAULT_LATENCY_MS
+        self.latency_ms = int(latency_ms)
+        set_latency_assumption(self.latency_ms)
         self.baud = int(baud)
         self.poll_block_s = float(poll_block_s)
         self.ph = dynamixel_sdk.PacketHandler(PROTOCOL)
@@ -145,16 +163,24 @@ class BusLink:
             raise ServoCorrupt(ids, instruction, f"malformed reply ({type(exc).__name__} in the SDK)") from exc
 
     # ---- single-servo instructions -------------------------------------------------------
-    def ping(self, dxl_id: int) -> int:
-        """Ping one servo -> its model number."""
+    def ping(self, dxl_id: int) -> tuple[int, int]:
+        """Ping one servo -> (model number, firmware version).
+
+        The reply's length is checked: the SDK's ``ping`` would take any status from that id
+        (e.g. a late reply to an earlier read) and return its bytes as a model number.
+        """
+        tx = [0] * 10
+        tx[p2.PKT_ID] = dxl_id
+        tx[p2.PKT_LENGTH_L] = 3
+        tx[p2.PKT_INSTRUCTION] = rd.INST_PING
         with self._transaction([dxl_id], "ping"):
-            model, code, error = self.ph.ping(self.port, dxl_id)
+            rx, code, error = self.ph.txRxPacket(self.port, tx)
         if code != rd.COMM_SUCCESS:
             raise _failure(code, [dxl_id], "ping")
-        if error & 0x7F:
-            # An error status carries no model number: the SDK would hand back CRC bytes.
-            raise ServoStatusError([dxl_id], "ping", describe_status_error(error), error=error)
-        return int(model)
+        if error & 0x7F or len(rx) != 14:
+            raise ServoStatusError([dxl_id], "ping", describe_status_error(error)
+                                   + f", {len(rx)}-byte reply (a ping reply has 14)", error=error)
+        return rx[9] | (rx[10] << 8), rx[11]
 
     def broadcast_ping(self) -> dict[int, tuple[int, int]]:
         """Ping every id at once -> {id: (model number, firmware)}. Costs ~0.8 s (the SDK waits)."""
@@ -219,7 +245,8 @@ class BusLink:
         with self._transaction(ids, instruction):
             code = self.ph.syncReadTx(self.port, item.address, item.size, ids, len(ids), False)
         if code != rd.COMM_SUCCESS:
-            raise _failure(code, ids, instruction)
+            out.failed = dict.fromkeys(ids, _failure(code, ids, instruction))
+            return out
         for dxl_id in ids:
             # The deadline is shared by all replies; after it expires, each readRx returns at
             # once with whatever is already buffered.
@@ -295,4 +322,5 @@ class BusLink:
             raise _failure(code, ids, "sync_write")
 
 
-__all__ = ["BusLink", "GroupRead", "set_latency_assumption", "DEFAULT_LATENCY_MS", "MODEL_NUMBER"]
+__all__ = ["BusLink", "GroupRead", "set_latency_assumption", "adapter_latency_ms", "DEFAULT_LATENCY_MS",
+           "PORT_ERRORS"]

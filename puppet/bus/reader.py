@@ -28,7 +28,7 @@ from puppet.bus import control_table as ct
 from puppet.bus import health as hs
 from puppet.bus.configure import SetupReport, configure_servo, identify, supports_fast_sync_read
 from puppet.bus.errors import BusError, PortError, ServoCorrupt, ServoError, ServoMissing, ServoTimeout
-from puppet.bus.link import DEFAULT_LATENCY_MS, BusLink, GroupRead
+from puppet.bus.link import BusLink, GroupRead
 from puppet.bus.reading import Reading
 from puppet.bus.unwrap import TurnUnwrapper
 
@@ -42,7 +42,8 @@ class ServoReader:
                ``dynamixel_sdk.PortHandler``.
     servos:    {id: model name} ('XL330-M288', 'XL430-W250', 'XM430-W350'), in reading order.
     baud:      bits per second.
-    latency_ms: the SDK's latency assumption (module global ``LATENCY_TIMER``), ms.
+    latency_ms: the SDK's latency assumption (module global ``LATENCY_TIMER``), ms; None: the
+               adapter's FTDI latency timer from sysfs where there is one, else 1.
     read_mode: 'auto' (fast sync read if all firmware supports it), 'fast_sync_read', 'sync_read'.
     actuators: ids that get torque on and accept goal positions (``write_goals``).
     limits:    {id: (lo, hi)} continuous tick limits; a value outside is flagged, not taken.
@@ -59,7 +60,7 @@ class ServoReader:
         servos: Mapping[int, str],
         *,
         baud: int = 1_000_000,
-        latency_ms: int = DEFAULT_LATENCY_MS,
+        latency_ms: int | None = None,
         read_mode: str = "auto",
         actuators: Iterable[int] = (),
         limits: Mapping[int, tuple[int, int]] | None = None,

@@ -78,7 +78,7 @@ class Renderer:
         context: moderngl.Context | None = None,
         weight_tolerance: float = 0.0,
         shadow_sphere_count: int = 24,
-        shadow_resolution: int = 256,
+        shadow_resolution: int = 128,
         bone_width_px: float = 5.0,
     ):
         if skinning not in SKINNING_MODES:
@@ -120,36 +120,41 @@ class Renderer:
         self.dropped_weight_abs_max = packed.dropped_abs_max
         self._vbo_rest = ctx.buffer(V.astype(np.float32))
         self._vbo_normal = ctx.buffer(_vertex_normals(V, F.astype(np.int64)))
+        self._spill = packed.spilled > 0
         self._vbo_span = ctx.buffer(packed.spans)
+        self._vbo_slot_weights = ctx.buffer(packed.slot_weights)
+        self._vbo_slot_handles = ctx.buffer(packed.slot_handles)
+        groups = packed.slots // 4
+        handle_groups = packed.slot_handles.shape[1] // 4
+        skin_content = [
+            (self._vbo_slot_weights, " ".join(["4f"] * groups), *[f"in_weight{g}" for g in range(groups)]),
+            (self._vbo_slot_handles, " ".join(["4u"] * handle_groups), *[f"in_handles{h}" for h in range(handle_groups)]),
+        ]
+        if self._spill:
+            skin_content.append((self._vbo_span, "2u", "in_span"))
         self._ibo = ctx.buffer(F)
         self._weights = ctx.texture((TEXTURE_WIDTH, packed.entries.shape[0]), 2, packed.entries, dtype="f4")
         self._weights.filter = (moderngl.NEAREST, moderngl.NEAREST)
         self._ubo = ctx.buffer(reserve=self._rows.nbytes)
         defines = dict(HANDLES=self.m, WEIGHTS_WIDTH=TEXTURE_WIDTH, WEIGHTS_SHIFT=TEXTURE_WIDTH.bit_length() - 1)
 
-        self._capture_prog = ctx.program(
-            vertex_shader=shaders.source(shaders.SKIN, shaders.MESH_CAPTURE_VERTEX, **defines),
-            varyings=["out_position"],
+        skin = shaders.skin_chunk(packed.slots, self._spill)
+        self._skin_prog = ctx.program(
+            vertex_shader=shaders.source(skin, shaders.SKIN_VERTEX, **defines),
+            varyings=["out_position", "out_normal"],
         )
-        self._capture_vao = ctx.vertex_array(
-            self._capture_prog, [(self._vbo_rest, "3f", "in_position"), (self._vbo_span, "2u", "in_span")]
+        self._bind_skin(self._skin_prog)
+        self._skin_vao = ctx.vertex_array(
+            self._skin_prog,
+            [(self._vbo_rest, "3f", "in_position"), (self._vbo_normal, "3f", "in_normal"), *skin_content],
         )
-        self._capture_buffer = ctx.buffer(reserve=self.n * 12)
-        self._captured = np.zeros((self.n, 3), dtype=np.float32)
-        self._bind_skin(self._capture_prog)
+        self._skinned = ctx.buffer(reserve=self.n * 24)  # (position, normal) per vertex
+        self._captured = np.zeros((self.n, 6), dtype=np.float32)
 
         fragment = shaders.source(shaders.LIGHTING, shaders.MESH_FRAGMENT)
         if skinning == "gpu":
-            self._mesh_prog = ctx.program(
-                vertex_shader=shaders.source(shaders.SKIN, shaders.MESH_GPU_VERTEX, **defines),
-                fragment_shader=fragment,
-            )
-            self._bind_skin(self._mesh_prog)
-            content = [
-                (self._vbo_rest, "3f", "in_position"),
-                (self._vbo_normal, "3f", "in_normal"),
-                (self._vbo_span, "2u", "in_span"),
-            ]
+            self._mesh_prog = ctx.program(vertex_shader=shaders.source(shaders.MESH_VERTEX), fragment_shader=fragment)
+            content = [(self._skinned, "3f 3f", "in_position", "in_normal")]
             self._mesh_prog["u_face_normals"].value = False
         else:
             self._M = lbs_matrix(V, W)
@@ -229,7 +234,8 @@ class Renderer:
 
     def _bind_skin(self, prog: moderngl.Program) -> None:
         prog["Handles"].binding = 0
-        prog["u_weights"].value = 0
+        if self._spill:
+            prog["u_weights"].value = 0
 
     def _ground_axes(self) -> tuple[np.ndarray, np.ndarray]:
         """Two unit axes (3,) spanning the ground plane (perpendicular to up)."""
@@ -294,17 +300,30 @@ class Renderer:
         self._ubo.bind_to_uniform_block(0)
         self._weights.use(location=0)
 
-    def skinned_positions(self, T: np.ndarray) -> np.ndarray:
-        """Positions (n, 3) float32 as the vertex shader computes them (transform feedback).
-
-        The returned array is reused by the next call; copy it to keep it.
-        """
-        self._upload(T)
+    def _skin(self) -> None:
+        """Skinning pass: the vertex shader writes (position, normal) of every vertex once."""
         self._bind_frame_resources()
         self._resolved.use()  # EGL without a surface has no default framebuffer to fall back to
-        self._capture_vao.transform(self._capture_buffer, mode=moderngl.POINTS, vertices=self.n)
-        self._capture_buffer.read_into(self._captured)
-        return self._captured
+        self._skin_vao.transform(self._skinned, mode=moderngl.POINTS, vertices=self.n)
+
+    def skinned_positions(self, T: np.ndarray) -> np.ndarray:
+        """Positions (n, 3) float32 that the skinning vertex shader writes and draw() renders
+        (read back from its transform feedback buffer).
+
+        Returns a view into an array that the next call overwrites; copy it to keep it.
+        """
+        self._upload(T)
+        self._skin()
+        self._skinned.read_into(self._captured)
+        return self._captured[:, :3]
+
+    def skinned_normals(self, T: np.ndarray) -> np.ndarray:
+        """Unnormalized normals (n, 3) float32 of the skinning pass (cofactor of the blended
+        linear part times the rest normal); a view like skinned_positions()."""
+        self._upload(T)
+        self._skin()
+        self._skinned.read_into(self._captured)
+        return self._captured[:, 3:]
 
     def draw(self, T: np.ndarray, *, bones=None, bone_states=None, out: np.ndarray | None = None) -> np.ndarray:
         """Render the character skinned by T and read it back.
@@ -319,9 +338,10 @@ class Renderer:
         ctx = self.ctx
         blocks = self._upload(T)
         if self.skinning == "cpu":
-            M = self._M
-            np.matmul(M, T, out=self._positions, casting="same_kind")
+            np.matmul(self._M, T, out=self._positions, casting="same_kind")
             self._vbo_positions.write(self._positions)
+        else:
+            self._skin()
         ctx.disable(moderngl.CULL_FACE)
         ctx.disable(moderngl.DEPTH_TEST)
         if self.ground:
@@ -336,7 +356,6 @@ class Renderer:
         if self.ground:
             self._occlusion_texture.use(location=1)
             self._ground_vao.render(moderngl.TRIANGLES)
-        self._bind_frame_resources()
         self._mesh_vao.render(moderngl.TRIANGLES)
         if bones is not None:
             ctx.disable(moderngl.DEPTH_TEST)
@@ -397,11 +416,12 @@ class Renderer:
             return
         self._released = True
         objects = [
-            self._capture_vao, self._capture_prog, self._capture_buffer, self._mesh_vao, self._mesh_prog,
+            self._skin_vao, self._skin_prog, self._skinned, self._mesh_vao, self._mesh_prog,
             self._ground_vao, self._ground_prog, self._ground_vbo, self._bone_prog, self._bone_corners,
             self._occlusion_vao, self._occlusion_prog, self._occlusion_quad, self._occlusion_fbo,
             self._occlusion_texture,
             self._vbo_rest, self._vbo_normal, self._vbo_span, self._ibo, self._weights, self._ubo,
+            self._vbo_slot_weights, self._vbo_slot_handles,
         ]
         if self.skinning == "cpu":
             objects.append(self._vbo_positions)

@@ -1,27 +1,13 @@
 """GLSL sources of the renderer (GLSL 330 core). Each program is assembled by `source()`.
 
-Skinning (the `SKIN` chunk): vertex i's blended transform is sum_k w_k * A_{h_k} over its
-(weight, handle) pairs, read from the `u_weights` texture; A_j (3x4, rows u_rows[3j..3j+2])
+Skinning (`skin_chunk`): vertex i's blended transform is sum_k w_k * A_{h_k} over its
+(weight, handle) pairs (attributes, then any spilled into the `u_weights` texture); A_j (3x4, rows u_rows[3j..3j+2])
 is handle j's affine transform, i.e. block j of T (4m, 3) transposed. Positions are A [v 1]
 (= row i of M @ T), normals are the cofactor of A's linear part times the rest normal.
 """
 
-SKIN = """
+SKIN_COMMON = """
 layout(std140) uniform Handles { vec4 u_rows[3 * HANDLES]; };
-uniform sampler2D u_weights;   // RG32F texel k: (weight, handle index)
-
-void blend_transform(uvec2 span, out vec4 r0, out vec4 r1, out vec4 r2) {
-    r0 = vec4(0.0); r1 = vec4(0.0); r2 = vec4(0.0);
-    int first = int(span.x);
-    int last = first + int(span.y);
-    for (int k = first; k < last; ++k) {
-        vec2 pair = texelFetch(u_weights, ivec2(k & (WEIGHTS_WIDTH - 1), k >> WEIGHTS_SHIFT), 0).xy;
-        int j = 3 * int(pair.y);
-        r0 += pair.x * u_rows[j];
-        r1 += pair.x * u_rows[j + 1];
-        r2 += pair.x * u_rows[j + 2];
-    }
-}
 
 vec3 apply_affine(vec4 r0, vec4 r1, vec4 r2, vec3 p) {
     vec4 h = vec4(p, 1.0);
@@ -35,36 +21,79 @@ vec3 transform_normal(vec4 r0, vec4 r1, vec4 r2, vec3 n) {
 }
 """
 
-# Mesh skinned on the GPU, for drawing.
-MESH_GPU_VERTEX = """
+SKIN_SPILL = """
+uniform sampler2D u_weights;   // RG32F texel k: (weight, handle index)
+in uvec2 in_span;              // spilled pairs of this vertex: first texel, count
+void add_spilled(inout vec4 r0, inout vec4 r1, inout vec4 r2) {
+    int first = int(in_span.x);
+    int last = first + int(in_span.y);
+    for (int k = first; k < last; ++k) {
+        vec2 pair = texelFetch(u_weights, ivec2(k & (WEIGHTS_WIDTH - 1), k >> WEIGHTS_SHIFT), 0).xy;
+        int j = 3 * int(pair.y);
+        r0 += pair.x * u_rows[j];
+        r1 += pair.x * u_rows[j + 1];
+        r2 += pair.x * u_rows[j + 2];
+    }
+}
+"""
+
+
+def skin_chunk(slots: int, spill: bool) -> str:
+    """GLSL of blend_transform(): the sum of w * A_j over the vertex's pairs, `slots` of them
+    from attributes in_weight<g> (vec4) and in_handles<h> (uvec4, two 16-bit indices per uint),
+    unrolled, then the spilled ones from the texture when spill is True."""
+    lines = [SKIN_COMMON]
+    lines += [f"in vec4 in_weight{g};" for g in range(slots // 4)]
+    lines += [f"in uvec4 in_handles{h};" for h in range(slots // 8)]  # slots: a multiple of 8
+    if spill:
+        lines.append(SKIN_SPILL)
+    lines.append("void blend_transform(out vec4 r0, out vec4 r1, out vec4 r2) {")
+    lines.append("    r0 = vec4(0.0); r1 = vec4(0.0); r2 = vec4(0.0);")
+    lines.append("    float w; int j;")
+    for slot in range(slots):
+        packed = f"in_handles{slot // 8}.{'xyzw'[(slot % 8) // 2]}"
+        handle = f"{packed} & 0xFFFFu" if slot % 2 == 0 else f"{packed} >> 16"
+        lines.append(
+            f"    w = in_weight{slot // 4}.{'xyzw'[slot % 4]}; j = 3 * int({handle}); "
+            "r0 += w * u_rows[j]; r1 += w * u_rows[j + 1]; r2 += w * u_rows[j + 2];"
+        )
+    if spill:
+        lines.append("    add_spilled(r0, r1, r2);")
+    lines.append("}")
+    return "\n".join(lines)
+
+
+# Skinning pass: every vertex once, captured by transform feedback into one buffer of
+# (position, normal) pairs that the mesh pass then draws. Shading each vertex once matters on
+# llvmpipe, whose indexed draws may shade a vertex several times (about 3x slower here).
+SKIN_VERTEX = """
+in vec3 in_position;
+in vec3 in_normal;
+out vec3 out_position;
+out vec3 out_normal;
+void main() {
+    vec4 r0, r1, r2;
+    blend_transform(r0, r1, r2);
+    out_position = apply_affine(r0, r1, r2, in_position);
+    out_normal = transform_normal(r0, r1, r2, in_normal);
+}
+"""
+
+# Mesh pass: skinned positions and normals (from the skinning pass or uploaded by the CPU).
+MESH_VERTEX = """
 uniform mat4 u_view_proj;
 in vec3 in_position;
 in vec3 in_normal;
-in uvec2 in_span;
 out vec3 v_world;
 out vec3 v_normal;
 void main() {
-    vec4 r0, r1, r2;
-    blend_transform(in_span, r0, r1, r2);
-    v_world = apply_affine(r0, r1, r2, in_position);
-    v_normal = transform_normal(r0, r1, r2, in_normal);
-    gl_Position = u_view_proj * vec4(v_world, 1.0);
+    v_world = in_position;
+    v_normal = in_normal;
+    gl_Position = u_view_proj * vec4(in_position, 1.0);
 }
 """
 
-# Mesh skinned on the GPU, captured by transform feedback (skinned_positions).
-MESH_CAPTURE_VERTEX = """
-in vec3 in_position;
-in uvec2 in_span;
-out vec3 out_position;
-void main() {
-    vec4 r0, r1, r2;
-    blend_transform(in_span, r0, r1, r2);
-    out_position = apply_affine(r0, r1, r2, in_position);
-}
-"""
-
-# Mesh skinned on the CPU (positions uploaded each frame); normals from screen derivatives.
+# Mesh pass for CPU skinning (positions only); normals from screen derivatives per face.
 MESH_CPU_VERTEX = """
 uniform mat4 u_view_proj;
 in vec3 in_position;
@@ -73,7 +102,7 @@ out vec3 v_normal;
 void main() {
     v_world = in_position;
     v_normal = vec3(0.0);
-    gl_Position = u_view_proj * vec4(v_world, 1.0);
+    gl_Position = u_view_proj * vec4(in_position, 1.0);
 }
 """
 

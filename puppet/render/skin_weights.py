@@ -29,7 +29,7 @@ MAX_SLOTS = 32
 class PackedWeights:
     """W as per-vertex (weight, handle) pairs.
 
-    slots: pairs per vertex in attributes (a multiple of 4, <= MAX_SLOTS);
+    slots: pairs per vertex in attributes (a multiple of 8, <= MAX_SLOTS);
     slot_weights: (n, slots) float32; slot_handles: (n, slots // 2) uint32, two 16-bit handle
     indices per uint (low half first); spans: (n, 2) uint32, the spilled pairs of vertex i are
     entries[spans[i,0] : spans[i,0] + spans[i,1]]; entries: (rows, TEXTURE_WIDTH, 2) float32,
@@ -65,7 +65,7 @@ def pack_weights(W: np.ndarray, *, tolerance: float = 0.0) -> PackedWeights:
     keep = np.abs(W) > tolerance
     counts = keep.sum(axis=1)
     max_per_vertex = int(counts.max())
-    slots = min(MAX_SLOTS, max(4, -(-max_per_vertex // 4) * 4))
+    slots = min(MAX_SLOTS, max(8, -(-max_per_vertex // 8) * 8))  # whole uvec4s of handles
     # Each row's kept pairs, largest |w| first; rank r of vertex i goes to slot r or spills.
     order = np.argsort(np.where(keep, -np.abs(W), np.inf), axis=1, kind="stable")
     ranked_w = np.take_along_axis(np.where(keep, W, 0.0), order, axis=1)

@@ -114,6 +114,12 @@ class Skeleton:
             if not (-1 <= p < i):
                 raise RigError(f"bone {self.names[i]!r} has parent {int(p)}; parents must come "
                                "before children", field="skeleton.parents")
+        gram = np.einsum("bji,bjk->bik", frames, frames)
+        bad = np.flatnonzero((np.abs(gram - np.eye(3)).max(axis=(1, 2)) > 1e-6)
+                             | (np.linalg.det(frames) < 0)) if b else []
+        if len(bad):
+            raise RigError(f"rest frame of bone {self.names[bad[0]]!r} is not a rotation "
+                           "(orthonormal, det +1)", field="skeleton.frames")
         object.__setattr__(self, "parents", parents)
         object.__setattr__(self, "heads", heads)
         object.__setattr__(self, "tails", tails)
@@ -149,25 +155,41 @@ class Skeleton:
     # ---- forward kinematics ---------------------------------------------------------------
     def _prepare_pose(self) -> None:
         axes_rest = [np.asarray(j.axes, float).reshape(-1, 3) for j in self.joints]
-        # All axes in model space, stacked, so one Rodrigues call serves every joint.
+        for j, a in zip(self.joints, axes_rest):
+            if not 1 <= len(a) <= 3 or len(a) != len(np.asarray(j.dofs).reshape(-1)):
+                raise RigError(f"joint of bone {self.names[j.bone]!r} needs 1-3 axes, one dof each",
+                               field="skeleton.joints")
+        # All axes in model space, stacked, so one Rodrigues evaluation serves every joint.
         model_axes = [self.frames[j.bone] @ a.T for j, a in zip(self.joints, axes_rest)]
         stacked = np.concatenate([m.T for m in model_axes]) if model_axes else np.zeros((0, 3))
         dofs = np.concatenate([np.asarray(j.dofs, np.int64) for j in self.joints]) \
             if self.joints else np.zeros(0, np.int64)
-        joint_of_bone = np.full(len(self.names), -1, np.int64)
-        starts, offset = [], 0
-        for k, j in enumerate(self.joints):
-            if joint_of_bone[j.bone] != -1:
+        starts, offset, jointed = [], 0, set()
+        for j in self.joints:
+            if j.bone in jointed:
                 raise RigError(f"bone {self.names[j.bone]!r} has two joints", field="skeleton.joints")
-            joint_of_bone[j.bone] = k
+            jointed.add(j.bone)
             starts.append((offset, offset + len(j.dofs)))
             offset += len(j.dofs)
-        object.__setattr__(self, "_axes", stacked)
-        object.__setattr__(self, "_dofs", dofs)
-        object.__setattr__(self, "_joint_of_bone", joint_of_bone)
-        object.__setattr__(self, "_axis_ranges", tuple(starts))
-        object.__setattr__(self, "_axis_rot", np.empty((len(dofs), 3, 3)))
-        object.__setattr__(self, "_joint_rot", np.tile(np.eye(3), (len(self.names), 1, 1)))
+        # Per-axis constants of Rodrigues' formula R = outer + cos·(I − outer) + sin·cross,
+        # and work buffers, so the per-frame path allocates no arrays.
+        outer = stacked[:, :, None] * stacked[:, None, :]
+        cross = np.zeros((len(stacked), 3, 3))
+        x, y, z = stacked.T
+        cross[:, 0, 1], cross[:, 0, 2], cross[:, 1, 2] = -z, y, -x
+        cross[:, 1, 0], cross[:, 2, 0], cross[:, 2, 1] = z, -y, x
+        work = {
+            "_outer": outer, "_i_minus_outer": np.eye(3) - outer, "_cross": cross,
+            "_dofs": dofs, "_axis_ranges": tuple(starts),
+            "_joint_bones": tuple(j.bone for j in self.joints),
+            "_angle_buf": np.empty(len(dofs)), "_cos_buf": np.empty(len(dofs)),
+            "_sin_buf": np.empty(len(dofs)), "_axis_rot": np.empty((len(dofs), 3, 3)),
+            "_axis_tmp": np.empty((len(dofs), 3, 3)), "_mat_tmp": np.empty((3, 3)),
+            "_vec_a": np.empty(3), "_vec_b": np.empty(3),
+            "_joint_rot": np.tile(np.eye(3), (len(self.names), 1, 1)),
+        }
+        for key, value in work.items():
+            object.__setattr__(self, key, value)
 
     def joint_rotations(self, joint_angles: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
         """Each bone's joint rotation in model space.
@@ -179,13 +201,24 @@ class Skeleton:
             out = np.empty((len(self.names), 3, 3))
         rot = self._joint_rot
         if len(self._dofs):
-            axis_angle_matrices(self._axes, np.asarray(joint_angles, float)[self._dofs], self._axis_rot)
-        for k, (lo, hi) in enumerate(self._axis_ranges):
-            r = self._axis_rot[lo]
-            for a in range(lo + 1, hi):
-                r = r @ self._axis_rot[a]
-            rot[self.joints[k].bone] = r
-        out[...] = rot
+            np.take(joint_angles, self._dofs, out=self._angle_buf)
+            np.cos(self._angle_buf, out=self._cos_buf)
+            np.sin(self._angle_buf, out=self._sin_buf)
+            axis_rot, tmp = self._axis_rot, self._axis_tmp
+            np.multiply(self._i_minus_outer, self._cos_buf[:, None, None], out=axis_rot)
+            axis_rot += self._outer
+            np.multiply(self._cross, self._sin_buf[:, None, None], out=tmp)
+            axis_rot += tmp
+            for bone, (lo, hi) in zip(self._joint_bones, self._axis_ranges):
+                if hi - lo == 1:
+                    rot[bone] = axis_rot[lo]
+                elif hi - lo == 2:
+                    np.matmul(axis_rot[lo], axis_rot[lo + 1], out=rot[bone])
+                else:
+                    np.matmul(axis_rot[lo], axis_rot[lo + 1], out=self._mat_tmp)
+                    np.matmul(self._mat_tmp, axis_rot[lo + 2], out=rot[bone])
+        if out is not rot:
+            out[...] = rot
         return out
 
     def pose(self, joint_angles: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
@@ -201,16 +234,19 @@ class Skeleton:
         """Forward kinematics from model-space joint rotations (b, 3, 3); returns (b, 3, 4)."""
         if out is None:
             out = np.empty((len(self.names), 3, 4))
+        offset, moved = self._vec_a, self._vec_b
         for i, p in enumerate(self._parent_list):
             r = rotations[i]
             pivot = self.heads[i]
+            np.matmul(r, pivot, out=offset)
+            np.subtract(pivot, offset, out=offset)          # p − R p
             if p < 0:
                 out[i, :, :3] = r
-                out[i, :, 3] = pivot - r @ pivot
+                out[i, :, 3] = offset
             else:
-                a_p = out[p, :, :3]
-                out[i, :, :3] = a_p @ r
-                out[i, :, 3] = a_p @ (pivot - r @ pivot) + out[p, :, 3]
+                np.matmul(out[p, :, :3], r, out=out[i, :, :3])
+                np.matmul(out[p, :, :3], offset, out=moved)
+                np.add(moved, out[p, :, 3], out=out[i, :, 3])
         return out
 
     def rest_pose(self) -> np.ndarray:

@@ -1,6 +1,9 @@
 #include "fit_rotations.h"
 
 #include <cmath>
+#if defined(__AVX__)
+#include <immintrin.h>
+#endif
 
 namespace puppet {
 
@@ -9,109 +12,127 @@ namespace {
 constexpr int kJacobiSweeps = 5;
 constexpr std::ptrdiff_t kLanes = 8;
 
+// Eight float lanes (GCC vector extension): one AVX register with -mavx, two SSE registers
+// otherwise. Every operation below is lane-wise; branches are selects.
+typedef float f8 __attribute__((vector_size(32)));
+typedef int i8 __attribute__((vector_size(32)));
+typedef float f8u __attribute__((vector_size(32), aligned(4)));
+
+#define PUPPET_INLINE __attribute__((always_inline)) inline
+
+PUPPET_INLINE f8 splat(float x) { return f8{x, x, x, x, x, x, x, x}; }
+PUPPET_INLINE f8 sel(i8 m, f8 a, f8 b) { return m ? a : b; }
+PUPPET_INLINE f8 vabs(f8 x) { return sel(x < 0.0f, -x, x); }
+PUPPET_INLINE f8 vsqrt(f8 x) {
+#if defined(__AVX__)
+  return reinterpret_cast<f8>(_mm256_sqrt_ps(reinterpret_cast<__m256>(x)));
+#else
+  f8 r;
+  for (int i = 0; i < 8; ++i) r[i] = __builtin_sqrtf(x[i]);
+  return r;
+#endif
+}
+
 // One exact Jacobi rotation zeroing b_pq of the symmetric matrix
 // (b_pp, b_qq, b_pq, b_rp, b_rq), accumulating V's columns p and q.
-inline void jacobi(float& bpp, float& bqq, float& bpq, float& brp, float& brq, float* vp, float* vq) {
-  const bool tiny = std::fabs(bpq) < 1e-30f;
-  const float denom = tiny ? 1.0f : 2.0f * bpq;
-  const float theta = (bqq - bpp) / denom;
-  const float at = std::fabs(theta);
+PUPPET_INLINE void jacobi(f8& bpp, f8& bqq, f8& bpq, f8& brp, f8& brq, f8* vp, f8* vq) {
+  const i8 tiny = vabs(bpq) < 1e-30f;
+  const f8 denom = sel(tiny, splat(1.0f), 2.0f * bpq);
+  const f8 theta = (bqq - bpp) / denom;
   // For huge theta, theta^2 overflows to inf and t -> 0, as it should.
-  float t = 1.0f / (at + std::sqrt(theta * theta + 1.0f));
-  t = theta < 0.0f ? -t : t;
-  t = tiny ? 0.0f : t;
-  const float c = 1.0f / std::sqrt(t * t + 1.0f);
-  const float s = t * c;
+  f8 t = 1.0f / (vabs(theta) + vsqrt(theta * theta + 1.0f));
+  t = sel(theta < 0.0f, -t, t);
+  t = sel(tiny, splat(0.0f), t);
+  const f8 c = 1.0f / vsqrt(t * t + 1.0f);
+  const f8 s = t * c;
   bpp -= t * bpq;
   bqq += t * bpq;
-  bpq = 0.0f;
-  const float rp = brp, rq = brq;
+  bpq = splat(0.0f);
+  const f8 rp = brp, rq = brq;
   brp = c * rp - s * rq;
   brq = s * rp + c * rq;
   for (int k = 0; k < 3; ++k) {
-    const float a = vp[k], b = vq[k];
+    const f8 a = vp[k], b = vq[k];
     vp[k] = c * a - s * b;
     vq[k] = s * a + c * b;
   }
 }
 
-// Swap columns i and j of B and V (negating the new column j) when |B_i| < |B_j|.
-inline void sort_pair(float (&B)[3][3], float (&V)[3][3], float* rho, int i, int j) {
-  const bool sw = rho[i] < rho[j];
+// Swap columns i and j of B and V (negating the new column j) where |B_i| < |B_j|.
+PUPPET_INLINE void sort_pair(f8 (&B)[3][3], f8 (&V)[3][3], f8* rho, int i, int j) {
+  const i8 sw = rho[i] < rho[j];
   for (int k = 0; k < 3; ++k) {
-    const float bi = B[k][i], bj = B[k][j], vi = V[k][i], vj = V[k][j];
-    B[k][i] = sw ? bj : bi;
-    B[k][j] = sw ? -bi : bj;
-    V[k][i] = sw ? vj : vi;
-    V[k][j] = sw ? -vi : vj;
+    const f8 bi = B[k][i], bj = B[k][j], vi = V[k][i], vj = V[k][j];
+    B[k][i] = sel(sw, bj, bi);
+    B[k][j] = sel(sw, -bi, bj);
+    V[k][i] = sel(sw, vj, vi);
+    V[k][j] = sel(sw, -vi, vj);
   }
-  const float ri = rho[i], rj = rho[j];
-  rho[i] = sw ? rj : ri;
-  rho[j] = sw ? ri : rj;
+  const f8 ri = rho[i], rj = rho[j];
+  rho[i] = sel(sw, rj, ri);
+  rho[j] = sel(sw, ri, rj);
 }
 
 // Givens rotation on rows p, q of B zeroing B[q][col]; U <- U G^T.
-inline void givens(float (&B)[3][3], float (&U)[3][3], int p, int q, int col) {
-  const float a = B[p][col], b = B[q][col];
-  const float rr = a * a + b * b;
-  const bool tiny = rr < 1e-30f;
-  const float inv = 1.0f / std::sqrt(tiny ? 1.0f : rr);
-  const float c = tiny ? 1.0f : a * inv;
-  const float s = tiny ? 0.0f : b * inv;
+PUPPET_INLINE void givens(f8 (&B)[3][3], f8 (&U)[3][3], int p, int q, int col) {
+  const f8 a = B[p][col], b = B[q][col];
+  const f8 rr = a * a + b * b;
+  const i8 tiny = rr < 1e-30f;
+  const f8 inv = 1.0f / vsqrt(sel(tiny, splat(1.0f), rr));
+  const f8 c = sel(tiny, splat(1.0f), a * inv);
+  const f8 s = sel(tiny, splat(0.0f), b * inv);
   for (int k = 0; k < 3; ++k) {
-    const float x = B[p][k], y = B[q][k];
+    const f8 x = B[p][k], y = B[q][k];
     B[p][k] = c * x + s * y;
-    B[q][k] = -s * x + c * y;
-    const float u = U[k][p], w = U[k][q];
+    B[q][k] = c * y - s * x;
+    const f8 u = U[k][p], w = U[k][q];
     U[k][p] = c * u + s * w;
-    U[k][q] = -s * u + c * w;
+    U[k][q] = c * w - s * u;
   }
 }
 
-// Closest rotation of one 3x3 matrix A (row-major, in registers). Branch-free.
-inline void polar_one(const float (&Ain)[3][3], float (&R)[3][3]) {
-  float A[3][3];
-  float m = 0.0f, poison = 0.0f;
+// Closest rotation of eight 3x3 matrices A (row-major, lanes = matrices). Branch-free.
+PUPPET_INLINE void polar8(const f8 (&Ain)[3][3], f8 (&R)[3][3]) {
+  f8 A[3][3];
+  f8 m = splat(0.0f), poison = splat(0.0f);
   for (int i = 0; i < 3; ++i)
     for (int j = 0; j < 3; ++j) {
-      const float x = std::fabs(Ain[i][j]);
-      m = x > m ? x : m;
+      const f8 x = vabs(Ain[i][j]);
+      m = sel(x > m, x, m);
       poison += Ain[i][j] * 0.0f;  // NaN if any entry is NaN or inf
     }
-  const bool ok = (poison == 0.0f) & (m > 0.0f);
-  const float inv = 1.0f / (ok ? m : 1.0f);
+  const i8 ok = (poison == 0.0f) & (m > 0.0f);
+  const f8 inv = 1.0f / sel(ok, m, splat(1.0f));
   for (int i = 0; i < 3; ++i)
-    for (int j = 0; j < 3; ++j) A[i][j] = ok ? Ain[i][j] * inv : 0.0f;
+    for (int j = 0; j < 3; ++j) A[i][j] = sel(ok, Ain[i][j] * inv, splat(0.0f));
 
   // Symmetric B = A^T A.
-  float b00 = 0, b11 = 0, b22 = 0, b01 = 0, b02 = 0, b12 = 0;
-  for (int k = 0; k < 3; ++k) {
-    b00 += A[k][0] * A[k][0];
-    b11 += A[k][1] * A[k][1];
-    b22 += A[k][2] * A[k][2];
-    b01 += A[k][0] * A[k][1];
-    b02 += A[k][0] * A[k][2];
-    b12 += A[k][1] * A[k][2];
-  }
+  f8 b00 = A[0][0] * A[0][0] + A[1][0] * A[1][0] + A[2][0] * A[2][0];
+  f8 b11 = A[0][1] * A[0][1] + A[1][1] * A[1][1] + A[2][1] * A[2][1];
+  f8 b22 = A[0][2] * A[0][2] + A[1][2] * A[1][2] + A[2][2] * A[2][2];
+  f8 b01 = A[0][0] * A[0][1] + A[1][0] * A[1][1] + A[2][0] * A[2][1];
+  f8 b02 = A[0][0] * A[0][2] + A[1][0] * A[1][2] + A[2][0] * A[2][2];
+  f8 b12 = A[0][1] * A[0][2] + A[1][1] * A[1][2] + A[2][1] * A[2][2];
   // V stored by columns: v[col][row].
-  float v[3][3] = {{1, 0, 0}, {0, 1, 0}, {0, 0, 1}};
+  const f8 one = splat(1.0f), zero = splat(0.0f);
+  f8 v[3][3] = {{one, zero, zero}, {zero, one, zero}, {zero, zero, one}};
   for (int sweep = 0; sweep < kJacobiSweeps; ++sweep) {
     jacobi(b00, b11, b01, b02, b12, v[0], v[1]);
     jacobi(b00, b22, b02, b01, b12, v[0], v[2]);
     jacobi(b11, b22, b12, b01, b02, v[1], v[2]);
   }
-  float V[3][3], B[3][3];
+  f8 V[3][3], B[3][3];
   for (int i = 0; i < 3; ++i)
     for (int j = 0; j < 3; ++j) V[i][j] = v[j][i];
   for (int i = 0; i < 3; ++i)
     for (int j = 0; j < 3; ++j) B[i][j] = A[i][0] * V[0][j] + A[i][1] * V[1][j] + A[i][2] * V[2][j];
-  float rho[3];
+  f8 rho[3];
   for (int j = 0; j < 3; ++j) rho[j] = B[0][j] * B[0][j] + B[1][j] * B[1][j] + B[2][j] * B[2][j];
   sort_pair(B, V, rho, 0, 1);
   sort_pair(B, V, rho, 0, 2);
   sort_pair(B, V, rho, 1, 2);
 
-  float U[3][3] = {{1, 0, 0}, {0, 1, 0}, {0, 0, 1}};
+  f8 U[3][3] = {{one, zero, zero}, {zero, one, zero}, {zero, zero, one}};
   givens(B, U, 0, 1, 0);
   givens(B, U, 0, 2, 0);
   givens(B, U, 1, 2, 1);
@@ -123,15 +144,11 @@ inline void polar_one(const float (&Ain)[3][3], float (&R)[3][3]) {
 }  // namespace
 
 void fit_rotations_soa(const float* S, float* R, std::ptrdiff_t count, std::ptrdiff_t stride) {
-  for (std::ptrdiff_t g0 = 0; g0 < count; g0 += kLanes) {
-#pragma GCC ivdep
-    for (std::ptrdiff_t l = 0; l < kLanes; ++l) {
-      const std::ptrdiff_t g = g0 + l;
-      float A[3][3], Rg[3][3];
-      for (int e = 0; e < 9; ++e) A[e / 3][e % 3] = S[e * stride + g];
-      polar_one(A, Rg);
-      for (int e = 0; e < 9; ++e) R[e * stride + g] = Rg[e / 3][e % 3];
-    }
+  for (std::ptrdiff_t g = 0; g < count; g += kLanes) {
+    f8 A[3][3], Rg[3][3];
+    for (int e = 0; e < 9; ++e) A[e / 3][e % 3] = *reinterpret_cast<const f8u*>(S + e * stride + g);
+    polar8(A, Rg);
+    for (int e = 0; e < 9; ++e) *reinterpret_cast<f8u*>(R + e * stride + g) = Rg[e / 3][e % 3];
   }
 }
 

@@ -152,18 +152,16 @@ def test_every_energy_type_reproduces_rigid_motion(bar, helpers, energy):
 def test_tet_mesh_energies(helpers, energy):
     V, tets, W = helpers.make_tet_block()
     F = tets[:, :3]  # any surface triangles; the energy uses the tets
-    model = FastModel(V, F, W, clusters=6, extra_weights=1, energy=energy, tets=tets, cache_dir=False)
+    model = FastModel(V, F, W, clusters=6, energy=energy, tets=tets, cache_dir=False)
     R = helpers.random_rotation(np.random.default_rng(5))
     target = rigid_T(model.m, R, np.array([1.0, 2.0, 3.0]))
-    pattern = Pattern(full=(0, 1, 2))
+    pattern = Pattern(full=(0, 2))  # bone 1 is free and must follow
     values = pattern.values()
     values.full[:] = target[:4][None]
     T = model.rest_T()
-    model.solver(pattern).solve(values, T, iterations=40)
+    model.solver(pattern).solve(values, T, iterations=100)
     assert np.abs(T - target).max() <= 1e-5 * size(model)
     # A bend lowers the energy monotonically too.
-    pattern = Pattern(full=(0, 2))
-    values = pattern.values()
     values.full[0] = model.rest_T()[:4]
     values.full[1] = model.rest_T()[8:12]
     values.full[1, :3] = helpers.rot_z(0.7).T

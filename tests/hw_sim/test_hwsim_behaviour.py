@@ -29,7 +29,7 @@ def test_torque_off_counts_continuously_past_the_wrap(bus, sdk):
 
 def test_torque_on_moves_to_goal_under_profile(bus, sdk):
     p, port = sdk.packet, sdk.port
-    assert p.write4ByteTxRx(port, 2, 112, 200) == (dxl.COMM_SUCCESS, 0)  # ~45.8 rpm
+    assert p.write4ByteTxRx(port, 2, 112, 60) == (dxl.COMM_SUCCESS, 0)  # 13.7 rpm: ~1.1 s
     assert p.write4ByteTxRx(port, 2, 108, 50) == (dxl.COMM_SUCCESS, 0)
     assert p.write1ByteTxRx(port, 2, 64, 1) == (dxl.COMM_SUCCESS, 0)
     assert p.write4ByteTxRx(port, 2, 116, 3048) == (dxl.COMM_SUCCESS, 0)
@@ -38,7 +38,7 @@ def test_torque_on_moves_to_goal_under_profile(bus, sdk):
     assert 2048 < mid < 3048
     assert p.read1ByteTxRx(port, 2, 122)[0] == 1  # Moving
     assert p.read4ByteTxRx(port, 2, 128)[0] > 0   # Present Velocity
-    deadline = time.monotonic() + 5.0
+    deadline = time.monotonic() + 8.0
     while _pos(sdk, 2) != 3048 and time.monotonic() < deadline:
         time.sleep(0.02)
     assert _pos(sdk, 2) == 3048
@@ -129,8 +129,44 @@ def test_bad_servo_arguments():
             pass
 
 
+def test_sdk_can_close_and_reopen_the_port(bus, sdk):
+    for _ in range(3):
+        sdk.port.closePort()
+        assert sdk.port.openPort() and sdk.port.setBaudRate(1_000_000)
+        assert sdk.packet.ping(sdk.port, 3)[:2] == (1200, dxl.COMM_SUCCESS)
+
+
+def test_backup_refused_while_torque_on(bus, sdk):
+    p, port = sdk.packet, sdk.port
+    tx = [0] * 15
+    tx[dxl.protocol2_packet_handler.PKT_ID] = 1
+    tx[dxl.protocol2_packet_handler.PKT_LENGTH_L] = 8
+    tx[dxl.protocol2_packet_handler.PKT_INSTRUCTION] = 0x20
+    tx[dxl.protocol2_packet_handler.PKT_PARAMETER0:dxl.protocol2_packet_handler.PKT_PARAMETER0 + 5] = [
+        0x01, 0x43, 0x54, 0x52, 0x4C]
+    assert p.txRxPacket(port, list(tx))[1:] == (dxl.COMM_SUCCESS, 0)
+    assert p.write1ByteTxRx(port, 1, 64, 1) == (dxl.COMM_SUCCESS, 0)
+    assert p.txRxPacket(port, list(tx))[1:] == (dxl.COMM_SUCCESS, 1)  # Result Fail
+
+
 def test_thread_mode(open_sdk):
     with hw_sim.serve([1, 2], process=False) as bus:
         sdk = open_sdk(bus.port)
         bus.set_positions({2: 777})
         assert _pos(sdk, 2) == 777
+
+
+def test_strict_baud_servos_hear_only_their_speed(open_sdk, short):
+    with hw_sim.serve([1, 2], strict_baud=True) as bus:
+        sdk = open_sdk(bus.port)  # opened at 1 Mbps, the bus speed
+        p, port = sdk.packet, sdk.port
+        assert p.ping(port, 1)[:2] == (1200, dxl.COMM_SUCCESS)
+        assert port.setBaudRate(57600)
+        with short():
+            assert p.ping(port, 1)[1] == dxl.COMM_RX_TIMEOUT
+        assert port.setBaudRate(1_000_000)
+        assert p.write1ByteTxRx(port, 2, 8, 1) == (dxl.COMM_SUCCESS, 0)  # servo 2 -> 57600
+        with short():
+            assert p.ping(port, 2)[1] == dxl.COMM_RX_TIMEOUT
+        assert port.setBaudRate(57600)
+        assert p.ping(port, 2)[:2] == (1200, dxl.COMM_SUCCESS)

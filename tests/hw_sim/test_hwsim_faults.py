@@ -75,13 +75,16 @@ def test_power_cycle_reboots(bus, sdk, short):
     bus.set_positions({1: 4096 + 300})
     assert sdk.packet.read4ByteTxRx(sdk.port, 1, PRESENT_POSITION)[0] == 4396
     assert sdk.packet.write1ByteTxRx(sdk.port, 1, 65, 1) == (dxl.COMM_SUCCESS, 0)
+    time.sleep(0.5)
+    tick_before = sdk.packet.read2ByteTxRx(sdk.port, 1, 120)[0]
+    assert tick_before >= 500
     bus.inject("power_cycle", ids=[1], duration_s=0.3)
     with short():
         assert sdk.packet.ping(sdk.port, 1)[1] == dxl.COMM_RX_TIMEOUT
     assert _wait_for(lambda: sdk.packet.ping(sdk.port, 1)[1] == dxl.COMM_SUCCESS)
     assert sdk.packet.read4ByteTxRx(sdk.port, 1, PRESENT_POSITION)[0] == 300  # re-based
     assert sdk.packet.read1ByteTxRx(sdk.port, 1, 65)[0] == 0  # RAM defaults
-    assert sdk.packet.read2ByteTxRx(sdk.port, 1, 120)[0] < 250  # Realtime Tick restarted
+    assert sdk.packet.read2ByteTxRx(sdk.port, 1, 120)[0] < tick_before  # Realtime Tick restarted
 
 
 def test_power_off_then_on(bus, sdk, short):
@@ -94,7 +97,8 @@ def test_power_off_then_on(bus, sdk, short):
     assert sdk.packet.ping(sdk.port, 3)[:2] == (1200, dxl.COMM_SUCCESS)
 
 
-def test_unplug_while_reading_raises_serial_exception_and_leaves_port_busy(bus, sdk):
+def test_unplug_while_reading_raises_serial_exception_and_leaves_port_busy(bus, sdk, monkeypatch):
+    monkeypatch.setattr(dxl.port_handler, "LATENCY_TIMER", 250)  # a 0.5 s read window
     bus.inject("drop")  # the SDK sits in its read loop...
     timer = threading.Timer(0.01, bus.inject, args=("unplug",))
     timer.start()
@@ -192,3 +196,18 @@ def test_fault_schedule_objects(open_sdk, short):
         with short():
             assert _wait_for(lambda: sdk.packet.ping(sdk.port, 1)[1] == dxl.COMM_RX_TIMEOUT)
         assert _wait_for(lambda: sdk.packet.ping(sdk.port, 1)[1] == dxl.COMM_SUCCESS)
+
+
+def test_missing_servo_leaves_fast_sync_read_short(bus, sdk):
+    bus.inject("drop", ids=[2])
+    # The header promises 3 segments; one never comes: the SDK waits, then reports corruption.
+    assert _group(sdk, [1, 2, 3]).fastSyncRead() == dxl.COMM_RX_CORRUPT
+
+
+def test_echo_from_the_start(open_sdk):
+    with hw_sim.serve([1, 2], echo=True) as bus:
+        sdk = open_sdk(bus.port)
+        bus.traffic()
+        assert sdk.packet.read4ByteTxRx(sdk.port, 2, PRESENT_POSITION)[:2] == (2048, dxl.COMM_SUCCESS)
+        traffic = bus.traffic()
+        assert traffic[0][1] == "rx" and traffic[0][2][:4] == b"\xff\xff\xfd\x00"

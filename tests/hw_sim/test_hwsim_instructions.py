@@ -229,3 +229,53 @@ def test_indirect_address_mirrors_present_position(bus, sdk):
     for k in range(4):  # Indirect Address 1..4 -> Present Position bytes
         assert p.write2ByteTxRx(port, 1, 168 + 2 * k, PRESENT_POSITION + k) == (dxl.COMM_SUCCESS, 0)
     assert p.read4ByteTxRx(port, 1, 208) == (70000, dxl.COMM_SUCCESS, 0)
+
+
+def test_partial_instruction_is_dropped_after_the_inter_byte_gap(bus, sdk):
+    ping = bytes.fromhex("FF FF FD 00 01 03 00 01 19 4E")
+    sdk.port.writePort(ping[:6])  # a half packet, then silence longer than 1.5 ms
+    time.sleep(0.02)
+    assert sdk.packet.ping(sdk.port, 1)[:2] == (1200, dxl.COMM_SUCCESS)
+
+
+def test_malformed_instructions(bus, sdk):
+    p, port = sdk.packet, sdk.port
+    tx = [0] * 12
+    tx[dxl.protocol2_packet_handler.PKT_ID] = 1
+    tx[dxl.protocol2_packet_handler.PKT_LENGTH_L] = 5  # a Read with 2 parameters, not 4
+    tx[dxl.protocol2_packet_handler.PKT_INSTRUCTION] = codec.READ
+    tx[dxl.protocol2_packet_handler.PKT_PARAMETER0] = PRESENT_POSITION
+    _, result, error = p.txRxPacket(port, tx)
+    assert (result, error) == (dxl.COMM_SUCCESS, codec.ERR_DATA_LENGTH)
+    # A Read sent to the broadcast id is not executed and gets no reply.
+    # (The SDK refuses to send one, so the bytes go out raw.)
+    bus.traffic()
+    port.writePort(codec.packet(dxl.BROADCAST_ID, codec.READ, bytes([PRESENT_POSITION, 0, 4, 0])))
+    seen = []
+    assert _wait(lambda: seen.extend(bus.traffic()) or any(k == "rx" for _, k, _ in seen))
+    time.sleep(0.02)
+    seen.extend(bus.traffic())
+    assert [k for _, k, _ in seen] == ["rx"] and port.getBytesAvailable() == 0
+    # Garbage and an impossible length are skipped; the next good packet is answered.
+    port.writePort(bytes.fromhex("00 13 FF FF FD 00 01 FF FF 01"))
+    assert p.ping(port, 2)[:2] == (1200, dxl.COMM_SUCCESS)
+
+
+def test_secondary_id_executes_without_reply(bus, sdk):
+    p, port = sdk.packet, sdk.port
+    for i in (1, 2):
+        assert p.write1ByteTxRx(port, i, 12, 100) == (dxl.COMM_SUCCESS, 0)
+    bus.traffic()
+    p.write1ByteTxOnly(port, 100, LED, 1)
+    assert _wait(lambda: bus.servo(2).get("LED") == 1)
+    assert [bus.servo(i).get("LED") for i in (1, 2, 3)] == [1, 1, 0]
+    assert _rx_tx(bus)[1] == b""
+
+
+def _wait(predicate, timeout_s=2.0):
+    deadline = time.monotonic() + timeout_s
+    while not predicate():
+        if time.monotonic() > deadline:
+            return False
+        time.sleep(0.005)
+    return True

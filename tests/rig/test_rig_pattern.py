@@ -65,3 +65,12 @@ def test_calibration_file_next_to_the_rig_is_used(tube_rig_dir):
     rig = load_rig(tube_rig_dir / "tube.toml")
     np.testing.assert_array_equal(rig.servo_map.zero, [2100, 2048, 2048])
     np.testing.assert_allclose(rig.servo_map.angles(np.array([2100, 2048, 2048], np.int32)), 0)
+
+
+def test_pin_point_snaps_to_the_nearest_vertex(tube_rig_dir):
+    text = (tube_rig_dir / "tube.toml").read_text() + "\n[[pin]]\npoint = [0.0, 3.1, 0.0]\n"
+    (tube_rig_dir / "pins.toml").write_text(text)
+    rig = load_rig(tube_rig_dir / "pins.toml")
+    top = int(np.argmax(rig.V[:, 1] - np.abs(rig.V[:, 0]) - np.abs(rig.V[:, 2])))
+    assert rig.pattern().positional == (0, top)
+    np.testing.assert_allclose(rig.V[top], [0, 3, 0])

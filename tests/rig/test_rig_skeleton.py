@@ -59,12 +59,11 @@ def test_axes_compose_in_declared_order_in_the_bone_frame():
     assert not np.allclose(expected, frame @ (q[1] @ q[0]) @ frame.T)
 
 
-def test_rigid_transforms_are_rotations():
+def test_random_poses_are_rigid_and_keep_joints_connected():
     rng = np.random.default_rng(1)
-    sk = chain([Joint(i, rng.normal(size=(3, 3)) / 2, np.arange(3 * i, 3 * i + 3)) for i in range(3)])
-    axes = np.concatenate([j.axes for j in sk.joints])
-    sk = chain([Joint(i, axes[3 * i:3 * i + 3] / np.linalg.norm(axes[3 * i:3 * i + 3], axis=1)[:, None],
-                      np.arange(3 * i, 3 * i + 3)) for i in range(3)])
+    axes = rng.normal(size=(3, 3, 3))
+    axes /= np.linalg.norm(axes, axis=2, keepdims=True)
+    sk = chain([Joint(i, axes[i], np.arange(3 * i, 3 * i + 3)) for i in range(3)])
     T = sk.pose(rng.uniform(-2, 2, 9))
     for t in T:
         np.testing.assert_allclose(t[:, :3] @ t[:, :3].T, np.eye(3), atol=1e-12)
@@ -72,6 +71,11 @@ def test_rigid_transforms_are_rotations():
     # joints stay connected: each child's pivot is where its parent takes it.
     for i in (1, 2):
         np.testing.assert_allclose(apply(T[i], sk.heads[i]), apply(T[i - 1], sk.heads[i]), atol=1e-12)
+
+
+def test_joint_needs_one_to_three_axes():
+    with pytest.raises(RigError, match="needs 1-3 axes"):
+        chain([Joint(1, np.eye(3)[[0, 1, 2, 0]], np.arange(4))])
 
 
 def test_pose_writes_into_out_buffer():
@@ -95,3 +99,8 @@ def test_parents_must_come_first():
 def test_duplicate_bone_names_are_refused():
     with pytest.raises(RigError, match="duplicate bone names"):
         Skeleton(("a", "a"), [-1, 0], np.zeros((2, 3)), np.ones((2, 3)), np.tile(np.eye(3), (2, 1, 1)))
+
+
+def test_rest_frames_must_be_rotations():
+    with pytest.raises(RigError, match="rest frame of bone 'b' is not a rotation"):
+        Skeleton(("a", "b"), [-1, 0], np.zeros((2, 3)), np.ones((2, 3)), [np.eye(3), np.diag([1, 1, -1.0])])

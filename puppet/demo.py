@@ -1,0 +1,69 @@
+"""The main job on the embedded default: the built-in character on a simulated bus.
+
+``run_demo`` starts ``hw_sim`` with a performance made for the rig (every sensed joint swings
+within its limits, left and right half a cycle apart), opens it through the same
+``puppet.bus.ServoReader`` as real hardware, and runs the live loop into a video.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+
+import hw_sim
+from puppet.bus import ReaderThread, ServoReader
+from puppet.pipeline import Pipeline, Summary, run_live
+from puppet.rig import Rig, builtin
+
+TICKS_PER_TURN = 4096
+
+
+class Performance:
+    """A rig-aware motion source for hw_sim: ``position(servo_id, t) -> ticks``.
+
+    Servo i swings sinusoidally about its zero with an amplitude of ``reach`` times the
+    smaller of its two joint limits (capped at ``max_angle`` radians); servos on the right
+    side ('_R' joints) run half a cycle behind the left. period_s: seconds per cycle.
+    """
+
+    def __init__(self, rig: Rig, period_s: float = 2.4, reach: float = 0.7, max_angle: float = 0.9):
+        self.period_s = period_s
+        self._params: dict[int, tuple[float, float, float, float]] = {}
+        for k, servo in enumerate(rig.servo_map.servos):
+            lo, hi = servo.limits
+            amplitude = min(reach * min(abs(lo), abs(hi)), max_angle)
+            phase = (math.pi if servo.joint.endswith("_R") else 0.0) + 0.6 * k
+            scale = servo.sign * servo.gear * TICKS_PER_TURN / (2 * math.pi)  # ticks per radian
+            self._params[int(servo.id)] = (float(rig.servo_map.zero[k]), amplitude, phase, scale)
+
+    def position(self, servo_id: int, t: float) -> float:
+        zero, amplitude, phase, scale = self._params.get(int(servo_id), (2048.0, 0.0, 0.0, 0.0))
+        angle = amplitude * math.sin(2 * math.pi * t / self.period_s + phase)
+        return zero + angle * scale
+
+
+def run_demo(*, seconds: float, sinks_for: Callable[[Pipeline], list], faults=None, width: int = 640,
+             height: int = 480, iterations: int = 8, video_fps: float = 30.0, overlay: bool = True,
+             timing: bool = True, baud: int = 1_000_000,
+             on_frame: Callable[[Summary], None] | None = None) -> tuple[Summary, object]:
+    """Run the built-in character on hw_sim for ``seconds``; returns (summary, setup report).
+
+    sinks_for: called with the ready Pipeline, returns the sinks to feed (e.g. a VideoSink).
+    faults: a hw_sim fault file (or schedule) to play during the run.
+    """
+    rig = builtin()
+    models = rig.servo_map.models
+    with Pipeline(rig, iterations=iterations, width=width, height=height, overlay=overlay) as pipeline:
+        with hw_sim.serve(models, motion=Performance(rig), faults=faults, timing=timing, baud=baud) as bus:
+            reader = ServoReader(bus.port, models, baud=baud)
+            report = reader.open()
+            sinks = sinks_for(pipeline)
+            try:
+                with ReaderThread(reader, rate_hz=500.0) as thread:
+                    summary = run_live(pipeline, thread, seconds=seconds, sinks=sinks,
+                                       video_fps=video_fps, on_frame=on_frame)
+            finally:
+                for sink in sinks:
+                    sink.close()
+                reader.close()
+    return summary, report

@@ -1,0 +1,103 @@
+"""BusLink: the SDK's crash paths, shown on the raw SDK and absorbed by the link (hw_sim)."""
+
+from __future__ import annotations
+
+import dynamixel_sdk
+import dynamixel_sdk.port_handler as sdk_port_handler
+import pytest
+import serial
+import termios
+
+from puppet.bus import BusLink, PortError, ServoCorrupt, ServoReader, ServoStatusError, ServoTimeout
+from puppet.bus import control_table as ct
+from puppet.bus.link import set_latency_assumption
+
+
+def test_latency_assumption_is_set_on_the_submodule():
+    set_latency_assumption(3)
+    assert sdk_port_handler.LATENCY_TIMER == 3
+    with pytest.raises(ValueError, match="0 ms"):
+        set_latency_assumption(0)
+
+
+def test_error_status_without_data_is_a_typed_error_not_an_index_error(sim):
+    bus = sim(ids=(1, 2))
+    link = BusLink(bus.link, latency_ms=2)
+    link.open()
+    bus.inject("error_status", ids=[2], error=0x07)
+    # The bare SDK crashes on this reply ...
+    with pytest.raises(IndexError):
+        link.ph.read4ByteTxRx(link.port, 2, ct.PRESENT_POSITION.address)
+    # ... the link names the servo, the instruction and the error.
+    with pytest.raises(ServoStatusError) as info:
+        link.read(2, ct.PRESENT_POSITION)
+    assert info.value.ids == [2] and info.value.error & 0x7F == 0x07
+    assert "access error" in str(info.value)
+    group = link.sync_read([1, 2], ct.PRESENT_POSITION)
+    assert list(group.values) == [1] and isinstance(group.failed[2], ServoStatusError)
+    # A fast packet with a data-less segment comes up short: the whole packet fails (the
+    # reader then reads each servo alone), as a typed error, not an IndexError.
+    fast = link.fast_sync_read([1, 2], ct.PRESENT_POSITION)
+    assert fast.values == {} and sorted(fast.failed) == [1, 2]
+    assert all(isinstance(e, ServoCorrupt) for e in fast.failed.values())
+    link.close()
+
+
+def test_one_dead_servo_does_not_hide_the_others(sim):
+    bus = sim(ids=(1, 2, 3))
+    link = BusLink(bus.link, latency_ms=2)
+    link.open()
+    bus.inject("drop", ids=[2])
+    group = link.sync_read([1, 2, 3], ct.PRESENT_POSITION)
+    assert 1 in group.values                   # answered before the failure: kept
+    assert isinstance(group.failed[2], ServoTimeout) and group.failed[2].ids == [2]
+    with pytest.raises(ServoTimeout) as info:
+        link.ping(2)
+    assert info.value.instruction == "ping"
+    assert link.ping(3) == (1200, 52)
+    bus.inject("truncate", ids=[3])
+    with pytest.raises(ServoCorrupt):
+        link.read(3, ct.PRESENT_POSITION)
+    link.close()
+
+
+def test_unplug_leaves_the_raw_sdk_busy_and_the_link_rebuilds(sim):
+    bus = sim(ids=(1,))
+    link = BusLink(bus.link, latency_ms=2)
+    link.open()
+    raw = dynamixel_sdk.PortHandler(bus.link)
+    raw.openPort()
+    bus.inject("unplug")
+    # On USB pyserial raises SerialException from read; on a pty tcflush raises termios.error.
+    with pytest.raises((serial.SerialException, termios.error)):
+        link.ph.ping(raw, 1)
+    assert raw.is_using is True                 # the SDK's trap: every later call is "busy"
+    with pytest.raises(PortError) as info:
+        link.ping(1)
+    assert info.value.port == bus.link and info.value.cause is not None
+    with pytest.raises(PortError):
+        link.rebuild()                         # the device is gone
+    bus.inject("replug")
+    link.rebuild()
+    assert link.ping(1)[0] == 1200
+    link.close()
+
+
+def test_reader_accepts_an_open_port_handler(sim):
+    bus = sim(ids=(1, 2))
+    port = dynamixel_sdk.PortHandler(bus.port)
+    assert port.openPort()
+    reader = ServoReader(port, {1: "XL330-M288", 2: "XL330-M288"}, latency_ms=2)
+    reader.open()
+    assert reader.link.port is port
+    assert reader.read().ok.all()
+    reader.close()
+
+
+def test_old_firmware_falls_back_to_sync_read(sim):
+    bus = sim(ids=(1, 2))
+    bus.servo(2).set("Firmware Version", 40)   # X330 needs 46 for Fast Sync Read
+    reader = ServoReader(bus.link, {1: "XL330-M288", 2: "XL330-M288"}, latency_ms=2)
+    assert reader.open().read_mode == "sync_read"
+    assert reader.read().ok.all()
+    reader.close()

@@ -1,0 +1,84 @@
+"""The built-in character: what the issue promises, and that it loads fast with valid weights."""
+
+import json
+import subprocess
+
+import numpy as np
+
+from puppet.rig import builtin
+from puppet.rig.bbw import check_bbw_input
+from puppet.rig.servo_map import X_SERIES_MODELS
+
+
+def test_builtin_meets_its_promises():
+    rig = builtin()
+    assert rig.name == "critter"
+    assert 20_000 <= len(rig.F) <= 60_000
+    assert rig.V.dtype == np.float64 and rig.F.dtype == np.int32 and rig.W.dtype == np.float64
+    assert rig.skeleton.bone_count >= 15
+    assert len(rig.servo_map) >= 12
+    np.testing.assert_array_equal(rig.servo_map.ids, np.arange(1, len(rig.servo_map) + 1))
+    assert set(rig.servo_map.models.values()) <= {"XL330-M288", "XL430-W250", "XM430-W350"}
+    assert set(rig.servo_map.models.values()) <= set(X_SERIES_MODELS)
+    assert np.abs(rig.servo_map.zero - 2048).max() <= 16
+    kinds = rig.bone_kinds()
+    assert len(kinds["free"]) >= 2 and {"spine", "tail1"} <= set(kinds["free"])
+    assert len(kinds["relative"]) >= 1
+    # every relative bone has a free bone somewhere above it
+    sk = rig.skeleton
+    for name in kinds["relative"]:
+        chain, i = [], sk.parents[sk.index(name)]
+        while i >= 0:
+            chain.append(sk.names[i])
+            i = sk.parents[i]
+        assert set(chain) & set(kinds["free"])
+    report = rig.check_weights()
+    assert report.ok
+    assert report.unused_bones == ()
+
+
+def test_builtin_mesh_is_closed_and_holds_its_skeleton():
+    rig = builtin()
+    assert check_bbw_input(rig.V, rig.F, rig.skeleton) == []
+
+
+def test_builtin_wave_around_2048_gives_sensible_poses():
+    rig = builtin()
+    values = rig.pattern().values()
+    for phase in np.linspace(0, 2 * np.pi, 7):
+        ticks = (2048 + 300 * np.sin(phase + np.arange(len(rig.servo_map)))).astype(np.int32)
+        angles = rig.servo_map.angles(ticks)
+        assert np.abs(angles).max() < np.radians(30)
+        rig.fill_values(angles, values)
+        assert np.isfinite(values.full).all() and np.isfinite(values.relative).all()
+        pose = rig.pose(angles)
+        homogeneous = np.concatenate([rig.V, np.ones((len(rig.V), 1))], axis=1)
+        moved = np.einsum("nj,jab,nb->na", rig.W, pose, homogeneous)
+        displacement = np.linalg.norm(moved - rig.V, axis=1)
+        assert 0.005 < displacement.max() < 0.5  # the critter is about 1.3 units tall
+
+
+def test_rig_info_json_reports_the_builtin():
+    result = subprocess.run(["puppet", "rig", "info", "--json"], capture_output=True, text=True, timeout=60)
+    assert result.returncode == 0, result.stderr
+    info = json.loads(result.stdout)
+    assert set(info) >= {"vertices", "triangles", "bones", "servos", "full", "relative", "free",
+                         "weights_ok", "load_s"}
+    rig = builtin()
+    assert info["vertices"] == len(rig.V) and info["triangles"] == len(rig.F)
+    assert info["bones"] == rig.skeleton.bone_count and info["servos"] == len(rig.servo_map)
+    assert info["full"] == rig.bone_kinds()["full"] and info["free"] == rig.bone_kinds()["free"]
+    assert info["weights_ok"] is True
+    assert info["load_s"] > 0
+
+
+def test_rig_info_text_and_bad_rig(tube_rig_dir):
+    result = subprocess.run(["puppet", "rig", "info", str(tube_rig_dir / "tube.toml")],
+                            capture_output=True, text=True, timeout=60)
+    assert result.returncode == 0, result.stderr
+    assert "relative   bone3" in result.stdout and "free       bone2" in result.stdout
+    (tube_rig_dir / "tube.toml").write_text('mesh = "tube.obj"\n[[servo]]\nid = 1\n')
+    result = subprocess.run(["puppet", "rig", "info", str(tube_rig_dir / "tube.toml")],
+                            capture_output=True, text=True, timeout=60)
+    assert result.returncode == 1
+    assert "tube.toml:2: servo 1 model: unknown model None" in result.stderr
