@@ -12,7 +12,7 @@ import random
 
 from hw_sim import codec
 from hw_sim.codec import Instruction
-from hw_sim.faults import REPLY_KINDS, Fault
+from hw_sim.faults import Fault
 from hw_sim.servo import Servo
 
 CLEAR_KEY = b"\x01\x44\x58\x4c\x22"

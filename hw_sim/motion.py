@@ -8,7 +8,7 @@ started, ``joint`` the id the servo was created with. Positions are continuous c
 - ``Programmatic``: positions set by tests (``SimBus.set_positions``).
 - ``Wave`` / ``Walk`` / ``Spin``: built-in performances.
 - ``Keyframes``: linear interpolation of a keyframe file, looping.
-- ``Replay``: sample-and-hold replay of recorded ticks (a take exported as CSV or NPZ).
+- ``Replay``: sample-and-hold replay of recorded ticks: a puppet take (.mcap), or CSV / NPZ.
 
 Keyframe / replay CSV format (``#`` starts a comment)::
 
@@ -140,6 +140,53 @@ def _read_table(path: Path) -> tuple[list[int], list[float], list[list[float]]]:
     return ids, times, rows
 
 
+TAKE_TOPIC = "/puppet/servo_readings"
+
+
+def _read_take(path: Path) -> tuple[list[int], list[float], list[list[float]]]:
+    """(ids, times from 0 s, rows of ticks) of a puppet take, read with the mcap library only.
+
+    Payload (XCDR1 little endian): 4-byte header, int64 t_ns, uint32 k, int32[k] ticks, ...
+    """
+    import json
+    import struct
+
+    from mcap.exceptions import McapError
+    from mcap.records import Channel, Message, Metadata
+    from mcap.stream_reader import StreamReader
+
+    ids: list[int] | None = None
+    channel_ids: set[int] = set()
+    times: list[float] = []
+    rows: list[list[float]] = []
+    try:
+        with open(path, "rb") as stream:
+            try:
+                for record in StreamReader(stream).records:
+                    if isinstance(record, Metadata) and record.name == "puppet.take":
+                        ids = [int(i) for i in json.loads(record.metadata["ids"])]
+                    elif isinstance(record, Channel) and record.topic == TAKE_TOPIC:
+                        channel_ids.add(record.id)
+                    elif isinstance(record, Message) and record.channel_id in channel_ids:
+                        data = record.data
+                        t_ns, k = struct.unpack_from("<qI", data, 4)
+                        rows.append(list(struct.unpack_from(f"<{k}i", data, 16)))
+                        times.append(t_ns * 1e-9)
+            except (McapError, EOFError, struct.error):
+                if not rows:  # a truncated tail after good readings is a crash, not an error
+                    raise
+    except OSError as exc:
+        raise MotionFileError(path, None, f"cannot read: {exc.strerror}") from exc
+    except (McapError, EOFError, struct.error, KeyError, ValueError) as exc:
+        raise MotionFileError(path, None, f"not a readable puppet take: {exc}") from exc
+    if ids is None or not rows:
+        raise MotionFileError(path, None, "no 'puppet.take' metadata or no servo readings")
+    if any(len(r) != len(ids) for r in rows):
+        raise MotionFileError(path, None, f"readings do not have {len(ids)} ticks (ids {ids})")
+    t0 = times[0]
+    return ids, [t - t0 for t in times], rows
+
+
 class _Table:
     def __init__(self, ids: list[int], times: list[float], rows: list[list[float]],
                  loop: bool) -> None:
@@ -180,12 +227,16 @@ class Keyframes(_Table):
 
 class Replay(_Table):
     """Sample-and-hold replay of recorded ticks (raw Present Position counts), played once then
-    holding the last sample (``loop=True`` to repeat). From CSV (format above) or NPZ with
-    arrays ``t`` (seconds, or ``t_ns``), ``ids`` (k,) and ``ticks`` (N, k)."""
+    holding the last sample (``loop=True`` to repeat). From a puppet take (.mcap: the
+    "puppet.take" metadata's ids and the /puppet/servo_readings messages; a truncated tail is
+    tolerated), CSV (format above), or NPZ with arrays ``t`` (seconds, or ``t_ns``), ``ids`` (k,)
+    and ``ticks`` (N, k). Time starts at the first sample."""
 
     @classmethod
     def from_file(cls, path: str | Path, loop: bool = False) -> "Replay":
         path = Path(path)
+        if path.suffix == ".mcap":
+            return cls(*_read_take(path), loop=loop)
         if path.suffix == ".npz":
             import numpy as np
             try:

@@ -22,10 +22,8 @@ import threading
 import time
 import tty
 from contextlib import contextmanager
-from pathlib import Path
 from typing import Iterator
 
-from hw_sim import codec
 from hw_sim.codec import InstructionParser
 from hw_sim.control_table import get_model
 from hw_sim.device_bus import DeviceBus
@@ -243,11 +241,11 @@ class Server:
         if parser.pending and t_rx - self._last_rx > INTER_BYTE_GAP_S:
             parser.reset()
         self._last_rx = t_rx
+        now = t_rx - self.t0
+        self.traffic.append((now, "rx", bytes(data)))
         instructions = parser.feed(data)
         if not instructions:
             return
-        now = t_rx - self.t0
-        self.traffic.append((now, "rx", bytes(data)))
         if self.strict_baud:
             speed = _port_speed(self.slave)
             self.bus.port_baud = speed

@@ -6,7 +6,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 
 from puppet.bus import control_table as ct
-from puppet.bus.errors import PortError, ServoError, ServoModelMismatch
+from puppet.bus.errors import ServoError, ServoModelMismatch
 from puppet.bus.link import BusLink
 
 
@@ -110,4 +110,4 @@ def configure_servo(link: BusLink, dxl_id: int, actuator: bool, changes: list[Ch
 
 
 __all__ = ["Change", "ServoInfo", "SetupReport", "identify", "supports_fast_sync_read",
-           "configure_servo", "PortError"]
+           "configure_servo"]

@@ -65,7 +65,7 @@ class ServoReader:
         actuators: Iterable[int] = (),
         limits: Mapping[int, tuple[int, int]] | None = None,
         auto_reboot: bool = True,
-        missing_after: int = 2,
+        missing_after: int = 3,
         duplicate_after: int = 3,
         probe_period_s: float = 0.05,
         health_period_s: float = 0.5,
@@ -155,11 +155,15 @@ class ServoReader:
             if dxl_id in report.missing:
                 self._mark_missing(dxl_id, ServoTimeout([dxl_id], "ping", "no answer at setup"))
                 continue
-            try:
-                configure_servo(self.link, dxl_id, dxl_id in self.actuators, report.changes)
-                bits = self.link.read(dxl_id, ct.HARDWARE_ERROR_STATUS)
-            except ServoError as exc:
-                self._mark_missing(dxl_id, exc)
+            for attempt in range(3):
+                try:
+                    configure_servo(self.link, dxl_id, dxl_id in self.actuators, report.changes)
+                    bits = self.link.read(dxl_id, ct.HARDWARE_ERROR_STATUS)
+                    break
+                except ServoError as exc:
+                    error = exc
+            else:
+                self._mark_missing(dxl_id, error)
                 report.missing.append(dxl_id)
                 continue
             if bits:
@@ -197,6 +201,8 @@ class ServoReader:
                 self._check_health(now)
         except PortError as exc:
             self._port_lost(exc)
+        except ServoError as exc:  # a bookkeeping transaction failed; the readings stand
+            self.log.add("transaction_failed", exc.ids, str(exc))
         return self._reading(now)
 
     def read_clean(self, samples: int = 1, timeout_s: float = 2.0) -> Reading:

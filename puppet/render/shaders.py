@@ -79,35 +79,32 @@ void main() {
 }
 """
 
-# Mesh pass: skinned positions and normals (from the skinning pass or uploaded by the CPU).
+# Mesh pass: skinned positions and normals (from the skinning pass). Only the normal is
+# interpolated (llvmpipe's triangle setup cost grows with every interpolated float); the view
+# direction is the camera's, constant over the image.
 MESH_VERTEX = """
 uniform mat4 u_view_proj;
 in vec3 in_position;
 in vec3 in_normal;
-out vec3 v_world;
 out vec3 v_normal;
 void main() {
-    v_world = in_position;
     v_normal = in_normal;
     gl_Position = u_view_proj * vec4(in_position, 1.0);
 }
 """
 
-# Mesh pass for CPU skinning (positions only); normals from screen derivatives per face.
+# Mesh pass for CPU skinning (positions only): face normals from screen derivatives.
 MESH_CPU_VERTEX = """
 uniform mat4 u_view_proj;
 in vec3 in_position;
 out vec3 v_world;
-out vec3 v_normal;
 void main() {
     v_world = in_position;
-    v_normal = vec3(0.0);
     gl_Position = u_view_proj * vec4(in_position, 1.0);
 }
 """
 
 LIGHTING = """
-uniform vec3 u_eye;
 uniform vec3 u_up;
 uniform vec3 u_key_dir;     // toward the light, world space
 uniform vec3 u_fill_dir;
@@ -120,16 +117,22 @@ vec3 to_display(vec3 linear) { return sqrt(clamp(linear, 0.0, 1.0)); }
 
 MESH_FRAGMENT = """
 uniform vec3 u_albedo;
-uniform bool u_face_normals;
+uniform vec3 u_view_dir;        // from the scene toward the camera
+#if FACE_NORMALS
 in vec3 v_world;
+#else
 in vec3 v_normal;
+#endif
 out vec4 f_color;
 void main() {
-    vec3 n = u_face_normals ? cross(dFdx(v_world), dFdy(v_world)) : v_normal;
-    n = normalize(n);
-    if (!u_face_normals && !gl_FrontFacing) n = -n;
-    vec3 v = normalize(u_eye - v_world);
-    if (u_face_normals && dot(n, v) < 0.0) n = -n;
+    vec3 v = u_view_dir;
+#if FACE_NORMALS
+    vec3 n = normalize(cross(dFdx(v_world), dFdy(v_world)));
+    if (dot(n, v) < 0.0) n = -n;
+#else
+    vec3 n = normalize(v_normal);
+    if (!gl_FrontFacing) n = -n;
+#endif
     float up = dot(n, u_up);
     vec3 ambient = mix(u_ground_bounce, u_sky, 0.5 + 0.5 * up);
     float key = max(dot(n, u_key_dir), 0.0);
@@ -242,3 +245,44 @@ def source(*chunks: str, **defines) -> str:
     """GLSL 330 source: #define NAME value for each keyword, then the chunks in order."""
     lines = ["#version 330 core"] + [f"#define {name} {value}" for name, value in defines.items()]
     return "\n".join(lines + list(chunks))
+
+# Fast approximate antialiasing (after Lottes' FXAA idea, reduced to one edge-direction blur):
+# a cheaper alternative to MSAA on llvmpipe. Full-screen triangle over the aliased image.
+FXAA_VERTEX = """
+out vec2 v_uv;
+void main() {
+    vec2 corner = vec2(float((gl_VertexID << 1) & 2), float(gl_VertexID & 2));
+    v_uv = corner;
+    gl_Position = vec4(corner * 2.0 - 1.0, 0.0, 1.0);
+}
+"""
+
+FXAA_FRAGMENT = """
+uniform sampler2D u_image;
+uniform vec2 u_texel;            // 1 / (width, height)
+in vec2 v_uv;
+out vec4 f_color;
+const vec3 LUMA = vec3(0.299, 0.587, 0.114);
+void main() {
+    vec3 center = texture(u_image, v_uv).rgb;
+    float nw = dot(texture(u_image, v_uv + vec2(-1.0, -1.0) * u_texel).rgb, LUMA);
+    float ne = dot(texture(u_image, v_uv + vec2(1.0, -1.0) * u_texel).rgb, LUMA);
+    float sw = dot(texture(u_image, v_uv + vec2(-1.0, 1.0) * u_texel).rgb, LUMA);
+    float se = dot(texture(u_image, v_uv + vec2(1.0, 1.0) * u_texel).rgb, LUMA);
+    float m = dot(center, LUMA);
+    float lo = min(m, min(min(nw, ne), min(sw, se)));
+    float hi = max(m, max(max(nw, ne), max(sw, se)));
+    if (hi - lo < max(0.05, hi * 0.125)) {   // no edge here: keep the pixel
+        f_color = vec4(center, 1.0);
+        return;
+    }
+    // Blur along the edge: the direction perpendicular to the luma gradient.
+    vec2 dir = vec2(-((nw + ne) - (sw + se)), (nw + sw) - (ne + se));
+    float reduce = max((nw + ne + sw + se) * (0.25 / 8.0), 1.0 / 128.0);
+    dir = clamp(dir / (min(abs(dir.x), abs(dir.y)) + reduce), -8.0, 8.0) * u_texel;
+    vec3 near = 0.5 * (texture(u_image, v_uv - dir / 6.0).rgb + texture(u_image, v_uv + dir / 6.0).rgb);
+    vec3 far = 0.5 * near + 0.25 * (texture(u_image, v_uv - dir * 0.5).rgb + texture(u_image, v_uv + dir * 0.5).rgb);
+    float far_luma = dot(far, LUMA);
+    f_color = vec4((far_luma < lo || far_luma > hi) ? near : far, 1.0);
+}
+"""

@@ -3,6 +3,7 @@ built-in character."""
 
 from __future__ import annotations
 
+import zipfile
 from pathlib import Path
 
 import numpy as np
@@ -36,7 +37,7 @@ def read_character_npz(path):
             arrays = {k: data[k] for k in CHARACTER_KEYS}
     except FileNotFoundError:
         raise RigError("character file not found", path=path) from None
-    except (OSError, ValueError) as err:
+    except (OSError, ValueError, zipfile.BadZipFile) as err:
         raise RigError(f"not a character .npz: {err}", path=path) from err
     skeleton = Skeleton(tuple(str(n) for n in arrays["names"]), arrays["parents"], arrays["heads"],
                         arrays["tails"], arrays["frames"])

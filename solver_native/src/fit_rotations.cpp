@@ -1,9 +1,7 @@
 #include "fit_rotations.h"
 
 #include <cmath>
-#if defined(__AVX__)
 #include <immintrin.h>
-#endif
 
 namespace puppet {
 
@@ -23,30 +21,45 @@ typedef float f8u __attribute__((vector_size(32), aligned(4)));
 PUPPET_INLINE f8 splat(float x) { return f8{x, x, x, x, x, x, x, x}; }
 PUPPET_INLINE f8 sel(i8 m, f8 a, f8 b) { return m ? a : b; }
 PUPPET_INLINE f8 vabs(f8 x) { return sel(x < 0.0f, -x, x); }
-PUPPET_INLINE f8 vsqrt(f8 x) {
-#if defined(__AVX__)
-  return reinterpret_cast<f8>(_mm256_sqrt_ps(reinterpret_cast<__m256>(x)));
+// 1/sqrt(x), x > 0: hardware estimate refined by one Newton step (~23 bits).
+PUPPET_INLINE f8 vrsqrt(f8 x) {
+  f8 y;
+#if defined(__AVX512F__) && defined(__AVX512VL__)
+  y = reinterpret_cast<f8>(_mm256_rsqrt14_ps(reinterpret_cast<__m256>(x)));
+#elif defined(__AVX__)
+  y = reinterpret_cast<f8>(_mm256_rsqrt_ps(reinterpret_cast<__m256>(x)));
+#elif defined(__SSE__)
+  typedef float f4 __attribute__((vector_size(16)));
+  const f4 lo = {x[0], x[1], x[2], x[3]}, hi = {x[4], x[5], x[6], x[7]};
+  const f4 rl = reinterpret_cast<f4>(_mm_rsqrt_ps(reinterpret_cast<__m128>(lo)));
+  const f4 rh = reinterpret_cast<f4>(_mm_rsqrt_ps(reinterpret_cast<__m128>(hi)));
+  y = f8{rl[0], rl[1], rl[2], rl[3], rh[0], rh[1], rh[2], rh[3]};
 #else
-  f8 r;
-  for (int i = 0; i < 8; ++i) r[i] = __builtin_sqrtf(x[i]);
-  return r;
+  for (int i = 0; i < 8; ++i) y[i] = 1.0f / __builtin_sqrtf(x[i]);
 #endif
+  return y * (1.5f - 0.5f * x * y * y);
 }
 
 // One exact Jacobi rotation zeroing b_pq of the symmetric matrix
 // (b_pp, b_qq, b_pq, b_rp, b_rq), accumulating V's columns p and q.
+// With x = b_qq - b_pp, y = 2 b_pq, d = |x| + hypot(x, y): c = d / hypot(d, y),
+// s = sign(x) y / hypot(d, y) (NR's t = tan(phi) without divisions or sqrt latency).
 PUPPET_INLINE void jacobi(f8& bpp, f8& bqq, f8& bpq, f8& brp, f8& brq, f8* vp, f8* vq) {
-  const i8 tiny = vabs(bpq) < 1e-30f;
-  const f8 denom = sel(tiny, splat(1.0f), 2.0f * bpq);
-  const f8 theta = (bqq - bpp) / denom;
-  // For huge theta, theta^2 overflows to inf and t -> 0, as it should.
-  f8 t = 1.0f / (vabs(theta) + vsqrt(theta * theta + 1.0f));
-  t = sel(theta < 0.0f, -t, t);
-  t = sel(tiny, splat(0.0f), t);
-  const f8 c = 1.0f / vsqrt(t * t + 1.0f);
-  const f8 s = t * c;
-  bpp -= t * bpq;
-  bqq += t * bpq;
+  const f8 x = bqq - bpp, y = 2.0f * bpq;
+  const f8 q = x * x + y * y;
+  const i8 live = q > 1e-30f;
+  const f8 r = sel(live, q * vrsqrt(sel(live, q, splat(1.0f))), splat(0.0f));
+  const f8 d = vabs(x) + r;
+  const f8 h = d * d + y * y;
+  const i8 ok = h > 1e-30f;
+  const f8 w = vrsqrt(sel(ok, h, splat(1.0f)));
+  const f8 c = sel(ok, d * w, splat(1.0f));
+  const f8 s0 = y * w;
+  const f8 s = sel(ok, sel(x < 0.0f, -s0, s0), splat(0.0f));
+  const f8 cc = c * c, ss = s * s, cs2 = 2.0f * c * s;
+  const f8 pp = bpp, qq = bqq, pq = bpq;
+  bpp = cc * pp - cs2 * pq + ss * qq;
+  bqq = ss * pp + cs2 * pq + cc * qq;
   bpq = splat(0.0f);
   const f8 rp = brp, rq = brq;
   brp = c * rp - s * rq;
@@ -78,7 +91,7 @@ PUPPET_INLINE void givens(f8 (&B)[3][3], f8 (&U)[3][3], int p, int q, int col) {
   const f8 a = B[p][col], b = B[q][col];
   const f8 rr = a * a + b * b;
   const i8 tiny = rr < 1e-30f;
-  const f8 inv = 1.0f / vsqrt(sel(tiny, splat(1.0f), rr));
+  const f8 inv = vrsqrt(sel(tiny, splat(1.0f), rr));
   const f8 c = sel(tiny, splat(1.0f), a * inv);
   const f8 s = sel(tiny, splat(0.0f), b * inv);
   for (int k = 0; k < 3; ++k) {

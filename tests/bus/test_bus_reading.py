@@ -35,7 +35,7 @@ def test_open_again_changes_nothing(sim, open_reader):
 
 def test_model_mismatch_names_the_servo(sim):
     bus = sim()
-    reader = ServoReader(bus.link, {1: MODEL, 2: "XM430-W350", 3: MODEL}, latency_ms=2)
+    reader = ServoReader(bus.link, {1: MODEL, 2: "XM430-W350", 3: MODEL}, latency_ms=6)
     with pytest.raises(ServoModelMismatch) as info:
         reader.open()
     assert info.value.ids == [2]
@@ -51,7 +51,7 @@ def test_missing_servo_is_flagged_and_others_flow(sim, open_reader):
     assert reading.ok.tolist() == [True, True, False, True]
     assert reader.health[9].state == hs.MISSING
     assert reader.group == (1, 2, 3)
-    strict = ServoReader(bus.link, {1: MODEL, 9: MODEL}, latency_ms=2)
+    strict = ServoReader(bus.link, {1: MODEL, 9: MODEL}, latency_ms=6)
     with pytest.raises(ServoMissing) as info:
         strict.open(strict=True)
     assert info.value.ids == [9]
@@ -60,28 +60,27 @@ def test_missing_servo_is_flagged_and_others_flow(sim, open_reader):
 
 def test_broadcast_ping_lists_servos_the_map_lacks(sim):
     bus = sim(ids=(1, 2, 5))
-    reader = ServoReader(bus.link, {1: MODEL, 2: MODEL}, latency_ms=2)
+    reader = ServoReader(bus.link, {1: MODEL, 2: MODEL}, latency_ms=6)
     report = reader.open(broadcast_ping=True)
     assert report.unexpected == {5: 1200}
     reader.close()
 
 
 @pytest.mark.parametrize("mode", ["fast_sync_read", "sync_read"])
-def test_reading_at_rest_is_exact_signed_and_continuous(sim, open_reader, mode):
+def test_reading_at_rest_is_exact_signed_and_continuous(sim, open_reader, read_for, mode):
     bus = sim()
     # -5: negative count; 5000: past one turn; 0x00FDFFFF: data bytes FF FF FD 00 need stuffing.
     positions = {1: 100, 2: -5, 3: 5000, 4: 0x00FDFFFF}
     bus.set_positions(positions)
     reader = open_reader(bus, read_mode=mode)
     assert reader.read_mode == mode
-    readings = [reader.read() for _ in range(20)]
+    readings = read_for(reader, 0.3)
     for r in readings:
         assert r.ticks.dtype == np.int32 and r.ok.dtype == bool
         assert r.ids.tolist() == [1, 2, 3, 4]
-    good = [r for r in readings if r.ok.all()]
-    assert len(good) >= 15
-    for r in good:
-        assert r.ticks.tolist() == [100, -5, 5000, 0x00FDFFFF]
+        # a servo whose read failed (a loaded machine) holds its value: never a wrong one
+        assert r.ticks[r.ok].tolist() == [p for p, ok in zip(positions.values(), r.ok) if ok]
+    assert np.mean([r.ok.all() for r in readings]) > 0.5
     stamps = [r.t_ns for r in readings]
     assert stamps == sorted(stamps) and len(set(stamps)) == len(stamps)
 

@@ -96,3 +96,26 @@ def test_fault_file_parses():
 def test_inject_validates_in_the_caller(bus):
     with pytest.raises(FaultError, match="unknown parameter"):
         bus.inject("drop", ids=[1], chance=0.5)
+
+
+def test_replay_of_a_recorded_puppet_take(tmp_path, open_sdk):
+    from puppet.bus.reading import Reading
+    from puppet.take import TakeWriter
+
+    path = tmp_path / "take.mcap"
+    writer = TakeWriter(path, ids=[1, 2], models={1: "XL330-M288", 2: "XL330-M288"},
+                        rig_map_text="", calibration_text="", rig_name="test")
+    for k, ticks in enumerate([[100, 5000], [200, 5100], [300, -20]]):
+        writer.write(Reading(t_ns=5_000_000_000 + k * 10_000_000, ids=np.array([1, 2]),
+                             ticks=np.array(ticks, dtype=np.int32), ok=np.ones(2, dtype=bool)))
+    writer.close()
+    replay = Replay.from_file(path)
+    assert [replay.position(2, t) for t in (0.0, 0.011, 0.025, 9.0)] == [5000, 5100, -20, -20]
+    cut = tmp_path / "cut.mcap"  # a take whose writer was killed: no summary, torn tail
+    data = path.read_bytes()
+    cut.write_bytes(data[:data.rindex(b"\x00\x01\x00\x00") + 8])
+    assert Replay.from_file(cut).position(1, 0.0) == 100
+    with pytest.raises(hw_sim.MotionFileError, match="not a readable puppet take"):
+        bad = tmp_path / "bad.mcap"
+        bad.write_bytes(b"not mcap at all")
+        Replay.from_file(bad)

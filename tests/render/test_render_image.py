@@ -123,3 +123,24 @@ def test_failing_egl_context_names_the_packages_to_install(monkeypatch):
     with pytest.raises(RenderError, match="eglGetDisplay failed") as info:
         render_context.create_context()
     assert "libgl1-mesa-dri" in str(info.value)
+
+
+def test_antialiasing_softens_only_the_silhouette_edges(gl_context, bar, helpers):
+    """MSAA and FXAA change pixels near edges only, and add in-between shades there."""
+    from scipy.ndimage import binary_dilation
+
+    V, F, W = bar
+    T = helpers.handle_T([helpers.IDENTITY, helpers.rotation_about(helpers.rotation_z(0.6), [1, 0, 0])])
+    images = {}
+    for name, options in {"none": dict(samples=0), "msaa": dict(samples=4), "fxaa": dict(samples=0, fxaa=True)}.items():
+        with Renderer(V, F, W, width=160, height=120, camera=front_camera(), ground=False, background=BLACK,
+                      context=gl_context, **options) as renderer:
+            images[name] = renderer.draw(T).astype(int)
+    mask = images["none"].max(axis=2) > 0
+    edges = binary_dilation(mask, iterations=2) & binary_dilation(~mask, iterations=2)  # 2 px band
+    for name in ("msaa", "fxaa"):
+        changed = np.abs(images[name] - images["none"]).max(axis=2) > 24
+        assert changed.sum() > 40  # the edges were smoothed...
+        assert (changed & ~edges).sum() <= 3  # ...and nothing else was touched
+    with pytest.raises(RenderInputError, match="fxaa: use it instead of MSAA"):
+        Renderer(V, F, W, samples=4, fxaa=True, context=gl_context)

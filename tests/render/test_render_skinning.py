@@ -4,6 +4,7 @@ import numpy as np
 import pytest
 
 from puppet.render import Renderer, RenderInputError, lbs_matrix, pack_weights
+from puppet.render.skin_weights import MAX_SLOTS, unpack_weights
 
 
 def random_affine_T(rng, m: int) -> np.ndarray:
@@ -66,15 +67,42 @@ def test_cpu_skinning_mode_draws_the_same_silhouette(gl_context, bar, helpers):
 def test_pack_weights_keeps_every_nonzero_and_reports_what_a_tolerance_drops():
     W = np.array([[0.5, 0.0, 0.5], [0.0, 0.0, 1.0], [1e-7, 0.3, 0.7]])
     exact = pack_weights(W)
-    assert exact.spans.tolist() == [[0, 2], [2, 1], [3, 3]]
-    np.testing.assert_allclose(
-        exact.entries.reshape(-1, 2)[: exact.count], [[0.5, 0], [0.5, 2], [1.0, 2], [1e-7, 0], [0.3, 1], [0.7, 2]],
-        rtol=1e-6,
-    )
+    assert (exact.slots, exact.spilled, exact.count, exact.max_per_vertex) == (8, 0, 6, 3)
     assert exact.dropped_abs_max == 0.0
+    np.testing.assert_array_equal(unpack_weights(exact, 3), W.astype(np.float32))
+    # Largest weight first: vertex 2's slots are handles 2, 1, 0.
+    assert exact.slot_handles[2, 0] == 2 | (1 << 16)
+    assert exact.slot_handles[2, 1] & 0xFFFF == 0
     loose = pack_weights(W, tolerance=1e-6)
-    assert loose.spans[:, 1].tolist() == [2, 1, 2]
+    assert loose.count == 5
     assert loose.dropped_abs_max == pytest.approx(1e-7)
+    np.testing.assert_array_equal(unpack_weights(loose, 3)[2], np.float32([0.0, 0.3, 0.7]))
+
+
+def test_pack_weights_spills_rows_with_more_than_the_attribute_slots():
+    rng = np.random.default_rng(3)
+    W = rng.random((30, 45))
+    W[10:] *= rng.random((20, 45)) < 0.3  # sparse rows fit in the slots, dense rows spill
+    packed = pack_weights(W)
+    assert packed.slots == MAX_SLOTS
+    counts = np.count_nonzero(W, axis=1)
+    assert packed.spans[:, 1].tolist() == np.maximum(counts - MAX_SLOTS, 0).tolist()
+    assert packed.spilled == int(np.maximum(counts - MAX_SLOTS, 0).sum())
+    np.testing.assert_allclose(unpack_weights(packed, 45), W, rtol=1e-6)
+
+
+def test_skinned_normals_follow_a_rigid_rotation(gl_context, bar, helpers):
+    V, F, W = bar
+    R = helpers.rotation_z(0.8)
+    T = helpers.handle_T([helpers.rotation_about(R, [0.3, 0.1, 0])] * 2)
+    with Renderer(V, F, W, width=32, height=32, context=gl_context) as renderer:
+        rest = renderer.skinned_normals(helpers.handle_T([helpers.IDENTITY] * 2)).copy()
+        posed = renderer.skinned_normals(T)
+        side = np.abs(V[:, 0] - 1.0) < 0.5  # tube wall: rest normals point away from the x axis
+        expected_side = V[side] * [0, 1, 1] / np.linalg.norm(V[side] * [0, 1, 1], axis=1, keepdims=True)
+        unit = rest / np.linalg.norm(rest, axis=1, keepdims=True)
+        np.testing.assert_allclose(unit[side], expected_side, atol=2e-2)
+        np.testing.assert_allclose(posed / np.linalg.norm(posed, axis=1, keepdims=True), unit @ R.T, atol=1e-5)
 
 
 def test_bad_T_and_bad_weights_name_the_field(gl_context, bar):
