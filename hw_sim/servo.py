@@ -1,5 +1,9 @@
 """One simulated servo: its control table (bytes), reads/writes with the real error rules, and its
-behaviour in time (motion source with torque off, profile motion with torque on, ticks, reboot).
+behaviour in time (motion source with torque off; with torque on, velocity-based profile motion
+in position modes 3/4/5 and constant Goal Velocity in mode 1; ticks, reboot).
+
+Not modelled: time-based profiles (Drive Mode bit 2), reverse direction (bit 0), current/PWM
+dynamics (modes 0 and 16 hold still), Bus Watchdog, per-mode gain resets.
 
 Positions are encoder counts (4096 per turn). ``shaft`` is the physical shaft angle as a
 continuous count; Present Position = shaft - base + Homing Offset, where ``base`` (a multiple of
@@ -177,7 +181,14 @@ class Servo:
         mem = self.mem
         if self.powered and dt > 0:
             if mem[64]:
-                self._profile_step(dt)
+                mode = mem[11]
+                if mode in (3, 4, 5):
+                    self._profile_step(dt)
+                elif mode == 1:  # velocity control: turn at Goal Velocity
+                    self.velocity = self._get_raw(104, 4, True) * VELOCITY_UNIT_TICKS_S
+                    self.shaft += self.velocity * dt
+                else:  # current / PWM control with no load model: the shaft stays put
+                    self.velocity = 0.0
             else:
                 self.shaft = float(self.motion.position(self.joint, now))
                 self.velocity = (self.shaft - self._last_shaft) / dt if dt > 1e-4 else self.velocity
@@ -186,7 +197,7 @@ class Servo:
             if mem[64]:
                 self.temperature = min(self.temperature + dt * 0.02, 90.0)
         tick = int((now - self.boot_t) * 1000.0) % 32768
-        vel_units = int(self.velocity / VELOCITY_UNIT_TICKS_S)
+        vel_units = int(round(self.velocity / VELOCITY_UNIT_TICKS_S))
         moving = 1 if abs(vel_units) > self._get_raw(24, 4) else 0
         pos = self._present_position()
         mem[120:122] = tick.to_bytes(2, "little")

@@ -32,24 +32,27 @@ def _load_rig(rig_path: str | None):
         _fail(str(err))
 
 
-def _open_reader(rig, port: str, baud: int):
-    """A ServoReader on ``port`` for the rig's servos, opened and configured."""
-    from puppet.bus import BusError, ServoReader
+def _start_reader(rig, port: str, baud: int, rate_hz: float = 500.0):
+    """A started ReaderProcess reading the rig's servos on ``port``; reports what setup did."""
+    from puppet.bus.reader_process import ReaderProcess, ReaderProcessError
 
     if not rig.servo_map.ids.size:
         _fail(f"{rig.path or rig.name}: the rig has no servos to read")
-    reader = ServoReader(port, rig.servo_map.models, baud=baud)
+    source = ReaderProcess(port, rig.servo_map.models, rate_hz=rate_hz, baud=baud)
     try:
-        report = reader.open()
-    except BusError as err:
-        reader.close()
+        report = source.start()
+    except ReaderProcessError as err:
         _fail(f"port {port}: {err}")
+    _print_setup(report, port)
+    return source
+
+
+def _print_setup(report, port: str) -> None:
     if report.missing:
         click.echo(f"warning: servos {report.missing} did not answer on {port}; they are flagged "
                    "and probed until they appear", err=True)
     for change in report.changes:
         click.echo(f"servo {change.id}: {change.item} {change.old} -> {change.new}", err=True)
-    return reader
 
 
 class _StopFlag:
@@ -178,29 +181,29 @@ def live(rig_path: str, port: str, baud: int, take_path: str | None, out: str | 
     Example:
       puppet live --rig my.toml --port /dev/ttyUSB0 --record take.mcap --out live.mp4
     """
-    from puppet.bus import ReaderThread
     from puppet.pipeline import Pipeline, run_live
 
     rig = _load_rig(rig_path)
     sinks = _sinks(out, frames, fps)
     stop = _StopFlag()
     with Pipeline(rig, render=bool(sinks), overlay=True) as pipeline:
-        reader = _open_reader(rig, port, baud)
-        recorder = _take_writer(take_path, rig, reader) if take_path else None
+        source = _start_reader(rig, port, baud)
         try:
-            with ReaderThread(reader, rate_hz=500.0, queue_len=4096) as thread:
-                summary = run_live(pipeline, thread, seconds=seconds, sinks=sinks, video_fps=fps,
+            recorder = _take_writer(take_path, rig) if take_path else None
+            try:
+                summary = run_live(pipeline, source, seconds=seconds, sinks=sinks, video_fps=fps,
                                    recorder=recorder, should_stop=stop)
+            finally:
+                if recorder is not None:
+                    recorder.close()
         finally:
             for sink in sinks:
                 sink.close()
-            if recorder is not None:
-                recorder.close()
-            reader.close()
+            source.stop()
     _print_summary(summary, False, extra={"take": take_path} if take_path else None)
 
 
-def _take_writer(take_path: str, rig, reader):
+def _take_writer(take_path: str, rig):
     from puppet.take import TakeError, TakeWriter
 
     map_text = rig.path.read_text() if rig.path is not None and rig.path.suffix == ".toml" else ""
@@ -211,7 +214,6 @@ def _take_writer(take_path: str, rig, reader):
                           calibration_text=json.dumps({"zero_ticks": calibration}),
                           rig_name=rig.name, overwrite=True)
     except TakeError as err:
-        reader.close()
         _fail(str(err))
 
 
@@ -229,29 +231,26 @@ def record(rig_path: str, port: str, out: str, baud: int, seconds: float | None,
     Example:
       puppet record --rig my.toml --port /dev/ttyUSB0 --out take.mcap --seconds 30
     """
-    from puppet.bus import ReaderThread
-
     rig = _load_rig(rig_path)
-    reader = _open_reader(rig, port, baud)
-    writer = _take_writer(out, rig, reader)
+    writer = _take_writer(out, rig)
+    source = _start_reader(rig, port, baud, rate_hz=rate)
     stop = _StopFlag()
     start = time.monotonic()
     count = flagged = 0
     try:
-        with ReaderThread(reader, rate_hz=rate, queue_len=4096) as thread:
-            while not stop() and (seconds is None or time.monotonic() - start < seconds):
-                batch = thread.drain() or []
-                if not batch:
-                    time.sleep(0.005)
-                for reading in batch:
-                    writer.write(reading)
-                    count += 1
-                    flagged += int(not reading.ok.all())
+        while not stop() and (seconds is None or time.monotonic() - start < seconds):
+            batch = source.drain()
+            if not batch:
+                time.sleep(0.005)
+            for reading in batch:
+                writer.write(reading)
+                count += 1
+                flagged += int(not reading.ok.all())
     finally:
         writer.close()
-        reader.close()
+        source.stop()
     click.echo(f"take: {out}\nreadings: {count} in {time.monotonic() - start:.2f} s, "
-               f"{flagged} with a flagged servo\nfaults seen: {dict(reader.log.counts) or 'none'}")
+               f"{flagged} with a flagged servo\nfaults seen: {dict(source.log.counts) or 'none'}")
 
 
 def _open_take(take: str, rig_path: str | None):
@@ -360,15 +359,16 @@ def calibrate(rig_path: str, port: str, baud: int, out: str | None) -> None:
     Example:
       puppet calibrate --rig my.toml --port /dev/ttyUSB0
     """
-    from puppet.bus import BusError
+    from puppet.bus import BusError, ServoReader
     from puppet.rig import Calibration, RigError
 
     rig = _load_rig(rig_path)
     target = out or rig.calibration.path
     if target is None:
         _fail(f"{rig_path}: the rig names no calibration file; pass --out FILE")
-    reader = _open_reader(rig, port, baud)
+    reader = ServoReader(port, rig.servo_map.models, baud=baud)
     try:
+        _print_setup(reader.open(), port)
         reading = reader.read_clean(samples=9, timeout_s=3.0)
     except BusError as err:
         _fail(f"port {port}: {err}")

@@ -1,8 +1,8 @@
 """The main job on the embedded default: the built-in character on a simulated bus.
 
 ``run_demo`` starts ``hw_sim`` with a performance made for the rig (every sensed joint swings
-within its limits, left and right half a cycle apart), opens it through the same
-``puppet.bus.ServoReader`` as real hardware, and runs the live loop into a video.
+within its limits, left and right half a cycle apart), reads it through the same
+``puppet.bus`` reader as real hardware (in its own process), and runs the live loop.
 """
 
 from __future__ import annotations
@@ -11,7 +11,7 @@ import math
 from collections.abc import Callable
 
 import hw_sim
-from puppet.bus import ReaderThread, ServoReader
+from puppet.bus.reader_process import ReaderProcess
 from puppet.pipeline import Pipeline, Summary, run_live
 from puppet.rig import Rig, builtin
 
@@ -55,15 +55,14 @@ def run_demo(*, seconds: float, sinks_for: Callable[[Pipeline], list], faults=No
     models = rig.servo_map.models
     with Pipeline(rig, iterations=iterations, width=width, height=height, overlay=overlay) as pipeline:
         with hw_sim.serve(models, motion=Performance(rig), faults=faults, timing=timing, baud=baud) as bus:
-            reader = ServoReader(bus.port, models, baud=baud)
-            report = reader.open()
+            source = ReaderProcess(bus.port, models, rate_hz=500.0, baud=baud)
+            report = source.start()
             sinks = sinks_for(pipeline)
             try:
-                with ReaderThread(reader, rate_hz=500.0) as thread:
-                    summary = run_live(pipeline, thread, seconds=seconds, sinks=sinks,
-                                       video_fps=video_fps, on_frame=on_frame)
+                summary = run_live(pipeline, source, seconds=seconds, sinks=sinks,
+                                   video_fps=video_fps, on_frame=on_frame)
             finally:
                 for sink in sinks:
                     sink.close()
-                reader.close()
+                source.stop()
     return summary, report

@@ -5,7 +5,7 @@
       -> Pipeline.draw()           Renderer.draw(T) -> (h, w, 3) uint8
       -> sinks                     VideoSink / PngSink / TakeWriter
 
-The bus is read on its own thread (``puppet.bus.ReaderThread``); ``run_live`` only takes the
+The bus is read in its own process (``puppet.bus.ReaderProcess``); ``run_live`` only takes the
 newest reading each frame (and every reading, for a recorder), so rendering never blocks it.
 Everything the per-frame path touches is allocated once in ``Pipeline.__init__``.
 """
@@ -18,7 +18,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from puppet.bus import Reading, ReaderThread
+from puppet.bus import Reading
 from puppet.fast import FastModel
 from puppet.rig import Rig
 
@@ -191,14 +191,15 @@ class VideoClock:
         return count
 
 
-def run_live(pipeline: Pipeline, thread: ReaderThread, *, seconds: float | None = None,
+def run_live(pipeline: Pipeline, source, *, seconds: float | None = None,
              sinks: Iterable = (), video_fps: float = 30.0, recorder=None,
              should_stop: Callable[[], bool] = lambda: False,
              on_frame: Callable[[Summary], None] | None = None) -> Summary:
     """Run the live loop until ``seconds`` pass or ``should_stop()`` (e.g. Ctrl-C).
 
-    thread:   a started ReaderThread; every reading it queued is recorded (``recorder.write``),
-              the newest one is solved and drawn.
+    source:   a started ReaderProcess (or ReaderThread): ``drain()``, ``latest(timeout)`` and
+              ``log`` (bus events); every reading it gives is recorded (``recorder.write``), the
+              newest one is solved and drawn.
     sinks:    objects with ``write(image)`` fed at ``video_fps`` by wall clock (a frame is
               repeated when the loop runs slower than the video); empty: solve only, no render.
     """
@@ -213,9 +214,9 @@ def run_live(pipeline: Pipeline, thread: ReaderThread, *, seconds: float | None 
         now = time.monotonic()
         if seconds is not None and now - start >= seconds:
             break
-        batch = thread.drain()
+        batch = source.drain()
         if not batch:
-            newest = thread.latest(timeout=0.5)
+            newest = source.latest(timeout=0.5)
             if newest is None:
                 continue
             batch = [newest]
@@ -238,7 +239,7 @@ def run_live(pipeline: Pipeline, thread: ReaderThread, *, seconds: float | None 
         if on_frame is not None:
             on_frame(summary)
     summary.seconds = time.monotonic() - start
-    summary.faults = dict(thread.reader.log.counts)
+    summary.faults = dict(source.log.counts)
     if not_ok:
         summary.faults["servo_not_ok"] = not_ok
     return _finish(summary, pipeline)

@@ -440,19 +440,22 @@ class ServoReader:
             self._check_tick(dxl_id, tick, t0)
 
     def _on_hardware_error(self, dxl_id: int, bits: int) -> None:
+        """Book Hardware Error Status ``bits``; reboot a sensor with a latched error when
+        ``auto_reboot`` allows (again after the hold-off if it stays latched)."""
         h = self.health[dxl_id]
-        if bits == h.hardware_error:
+        if bits != h.hardware_error:
+            if bits:
+                self.log.add("hardware_error", [dxl_id],
+                             f"Hardware Error Status 0x{bits:02x}: {ct.describe_hardware_error(bits)}")
+            else:
+                self.log.add("hardware_error_cleared", [dxl_id],
+                             f"was {ct.describe_hardware_error(h.hardware_error)}")
+            h.hardware_error = bits
+        if not bits or not self.auto_reboot or dxl_id in self.actuators:
             return
-        if bits == 0:
-            self.log.add("hardware_error_cleared", [dxl_id], f"was {ct.describe_hardware_error(h.hardware_error)}")
-            h.hardware_error = 0
-            return
-        h.hardware_error = bits
-        self.log.add("hardware_error", [dxl_id], f"Hardware Error Status 0x{bits:02x}: {ct.describe_hardware_error(bits)}")
         now = time.monotonic_ns()
         last = self._last_reboot_ns.get(dxl_id)
-        if self.auto_reboot and dxl_id not in self.actuators and (
-                last is None or now - last > self.reboot_holdoff_ns):
+        if last is None or now - last > self.reboot_holdoff_ns:
             self._last_reboot_ns[dxl_id] = now
             self.reboot(dxl_id)
 

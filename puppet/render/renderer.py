@@ -180,14 +180,23 @@ class Renderer:
         spheres = shadow_spheres(V, W, count=shadow_sphere_count)
         self._shadow_Q = spheres.Q
         self._spheres = np.zeros((len(spheres.radii), 4), dtype=np.float32)
-        self._spheres[:, 3] = spheres.radii
+        self._spheres[:, 3] = spheres.radii * 1.5  # a wider, softer shadow than the bare clusters
         axis_a, axis_b = self._ground_axes()
+        # The shadow texture covers the character's footprint plus a penumbra margin, and
+        # follows the character: its center is the mean of the sphere centers, on the ground.
+        footprint = np.abs((V - self._center) @ np.stack([axis_a, axis_b], axis=1)).max()
+        self._shadow_half = float(footprint + 0.3 * self._radius)
+        self._shadow_center = np.zeros(3, dtype=np.float32)
+        self._shadow_mean = np.zeros(3, dtype=np.float32)
+        self._floor_offset = ((self._ground_center @ self._up) * self._up).astype(np.float32)
+        self._flatten = (np.eye(3) - np.outer(self._up, self._up)).astype(np.float32)
         ground_uniforms = {
             "u_center": tuple(self._ground_center),
-            "u_axis_a": tuple(axis_a * self._ground_extent),
-            "u_axis_b": tuple(axis_b * self._ground_extent),
             "u_extent": self._ground_extent,
-            "u_ground_color": (0.62, 0.62, 0.6),
+            "u_shadow_a": tuple(axis_a * self._shadow_half),
+            "u_shadow_b": tuple(axis_b * self._shadow_half),
+            "u_shadow_half": self._shadow_half,
+            "u_ground_color": (0.5, 0.5, 0.48),
             "u_background": self._background,
             "u_up": tuple(self._up),
         }
@@ -369,7 +378,12 @@ class Renderer:
         ctx.disable(moderngl.DEPTH_TEST)
         if self.ground:
             np.matmul(self._shadow_Q, T, out=self._spheres[:, :3], casting="same_kind")
+            np.mean(self._spheres[:, :3], axis=0, out=self._shadow_mean)
+            np.matmul(self._flatten, self._shadow_mean, out=self._shadow_center)
+            self._shadow_center += self._floor_offset
             self._occlusion_prog["u_spheres"].write(self._spheres)
+            self._occlusion_prog["u_shadow_center"].write(self._shadow_center)
+            self._ground_prog["u_shadow_center"].write(self._shadow_center)
             self._occlusion_fbo.use()
             self._occlusion_vao.render(moderngl.TRIANGLE_STRIP)
         self._target.use()

@@ -160,13 +160,13 @@ void main() {
 # Occlusion of the ground by the shadow spheres, rendered into a small texture over the ground
 # square (one fragment per texel: cheap), then sampled bilinearly by GROUND_FRAGMENT.
 OCCLUSION_VERTEX = """
-uniform vec3 u_center;            // middle of the ground square
-uniform vec3 u_axis_a;            // ground axes scaled by the half extent
-uniform vec3 u_axis_b;
+uniform vec3 u_shadow_center;     // middle of the shadow square (under the character)
+uniform vec3 u_shadow_a;          // ground axes scaled by the shadow square's half size
+uniform vec3 u_shadow_b;
 in vec2 in_corner;                // -1..1
 out vec3 v_world;
 void main() {
-    v_world = u_center + in_corner.x * u_axis_a + in_corner.y * u_axis_b;
+    v_world = u_shadow_center + in_corner.x * u_shadow_a + in_corner.y * u_shadow_b;
     gl_Position = vec4(in_corner, 0.0, 1.0);
 }
 """
@@ -185,7 +185,7 @@ void main() {
         // Cosine-weighted solid angle of a sphere, (r / dist)^2 cos(theta), with dist^2 softened
         // to dist^2 + r^2 so that overlapping spheres blend into one smooth shadow.
         float s2 = dot(d, d) + r2;
-        visible *= 1.0 - min(2.0 * r2 * h * inversesqrt(s2) / s2, 0.9);
+        visible *= 1.0 - min(3.0 * r2 * h * inversesqrt(s2) / s2, 0.9);
     }
     f_visible = vec4(visible);
 }
@@ -193,17 +193,20 @@ void main() {
 
 GROUND_FRAGMENT = """
 uniform sampler2D u_visibility;
-uniform vec3 u_center;
-uniform vec3 u_axis_a;            // ground axes scaled by the half extent
-uniform vec3 u_axis_b;
-uniform float u_extent;           // half extent of the ground square
+uniform vec3 u_shadow_center;
+uniform vec3 u_shadow_a;          // ground axes scaled by the shadow square's half size
+uniform vec3 u_shadow_b;
+uniform float u_shadow_half;      // half size of the shadow square (outside: no occlusion)
+uniform vec3 u_center;            // middle of the ground disc
+uniform float u_extent;           // radius of the ground disc
 uniform vec3 u_ground_color;
 uniform vec3 u_background;       // display-space RGB, like the clear color
 in vec3 v_world;
 out vec4 f_color;
 void main() {
     vec3 rel = v_world - u_center;
-    vec2 uv = 0.5 + 0.5 * vec2(dot(rel, u_axis_a), dot(rel, u_axis_b)) / (u_extent * u_extent);
+    vec3 shadow_rel = v_world - u_shadow_center;
+    vec2 uv = 0.5 + 0.5 * vec2(dot(shadow_rel, u_shadow_a), dot(shadow_rel, u_shadow_b)) / (u_shadow_half * u_shadow_half);
     float occlusion = 1.0 - texture(u_visibility, uv).r;
     vec3 lit = u_ground_color * mix(u_ground_bounce, u_sky, 0.85) * (1.0 - 0.85 * occlusion);
     float fade = 1.0 - smoothstep(0.45 * u_extent, u_extent, length(rel));

@@ -170,3 +170,16 @@ def test_strict_baud_servos_hear_only_their_speed(open_sdk, short):
             assert p.ping(port, 2)[1] == dxl.COMM_RX_TIMEOUT
         assert port.setBaudRate(57600)
         assert p.ping(port, 2)[:2] == (1200, dxl.COMM_SUCCESS)
+
+
+def test_velocity_mode_turns_continuously(bus, sdk):
+    p, port = sdk.packet, sdk.port
+    assert p.write1ByteTxRx(port, 1, 11, 1) == (dxl.COMM_SUCCESS, 0)  # velocity control
+    assert p.write1ByteTxRx(port, 1, 64, 1) == (dxl.COMM_SUCCESS, 0)
+    assert p.write4ByteTxRx(port, 1, 104, 400) == (dxl.COMM_SUCCESS, 0)  # 91.6 rpm ~ 6250 counts/s
+    start = _pos(sdk, 1)
+    deadline = time.monotonic() + 5.0
+    while _pos(sdk, 1) < start + 4096 and time.monotonic() < deadline:
+        time.sleep(0.02)
+    assert _pos(sdk, 1) >= start + 4096  # more than a turn: counts past 4095
+    assert p.read4ByteTxRx(port, 1, 128)[0] == 400

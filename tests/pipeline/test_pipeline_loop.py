@@ -5,7 +5,8 @@ import threading
 import numpy as np
 
 import hw_sim
-from puppet.bus import Reading, ReaderThread, ServoReader
+from puppet.bus import Reading
+from puppet.bus.reader_process import ReaderProcess
 from puppet.demo import Performance
 from puppet.pipeline import Pipeline, run_frames, run_live
 
@@ -34,14 +35,12 @@ def test_faulted_servo_marks_its_bone(critter):
     assert pipeline.bone_states[bone] != "faulted"
 
 
-def test_live_loop_keeps_running_through_faults(critter, fast_timeouts):
+def test_live_loop_keeps_running_through_faults(critter):
     models = critter.servo_map.models
     ids = [int(i) for i in critter.servo_map.ids]
     pipeline = Pipeline(critter, render=False)
     with hw_sim.serve(models, motion=Performance(critter), timing=False) as bus:
-        reader = ServoReader(bus.port, models, latency_ms=1)
-        reader.open()
-        with ReaderThread(reader, rate_hz=200.0, queue_len=512) as thread:
+        with ReaderProcess(bus.port, models, rate_hz=200.0, latency_ms=1) as source:
             recorded = []
 
             class Recorder:
@@ -55,9 +54,9 @@ def test_live_loop_keeps_running_through_faults(critter, fast_timeouts):
 
             injector = threading.Timer(0.3, faults)
             injector.start()
-            summary = run_live(pipeline, thread, seconds=2.5, recorder=Recorder())
+            summary = run_live(pipeline, source, seconds=2.5, recorder=Recorder())
             injector.join()
-        reader.close()
+        assert source.dropped == 0
     assert summary.frames > 20
     assert np.isfinite(pipeline.T).all()
     flagged = {int(r.ids[j]) for r in recorded for j in np.flatnonzero(~r.ok)}

@@ -144,3 +144,21 @@ def test_antialiasing_softens_only_the_silhouette_edges(gl_context, bar, helpers
         assert (changed & ~edges).sum() <= 3  # ...and nothing else was touched
     with pytest.raises(RenderInputError, match="fxaa: use it instead of MSAA"):
         Renderer(V, F, W, samples=4, fxaa=True, context=gl_context)
+
+
+def test_draw_allocates_no_frame_sized_arrays(gl_context, bar, helpers):
+    """Per frame: T into the preallocated uniform array, image into the preallocated buffer."""
+    import tracemalloc
+
+    V, F, W = bar
+    T = helpers.handle_T([helpers.IDENTITY, helpers.rotation_about(helpers.rotation_z(0.5), [1, 0, 0])])
+    bones = np.array([[[0.0, 0, 0], [1.0, 0, 0]], [[1.0, 0, 0], [2.0, 0, 0]]])
+    for skinning in ("gpu", "cpu"):
+        with Renderer(V, F, W, width=320, height=240, skinning=skinning, context=gl_context) as renderer:
+            renderer.draw(T, bones=bones, bone_states=["sensed", "free"])  # warm up (first-use setup)
+            tracemalloc.start()
+            for _ in range(5):
+                renderer.draw(T, bones=bones, bone_states=["sensed", "free"])
+            _, peak = tracemalloc.get_traced_memory()
+            tracemalloc.stop()
+        assert peak < 16_000  # a 320x240 RGB frame alone is 230 kB; positions are 15 kB

@@ -1,0 +1,57 @@
+"""ReaderProcess: the bus read in a child process, readings through a shared ring."""
+
+import time
+
+import numpy as np
+import pytest
+
+import hw_sim
+from puppet.bus.reader_process import ReaderProcess, ReaderProcessError
+
+MODELS = {1: "XL330-M288", 2: "XL430-W250", 3: "XM430-W350"}
+
+
+def test_readings_arrive_in_order_with_the_simulated_positions():
+    with hw_sim.serve(MODELS) as bus:
+        bus.set_positions({1: 100, 2: 5000, 3: -300})
+        with ReaderProcess(bus.port, MODELS, rate_hz=300.0) as source:
+            assert set(source.report.found) == set(MODELS)
+            time.sleep(0.3)
+            batch = source.drain()
+    assert len(batch) > 20
+    t = np.array([r.t_ns for r in batch])
+    assert (np.diff(t) > 0).all()
+    assert batch[-1].ticks.tolist() == [100, 5000, -300]
+    assert batch[-1].ok.all()
+    assert batch[-1].ids.tolist() == [1, 2, 3]
+
+
+def test_a_consumer_that_falls_behind_loses_only_the_oldest():
+    with hw_sim.serve(MODELS, motion="wave") as bus:
+        with ReaderProcess(bus.port, MODELS, rate_hz=400.0, slots=16) as source:
+            time.sleep(0.3)
+            batch = source.drain()
+            assert source.dropped > 0
+            assert 1 <= len(batch) <= 16
+            newest = source.latest(timeout=1.0)
+    assert newest is not None
+    assert newest.t_ns > batch[-1].t_ns
+
+
+def test_bus_events_come_back_from_the_child():
+    with hw_sim.serve(MODELS) as bus:
+        with ReaderProcess(bus.port, MODELS, rate_hz=300.0) as source:
+            bus.inject("drop", ids=[2], duration_s=0.3)
+            time.sleep(0.8)
+            batch = source.drain()
+    assert any(not r.ok[1] for r in batch)
+    assert batch[-1].ok.all()
+    assert source.log.counts.get("servo_failed", 0) >= 1
+    assert any(2 in e.ids for e in source.log.events)
+
+
+def test_a_missing_port_is_a_clear_error():
+    source = ReaderProcess("/dev/puppet-no-such-port", MODELS)
+    with pytest.raises(ReaderProcessError, match="/dev/puppet-no-such-port"):
+        source.start(timeout_s=20.0)
+    assert not source.alive
