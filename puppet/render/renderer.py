@@ -59,8 +59,14 @@ class Renderer:
     up: (3,) world up; ground: draw the ground plane with its contact shadow;
     cull_back_faces: skip triangles facing away (right for closed meshes, about 2x fewer
     triangles to rasterize; turn off for open surfaces seen from both sides);
-    albedo, background: linear RGB in [0, 1]; context: a moderngl.Context to share (else an EGL
-    context is created and owned); weight_tolerance: drop |w| <= this (0: exact).
+    albedo: linear RGB in [0, 1]; background: display RGB in [0, 1] (the clear color);
+    context: a moderngl.Context to share (else an EGL context is created, owned and released
+    with the renderer); weight_tolerance: drop weights with |w| <= this (0: only exact zeros,
+    so the shader computes M @ T exactly); shadow_sphere_count, shadow_resolution: contact
+    shadow detail; bone_width_px: skeleton overlay width [px].
+
+    Per-frame state lives in preallocated arrays: `image` (height, width, 3) uint8 is the frame
+    buffer draw() returns; skinned_positions() returns a view of the skinning pass's output.
     """
 
     def __init__(
@@ -109,7 +115,6 @@ class Renderer:
 
         # Scene extent, for framing, clip planes and the ground.
         lo, hi = V.min(axis=0), V.max(axis=0)
-        self._rest_points = V
         self._center = (lo + hi) / 2
         self._radius = max(float(np.linalg.norm(hi - lo)) / 2, 1e-6)
         floor = float((V @ self._up).min())
@@ -120,7 +125,8 @@ class Renderer:
         self._rows = np.zeros((self.m, 3, 4), dtype=np.float32)  # A_j = T block j transposed
         self.image = np.zeros((self.height, self.width, 3), dtype=np.uint8)
 
-        # Skinning data: rest positions, normals, per-vertex spans into the weights texture.
+        # Skinning data: rest positions and normals, (weight, handle) pairs in attribute slots,
+        # and the pairs that do not fit there (spilled) in a texture with per-vertex spans.
         packed = pack_weights(W, tolerance=weight_tolerance)
         self.max_weights_per_vertex = packed.max_per_vertex
         self.dropped_weight_abs_max = packed.dropped_abs_max
