@@ -6,7 +6,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 
 from puppet.bus import control_table as ct
-from puppet.bus.errors import ServoError, ServoModelMismatch
+from puppet.bus.errors import ServoError, ServoModelMismatch, ServoStatusError, ServoTimeout
 from puppet.bus.link import BusLink
 
 
@@ -85,11 +85,31 @@ def supports_fast_sync_read(servos: Mapping[int, str], found: Mapping[int, Servo
         info.firmware >= ct.model_named(servos[i]).fast_sync_read_firmware for i, info in found.items())
 
 
+def ensure_status_return(link: BusLink, dxl_id: int, changes: list[Change]) -> None:
+    """Status Return Level 2 (reply to everything), which the rest of the setup relies on.
+
+    At level 1 the servo answers reads but not writes; at level 0 only pings. The level is set
+    by a write that expects no reply, then checked by a read. ServoError if it stays silent.
+    """
+    try:
+        level = link.read(dxl_id, ct.STATUS_RETURN_LEVEL)
+    except ServoTimeout:
+        level = 0  # a pinged servo that ignores reads: level 0
+    if level >= 2:
+        return
+    link.write_no_reply(dxl_id, ct.STATUS_RETURN_LEVEL, 2)
+    if link.read(dxl_id, ct.STATUS_RETURN_LEVEL) != 2:
+        raise ServoStatusError([dxl_id], "write Status Return Level", "the level did not change")
+    changes.append(Change(dxl_id, ct.STATUS_RETURN_LEVEL.name, level, 2))
+
+
 def configure_servo(link: BusLink, dxl_id: int, actuator: bool, changes: list[Change]) -> None:
-    """Sensor: torque off. Actuator: torque on at its present position. Both: return delay 0.
+    """Sensor: torque off. Actuator: torque on at its present position. Both: return delay 0,
+    Status Return Level 2.
 
     Appends every write to ``changes``. Raises ServoError/PortError on a failed transaction.
     """
+    ensure_status_return(link, dxl_id, changes)
     torque = link.read(dxl_id, ct.TORQUE_ENABLE)
     delay = link.read(dxl_id, ct.RETURN_DELAY_TIME)
     if delay != 0:
@@ -110,4 +130,4 @@ def configure_servo(link: BusLink, dxl_id: int, actuator: bool, changes: list[Ch
 
 
 __all__ = ["Change", "ServoInfo", "SetupReport", "identify", "supports_fast_sync_read",
-           "configure_servo"]
+           "configure_servo", "ensure_status_return"]

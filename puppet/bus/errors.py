@@ -13,15 +13,27 @@ class PortError(BusError):
     """The serial port could not be opened, or was lost (USB unplug).
 
     port:  the port name, e.g. '/dev/ttyUSB0'.
-    cause: the underlying exception (SerialException, OSError) or None.
+    cause: the underlying exception (SerialException, OSError, termios.error) or None;
+           ``cause_text`` its repr (all that survives pickling).
     """
 
     def __init__(self, port: str, reason: str, cause: BaseException | None = None):
         self.port = port
         self.reason = reason
         self.cause = cause
+        self.cause_text = None if cause is None else repr(cause)
         detail = f" ({type(cause).__name__}: {cause})" if cause is not None else ""
         super().__init__(f"port {port}: {reason}{detail}")
+
+    def __reduce__(self):
+        # The cause travels as text: OS-level exceptions do not all pickle.
+        return (_port_error_from_text, (self.port, self.reason, repr(self.cause) if self.cause else None))
+
+
+def _port_error_from_text(port: str, reason: str, cause_text: str | None) -> PortError:
+    error = PortError(port, reason)
+    error.cause_text = cause_text
+    return error
 
 
 class ServoError(BusError):

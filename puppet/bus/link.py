@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import contextlib
 import os
+import time
 from collections.abc import Iterable, Iterator, Mapping
 from dataclasses import dataclass, field
 
@@ -109,6 +110,8 @@ class BusLink:
             latency_ms = adapter_latency_ms(self.port_name) or DEFAULT_LATENCY_MS
         self.latency_ms = int(latency_ms)
         set_latency_assumption(self.latency_ms)
+        self.settle_s = (self.latency_ms + 1) / 1000.0
+        self._unsettled = False
         self.baud = int(baud)
         self.poll_block_s = float(poll_block_s)
         self.ph = dynamixel_sdk.PacketHandler(PROTOCOL)
@@ -146,13 +149,27 @@ class BusLink:
         self.port = dynamixel_sdk.PortHandler(self.port_name)
         self.open()
 
+    def _fail(self, code: int, ids: Iterable[int], instruction: str, detail: str = "") -> ServoError:
+        """The typed error for an SDK result code; a late reply may still be on its way, so the
+        next instruction first lets the line settle (``_transaction``)."""
+        self._unsettled = True
+        return _failure(code, ids, instruction, detail)
+
     @contextlib.contextmanager
-    def _transaction(self, ids: Iterable[int], instruction: str) -> Iterator[None]:
-        """Run one SDK call: clear the busy flag before; map exceptions after."""
+    def _transaction(self, ids: Iterable[int], instruction: str, tx: bool = True) -> Iterator[None]:
+        """Run one SDK call: clear the busy flag before; map exceptions after.
+
+        Before a new instruction (``tx``) that follows a failed one, wait ``settle_s`` and drop
+        what arrived meanwhile: a reply that missed its deadline would otherwise be taken as the
+        answer to the next instruction (Protocol 2.0 has no sequence numbers)."""
         if not self.is_open:
             raise PortError(self.port_name, "not open")
         self.port.is_using = False
         try:
+            if tx and self._unsettled:
+                self._unsettled = False
+                time.sleep(self.settle_s)
+                self.port.ser.reset_input_buffer()
             yield
         except PORT_ERRORS as exc:
             self.port.is_using = False
@@ -176,7 +193,7 @@ class BusLink:
         with self._transaction([dxl_id], "ping"):
             rx, code, error = self.ph.txRxPacket(self.port, tx)
         if code != rd.COMM_SUCCESS:
-            raise _failure(code, [dxl_id], "ping")
+            raise self._fail(code, [dxl_id], "ping")
         if error & 0x7F or len(rx) != 14:
             raise ServoStatusError([dxl_id], "ping", describe_status_error(error)
                                    + f", {len(rx)}-byte reply (a ping reply has 14)", error=error)
@@ -187,7 +204,7 @@ class BusLink:
         with self._transaction([], "broadcast_ping"):
             found, code = self.ph.broadcastPing(self.port)
         if code not in (rd.COMM_SUCCESS, rd.COMM_RX_TIMEOUT):
-            raise _failure(code, [], "broadcast_ping")
+            raise self._fail(code, [], "broadcast_ping")
         return {int(i): (int(v[0]), int(v[1])) for i, v in found.items()}
 
     def read(self, dxl_id: int, item: Item) -> int:
@@ -196,7 +213,7 @@ class BusLink:
         with self._transaction([dxl_id], instruction):
             data, code, error = self.ph.readTxRx(self.port, dxl_id, item.address, item.size)
         if code != rd.COMM_SUCCESS:
-            raise _failure(code, [dxl_id], instruction)
+            raise self._fail(code, [dxl_id], instruction)
         if error & 0x7F or len(data) != item.size:
             raise ServoStatusError([dxl_id], instruction, describe_status_error(error)
                                    + f", {len(data)} of {item.size} data bytes", error=error)
@@ -208,7 +225,7 @@ class BusLink:
         with self._transaction([dxl_id], instruction):
             data, code, error = self.ph.readTxRx(self.port, dxl_id, item.address, item.size)
         if code != rd.COMM_SUCCESS:
-            raise _failure(code, [dxl_id], instruction)
+            raise self._fail(code, [dxl_id], instruction)
         if error & 0x7F or len(data) != item.size:
             raise ServoStatusError([dxl_id], instruction, describe_status_error(error)
                                    + f", {len(data)} of {item.size} data bytes", error=error)
@@ -220,16 +237,25 @@ class BusLink:
         with self._transaction([dxl_id], instruction):
             code, error = self.ph.writeTxRx(self.port, dxl_id, item.address, item.size, item.encode(value))
         if code != rd.COMM_SUCCESS:
-            raise _failure(code, [dxl_id], instruction)
+            raise self._fail(code, [dxl_id], instruction)
         if error & 0x7F:
             raise ServoStatusError([dxl_id], instruction, describe_status_error(error), error=error)
+
+    def write_no_reply(self, dxl_id: int, item: Item, value: int) -> None:
+        """Write one item without waiting for a status (for a servo whose Status Return Level
+        is below 2: it executes writes but does not answer them)."""
+        instruction = f"write {item.name}"
+        with self._transaction([dxl_id], instruction):
+            code = self.ph.writeTxOnly(self.port, dxl_id, item.address, item.size, item.encode(value))
+        if code != rd.COMM_SUCCESS:
+            raise self._fail(code, [dxl_id], instruction)
 
     def reboot(self, dxl_id: int) -> None:
         """Send Reboot to one servo (clears a latched hardware error; RAM returns to defaults)."""
         with self._transaction([dxl_id], "reboot"):
             code, error = self.ph.reboot(self.port, dxl_id)
         if code != rd.COMM_SUCCESS:
-            raise _failure(code, [dxl_id], "reboot")
+            raise self._fail(code, [dxl_id], "reboot")
         if error & 0x7F:
             raise ServoStatusError([dxl_id], "reboot", describe_status_error(error), error=error)
 
@@ -245,15 +271,15 @@ class BusLink:
         with self._transaction(ids, instruction):
             code = self.ph.syncReadTx(self.port, item.address, item.size, ids, len(ids), False)
         if code != rd.COMM_SUCCESS:
-            out.failed = dict.fromkeys(ids, _failure(code, ids, instruction))
+            out.failed = dict.fromkeys(ids, self._fail(code, ids, instruction))
             return out
         for dxl_id in ids:
             # The deadline is shared by all replies; after it expires, each readRx returns at
             # once with whatever is already buffered.
-            with self._transaction([dxl_id], instruction):
+            with self._transaction([dxl_id], instruction, tx=False):
                 data, code, error = self.ph.readRx(self.port, dxl_id, item.size)
             if code != rd.COMM_SUCCESS:
-                out.failed[dxl_id] = _failure(code, [dxl_id], instruction)
+                out.failed[dxl_id] = self._fail(code, [dxl_id], instruction)
                 continue
             out.errors[dxl_id] = int(error)
             if error & 0x7F or len(data) != item.size:
@@ -277,7 +303,7 @@ class BusLink:
             if code == rd.COMM_SUCCESS:
                 rx, code = self.ph.rxPacket(self.port, True)
         if code != rd.COMM_SUCCESS:
-            err = _failure(code, ids, instruction)
+            err = self._fail(code, ids, instruction)
             out.failed = dict.fromkeys(ids, err)
             return out
         seg = item.size + 4
@@ -319,7 +345,7 @@ class BusLink:
         with self._transaction(ids, "sync_write"):
             code = self.ph.syncWriteTxOnly(self.port, item.address, item.size, param, len(param))
         if code != rd.COMM_SUCCESS:
-            raise _failure(code, ids, "sync_write")
+            raise self._fail(code, ids, "sync_write")
 
 
 __all__ = ["BusLink", "GroupRead", "set_latency_assumption", "adapter_latency_ms", "DEFAULT_LATENCY_MS",

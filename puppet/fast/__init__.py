@@ -1,6 +1,6 @@
 """FAST (Jacobson et al. 2012): reduced ARAP in the linear-blend-skinning subspace V' = M T."""
 
-from puppet.fast.errors import FastError, MeshError, PatternError, ValuesError, WeightsError
+from puppet.fast.errors import FastError, MeshError, PatternError, WeightsError
 from puppet.fast.model import FastModel
 from puppet.fast.pattern import Pattern, Values
 from puppet.fast.solver import Solver
@@ -14,5 +14,4 @@ __all__ = [
     "MeshError",
     "WeightsError",
     "PatternError",
-    "ValuesError",
 ]

@@ -1,6 +1,6 @@
 """ARAP energy types and their reduced matrices in the skinning subspace.
 
-An energy is a list of *edge terms* (a, b, w, k): rest edge e_ab = v_a - v_b with cotangent
+An energy is a sum over *edge terms* (a, b, w, k): rest edge e_ab = v_a - v_b with cotangent
 weight w in edge set k. Each edge set gets the rotation of its cluster; the energy is
     E = sum_terms w |(v'_a - v'_b) - R_k e_ab|^2.
 Edge sets per type (as libigl's ARAPEnergyType):
@@ -60,65 +60,35 @@ def tet_cot_weights(V: np.ndarray, T: np.ndarray, vol_eps: float) -> tuple[np.nd
     return C, keep
 
 
-def edge_terms(V: np.ndarray, F: np.ndarray, energy: str, area_eps: float):
-    """(a, b, w, set) arrays of edge terms and the number of dropped degenerate elements.
+MULTIPLICITY = {"spokes": 2.0, "spokes_and_rims": 3.0, "elements": 1.0}
+"""How many edge sets each element edge belongs to, per energy type (spokes: both endpoints'
+sets; spokes and rims: the sets of the triangle's 3 corners; elements: its own element's)."""
 
-    For elements the set is the element index; otherwise the owning vertex."""
-    if energy not in ENERGIES:
-        raise MeshError(f"energy: {energy!r} is not one of {ENERGIES}")
-    simplex = F.shape[1]
-    if simplex == 3:
+
+def element_edges(V: np.ndarray, F: np.ndarray, area_eps: float):
+    """Edges of the kept elements: (a, b, w) with shape (k, e) each (e = 3 for triangles, 6 for
+    tets), the kept element list F (k, 3|4), the corner of a and b in each element, and the
+    number of dropped degenerate elements."""
+    if F.shape[1] == 3:
         C, keep = triangle_cot_weights(V, F, area_eps)
-        # Half-edge opposite corner c: (F[:, c+1], F[:, c+2]).
-        a = np.stack([F[:, 1], F[:, 2], F[:, 0]], 1)
-        b = np.stack([F[:, 2], F[:, 0], F[:, 1]], 1)
+        ca, cb = np.array([1, 2, 0]), np.array([2, 0, 1])  # edge opposite corner c
     else:
-        if energy == "spokes_and_rims":
-            raise MeshError("energy: 'spokes_and_rims' needs triangles; use 'spokes' or 'elements' with tets")
         C, keep = tet_cot_weights(V, F, area_eps)
-        a = F[:, _TET_EDGES[:, 0]]
-        b = F[:, _TET_EDGES[:, 1]]
-    F, C, a, b = F[keep], C[keep], a[keep], b[keep]
-    elem = np.flatnonzero(keep)
-    ne = C.shape[1]
-    if energy == "elements":
-        sets = np.repeat(elem[:, None], ne, 1)
-        return a.ravel(), b.ravel(), C.ravel(), sets.ravel(), int((~keep).sum())
-    if energy == "spokes":
-        # Each edge is a spoke of both its endpoints.
-        return (
-            np.concatenate([a.ravel(), a.ravel()]),
-            np.concatenate([b.ravel(), b.ravel()]),
-            np.concatenate([C.ravel(), C.ravel()]),
-            np.concatenate([a.ravel(), b.ravel()]),
-            int((~keep).sum()),
-        )
-    # spokes_and_rims: every edge of a triangle belongs to each of the triangle's 3 corners' sets.
-    k = simplex
-    return (
-        np.tile(a.ravel(), k),
-        np.tile(b.ravel(), k),
-        np.tile(C.ravel(), k),
-        np.concatenate([np.repeat(F[:, s], ne) for s in range(k)]),
-        int((~keep).sum()),
-    )
+        ca, cb = _TET_EDGES[:, 0], _TET_EDGES[:, 1]
+    Fk = F[keep]
+    return Fk[:, ca], Fk[:, cb], C[keep], Fk, ca, cb, int((~keep).sum())
 
 
-def set_clusters(labels: np.ndarray, F: np.ndarray, energy: str, keep_sets: np.ndarray) -> np.ndarray:
-    """Cluster of each edge set: the vertex's label, or the most common corner label of an element."""
-    if energy != "elements":
-        return labels[keep_sets]
-    L = labels[F[keep_sets]]  # (k, corners)
-    Ls = np.sort(L, axis=1)
-    # Mode of each row: the value with the longest run in the sorted row (first on ties).
-    best = Ls[:, 0].copy()
-    best_count = np.ones(len(Ls), int)
-    run = np.ones(len(Ls), int)
-    for c in range(1, Ls.shape[1]):
-        run = np.where(Ls[:, c] == Ls[:, c - 1], run + 1, 1)
-        better = run > best_count
-        best = np.where(better, Ls[:, c], best)
-        best_count = np.maximum(best_count, run)
+def element_clusters(labels: np.ndarray, F: np.ndarray) -> np.ndarray:
+    """Cluster of each element: the most common label of its corners (the first on ties)."""
+    L = labels[F]
+    best = L[:, 0].copy()
+    best_count = (L == L[:, :1]).sum(1)
+    for c in range(1, L.shape[1]):
+        cnt = (L == L[:, c : c + 1]).sum(1)
+        better = cnt > best_count
+        best = np.where(better, L[:, c], best)
+        best_count = np.maximum(best_count, cnt)
     return best
 
 
@@ -129,34 +99,76 @@ def lbs_matrix(V: np.ndarray, W: np.ndarray) -> np.ndarray:
     return (W[:, :, None] * Vh[:, None, :]).reshape(n, 4 * m)
 
 
+def _scatter_entries(F, tv, g, count):
+    """COO entries of E for per-element corner vectors tv (k, corners, 3) placed in cluster g (k,)
+    with weight count (k,)."""
+    k, nc, _ = tv.shape
+    rows = np.repeat(F.reshape(-1), 3)
+    cols = (3 * np.repeat(g, nc * 3)) + np.tile(np.arange(3), k * nc)
+    data = (tv * count[:, None, None]).reshape(-1)
+    return rows, cols, data
+
+
 def reduced_matrices(V, F, W, labels, r, energy, area_eps):
-    """Q (4m, 4m), K (4m, 3r), c0 and the count of dropped degenerate elements."""
+    """Q (4m, 4m), K (4m, 3r), c0 and the count of dropped degenerate elements (see module doc)."""
+    if energy not in ENERGIES:
+        raise MeshError(f"energy: {energy!r} is not one of {ENERGIES}")
+    if F.shape[1] == 4 and energy == "spokes_and_rims":
+        raise MeshError("energy: 'spokes_and_rims' needs triangles; use 'spokes' or 'elements' with tets")
     n = V.shape[0]
-    a, b, w, sets, dropped = edge_terms(V, F, energy, area_eps)
-    if w.size == 0:
+    a, b, w, Fk, ca, cb, dropped = element_edges(V, F, area_eps)
+    if Fk.shape[0] == 0:
         raise MeshError("F: every element is degenerate (zero area or volume)")
-    if energy == "elements":
-        g = set_clusters(labels, F, energy, np.arange(F.shape[0]))[sets]
-    else:
-        g = labels[sets]
-    e = V[a] - V[b]  # (terms, 3)
-    c0 = float(np.einsum("i,ij,ij->", w, e, e))
-    # L = sum w (d_a - d_b)(d_a - d_b)^T.
+    mult = MULTIPLICITY[energy]
+    e = V[a] - V[b]  # (k, edges, 3)
+    we = w[..., None] * e
+    c0 = mult * float((we * e).sum())
+    # L = mult * sum_edges w (d_a - d_b)(d_a - d_b)^T
+    af, bf, wf = a.ravel(), b.ravel(), mult * w.ravel()
     L = sp.coo_matrix(
-        (np.concatenate([w, w, -w, -w]), (np.concatenate([a, b, a, b]), np.concatenate([a, b, b, a]))), shape=(n, n)
+        (np.concatenate([wf, wf, -wf, -wf]), (np.concatenate([af, bf, af, bf]), np.concatenate([af, bf, bf, af]))),
+        shape=(n, n),
     ).tocsr()
     M = lbs_matrix(V, W)
-    LM = L @ M
-    Q = M.T @ LM
+    Q = M.T @ (L @ M)
     Q = 0.5 * (Q + Q.T)
-    we = w[:, None] * e
-    cols = 3 * g[:, None] + np.arange(3)[None, :]
-    E = sp.coo_matrix(
-        (
-            np.concatenate([we.ravel(), -we.ravel()]),
-            (np.concatenate([np.repeat(a, 3), np.repeat(b, 3)]), np.concatenate([cols.ravel(), cols.ravel()])),
-        ),
-        shape=(n, 3 * r),
-    ).tocsr()
+    # E (n, 3r): E[a, 3g+i] += w e_i, E[b, 3g+i] -= w e_i for every term (edge, set with cluster g).
+    k, ne = w.shape
+    nc = Fk.shape[1]
+    if energy == "spokes":
+        # Edge (a, b) is a spoke of a (cluster of a) and of b (cluster of b).
+        ga, gb = labels[a], labels[b]
+        same = ga == gb
+        parts = []
+        for owner_g, cnt in ((ga, np.where(same, 2.0, 1.0)), (gb, np.where(same, 0.0, 1.0))):
+            sel = cnt.ravel() > 0
+            wv = (we * cnt[..., None]).reshape(-1, 3)[sel]
+            gg = owner_g.ravel()[sel]
+            rows = np.concatenate([np.repeat(af[sel], 3), np.repeat(bf[sel], 3)])
+            cols = np.tile(3 * np.repeat(gg, 3) + np.tile(np.arange(3), gg.size), 2)
+            parts.append((rows, cols, np.concatenate([wv.ravel(), -wv.ravel()])))
+    else:
+        # Per element: the vector each corner receives from the element's edges.
+        tv = np.zeros((k, nc, 3))
+        for j in range(ne):
+            tv[np.arange(k), ca[j]] += we[:, j]
+            tv[np.arange(k), cb[j]] -= we[:, j]
+        if energy == "elements":
+            parts = [_scatter_entries(Fk, tv, element_clusters(labels, Fk), np.ones(k))]
+        else:
+            # Each corner's set holds all edges: weight cluster g by how many corners lie in g.
+            G = labels[Fk]  # (k, 3)
+            parts = []
+            for s in range(nc):
+                first = np.ones(k, bool)
+                for t in range(s):
+                    first &= G[:, t] != G[:, s]
+                cnt = (G == G[:, s : s + 1]).sum(1).astype(float)
+                if first.any():
+                    parts.append(_scatter_entries(Fk[first], tv[first], G[first, s], cnt[first]))
+    rows = np.concatenate([p[0] for p in parts])
+    cols = np.concatenate([p[1] for p in parts])
+    data = np.concatenate([p[2] for p in parts])
+    E = sp.csr_matrix((data, (rows, cols)), shape=(n, 3 * r))
     K = np.ascontiguousarray(np.asarray(E.T @ M).T)
     return Q, K, c0, dropped

@@ -19,5 +19,5 @@ class PatternError(FastError):
     """A constraint pattern is malformed or leaves the solve undetermined."""
 
 
-class ValuesError(FastError):
-    """Per-frame constraint values do not fit the pattern (shape, dtype, NaN/inf)."""
+# Per-frame values are checked in native code (no Python on the per-frame path): wrong dtype or
+# layout raises TypeError, wrong counts or NaN/inf raise ValueError naming the field ("values.full").

@@ -15,6 +15,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+import scipy.linalg
 
 from puppet.fast.errors import PatternError
 from puppet.fast.pattern import Pattern
@@ -85,13 +86,20 @@ def factor(pattern: Pattern, V: np.ndarray, weights: np.ndarray, Q: np.ndarray, 
     else:
         Hr = N.T @ Q @ N
         Hr = 0.5 * (Hr + Hr.T)
-        lam, vecs = np.linalg.eigh(Hr)
-        if not lam[0] > lam[-1] / CONDITION_LIMIT:
+        # Cholesky plus LAPACK's condition estimate; the eigen-decomposition only to explain a refusal.
+        try:
+            chol = scipy.linalg.cho_factor(Hr, check_finite=False)
+            rcond, info = scipy.linalg.lapack.dpocon(chol[0], np.abs(Hr).sum(0).max(), uplo="L" if chol[1] else "U")
+            ok = info == 0 and rcond > 1.0 / CONDITION_LIMIT
+        except np.linalg.LinAlgError:
+            ok = False
+        if not ok:
+            lam, vecs = np.linalg.eigh(Hr)
             raise PatternError(
                 f"pattern leaves the solve undetermined (reduced Hessian condition {lam[-1] / max(lam[0], 1e-300):.2e}"
                 f" > {CONDITION_LIMIT:.0e}): " + _describe_null(N @ vecs[:, 0], m)
             )
-        H = (N @ (vecs / lam)) @ (vecs.T @ N.T)
+        H = N @ scipy.linalg.cho_solve(chol, N.T, check_finite=False)
         H = 0.5 * (H + H.T)
     if pattern.relative:
         _check_relative(pattern, H)

@@ -1,9 +1,17 @@
 """Offscreen renderer of a skinned character: skinning in the vertex shader, one shaded pass.
 
-Per frame: T (4m, 3) is copied into one uniform buffer (handle transforms), the ground's shadow
-spheres are moved (Q @ T, k x 4m, tiny), the scene is drawn into a multisampled framebuffer,
-resolved, and read back as RGB into a preallocated array. The projection is flipped vertically
-so that the read-back rows are already in image order (top row first): no copy, no flip.
+Per frame (draw):
+1. T (4m, 3) is copied into one uniform buffer of handle transforms (the only upload);
+2. skinning pass: a vertex shader blends each vertex's handles (M @ T) and skins its normal,
+   every vertex exactly once, into a transform-feedback buffer (also what skinned_positions()
+   reads back);
+3. contact shadow: the shadow spheres move (Q @ T, k x 4m, tiny) and their ground occlusion is
+   drawn into a small texture;
+4. the ground and the mesh (lit by key, fill, rim and a sky/ground ambient) are drawn into the
+   target framebuffer (multisampled with MSAA), then the optional skeleton overlay;
+5. MSAA resolve or FXAA filter, and read back as RGB into a preallocated array.
+The projection is flipped vertically so that the read-back rows are already in image order
+(top row first): no copy, no flip.
 """
 
 import moderngl
@@ -111,7 +119,9 @@ class Renderer:
 
         max_block = int(ctx.info["GL_MAX_UNIFORM_BLOCK_SIZE"])
         if 48 * self.m > max_block:
-            raise RenderError(f"W: {self.m} handles need {48 * self.m} bytes of uniforms, the driver allows {max_block}")
+            raise RenderError(
+                f"W: {self.m} handles need {48 * self.m} bytes of uniforms, the driver allows {max_block}"
+            )
 
         # Scene extent, for framing, clip planes and the ground.
         lo, hi = V.min(axis=0), V.max(axis=0)
@@ -140,7 +150,11 @@ class Renderer:
         handle_groups = packed.slot_handles.shape[1] // 4
         skin_content = [
             (self._vbo_slot_weights, " ".join(["4f"] * groups), *[f"in_weight{g}" for g in range(groups)]),
-            (self._vbo_slot_handles, " ".join(["4u"] * handle_groups), *[f"in_handles{h}" for h in range(handle_groups)]),
+            (
+                self._vbo_slot_handles,
+                " ".join(["4u"] * handle_groups),
+                *[f"in_handles{h}" for h in range(handle_groups)],
+            ),
         ]
         if self._spill:
             skin_content.append((self._vbo_span, "2u", "in_span"))
@@ -416,7 +430,9 @@ class Renderer:
             self._fxaa_vao.render(moderngl.TRIANGLES, vertices=3)
         image = self.image if out is None else out
         if image.shape != self.image.shape or image.dtype != np.uint8 or not image.flags.c_contiguous:
-            raise RenderInputError(f"out: expected C-contiguous uint8 {self.image.shape}, got {image.dtype} {image.shape}")
+            raise RenderInputError(
+                f"out: expected C-contiguous uint8 {self.image.shape}, got {image.dtype} {image.shape}"
+            )
         self._resolved.read_into(image, components=3, alignment=1)
         return image
 

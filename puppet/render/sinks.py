@@ -21,7 +21,9 @@ def _check_frame(image: np.ndarray, size: tuple[int, int] | None, where: str) ->
         raise SinkError(f"{where}: expected a (height, width, 3) uint8 RGB image, got {dtype} {shape}")
     frame_size = (image.shape[1], image.shape[0])
     if size is not None and frame_size != size:
-        raise SinkError(f"{where}: frame is {frame_size[0]}x{frame_size[1]}, the sink was opened at {size[0]}x{size[1]}")
+        raise SinkError(
+            f"{where}: frame is {frame_size[0]}x{frame_size[1]}, the sink was opened at {size[0]}x{size[1]}"
+        )
     return frame_size
 
 

@@ -70,13 +70,17 @@ class FastSolver {
   std::vector<double> w_, schur_;       // W (4m x 3kr), S (3kr x 3kr)
   std::vector<float> relR_;             // (kr, 3, 3)
   // per-iteration
-  std::vector<float> s_, rot_, qx_, y_;
+  std::vector<float> s_, rot_, vwarm_, qx_, y_;  // vwarm_: per-cluster Jacobi warm start
   double lin_ = 0.0;                    // sum_g tr(R_g^T C_g) from the last local step
   // Anderson
   std::vector<float> x_, gx_, f_, gprev_, fprev_, xacc_, dG_, dF_;
   std::vector<double> gram_, rhs_, gamma_;
   std::vector<double> history_;
   SolveStats stats_;
+  // The T returned by the last solve, whose local step (s_, rot_, energy) is still current.
+  std::vector<float> last_T_;
+  double cached_energy_ = 0.0;
+  bool cache_valid_ = false;
 };
 
 }  // namespace puppet

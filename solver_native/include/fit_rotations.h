@@ -6,7 +6,7 @@
 //
 // Method (branch-free, vectorised over matrices, float32): normalise S by its
 // largest entry, cyclic Jacobi eigen-decomposition of S^T S with exact Givens
-// angles (a fixed number of sweeps) giving V, sort the columns of S V by norm
+// angles (sweeps until the off-diagonal is below float resolution) giving V, sort the columns of S V by norm
 // (signed swaps keep det V = +1), Givens QR of S V = U R giving U with det +1;
 // the result is U V^T. A negative smallest singular value lands in R's last
 // diagonal entry, so reflections give the closest *proper* rotation.
@@ -24,7 +24,10 @@ void fit_rotations(const float* S, float* R, std::ptrdiff_t count);
 
 // Structure-of-arrays form used by the solver: entry (i, j) of matrix g lives at
 // S[(3 * i + j) * stride + g] (same for R); `count` must be a multiple of 8 and
-// stride >= count. Lanes are independent; S and R may not alias.
-void fit_rotations_soa(const float* S, float* R, std::ptrdiff_t count, std::ptrdiff_t stride);
+// stride >= count. Lanes are independent; S and R may not alias. Vwarm (same layout, optional,
+// in/out) holds each matrix's eigenbasis of S^T S from the previous call (start it at the
+// identity): warm-started Jacobi needs one or two sweeps instead of four or five.
+void fit_rotations_soa(const float* S, float* R, std::ptrdiff_t count, std::ptrdiff_t stride,
+                       float* Vwarm = nullptr);
 
 }  // namespace puppet

@@ -7,6 +7,7 @@
 #include <string>
 
 #include "fit_rotations.h"
+#include "simd8.h"
 
 namespace puppet {
 
@@ -15,35 +16,36 @@ namespace {
 constexpr int kPad = 8;
 inline int round_up(int x) { return (x + kPad - 1) / kPad * kPad; }
 
+using simd::f8;
+
 // out[c*ldo + i] (+)= sum_k A[k*lda + i] * B[k*bk + c*bc] for c = 0..2 and i < rows.
-// rows is a multiple of 8; A's padding rows must be zero or finite.
-template <int TILE>
-inline void gemm3_tile(const float* __restrict A, std::ptrdiff_t lda, int K, const float* __restrict B,
-                       std::ptrdiff_t bk, std::ptrdiff_t bc, float* __restrict out, std::ptrdiff_t ldo,
-                       bool accumulate) {
-  float a0[TILE], a1[TILE], a2[TILE];
-  for (int t = 0; t < TILE; ++t) a0[t] = a1[t] = a2[t] = 0.0f;
+// rows is a multiple of 8; A's padding rows must be zero or finite. V vectors of 8 rows per tile.
+template <int NV>
+PUPPET_INLINE void gemm3_tile(const float* __restrict A, std::ptrdiff_t lda, int K, const float* __restrict B,
+                              std::ptrdiff_t bk, std::ptrdiff_t bc, float* __restrict out, std::ptrdiff_t ldo,
+                              bool accumulate) {
+  f8 a0[NV], a1[NV], a2[NV];
+  for (int t = 0; t < NV; ++t) a0[t] = a1[t] = a2[t] = simd::splat(0.0f);
   for (int k = 0; k < K; ++k) {
     const float* a = A + k * lda;
-    const float x = B[k * bk], y = B[k * bk + bc], z = B[k * bk + 2 * bc];
-#pragma GCC unroll 32
-    for (int t = 0; t < TILE; ++t) {
-      a0[t] += a[t] * x;
-      a1[t] += a[t] * y;
-      a2[t] += a[t] * z;
+    const f8 x = simd::splat(B[k * bk]), y = simd::splat(B[k * bk + bc]), z = simd::splat(B[k * bk + 2 * bc]);
+    for (int t = 0; t < NV; ++t) {
+      const f8 v = simd::load(a + 8 * t);
+      a0[t] += v * x;
+      a1[t] += v * y;
+      a2[t] += v * z;
     }
   }
-  if (accumulate) {
-    for (int t = 0; t < TILE; ++t) {
-      out[t] += a0[t];
-      out[ldo + t] += a1[t];
-      out[2 * ldo + t] += a2[t];
-    }
-  } else {
-    for (int t = 0; t < TILE; ++t) {
-      out[t] = a0[t];
-      out[ldo + t] = a1[t];
-      out[2 * ldo + t] = a2[t];
+  for (int t = 0; t < NV; ++t) {
+    float* o = out + 8 * t;
+    if (accumulate) {
+      simd::store(o, simd::load(o) + a0[t]);
+      simd::store(o + ldo, simd::load(o + ldo) + a1[t]);
+      simd::store(o + 2 * ldo, simd::load(o + 2 * ldo) + a2[t]);
+    } else {
+      simd::store(o, a0[t]);
+      simd::store(o + ldo, a1[t]);
+      simd::store(o + 2 * ldo, a2[t]);
     }
   }
 }
@@ -51,8 +53,10 @@ inline void gemm3_tile(const float* __restrict A, std::ptrdiff_t lda, int K, con
 void gemm3(const float* A, std::ptrdiff_t lda, int rows, int K, const float* B, std::ptrdiff_t bk,
            std::ptrdiff_t bc, float* out, std::ptrdiff_t ldo, bool accumulate) {
   int i = 0;
-  for (; i + 32 <= rows; i += 32) gemm3_tile<32>(A + i, lda, K, B, bk, bc, out + i, ldo, accumulate);
-  for (; i + 8 <= rows; i += 8) gemm3_tile<8>(A + i, lda, K, B, bk, bc, out + i, ldo, accumulate);
+  for (; i + 32 <= rows; i += 32) gemm3_tile<4>(A + i, lda, K, B, bk, bc, out + i, ldo, accumulate);
+  if (rows - i == 24) gemm3_tile<3>(A + i, lda, K, B, bk, bc, out + i, ldo, accumulate);
+  else if (rows - i == 16) gemm3_tile<2>(A + i, lda, K, B, bk, bc, out + i, ldo, accumulate);
+  else if (rows - i == 8) gemm3_tile<1>(A + i, lda, K, B, bk, bc, out + i, ldo, accumulate);
 }
 
 bool all_finite(const float* p, std::ptrdiff_t n) {
@@ -127,6 +131,9 @@ FastSolver::FastSolver(int m, int r, int kf, int kp, int kr, const float* csm, c
   relR_.assign(static_cast<size_t>(std::max(kr, 1)) * 9, 0.0f);
   s_.assign(3 * static_cast<size_t>(rr), 0.0f);
   rot_.assign(3 * static_cast<size_t>(rr), 0.0f);
+  vwarm_.assign(3 * static_cast<size_t>(rr), 0.0f);
+  for (int e = 0; e < 9; e += 4)
+    for (int gg = 0; gg < rp_; ++gg) vwarm_[static_cast<size_t>(e) * rp_ + gg] = 1.0f;
   qx_.assign(3 * static_cast<size_t>(mp_), 0.0f);
   y_.assign(static_cast<size_t>(std::max(nR, 1)) * 3, 0.0f);
   const size_t D = 3 * static_cast<size_t>(mp_);
@@ -137,6 +144,7 @@ FastSolver::FastSolver(int m, int r, int kf, int kp, int kr, const float* csm, c
   rhs_.assign(window_, 0.0);
   gamma_.assign(window_, 0.0);
   history_.assign(std::max(history_capacity, 1), 0.0);
+  last_T_.assign(12 * static_cast<size_t>(m), 0.0f);
 }
 
 void FastSolver::set_values(const float* full, const float* rel, const float* pos) {
@@ -201,7 +209,7 @@ double FastSolver::quad_energy(const float* x) {
 double FastSolver::local_step(const float* x, bool energy) {
   const int rr = 3 * rp_;
   gemm3(csm_.data(), rr, rr, 4 * m_, x, 1, mp_, s_.data(), rr, false);
-  fit_rotations_soa(s_.data(), rot_.data(), rp_, rp_);
+  fit_rotations_soa(s_.data(), rot_.data(), rp_, rp_, vwarm_.data());
   if (!energy) return 0.0;
   double lin = 0.0;
   for (int i = 0; i < 3 * rr; ++i) lin += static_cast<double>(s_[i]) * rot_[i];
@@ -242,7 +250,15 @@ void FastSolver::solve(const float* full, const float* rel, const float* pos, fl
   const bool need_energy = accelerate || use_tol || record_history;
   const int cap = static_cast<int>(history_.size());
   stats_ = SolveStats{};
-  double E = local_step(x_.data(), true);
+  // Warm start from the T this solver returned last: its covariances, rotations and energy are
+  // still valid (they do not depend on the constraint values), so the first local step is free.
+  double E;
+  if (cache_valid_ && std::memcmp(T, last_T_.data(), sizeof(float) * 12 * m_) == 0) {
+    E = cached_energy_;
+  } else {
+    E = local_step(x_.data(), true);
+  }
+  cache_valid_ = false;
   if (record_history && cap > 0) history_[stats_.history_size++] = E;
   int nh = 0, head = 0;
   bool have_prev = false;
@@ -326,6 +342,9 @@ void FastSolver::solve(const float* full, const float* rel, const float* pos, fl
   stats_.energy = E;
   for (int k = 0; k < n4; ++k)
     for (int c = 0; c < 3; ++c) T[3 * k + c] = x_[c * mp_ + k];
+  std::memcpy(last_T_.data(), T, sizeof(float) * 12 * m_);
+  cached_energy_ = E;
+  cache_valid_ = true;
 }
 
 }  // namespace puppet

@@ -1,4 +1,5 @@
 #include "fit_rotations.h"
+#include "simd8.h"
 
 #include <cmath>
 #include <immintrin.h>
@@ -7,18 +8,14 @@ namespace puppet {
 
 namespace {
 
-constexpr int kJacobiSweeps = 5;
+constexpr int kJacobiSweeps = 6;  // upper bound; sweeps stop at convergence
 constexpr std::ptrdiff_t kLanes = 8;
 
-// Eight float lanes (GCC vector extension): one AVX register with -mavx, two SSE registers
-// otherwise. Every operation below is lane-wise; branches are selects.
-typedef float f8 __attribute__((vector_size(32)));
-typedef int i8 __attribute__((vector_size(32)));
-typedef float f8u __attribute__((vector_size(32), aligned(4)));
-
-#define PUPPET_INLINE __attribute__((always_inline)) inline
-
-PUPPET_INLINE f8 splat(float x) { return f8{x, x, x, x, x, x, x, x}; }
+// Every operation below is lane-wise over eight matrices; branches are selects.
+using simd::f8;
+using simd::f8u;
+using simd::i8;
+using simd::splat;
 PUPPET_INLINE f8 sel(i8 m, f8 a, f8 b) { return m ? a : b; }
 PUPPET_INLINE f8 vabs(f8 x) { return sel(x < 0.0f, -x, x); }
 // 1/sqrt(x), x > 0: hardware estimate refined by one Newton step (~23 bits).
@@ -104,8 +101,17 @@ PUPPET_INLINE void givens(f8 (&B)[3][3], f8 (&U)[3][3], int p, int q, int col) {
   }
 }
 
-// Closest rotation of eight 3x3 matrices A (row-major, lanes = matrices). Branch-free.
-PUPPET_INLINE void polar8(const f8 (&Ain)[3][3], f8 (&R)[3][3]) {
+PUPPET_INLINE bool all_lanes(i8 m) {
+  int all = -1;
+  for (int i = 0; i < 8; ++i) all &= m[i];
+  return all != 0;
+}
+
+// Closest rotation of eight 3x3 matrices A (row-major, lanes = matrices). Branch-free per
+// lane; Jacobi sweeps stop early once every lane's off-diagonal is below float resolution.
+// Vw (row-major, in/out) is the starting eigenbasis of A^T A (a proper rotation, e.g. the
+// previous call's) and receives the new one.
+PUPPET_INLINE void polar8(const f8 (&Ain)[3][3], f8 (&R)[3][3], f8 (&Vw)[3][3]) {
   f8 A[3][3];
   f8 m = splat(0.0f), poison = splat(0.0f);
   for (int i = 0; i < 3; ++i)
@@ -119,17 +125,42 @@ PUPPET_INLINE void polar8(const f8 (&Ain)[3][3], f8 (&R)[3][3]) {
   for (int i = 0; i < 3; ++i)
     for (int j = 0; j < 3; ++j) A[i][j] = sel(ok, Ain[i][j] * inv, splat(0.0f));
 
-  // Symmetric B = A^T A.
-  f8 b00 = A[0][0] * A[0][0] + A[1][0] * A[1][0] + A[2][0] * A[2][0];
-  f8 b11 = A[0][1] * A[0][1] + A[1][1] * A[1][1] + A[2][1] * A[2][1];
-  f8 b22 = A[0][2] * A[0][2] + A[1][2] * A[1][2] + A[2][2] * A[2][2];
-  f8 b01 = A[0][0] * A[0][1] + A[1][0] * A[1][1] + A[2][0] * A[2][1];
-  f8 b02 = A[0][0] * A[0][2] + A[1][0] * A[1][2] + A[2][0] * A[2][2];
-  f8 b12 = A[0][1] * A[0][2] + A[1][1] * A[1][2] + A[2][1] * A[2][2];
-  // V stored by columns: v[col][row].
+  // Re-orthonormalise the warm start (Gram-Schmidt, third column = cross product: det +1).
   const f8 one = splat(1.0f), zero = splat(0.0f);
-  f8 v[3][3] = {{one, zero, zero}, {zero, one, zero}, {zero, zero, one}};
+  f8 v[3][3];  // v[col][row]
+  {
+    f8 a[3] = {Vw[0][0], Vw[1][0], Vw[2][0]}, b[3] = {Vw[0][1], Vw[1][1], Vw[2][1]};
+    f8 na = a[0] * a[0] + a[1] * a[1] + a[2] * a[2];
+    const i8 oka = (na > 0.25f) & (na < 4.0f);  // also false for NaN
+    f8 ia = vrsqrt(sel(oka, na, one));
+    for (int k = 0; k < 3; ++k) a[k] = sel(oka, a[k] * ia, k == 0 ? one : zero);
+    const f8 d = a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
+    for (int k = 0; k < 3; ++k) b[k] -= d * a[k];
+    f8 nb = b[0] * b[0] + b[1] * b[1] + b[2] * b[2];
+    const i8 okb = oka & (nb > 0.25f) & (nb < 4.0f);
+    f8 ib = vrsqrt(sel(okb, nb, one));
+    for (int k = 0; k < 3; ++k) {
+      v[0][k] = sel(okb, a[k], k == 0 ? one : zero);
+      v[1][k] = sel(okb, b[k] * ib, k == 1 ? one : zero);
+    }
+    v[2][0] = v[0][1] * v[1][2] - v[0][2] * v[1][1];
+    v[2][1] = v[0][2] * v[1][0] - v[0][0] * v[1][2];
+    v[2][2] = v[0][0] * v[1][1] - v[0][1] * v[1][0];
+  }
+  // Symmetric B = (A V)^T (A V).
+  f8 AV[3][3];
+  for (int i = 0; i < 3; ++i)
+    for (int j = 0; j < 3; ++j) AV[i][j] = A[i][0] * v[j][0] + A[i][1] * v[j][1] + A[i][2] * v[j][2];
+  f8 b00 = AV[0][0] * AV[0][0] + AV[1][0] * AV[1][0] + AV[2][0] * AV[2][0];
+  f8 b11 = AV[0][1] * AV[0][1] + AV[1][1] * AV[1][1] + AV[2][1] * AV[2][1];
+  f8 b22 = AV[0][2] * AV[0][2] + AV[1][2] * AV[1][2] + AV[2][2] * AV[2][2];
+  f8 b01 = AV[0][0] * AV[0][1] + AV[1][0] * AV[1][1] + AV[2][0] * AV[2][1];
+  f8 b02 = AV[0][0] * AV[0][2] + AV[1][0] * AV[1][2] + AV[2][0] * AV[2][2];
+  f8 b12 = AV[0][1] * AV[0][2] + AV[1][1] * AV[1][2] + AV[2][1] * AV[2][2];
   for (int sweep = 0; sweep < kJacobiSweeps; ++sweep) {
+    const f8 off = b01 * b01 + b02 * b02 + b12 * b12;
+    const f8 diag = b00 * b00 + b11 * b11 + b22 * b22;
+    if (all_lanes(off <= 1e-15f * diag)) break;
     jacobi(b00, b11, b01, b02, b12, v[0], v[1]);
     jacobi(b00, b22, b02, b01, b12, v[0], v[2]);
     jacobi(b11, b22, b12, b01, b02, v[1], v[2]);
@@ -145,6 +176,9 @@ PUPPET_INLINE void polar8(const f8 (&Ain)[3][3], f8 (&R)[3][3]) {
   sort_pair(B, V, rho, 0, 2);
   sort_pair(B, V, rho, 1, 2);
 
+  // Keep the eigenbasis (before sorting: sorting would make the next call's start jump).
+  for (int i = 0; i < 3; ++i)
+    for (int j = 0; j < 3; ++j) Vw[i][j] = v[j][i];
   f8 U[3][3] = {{one, zero, zero}, {zero, one, zero}, {zero, zero, one}};
   givens(B, U, 0, 1, 0);
   givens(B, U, 0, 2, 0);
@@ -167,13 +201,18 @@ class FlushDenormals {
 
 }  // namespace
 
-void fit_rotations_soa(const float* S, float* R, std::ptrdiff_t count, std::ptrdiff_t stride) {
+void fit_rotations_soa(const float* S, float* R, std::ptrdiff_t count, std::ptrdiff_t stride, float* Vwarm) {
   FlushDenormals ftz;
+  const f8 one = splat(1.0f), zero = splat(0.0f);
   for (std::ptrdiff_t g = 0; g < count; g += kLanes) {
-    f8 A[3][3], Rg[3][3];
+    f8 A[3][3], Rg[3][3], Vw[3][3];
     for (int e = 0; e < 9; ++e) A[e / 3][e % 3] = *reinterpret_cast<const f8u*>(S + e * stride + g);
-    polar8(A, Rg);
+    for (int e = 0; e < 9; ++e)
+      Vw[e / 3][e % 3] = Vwarm ? *reinterpret_cast<const f8u*>(Vwarm + e * stride + g) : (e % 4 == 0 ? one : zero);
+    polar8(A, Rg, Vw);
     for (int e = 0; e < 9; ++e) *reinterpret_cast<f8u*>(R + e * stride + g) = Rg[e / 3][e % 3];
+    if (Vwarm)
+      for (int e = 0; e < 9; ++e) *reinterpret_cast<f8u*>(Vwarm + e * stride + g) = Vw[e / 3][e % 3];
   }
 }
 

@@ -27,6 +27,17 @@ def test_open_configures_and_reports_changes(sim, open_reader):
         assert bus.servo(i).get("Torque Enable") == 0
 
 
+@pytest.mark.parametrize("level", [0, 1])
+def test_a_quiet_status_return_level_is_raised_to_2(sim, open_reader, level):
+    bus = sim(ids=(1, 2))
+    bus.servo(2).set("Status Return Level", level)
+    reader = open_reader(bus, ids=(1, 2))
+    assert (2, "Status Return Level", level, 2) in {(c.id, c.item, c.old, c.new) for c in reader.report.changes}
+    assert bus.servo(2).get("Status Return Level") == 2
+    assert bus.servo(2).get("Return Delay Time") == 0
+    assert reader.report.missing == []
+
+
 def test_open_again_changes_nothing(sim, open_reader):
     bus = sim()
     open_reader(bus).close()
@@ -94,10 +105,10 @@ def test_reading_in_motion_follows_the_simulated_shafts(sim, open_reader, read_f
     span = ticks.max(axis=0) - ticks.min(axis=0)
     assert (span > 50).all()                      # every joint moved
     # wave amplitude 600 counts, period 2 s: at most ~1.9 counts per ms between readings
-    # (plus up to 10 ms of scheduling skew between host stamps and the simulator's clock)
+    # (plus up to 20 ms of skew between host stamps and the simulator's clock on a loaded machine)
     dt_ms = np.diff([r.t_ns for r in readings]) / 1e6
     step = np.abs(np.diff(ticks, axis=0)).max(axis=1)
-    bad = np.flatnonzero(step > 2.0 * (dt_ms + 10))
+    bad = np.flatnonzero(step > 2.0 * (dt_ms + 20))
     assert bad.size == 0, [(dt_ms[b], ticks[b:b + 2].tolist()) for b in bad[:3]] + list(reader.log.events)[:6]
     now = reader.read()
     sim_now = [bus.servo(i).get("Present Position") for i in (1, 2, 3, 4)]

@@ -5,10 +5,12 @@ from __future__ import annotations
 import pickle
 import threading
 
+import numpy as np
 import pytest
 
+from puppet.bus import Reading, ReaderDied, ReaderThread
 from puppet.bus import control_table as ct
-from puppet.bus.errors import ServoStatusError, ServoTimeout
+from puppet.bus.errors import PortError, ServoStatusError, ServoTimeout
 from puppet.bus.health import EventLog
 from puppet.bus.reader_thread import LatestQueue
 from puppet.bus.unwrap import TurnUnwrapper, nearest_turn_offset
@@ -44,6 +46,10 @@ def test_typed_errors_carry_ids_and_instruction():
     status = ServoStatusError([2], "read", "access error", error=0x07)
     back = pickle.loads(pickle.dumps(status))
     assert (back.ids, back.error, str(back)) == ([2], 0x07, str(status))
+    lost = PortError("/dev/ttyUSB0", "lost during sync_read", OSError(5, "Input/output error"))
+    back = pickle.loads(pickle.dumps(lost))         # errors cross to the reader process's parent
+    assert (back.port, back.reason) == ("/dev/ttyUSB0", "lost during sync_read")
+    assert "Input/output error" in back.cause_text
 
 
 def test_nearest_turn_offset():
@@ -117,3 +123,37 @@ def test_reader_rejects_a_bad_map():
         ServoReader("/dev/null", {300: "XL330-M288"})
     with pytest.raises(ValueError, match=r"actuators \[9\]"):
         ServoReader("/dev/null", {1: "XL330-M288"}, actuators=[9])
+
+
+class _ScriptedReader:
+    """Stands in for ServoReader to test the thread's own rules: read() follows a script."""
+
+    def __init__(self, script):
+        self.script = list(script)
+        self.log = EventLog()
+
+    def read(self):
+        step = self.script.pop(0) if self.script else "ok"
+        if isinstance(step, BaseException):
+            raise step
+        return Reading(0, np.array([1]), np.array([len(self.script)], np.int32), np.array([True]))
+
+    def write_goals(self, goals):
+        pass
+
+
+@pytest.mark.filterwarnings("ignore::pytest.PytestUnhandledThreadExceptionWarning")
+def test_reader_thread_absorbs_bus_errors_and_reports_bugs():
+    """A bus error from read() is logged and the loop goes on; a bug stops the thread and
+    reaches the consumer as ReaderDied (the thread re-raises it: the traceback is printed)."""
+    thread = ReaderThread(_ScriptedReader([ServoTimeout([4], "sync_read"), "ok"]), rate_hz=1000).start()
+    assert thread.latest(timeout=2) is not None
+    assert thread.bus_errors == 1 and thread.alive
+    assert thread.reader.log.counts == {"read_error": 1}
+    thread.stop()
+    broken = ReaderThread(_ScriptedReader([KeyError("bug")]), rate_hz=1000).start()
+    broken._thread.join(2)
+    assert not broken.alive
+    with pytest.raises(ReaderDied) as info:
+        broken.latest(timeout=0.1)
+    assert isinstance(info.value.__cause__, KeyError)

@@ -7,9 +7,10 @@ cluster labels)."""
 
 import igl
 import numpy as np
+import pytest
 import scipy.linalg
 
-from puppet.fast import Pattern
+from puppet.fast import FastModel, Pattern
 
 
 def lbs(V, W):
@@ -133,31 +134,43 @@ def test_native_iteration_matches_numpy_reference(bar_model, helpers):
     assert abs(solver.stats.energy - ref.energy(T_ref)) <= 1e-4 * ref.c0
 
 
-def full_space_energy(V, Vd, F, labels):
-    """sum over vertex sets (spokes and rims) of w |e' - R_g e|^2 with one optimal R per cluster."""
+def energy_terms(V, F, labels, energy):
+    """(a, b, w, cluster) of every term of the full-space energy, from libigl's cotangents."""
     C = igl.cotmatrix_entries(V, F)
+    a = F[:, [1, 2, 0]]
+    b = F[:, [2, 0, 1]]
+    if energy == "spokes_and_rims":
+        return [(a.ravel(), b.ravel(), C.ravel(), np.repeat(labels[F[:, s]], 3)) for s in range(3)]
+    if energy == "spokes":
+        return [(a.ravel(), b.ravel(), C.ravel(), labels[end.ravel()]) for end in (a, b)]
+    L = labels[F]
+    mode = np.where((L[:, 0] == L[:, 1]) | (L[:, 0] == L[:, 2]), L[:, 0], np.where(L[:, 1] == L[:, 2], L[:, 1], L[:, 0]))
+    return [(a.ravel(), b.ravel(), C.ravel(), np.repeat(mode, 3))]
+
+
+def full_space_energy(V, Vd, F, labels, energy="spokes_and_rims"):
+    """sum over edge sets of w |e' - R_g e|^2 with one optimal rotation per cluster."""
     r = labels.max() + 1
     cov = np.zeros((r, 3, 3))
-    terms = []
-    for corner in range(3):
-        g = np.repeat(labels[F[:, corner]], 3)
-        a = F[:, [1, 2, 0]].ravel()
-        b = F[:, [2, 0, 1]].ravel()
-        w = C.ravel()
+    terms = energy_terms(V, F, labels, energy)
+    for a, b, w, g in terms:
         e = V[a] - V[b]
         ed = Vd[a] - Vd[b]
         np.add.at(cov, g, w[:, None, None] * ed[:, :, None] * e[:, None, :])
-        terms.append((g, w, e, ed))
     R = polar(cov)
     E = 0.0
-    for g, w, e, ed in terms:
+    for a, b, w, g in terms:
+        e = V[a] - V[b]
+        ed = Vd[a] - Vd[b]
         res = ed - np.einsum("kij,kj->ki", R[g], e)
         E += float((w * (res * res).sum(1)).sum())
     return E
 
 
-def test_full_space_energy_decreases_and_matches_reduced(bar_model, helpers):
-    model = bar_model
+@pytest.mark.parametrize("energy", ["spokes_and_rims", "spokes", "elements"])
+def test_full_space_energy_decreases_and_matches_reduced(bar, helpers, energy):
+    V, F, W = bar
+    model = FastModel(V, F, W, clusters=16, extra_weights=2, energy=energy, cache_dir=False)
     pattern, values = mixed_pattern_values(model, helpers)
     solver = model.solver(pattern)
     T = model.rest_T()
@@ -167,7 +180,7 @@ def test_full_space_energy_decreases_and_matches_reduced(bar_model, helpers):
     for _ in range(8):
         stats = solver.solve(values, T, iterations=1, accelerate=False)
         Vd = np.einsum("ij,ic,jcd->id", Wd, Vh, T.astype(np.float64).reshape(model.m, 4, 3))
-        E = full_space_energy(model.V, Vd, model.F, model.labels)
+        E = full_space_energy(model.V, Vd, model.F, model.labels, energy)
         # float32 T and matrices: the energy is exact to ~1e-7 of the rest-edge scale c0.
         assert abs(E - stats.energy) <= 1e-4 * E + 2e-6 * model.c0
         energies.append(E)

@@ -15,7 +15,8 @@ BLACK = (0.0, 0.0, 0.0)
 def pixel_of(renderer: Renderer, point) -> tuple[int, int]:
     """(row, column) of a world point in renderer's images (top row first)."""
     cam = renderer.camera
-    clip = cam.projection_matrix(renderer.width / renderer.height, renderer._radius) @ cam.view_matrix() @ np.append(point, 1.0)
+    projection = cam.projection_matrix(renderer.width / renderer.height, renderer._radius)
+    clip = projection @ cam.view_matrix() @ np.append(point, 1.0)
     ndc = clip[:3] / clip[3]
     return int((1 - ndc[1]) / 2 * renderer.height), int((ndc[0] + 1) / 2 * renderer.width)
 
@@ -162,3 +163,52 @@ def test_draw_allocates_no_frame_sized_arrays(gl_context, bar, helpers):
             _, peak = tracemalloc.get_traced_memory()
             tracemalloc.stop()
         assert peak < 16_000  # a 320x240 RGB frame alone is 230 kB; positions are 15 kB
+
+
+def test_z_up_scene_renders_like_the_same_scene_y_up(gl_context, bar, helpers):
+    """Ground, framing, lights and shadow follow `up`: rotating the world changes nothing."""
+    V, F, W = bar
+    y_to_z = np.array([[1.0, 0, 0], [0, 0, -1], [0, 1, 0]])  # rotation taking +y to +z
+    pose = helpers.rotation_about(helpers.rotation_z(0.7), [1, 0, 0])
+    T_y = helpers.handle_T([helpers.IDENTITY, pose])
+    pose_z = np.hstack([y_to_z @ pose[:, :3] @ y_to_z.T, (y_to_z @ pose[:, 3])[:, None]])
+    T_z = helpers.handle_T([helpers.IDENTITY, pose_z])
+    with Renderer(V, F, W, width=160, height=120, context=gl_context) as renderer:
+        image_y = renderer.draw(T_y).astype(float)
+    with Renderer(V @ y_to_z.T, F, W, width=160, height=120, up=(0, 0, 1), context=gl_context) as renderer:
+        image_z = renderer.draw(T_z).astype(float)
+    assert np.abs(image_y - image_z).mean() < 1.5
+
+
+def test_skeleton_overlay_accepts_an_object_with_heads_and_tails(gl_context, bar, helpers):
+    V, F, W = bar
+    T = helpers.handle_T([helpers.IDENTITY, helpers.rotation_about(helpers.rotation_z(0.4), [1, 0, 0])])
+
+    class Skeleton:
+        heads = np.array([[0.0, 0, 0], [1.0, 0, 0]])
+        tails = np.array([[1.0, 0, 0], [2.0, 0, 0]])
+
+    with Renderer(V, F, W, width=160, height=120, context=gl_context) as renderer:
+        from_array = renderer.draw(T, bones=np.stack([Skeleton.heads, Skeleton.tails], 1)).astype(int)
+        from_object = renderer.draw(T, bones=Skeleton()).astype(int)
+        plain = renderer.draw(T).astype(int)
+    assert np.abs(from_array - from_object).max() <= 2
+    assert (np.abs(from_array - plain).max(axis=2) > 60).sum() > 30
+
+
+def test_two_renderers_sharing_a_context_do_not_disturb_each_other(gl_context, bar, helpers):
+    V, F, W = bar
+    T = helpers.handle_T([helpers.IDENTITY, helpers.rotation_about(helpers.rotation_z(0.9), [1, 0, 0])])
+    V2, F2 = helpers.tube(segments=12, sides=8, length=1.0, radius=0.4)
+    W2 = np.ones((len(V2), 1))
+    T2 = helpers.handle_T([helpers.rotation_about(helpers.rotation_z(0.3), [0, 0, 0])])
+    with Renderer(V, F, W, width=96, height=72, context=gl_context) as first:
+        alone = first.draw(T).copy()
+        with Renderer(V2, F2, W2, width=64, height=64, samples=0, fxaa=True, context=gl_context) as second:
+            second_alone = second.draw(T2).copy()
+            for _ in range(2):
+                interleaved = first.draw(T).copy()
+                second_interleaved = second.draw(T2).copy()
+                assert np.abs(interleaved.astype(int) - alone).max() <= 1
+                assert np.abs(second_interleaved.astype(int) - second_alone).max() <= 1
+        assert np.abs(first.draw(T).astype(int) - alone).max() <= 1  # after the other one's release
