@@ -55,7 +55,7 @@ def run_demo(*, seconds: float, sinks_for: Callable[[Pipeline], list], faults=No
     models = rig.servo_map.models
     with Pipeline(rig, iterations=iterations, width=width, height=height, overlay=overlay) as pipeline:
         with hw_sim.serve(models, motion=Performance(rig), faults=faults, timing=timing, baud=baud) as bus:
-            source = ReaderProcess(bus.port, models, rate_hz=500.0, baud=baud)
+            source = ReaderProcess(bus.link, models, rate_hz=500.0, baud=baud)
             report = source.start()
             sinks = sinks_for(pipeline)
             try:

@@ -3,11 +3,12 @@
 from puppet.fast.errors import FastError, MeshError, PatternError, WeightsError
 from puppet.fast.model import FastModel
 from puppet.fast.pattern import Pattern, Values
-from puppet.fast.solver import Solver
+from puppet.fast.solver import Dynamics, Solver
 
 __all__ = [
     "FastModel",
     "Solver",
+    "Dynamics",
     "Pattern",
     "Values",
     "FastError",

@@ -136,17 +136,26 @@ def reduced_matrices(V, F, W, labels, r, energy, area_eps):
     k, ne = w.shape
     nc = Fk.shape[1]
     if energy == "spokes":
-        # Edge (a, b) is a spoke of a (cluster of a) and of b (cluster of b).
-        ga, gb = labels[a], labels[b]
-        same = ga == gb
-        parts = []
-        for owner_g, cnt in ((ga, np.where(same, 2.0, 1.0)), (gb, np.where(same, 0.0, 1.0))):
-            sel = cnt.ravel() > 0
-            wv = (we * cnt[..., None]).reshape(-1, 3)[sel]
-            gg = owner_g.ravel()[sel]
-            rows = np.concatenate([np.repeat(af[sel], 3), np.repeat(bf[sel], 3)])
-            cols = np.tile(3 * np.repeat(gg, 3) + np.tile(np.arange(3), gg.size), 2)
-            parts.append((rows, cols, np.concatenate([wv.ravel(), -wv.ravel()])))
+        # Edge (a, b) is a spoke of a (cluster g_a) and of b (g_b): rows a and b receive +-w e in
+        # both clusters. Entries landing in the row's own cluster are summed per vertex; only
+        # edges crossing clusters add entries in a neighbour's cluster.
+        ga, gb = labels[af], labels[bf]
+        wv = we.reshape(-1, 3)
+        own_w = np.where(ga == gb, 2.0, 1.0)[:, None] * wv
+        own = np.zeros((n, 3))
+        for i in range(3):
+            own[:, i] = np.bincount(af, own_w[:, i], n) - np.bincount(bf, own_w[:, i], n)
+        cross = ga != gb
+        xa, xb, xw = af[cross], bf[cross], wv[cross]
+        rows = np.concatenate([np.repeat(np.arange(n), 3), np.repeat(xb, 3), np.repeat(xa, 3)])
+        cols = np.concatenate(
+            [
+                (3 * np.repeat(labels, 3)) + np.tile(np.arange(3), n),
+                (3 * np.repeat(ga[cross], 3)) + np.tile(np.arange(3), xa.size),
+                (3 * np.repeat(gb[cross], 3)) + np.tile(np.arange(3), xa.size),
+            ]
+        )
+        parts = [(rows, cols, np.concatenate([own.ravel(), -xw.ravel(), xw.ravel()]))]
     else:
         # Per element: the vector each corner receives from the element's edges.
         tv = np.zeros((k, nc, 3))

@@ -86,20 +86,27 @@ def factor(pattern: Pattern, V: np.ndarray, weights: np.ndarray, Q: np.ndarray, 
     else:
         Hr = N.T @ Q @ N
         Hr = 0.5 * (Hr + Hr.T)
-        # Cholesky plus LAPACK's condition estimate; the eigen-decomposition only to explain a refusal.
-        try:
-            chol = scipy.linalg.cho_factor(Hr, check_finite=False)
-            rcond, info = scipy.linalg.lapack.dpocon(chol[0], np.abs(Hr).sum(0).max(), uplo="L" if chol[1] else "U")
-            ok = info == 0 and rcond > 1.0 / CONDITION_LIMIT
-        except np.linalg.LinAlgError:
-            ok = False
+        # Cholesky of the Jacobi-scaled Hessian plus LAPACK's condition estimate: the scaling makes
+        # the test independent of model units (linear and translation rows differ by a length^2).
+        # The eigen-decomposition only runs to explain a refusal.
+        dg = np.diag(Hr)
+        ok = bool((dg > 0).all())
+        if ok:
+            d = np.sqrt(dg)
+            Hs = Hr / d[:, None] / d[None, :]
+            try:
+                chol = scipy.linalg.cho_factor(Hs, check_finite=False)
+                rcond, info = scipy.linalg.lapack.dpocon(chol[0], np.abs(Hs).sum(0).max(), uplo="L" if chol[1] else "U")
+                ok = info == 0 and rcond > 1.0 / CONDITION_LIMIT
+            except np.linalg.LinAlgError:
+                ok = False
         if not ok:
             lam, vecs = np.linalg.eigh(Hr)
             raise PatternError(
-                f"pattern leaves the solve undetermined (reduced Hessian condition {lam[-1] / max(lam[0], 1e-300):.2e}"
-                f" > {CONDITION_LIMIT:.0e}): " + _describe_null(N @ vecs[:, 0], m)
+                f"pattern leaves the solve undetermined (reduced Hessian singular or scaled condition > "
+                f"{CONDITION_LIMIT:.0e}): " + _describe_null(N @ vecs[:, 0], m)
             )
-        H = N @ scipy.linalg.cho_solve(chol, N.T, check_finite=False)
+        H = N @ (scipy.linalg.cho_solve(chol, N.T / d[:, None], check_finite=False) / d[:, None])
         H = 0.5 * (H + H.T)
     if pattern.relative:
         _check_relative(pattern, H)

@@ -21,7 +21,7 @@ from puppet.fast.clusters import kmeans_weight_space
 from puppet.fast.energy import ENERGIES, lbs_matrix, reduced_matrices
 from puppet.fast.errors import FastError, MeshError
 from puppet.fast.pattern import Pattern
-from puppet.fast.solver import Solver
+from puppet.fast.solver import Dynamics, Solver
 from puppet.fast.weights import full_weights, validate_weights
 
 CACHE_VERSION = "fast-precompute-1"
@@ -58,6 +58,18 @@ def _validate_mesh(V, F, tets):
     F = elements(F, "F", 3)
     T = None if tets is None else elements(tets, "tets", 4)
     return V, F, T
+
+
+def _order_clusters_by_support(labels: np.ndarray, K: np.ndarray):
+    """Renumber clusters so that clusters touched by the same handles are adjacent: the native
+    gather then skips whole zero tiles (extra weights have compact support)."""
+    m4, r3 = K.shape
+    support = np.abs(K).reshape(m4 // 4, 4, r3 // 3, 3).max(axis=(1, 3)) > 0  # (m, r)
+    order = np.lexsort(support[::-1])  # sort clusters by their support pattern
+    inverse = np.empty_like(order)
+    inverse[order] = np.arange(order.size)
+    cols = (3 * order[:, None] + np.arange(3)[None, :]).ravel()
+    return inverse[labels].astype(np.int32), np.ascontiguousarray(K[:, cols])
 
 
 class FastModel:
@@ -147,6 +159,7 @@ class FastModel:
             labels = labels.astype(np.int32)
         r = int(labels.max()) + 1
         Q, K, c0, dropped = reduced_matrices(V, elems, Wf, labels, r, energy, eps)
+        labels, K = _order_clusters_by_support(labels, K)
         self._set(Wf, labels, Q, K, c0, dropped)
         self.cache_hit = False
         if key is not None:
@@ -183,6 +196,28 @@ class FastModel:
         Tb = np.asarray(T, np.float64).reshape(self.m, 4, 3)
         return np.einsum("ij,ic,jcd->id", self.weights64, Vh, Tb)
 
-    def solver(self, pattern: Pattern, *, anderson_window: int = 5) -> Solver:
-        """Factor the global step for ``pattern`` (PatternError if undetermined) and return a Solver."""
-        return Solver(self, pattern, anderson_window=anderson_window)
+    def vertex_mass(self) -> np.ndarray:
+        """(n,) float64 lumped area (triangles: 1/3 per corner) or volume (tets: 1/4 per corner)."""
+        if self.tets is None:
+            p0, p1, p2 = (self.V[self.F[:, k]] for k in range(3))
+            share = np.linalg.norm(np.cross(p1 - p0, p2 - p0), axis=1) / 6.0
+            elems = self.F
+        else:
+            a, b, c, d = (self.V[self.tets[:, k]] for k in range(4))
+            share = np.abs(np.einsum("ij,ij->i", np.cross(b - a, c - a), d - a)) / 24.0
+            elems = self.tets
+        return np.bincount(elems.ravel(), np.repeat(share, elems.shape[1]), minlength=self.n)
+
+    def mass_matrices(self) -> tuple[np.ndarray, np.ndarray]:
+        """M^T diag(mass) M (4m, 4m) and M^T mass (4m,) for unit density (cached)."""
+        if getattr(self, "_mass", None) is None:
+            mass = self.vertex_mass()
+            M = self.lbs_matrix()
+            self._mass = (M.T @ (mass[:, None] * M), M.T @ mass)
+        return self._mass
+
+    def solver(self, pattern: Pattern, *, anderson_window: int = 5, dynamics: Dynamics | None = None) -> Solver:
+        """Factor the global step for ``pattern`` (PatternError if undetermined) and return a Solver.
+
+        dynamics: optional :class:`Dynamics` (inertia and gravity) for secondary motion."""
+        return Solver(self, pattern, anderson_window=anderson_window, dynamics=dynamics)

@@ -2,11 +2,45 @@
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 from puppet import _native
+from puppet.fast.errors import FastError
 from puppet.fast.factor import factor
 from puppet.fast.pattern import Pattern, Values
+
+
+@dataclass(frozen=True)
+class Dynamics:
+    """Secondary motion: inertia from the previous frames and gravity (as libigl's with_dynamics).
+
+    The per-frame energy gains (1/dt^2) sum_i m_i |v'_i - p_i|^2 - 2 sum_i m_i g . v'_i, where
+    p = M Tp is the inertial prediction Tp = T1 + damping (T1 - T2) from the last two solved poses
+    and m_i = density * (lumped vertex area or volume).
+
+    dt:      time step, seconds (larger: weaker inertia).
+    density: mass per unit area (surface) or volume (tets), in energy units.
+    damping: 0 (no momentum) .. 1 (full momentum).
+    gravity: (3,) acceleration, model units / s^2.
+    """
+
+    dt: float = 1.0 / 30.0
+    density: float = 1e-3
+    damping: float = 0.9
+    gravity: tuple[float, float, float] = (0.0, 0.0, 0.0)
+
+    def validate(self) -> None:
+        g = np.asarray(self.gravity, np.float64)
+        if not (np.isfinite(self.dt) and self.dt > 0):
+            raise FastError(f"dynamics.dt: {self.dt!r} must be a positive number of seconds")
+        if not (np.isfinite(self.density) and self.density >= 0):
+            raise FastError(f"dynamics.density: {self.density!r} must be >= 0")
+        if not 0.0 <= self.damping <= 1.0:
+            raise FastError(f"dynamics.damping: {self.damping!r} must be in [0, 1]")
+        if g.shape != (3,) or not np.isfinite(g).all():
+            raise FastError(f"dynamics.gravity: {self.gravity!r} must be 3 finite numbers")
 
 
 class Solver:
@@ -21,11 +55,26 @@ class Solver:
                  (iterations, energy in model units^2, rejected accelerated steps).
     """
 
-    def __init__(self, model, pattern: Pattern, *, anderson_window: int = 5, history_capacity: int = 1024):
+    def __init__(
+        self,
+        model,
+        pattern: Pattern,
+        *,
+        anderson_window: int = 5,
+        history_capacity: int = 1024,
+        dynamics: Dynamics | None = None,
+    ):
         pattern.validate(model.m, model.n)
         self.pattern = pattern
         self.m = model.m
-        f = factor(pattern, model.V, model.weights64, model.Q, model.K)
+        self.dynamics = dynamics
+        Q = model.Q
+        if dynamics is not None:
+            dynamics.validate()
+            Mt, f = model.mass_matrices()
+            mass_h2 = dynamics.density * Mt / dynamics.dt**2
+            Q = Q + mass_h2
+        f = factor(pattern, model.V, model.weights64, Q, model.K)
         self.factor = f
         child = np.array([c for c, _, _ in pattern.relative], np.int32)
         parent = np.array([p for _, p, _ in pattern.relative], np.int32)
@@ -46,6 +95,15 @@ class Solver:
             anderson_window,
             history_capacity,
         )
+        if dynamics is not None:
+            force = dynamics.density * np.outer(model.mass_matrices()[1], np.asarray(dynamics.gravity, np.float64))
+            self._native.set_dynamics(
+                np.ascontiguousarray(mass_h2, np.float32),
+                np.ascontiguousarray(f.H @ mass_h2, np.float32),
+                np.ascontiguousarray(f.H @ force, np.float32),
+                np.ascontiguousarray(force, np.float32),
+                float(dynamics.damping),
+            )
         self.stats = self._native.stats
         self._history = self._native.history
 
@@ -80,6 +138,10 @@ class Solver:
             history,
         )
         return self.stats
+
+    def reset_dynamics(self) -> None:
+        """Forget the inertia history (after a cut or a jump): the next frame starts at rest."""
+        self._native.reset_history()
 
     @property
     def history(self) -> np.ndarray:

@@ -26,6 +26,9 @@ from puppet.render.overlay import BONE_CORNERS, rest_segments, state_color
 from puppet.render.skin_weights import TEXTURE_WIDTH, lbs_matrix, pack_weights
 
 SKINNING_MODES = ("gpu", "cpu")
+WEIGHT_LAYOUTS = ("auto", "dense", "pairs")
+#: Up to this many handles the weights go to the shader densely (13 vec4 attributes at most).
+DENSE_MAX_HANDLES = 52
 
 
 def _vertex_normals(V: np.ndarray, F: np.ndarray) -> np.ndarray:
@@ -68,6 +71,7 @@ class Renderer:
     cull_back_faces: skip triangles facing away (right for closed meshes, about 2x fewer
     triangles to rasterize; turn off for open surfaces seen from both sides);
     albedo: linear RGB in [0, 1]; background: display RGB in [0, 1] (the clear color);
+    weight_layout: "auto" (dense for small m, else per-vertex pairs), "dense" or "pairs";
     context: a moderngl.Context to share (else an EGL context is created, owned and released
     with the renderer); weight_tolerance: drop weights with |w| <= this (0: only exact zeros,
     so the shader computes M @ T exactly); shadow_sphere_count, shadow_resolution: contact
@@ -96,6 +100,7 @@ class Renderer:
         background=(0.16, 0.17, 0.2),
         context: moderngl.Context | None = None,
         weight_tolerance: float = 0.0,
+        weight_layout: str = "auto",
         shadow_sphere_count: int = 24,
         shadow_resolution: int = 128,
         bone_width_px: float = 5.0,
@@ -135,36 +140,57 @@ class Renderer:
         self._rows = np.zeros((self.m, 3, 4), dtype=np.float32)  # A_j = T block j transposed
         self.image = np.zeros((self.height, self.width, 3), dtype=np.uint8)
 
-        # Skinning data: rest positions and normals, (weight, handle) pairs in attribute slots,
-        # and the pairs that do not fit there (spilled) in a texture with per-vertex spans.
+        # Skinning data: rest positions and normals, and the weights in one of two layouts.
+        # "dense": every w_ij as attributes, the shader sums over all handles (uniform reads,
+        # about 3x faster per term on llvmpipe than per-vertex handle lookups); "pairs": each
+        # vertex's nonzero (weight, handle) pairs in attribute slots, those that do not fit
+        # spilled into a texture with per-vertex spans. Both are exact (only zeros are skipped).
         packed = pack_weights(W, tolerance=weight_tolerance)
         self.max_weights_per_vertex = packed.max_per_vertex
         self.dropped_weight_abs_max = packed.dropped_abs_max
         self._vbo_rest = ctx.buffer(V.astype(np.float32))
         self._vbo_normal = ctx.buffer(_vertex_normals(V, F.astype(np.int64)))
-        self._spill = packed.spilled > 0
-        self._vbo_span = ctx.buffer(packed.spans)
-        self._vbo_slot_weights = ctx.buffer(packed.slot_weights)
-        self._vbo_slot_handles = ctx.buffer(packed.slot_handles)
-        groups = packed.slots // 4
-        handle_groups = packed.slot_handles.shape[1] // 4
-        skin_content = [
-            (self._vbo_slot_weights, " ".join(["4f"] * groups), *[f"in_weight{g}" for g in range(groups)]),
-            (
-                self._vbo_slot_handles,
-                " ".join(["4u"] * handle_groups),
-                *[f"in_handles{h}" for h in range(handle_groups)],
-            ),
-        ]
-        if self._spill:
-            skin_content.append((self._vbo_span, "2u", "in_span"))
+        if weight_layout not in WEIGHT_LAYOUTS:
+            raise RenderInputError(f"weight_layout: expected one of {WEIGHT_LAYOUTS}, got {weight_layout!r}")
+        if weight_layout == "dense" and self.m > DENSE_MAX_HANDLES:
+            raise RenderInputError(f"weight_layout: dense takes at most {DENSE_MAX_HANDLES} handles, W has {self.m}")
+        if weight_layout == "auto":  # a dense term costs about a third of a pair's (no gathers)
+            weight_layout = "dense" if self.m <= min(DENSE_MAX_HANDLES, 3 * packed.slots) else "pairs"
+        self.weight_layout = weight_layout
+        dense = weight_layout == "dense"
+        self._spill = not dense and packed.spilled > 0
+        self._weight_buffers = []
+        if dense:
+            groups = -(-self.m // 4)
+            dense_weights = np.zeros((self.n, 4 * groups), dtype=np.float32)
+            dense_weights[:, : self.m] = np.where(np.abs(W) > weight_tolerance, W, 0.0)
+            self._weight_buffers.append(ctx.buffer(dense_weights))
+            skin_content = [
+                (self._weight_buffers[0], " ".join(["4f"] * groups), *[f"in_dense{g}" for g in range(groups)])
+            ]
+            skin = shaders.dense_skin_chunk(self.m)
+        else:
+            groups = packed.slots // 4
+            handle_groups = packed.slot_handles.shape[1] // 4
+            self._weight_buffers += [ctx.buffer(packed.slot_weights), ctx.buffer(packed.slot_handles)]
+            skin_content = [
+                (self._weight_buffers[0], " ".join(["4f"] * groups), *[f"in_weight{g}" for g in range(groups)]),
+                (
+                    self._weight_buffers[1],
+                    " ".join(["4u"] * handle_groups),
+                    *[f"in_handles{h}" for h in range(handle_groups)],
+                ),
+            ]
+            if self._spill:
+                self._weight_buffers.append(ctx.buffer(packed.spans))
+                skin_content.append((self._weight_buffers[-1], "2u", "in_span"))
+            skin = shaders.skin_chunk(packed.slots, self._spill)
         self._ibo = ctx.buffer(F)
         self._weights = ctx.texture((TEXTURE_WIDTH, packed.entries.shape[0]), 2, packed.entries, dtype="f4")
         self._weights.filter = (moderngl.NEAREST, moderngl.NEAREST)
         self._ubo = ctx.buffer(reserve=self._rows.nbytes)
         defines = dict(HANDLES=self.m, WEIGHTS_WIDTH=TEXTURE_WIDTH, WEIGHTS_SHIFT=TEXTURE_WIDTH.bit_length() - 1)
 
-        skin = shaders.skin_chunk(packed.slots, self._spill)
         self._skin_prog = ctx.program(
             vertex_shader=shaders.source(skin, shaders.SKIN_VERTEX, **defines),
             varyings=["out_position", "out_normal"],
@@ -176,6 +202,8 @@ class Renderer:
         )
         self._skinned = ctx.buffer(reserve=self.n * 24)  # (position, normal) per vertex
         self._captured = np.zeros((self.n, 6), dtype=np.float32)
+        self._captured_positions = np.zeros((self.n, 3), dtype=np.float32)
+        self._captured_normals = np.zeros((self.n, 3), dtype=np.float32)
 
         if skinning == "gpu":
             self._mesh_prog = ctx.program(
@@ -362,20 +390,22 @@ class Renderer:
         """Positions (n, 3) float32 that the skinning vertex shader writes and draw() renders
         (read back from its transform feedback buffer).
 
-        Returns a view into an array that the next call overwrites; copy it to keep it.
+        Returns a C-contiguous array that the next call overwrites; copy it to keep it.
         """
         self._upload(T)
         self._skin()
         self._skinned.read_into(self._captured)
-        return self._captured[:, :3]
+        np.copyto(self._captured_positions, self._captured[:, :3])
+        return self._captured_positions
 
     def skinned_normals(self, T: np.ndarray) -> np.ndarray:
         """Unnormalized normals (n, 3) float32 of the skinning pass (cofactor of the blended
-        linear part times the rest normal); a view like skinned_positions()."""
+        linear part times the rest normal), reused like skinned_positions()'s."""
         self._upload(T)
         self._skin()
         self._skinned.read_into(self._captured)
-        return self._captured[:, 3:]
+        np.copyto(self._captured_normals, self._captured[:, 3:])
+        return self._captured_normals
 
     def draw(self, T: np.ndarray, *, bones=None, bone_states=None, out: np.ndarray | None = None) -> np.ndarray:
         """Render the character skinned by T and read it back.
@@ -486,8 +516,7 @@ class Renderer:
             self._ground_vao, self._ground_prog, self._ground_vbo, self._bone_prog, self._bone_corners,
             self._occlusion_vao, self._occlusion_prog, self._occlusion_quad, self._occlusion_fbo,
             self._occlusion_texture,
-            self._vbo_rest, self._vbo_normal, self._vbo_span, self._ibo, self._weights, self._ubo,
-            self._vbo_slot_weights, self._vbo_slot_handles,
+            self._vbo_rest, self._vbo_normal, self._ibo, self._weights, self._ubo, *self._weight_buffers,
         ]
         if self.skinning == "cpu":
             objects.append(self._vbo_positions)

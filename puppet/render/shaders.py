@@ -1,7 +1,8 @@
 """GLSL sources of the renderer (GLSL 330 core). Each program is assembled by `source()`.
 
-Skinning (`skin_chunk`): vertex i's blended transform is sum_k w_k * A_{h_k} over its
-(weight, handle) pairs (attributes, then any spilled into the `u_weights` texture); A_j (3x4, rows u_rows[3j..3j+2])
+Skinning: vertex i's blended transform is sum_j w_ij * A_j, either over all handles with the
+weights as attributes (`dense_skin_chunk`, small m) or over the vertex's (weight, handle) pairs
+(`skin_chunk`: attributes, then any spilled into the `u_weights` texture); A_j (3x4, rows u_rows[3j..3j+2])
 is handle j's affine transform, i.e. block j of T (4m, 3) transposed. Positions are A [v 1]
 (= row i of M @ T), normals are the cofactor of A's linear part times the rest normal.
 """
@@ -36,6 +37,23 @@ void add_spilled(inout vec4 r0, inout vec4 r1, inout vec4 r2) {
     }
 }
 """
+
+
+def dense_skin_chunk(handles: int) -> str:
+    """GLSL of blend_transform() over every handle, weights from attributes in_dense<g> (vec4):
+    uniform (broadcast) reads of the handles, no gathers: the fastest form for small m."""
+    lines = [SKIN_COMMON]
+    lines += [f"in vec4 in_dense{g};" for g in range(-(-handles // 4))]
+    lines.append("void blend_transform(out vec4 r0, out vec4 r1, out vec4 r2) {")
+    lines.append("    r0 = vec4(0.0); r1 = vec4(0.0); r2 = vec4(0.0);")
+    lines.append("    float w;")
+    for j in range(handles):
+        lines.append(
+            f"    w = in_dense{j // 4}.{'xyzw'[j % 4]}; "
+            f"r0 += w * u_rows[{3 * j}]; r1 += w * u_rows[{3 * j + 1}]; r2 += w * u_rows[{3 * j + 2}];"
+        )
+    lines.append("}")
+    return "\n".join(lines)
 
 
 def skin_chunk(slots: int, spill: bool) -> str:

@@ -1,21 +1,30 @@
-// FAST per-frame iterations (Jacobson et al. 2012), reduced ARAP in the skinning subspace.
+// FAST per-frame iterations (Jacobson et al. 2012): reduced ARAP in the skinning subspace.
 //
-// Paper notation -> members (m handles, r clusters, padded sizes mp = roundup(4m, 8),
-// rp = roundup(r, 8); "SoA" row index rho = 3 * rp ... see below):
+// Paper / puppet.fast symbol -> member (m handles, r clusters; mp = roundup(4m, 8),
+// rp = roundup(r, 8); cluster-row index rho(g, i) = i * rp + g so that entry i of the 8
+// clusters g..g+7 is contiguous, which makes the rotation fit SIMD over clusters for free):
 //
-//   T   (4m x 3)  handle transforms transposed            x_ (3 columns of mp floats, SoA)
-//   K~^T (3r x 4m) covariance gather, S = K~^T T          csm_ : column-major, rows rho(g,i) = i*rp + g
-//   Pi_1 K~ (4m x 3r) global solve of the rotation term   g_   : column-major, cols rho(g,i)
-//   Pi_2 (4m x c)   global solve of the fixed values      p2_  : column-major, one column per value row
-//   L~ (4m x 4m)   reduced Laplacian, for the energy      q_   : column-major
-//   H  (4m x 4m)   Pi_1 (inverse Hessian on the fixed-constraint null space), per-frame relative rows
+//   T      (4m x 3)   handle transforms, transposed         x_: 3 columns of mp floats
+//   K~^T   (3r x 4m)  covariance gather, S = K~^T T         csm_: column-major, rows rho
+//   S_g    (3 x 3)    S_g^T = sum w e'_ab e_ab^T            s_: 9 planes of rp floats
+//   R_g    (3 x 3)    polar(S_g^T), closest rotation        rot_: 9 planes of rp floats
+//   Pi_1 K~ (4m x 3r) global solve of the rotation term     g_: column-major, columns rho
+//   Pi_2   (4m x c)   global solve of the fixed values      p2_: column-major
+//   L~     (4m x 4m)  reduced Laplacian M^T L M (energy)    q_: column-major
+//   Pi_1   (4m x 4m)  H: inverse Hessian on the null space  h_ (double): relative rows per frame
 //
-// Energy: E(T) = tr(T^T L~ T) - 2 sum_g tr(R_g^T C_g) + c0 with R_g = polar(C_g) (C_g = S_g^T).
+// Energy: E(T) = tr(T^T L~ T) - 2 sum_g tr(R_g^T S_g^T) + c0, R_g optimal for T; float32 data,
+// double accumulation (resolution ~1e-6 of c0, the rest-edge scale).
+// One iteration = global step T = Pi_1 K~ R + Pi_2 b (+ relative correction), then local step
+// S = K~^T T, R = polar(S^T): 144 r m flops plus r rotation fits (warm-started Jacobi).
 // Relative joints (child c, parent p, rotation R): rows T[4c+i] - sum_k R[k,i] T[4p+k] = 0,
-// i = 0..2, added per frame by a Schur complement on top of the fixed-row factorisation:
+// i = 0..2, added per frame by a Schur complement on the fixed-row factorisation:
 //   T = Tf - Z (A_R Tf),   Z = H A_R^T (A_R H A_R^T)^{-1}   (Tf: solution with fixed rows only).
+// Anderson acceleration (window 5 by default) on T -> G(T); an accelerated point whose energy is above
+// the last accepted one is rejected for the plain step and the history restarts.
 //
-// Everything is preallocated by the constructor; solve() allocates nothing.
+// Everything is preallocated by the constructor; solve() allocates nothing and copies only T in
+// and out of its padded layout.
 #pragma once
 
 #include <cstddef>
@@ -45,6 +54,15 @@ class FastSolver {
   void solve(const float* full, const float* rel, const float* pos, float* T, int iterations,
              double tol, bool accelerate, bool record_history);
 
+  // Optional dynamics (secondary motion): the energy gains (1/h^2) |T - Tp|^2_{M~} - 2 tr(T^T F)
+  // with the inertial prediction Tp = T1 + damping (T1 - T2) from the last two returned T.
+  // mass_h2: M~/h^2 (4m, 4m) row-major; with H the factor made with Q + M~/h^2:
+  // hm = H M~/h^2 (4m, 4m), hforce = H F (4m, 3); force: F (4m, 3) (gravity: M^T mass g^T).
+  // The constructor's g, p2, h come from that factor; its q stays the static Q.
+  void set_dynamics(const float* mass_h2, const float* hm, const float* hforce, const float* force,
+                    float damping);
+  void reset_history() { have_prev_ = false; }
+
   const SolveStats& stats() const { return stats_; }
   const double* history() const { return history_.data(); }
   int history_capacity() const { return static_cast<int>(history_.size()); }
@@ -62,6 +80,7 @@ class FastSolver {
 
   int m_, r_, kf_, kp_, kr_, mp_, rp_, window_;
   std::vector<float> csm_, g_, p2_, q_;
+  std::vector<int32_t> tile_off_, tile_k_;  // per gather row tile: the columns of csm_ not zero there
   std::vector<double> h_;
   double c0_;
   std::vector<int32_t> child_, parent_;
@@ -74,13 +93,17 @@ class FastSolver {
   double lin_ = 0.0;                    // sum_g tr(R_g^T C_g) from the last local step
   // Anderson
   std::vector<float> x_, gx_, f_, gprev_, fprev_, xacc_, dG_, dF_;
-  std::vector<double> gram_, rhs_, gamma_;
+  std::vector<double> gram_, gram_full_, rhs_, gamma_;  // gram_full_: by buffer slot
   std::vector<double> history_;
   SolveStats stats_;
   // The T returned by the last solve, whose local step (s_, rot_, energy) is still current.
   std::vector<float> last_T_;
   double cached_energy_ = 0.0;
   bool cache_valid_ = false;
+  // Dynamics: M~/h^2 and H M~/h^2 (column-major, mp x 4m), F, H F, inertia history, scratch.
+  bool dynamics_ = false, have_prev_ = false;
+  float damping_ = 0.0f;
+  std::vector<float> mh_, hf_, force_, hforce_, tprev_, tprev2_, tp_, bd_, td_;
 };
 
 }  // namespace puppet

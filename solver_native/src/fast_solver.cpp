@@ -20,13 +20,15 @@ using simd::f8;
 
 // out[c*ldo + i] (+)= sum_k A[k*lda + i] * B[k*bk + c*bc] for c = 0..2 and i < rows.
 // rows is a multiple of 8; A's padding rows must be zero or finite. V vectors of 8 rows per tile.
+// With ks != nullptr only the K columns ks[0..K) of A are visited (the others are zero there).
 template <int NV>
 PUPPET_INLINE void gemm3_tile(const float* __restrict A, std::ptrdiff_t lda, int K, const float* __restrict B,
                               std::ptrdiff_t bk, std::ptrdiff_t bc, float* __restrict out, std::ptrdiff_t ldo,
-                              bool accumulate) {
+                              bool accumulate, const int32_t* ks = nullptr) {
   f8 a0[NV], a1[NV], a2[NV];
   for (int t = 0; t < NV; ++t) a0[t] = a1[t] = a2[t] = simd::splat(0.0f);
-  for (int k = 0; k < K; ++k) {
+  for (int kk = 0; kk < K; ++kk) {
+    const int k = ks ? ks[kk] : kk;
     const float* a = A + k * lda;
     const f8 x = simd::splat(B[k * bk]), y = simd::splat(B[k * bk + bc]), z = simd::splat(B[k * bk + 2 * bc]);
     for (int t = 0; t < NV; ++t) {
@@ -57,6 +59,41 @@ void gemm3(const float* A, std::ptrdiff_t lda, int rows, int K, const float* B, 
   if (rows - i == 24) gemm3_tile<3>(A + i, lda, K, B, bk, bc, out + i, ldo, accumulate);
   else if (rows - i == 16) gemm3_tile<2>(A + i, lda, K, B, bk, bc, out + i, ldo, accumulate);
   else if (rows - i == 8) gemm3_tile<1>(A + i, lda, K, B, bk, bc, out + i, ldo, accumulate);
+}
+
+// Row tiles of gemm3: (start, size) pairs, sizes 32 then one of 24/16/8.
+template <class F>
+void for_each_tile(int rows, F&& f) {
+  int i = 0;
+  for (; i + 32 <= rows; i += 32) f(i, 32);
+  if (rows > i) f(i, rows - i);
+}
+
+// gemm3 skipping, per row tile, the columns of A that are zero on that tile (off[t]..off[t+1]
+// index into ks): the covariance gather of compactly supported extra weights is mostly zeros.
+void gemm3_sparse(const float* A, std::ptrdiff_t lda, int rows, const int32_t* off, const int32_t* ks,
+                  const float* B, std::ptrdiff_t bk, std::ptrdiff_t bc, float* out, std::ptrdiff_t ldo) {
+  int t = 0;
+  for_each_tile(rows, [&](int i, int size) {
+    const int32_t* k = ks + off[t];
+    const int K = off[t + 1] - off[t];
+    ++t;
+    switch (size) {
+      case 32: gemm3_tile<4>(A + i, lda, K, B, bk, bc, out + i, ldo, false, k); break;
+      case 24: gemm3_tile<3>(A + i, lda, K, B, bk, bc, out + i, ldo, false, k); break;
+      case 16: gemm3_tile<2>(A + i, lda, K, B, bk, bc, out + i, ldo, false, k); break;
+      default: gemm3_tile<1>(A + i, lda, K, B, bk, bc, out + i, ldo, false, k); break;
+    }
+  });
+}
+
+// Dot product of two length-n float arrays (n a multiple of 8), float lanes summed in double.
+double dot(const float* a, const float* b, size_t n) {
+  f8 acc = simd::splat(0.0f);
+  for (size_t i = 0; i < n; i += 8) acc += simd::load(a + i) * simd::load(b + i);
+  double s = 0.0;
+  for (int l = 0; l < 8; ++l) s += acc[l];
+  return s;
 }
 
 bool all_finite(const float* p, std::ptrdiff_t n) {
@@ -114,6 +151,16 @@ FastSolver::FastSolver(int m, int r, int kf, int kp, int kr, const float* csm, c
         csm_[static_cast<size_t>(k) * rr + rho] = csm[static_cast<size_t>(k) * 3 * r + 3 * gg + i];
         g_[static_cast<size_t>(rho) * mp_ + k] = g[static_cast<size_t>(k) * 3 * r + 3 * gg + i];
       }
+  tile_off_.assign(1, 0);
+  tile_k_.clear();
+  for_each_tile(rr, [&](int i, int size) {
+    for (int k = 0; k < n4; ++k) {
+      bool nonzero = false;
+      for (int t = 0; t < size; ++t) nonzero |= csm_[static_cast<size_t>(k) * rr + i + t] != 0.0f;
+      if (nonzero) tile_k_.push_back(k);
+    }
+    tile_off_.push_back(static_cast<int32_t>(tile_k_.size()));
+  });
   p2_.assign(static_cast<size_t>(std::max(nb, 1)) * mp_, 0.0f);
   for (int k = 0; k < n4; ++k)
     for (int j = 0; j < nb; ++j) p2_[static_cast<size_t>(j) * mp_ + k] = p2[static_cast<size_t>(k) * nb + j];
@@ -141,6 +188,7 @@ FastSolver::FastSolver(int m, int r, int kf, int kp, int kr, const float* csm, c
   dG_.assign(D * window_, 0.0f);
   dF_.assign(D * window_, 0.0f);
   gram_.assign(static_cast<size_t>(window_) * window_, 0.0);
+  gram_full_.assign(static_cast<size_t>(window_) * window_, 0.0);
   rhs_.assign(window_, 0.0);
   gamma_.assign(window_, 0.0);
   history_.assign(std::max(history_capacity, 1), 0.0);
@@ -203,12 +251,48 @@ double FastSolver::quad_energy(const float* x) {
   gemm3(q_.data(), mp_, mp_, 4 * m_, x, 1, mp_, qx_.data(), mp_, false);
   double e = 0.0;
   for (int i = 0; i < 3 * mp_; ++i) e += static_cast<double>(x[i]) * qx_[i];
+  if (dynamics_) {
+    // (T - Tp)^T M~/h^2 (T - Tp) - 2 tr(T^T F), evaluated on the difference (no cancellation).
+    for (int i = 0; i < 3 * mp_; ++i) bd_[i] = x[i] - tp_[i];
+    gemm3(mh_.data(), mp_, mp_, 4 * m_, bd_.data(), 1, mp_, qx_.data(), mp_, false);
+    double d = 0.0, f = 0.0;
+    for (int i = 0; i < 3 * mp_; ++i) {
+      d += static_cast<double>(bd_[i]) * qx_[i];
+      f += static_cast<double>(x[i]) * force_[i];
+    }
+    e += d - 2.0 * f;
+  }
   return e;
+}
+
+void FastSolver::set_dynamics(const float* mass_h2, const float* hm, const float* hforce, const float* force,
+                              float damping) {
+  const int n4 = 4 * m_;
+  const size_t D = 3 * static_cast<size_t>(mp_);
+  mh_.assign(static_cast<size_t>(n4) * mp_, 0.0f);
+  hf_.assign(static_cast<size_t>(n4) * mp_, 0.0f);
+  for (int k = 0; k < n4; ++k)
+    for (int j = 0; j < n4; ++j) {
+      mh_[static_cast<size_t>(j) * mp_ + k] = mass_h2[static_cast<size_t>(k) * n4 + j];
+      hf_[static_cast<size_t>(j) * mp_ + k] = hm[static_cast<size_t>(k) * n4 + j];
+    }
+  force_.assign(D, 0.0f);
+  hforce_.assign(D, 0.0f);
+  for (int k = 0; k < n4; ++k)
+    for (int c = 0; c < 3; ++c) {
+      force_[c * mp_ + k] = force[3 * k + c];
+      hforce_[c * mp_ + k] = hforce[3 * k + c];
+    }
+  for (auto* v : {&tprev_, &tprev2_, &tp_, &bd_, &td_}) v->assign(D, 0.0f);
+  damping_ = damping;
+  dynamics_ = true;
+  have_prev_ = false;
+  cache_valid_ = false;
 }
 
 double FastSolver::local_step(const float* x, bool energy) {
   const int rr = 3 * rp_;
-  gemm3(csm_.data(), rr, rr, 4 * m_, x, 1, mp_, s_.data(), rr, false);
+  gemm3_sparse(csm_.data(), rr, rr, tile_off_.data(), tile_k_.data(), x, 1, mp_, s_.data(), rr);
   fit_rotations_soa(s_.data(), rot_.data(), rp_, rp_, vwarm_.data());
   if (!energy) return 0.0;
   double lin = 0.0;
@@ -245,6 +329,20 @@ void FastSolver::solve(const float* full, const float* rel, const float* pos, fl
   const size_t D = 3 * static_cast<size_t>(mp_);
   for (int k = 0; k < n4; ++k)
     for (int c = 0; c < 3; ++c) x_[c * mp_ + k] = T[3 * k + c];
+
+  if (dynamics_) {
+    // Inertial prediction from the last two returned poses, and the solve's extra particular
+    // part H (M~/h^2 Tp + F) = (H M~/h^2) Tp + H F (both products precomputed in double).
+    if (!have_prev_) {
+      tprev_ = x_;
+      tprev2_ = x_;
+      have_prev_ = true;
+    }
+    for (size_t i = 0; i < D; ++i) tp_[i] = tprev_[i] + damping_ * (tprev_[i] - tprev2_[i]);
+    gemm3(hf_.data(), mp_, mp_, n4, tp_.data(), 1, mp_, td_.data(), mp_, false);
+    for (size_t i = 0; i < D; ++i) tb_[i] += td_[i] + hforce_[i];
+    cache_valid_ = false;  // the energy depends on the prediction
+  }
 
   const bool use_tol = tol > 0.0;
   const bool need_energy = accelerate || use_tol || record_history;
@@ -288,18 +386,18 @@ void FastSolver::solve(const float* full, const float* rel, const float* pos, fl
       have_prev = true;
       bool accel = false;
       if (nh > 0) {
+        // Gram matrix of the secant differences, kept across iterations: only the newest
+        // column (just written at head - 1) needs new dot products.
+        const int newest = (head + window_ - 1) % window_;
+        const float* fn = dF_.data() + newest * D;
+        for (int b = 0; b < nh; ++b) {
+          const double v = dot(fn, dF_.data() + b * D, D);
+          gram_full_[newest * window_ + b] = gram_full_[b * window_ + newest] = v;
+        }
         double dmax = 0.0;
         for (int a = 0; a < nh; ++a) {
-          const float* fa = dF_.data() + a * D;
-          for (int b = 0; b <= a; ++b) {
-            const float* fb = dF_.data() + b * D;
-            double s = 0.0;
-            for (size_t i = 0; i < D; ++i) s += static_cast<double>(fa[i]) * fb[i];
-            gram_[a * nh + b] = gram_[b * nh + a] = s;
-          }
-          double s = 0.0;
-          for (size_t i = 0; i < D; ++i) s += static_cast<double>(fa[i]) * f_[i];
-          rhs_[a] = s;
+          rhs_[a] = dot(dF_.data() + a * D, f_.data(), D);
+          for (int b = 0; b < nh; ++b) gram_[a * nh + b] = gram_full_[a * window_ + b];
           dmax = std::max(dmax, gram_[a * nh + a]);
         }
         for (int a = 0; a < nh; ++a) gram_[a * nh + a] += 1e-10 * dmax + 1e-300;
@@ -344,7 +442,11 @@ void FastSolver::solve(const float* full, const float* rel, const float* pos, fl
     for (int c = 0; c < 3; ++c) T[3 * k + c] = x_[c * mp_ + k];
   std::memcpy(last_T_.data(), T, sizeof(float) * 12 * m_);
   cached_energy_ = E;
-  cache_valid_ = true;
+  cache_valid_ = !dynamics_;
+  if (dynamics_) {
+    tprev2_ = tprev_;
+    tprev_ = x_;
+  }
 }
 
 }  // namespace puppet

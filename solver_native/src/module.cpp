@@ -118,6 +118,20 @@ NB_MODULE(_native, m) {
            nb::arg("positional").noconvert(), nb::arg("T").noconvert(), nb::arg("iterations"), nb::arg("tol"),
            nb::arg("accelerate"), nb::arg("record_history"), nb::call_guard<nb::gil_scoped_release>(),
            "Run FAST iterations, updating T (4m, 3) float32 in place (warm start from T).")
+      .def("set_dynamics",
+           [](FastSolver& s, ConstMatrixF mass_h2, ConstMatrixF hm, ConstMatrixF hforce, ConstMatrixF force,
+              float damping) {
+             const size_t n4 = 4 * static_cast<size_t>(s.m());
+             auto sq = [n4](const ConstMatrixF& a) { return a.shape(0) == n4 && a.shape(1) == n4; };
+             auto th = [n4](const ConstMatrixF& a) { return a.shape(0) == n4 && a.shape(1) == 3; };
+             if (!sq(mass_h2) || !sq(hm) || !th(hforce) || !th(force))
+               throw std::invalid_argument("set_dynamics: expected (4m, 4m), (4m, 4m), (4m, 3), (4m, 3) matrices");
+             s.set_dynamics(mass_h2.data(), hm.data(), hforce.data(), force.data(), damping);
+           },
+           nb::arg("mass_h2"), nb::arg("hm"), nb::arg("hforce"), nb::arg("force"), nb::arg("damping"),
+           "Enable dynamics (see fast_solver.h): the solver's factor must be made with Q + M~/h^2.")
+      .def("reset_history", &FastSolver::reset_history,
+           "Forget the inertia history: the next solve starts at rest (no velocity).")
       .def_prop_ro("stats", [](FastSolver& s) -> const SolveStats& { return s.stats(); },
                    nb::rv_policy::reference_internal)
       .def_prop_ro("history",

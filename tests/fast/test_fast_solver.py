@@ -45,7 +45,7 @@ def test_rigid_motion_is_reproduced_by_every_handle(bar_model, helpers, kind):
     T = model.rest_T()
     stats = solver.solve(values, T, iterations=30)
     assert np.abs(T - target).max() <= 1e-5 * size(model)
-    assert abs(stats.energy) <= 1e-6 * model.c0
+    assert abs(stats.energy) <= 1e-5 * model.c0  # float32 energy: c0 - 2 tr + tr, cancels to ~1e-6 c0
 
 
 def test_energy_never_increases_and_acceleration_reaches_it(bar_model, helpers):
@@ -171,3 +171,25 @@ def test_tet_mesh_energies(helpers, energy):
     h = solver.history[1:]
     assert np.all(np.diff(h) <= 1e-6 * model.c0)
     assert h[-1] < h[0]
+
+
+@pytest.mark.parametrize("scale", [1e-3, 1e3])
+def test_unit_scale_does_not_matter(bar, helpers, scale):
+    V, F, W = bar
+    model = FastModel(V * scale, F, W, clusters=8, extra_weights=1, cache_dir=False)
+    pattern = Pattern(full=(0,), relative=((1, 0, tuple(np.array([4.0 / 3, 0, 0]) * scale)),))
+    values = pattern.values()
+    values.full[0] = model.rest_T()[:4]
+    values.full[0, 3] = np.array([0.1, 0.2, 0.3]) * scale
+    values.relative[0] = helpers.rot_z(0.5)
+    T = model.rest_T()
+    model.solver(pattern).solve(values, T, iterations=20)
+    # Same shape as the unit-scale solve: linear parts equal, translations scaled.
+    ref = FastModel(V, F, W, clusters=8, extra_weights=1, cache_dir=False)
+    pattern1 = Pattern(full=(0,), relative=((1, 0, (4.0 / 3, 0, 0)),))
+    values.full[0, 3] = (0.1, 0.2, 0.3)
+    T1 = ref.rest_T()
+    ref.solver(pattern1).solve(values, T1, iterations=20)
+    blocks, blocks1 = T.reshape(-1, 4, 3), T1.reshape(-1, 4, 3)
+    np.testing.assert_allclose(blocks[:, :3], blocks1[:, :3], atol=2e-4)
+    np.testing.assert_allclose(blocks[:, 3] / scale, blocks1[:, 3], atol=2e-4)

@@ -17,10 +17,12 @@ def random_affine_T(rng, m: int) -> np.ndarray:
     return np.concatenate(blocks).astype(np.float32)
 
 
-def test_shader_positions_equal_M_T_for_two_bones(gl_context, bar, helpers):
+@pytest.mark.parametrize("layout", ["dense", "pairs"])
+def test_shader_positions_equal_M_T_for_two_bones(gl_context, bar, helpers, layout):
     V, F, W = bar
     T = helpers.handle_T([helpers.IDENTITY, helpers.rotation_about(helpers.rotation_z(np.pi / 2), [1, 0, 0])])
-    with Renderer(V, F, W, width=64, height=48, context=gl_context) as renderer:
+    with Renderer(V, F, W, width=64, height=48, weight_layout=layout, context=gl_context) as renderer:
+        assert renderer.weight_layout == layout
         positions = renderer.skinned_positions(T)
     expected = lbs_matrix(V, W) @ T
     np.testing.assert_allclose(positions, expected, atol=1e-4)
@@ -29,18 +31,20 @@ def test_shader_positions_equal_M_T_for_two_bones(gl_context, bar, helpers):
     np.testing.assert_allclose(positions[tip], [1.0, 1.0, 0.0], atol=1e-5)
 
 
-def test_shader_positions_equal_M_T_for_many_handles_and_mixed_sparsity(gl_context, helpers):
-    """60 handles (bones and extra weights): dense rows, sparse rows, one-handle rows, negatives."""
-    rng = np.random.default_rng(7)
+@pytest.mark.parametrize("m, layout", [(60, "auto"), (40, "dense"), (40, "pairs")])
+def test_shader_positions_equal_M_T_for_many_handles_and_mixed_sparsity(gl_context, helpers, m, layout):
+    """Many handles (bones and extra weights): dense rows (more nonzeros than attribute slots:
+    they spill into the texture), sparse rows, one-handle rows, negative weights."""
+    rng = np.random.default_rng(m)
     V, F = helpers.tube(segments=30, sides=12)
-    m = 60
     W = rng.uniform(-0.1, 1.0, size=(len(V), m))
     W[rng.random(W.shape) < 0.6] = 0.0  # sparse rows
     W[::5] = rng.uniform(0.0, 1.0, size=(len(W[::5]), m))  # fully dense rows
     W[1::7] = 0.0
     W[1::7, 13] = 1.0  # rows with one handle
     T = random_affine_T(rng, m)
-    with Renderer(V, F, W, width=64, height=48, context=gl_context) as renderer:
+    with Renderer(V, F, W, width=64, height=48, weight_layout=layout, context=gl_context) as renderer:
+        assert renderer.weight_layout == ("pairs" if layout == "auto" else layout)
         assert renderer.max_weights_per_vertex == m
         assert renderer.dropped_weight_abs_max == 0.0
         positions = renderer.skinned_positions(T).copy()
@@ -118,3 +122,5 @@ def test_bad_T_and_bad_weights_name_the_field(gl_context, bar):
         Renderer(V, F, bad, context=gl_context)
     with pytest.raises(RenderInputError, match="F: vertex index out of range"):
         Renderer(V, F + len(V), W, context=gl_context)
+    with pytest.raises(RenderInputError, match="weight_layout: dense takes at most 52 handles, W has 60"):
+        Renderer(V, F, np.ones((len(V), 60)), weight_layout="dense", context=gl_context)
