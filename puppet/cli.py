@@ -309,7 +309,7 @@ def play(take: str, rig_path: str | None, out: str | None, frames: str | None, s
     sinks = _sinks(out, frames, fps)
     ids = [int(i) for i in rig.servo_map.ids]
     try:
-        with Pipeline(rig, overlay=True) as pipeline:
+        with Pipeline(rig, overlay=True, samples=4) as pipeline:
             clock = PlaybackClock(reader.readings(ids=ids), fps=fps, speed=speed)
             summary = run_frames(pipeline, (f.reading for f in clock), sinks=sinks)
     finally:

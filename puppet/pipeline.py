@@ -31,7 +31,9 @@ class Pipeline:
     rig:        the character and its servo map (calibration already applied).
     iterations: FAST local/global iterations per frame (warm-started from the last frame).
     render:     build a Renderer (False for solve-only work: exports, records).
-    width, height: frame size, pixels. samples: MSAA samples.
+    width, height: frame size, pixels. samples: MSAA samples (0: none). fxaa: cheap
+                anti-aliasing pass; on llvmpipe MSAA triples the mesh pass, so live loops use
+                samples=0 with fxaa and offline renders (play) use samples=4.
     overlay:    draw the skeleton with bones coloured by state.
 
     Fields: model (FastModel), solver, values (the pattern's per-frame Values), T (4m, 3)
@@ -39,7 +41,7 @@ class Pipeline:
     """
 
     def __init__(self, rig: Rig, *, iterations: int = 8, render: bool = True, width: int = 640,
-                 height: int = 480, samples: int = 4, overlay: bool = False):
+                 height: int = 480, samples: int = 0, fxaa: bool = True, overlay: bool = False):
         options = rig.solver_options
         self.rig = rig
         self.iterations = int(iterations)
@@ -69,7 +71,7 @@ class Pipeline:
             from puppet.render import Renderer
 
             self.renderer = Renderer(rig.V, rig.F, self.model.weights, width=width, height=height,
-                                     samples=samples)
+                                     samples=samples, fxaa=fxaa and not samples)
 
     def solve(self, reading: Reading) -> np.ndarray:
         """Solve this reading's pose into ``self.T`` (in place) and return it.
