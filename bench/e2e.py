@@ -36,6 +36,7 @@ def main() -> None:
     parser.add_argument("--seconds", type=float, default=10.0)
     parser.add_argument("--iterations", type=int, default=8, help="FAST iterations per frame")
     parser.add_argument("--size", type=int, nargs=2, default=(640, 480))
+    parser.add_argument("--rate", type=float, default=250.0, help="bus readings per second")
     parser.add_argument("--json", default=None, help="write the result here")
     args = parser.parse_args()
 
@@ -47,7 +48,7 @@ def main() -> None:
 
     summary, report = run_demo(seconds=args.seconds, sinks_for=sinks_for, width=args.size[0],
                                height=args.size[1], iterations=args.iterations, overlay=False,
-                               timing=True, baud=1_000_000)
+                               timing=True, baud=1_000_000, rate_hz=args.rate)
     d = summary.as_dict()
     result = {
         "frames": d["frames"],
@@ -58,6 +59,7 @@ def main() -> None:
         "iterations_per_frame": d["iterations_per_frame"],
         "readings": d["readings"],
         "read_mode": report.read_mode,
+        "bus_rate_hz": args.rate,
         "renderer": renderer_name.get("gl", ""),
         "size": list(args.size),
         "faults": d["faults"],

@@ -1,4 +1,16 @@
-"""FAST (Jacobson et al. 2012): reduced ARAP in the linear-blend-skinning subspace V' = M T."""
+"""FAST (Jacobson et al. 2012): reduced ARAP in the linear-blend-skinning subspace V' = M T.
+
+    model = FastModel(V, F, W, clusters=50, extra_weights=0, energy="spokes_and_rims")  # per rig
+    pattern = Pattern(full=(0,), relative=((1, 0, pivot),), positional=())
+    solver = model.solver(pattern)                 # per pattern: factor (refactor), PatternError
+    values = pattern.values()                      # per frame: fill in place
+    T = model.rest_T()                             # (4m, 3) float32, handle j in rows 4j..4j+3
+    stats = solver.solve(values, T, iterations=10)  # T updated in place; native, GIL released
+
+Modules: weights (validation, extra weights), clusters (k-means in weight space), energy
+(reduced matrices per energy type), factor (per-pattern global step), solver (facade over
+puppet._native.FastSolver), model (precompute and its cache), pattern (constraints).
+"""
 
 from puppet.fast.errors import FastError, MeshError, PatternError, WeightsError
 from puppet.fast.model import FastModel

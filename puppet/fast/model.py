@@ -24,7 +24,7 @@ from puppet.fast.pattern import Pattern
 from puppet.fast.solver import Dynamics, Solver
 from puppet.fast.weights import full_weights, validate_weights
 
-CACHE_VERSION = "fast-precompute-1"
+CACHE_VERSION = "fast-precompute-2"
 
 
 def default_cache_dir() -> Path:

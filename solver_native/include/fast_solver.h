@@ -31,6 +31,8 @@
 #include <cstdint>
 #include <vector>
 
+#include "kernels.h"
+
 namespace puppet {
 
 struct SolveStats {
@@ -83,6 +85,7 @@ class FastSolver {
   std::vector<int32_t> tile_off_, tile_k_;  // per gather row tile: the columns of csm_ not zero there
   std::vector<double> h_;
   double c0_;
+  const Kernels* k_;  // SIMD kernels for this CPU
   std::vector<int32_t> child_, parent_;
   // per-frame
   std::vector<float> tb_, z_;           // Tb (3 x mp), Z (3kr x mp)

@@ -12,7 +12,8 @@
 // diagonal entry, so reflections give the closest *proper* rotation.
 //
 // Degenerate covariances (rank < 3, zero, non-finite) still give a proper
-// rotation: zero or non-finite S gives the identity.
+// rotation: zero or non-finite S gives the identity. Eight matrices per SIMD
+// register; the kernel set (baseline or AVX2+FMA) is chosen at run time (kernels.h).
 #pragma once
 
 #include <cstddef>

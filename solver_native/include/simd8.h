@@ -2,7 +2,10 @@
 // two SSE registers otherwise. Operations are lane-wise; comparisons give lane masks.
 #pragma once
 
+// Everything here has internal linkage: each kernel translation unit (compiled for its own
+// instruction set) gets its own copy, so the linker can never mix them.
 namespace puppet::simd {
+namespace {
 
 typedef float f8 __attribute__((vector_size(32)));
 typedef int i8 __attribute__((vector_size(32)));
@@ -14,4 +17,5 @@ PUPPET_INLINE f8 splat(float x) { return f8{x, x, x, x, x, x, x, x}; }
 PUPPET_INLINE f8 load(const float* p) { return *reinterpret_cast<const f8u*>(p); }
 PUPPET_INLINE void store(float* p, f8 v) { *reinterpret_cast<f8u*>(p) = v; }
 
+}  // namespace
 }  // namespace puppet::simd

@@ -6,8 +6,7 @@
 #include <stdexcept>
 #include <string>
 
-#include "fit_rotations.h"
-#include "simd8.h"
+#include "kernels.h"
 
 namespace puppet {
 
@@ -15,86 +14,6 @@ namespace {
 
 constexpr int kPad = 8;
 inline int round_up(int x) { return (x + kPad - 1) / kPad * kPad; }
-
-using simd::f8;
-
-// out[c*ldo + i] (+)= sum_k A[k*lda + i] * B[k*bk + c*bc] for c = 0..2 and i < rows.
-// rows is a multiple of 8; A's padding rows must be zero or finite. V vectors of 8 rows per tile.
-// With ks != nullptr only the K columns ks[0..K) of A are visited (the others are zero there).
-template <int NV>
-PUPPET_INLINE void gemm3_tile(const float* __restrict A, std::ptrdiff_t lda, int K, const float* __restrict B,
-                              std::ptrdiff_t bk, std::ptrdiff_t bc, float* __restrict out, std::ptrdiff_t ldo,
-                              bool accumulate, const int32_t* ks = nullptr) {
-  f8 a0[NV], a1[NV], a2[NV];
-  for (int t = 0; t < NV; ++t) a0[t] = a1[t] = a2[t] = simd::splat(0.0f);
-  for (int kk = 0; kk < K; ++kk) {
-    const int k = ks ? ks[kk] : kk;
-    const float* a = A + k * lda;
-    const f8 x = simd::splat(B[k * bk]), y = simd::splat(B[k * bk + bc]), z = simd::splat(B[k * bk + 2 * bc]);
-    for (int t = 0; t < NV; ++t) {
-      const f8 v = simd::load(a + 8 * t);
-      a0[t] += v * x;
-      a1[t] += v * y;
-      a2[t] += v * z;
-    }
-  }
-  for (int t = 0; t < NV; ++t) {
-    float* o = out + 8 * t;
-    if (accumulate) {
-      simd::store(o, simd::load(o) + a0[t]);
-      simd::store(o + ldo, simd::load(o + ldo) + a1[t]);
-      simd::store(o + 2 * ldo, simd::load(o + 2 * ldo) + a2[t]);
-    } else {
-      simd::store(o, a0[t]);
-      simd::store(o + ldo, a1[t]);
-      simd::store(o + 2 * ldo, a2[t]);
-    }
-  }
-}
-
-void gemm3(const float* A, std::ptrdiff_t lda, int rows, int K, const float* B, std::ptrdiff_t bk,
-           std::ptrdiff_t bc, float* out, std::ptrdiff_t ldo, bool accumulate) {
-  int i = 0;
-  for (; i + 32 <= rows; i += 32) gemm3_tile<4>(A + i, lda, K, B, bk, bc, out + i, ldo, accumulate);
-  if (rows - i == 24) gemm3_tile<3>(A + i, lda, K, B, bk, bc, out + i, ldo, accumulate);
-  else if (rows - i == 16) gemm3_tile<2>(A + i, lda, K, B, bk, bc, out + i, ldo, accumulate);
-  else if (rows - i == 8) gemm3_tile<1>(A + i, lda, K, B, bk, bc, out + i, ldo, accumulate);
-}
-
-// Row tiles of gemm3: (start, size) pairs, sizes 32 then one of 24/16/8.
-template <class F>
-void for_each_tile(int rows, F&& f) {
-  int i = 0;
-  for (; i + 32 <= rows; i += 32) f(i, 32);
-  if (rows > i) f(i, rows - i);
-}
-
-// gemm3 skipping, per row tile, the columns of A that are zero on that tile (off[t]..off[t+1]
-// index into ks): the covariance gather of compactly supported extra weights is mostly zeros.
-void gemm3_sparse(const float* A, std::ptrdiff_t lda, int rows, const int32_t* off, const int32_t* ks,
-                  const float* B, std::ptrdiff_t bk, std::ptrdiff_t bc, float* out, std::ptrdiff_t ldo) {
-  int t = 0;
-  for_each_tile(rows, [&](int i, int size) {
-    const int32_t* k = ks + off[t];
-    const int K = off[t + 1] - off[t];
-    ++t;
-    switch (size) {
-      case 32: gemm3_tile<4>(A + i, lda, K, B, bk, bc, out + i, ldo, false, k); break;
-      case 24: gemm3_tile<3>(A + i, lda, K, B, bk, bc, out + i, ldo, false, k); break;
-      case 16: gemm3_tile<2>(A + i, lda, K, B, bk, bc, out + i, ldo, false, k); break;
-      default: gemm3_tile<1>(A + i, lda, K, B, bk, bc, out + i, ldo, false, k); break;
-    }
-  });
-}
-
-// Dot product of two length-n float arrays (n a multiple of 8), float lanes summed in double.
-double dot(const float* a, const float* b, size_t n) {
-  f8 acc = simd::splat(0.0f);
-  for (size_t i = 0; i < n; i += 8) acc += simd::load(a + i) * simd::load(b + i);
-  double s = 0.0;
-  for (int l = 0; l < 8; ++l) s += acc[l];
-  return s;
-}
 
 bool all_finite(const float* p, std::ptrdiff_t n) {
   float poison = 0.0f;
@@ -140,7 +59,7 @@ FastSolver::FastSolver(int m, int r, int kf, int kp, int kr, const float* csm, c
                        const int32_t* rel_child, const int32_t* rel_parent, int anderson_window,
                        int history_capacity)
     : m_(m), r_(r), kf_(kf), kp_(kp), kr_(kr), mp_(round_up(4 * m)), rp_(round_up(r)),
-      window_(std::max(1, anderson_window)), c0_(c0) {
+      window_(std::max(1, anderson_window)), c0_(c0), k_(&kernels()) {
   const int n4 = 4 * m, rr = 3 * rp_, nb = 4 * kf + kp, nR = 3 * kr;
   csm_.assign(static_cast<size_t>(n4) * rr, 0.0f);
   g_.assign(static_cast<size_t>(rr) * mp_, 0.0f);
@@ -201,8 +120,8 @@ void FastSolver::set_values(const float* full, const float* rel, const float* po
   if (!all_finite(pos, 3 * kp_)) throw std::invalid_argument("solve: values.positional contains NaN or inf");
   // Tb = Pi_2 b, b = [full rows; positional rows].
   std::fill(tb_.begin(), tb_.end(), 0.0f);
-  if (kf_ > 0) gemm3(p2_.data(), mp_, mp_, 4 * kf_, full, 3, 1, tb_.data(), mp_, true);
-  if (kp_ > 0) gemm3(p2_.data() + static_cast<size_t>(4 * kf_) * mp_, mp_, mp_, kp_, pos, 3, 1, tb_.data(), mp_, true);
+  if (kf_ > 0) k_->gemm3(p2_.data(), mp_, mp_, 4 * kf_, full, 3, 1, tb_.data(), mp_, true);
+  if (kp_ > 0) k_->gemm3(p2_.data() + static_cast<size_t>(4 * kf_) * mp_, mp_, mp_, kp_, pos, 3, 1, tb_.data(), mp_, true);
   if (kr_ == 0) return;
   std::memcpy(relR_.data(), rel, sizeof(float) * 9 * kr_);
   const int n4 = 4 * m_, nR = 3 * kr_;
@@ -248,13 +167,13 @@ void FastSolver::set_values(const float* full, const float* rel, const float* po
 }
 
 double FastSolver::quad_energy(const float* x) {
-  gemm3(q_.data(), mp_, mp_, 4 * m_, x, 1, mp_, qx_.data(), mp_, false);
+  k_->gemm3(q_.data(), mp_, mp_, 4 * m_, x, 1, mp_, qx_.data(), mp_, false);
   double e = 0.0;
   for (int i = 0; i < 3 * mp_; ++i) e += static_cast<double>(x[i]) * qx_[i];
   if (dynamics_) {
     // (T - Tp)^T M~/h^2 (T - Tp) - 2 tr(T^T F), evaluated on the difference (no cancellation).
     for (int i = 0; i < 3 * mp_; ++i) bd_[i] = x[i] - tp_[i];
-    gemm3(mh_.data(), mp_, mp_, 4 * m_, bd_.data(), 1, mp_, qx_.data(), mp_, false);
+    k_->gemm3(mh_.data(), mp_, mp_, 4 * m_, bd_.data(), 1, mp_, qx_.data(), mp_, false);
     double d = 0.0, f = 0.0;
     for (int i = 0; i < 3 * mp_; ++i) {
       d += static_cast<double>(bd_[i]) * qx_[i];
@@ -292,8 +211,8 @@ void FastSolver::set_dynamics(const float* mass_h2, const float* hm, const float
 
 double FastSolver::local_step(const float* x, bool energy) {
   const int rr = 3 * rp_;
-  gemm3_sparse(csm_.data(), rr, rr, tile_off_.data(), tile_k_.data(), x, 1, mp_, s_.data(), rr);
-  fit_rotations_soa(s_.data(), rot_.data(), rp_, rp_, vwarm_.data());
+  k_->gemm3_sparse(csm_.data(), rr, rr, tile_off_.data(), tile_k_.data(), x, 1, mp_, s_.data(), rr);
+  k_->fit_rotations_soa(s_.data(), rot_.data(), rp_, rp_, vwarm_.data());
   if (!energy) return 0.0;
   double lin = 0.0;
   for (int i = 0; i < 3 * rr; ++i) lin += static_cast<double>(s_[i]) * rot_[i];
@@ -302,7 +221,7 @@ double FastSolver::local_step(const float* x, bool energy) {
 
 void FastSolver::global_step(float* out) {
   const int rr = 3 * rp_;
-  gemm3(g_.data(), mp_, mp_, rr, rot_.data(), 1, rr, out, mp_, false);
+  k_->gemm3(g_.data(), mp_, mp_, rr, rot_.data(), 1, rr, out, mp_, false);
   for (int i = 0; i < 3 * mp_; ++i) out[i] += tb_[i];
   if (kr_ == 0) return;
   // y = -(A_R out), then out += Z y.
@@ -316,7 +235,7 @@ void FastSolver::global_step(float* out) {
         y_[3 * (3 * qq + i) + c] = -v;
       }
   }
-  gemm3(z_.data(), mp_, mp_, 3 * kr_, y_.data(), 3, 1, out, mp_, true);
+  k_->gemm3(z_.data(), mp_, mp_, 3 * kr_, y_.data(), 3, 1, out, mp_, true);
 }
 
 void FastSolver::solve(const float* full, const float* rel, const float* pos, float* T, int iterations,
@@ -339,7 +258,7 @@ void FastSolver::solve(const float* full, const float* rel, const float* pos, fl
       have_prev_ = true;
     }
     for (size_t i = 0; i < D; ++i) tp_[i] = tprev_[i] + damping_ * (tprev_[i] - tprev2_[i]);
-    gemm3(hf_.data(), mp_, mp_, n4, tp_.data(), 1, mp_, td_.data(), mp_, false);
+    k_->gemm3(hf_.data(), mp_, mp_, n4, tp_.data(), 1, mp_, td_.data(), mp_, false);
     for (size_t i = 0; i < D; ++i) tb_[i] += td_[i] + hforce_[i];
     cache_valid_ = false;  // the energy depends on the prediction
   }
@@ -391,12 +310,12 @@ void FastSolver::solve(const float* full, const float* rel, const float* pos, fl
         const int newest = (head + window_ - 1) % window_;
         const float* fn = dF_.data() + newest * D;
         for (int b = 0; b < nh; ++b) {
-          const double v = dot(fn, dF_.data() + b * D, D);
+          const double v = k_->dot(fn, dF_.data() + b * D, D);
           gram_full_[newest * window_ + b] = gram_full_[b * window_ + newest] = v;
         }
         double dmax = 0.0;
         for (int a = 0; a < nh; ++a) {
-          rhs_[a] = dot(dF_.data() + a * D, f_.data(), D);
+          rhs_[a] = k_->dot(dF_.data() + a * D, f_.data(), D);
           for (int b = 0; b < nh; ++b) gram_[a * nh + b] = gram_full_[a * window_ + b];
           dmax = std::max(dmax, gram_[a * nh + a]);
         }

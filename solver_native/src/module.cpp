@@ -12,6 +12,7 @@
 #include "array_types.h"
 #include "fast_solver.h"
 #include "fit_rotations.h"
+#include "kernels.h"
 
 namespace nb = nanobind;
 using namespace puppet;
@@ -72,15 +73,7 @@ void solve_py(FastSolver& s, FullValues full, ConstMat3Stack rel, PosValues pos,
 
 NB_MODULE(_native, m) {
   m.doc() = "puppet's native core: FAST per-frame iterations (C++17, Eigen).";
-#if defined(__AVX512F__)
-  m.attr("simd") = "avx512";
-#elif defined(__AVX2__) && defined(__FMA__)
-  m.attr("simd") = "avx2+fma";
-#elif defined(__AVX__)
-  m.attr("simd") = "avx";
-#else
-  m.attr("simd") = "sse2";
-#endif
+  m.attr("simd") = kernels().isa;  // instruction set of the kernels chosen for this CPU
 
   m.def("fit_rotations", &fit_rotations_py, nb::arg("S").noconvert(), nb::arg("R").noconvert(),
         nb::call_guard<nb::gil_scoped_release>(),

@@ -1,0 +1,49 @@
+"""Both native kernel sets (baseline build and run-time-selected AVX2+FMA) give the same solve."""
+
+import json
+import os
+import subprocess
+import sys
+
+import numpy as np
+
+SCRIPT = r"""
+import json, sys
+import numpy as np
+from puppet import _native
+from puppet.fast import FastModel, Pattern
+
+x = np.linspace(0, 4, 30); a = np.linspace(0, 2 * np.pi, 12, endpoint=False)
+X, A = np.meshgrid(x, a, indexing="ij")
+V = np.stack([X, 0.5 * np.cos(A), 0.5 * np.sin(A)], -1).reshape(-1, 3)
+i, j = np.meshgrid(np.arange(29), np.arange(12), indexing="ij")
+p = (i * 12 + j).ravel(); q = (i * 12 + (j + 1) % 12).ravel()
+F = np.concatenate([np.stack([p, q, q + 12], 1), np.stack([p, q + 12, p + 12], 1)])
+W = np.exp(-((V[:, :1] - np.array([[0.7, 2.0, 3.3]])) / 0.6) ** 2); W /= W.sum(1, keepdims=True)
+model = FastModel(V, F, W, clusters=13, extra_weights=1, cache_dir=False)
+pattern = Pattern(full=(0,), relative=((1, 0, (1.3, 0, 0)),))
+values = pattern.values()
+values.full[0] = model.rest_T()[:4]
+c, s = np.cos(0.7), np.sin(0.7)
+values.relative[0] = np.array([[c, -s, 0], [s, c, 0], [0, 0, 1]], np.float32)
+T = model.rest_T()
+stats = model.solver(pattern).solve(values, T, iterations=6, accelerate=False)
+S = np.random.default_rng(0).normal(size=(37, 3, 3)).astype(np.float32); R = np.empty_like(S)
+_native.fit_rotations(S, R)
+print(json.dumps({"simd": _native.simd, "T": T.tolist(), "E": stats.energy, "R": R.tolist()}))
+"""
+
+
+def run(env_extra):
+    env = dict(os.environ, **env_extra)
+    out = subprocess.run([sys.executable, "-c", SCRIPT], env=env, capture_output=True, text=True, check=True)
+    return json.loads(out.stdout)
+
+
+def test_generic_and_selected_kernels_agree():
+    generic = run({"PUPPET_SIMD": "generic"})
+    chosen = run({"PUPPET_SIMD": ""})
+    assert generic["simd"] in ("sse2", "avx", "avx2+fma", "avx512", "scalar")
+    np.testing.assert_allclose(np.array(generic["T"]), np.array(chosen["T"]), atol=2e-5)
+    np.testing.assert_allclose(np.array(generic["R"]), np.array(chosen["R"]), atol=2e-5)
+    assert abs(generic["E"] - chosen["E"]) <= 1e-4 * max(1.0, abs(chosen["E"]))
