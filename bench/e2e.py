@@ -14,8 +14,11 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 
-from puppet.demo import run_demo
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")  # as the puppet command does
+
+from puppet.demo import run_demo  # noqa: E402
 
 
 class CountingSink:

@@ -2,7 +2,13 @@
 
 from __future__ import annotations
 
-import json
+import os
+
+# On a small machine OpenBLAS worker threads busy-wait after every numpy call and steal the
+# core the solver, the renderer and the bus reader need; puppet's numpy work is small.
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+
+import json  # noqa: E402
 import signal
 import sys
 import time
@@ -10,11 +16,6 @@ from pathlib import Path
 
 import click
 import numpy as np
-
-
-def _not_built(name: str, issue: int) -> None:
-    click.echo(f"puppet {name}: not built yet (issue #{issue}).", err=True)
-    sys.exit(1)
 
 
 def _fail(message: str) -> None:
