@@ -1,8 +1,9 @@
 """End-to-end benchmark: the live loop on the built-in character with hw_sim.
 
 Servo reading (hw_sim, timing model on, 1 Mbps, fast sync read) -> calibration -> FAST solve ->
-render (640x480, this machine's GL renderer: Mesa llvmpipe on CPU machines) -> frame, with the bus
-on its own thread. No video encoding: frames go to a sink that only counts them.
+render (640x480, this machine's GL renderer: Mesa llvmpipe on CPU machines; antialiasing 'auto':
+none on a software renderer) -> frame, with the bus read in its own process. No video encoding:
+frames go to a sink that only counts them.
 
     python bench/e2e.py --seconds 10 --json e2e.json
 
@@ -47,6 +48,7 @@ def main() -> None:
 
     def sinks_for(pipeline):
         renderer_name["gl"] = pipeline.renderer.gl_renderer
+        renderer_name["antialias"] = pipeline.antialias
         return [CountingSink()]
 
     summary, report = run_demo(seconds=args.seconds, sinks_for=sinks_for, width=args.size[0],
@@ -64,6 +66,7 @@ def main() -> None:
         "read_mode": report.read_mode,
         "bus_rate_hz": args.rate,
         "renderer": renderer_name.get("gl", ""),
+        "antialias": renderer_name.get("antialias", ""),
         "size": list(args.size),
         "faults": d["faults"],
         "fps_vs_target_60": round(d["fps"] / 60.0, 3),
@@ -75,7 +78,7 @@ def main() -> None:
             ("solver us/iter", result["solver_us_per_iter"]),
             ("iterations/frame", result["iterations_per_frame"]),
             ("bus readings", result["readings"]), ("read mode", result["read_mode"]),
-            ("renderer", result["renderer"]), ("faults", result["faults"] or "none")]
+            ("renderer", result["renderer"]), ("antialias", result["antialias"]), ("faults", result["faults"] or "none")]
     width = max(len(k) for k, _ in rows)
     print(f"e2e live loop, built-in character, hw_sim timing on 1 Mbps, {args.size[0]}x{args.size[1]}")
     for key, value in rows:

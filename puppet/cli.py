@@ -129,9 +129,11 @@ def main() -> None:
               help="hw_sim fault file to play during the run.")
 @click.option("--size", default=(640, 480), type=(int, int), show_default=True, help="Frame size.")
 @click.option("--fps", default=30.0, show_default=True, help="Video frame rate.")
+@click.option("--antialias", type=click.Choice(["auto", "msaa", "fxaa", "none"]), default="auto",
+              show_default=True, help="auto: MSAA on a GPU, none on a software renderer.")
 @click.option("--json", "as_json", is_flag=True, help="Print the summary as JSON.")
 def demo(out: str, seconds: float, faults: str | None, size: tuple[int, int], fps: float,
-         as_json: bool) -> None:
+         antialias: str, as_json: bool) -> None:
     """Run the live loop on the built-in character and a simulated bus, into a video.
 
     \b
@@ -143,7 +145,7 @@ def demo(out: str, seconds: float, faults: str | None, size: tuple[int, int], fp
     bar, on_frame = _progress(seconds, "demo")
     with bar if bar is not None else _Null():
         summary, report = run_demo(seconds=seconds, faults=faults, width=size[0], height=size[1],
-                                   video_fps=fps, on_frame=on_frame,
+                                   video_fps=fps, on_frame=on_frame, antialias=antialias,
                                    sinks_for=lambda _p: _sinks(out, None, fps))
     _print_summary(summary, as_json, extra={"video": out, "read_mode": report.read_mode})
 
@@ -174,8 +176,10 @@ def _print_summary(summary, as_json: bool, extra: dict | None = None) -> None:
 @click.option("--frames", default=None, help="Folder for PNG frames.")
 @click.option("--seconds", default=None, type=float, help="Stop after this long (default: Ctrl-C).")
 @click.option("--fps", default=30.0, show_default=True, help="Video frame rate.")
+@click.option("--antialias", type=click.Choice(["auto", "msaa", "fxaa", "none"]), default="auto",
+              show_default=True, help="auto: MSAA on a GPU, none on a software renderer.")
 def live(rig_path: str, port: str, baud: int, take_path: str | None, out: str | None,
-         frames: str | None, seconds: float | None, fps: float) -> None:
+         frames: str | None, seconds: float | None, fps: float, antialias: str) -> None:
     """Read the puppet, solve and render live until Ctrl-C.
 
     \b
@@ -187,7 +191,7 @@ def live(rig_path: str, port: str, baud: int, take_path: str | None, out: str | 
     rig = _load_rig(rig_path)
     sinks = _sinks(out, frames, fps)
     stop = _StopFlag()
-    with Pipeline(rig, render=bool(sinks), overlay=True) as pipeline:
+    with Pipeline(rig, render=bool(sinks), overlay=True, antialias=antialias) as pipeline:
         source = _start_reader(rig, port, baud)
         try:
             recorder = _take_writer(take_path, rig) if take_path else None
@@ -293,8 +297,10 @@ def _open_take(take: str, rig_path: str | None):
 @click.option("--speed", default=1.0, show_default=True, type=click.FloatRange(min=0.01),
               help="Playback speed factor.")
 @click.option("--fps", default=30.0, show_default=True, help="Output frame rate.")
+@click.option("--antialias", type=click.Choice(["msaa", "fxaa", "none"]), default="msaa",
+              show_default=True, help="Offline: MSAA by default, whatever the renderer.")
 def play(take: str, rig_path: str | None, out: str | None, frames: str | None, speed: float,
-         fps: float) -> None:
+         fps: float, antialias: str) -> None:
     """Replay a take through the solver and renderer (deterministic).
 
     \b
@@ -310,7 +316,7 @@ def play(take: str, rig_path: str | None, out: str | None, frames: str | None, s
     sinks = _sinks(out, frames, fps)
     ids = [int(i) for i in rig.servo_map.ids]
     try:
-        with Pipeline(rig, overlay=True, samples=4) as pipeline:
+        with Pipeline(rig, overlay=True, antialias=antialias) as pipeline:
             clock = PlaybackClock(reader.readings(ids=ids), fps=fps, speed=speed)
             summary = run_frames(pipeline, (f.reading for f in clock), sinks=sinks)
     finally:

@@ -44,6 +44,7 @@ class Performance:
 
 def run_demo(*, seconds: float, sinks_for: Callable[[Pipeline], list], faults=None, width: int = 640,
              height: int = 480, iterations: int = 8, video_fps: float = 30.0, overlay: bool = True,
+             antialias: str = "auto",
              timing: bool = True, baud: int = 1_000_000, rate_hz: float = 250.0,
              on_frame: Callable[[Summary], None] | None = None) -> tuple[Summary, object]:
     """Run the built-in character on hw_sim for ``seconds``; returns (summary, setup report).
@@ -54,7 +55,8 @@ def run_demo(*, seconds: float, sinks_for: Callable[[Pipeline], list], faults=No
     """
     rig = builtin()
     models = rig.servo_map.models
-    with Pipeline(rig, iterations=iterations, width=width, height=height, overlay=overlay) as pipeline:
+    with Pipeline(rig, iterations=iterations, width=width, height=height, overlay=overlay,
+                  antialias=antialias) as pipeline:
         with hw_sim.serve(models, motion=Performance(rig), faults=faults, timing=timing, baud=baud) as bus:
             source = ReaderProcess(bus.link, models, rate_hz=rate_hz, baud=baud)
             report = source.start()

@@ -23,6 +23,8 @@ from puppet.fast import FastModel
 from puppet.rig import Rig
 
 BONE_KIND_STATES = {"full": "sensed", "relative": "relative", "free": "free"}
+ANTIALIAS = ("auto", "msaa", "fxaa", "none")
+SOFTWARE_GL = ("llvmpipe", "softpipe", "swrast", "lavapipe")
 
 
 class Pipeline:
@@ -31,9 +33,10 @@ class Pipeline:
     rig:        the character and its servo map (calibration already applied).
     iterations: FAST local/global iterations per frame (warm-started from the last frame).
     render:     build a Renderer (False for solve-only work: exports, records).
-    width, height: frame size, pixels. samples: MSAA samples (0: none). fxaa: cheap
-                anti-aliasing pass; on llvmpipe MSAA triples the mesh pass, so live loops use
-                samples=0 with fxaa and offline renders (play) use samples=4.
+    width, height: frame size, pixels.
+    antialias:  'msaa' (4 samples), 'fxaa' (a cheap filter pass), 'none', or 'auto': MSAA on a
+                hardware GL, none on a software rasterizer (Mesa llvmpipe), where MSAA triples
+                the mesh pass and FXAA adds ~3 ms: live loops keep their frame rate and latency.
     overlay:    draw the skeleton with bones coloured by state.
 
     Fields: model (FastModel), solver, values (the pattern's per-frame Values), T (4m, 3)
@@ -41,7 +44,9 @@ class Pipeline:
     """
 
     def __init__(self, rig: Rig, *, iterations: int = 8, render: bool = True, width: int = 640,
-                 height: int = 480, samples: int = 0, fxaa: bool = True, overlay: bool = False):
+                 height: int = 480, antialias: str = "auto", overlay: bool = False):
+        if antialias not in ANTIALIAS:
+            raise ValueError(f"antialias: {antialias!r} is not one of {ANTIALIAS}")
         options = rig.solver_options
         self.rig = rig
         self.iterations = int(iterations)
@@ -67,11 +72,18 @@ class Pipeline:
         self.bone_segments = np.ascontiguousarray(np.stack([sk.heads, sk.tails], axis=1))  # (b, 2, 3)
         self.overlay = overlay
         self.renderer = None
+        self.antialias = "none"
         if render:
-            from puppet.render import Renderer
+            from puppet.render import Renderer, create_context
 
+            self._context = create_context()
+            if antialias == "auto":
+                software = any(name in self._context.info["GL_RENDERER"].lower() for name in SOFTWARE_GL)
+                antialias = "none" if software else "msaa"
+            self.antialias = antialias
             self.renderer = Renderer(rig.V, rig.F, self.model.weights, width=width, height=height,
-                                     samples=samples, fxaa=fxaa and not samples)
+                                     samples=4 if antialias == "msaa" else 0,
+                                     fxaa=antialias == "fxaa", context=self._context)
 
     def solve(self, reading: Reading) -> np.ndarray:
         """Solve this reading's pose into ``self.T`` (in place) and return it.
@@ -111,6 +123,7 @@ class Pipeline:
     def close(self) -> None:
         if self.renderer is not None:
             self.renderer.release()
+            self._context.release()
             self.renderer = None
 
     def __enter__(self) -> Pipeline:
