@@ -110,8 +110,10 @@ class ServoReader:
         self._index = {int(i): k for k, i in enumerate(self.ids)}
         self._ticks = np.zeros(len(self.ids), dtype=np.int32)
         self._ok = np.zeros(len(self.ids), dtype=bool)
-        self._prev = [0] * len(self.ids)          # last two good values, for jitter
-        self._prev2 = [0] * len(self.ids)
+        self._prev = [0] * len(self.ids)          # last two good values and their times (ns),
+        self._prev2 = [0] * len(self.ids)         # for jitter
+        self._prev_t = [0] * len(self.ids)
+        self._prev2_t = [0] * len(self.ids)
         self._run = [0] * len(self.ids)           # good readings in a row
         self.unwrap = {i: TurnUnwrapper() for i in self.servos}
         self.health = {i: hs.ServoHealth(i, m) for i, m in self.servos.items()}
@@ -326,7 +328,7 @@ class ServoReader:
             h.rebases += 1
             self.log.add("rebased", [dxl_id], f"raw {raw}: turn offset now {unwrapper.offset} ticks")
         k = self._index[dxl_id]
-        self._track_jitter(h, k, value)
+        self._track_jitter(h, k, value, now)
         self._ticks[k] = value
         self._ok[k] = True
         if h.state != hs.OK:
@@ -336,11 +338,14 @@ class ServoReader:
         h.corrupt_in_a_row = 0
         h.last_ok_ns = now
 
-    def _track_jitter(self, h: hs.ServoHealth, k: int, value: int) -> None:
-        """Running mean of |x_t - 2 x_{t-1} + x_{t-2}| over consecutive good readings: zero at
-        rest or in steady motion, about the noise amplitude for a jittering encoder."""
-        if self._run[k] >= 2:
-            d2 = abs(value - 2 * self._prev[k] + self._prev2[k])
+    def _track_jitter(self, h: hs.ServoHealth, k: int, value: int, t_ns: int) -> None:
+        """Running mean of the error of a linear prediction from the last two good readings
+        (extrapolated to this reading's time, so uneven read intervals during fast motion are
+        not taken for noise): zero at rest or in steady motion, about the noise amplitude for a
+        jittering encoder."""
+        if self._run[k] >= 2 and self._prev_t[k] > self._prev2_t[k]:
+            ratio = (t_ns - self._prev_t[k]) / (self._prev_t[k] - self._prev2_t[k])
+            d2 = abs(value - self._prev[k] - (self._prev[k] - self._prev2[k]) * ratio)
             h.jitter += 0.05 * (min(d2, 4 * self.noise_threshold) - h.jitter)
             noisy = h.jitter > self.noise_threshold
             if noisy != h.noisy:
@@ -348,6 +353,7 @@ class ServoReader:
                 self.log.add("noisy" if noisy else "quiet", [h.id],
                              f"jitter {h.jitter:.1f} ticks (threshold {self.noise_threshold})")
         self._prev2[k], self._prev[k] = self._prev[k], value
+        self._prev2_t[k], self._prev_t[k] = self._prev_t[k], t_ns
         self._run[k] += 1
 
     def _failed(self, dxl_id: int, exc: ServoError, now: int) -> None:

@@ -209,3 +209,14 @@ def test_ticks_out_of_limits_are_flagged_not_taken(sim, open_reader, read_until)
     assert read_until(reader, lambda r: r.ok.all(), what="back in limits").ticks[1] == 2040
     assert not reader.health[2].out_of_limits
     assert np.array_equal(reader.ids, IDS)
+
+
+def test_fast_motion_read_at_uneven_intervals_is_not_noise(sim, open_reader):
+    bus = sim(motion="spin")  # a full turn every 2 s: ~2000 ticks/s on every servo
+    reader = open_reader(bus)
+    rng = np.random.default_rng(0)
+    for _ in range(150):
+        reader.read()
+        time.sleep(float(rng.uniform(0.0, 0.006)))
+    assert not any(reader.health[i].noisy for i in IDS)
+    assert reader.log.counts.get("noisy", 0) == 0

@@ -80,3 +80,18 @@ def test_playback_is_deterministic(critter):
         runs.append(np.stack(frames))
     np.testing.assert_array_equal(runs[0], runs[1])
     assert not np.allclose(runs[0][0], runs[0][-1])
+
+
+def test_antialias_auto_picks_no_msaa_on_a_software_renderer(critter):
+    with Pipeline(critter, width=64, height=48) as pipeline:
+        software = "llvmpipe" in pipeline.renderer.gl_renderer
+        assert pipeline.antialias == ("none" if software else "msaa")
+        image = pipeline.draw()
+        assert image.shape == (48, 64, 3)
+
+
+def test_antialias_must_be_known(critter):
+    import pytest
+
+    with pytest.raises(ValueError, match="antialias"):
+        Pipeline(critter, render=False, antialias="smooth")
