@@ -20,6 +20,10 @@ BACKUP_KEYS = (b"\x01\x43\x54\x52\x4c", b"\x02\x43\x54\x52\x4c")
 Replies = list[tuple[bytes, float]]
 
 
+def _le16(value: int) -> bytes:
+    return bytes((value & 0xFF, value >> 8))
+
+
 def _collide(packets: list[bytes]) -> bytes:
     """Two servos talking at once: the open-drain line ANDs their bytes (the longer tail stays)."""
     out = bytearray(max(packets, key=len))
@@ -265,21 +269,23 @@ class DeviceBus:
                     delay = s.return_delay_s if delay is None else delay
             if not segs:
                 continue  # a missing servo leaves a hole: the packet comes up short
-            seg = segs[0] if len(segs) == 1 else _collide(segs)
             fault = self._reply_fault(dxl_id) if self.reply_faults else None
             if fault is not None and fault.kind == "drop":
                 continue
             if fault is not None and fault.kind == "error_status":
-                seg = bytes((fault.params["error"] | seg[0], dxl_id))
-            crc = codec.crc16(seg, crc)
-            crc_bytes = bytes((crc & 0xFF, crc >> 8))
+                segs = [bytes((fault.params["error"] | seg[0], dxl_id)) for seg in segs]
+            # Each servo sends its segment and the CRC of everything it heard before plus its own
+            # segment; twins (duplicate id) talk at once and the line ANDs their bytes, CRCs too.
+            wires = [seg + _le16(codec.crc16(seg, crc)) for seg in segs]
+            wire = wires[0] if len(wires) == 1 else _collide(wires)
+            seg, crc_bytes = wire[:-2], wire[-2:]
             if fault is not None and fault.kind == "truncate":
-                out += (seg + crc_bytes)[:len(seg) // 2]
+                out += wire[:len(seg) // 2]
                 break
             sent = crc_bytes if fault is None or fault.kind != "bad_crc" else bytes(
                 (crc_bytes[0] ^ 0x5A, crc_bytes[1]))
             out += seg + sent
-            crc = codec.crc16(crc_bytes, crc)
+            crc = codec.crc16(wire, crc)
         if delay is None:
             return []
         return [(bytes(out), delay)]

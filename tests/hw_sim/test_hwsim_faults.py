@@ -134,6 +134,26 @@ def test_duplicate_id_collides(bus, sdk):
     assert sdk.packet.read4ByteTxRx(sdk.port, 2, PRESENT_POSITION)[:2] == (2048, dxl.COMM_SUCCESS)
 
 
+def test_duplicate_id_in_fast_sync_read_collides_crcs_too(bus, sdk):
+    from hw_sim.codec import crc16
+
+    bus.inject("duplicate_id", ids=[2], offset=100)
+    bus.traffic()
+    group = _group(sdk, [1, 2, 3])
+    group.fastSyncRead()
+    reply = b"".join(data for _, way, data in bus.traffic() if way == "tx")
+    assert reply[:5] == bytes((0xFF, 0xFF, 0xFD, 0x00, 0xFE))
+    body, seg = reply[8:], 4 + 4  # [ERR ID data(4) CRC(2)] per servo
+    assert len(body) == 3 * seg
+    first_crc = body[seg - 2:seg]
+    assert first_crc == crc16(reply[:8 + seg - 2]).to_bytes(2, "little")  # servo 1: clean
+    second = reply[:8 + 2 * seg - 2]
+    # Servo 2 and its twin sent their own CRCs at once: the ANDed bytes no longer match.
+    assert body[2 * seg - 2:2 * seg] != crc16(second).to_bytes(2, "little")
+    # Servo 3 computes its CRC over what it heard, so the packet CRC the SDK checks is valid.
+    assert body[3 * seg - 2:] == crc16(reply[:-2]).to_bytes(2, "little")
+
+
 def test_hardware_error_sets_alert_until_reboot(bus, sdk):
     p, port = sdk.packet, sdk.port
     assert p.write1ByteTxRx(port, 1, 64, 1) == (dxl.COMM_SUCCESS, 0)
