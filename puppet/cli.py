@@ -187,6 +187,7 @@ def live(rig_path: str, port: str, baud: int, take_path: str | None, out: str | 
       puppet live --rig my.toml --port /dev/ttyUSB0 --record take.mcap --out live.mp4
     """
     from puppet.pipeline import Pipeline, run_live
+    from puppet.take import BackgroundTakeWriter
 
     rig = _load_rig(rig_path)
     sinks = _sinks(out, frames, fps)
@@ -194,7 +195,8 @@ def live(rig_path: str, port: str, baud: int, take_path: str | None, out: str | 
     with Pipeline(rig, render=bool(sinks), overlay=True, antialias=antialias) as pipeline:
         source = _start_reader(rig, port, baud)
         try:
-            recorder = _take_writer(take_path, rig) if take_path else None
+            # On its own thread: a periodic fsync must not stall a frame.
+            recorder = BackgroundTakeWriter(_take_writer(take_path, rig)) if take_path else None
             try:
                 summary = run_live(pipeline, source, seconds=seconds, sinks=sinks, video_fps=fps,
                                    recorder=recorder, should_stop=stop)

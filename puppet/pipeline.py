@@ -1,6 +1,6 @@
 """The loop that joins the parts: reading -> joint angles -> constraint values -> FAST -> image.
 
-    source (ReaderThread on a bus, or a take's PlaybackClock)
+    source (ReaderProcess on a bus, or a take's PlaybackClock)
       -> Pipeline.solve(reading)   servo map + calibration -> Rig.fill_values -> Solver.solve
       -> Pipeline.draw()           Renderer.draw(T) -> (h, w, 3) uint8
       -> sinks                     VideoSink / PngSink / TakeWriter
@@ -68,17 +68,19 @@ class Pipeline:
                 self._base_states[index[name]] = BONE_KIND_STATES[kind]
         self._servo_bone = np.array([index[s.joint] for s in rig.servo_map.servos], np.int64)
         self.bone_states = list(self._base_states)
-        sk = rig.skeleton
+        sk = rig.skeleton  # rest bones for the overlay
         self.bone_segments = np.ascontiguousarray(np.stack([sk.heads, sk.tails], axis=1))  # (b, 2, 3)
         self.overlay = overlay
         self.renderer = None
         self.antialias = "none"
         if render:
             from puppet.render import Renderer, create_context
+            from puppet.render.context import gl_renderer_name
 
             self._context = create_context()
             if antialias == "auto":
-                software = any(name in self._context.info["GL_RENDERER"].lower() for name in SOFTWARE_GL)
+                gl_name = gl_renderer_name(self._context).lower()
+                software = any(name in gl_name for name in SOFTWARE_GL)
                 antialias = "none" if software else "msaa"
             self.antialias = antialias
             self.renderer = Renderer(rig.V, rig.F, self.model.weights, width=width, height=height,

@@ -2,6 +2,7 @@
 
 import json
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -79,6 +80,18 @@ def test_record_killed_then_played_and_exported(tmp_path):
     text = bvh.read_text()
     assert text.startswith("HIERARCHY")
     assert f"Frames: {num_samples}" in text
+
+
+def test_live_records_every_reading_and_writes_video(tmp_path):
+    take, video = tmp_path / "live.mcap", tmp_path / "live.mp4"
+    with hw_sim.serve(_models(), motion="wave") as bus:
+        result = run("live", "--rig", BUILTIN_RIG, "--port", bus.link, "--seconds", 2,
+                     "--record", take, "--out", video)
+    assert result.returncode == 0, result.stderr
+    readings = int(re.search(r"(\d+) readings", result.stdout).group(1))
+    assert readings > 100
+    assert len(TakeReader(take)) == readings
+    assert imageio_ffmpeg.count_frames_and_secs(str(video))[0] >= 30
 
 
 def test_play_is_deterministic(tmp_path):
