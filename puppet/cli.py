@@ -269,6 +269,8 @@ def _open_take(take: str, rig_path: str | None):
         reader = TakeReader(take)
     except TakeError as err:
         _fail(str(err))
+    if len(reader) == 0:
+        _fail(f"{take}: the take holds no readings")
     meta = reader.metadata
     if rig_path is None:
         rig = _load_rig(None)
@@ -320,7 +322,10 @@ def play(take: str, rig_path: str | None, out: str | None, frames: str | None, s
     try:
         with Pipeline(rig, overlay=True, antialias=antialias) as pipeline:
             clock = PlaybackClock(reader.readings(ids=ids), fps=fps, speed=speed)
-            summary = run_frames(pipeline, (f.reading for f in clock), sinks=sinks)
+            total = clock.frame_count(reader.t_last_ns - reader.t_first_ns)
+            with click.progressbar(length=total, label="play", file=sys.stderr) as bar:
+                summary = run_frames(pipeline, (f.reading for f in clock), sinks=sinks,
+                                     on_frame=lambda _p: bar.update(1))
     finally:
         for sink in sinks:
             sink.close()
@@ -427,14 +432,19 @@ def export(take: str, rig_path: str | None, pc2: str | None, bvh: str | None, fp
                 writers.append(motion)
                 rotations = np.empty((sk.bone_count, 3, 3))
 
+            clock = PlaybackClock(reader.readings(ids=ids), fps=fps)
+            bar = click.progressbar(length=clock.frame_count(reader.t_last_ns - reader.t_first_ns),
+                                    label="export", file=sys.stderr)
+
             def write(p: Pipeline) -> None:
+                bar.update(1)
                 if pc2:
                     cache.write(p.deformed().astype(np.float32))
                 if bvh:
                     motion.write(sk.joint_rotations(p.angles, rotations))
 
-            clock = PlaybackClock(reader.readings(ids=ids), fps=fps)
-            summary = run_frames(pipeline, (f.reading for f in clock), on_frame=write)
+            with bar:
+                summary = run_frames(pipeline, (f.reading for f in clock), on_frame=write)
     except ExportError as err:
         _fail(str(err))
     finally:

@@ -174,14 +174,15 @@ class Summary:
 
     def text(self) -> str:
         d = self.as_dict()
+        lines = [f"frames {d['frames']} in {d['seconds']} s ({d['fps']} fps), {d['readings']} readings"]
+        if self.latency_ms:  # live runs only: playback has no reading-to-frame latency
+            lines.append(f"latency reading->frame: median {d['latency_median_ms']} ms, "
+                         f"p99 {d['latency_p99_ms']} ms")
+        lines.append(f"solver: {d['solver_us_per_iter']} us/iteration, "
+                     f"{d['iterations_per_frame']} iterations/frame")
         faults = ", ".join(f"{k} {v}" for k, v in sorted(d["faults"].items())) or "none"
-        return (f"frames {d['frames']} in {d['seconds']} s ({d['fps']} fps), "
-                f"{d['readings']} readings\n"
-                f"latency reading->frame: median {d['latency_median_ms']} ms, "
-                f"p99 {d['latency_p99_ms']} ms\n"
-                f"solver: {d['solver_us_per_iter']} us/iteration, "
-                f"{d['iterations_per_frame']} iterations/frame\n"
-                f"faults seen: {faults}")
+        lines.append(f"faults seen: {faults}")
+        return "\n".join(lines)
 
 
 def _finish(summary: Summary, pipeline: Pipeline) -> Summary:

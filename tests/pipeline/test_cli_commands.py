@@ -144,6 +144,13 @@ def test_bad_input_gives_clear_errors(tmp_path):
     assert result.returncode != 0
     assert "another rig" in result.stderr
 
+    empty = tmp_path / "empty.mcap"
+    TakeWriter(empty, ids=[int(i) for i in _models()], models=_models(), rig_map_text="",
+               calibration_text="", rig_name="critter").close()
+    result = run("export", empty, "--pc2", tmp_path / "e.pc2")
+    assert result.returncode != 0
+    assert "no readings" in result.stderr and str(empty) in result.stderr
+
     result = run("scan", "--port", "/dev/puppet-no-such-port")
     assert result.returncode != 0
     assert "/dev/puppet-no-such-port" in result.stderr
