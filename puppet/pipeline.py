@@ -273,8 +273,10 @@ def run_frames(pipeline: Pipeline, readings: Iterable[Reading], *, sinks: Iterab
     sinks = list(sinks)
     render = bool(sinks) and pipeline.renderer is not None
     summary = Summary()
+    not_ok = 0
     start = time.monotonic()
     for reading in readings:
+        not_ok += not reading.ok.all()
         pipeline.solve(reading)
         if render:
             image = pipeline.draw()
@@ -285,4 +287,6 @@ def run_frames(pipeline: Pipeline, readings: Iterable[Reading], *, sinks: Iterab
         summary.frames += 1
         summary.readings += 1
     summary.seconds = time.monotonic() - start
+    if not_ok:
+        summary.faults["servo_not_ok"] = not_ok  # flagged servos recorded in the take
     return _finish(summary, pipeline)
