@@ -46,19 +46,22 @@ def run_demo(*, seconds: float, sinks_for: Callable[[Pipeline], list], faults=No
              height: int = 480, iterations: int = 8, video_fps: float = 30.0, overlay: bool = True,
              antialias: str = "auto",
              timing: bool = True, baud: int = 1_000_000, rate_hz: float = 250.0,
+             latency_ms: int = 3,
              on_frame: Callable[[Summary], None] | None = None) -> tuple[Summary, object]:
     """Run the built-in character on hw_sim for ``seconds``; returns (summary, setup report).
 
     sinks_for: called with the ready Pipeline, returns the sinks to feed (e.g. a VideoSink).
     faults: a hw_sim fault file (or schedule) to play during the run.
     rate_hz: bus readings per second (the reader process's steady rate).
+    latency_ms: the SDK's latency assumption; 3 ms leaves the simulator (a process competing
+        for the same cores as the renderer and the video encoder) room to answer late.
     """
     rig = builtin()
     models = rig.servo_map.models
     with Pipeline(rig, iterations=iterations, width=width, height=height, overlay=overlay,
                   antialias=antialias) as pipeline:
         with hw_sim.serve(models, motion=Performance(rig), faults=faults, timing=timing, baud=baud) as bus:
-            source = ReaderProcess(bus.link, models, rate_hz=rate_hz, baud=baud)
+            source = ReaderProcess(bus.link, models, rate_hz=rate_hz, baud=baud, latency_ms=latency_ms)
             report = source.start()
             sinks = sinks_for(pipeline)
             try:
