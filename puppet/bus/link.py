@@ -209,18 +209,10 @@ class BusLink:
 
     def read(self, dxl_id: int, item: Item) -> int:
         """Read one item of one servo -> value. The reply's length is checked (the SDK does not)."""
-        instruction = f"read {item.name}"
-        with self._transaction([dxl_id], instruction):
-            data, code, error = self.ph.readTxRx(self.port, dxl_id, item.address, item.size)
-        if code != rd.COMM_SUCCESS:
-            raise self._fail(code, [dxl_id], instruction)
-        if error & 0x7F or len(data) != item.size:
-            raise ServoStatusError([dxl_id], instruction, describe_status_error(error)
-                                   + f", {len(data)} of {item.size} data bytes", error=error)
-        return item.decode(data)
+        return self.read_with_status(dxl_id, item)[0]
 
     def read_with_status(self, dxl_id: int, item: Item) -> tuple[int, int]:
-        """Like ``read`` but also return the status error byte (its alert bit)."""
+        """Read one item -> (value, status error byte with its alert bit)."""
         instruction = f"read {item.name}"
         with self._transaction([dxl_id], instruction):
             data, code, error = self.ph.readTxRx(self.port, dxl_id, item.address, item.size)
