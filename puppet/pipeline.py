@@ -215,7 +215,7 @@ def run_live(pipeline: Pipeline, source, *, seconds: float | None = None,
              on_frame: Callable[[Summary], None] | None = None) -> Summary:
     """Run the live loop until ``seconds`` pass or ``should_stop()`` (e.g. Ctrl-C).
 
-    source:   a started ReaderProcess (or ReaderThread): ``drain()``, ``latest(timeout)`` and
+    source:   a started ReaderProcess or ReaderThread: ``drain()``, ``latest(timeout)`` and
               ``log`` (bus events); every reading it gives is recorded (``recorder.write``), the
               newest one is solved and drawn.
     sinks:    objects with ``write(image)`` fed at ``video_fps`` by wall clock (a frame is

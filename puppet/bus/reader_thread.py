@@ -111,6 +111,11 @@ class ReaderThread:
         self.stop()
 
     @property
+    def log(self):
+        """The reader's EventLog of bus events (same attribute as ReaderProcess.log)."""
+        return self.reader.log
+
+    @property
     def alive(self) -> bool:
         return self._thread is not None and self._thread.is_alive()
 

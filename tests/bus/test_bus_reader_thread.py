@@ -65,3 +65,26 @@ def test_thread_survives_unplug_and_runs_commands(sim, open_reader):
         assert "not actuators" in str(bad.exception(timeout=2))
     assert not thread.alive
     assert reader.log.counts["port_restored"] == 1
+
+
+def test_reader_thread_feeds_the_live_loop(sim, open_reader):
+    """run_live takes a ReaderThread as well as a ReaderProcess (drain, latest, log)."""
+    from puppet.pipeline import run_live
+
+    class SolveCounter:
+        iterations = 0
+        solve_ns = 0
+        solver_iterations = 0
+        renderer = None
+
+        def solve(self, reading):
+            self.last = reading
+
+    bus = sim(motion="wave")
+    reader = open_reader(bus)
+    counter = SolveCounter()
+    with ReaderThread(reader, rate_hz=200.0, queue_len=256) as thread:
+        summary = run_live(counter, thread, seconds=0.5)
+    assert summary.frames > 5
+    assert summary.faults == dict(reader.log.counts)
+    assert counter.last.ok.all()
