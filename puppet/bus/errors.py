@@ -4,8 +4,10 @@ from __future__ import annotations
 
 from collections.abc import Iterable
 
+from puppet.errors import PuppetError
 
-class BusError(Exception):
+
+class BusError(PuppetError):
     """Base of every error raised by ``puppet.bus``."""
 
 

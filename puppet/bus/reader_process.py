@@ -24,9 +24,10 @@ import numpy as np
 
 from puppet.bus.health import EventLog
 from puppet.bus.reading import Reading
+from puppet.errors import PuppetError
 
 
-class ReaderProcessError(RuntimeError):
+class ReaderProcessError(PuppetError, RuntimeError):
     """The reader process could not start or stopped on an error (message from the child)."""
 
 

@@ -15,9 +15,10 @@ from concurrent.futures import Future
 from puppet.bus.errors import BusError
 from puppet.bus.reader import ServoReader
 from puppet.bus.reading import Reading
+from puppet.errors import PuppetError
 
 
-class ReaderDied(RuntimeError):
+class ReaderDied(PuppetError, RuntimeError):
     """The reader thread stopped on an unexpected error (a bug, not a bus fault); see __cause__."""
 
 

@@ -2,8 +2,10 @@
 
 from __future__ import annotations
 
+from puppet.errors import PuppetError
 
-class ExportError(Exception):
+
+class ExportError(PuppetError):
     """An export cannot be written as asked.
 
     path:   the output file.

@@ -2,8 +2,10 @@
 
 from __future__ import annotations
 
+from puppet.errors import PuppetError
 
-class FastError(ValueError):
+
+class FastError(PuppetError, ValueError):
     """Base class: bad input to the FAST precompute or solve."""
 
 

@@ -1,10 +1,12 @@
 """Typed errors of the renderer: a missing GL stack, bad input arrays, bad sink settings."""
 
+from puppet.errors import PuppetError
+
 #: System packages (Debian/Ubuntu names) that provide headless EGL with Mesa's llvmpipe.
 EGL_PACKAGES = ("libegl1", "libegl-mesa0", "libgl1-mesa-dri", "libgbm1")
 
 
-class RenderError(RuntimeError):
+class RenderError(PuppetError, RuntimeError):
     """The renderer cannot do what was asked (no EGL, GL limits exceeded, GL errors)."""
 
 

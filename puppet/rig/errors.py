@@ -2,8 +2,10 @@
 
 from __future__ import annotations
 
+from puppet.errors import PuppetError
 
-class RigError(ValueError):
+
+class RigError(PuppetError, ValueError):
     """A rig file or rig object is invalid.
 
     path:  the file at fault, or None for in-memory data.

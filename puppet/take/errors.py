@@ -2,8 +2,10 @@
 
 from __future__ import annotations
 
+from puppet.errors import PuppetError
 
-class TakeError(Exception):
+
+class TakeError(PuppetError):
     """A take file is missing, unreadable, or not a puppet take.
 
     path:   the take file.

@@ -1,0 +1,73 @@
+"""The puppet command line: one module per command (group); each parses, calls its part, prints.
+
+Nothing imports this package. Every library error (``PuppetError``) and every file-system error
+becomes ``Error: <message>`` on stderr with exit status 1, here and only here; an unexpected
+error does too (its traceback only with ``PUPPET_DEBUG=1``).
+"""
+
+from __future__ import annotations
+
+import os
+
+# On a small machine OpenBLAS worker threads busy-wait after every numpy call and steal the
+# core the solver, the renderer and the bus reader need; puppet's numpy work is small.
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+
+import click  # noqa: E402
+
+from puppet.errors import PuppetError  # noqa: E402
+
+
+def _os_message(err: OSError) -> str:
+    """An OSError in words, naming the file it concerns."""
+    where = f"{err.filename}: " if err.filename else ""
+    return f"{where}{err.strerror or err}"
+
+
+class _PuppetGroup(click.Group):
+    """A click group that turns library and file-system errors into ``Error: …``, exit 1."""
+
+    def invoke(self, ctx: click.Context):
+        try:
+            return super().invoke(ctx)
+        except (click.ClickException, click.exceptions.Exit, click.Abort, KeyboardInterrupt):
+            raise
+        except PuppetError as err:
+            raise click.ClickException(str(err)) from None
+        except OSError as err:
+            raise click.ClickException(_os_message(err)) from None
+        except Exception as err:  # noqa: BLE001 - the one place a bug meets the user
+            if os.environ.get("PUPPET_DEBUG"):
+                raise
+            raise click.ClickException(
+                f"internal error: {type(err).__name__}: {err} "
+                "(run with PUPPET_DEBUG=1 for the traceback, and please report it)") from None
+
+
+@click.group(cls=_PuppetGroup, context_settings={"help_option_names": ["-h", "--help"]})
+@click.version_option(package_name="puppet")
+def main() -> None:
+    """Turn a posed puppet of Dynamixel servos into rendered character animation.
+
+    \b
+    Examples:
+      puppet demo                          built-in character on a simulated bus
+      puppet rig info --json               check the built-in rig
+      hw-sim --servos 1-15 &               a simulated bus; prints its port
+      puppet scan --port /dev/ttyUSB0
+      puppet calibrate --rig my.toml --port /dev/ttyUSB0
+      puppet live --rig my.toml --port /dev/ttyUSB0 --record take.mcap --out live.mp4
+      puppet play take.mcap --out take.mp4 --speed 0.5
+      puppet export take.mcap --pc2 mesh.pc2 --bvh skeleton.bvh
+    """
+
+
+def _register() -> None:
+    from puppet.cli import bus, demo, export, live, play, record, rig
+
+    for module in (demo, live, record, play, export, bus, rig):
+        for command in module.COMMANDS:
+            main.add_command(command)
+
+
+_register()

@@ -1,0 +1,151 @@
+"""Helpers shared by the commands: loading a rig or a take, starting the reader, sinks, output."""
+
+from __future__ import annotations
+
+import json
+import signal
+import sys
+import time
+from pathlib import Path
+
+import click
+
+
+def fail(message: str) -> None:
+    """Exit 1 with 'Error: message' on stderr."""
+    raise click.ClickException(message)
+
+
+def load_rig(rig_path: str | None):
+    """The rig at rig_path (the built-in character when None); errors name the file and field."""
+    from puppet.rig import builtin, load_rig as load
+
+    return builtin() if rig_path is None else load(rig_path)
+
+
+def start_reader(rig, port: str, baud: int, rate_hz: float = 500.0):
+    """A started ReaderProcess reading the rig's servos on ``port``; reports what setup did."""
+    from puppet.bus.reader_process import ReaderProcess, ReaderProcessError
+
+    if not rig.servo_map.ids.size:
+        fail(f"{rig.path or rig.name}: the rig has no servos to read")
+    source = ReaderProcess(port, rig.servo_map.models, rate_hz=rate_hz, baud=baud)
+    try:
+        report = source.start()
+    except ReaderProcessError as err:
+        fail(f"port {port}: {err}")
+    print_setup(report, port)
+    return source
+
+
+def print_setup(report, port: str) -> None:
+    """Report what the bus setup found and changed (on stderr)."""
+    if report.missing:
+        click.echo(f"warning: servos {report.missing} did not answer on {port}; they are flagged "
+                   "and probed until they appear", err=True)
+    for change in report.changes:
+        click.echo(f"servo {change.id}: {change.item} {change.old} -> {change.new}", err=True)
+
+
+class StopFlag:
+    """Set by SIGINT/SIGTERM so loops end cleanly and every sink is closed."""
+
+    def __init__(self):
+        self.stop = False
+        signal.signal(signal.SIGINT, self._set)
+        signal.signal(signal.SIGTERM, self._set)
+
+    def _set(self, *_):
+        self.stop = True
+
+    def __call__(self) -> bool:
+        return self.stop
+
+
+def make_sinks(out: str | None, frames: str | None, fps: float) -> list:
+    """Frame sinks for a video file and/or a PNG folder."""
+    from puppet.render import PngSink, VideoSink
+
+    sinks = []
+    if out:
+        sinks.append(VideoSink(out, fps))
+    if frames:
+        Path(frames).mkdir(parents=True, exist_ok=True)
+        sinks.append(PngSink(frames))
+    return sinks
+
+
+def progress(seconds: float | None, label: str):
+    """A click progress bar over wall time, and the on_frame callback that advances it."""
+    if seconds is None:
+        return None, None
+    bar = click.progressbar(length=max(1, int(seconds * 10)), label=label, file=sys.stderr)
+    start = time.monotonic()
+    shown = [0]
+
+    def on_frame(_summary) -> None:
+        done = min(bar.length, int((time.monotonic() - start) * 10))
+        if done > shown[0]:
+            bar.update(done - shown[0])
+            shown[0] = done
+
+    return bar, on_frame
+
+
+class Null:
+    """A context manager that does nothing (stands in for an absent progress bar)."""
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        return False
+
+
+def print_summary(summary, as_json: bool, extra: dict | None = None) -> None:
+    """The loop summary as text or one JSON line, with extra key/values first."""
+    if as_json:
+        click.echo(json.dumps({**summary.as_dict(), **(extra or {})}))
+        return
+    for key, value in (extra or {}).items():
+        click.echo(f"{key}: {value}")
+    click.echo(summary.text())
+
+
+def take_writer(take_path: str, rig):
+    """A TakeWriter for the rig's servos, with its rig map and calibration as metadata."""
+    from puppet.take import TakeWriter
+
+    map_text = rig.path.read_text() if rig.path is not None and rig.path.suffix == ".toml" else ""
+    calibration = {str(i): int(z) for i, z in zip(rig.servo_map.ids, rig.servo_map.zero)}
+    return TakeWriter(take_path, ids=[int(i) for i in rig.servo_map.ids],
+                      models=dict(rig.servo_map.models), rig_map_text=map_text,
+                      calibration_text=json.dumps({"zero_ticks": calibration}),
+                      rig_name=rig.name, overwrite=True)
+
+
+def open_take(take: str, rig_path: str | None):
+    """(rig, TakeReader) for a take; the rig is the take's own when --rig is not given."""
+    from puppet.rig import Calibration
+    from puppet.take import TakeReader
+
+    reader = TakeReader(take)
+    if len(reader) == 0:
+        fail(f"{take}: the take holds no readings")
+    meta = reader.metadata
+    if rig_path is None:
+        rig = load_rig(None)
+        if meta.rig_name != rig.name:
+            fail(f"{take}: recorded with rig {meta.rig_name!r}; pass --rig with that rig's file")
+    else:
+        rig = load_rig(rig_path)
+    reader.check_rig([int(i) for i in rig.servo_map.ids], dict(rig.servo_map.models))
+    try:  # replay with the calibration the take was recorded with
+        zero = json.loads(meta.calibration_text).get("zero_ticks", {}) if meta.calibration_text else {}
+        if zero:
+            rig.servo_map.calibrate(Calibration({int(k): int(v) for k, v in zero.items()}))
+    except (ValueError, AttributeError) as err:
+        fail(f"{take}: unreadable calibration in the take: {err}")
+    if reader.truncated:
+        click.echo(f"warning: {take}: {reader.recovery}", err=True)
+    return rig, reader

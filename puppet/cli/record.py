@@ -1,0 +1,48 @@
+"""``puppet record``: raw servo readings into a take, without solving or rendering."""
+
+from __future__ import annotations
+
+import time
+
+import click
+
+from puppet.cli.common import StopFlag, load_rig, start_reader, take_writer
+
+
+@click.command()
+@click.option("--rig", "rig_path", required=True, help="Rig file (TOML).")
+@click.option("--port", required=True, help="Serial port.")
+@click.option("--out", required=True, help="Take file to write (.mcap).")
+@click.option("--baud", default=1_000_000, show_default=True, help="Bus baud rate.")
+@click.option("--seconds", default=None, type=float, help="Stop after this long (default: Ctrl-C).")
+@click.option("--rate", default=500.0, show_default=True, help="Readings per second.")
+def record(rig_path: str, port: str, out: str, baud: int, seconds: float | None, rate: float) -> None:
+    """Record a take (raw servo readings) without solving or rendering: the lightest loop.
+
+    \b
+    Example:
+      puppet record --rig my.toml --port /dev/ttyUSB0 --out take.mcap --seconds 30
+    """
+    rig = load_rig(rig_path)
+    writer = take_writer(out, rig)
+    source = start_reader(rig, port, baud, rate_hz=rate)
+    stop = StopFlag()
+    start = time.monotonic()
+    count = flagged = 0
+    try:
+        while not stop() and (seconds is None or time.monotonic() - start < seconds):
+            batch = source.drain()
+            if not batch:
+                time.sleep(0.005)
+            for reading in batch:
+                writer.write(reading)
+                count += 1
+                flagged += int(not reading.ok.all())
+    finally:
+        writer.close()
+        source.stop()
+    click.echo(f"take: {out}\nreadings: {count} in {time.monotonic() - start:.2f} s, "
+               f"{flagged} with a flagged servo\nfaults seen: {dict(source.log.counts) or 'none'}")
+
+
+COMMANDS = (record,)
