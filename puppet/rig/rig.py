@@ -55,6 +55,10 @@ class Rig:
     pins:           (p,) int64 vertex indices held at their rest positions.
     fixed:          names of bones declared fixed (sensed, identity joint).
     path:           the file the rig was loaded from, if any.
+    source_index:   (n_source,) int64 or None: for each vertex of the character file, in the
+                    file's own order, its index in ``V`` (the loader welds copies that the file
+                    split at UV seams). None means the file's order is ``V``'s. Exports that must
+                    match the source file (PC2) write ``deformed[source_index]``.
     """
 
     name: str
@@ -68,6 +72,7 @@ class Rig:
     pins: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
     fixed: tuple[str, ...] = ()
     path: Path | None = None
+    source_index: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         self.V = np.ascontiguousarray(self.V, np.float64)
