@@ -1,15 +1,21 @@
 """glTF 2.0 skinned meshes (.glb and .gltf) via pygltflib.
 
-What is read: the first node that has both a mesh and a skin; every triangle primitive of that
-mesh (POSITION, indices, all JOINTS_n/WEIGHTS_n sets); accessors with byteStride, normalized
-integers and sparse substitution; the skin's joints, their node hierarchy and rest pose, and
-inverse bind matrices (identity when absent).
+What is read: one skin (the only one the meshes use, or the one chosen with ``skin=``) and every
+node that has a mesh and that skin; every triangle primitive of those meshes (POSITION, indices,
+all JOINTS_n/WEIGHTS_n sets); accessors with byteStride, normalized integers and sparse
+substitution; the skin's joints, their node hierarchy and rest pose, and inverse bind matrices
+(identity when absent).
 
 Rest geometry: the rig's rest vertices are the glTF skinning formula evaluated at the nodes'
 rest pose, ``v = Σ_j w_j G_j IBM_j v_mesh`` (equal to the mesh positions when the file's rest
 pose is its bind pose). Bone j's pivot and frame are its joint node's rest global transform
 (scale removed); its tip is its child joint (if exactly one) or pivot + frame y · length.
 Weights of all sets are summed per joint and rows renormalized to 1.
+
+Welding: copies of a vertex that the exporter split at seams (same position, same weights) are
+welded into one (``puppet.rig.weld``); ``source_index`` maps the file's vertices to the welded
+ones. Joints that no vertex follows are kept (the solver moves them rigidly with their
+neighbours) and listed in ``unused_joints`` so commands can warn.
 """
 
 from __future__ import annotations
@@ -23,23 +29,40 @@ import numpy as np
 from puppet.rig.errors import RigError
 from puppet.rig.skeleton import Skeleton
 from puppet.rig.weight_check import normalize_weights
+from puppet.rig.weld import weld_index, weld_mesh
 
 COMPONENT_DTYPES = {5120: np.int8, 5121: np.uint8, 5122: np.int16, 5123: np.uint16,
                     5125: np.uint32, 5126: np.float32}
 TYPE_SIZES = {"SCALAR": 1, "VEC2": 2, "VEC3": 3, "VEC4": 4, "MAT2": 4, "MAT3": 9, "MAT4": 16}
 TRIANGLES = 4
+GLB_MAGIC = b"glTF"
+#: A joint whose weight never exceeds this influences no vertex.
+UNUSED_WEIGHT = 1e-6
 
 
 @dataclass
 class GltfCharacter:
-    """V (n, 3) float64, F (f, 3) int32, W (n, bones) float64, skeleton (bones = skin joints,
-    reordered parents-first), and joint_nodes (bones,) the glTF node index of each bone."""
+    """A skinned character read from a glTF file, welded.
+
+    V:              (n, 3) float64 rest vertices (welded), F (f, 3) int32, W (n, bones) float64.
+    skeleton:       bones = skin joints, reordered parents first.
+    joint_nodes:    (bones,) the glTF node index of each bone.
+    source_index:   (n_file,) int64: for each vertex of the file (primitives in order), its index
+                    in ``V``; None when nothing was welded (the file's order is ``V``'s).
+    file_vertices:  vertex count in the file (before welding).
+    skin:           index of the skin read.
+    unused_joints:  names of bones that no vertex follows (weight <= UNUSED_WEIGHT everywhere).
+    """
 
     V: np.ndarray
     F: np.ndarray
     W: np.ndarray
     skeleton: Skeleton
     joint_nodes: np.ndarray
+    source_index: np.ndarray | None = None
+    file_vertices: int = 0
+    skin: int = 0
+    unused_joints: tuple[str, ...] = ()
 
 
 class _Accessors:
@@ -153,13 +176,163 @@ def _node_local(node) -> np.ndarray:
     return m
 
 
-def read_gltf(path) -> GltfCharacter:
-    """Read the first skinned mesh of a .glb/.gltf file; errors name the file and the field."""
+def _check_container(path: Path) -> None:
+    """RigError unless the file is a glTF 2.0 binary (.glb) or JSON (.gltf) document."""
+    import json
+    import struct
+
+    try:
+        with open(path, "rb") as handle:
+            head = handle.read(20)
+            if head[:4] == GLB_MAGIC:
+                if len(head) < 20:
+                    raise RigError("not a glTF file: the binary header is cut short", path=path)
+                version, _, json_length, json_type = struct.unpack_from("<IIII", head, 4)
+                if version != 2:
+                    raise RigError(f"glTF binary version {version}; only glTF 2.0 is read", path=path)
+                if json_type != 0x4E4F534A:
+                    raise RigError("not a glTF file: the first chunk is not JSON", path=path)
+                raw = handle.read(json_length)
+            elif path.suffix.lower() == ".glb":
+                raise RigError(f"not a glTF binary: a .glb starts with 'glTF', this file starts "
+                               f"with {head[:4]!r}", path=path)
+            else:
+                raw = head + handle.read()
+    except OSError as err:
+        raise RigError(f"cannot read: {err.strerror}", path=path) from err
+    try:
+        doc = json.loads(raw)
+    except (ValueError, UnicodeDecodeError) as err:
+        raise RigError(f"not a glTF file: its JSON does not parse ({err})", path=path) from err
+    asset = doc.get("asset") if isinstance(doc, dict) else None
+    if not isinstance(asset, dict) or "version" not in asset:
+        raise RigError("not a glTF file: no 'asset' with a 'version'", path=path, field="asset")
+    if not str(asset["version"]).startswith("2"):
+        raise RigError(f"glTF version {asset['version']}; only glTF 2.0 is read", path=path,
+                       field="asset.version")
+
+
+def _choose_skin(gltf, path: Path, skin: int | None) -> tuple[int, list[int]]:
+    """(skin index, node indices that have a mesh and that skin)."""
+    nodes = gltf.nodes or []
+    skins = gltf.skins or []
+    skinned = [i for i, n in enumerate(nodes) if n.mesh is not None and n.skin is not None]
+    for i in skinned:
+        if not 0 <= nodes[i].mesh < len(gltf.meshes or []) or not 0 <= nodes[i].skin < len(skins):
+            raise RigError(f"mesh {nodes[i].mesh} or skin {nodes[i].skin} does not exist", path=path,
+                           field=f"nodes[{i}]")
+    used = sorted({nodes[i].skin for i in skinned})
+
+    def named(k):
+        return f"{k} ({skins[k].name!r})" if skins[k].name else str(k)
+
+    if skin is not None:
+        if not 0 <= skin < len(skins):
+            raise RigError(f"skin {skin} does not exist: the file has {len(skins)} skin(s)", path=path,
+                           field="skins")
+        chosen = [i for i in skinned if nodes[i].skin == skin]
+        if not chosen:
+            raise RigError(f"no mesh uses skin {named(skin)}; skinned meshes use "
+                           f"{', '.join(named(k) for k in used) or 'none'}", path=path, field="skins")
+        return skin, chosen
+    if not used:
+        meshes = len(gltf.meshes or [])
+        raise RigError(f"no skin: {meshes} mesh(es) and {len(skins)} skin(s), but no node has both a "
+                       "mesh and a skin (export the mesh with its armature and skinning on)",
+                       path=path, field="skins")
+    if len(used) > 1:
+        raise RigError(f"{len(used)} skins are used by meshes: {', '.join(named(k) for k in used)}; "
+                       "choose one with --skin N (or 'skin = N' in the rig file)", path=path, field="skins")
+    return used[0], [i for i in skinned if nodes[i].skin == used[0]]
+
+
+def _read_meshes(gltf, acc: _Accessors, path: Path, mesh_nodes: list[int], joint_count: int):
+    """(positions (n, 3), triangles (f, 3) int64, weights (n, joints)) of every triangle
+    primitive of the meshes of ``mesh_nodes``, concatenated in order."""
+    positions, triangles, weights = [], [], []
+    offset = 0
+    for node_index in mesh_nodes:
+        mesh_index = gltf.nodes[node_index].mesh
+        for p_index, prim in enumerate(gltf.meshes[mesh_index].primitives):
+            where = f"meshes[{mesh_index}].primitives[{p_index}]"
+            if (prim.mode if prim.mode is not None else TRIANGLES) != TRIANGLES:
+                raise RigError(f"mode {prim.mode} is not triangles (4)", path=path, field=where)
+            attributes = {k: v for k, v in vars(prim.attributes).items() if v is not None}
+            if "POSITION" not in attributes:
+                raise RigError("no POSITION attribute", path=path, field=where)
+            P = acc.read(attributes["POSITION"], f"{where}.POSITION").astype(np.float64)
+            if P.shape[1] != 3:
+                raise RigError("POSITION must be VEC3", path=path, field=f"{where}.POSITION")
+            n = len(P)
+            if prim.indices is not None:
+                idx = acc.read(prim.indices, f"{where}.indices", normalize=False).reshape(-1).astype(np.int64)
+            else:
+                idx = np.arange(n)
+            if len(idx) % 3 or (len(idx) and (idx.min() < 0 or idx.max() >= n)):
+                raise RigError(f"indices must be triples below {n}", path=path, field=f"{where}.indices")
+            sets = sorted(int(k.split("_")[1]) for k in attributes if k.startswith("JOINTS_"))
+            if not sets:
+                raise RigError("no JOINTS_0/WEIGHTS_0 attributes (mesh is not skinned)", path=path, field=where)
+            Wp = np.zeros((n, joint_count))
+            for s in sets:
+                if f"WEIGHTS_{s}" not in attributes:
+                    raise RigError(f"JOINTS_{s} without WEIGHTS_{s}", path=path, field=where)
+                J = acc.read(attributes[f"JOINTS_{s}"], f"{where}.JOINTS_{s}", normalize=False).astype(np.int64)
+                Ws = acc.read(attributes[f"WEIGHTS_{s}"], f"{where}.WEIGHTS_{s}").astype(np.float64)
+                if J.shape != (n, 4) or Ws.shape != (n, 4):
+                    raise RigError(f"JOINTS_{s}/WEIGHTS_{s} must be VEC4 with {n} elements", path=path,
+                                   field=where)
+                used = Ws != 0
+                if used.any() and (J[used].min() < 0 or J[used].max() >= joint_count):
+                    raise RigError(f"joint index {int(J[used].max())} out of range: skin has {joint_count} "
+                                   "joints", path=path, field=f"{where}.JOINTS_{s}")
+                if (Ws < 0).any():
+                    raise RigError("negative weight", path=path, field=f"{where}.WEIGHTS_{s}")
+                np.add.at(Wp, (np.repeat(np.arange(n), 4)[used.reshape(-1)], J[used]), Ws[used])
+            positions.append(P)
+            triangles.append(idx.reshape(-1, 3) + offset)
+            weights.append(Wp)
+            offset += n
+    return np.concatenate(positions), np.concatenate(triangles), np.concatenate(weights)
+
+
+def _inverse_bind_matrices(skin, skin_index: int, acc: _Accessors, path: Path, names: list[str]) -> np.ndarray:
+    """(joints, 4, 4) inverse bind matrices; RigError naming the joint of one that is not an
+    invertible affine matrix."""
+    joints = len(skin.joints)
+    field = f"skins[{skin_index}].inverseBindMatrices"
+    if skin.inverseBindMatrices is None:
+        return np.tile(np.eye(4), (joints, 1, 1))
+    ibm = acc.read(skin.inverseBindMatrices, field)
+    if ibm.shape != (joints, 16):
+        raise RigError(f"needs {joints} MAT4, got {ibm.shape}", path=path, field=field)
+    ibm = ibm.reshape(-1, 4, 4).transpose(0, 2, 1)  # column-major in the file
+    for k, m in enumerate(ibm):
+        where = f"{field}[{k}] (joint {names[k]!r})"
+        if not np.isfinite(m).all():
+            raise RigError("not finite", path=path, field=where)
+        if np.abs(m[3] - [0, 0, 0, 1]).max() > 1e-6:
+            raise RigError(f"not an affine matrix: last row {m[3].tolist()}", path=path, field=where)
+        scale = max(float(np.abs(m[:3, :3]).max()), 1e-300)
+        det = float(np.linalg.det(m[:3, :3]))
+        if abs(det) <= 1e-9 * scale ** 3:
+            raise RigError(f"not invertible (determinant {det:.3g}): the joint's bind pose is "
+                           "degenerate (a zero scale?)", path=path, field=where)
+    return ibm
+
+
+def read_gltf(path, skin: int | None = None) -> GltfCharacter:
+    """Read one skinned character of a .glb/.gltf file; errors name the file and the field.
+
+    skin: index of the skin to read; None reads the only skin the file's meshes use (an error
+    lists the skins when there are several).
+    """
     import pygltflib
 
     path = Path(path)
     if not path.exists():
         raise RigError("glTF file not found", path=path)
+    _check_container(path)
     try:
         gltf = pygltflib.GLTF2.load(str(path))
     except (ValueError, KeyError, TypeError, OSError) as err:
@@ -168,66 +341,18 @@ def read_gltf(path) -> GltfCharacter:
         raise RigError("not a readable glTF 2.0 file", path=path)
     acc = _Accessors(gltf, path)
     nodes = gltf.nodes or []
-    skinned = [i for i, n in enumerate(nodes) if n.mesh is not None and n.skin is not None]
-    if not skinned:
-        raise RigError("no node has both a mesh and a skin", path=path, field="nodes")
-    node = nodes[skinned[0]]
-    if not 0 <= node.mesh < len(gltf.meshes or []) or not 0 <= node.skin < len(gltf.skins or []):
-        raise RigError(f"mesh {node.mesh} or skin {node.skin} does not exist", path=path,
-                       field=f"nodes[{skinned[0]}]")
-    skin = gltf.skins[node.skin]
-    joints = list(skin.joints)
+    skin_index, mesh_nodes = _choose_skin(gltf, path, skin)
+    skin_def = gltf.skins[skin_index]
+    joints = list(skin_def.joints)
     if not joints or not all(0 <= j < len(nodes) for j in joints):
         raise RigError(f"joints {joints} must be node indices below {len(nodes)}", path=path,
-                       field=f"skins[{node.skin}].joints")
+                       field=f"skins[{skin_index}].joints")
     if len(set(joints)) != len(joints):
-        raise RigError("a joint node is listed twice", path=path, field=f"skins[{node.skin}].joints")
+        raise RigError("a joint node is listed twice", path=path, field=f"skins[{skin_index}].joints")
+    joint_names = [nodes[j].name or f"joint{k}" for k, j in enumerate(joints)]
 
-    # Geometry and weights of every triangle primitive.
-    positions, triangles, weights = [], [], []
-    offset = 0
-    for p_index, prim in enumerate(gltf.meshes[node.mesh].primitives):
-        where = f"meshes[{node.mesh}].primitives[{p_index}]"
-        if (prim.mode if prim.mode is not None else TRIANGLES) != TRIANGLES:
-            raise RigError(f"mode {prim.mode} is not triangles (4)", path=path, field=where)
-        attributes = {k: v for k, v in vars(prim.attributes).items() if v is not None}
-        if "POSITION" not in attributes:
-            raise RigError("no POSITION attribute", path=path, field=where)
-        P = acc.read(attributes["POSITION"], f"{where}.POSITION").astype(np.float64)
-        if P.shape[1] != 3:
-            raise RigError("POSITION must be VEC3", path=path, field=f"{where}.POSITION")
-        n = len(P)
-        if prim.indices is not None:
-            idx = acc.read(prim.indices, f"{where}.indices", normalize=False).reshape(-1).astype(np.int64)
-        else:
-            idx = np.arange(n)
-        if len(idx) % 3 or (len(idx) and (idx.min() < 0 or idx.max() >= n)):
-            raise RigError(f"indices must be triples below {n}", path=path, field=f"{where}.indices")
-        sets = sorted(int(k.split("_")[1]) for k in attributes if k.startswith("JOINTS_"))
-        if not sets:
-            raise RigError("no JOINTS_0/WEIGHTS_0 attributes (mesh is not skinned)", path=path, field=where)
-        Wp = np.zeros((n, len(joints)))
-        for s in sets:
-            if f"WEIGHTS_{s}" not in attributes:
-                raise RigError(f"JOINTS_{s} without WEIGHTS_{s}", path=path, field=where)
-            J = acc.read(attributes[f"JOINTS_{s}"], f"{where}.JOINTS_{s}", normalize=False).astype(np.int64)
-            Ws = acc.read(attributes[f"WEIGHTS_{s}"], f"{where}.WEIGHTS_{s}").astype(np.float64)
-            if J.shape != (n, 4) or Ws.shape != (n, 4):
-                raise RigError(f"JOINTS_{s}/WEIGHTS_{s} must be VEC4 with {n} elements", path=path, field=where)
-            used = Ws != 0
-            if used.any() and (J[used].min() < 0 or J[used].max() >= len(joints)):
-                raise RigError(f"joint index {int(J[used].max())} out of range: skin has {len(joints)} joints",
-                               path=path, field=f"{where}.JOINTS_{s}")
-            if (Ws < 0).any():
-                raise RigError("negative weight", path=path, field=f"{where}.WEIGHTS_{s}")
-            np.add.at(Wp, (np.repeat(np.arange(n), 4)[used.reshape(-1)], J[used]), Ws[used])
-        positions.append(P)
-        triangles.append(idx.reshape(-1, 3) + offset)
-        weights.append(Wp)
-        offset += n
-    V_mesh = np.concatenate(positions)
-    F = np.concatenate(triangles).astype(np.int32)
-    W = normalize_weights(np.concatenate(weights), path=path, field_name="WEIGHTS_n")
+    V_mesh, F, W_raw = _read_meshes(gltf, acc, path, mesh_nodes, len(joints))
+    W = normalize_weights(W_raw, path=path, field_name="WEIGHTS_n")
 
     # Rest pose of the node hierarchy.
     parent_node = {c: i for i, n in enumerate(nodes) for c in (n.children or [])}
@@ -242,20 +367,32 @@ def read_gltf(path) -> GltfCharacter:
             globals_[i] = local if p is None else global_of(p, depth + 1) @ local
         return globals_[i]
 
-    if skin.inverseBindMatrices is not None:
-        ibm = acc.read(skin.inverseBindMatrices, f"skins[{node.skin}].inverseBindMatrices")
-        if ibm.shape != (len(joints), 16):
-            raise RigError(f"needs {len(joints)} MAT4, got {ibm.shape}", path=path,
-                           field=f"skins[{node.skin}].inverseBindMatrices")
-        ibm = ibm.reshape(-1, 4, 4).transpose(0, 2, 1)
-    else:
-        ibm = np.tile(np.eye(4), (len(joints), 1, 1))
+    ibm = _inverse_bind_matrices(skin_def, skin_index, acc, path, joint_names)
     G = np.array([global_of(j) for j in joints])
     skinning = np.einsum("jab,jbc->jac", G, ibm)  # (joints, 4, 4)
     V_h = np.concatenate([V_mesh, np.ones((len(V_mesh), 1))], axis=1)
     V = np.einsum("nj,jab,nb->na", W, skinning[:, :3, :], V_h)
 
-    # Skeleton: joint parents = nearest ancestor that is a joint; order parents first.
+    skeleton, order = _skeleton(G, joints, parent_node, joint_names, V)
+    W = W[:, order]
+    source_index = weld_index(V_mesh, W)
+    file_vertices = len(V)
+    if int(source_index.max()) + 1 < file_vertices:
+        V, F, W = weld_mesh(V, F, W, source_index)
+    else:
+        source_index = None
+    unused = tuple(name for name, w in zip(skeleton.names, W.max(axis=0)) if w <= UNUSED_WEIGHT)
+    return GltfCharacter(V, F.astype(np.int32), W, skeleton, np.array([joints[k] for k in order]),
+                         source_index, file_vertices, skin_index, unused)
+
+
+def _skeleton(G: np.ndarray, joints: list[int], parent_node: dict, joint_names: list[str],
+              V: np.ndarray) -> tuple[Skeleton, list[int]]:
+    """The skeleton of the skin's joints (parents first) and the order: bone i = joint order[i].
+
+    G: (joints, 4, 4) rest global transforms; joint parents are the nearest ancestor nodes that
+    are joints; V (n, 3) sizes the tips of leaf bones.
+    """
     joint_pos = {node_index: k for k, node_index in enumerate(joints)}
 
     def joint_parent(k):
@@ -280,8 +417,7 @@ def read_gltf(path) -> GltfCharacter:
     heads = G[order, :3, 3]
     frames = []
     for k in order:
-        m = G[k, :3, :3]
-        u, _, vt = np.linalg.svd(m)
+        u, _, vt = np.linalg.svd(G[k, :3, :3])
         r = u @ vt
         if np.linalg.det(r) < 0:
             r = u @ np.diag([1, 1, -1]) @ vt
@@ -299,11 +435,10 @@ def read_gltf(path) -> GltfCharacter:
             tails.append(heads[i] + frames[i][:, 1] * length)
     names, seen = [], set()
     for k in order:
-        name = nodes[joints[k]].name or f"joint{k}"
+        name = joint_names[k]
         while name in seen:
             name += "_"
         seen.add(name)
         names.append(name)
     parents = np.array([-1 if parent_of[k] < 0 else new_index[parent_of[k]] for k in order])
-    skeleton = Skeleton(tuple(names), parents, heads, np.array(tails), frames)
-    return GltfCharacter(V, F, W[:, order], skeleton, np.array([joints[k] for k in order]))
+    return Skeleton(tuple(names), parents, heads, np.array(tails), frames), order

@@ -46,17 +46,18 @@ def read_character_npz(path):
 
 
 def _read_character(spec):
-    """(V, F, W, skeleton) for a rig file's mesh/skeleton/weights entries."""
+    """(V, F, W, skeleton, source_index) for a rig file's mesh/skeleton/weights entries
+    (source_index: see ``Rig.source_index``)."""
     from puppet.rig.tgf_dmat import read_dmat, read_tgf
 
     suffix = spec.mesh.suffix.lower()
     if suffix == ".npz":
-        return read_character_npz(spec.mesh)
+        return (*read_character_npz(spec.mesh), None)
     if suffix in (".glb", ".gltf"):
         from puppet.rig.gltf import read_gltf
 
-        character = read_gltf(spec.mesh)
-        return character.V, character.F, character.W, character.skeleton
+        character = read_gltf(spec.mesh, skin=spec.skin)
+        return character.V, character.F, character.W, character.skeleton, character.source_index
     if suffix in (".obj", ".ply"):
         from puppet.rig.mesh_io import read_mesh
 
@@ -74,7 +75,7 @@ def _read_character(spec):
             from puppet.rig.bbw import bbw_weights
 
             W = bbw_weights(V, F, skeleton, path=spec.mesh)
-        return V, F, W, skeleton
+        return V, F, W, skeleton, None
     raise RigError(f"unknown character format {suffix!r} (known: .npz, .glb, .gltf, .obj, .ply)",
                    path=spec.path, field="mesh")
 
@@ -87,14 +88,15 @@ def load_rig(path) -> Rig:
         from puppet.rig.gltf import read_gltf
 
         c = read_gltf(path)
-        return Rig(path.stem, c.V, c.F, c.skeleton, c.W, ServoMap([], path=path), path=path)
+        return Rig(path.stem, c.V, c.F, c.skeleton, c.W, ServoMap([], path=path), path=path,
+                   source_index=c.source_index)
     if suffix == ".npz":
         V, F, W, skeleton = read_character_npz(path)
         return Rig(path.stem, V, F, skeleton, W, ServoMap([], path=path), path=path)
     if suffix != ".toml":
         raise RigError(f"unknown rig format {suffix!r} (known: .toml, .glb, .gltf, .npz)", path=path)
     spec = read_rig_file(path)
-    V, F, W, skeleton = _read_character(spec)
+    V, F, W, skeleton, source_index = _read_character(spec)
     pins = []
     for vertex, line in spec.pin_vertices:
         if vertex >= len(V):
@@ -109,4 +111,4 @@ def load_rig(path) -> Rig:
         calibration = Calibration(path=spec.calibration)
     # Joint errors (unknown joint, >3 servos, repeated order) name the rig file's line.
     return Rig(spec.name, V, F, skeleton, W, spec.servo_map, calibration, spec.solver,
-               np.array(pins, np.int64), spec.fixed, path)
+               np.array(pins, np.int64), spec.fixed, path, source_index)

@@ -4,6 +4,7 @@ Example (paths are relative to the rig file)::
 
     name = "critter"
     mesh = "critter.npz"          # .npz (built-in format), .glb/.gltf, or .obj/.ply with:
+    # skin = 0                    #   (.glb/.gltf with several skins: which one)
     # skeleton = "body.tgf"       #   a libigl TGF skeleton, and optionally
     # weights = "body.dmat"       #   DMAT weights (else bounded biharmonic weights, cached)
     calibration = "critter.calibration.toml"   # optional, host-side zero ticks
@@ -44,7 +45,8 @@ from puppet.rig.servo_map import X_SERIES_MODELS, Servo, ServoMap
 
 NAMED_AXES = {"x": (1.0, 0, 0), "y": (0, 1.0, 0), "z": (0, 0, 1.0)}
 SERVO_KEYS = {"id", "model", "joint", "axis", "order", "sign", "gear", "zero_ticks", "limits_deg"}
-TOP_KEYS = {"name", "mesh", "skeleton", "weights", "calibration", "fixed", "solver", "servo", "pin"}
+TOP_KEYS = {"name", "mesh", "skin", "skeleton", "weights", "calibration", "fixed", "solver", "servo",
+            "pin"}
 
 
 class _Lines:
@@ -91,6 +93,7 @@ class RigFile:
     servo_map: ServoMap
     pin_vertices: list[tuple[int, int]] = field(default_factory=list)   # (vertex, line)
     pin_points: list[tuple[np.ndarray, int]] = field(default_factory=list)  # (point, line)
+    skin: int | None = None       # glTF skin index; None: the file's only skin
 
 
 def read_rig_file(path) -> RigFile:
@@ -131,6 +134,9 @@ def read_rig_file(path) -> RigFile:
     name = doc.get("name", path.stem)
     if not isinstance(name, str):
         fail(f"must be a string, got {name!r}", "name", lines.key("", 0, "name"))
+    skin = doc.get("skin")
+    if skin is not None and (isinstance(skin, bool) or not isinstance(skin, int) or skin < 0):
+        fail(f"must be a glTF skin index >= 0, got {skin!r}", "skin", lines.key("", 0, "skin"))
     fixed = doc.get("fixed", [])
     if not isinstance(fixed, list) or not all(isinstance(f, str) for f in fixed):
         fail(f"must be a list of bone names, got {fixed!r}", "fixed", lines.key("", 0, "fixed"))
@@ -155,7 +161,7 @@ def read_rig_file(path) -> RigFile:
         else:
             fail("needs 'vertex' or 'point'", f"pin {i + 1}", line)
     return RigFile(path, name, mesh, skeleton, weights, calibration, tuple(fixed), solver,
-                   servo_map, pin_vertices, pin_points)
+                   servo_map, pin_vertices, pin_points, skin)
 
 
 def _read_solver(table, lines, fail) -> SolverOptions:
