@@ -7,10 +7,64 @@ import time
 
 import click
 
+from puppet.cli.common import fail
+
 
 @click.group()
 def rig() -> None:
-    """Inspect rigs."""
+    """Start, inspect and check rigs."""
+
+
+@rig.command("init")
+@click.argument("character")
+@click.option("--out", default=None, help="Rig file to write (default: CHARACTER with .toml).")
+@click.option("--skin", type=int, default=None, help="Which glTF skin, when the file has several.")
+@click.option("--force", is_flag=True, help="Overwrite an existing rig file.")
+def rig_init(character: str, out: str | None, skin: int | None, force: bool) -> None:
+    """Write a starting rig file from a skinned glTF character: every joint, its axes in words,
+    a suggested fixed root, solver options, one commented [[servo]] block per joint.
+
+    \b
+    Example:
+      puppet rig init creature.glb --out creature.toml
+    """
+    from puppet.rig.init_file import write_rig_init
+
+    path, loaded = write_rig_init(character, out, skin=skin, force=force)
+    for name in loaded.unused_joints:
+        click.echo(f"warning: {character}: joint {name!r} influences no vertex (it moves with its "
+                   "neighbours; a servo on it shows nothing)", err=True)
+    click.echo(f"rig file: {path} ({loaded.skeleton.bone_count} joints, {len(loaded.V)} vertices, "
+               f"{loaded.file_vertices} in the file)")
+
+
+@rig.command("axes")
+@click.argument("rig_path")
+@click.option("--out", default="axes.png", show_default=True, help="Contact sheet (PNG) to write.")
+@click.option("--all", "every_joint", is_flag=True, help="Also joints without a servo, about x, y and z.")
+@click.option("--angle", default=30.0, show_default=True, help="Turn shown, degrees each way.")
+def rig_axes(rig_path: str, out: str, every_joint: bool, angle: float) -> None:
+    """A contact sheet: for every servo, the character with its joint turned −ANGLE and +ANGLE
+    about its axis (the positive side framed green), to choose axis and sign by looking.
+
+    \b
+    Example:
+      puppet rig axes creature.toml --out sheet.png --all
+    """
+    from puppet.rig import load_rig
+    from puppet.rig.axis_turns import axis_turns
+    from puppet.render.axes_sheet import Turn, render_turn_sheet, save_sheet
+
+    loaded = load_rig(rig_path)
+    turns = [Turn(*t) for t in axis_turns(loaded, every_joint)]
+    if not turns:
+        fail(f"{rig_path}: the rig has no [[servo]] blocks yet; pass --all to see every joint's axes")
+    sk = loaded.skeleton
+    sheet = render_turn_sheet(loaded.V, loaded.F, loaded.W, sk.heads, sk.tails, sk.parents, turns,
+                              angle_deg=angle)
+    path = save_sheet(sheet, out, inputs=[rig_path, loaded.path])
+    click.echo(f"axes sheet: {path} ({len(sheet.panels)} panels, {len(turns)} rows: −{angle:g}° left, "
+               f"+{angle:g}° right, framed green)")
 
 
 @rig.command("info")
@@ -25,7 +79,9 @@ def rig_info(rig_path: str | None, as_json: bool) -> None:
     load_s = time.perf_counter() - start
     kinds = loaded.bone_kinds()
     report = loaded.check_weights()
-    info = {"name": loaded.name, "vertices": len(loaded.V), "triangles": len(loaded.F),
+    file_vertices = len(loaded.V) if loaded.source_index is None else len(loaded.source_index)
+    info = {"name": loaded.name, "vertices": len(loaded.V), "file_vertices": file_vertices,
+            "triangles": len(loaded.F),
             "bones": loaded.skeleton.bone_count, "servos": len(loaded.servo_map),
             "full": kinds["full"], "relative": kinds["relative"], "free": kinds["free"],
             "weights_ok": report.ok, "load_s": round(load_s, 4)}
@@ -33,7 +89,7 @@ def rig_info(rig_path: str | None, as_json: bool) -> None:
         click.echo(json.dumps(info))
         return
     click.echo(f"rig        {loaded.name} ({loaded.path or 'built-in'})")
-    click.echo(f"vertices   {info['vertices']}")
+    click.echo(f"vertices   {info['vertices']} (file: {file_vertices}, before welding seams)")
     click.echo(f"triangles  {info['triangles']}")
     click.echo(f"bones      {info['bones']}")
     click.echo(f"servos     {info['servos']}: " + ", ".join(

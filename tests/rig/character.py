@@ -79,7 +79,7 @@ def _tube(z0, z1, rings, radius, center, axis, split):
         V.append([center[0], center[1], along] if axis == "z" else [center[0], along, center[2]])
         centre = len(V) - 1
         for j in range(SIDES):
-            tri = [centre, ring[(j + 1) % SIDES], ring[j]]
+            tri = [centre, ring[j], ring[(j + 1) % SIDES]]  # wound like the sides
             F.append(tri if end == 0 else tri[::-1])
     V, F = np.array(V, float), np.array(F, np.int64)
     # Outward orientation: signed volume positive.
