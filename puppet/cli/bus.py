@@ -40,14 +40,31 @@ def scan(port: str, baud: int) -> None:
 @click.option("--rig", "rig_path", required=True, help="Rig file (TOML).")
 @click.option("--port", required=True, help="Serial port.")
 @click.option("--baud", default=1_000_000, show_default=True, help="Bus baud rate.")
-@click.option("--out", default=None, help="Calibration file (default: the rig's).")
-def calibrate(rig_path: str, port: str, baud: int, out: str | None) -> None:
+@click.option("--out", default=None, help="Calibration file (default: the rig's); with --guided, "
+              "a rig file to write instead of updating RIG.")
+@click.option("--guided", is_flag=True, help="Find each [[servo]] block's id, sign and zero ticks by "
+              "moving its joint when asked; writes them into the rig file.")
+@click.option("--yes", is_flag=True, help="With --guided: do not wait for Enter before reading the "
+              "rest pose.")
+@click.option("--timeout", "timeout_s", default=120.0, show_default=True,
+              help="With --guided: seconds to wait for each joint to move and to come back.")
+@click.option("--threshold", default=150, show_default=True,
+              help="With --guided: ticks a servo must move to count (4096 per turn).")
+def calibrate(rig_path: str, port: str, baud: int, out: str | None, guided: bool = False,
+              yes: bool = False, timeout_s: float = 120.0, threshold: int = 150) -> None:
     """Capture the zero pose: hold the puppet in the rig's rest pose, then run this.
+
+    With --guided, also find which servo each [[servo]] block is and its sign: move each joint
+    in its positive direction when asked, then back to rest.
 
     \b
     Example:
       puppet calibrate --rig my.toml --port /dev/ttyUSB0
+      puppet calibrate --rig my.toml --port /dev/ttyUSB0 --guided
     """
+    if guided:
+        _calibrate_guided(rig_path, port, baud, out, yes, timeout_s, threshold)
+        return
     from puppet.bus import BusError, ServoReader
     from puppet.rig import Calibration
 
@@ -67,6 +84,53 @@ def calibrate(rig_path: str, port: str, baud: int, out: str | None) -> None:
     click.echo(f"calibration: {path}")
     for dxl_id, ticks in zip(reading.ids, reading.ticks):
         click.echo(f"  servo {int(dxl_id)}: zero {int(ticks)}")
+
+
+def _calibrate_guided(rig_path: str, port: str, baud: int, out: str | None, yes: bool,
+                      timeout_s: float, threshold: int) -> None:
+    """``calibrate --guided``: prompts on stderr, results written into the rig file."""
+    from puppet.bus import BusError, BusLink, ServoReader
+    from puppet.bus.control_table import MODELS_BY_NUMBER
+    from puppet.rig.guided_calibration import GuidedCalibration
+
+    session = GuidedCalibration(rig_path)
+    link = BusLink(port, baud=baud)
+    try:
+        link.open()
+        found = link.broadcast_ping()
+    except BusError as err:
+        fail(f"port {port}: {err}")
+    finally:
+        link.close()
+    unknown = sorted(i for i, (number, _) in found.items() if number not in MODELS_BY_NUMBER)
+    if unknown:
+        click.echo(f"warning: servos {unknown} are of a model puppet cannot read; left out", err=True)
+    models = {i: MODELS_BY_NUMBER[number].name for i, (number, _) in sorted(found.items())
+              if number in MODELS_BY_NUMBER}
+    if not models:
+        fail(f"port {port}: no servo answered a broadcast ping at {baud} bps")
+    click.echo(f"servos on {port}: " + ", ".join(f"{i} ({m})" for i, m in models.items()), err=True)
+    if not yes:
+        click.prompt("Hold the puppet in the rig's rest pose and press Enter", default="",
+                     show_default=False, err=True, prompt_suffix=" ")
+    reader = ServoReader(port, models, baud=baud)
+    try:
+        print_setup(reader.open(), port)
+        rest = reader.read_clean(samples=9, timeout_s=5.0)
+        click.echo("rest pose read: " + ", ".join(f"{int(i)}={int(t)}" for i, t in zip(rest.ids, rest.ticks)),
+                   err=True)
+        results = session.run(reader.read, rest, say=lambda text: click.echo(text, err=True), models=models,
+                              threshold_ticks=threshold, timeout_s=timeout_s)
+    except BusError as err:
+        fail(f"port {port}: {err}")
+    finally:
+        reader.close()
+    path = session.write(results, out)
+    click.echo(f"rig file: {path}")
+    if session.calibration_file is not None:
+        click.echo(f"calibration: {session.calibration_file} (zero ticks updated too)")
+    for f in results:
+        click.echo(f"  {f.step.joint} ({f.step.axis_text}): servo {f.id}, sign {f.sign:+d}, zero {f.zero_ticks}")
 
 
 COMMANDS = (scan, calibrate)

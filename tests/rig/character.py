@@ -207,3 +207,31 @@ def write_glb(path, split: bool = True, **kwargs):
 def rest_vertices(split: bool = True) -> np.ndarray:
     """(n, 3) model-space rest positions of every file vertex, primitives in order."""
     return np.concatenate([V.astype(np.float64) + ARMATURE_OFFSET for V, _, _ in mesh(split)])
+
+
+def enable_servos(text: str, servos: dict[str, dict]) -> str:
+    """Uncomment the [[servo]] blocks that ``puppet rig init`` wrote for these joints and set
+    their keys: ``servos`` is {joint name: {key: value}} (values as TOML text, e.g. '"z"')."""
+    lines = text.splitlines()
+    out, i = [], 0
+    while i < len(lines):
+        if lines[i] == "# [[servo]]":
+            block = []
+            while i < len(lines) and lines[i].startswith("# "):
+                block.append(lines[i])
+                i += 1
+            joint_line = next(line for line in block if line.startswith("# joint = "))
+            joint = joint_line.split("=", 1)[1].strip().strip('"')
+            if joint in servos:
+                keys = dict(servos[joint])
+                block = [line[2:] for line in block]
+                for k, line in enumerate(block):
+                    key = line.split("=", 1)[0].strip()
+                    if key in keys:
+                        block[k] = f"{key} = {keys.pop(key)}"
+                block += [f"{key} = {value}" for key, value in keys.items()]
+            out += block
+            continue
+        out.append(lines[i])
+        i += 1
+    return "\n".join(out) + "\n"

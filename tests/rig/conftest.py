@@ -1,6 +1,9 @@
 """A small closed test character written to disk in every test that needs one: a capped
 8-sided tube along +Y (OBJ), a three-bone chain (TGF, 1-based), weights (DMAT)."""
 
+import importlib.util
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -104,3 +107,12 @@ def tube_rig_dir(tmp_path):
     write_dmat(tmp_path / "tube.dmat", tube_weights(V))
     (tmp_path / "tube.toml").write_text(RIG_TOML)
     return tmp_path
+
+
+@pytest.fixture(scope="session")
+def character():
+    """The shared skinned glTF test character (module ``tests/rig/character.py``)."""
+    spec = importlib.util.spec_from_file_location("rig_test_character", Path(__file__).with_name("character.py"))
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module

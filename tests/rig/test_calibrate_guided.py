@@ -1,0 +1,112 @@
+"""puppet calibrate --guided against hw_sim: the test plays the user, moving one servo at a time
+when asked; every id, sign, model and zero is found and written into the rig file, comments kept."""
+
+import os
+import queue
+import subprocess
+import threading
+import time
+import tomllib
+
+import numpy as np
+
+import hw_sim
+from puppet.rig import load_rig
+
+# joint: (bus id, sign of a positive joint turn in ticks, axis); the rig file does not know them.
+SECRET = {"hips": (21, 1, '"x"'), "tail base": (14, -1, '"z"'), "leg.L": (7, -1, '"x"'), "neck": (3, 1, '"-y"')}
+MODELS = {21: "XL430-W250", 14: "XL330-M288", 7: "XM430-W350", 3: "XL330-M288", 9: "XL330-M288"}
+ZERO = {21: 1900, 14: 2300, 7: 2048, 3: 3950, 9: 1000}   # servo 3 passes 4095 when moved; 9 is not in the rig
+
+
+def _rig(tmp_path, character):
+    character.write_glb(tmp_path / "beast.glb")
+    result = subprocess.run(["puppet", "rig", "init", tmp_path / "beast.glb"], capture_output=True, text=True,
+                            timeout=120)
+    assert result.returncode == 0, result.stderr
+    rig = tmp_path / "beast.toml"
+    text = character.enable_servos(rig.read_text(), {j: {"axis": axis} for j, (_, _, axis) in SECRET.items()})
+    rig.write_text(text)
+    return rig
+
+
+def _lines(stream, out: queue.Queue):
+    for line in stream:
+        out.put(line)
+    out.put(None)
+
+
+def test_guided_calibration_finds_every_id_sign_and_zero(tmp_path, character):
+    rig = _rig(tmp_path, character)
+    before = rig.read_text()
+    with hw_sim.serve(MODELS) as bus:
+        bus.set_positions(ZERO)
+        proc = subprocess.Popen(["puppet", "calibrate", "--rig", str(rig), "--port", bus.port, "--guided",
+                                 "--yes", "--timeout", "60"], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                                text=True, env={**os.environ, "PYTHONUNBUFFERED": "1"})
+        lines: queue.Queue = queue.Queue()
+        threading.Thread(target=_lines, args=(proc.stderr, lines), daemon=True).start()
+        prompts, log = [], []
+        deadline = time.monotonic() + 240
+        while time.monotonic() < deadline:
+            try:
+                line = lines.get(timeout=1.0)
+            except queue.Empty:
+                continue
+            if line is None:
+                break
+            log.append(line)
+            if "in its positive direction" in line:
+                joint = line.split("move '", 1)[1].split("'", 1)[0]
+                prompts.append(joint)
+                servo, sign, _ = SECRET[joint]
+                for step in (40, 100, 180, 260, 400):  # a hand moving the joint, one servo at a time
+                    bus.set_positions({servo: ZERO[servo] + sign * step})
+                    time.sleep(0.03)
+            elif "back to the rest pose" in line:
+                servo = SECRET[prompts[-1]][0]
+                bus.set_positions({servo: ZERO[servo]})
+        stdout, _ = proc.communicate(timeout=60)
+    assert proc.returncode == 0, "".join(log)
+    assert prompts == [n for n in character.NAMES if n in SECRET]  # in the file's order, each once
+    doc = tomllib.loads(rig.read_text())
+    got = {s["joint"]: (s["id"], s["sign"], s["zero_ticks"], s["model"]) for s in doc["servo"]}
+    assert got == {j: (i, sign, ZERO[i], MODELS[i]) for j, (i, sign, _) in SECRET.items()}
+    # Comments and layout kept: every line of the file before is still there, in order, except
+    # the changed values (which keep their trailing comments).
+    after = rig.read_text().splitlines()
+    kept = [line for line in before.splitlines() if not line.split("=")[0].strip() in ("id", "model", "sign",
+                                                                                          "zero_ticks")]
+    assert [line for line in after if line in kept] == kept
+    id_lines = [line for line in after if line.startswith("id = ")]
+    assert len(id_lines) == 4 and all("# bus id" in line for line in id_lines)
+    # The calibrated rig reads a positive joint turn as a positive angle.
+    loaded = load_rig(rig)
+    ticks = np.array([ZERO[s.id] + SECRET[s.joint][1] * 200 for s in loaded.servo_map.servos], np.int32)
+    np.testing.assert_allclose(loaded.servo_map.angles(ticks), np.radians(200 * 360 / 4096), atol=1e-9)
+    assert "neck (-y): servo 3, sign +1, zero 3950" in stdout
+
+
+def test_guided_calibration_times_out_naming_the_joint_and_keeps_the_file(tmp_path, character):
+    rig = _rig(tmp_path, character)
+    before = rig.read_bytes()
+    with hw_sim.serve(MODELS) as bus:
+        bus.set_positions(ZERO)
+        result = subprocess.run(["puppet", "calibrate", "--rig", rig, "--port", bus.port, "--guided", "--yes",
+                                 "--timeout", "2"], capture_output=True, text=True, timeout=120)
+    assert result.returncode == 1
+    assert "Traceback" not in result.stderr
+    error = result.stderr.strip().splitlines()[-1]
+    assert error.startswith("Error: ")
+    assert "servo #1 (hips)" in error and "no servo moved more than 150 ticks" in error
+    assert rig.read_bytes() == before
+
+
+def test_guided_calibration_needs_servo_blocks(tmp_path, character):
+    character.write_glb(tmp_path / "beast.glb")
+    subprocess.run(["puppet", "rig", "init", tmp_path / "beast.glb"], check=True, capture_output=True, timeout=120)
+    result = subprocess.run(["puppet", "calibrate", "--rig", tmp_path / "beast.toml", "--port", "/dev/null-none",
+                             "--guided", "--yes"], capture_output=True, text=True, timeout=120)
+    assert result.returncode == 1
+    assert "Traceback" not in result.stderr
+    assert "beast.toml: servo: no [[servo]] blocks" in result.stderr
