@@ -32,8 +32,8 @@ def rig_init(character: str, out: str | None, skin: int | None, force: bool) -> 
 
     path, loaded = write_rig_init(character, out, skin=skin, force=force)
     for name in loaded.unused_joints:
-        click.echo(f"warning: {character}: joint {name!r} influences no vertex (it moves with its "
-                   "neighbours; a servo on it shows nothing)", err=True)
+        click.echo(f"warning: {character}: joint {name!r} influences no vertex; the rig file holds it "
+                   "fixed (the solve cannot place a bone that moves nothing)", err=True)
     click.echo(f"rig file: {path} ({loaded.skeleton.bone_count} joints, {len(loaded.V)} vertices, "
                f"{loaded.file_vertices} in the file)")
 

@@ -1,9 +1,10 @@
 """A starting rig file for a character: ``puppet rig init CHARACTER.glb``.
 
 The file lists every joint (parents first) with its parent, where its rest axes point in the
-character's own words, and what a positive turn about each does; suggests a fixed root and
-solver options sized to the mesh; and holds one commented ``[[servo]]`` block per joint for
-the user to uncomment and fill (``puppet rig axes`` and ``puppet calibrate --guided`` help).
+character's own words, and what a positive turn about each does; suggests a fixed root (and
+fixes bones that no vertex follows: the solve could not place them) and solver options sized
+to the mesh; and holds one commented ``[[servo]]`` block per joint for the user to uncomment
+and fill (``puppet rig axes`` and ``puppet calibrate --guided`` help).
 The text parses as it is (``puppet rig info`` loads it: a rig with no servos yet).
 """
 
@@ -77,6 +78,7 @@ def rig_init_text(character_path: Path, rig_path: Path, character, skin: int | N
     unused_names = set(character.unused_joints)
     unused = {i for i, n in enumerate(names) if n in unused_names}
     root = suggested_root(sk.parents, unused)
+    fixed = [root] + sorted(unused - {root})
     n = len(character.V)
     clusters, extra = suggested_solver(n, sk.bone_count)
     try:
@@ -98,7 +100,13 @@ def rig_init_text(character_path: Path, rig_path: Path, character, skin: int | N
     if skin is not None:
         lines.append(_line(f"skin = {int(skin)}", "the file has several skins: this one"))
     lines += [
-        _line(f"fixed = [{_toml_string(names[root])}]", "suggested: the root, held still by the puppet's stand"),
+    ]
+    if len(fixed) > 1:
+        lines.append(f"# no vertex follows {', '.join(repr(names[b]) for b in fixed[1:])}: held fixed "
+                     "(the solve cannot place a bone that moves nothing)")
+    lines += [
+        _line("fixed = [" + ", ".join(_toml_string(names[b]) for b in fixed) + "]",
+              "suggested: the root, held still by the puppet's stand"),
         "",
         f"[solver]  # sized to the mesh: {n} vertices ({character.file_vertices} in the file before "
         f"welding seams), {sk.bone_count} bones",
@@ -112,7 +120,7 @@ def rig_init_text(character_path: Path, rig_path: Path, character, skin: int | N
         parent = "root, no parent" if sk.parents[i] < 0 else f"parent {names[sk.parents[i]]!r}"
         where, turns = bone_axes(sk.frames[i], sk.heads[i], sk.tails[i])
         lines += ["", f"# joint {name!r} ({parent})"
-                  + (": no vertex follows it" if name in unused_names else "")
+                  + (": no vertex follows it (held fixed)" if name in unused_names else "")
                   + (": suggested fixed root" if i == root else ""),
                   f"#   rest axes: {where}",
                   f"#   {turns}",

@@ -110,5 +110,21 @@ def load_rig(path) -> Rig:
     else:
         calibration = Calibration(path=spec.calibration)
     # Joint errors (unknown joint, >3 servos, repeated order) name the rig file's line.
-    return Rig(spec.name, V, F, skeleton, W, spec.servo_map, calibration, spec.solver,
-               np.array(pins, np.int64), spec.fixed, path, source_index)
+    rig = Rig(spec.name, V, F, skeleton, W, spec.servo_map, calibration, spec.solver,
+              np.array(pins, np.int64), spec.fixed, path, source_index)
+    _check_placeable(rig)
+    return rig
+
+
+#: A bone whose weight never exceeds this moves no vertex.
+NO_INFLUENCE = 1e-6
+
+
+def _check_placeable(rig: Rig) -> None:
+    """RigError when a free bone moves no vertex: the solve has nothing to place it by (glTF
+    exports often carry such bones: control or IK bones). Holding it (fixed) or sensing it
+    (a servo) places it from its parent."""
+    lonely = [rig.skeleton.names[b] for b in rig.free_bones if rig.W[:, b].max() <= NO_INFLUENCE]
+    if lonely:
+        raise RigError(f"bones {lonely} influence no vertex and nothing holds them, so the solve cannot "
+                       "place them: add them to 'fixed' (or give them a servo)", path=rig.path, field="fixed")
