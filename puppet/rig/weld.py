@@ -58,7 +58,8 @@ def weld_mesh(V: np.ndarray, F: np.ndarray, W: np.ndarray, source_index: np.ndar
 
     V: (n, 3), F: (f, 3), W: (n, m) of the file's vertices; source_index: (n,) from
     :func:`weld_index`. Each welded vertex takes its first copy's position and weights;
-    triangles that collapse (two corners welded together) are dropped.
+    triangles that collapse (two corners welded together) or repeat another one with the
+    same winding are dropped.
     Returns V (k, 3) float64, F (f', 3) int32, W (k, m) float64.
     """
     source_index = np.asarray(source_index, np.int64)
@@ -68,4 +69,12 @@ def weld_mesh(V: np.ndarray, F: np.ndarray, W: np.ndarray, source_index: np.ndar
     F_welded = source_index[np.asarray(F, np.int64)]
     keep = ((F_welded[:, 0] != F_welded[:, 1]) & (F_welded[:, 1] != F_welded[:, 2])
             & (F_welded[:, 0] != F_welded[:, 2]))
-    return V[first], F_welded[keep].astype(np.int32), W[first]
+    F_welded = F_welded[keep]
+    # A triangle repeated with the same winding (a mesh instanced twice welds onto itself)
+    # counts once; each is compared rotated to start at its smallest index.
+    start = np.argmin(F_welded, axis=1)[:, None]
+    rolled = np.take_along_axis(F_welded, (start + np.arange(3)) % 3, axis=1)
+    _, once = np.unique(rolled, axis=0, return_index=True)
+    if len(once) < len(F_welded):
+        F_welded = F_welded[np.sort(once)]
+    return V[first], F_welded.astype(np.int32), W[first]

@@ -22,8 +22,11 @@ def test_weld_index_needs_same_position_and_weights():
     # 2, 3 (within tolerance) and 5 are copies of 0; 4 shares 1's position, not its weights.
     np.testing.assert_array_equal(weld_index(P, W), [0, 1, 0, 0, 2, 0])
     np.testing.assert_array_equal(weld_index(P[:2], W[:2]), [0, 1])
-    V, F, Wo = weld_mesh(P, np.array([[0, 1, 4], [0, 2, 1], [3, 4, 1]]), W, weld_index(P, W))
-    np.testing.assert_array_equal(F, [[0, 1, 2], [0, 2, 1]])  # the collapsed triangle is dropped
+    F = np.array([[0, 1, 4], [0, 2, 1], [3, 4, 1], [4, 5, 1], [1, 4, 2]])
+    V, F, Wo = weld_mesh(P, F, W, weld_index(P, W))
+    # [0, 2, 1] collapses (0 and 2 weld); [4, 5, 1] and [1, 4, 2] become rotations of the first,
+    # [0, 1, 2] (dropped); [3, 4, 1] becomes its back face [0, 2, 1] (kept).
+    np.testing.assert_array_equal(F, [[0, 1, 2], [0, 2, 1]])
     np.testing.assert_array_equal(V, P[[0, 1, 4]])
     np.testing.assert_array_equal(Wo, W[[0, 1, 4]])
 
