@@ -30,6 +30,10 @@ from puppet.rig.errors import RigError
 
 #: About 13° of servo shaft: a deliberate move, far above sensor noise (a few ticks).
 THRESHOLD_TICKS = 150
+#: Readings in a row that must agree on the moved servo (one corrupt reading is not a move).
+CONFIRM = 3
+#: Pause between readings while waiting for the user, s (a person is slow; the bus need not spin).
+POLL_S = 0.01
 NAMED_AXES = {"x": (1.0, 0.0, 0.0), "y": (0.0, 1.0, 0.0), "z": (0.0, 0.0, 1.0)}
 
 
@@ -172,35 +176,43 @@ class GuidedCalibration:
         return found
 
     def _detect(self, read, ids, zero, assigned, step, say, threshold, timeout_s) -> tuple[int, int]:
+        """The servo that left its zero by more than ``threshold`` ticks in CONFIRM readings in a
+        row (the same servo, the same side), and that side."""
         deadline = time.monotonic() + timeout_s
         warned: set[int] = set()
+        candidate, run = None, 0
         while time.monotonic() < deadline:
             reading = read()
             dev = np.where(reading.ok, np.asarray(reading.ticks, np.int64) - zero, 0)
             k = int(np.argmax(np.abs(dev)))
-            if abs(int(dev[k])) < threshold:
-                continue
-            servo = ids[k]
-            if servo in assigned:
-                if servo not in warned:
-                    say(f"  servo {servo} moved, but it belongs to {assigned[servo]!r}; move "
-                        f"{step.joint!r} (put {assigned[servo]!r} back at rest)")
-                    warned.add(servo)
-                continue
-            return servo, 1 if dev[k] > 0 else -1
+            seen = (ids[k], 1 if dev[k] > 0 else -1) if abs(int(dev[k])) >= threshold else None
+            candidate, run = (seen, run + 1) if seen is not None and seen == candidate else (seen, 1)
+            if seen is not None and seen[0] in assigned:
+                if seen[0] not in warned:
+                    say(f"  servo {seen[0]} moved, but it belongs to {assigned[seen[0]]!r}; move "
+                        f"{step.joint!r} (put {assigned[seen[0]]!r} back at rest)")
+                    warned.add(seen[0])
+            elif seen is not None and run >= CONFIRM:
+                return seen
+            time.sleep(POLL_S)
         raise RigError(f"no servo moved more than {threshold} ticks from its zero within {timeout_s:g} s "
                        f"(servos on the bus: {ids})", path=self.path, field=f"servo #{step.index + 1} "
                        f"({step.joint})")
 
     def _wait_rest(self, read, ids, zero, step, threshold, timeout_s) -> None:
         deadline = time.monotonic() + timeout_s
+        away = {}
         while time.monotonic() < deadline:
             reading = read()
             dev = np.abs(np.asarray(reading.ticks, np.int64) - zero)
             if reading.ok.all() and dev.max() <= threshold // 2:
                 return
-        raise RigError(f"the puppet did not return to the rest pose within {timeout_s:g} s after "
-                       f"moving {step.joint!r}", path=self.path, field=f"servo #{step.index + 1}")
+            away = {ids[k]: int(dev[k]) for k in np.flatnonzero(dev > threshold // 2)}
+            time.sleep(POLL_S)
+        where = ", ".join(f"servo {i} {d} ticks" for i, d in away.items()) or "a servo not answering"
+        raise RigError(f"the puppet did not return to the rest pose within {timeout_s:g} s after moving "
+                       f"{step.joint!r} (away from rest: {where})", path=self.path,
+                       field=f"servo #{step.index + 1} ({step.joint})")
 
     # ---- write-back ----------------------------------------------------------------------------
     def write(self, found: list[Found], out=None) -> Path:

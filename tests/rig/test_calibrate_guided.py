@@ -110,3 +110,36 @@ def test_guided_calibration_needs_servo_blocks(tmp_path, character):
     assert result.returncode == 1
     assert "Traceback" not in result.stderr
     assert "beast.toml: servo: no [[servo]] blocks" in result.stderr
+
+
+class _Script:
+    """Readings a hand would make, one per read() call: (ticks by id) rows, the last repeated."""
+
+    def __init__(self, ids, rows):
+        self.ids, self.rows, self.k = np.array(ids), rows, 0
+
+    def __call__(self):
+        from puppet.bus import Reading
+
+        row = self.rows[min(self.k, len(self.rows) - 1)]
+        self.k += 1
+        return Reading(self.k, self.ids, np.array([row[i] for i in self.ids], np.int32), np.ones(len(self.ids), bool))
+
+
+def test_one_stray_reading_is_not_a_move(tmp_path, character):
+    from puppet.rig.guided_calibration import GuidedCalibration
+
+    rig = _rig(tmp_path, character)
+    session = GuidedCalibration(rig)
+    rest = {21: 2000, 14: 2000, 7: 2000, 3: 2000}
+    spike = {**rest, 7: 2900}  # one corrupt value on servo 7
+    rows = [rest, spike, rest]
+    for joint in [n for n in character.NAMES if n in SECRET]:
+        servo, sign, _ = SECRET[joint]
+        rows += [{**rest, servo: 2000 + sign * 300}] * 3 + [rest] * 2
+    read = _Script(list(rest), rows)
+    said = []
+    found = session.run(read, read(), say=said.append, timeout_s=30)
+    assert [(f.step.joint, f.id, f.sign, f.zero_ticks) for f in found] == [
+        (j, SECRET[j][0], SECRET[j][1], 2000) for j in character.NAMES if j in SECRET]
+    assert "about x: swing its tip down" in said[0]  # hips, in the character's words
