@@ -109,3 +109,21 @@ def test_welded_seam_renders_without_a_crease(tmp_path, character, seam_renderer
     raw_steps = np.abs(np.diff(raw))
     assert raw_steps.max() > 20.0
     assert abs(int(np.argmax(raw_steps)) - 20) <= 1  # at the seam, the middle row
+
+
+def test_meshes_sharing_one_skin_are_read_together(tmp_path, character):
+    """Two nodes skinned by the same skin (Blender: two objects on one armature) are one character;
+    the same mesh placed twice welds onto itself."""
+    import pygltflib as g
+
+    doc, blob = character.build()
+    doc.meshes.append(g.Mesh(name="leg only", primitives=doc.meshes[0].primitives[1:]))
+    doc.nodes += [g.Node(name="again", mesh=0, skin=0), g.Node(name="leg", mesh=1, skin=0)]
+    doc.scenes[0].nodes += [len(doc.nodes) - 2, len(doc.nodes) - 1]
+    doc.set_binary_blob(blob)
+    doc.save_binary(str(tmp_path / "many.glb"))
+    many = read_gltf(tmp_path / "many.glb")
+    one = read_gltf(character.write_glb(tmp_path / "one.glb"))
+    assert many.file_vertices == 2 * one.file_vertices + len(character.mesh()[1][0])
+    np.testing.assert_allclose(many.V, one.V, atol=1e-12)
+    np.testing.assert_array_equal(many.F, one.F)
