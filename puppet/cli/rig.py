@@ -63,8 +63,8 @@ def rig_axes(rig_path: str, out: str, every_joint: bool, angle: float) -> None:
     sheet = render_turn_sheet(loaded.V, loaded.F, loaded.W, sk.heads, sk.tails, sk.parents, turns,
                               angle_deg=angle)
     path = save_sheet(sheet, out, inputs=[rig_path, loaded.path])
-    click.echo(f"axes sheet: {path} ({len(sheet.panels)} panels, {len(turns)} rows: −{angle:g}° left, "
-               f"+{angle:g}° right, framed green)")
+    click.echo(f"axes sheet: {path} ({len(sheet.panels)} panels: {len(turns)} pairs of -{angle:g}° and "
+               f"+{angle:g}°, the positive side framed green)")
 
 
 @rig.command("info")

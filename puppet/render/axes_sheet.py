@@ -1,13 +1,14 @@
 """A contact sheet of joint turns: the character with one bone turned −θ and +θ about an axis,
 one row per turn, so a builder picks a servo's axis and sign by looking.
 
-Each row shows two panels, −θ then +θ; the positive panel has a green border and its turned
-bones are drawn green, the negative one a grey border and yellow bones. The character is skinned
+Each turn is a pair of panels, −θ then +θ, pairs laid out ``pairs_per_row`` to a row; the
+positive panel has a green border and its turned bones are drawn green, the negative one a grey
+border and yellow bones. The character is skinned
 by linear blend skinning of the turned bone and its descendants (no solve): what moves is
 exactly what the joint moves.
 
     sheet = render_turn_sheet(V, F, W, heads, tails, parents, turns, angle_deg=30)
-    sheet.image      # (rows * panel_h, 2 * panel_w, 3) uint8
+    sheet.image      # (ceil(turns / pairs_per_row) * panel_h, 2 * pairs_per_row * panel_w, 3) uint8
     sheet.panels     # one Panel per image panel: label, sign, (top, left, height, width)
 """
 
@@ -29,7 +30,7 @@ LABEL_PX = 22
 
 @dataclass(frozen=True)
 class Turn:
-    """One row of the sheet: turn ``bone`` (and its descendants) about ``axis`` at ``pivot``.
+    """One pair of panels of the sheet: turn ``bone`` (and its descendants) about ``axis`` at ``pivot``.
 
     label: text above the panels; bone: bone (handle) index; axis: (3,) unit axis in model
     space; pivot: (3,) point on the axis, model units.
@@ -103,13 +104,14 @@ def _label(panel: np.ndarray, text: str, color) -> None:
 
 
 def render_turn_sheet(V, F, W, heads, tails, parents, turns: list[Turn], *, angle_deg: float = 30.0,
-                      panel_size: tuple[int, int] = (320, 260), camera: Camera | None = None,
-                      context=None) -> Sheet:
+                      panel_size: tuple[int, int] = (320, 260), pairs_per_row: int = 2,
+                      camera: Camera | None = None, context=None) -> Sheet:
     """Render every turn at −angle and +angle into one sheet.
 
     V (n, 3), F (f, 3), W (n, m): the rest character (handles 0..b-1 are the bones);
-    heads, tails: (b, 3) rest bones; parents: (b,) parent index or -1; turns: rows.
-    panel_size: (width, height) px of one panel; camera: default frames the rest pose in a
+    heads, tails: (b, 3) rest bones; parents: (b,) parent index or -1; turns: one pair each.
+    panel_size: (width, height) px of one panel; pairs_per_row: pairs side by side (fewer when
+    there are fewer turns); camera: default frames the rest pose in a
     three-quarter view from the character's front left; context: a moderngl context to share.
     """
     from puppet.render.renderer import Renderer
@@ -124,13 +126,17 @@ def render_turn_sheet(V, F, W, heads, tails, parents, turns: list[Turn], *, angl
         camera = Camera.framing(np.concatenate([np.asarray(V, np.float64), bones.reshape(-1, 3)]),
                                 aspect=width / height, direction=(1.0, 0.55, 0.75), margin=1.3)
     angle = np.radians(angle_deg)
-    image = np.zeros((len(turns) * height, 2 * width, 3), np.uint8)
+    per_row = max(1, min(int(pairs_per_row), len(turns)))
+    rows = -(-len(turns) // per_row)
+    image = np.zeros((rows * height, 2 * per_row * width, 3), np.uint8)
+    image[:] = (24, 24, 28)  # an empty slot at the end of the last row
     panels: list[Panel] = []
     with Renderer(V, F, W, width=width, height=height, samples=0, fxaa=True, camera=camera,
                   context=context, bone_width_px=4.0) as renderer:
-        for row, turn in enumerate(turns):
+        for k, turn in enumerate(turns):
             moving = descendants(parents, turn.bone)
-            for column, sign in enumerate((-1, 1)):
+            row, pair = divmod(k, per_row)
+            for column, sign in enumerate((-1, 1), start=2 * pair):
                 T = turn_transforms(turn, parents, W.shape[1], sign * angle)
                 states = ["sensed" if (m and sign > 0) else None if m else "free" for m in moving]
                 frame = renderer.draw(T, bones=bones, bone_states=states)

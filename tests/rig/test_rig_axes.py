@@ -25,10 +25,13 @@ def _rig(tmp_path, character, servos=SERVOS):
     return rig
 
 
-def _panels(sheet):
-    rows, columns = sheet.shape[0] // PANEL_H, sheet.shape[1] // PANEL_W
-    return [[sheet[r * PANEL_H:(r + 1) * PANEL_H, c * PANEL_W:(c + 1) * PANEL_W] for c in range(columns)]
-            for r in range(rows)]
+def _pairs(sheet, count, per_row=2):
+    """(minus, plus) panels of each of ``count`` turns, laid out ``per_row`` pairs to a row."""
+    def panel(r, c):
+        return sheet[r * PANEL_H:(r + 1) * PANEL_H, c * PANEL_W:(c + 1) * PANEL_W]
+
+    return [(panel(k // per_row, 2 * (k % per_row)), panel(k // per_row, 2 * (k % per_row) + 1))
+            for k in range(count)]
 
 
 def test_axes_sheet_has_a_pair_of_panels_per_servo(tmp_path, character):
@@ -36,10 +39,10 @@ def test_axes_sheet_has_a_pair_of_panels_per_servo(tmp_path, character):
     out = tmp_path / "sheet.png"
     result = run("rig", "axes", rig, "--out", out)
     assert result.returncode == 0, result.stderr
-    assert "6 panels, 3 rows" in result.stdout
+    assert "6 panels: 3 pairs" in result.stdout
     sheet = iio.imread(out)
-    assert sheet.shape == (3 * PANEL_H, 2 * PANEL_W, 3)
-    for minus, plus in _panels(sheet):
+    assert sheet.shape == (2 * PANEL_H, 4 * PANEL_W, 3)  # two pairs to a row
+    for minus, plus in _pairs(sheet, 3):
         # The positive panel is framed green, the negative one is not.
         assert (plus[BORDER_PX // 2, PANEL_W // 2] == POSITIVE_BORDER).all()
         assert not (minus[BORDER_PX // 2, PANEL_W // 2] == POSITIVE_BORDER).all()
@@ -54,9 +57,9 @@ def test_axes_sheet_all_adds_every_joint_without_a_servo(tmp_path, character):
     out = tmp_path / "all.png"
     result = run("rig", "axes", rig, "--out", out, "--all")
     assert result.returncode == 0, result.stderr
-    rows = 1 + 3 * (len(character.NAMES) - 1)
-    assert f"{2 * rows} panels, {rows} rows" in result.stdout
-    assert iio.imread(out).shape == (rows * PANEL_H, 2 * PANEL_W, 3)
+    pairs = 1 + 3 * (len(character.NAMES) - 1)
+    assert f"{2 * pairs} panels: {pairs} pairs" in result.stdout
+    assert iio.imread(out).shape == ((pairs + 1) // 2 * PANEL_H, 4 * PANEL_W, 3)
 
 
 def test_axes_sheet_refuses_a_rig_without_servos_and_its_own_input(tmp_path, character):
