@@ -143,3 +143,27 @@ def test_one_stray_reading_is_not_a_move(tmp_path, character):
     assert [(f.step.joint, f.id, f.sign, f.zero_ticks) for f in found] == [
         (j, SECRET[j][0], SECRET[j][1], 2000) for j in character.NAMES if j in SECRET]
     assert "about x: swing its tip down" in said[0]  # hips, in the character's words
+
+
+def test_guided_write_keeps_a_named_calibration_file_in_step(tmp_path, character):
+    """A rig naming a calibration file (which overrides zero_ticks) gets the new zeros there too."""
+    from puppet.rig import Calibration
+    from puppet.rig.guided_calibration import GuidedCalibration
+
+    rig = _rig(tmp_path, character)
+    rig.write_text(rig.read_text().replace('mesh = "beast.glb"\n',
+                                           'mesh = "beast.glb"\ncalibration = "beast.calibration.toml"\n'))
+    Calibration({21: 1, 99: 1234}).save(tmp_path / "beast.calibration.toml")
+    session = GuidedCalibration(rig)
+    rest = {21: 2010, 14: 2020, 7: 2030, 3: 2040}
+    rows = [rest]
+    for joint in [n for n in character.NAMES if n in SECRET]:
+        servo, sign, _ = SECRET[joint]
+        rows += [{**rest, servo: rest[servo] + sign * 300}] * 3 + [rest]
+    read = _Script(list(rest), rows)
+    found = session.run(read, read(), say=lambda text: None, models=MODELS, timeout_s=30)
+    assert session.write(found) == rig
+    assert session.calibration_file == tmp_path / "beast.calibration.toml"
+    assert Calibration.load(session.calibration_file).zero_ticks == {**rest, 99: 1234}
+    loaded = load_rig(rig)
+    assert dict(zip(loaded.servo_map.ids.tolist(), loaded.servo_map.zero.tolist())) == rest
