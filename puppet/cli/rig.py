@@ -21,8 +21,10 @@ def rig() -> None:
 @click.option("--skin", type=int, default=None, help="Which glTF skin, when the file has several.")
 @click.option("--force", is_flag=True, help="Overwrite an existing rig file.")
 def rig_init(character: str, out: str | None, skin: int | None, force: bool) -> None:
-    """Write a starting rig file from a skinned glTF character: every joint, its axes in words,
-    a suggested fixed root, solver options, one commented [[servo]] block per joint.
+    """Write a starting rig file from a skinned glTF character.
+
+    Every joint with its parent and its rest axes in the character's words, a suggested fixed
+    root, solver options sized to the mesh, and one commented [[servo]] block per joint to fill.
 
     \b
     Example:
@@ -44,8 +46,9 @@ def rig_init(character: str, out: str | None, skin: int | None, force: bool) -> 
 @click.option("--all", "every_joint", is_flag=True, help="Also joints without a servo, about x, y and z.")
 @click.option("--angle", default=30.0, show_default=True, help="Turn shown, degrees each way.")
 def rig_axes(rig_path: str, out: str, every_joint: bool, angle: float) -> None:
-    """A contact sheet: for every servo, the character with its joint turned −ANGLE and +ANGLE
-    about its axis (the positive side framed green), to choose axis and sign by looking.
+    """Render each servo's joint turned -ANGLE and +ANGLE: pick axis and sign by looking.
+
+    One pair of panels per servo (per joint axis with --all), the positive side framed green.
 
     \b
     Example:
