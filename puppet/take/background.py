@@ -5,7 +5,7 @@ from __future__ import annotations
 import queue
 import threading
 
-from puppet.bus.reading import Reading
+from puppet.reading import Reading
 from puppet.take.errors import TakeError
 from puppet.take.writer import TakeWriter
 

@@ -5,7 +5,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from puppet.bus.reading import Reading
+from puppet.reading import Reading
 from puppet.take import TakeWriter
 
 IDS = np.array([3, 7, 11, 12], dtype=np.int64)

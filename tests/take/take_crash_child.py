@@ -11,7 +11,7 @@ import time
 
 import numpy as np
 
-from puppet.bus.reading import Reading
+from puppet.reading import Reading
 from puppet.take import BackgroundTakeWriter, TakeWriter
 
 ids = np.array([3, 7, 11, 12])

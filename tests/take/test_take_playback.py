@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from puppet.bus.reading import Reading
+from puppet.reading import Reading
 from puppet.take import PlaybackClock, TakeReader, pace
 
 
