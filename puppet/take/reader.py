@@ -41,8 +41,8 @@ class RecoveryReport:
     """What reading a take found damaged, and what it did about it.
 
     skipped: reason -> records skipped for it ("checksum mismatch", "malformed reading",
-             "log time disagrees", "out of order", "absurd timestamp", "unknown channel",
-             "corrupt record"); every other reading is still read.
+             "log time disagrees", "out of order", "unknown channel", "corrupt record");
+             every other reading is still read.
     details: the first few skips, in words, with their byte offsets.
     notes:   damage that lost no reading (a corrupt rig map or calibration record, a damaged
              schema or channel record, gaps that playback cuts), in words.
@@ -440,8 +440,6 @@ class TakeReader:
         t_ns = s.codec.t_ns_of(payload)
         if t_ns != log_time:
             return "log time disagrees", f"log time {log_time} ns, the reading says {t_ns} ns"
-        if t_ns < 0:
-            return "absurd timestamp", f"t_ns {t_ns}"
         if s.last_t is not None and t_ns < s.last_t:
             return "out of order", f"t_ns {t_ns} is before the previous reading's {s.last_t}"
         if s.t_first is None:
