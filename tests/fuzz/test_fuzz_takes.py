@@ -17,7 +17,7 @@ import struct
 import subprocess
 import sys
 from collections import Counter
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -91,7 +91,6 @@ class Case:
     data: bytes
     intact: list[int]
     damaged_meta: bool = False
-    notes: list = field(default_factory=list)
 
 
 def flip(data: bytes, offsets, rng) -> bytes:
@@ -261,9 +260,10 @@ def classify_cli(case: Case, take: Take, folder: Path) -> tuple[str, str]:
         lines, ref_lines = len(bvh.read_text().splitlines()), len(ref.read_text().splitlines())
         kind = "data loss" if lines < ref_lines else "silent wrong"
         return kind, f"BVH of {lines} lines, the intact readings give {ref_lines}"
-    if case.damaged_meta and "warning" not in err:
-        return "silent wrong", "damaged metadata not reported"
-    return "recovered", err.strip().splitlines()[-1] if err.strip() else ""
+    warning = [line for line in err.splitlines() if line.startswith(f"warning: {path}: ")]
+    if not warning:
+        return "silent wrong", "the damage was not reported"
+    return "recovered", warning[0]
 
 
 def critter_reference(path: Path, readings) -> None:
