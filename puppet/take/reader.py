@@ -9,6 +9,7 @@ from array import array
 from collections import Counter
 from dataclasses import dataclass, field
 from io import BytesIO
+from pathlib import Path
 from typing import Iterator
 
 import numpy as np
@@ -17,7 +18,6 @@ from mcap.exceptions import McapError
 from mcap.opcode import Opcode
 from mcap.records import Channel, Chunk, Header, Message, Metadata, Schema
 from mcap.stream_reader import breakup_chunk
-from pathlib import Path
 
 from puppet.reading import Reading
 from puppet.take import format as fmt
@@ -224,6 +224,7 @@ class TakeReader:
             body = pos + _RECORD_HEAD.size
             end = body + length
             damage = None  # (reason, what is wrong at pos, trusted end or None)
+            cut = False  # the damage is the file's end cutting a record
             if opcode not in _KNOWN_OPCODES:
                 damage = ("corrupt record", f"corrupt record at byte {pos} (opcode 0x{opcode:02x})",
                           None)
@@ -231,6 +232,7 @@ class TakeReader:
                 damage = ("corrupt record", f"corrupt message record at byte {pos} "
                           f"({length + 9} bytes, a reading has {s.msg_len + 9})", None)
             elif end > size:
+                cut = True
                 damage = ("corrupt record", f"ends inside a {_opname(opcode)} record at byte {pos} "
                           f"({end - size} of {length + 9} bytes missing)", None)
             elif opcode == Opcode.DATA_END:
@@ -264,7 +266,7 @@ class TakeReader:
                 continue
             found = self._resync(mm, s, pos + 1)
             if found is None:
-                report.end = what + ("; nothing readable after it" if end <= size else "")
+                report.end = what if cut else f"{what}; nothing readable after it"
                 break
             report.skip(reason, f"{what}; resumed at byte {found}")
             pos = found
