@@ -115,7 +115,7 @@ def print_summary(summary, as_json: bool, extra: dict | None = None) -> None:
 def rig_files(rig) -> list[Path]:
     """The files a rig was loaded from: rig file, character files, calibration (may be none)."""
     files = [rig.path] if rig.path is not None else []
-    if getattr(rig.calibration, "path", None) is not None:
+    if rig.calibration.path is not None:
         files.append(rig.calibration.path)
     if rig.path is not None and rig.path.suffix == ".toml":
         from puppet.rig.rig_file import read_rig_file
