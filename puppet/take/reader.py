@@ -143,6 +143,12 @@ def _schema_version(schema: Schema | None) -> int | None:
     return next((v for v, t in fmt.SCHEMA_TEXTS.items() if t == text), None)
 
 
+def _column(rows: np.ndarray, start: int, dtype: str) -> np.ndarray:
+    """(n,) values of one fixed-offset field of (n, record) byte rows (a copy)."""
+    width = np.dtype(dtype).itemsize
+    return np.ascontiguousarray(rows[:, start : start + width]).view(dtype)[:, 0]
+
+
 def _opname(opcode: int) -> str:
     return Opcode(opcode).name.lower() if opcode in _KNOWN_OPCODES else f"0x{opcode:02x}"
 
@@ -359,22 +365,18 @@ class TakeReader:
         k, codec = s.codec.k, s.codec
         p0 = _RECORD_HEAD.size + _MESSAGE_HEAD.size  # payload offset inside a record
         rows = np.frombuffer(mm, dtype=np.uint8, count=n * record, offset=pos).reshape(n, record)
-
-        def column(start, dtype):
-            width = np.dtype(dtype).itemsize
-            return np.ascontiguousarray(rows[:, start : start + width]).view(dtype)[:, 0]
-
-        t_ns = column(p0 + 4, "<i8")
-        good = ((rows[:, 0] == Opcode.MESSAGE) & (column(1, "<u8") == s.msg_len)
-                & (column(9, "<u2") == s.channel_id)
-                & (column(15, "<u8").astype(np.int64) == t_ns)
-                & (column(p0, "<u4") == 0x0100)  # the CDR_LE encapsulation header
-                & (column(p0 + 12, "<u4") == k) & (column(p0 + 16 + 4 * k, "<u4") == k))
+        t_ns = _column(rows, p0 + 4, "<i8")
+        good = ((rows[:, 0] == Opcode.MESSAGE) & (_column(rows, 1, "<u8") == s.msg_len)
+                & (_column(rows, 9, "<u2") == s.channel_id)
+                & (_column(rows, 15, "<u8").astype(np.int64) == t_ns)
+                & (_column(rows, p0, "<u4") == 0x0100)  # the CDR_LE encapsulation header
+                & (_column(rows, p0 + 12, "<u4") == k)
+                & (_column(rows, p0 + 16 + 4 * k, "<u4") == k))
         ordered = np.diff(t_ns, prepend=t_ns[:1] if s.last_t is None else s.last_t) >= 0
         bad = np.flatnonzero(~(good & ordered))
         m = int(bad[0]) if bad.size else n
         if codec.crc_at is not None and m:
-            stored = column(p0 + codec.crc_at, "<u4")[:m].tolist()
+            stored = _column(rows, p0 + codec.crc_at, "<u4")[:m].tolist()
             with memoryview(mm) as view:
                 for i in range(m):
                     at = pos + i * record + p0
