@@ -112,16 +112,40 @@ def print_summary(summary, as_json: bool, extra: dict | None = None) -> None:
     click.echo(summary.text())
 
 
-def take_writer(take_path: str, rig):
-    """A TakeWriter for the rig's servos, with its rig map and calibration as metadata."""
+def rig_files(rig) -> list[Path]:
+    """The files a rig was loaded from: rig file, character files, calibration (may be none)."""
+    files = [rig.path] if rig.path is not None else []
+    if rig.calibration.path is not None:
+        files.append(rig.calibration.path)
+    if rig.path is not None and rig.path.suffix == ".toml":
+        from puppet.rig.rig_file import read_rig_file
+
+        spec = read_rig_file(rig.path)
+        files += [p for p in (spec.mesh, spec.skeleton, spec.weights, spec.calibration) if p]
+    return files
+
+
+def check_take_path(take_path: str, rig, *, force: bool) -> Path:
+    """Refuse a take path that is one of the rig's files, or an existing file without --force."""
+    from puppet.atomic import check_output
+
+    return check_output(take_path, inputs=rig_files(rig), overwrite=force, what="take")
+
+
+def take_writer(take_path: str, rig, *, force: bool = False):
+    """A new TakeWriter for the rig's servos, with its rig map and calibration as metadata.
+
+    An existing file at take_path is replaced only with force (--force); a rig file never.
+    """
     from puppet.take import TakeWriter
 
+    check_take_path(take_path, rig, force=force)
     map_text = rig.path.read_text() if rig.path is not None and rig.path.suffix == ".toml" else ""
     calibration = {str(i): int(z) for i, z in zip(rig.servo_map.ids, rig.servo_map.zero)}
     return TakeWriter(take_path, ids=[int(i) for i in rig.servo_map.ids],
                       models=dict(rig.servo_map.models), rig_map_text=map_text,
                       calibration_text=json.dumps({"zero_ticks": calibration}),
-                      rig_name=rig.name, overwrite=True)
+                      rig_name=rig.name, overwrite=force)
 
 
 def open_take(take: str, rig_path: str | None):
@@ -146,6 +170,6 @@ def open_take(take: str, rig_path: str | None):
             rig.servo_map.calibrate(Calibration({int(k): int(v) for k, v in zero.items()}))
     except (ValueError, AttributeError) as err:
         fail(f"{take}: unreadable calibration in the take: {err}")
-    if reader.truncated:
+    if reader.recovery is not None:
         click.echo(f"warning: {take}: {reader.recovery}", err=True)
     return rig, reader

@@ -12,6 +12,7 @@ from puppet.cli.common import StopFlag, load_rig, make_sinks, print_summary, sta
 @click.option("--port", required=True, help="Serial port, e.g. /dev/ttyUSB0 or hw-sim's pty.")
 @click.option("--baud", default=1_000_000, show_default=True, help="Bus baud rate.")
 @click.option("--record", "take_path", default=None, help="Also record a take here (.mcap).")
+@click.option("--force", is_flag=True, help="Replace an existing take file (--record).")
 @click.option("--out", default=None, help="Video file to write.")
 @click.option("--frames", default=None, help="Folder for PNG frames.")
 @click.option("--seconds", default=None, type=float, help="Stop after this long (default: Ctrl-C).")
@@ -19,7 +20,8 @@ from puppet.cli.common import StopFlag, load_rig, make_sinks, print_summary, sta
 @click.option("--antialias", type=click.Choice(["auto", "msaa", "fxaa", "none"]), default="auto",
               show_default=True, help="auto: MSAA on a GPU, none on a software renderer.")
 def live(rig_path: str, port: str, baud: int, take_path: str | None, out: str | None,
-         frames: str | None, seconds: float | None, fps: float, antialias: str) -> None:
+         frames: str | None, seconds: float | None, fps: float, antialias: str,
+         force: bool) -> None:
     """Read the puppet, solve and render live until Ctrl-C.
 
     \b
@@ -36,7 +38,8 @@ def live(rig_path: str, port: str, baud: int, take_path: str | None, out: str | 
         source = start_reader(rig, port, baud)
         try:
             # On its own thread: a periodic fsync must not stall a frame.
-            recorder = BackgroundTakeWriter(take_writer(take_path, rig)) if take_path else None
+            recorder = (BackgroundTakeWriter(take_writer(take_path, rig, force=force))
+                        if take_path else None)
             try:
                 summary = run_live(pipeline, source, seconds=seconds, sinks=sinks, video_fps=fps,
                                    recorder=recorder, should_stop=stop)

@@ -6,7 +6,7 @@ import time
 
 import click
 
-from puppet.cli.common import StopFlag, load_rig, start_reader, take_writer
+from puppet.cli.common import StopFlag, check_take_path, load_rig, start_reader, take_writer
 
 
 @click.command()
@@ -16,7 +16,9 @@ from puppet.cli.common import StopFlag, load_rig, start_reader, take_writer
 @click.option("--baud", default=1_000_000, show_default=True, help="Bus baud rate.")
 @click.option("--seconds", default=None, type=float, help="Stop after this long (default: Ctrl-C).")
 @click.option("--rate", default=500.0, show_default=True, help="Readings per second.")
-def record(rig_path: str, port: str, out: str, baud: int, seconds: float | None, rate: float) -> None:
+@click.option("--force", is_flag=True, help="Replace an existing take file.")
+def record(rig_path: str, port: str, out: str, baud: int, seconds: float | None, rate: float,
+           force: bool) -> None:
     """Record a take (raw servo readings) without solving or rendering: the lightest loop.
 
     \b
@@ -24,22 +26,25 @@ def record(rig_path: str, port: str, out: str, baud: int, seconds: float | None,
       puppet record --rig my.toml --port /dev/ttyUSB0 --out take.mcap --seconds 30
     """
     rig = load_rig(rig_path)
-    writer = take_writer(out, rig)
+    check_take_path(out, rig, force=force)  # before the port: a mistake costs no take
     source = start_reader(rig, port, baud, rate_hz=rate)
-    stop = StopFlag()
-    start = time.monotonic()
-    count = flagged = 0
     try:
-        while not stop() and (seconds is None or time.monotonic() - start < seconds):
-            batch = source.drain()
-            if not batch:
-                time.sleep(0.005)
-            for reading in batch:
-                writer.write(reading)
-                count += 1
-                flagged += int(not reading.ok.all())
+        writer = take_writer(out, rig, force=force)  # the file is made once the port answers
+        stop = StopFlag()
+        start = time.monotonic()
+        count = flagged = 0
+        try:
+            while not stop() and (seconds is None or time.monotonic() - start < seconds):
+                batch = source.drain()
+                if not batch:
+                    time.sleep(0.005)
+                for reading in batch:
+                    writer.write(reading)
+                    count += 1
+                    flagged += int(not reading.ok.all())
+        finally:
+            writer.close()
     finally:
-        writer.close()
         source.stop()
     click.echo(f"take: {out}\nreadings: {count} in {time.monotonic() - start:.2f} s, "
                f"{flagged} with a flagged servo\nfaults seen: {dict(source.log.counts) or 'none'}")

@@ -1,20 +1,23 @@
 """Takes: crash-safe recording of raw servo readings into MCAP, reading back, and playback.
 
-TakeWriter records Readings (with the rig map and calibration) so that a killed process loses
-nothing written; TakeReader reads them back, recovering a truncated tail; PlaybackClock turns
-them into frames at a fixed rate. The on-disk layout is described in puppet.take.format.
+TakeWriter records Readings (with the rig map and calibration, every record checksummed) so
+that a killed process loses nothing written; TakeReader reads them back, recovering every intact
+reading of a truncated or damaged take and saying what it skipped (RecoveryReport);
+PlaybackClock turns them into frames at a fixed rate, cutting long gaps. The on-disk layout is
+described in puppet.take.format. Nothing here imports the bus or the native solver.
 """
 
 from puppet.take.background import BackgroundTakeWriter
 from puppet.take.errors import TakeError, TakeRigMismatch
 from puppet.take.playback import PlaybackClock, PlaybackFrame, pace
-from puppet.take.reader import TakeMetadata, TakeReader, check_take_rig
+from puppet.take.reader import RecoveryReport, TakeMetadata, TakeReader, check_take_rig
 from puppet.take.writer import TakeWriter
 
 __all__ = [
     "BackgroundTakeWriter",
     "PlaybackClock",
     "PlaybackFrame",
+    "RecoveryReport",
     "TakeError",
     "TakeMetadata",
     "TakeReader",

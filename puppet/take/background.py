@@ -5,7 +5,7 @@ from __future__ import annotations
 import queue
 import threading
 
-from puppet.bus.reading import Reading
+from puppet.reading import Reading
 from puppet.take.errors import TakeError
 from puppet.take.writer import TakeWriter
 
@@ -17,8 +17,10 @@ class BackgroundTakeWriter:
 
     write() copies the reading's arrays (the caller may reuse its buffers) and returns at once;
     a reading reaches the file within microseconds to a few milliseconds (fsync included), well
-    inside the 100 ms crash-safety promise. An error of the writer thread (e.g. a full disk) is
-    raised as TakeError by the next write() or by close(); readings queued after it are dropped.
+    inside the 100 ms crash-safety promise. An error of the writer thread (a full disk, or any
+    unexpected error) is raised as TakeError naming the take by the next write() or by close();
+    readings queued after it are dropped (the thread keeps draining the queue, so nothing
+    waits on a dead thread), and every reading written before it stays readable.
 
     writer:    an open TakeWriter, owned from now on (closed by close()).
     max_queue: readings that may wait; when full, write() raises TakeError rather than block.
@@ -44,7 +46,7 @@ class BackgroundTakeWriter:
             if self._error is None:
                 try:
                     self.writer.write(item)
-                except (TakeError, OSError) as e:
+                except BaseException as e:  # noqa: BLE001 - kept and raised in the caller's thread
                     self._error = e
 
     def _raise_error(self) -> None:
@@ -52,7 +54,8 @@ class BackgroundTakeWriter:
             e = self._error
             if isinstance(e, TakeError):
                 raise TakeError(self.path, f"take writer thread failed: {e.reason}") from e
-            raise TakeError(self.path, f"take writer thread failed: {e}") from e
+            raise TakeError(self.path, f"take writer thread failed: {type(e).__name__}: {e}; "
+                            f"the {self.writer.count} readings written before it are kept") from e
 
     def write(self, reading: Reading) -> None:
         """Queue one reading (arrays copied). Never blocks on disk."""
@@ -75,10 +78,20 @@ class BackgroundTakeWriter:
         if self._closed:
             return
         self._closed = True
-        self._queue.put(_STOP)
+        stopped = False
+        while self._thread.is_alive():  # a dead thread takes nothing from a full queue
+            try:
+                self._queue.put(_STOP, timeout=0.1)
+                stopped = True
+                break
+            except queue.Full:
+                continue
         self._thread.join()
         try:
             self._raise_error()
+            if not stopped:
+                raise TakeError(self.path, "take writer thread ended unexpectedly; the "
+                                f"{self.writer.count} readings written before are kept")
         finally:
             self.writer.close()
 

@@ -22,16 +22,27 @@ layout (every field is naturally aligned), k = number of servos:
   offset 16       int32[k] ticks
   offset 16+4k    uint32   k
   offset 20+4k    uint8[k] ok (0 or 1)
-  total           20+5k bytes
+  version 1 ends here: 20+5k bytes
+  offset 20+5k    p bytes  zero padding to 4-byte alignment, p = (-k) mod 4
+  offset 20+5k+p  uint32   crc: CRC-32 (zlib.crc32) of payload bytes [0, 20+5k+p)
+  version 2 total 24+5k+p bytes
+
+Every reading of a take has the same size, so a reader that meets a damaged record finds the
+next one (see puppet.take.reader). Version 2 also protects the metadata: the "puppet.take"
+record holds rig_map_crc32 and calibration_crc32 (CRC-32 of the texts, 8 hex digits) and crc32,
+the checksum of its own other entries (see info_checksum).
 
 Robotics tools that read ros2msg/cdr (e.g. Foxglove) can plot ticks and ok directly.
 """
 
 from __future__ import annotations
 
+import zlib
+
 import numpy as np
 
-FORMAT_VERSION = 1
+FORMAT_VERSION = 2
+READABLE_VERSIONS = (1, 2)
 
 TAKE_METADATA = "puppet.take"
 RIG_MAP_METADATA = "puppet.rig_map"
@@ -39,39 +50,68 @@ CALIBRATION_METADATA = "puppet.calibration"
 
 SCHEMA_NAME = "puppet_msgs/msg/ServoReading"
 SCHEMA_ENCODING = "ros2msg"
-SCHEMA_TEXT = (
+SCHEMA_TEXT_V1 = (
     "# One group read of every servo of a puppet rig (Present Position, raw encoder ticks).\n"
     "int64 t_ns      # monotonic clock of the read, nanoseconds\n"
     "int32[] ticks   # signed continuous encoder counts, 4096 per turn, in the take's ids order\n"
     "bool[] ok       # false where the read failed for that servo (ticks then hold the last good value)\n"
 )
+SCHEMA_TEXT = SCHEMA_TEXT_V1 + (
+    "uint32 crc      # CRC-32 (zlib) of every payload byte before this field\n"
+)
+SCHEMA_TEXTS = {1: SCHEMA_TEXT_V1, 2: SCHEMA_TEXT}
 MESSAGE_ENCODING = "cdr"
 TOPIC = "/puppet/servo_readings"
 
 CDR_LE_HEADER = b"\x00\x01\x00\x00"
 
 
-def message_size(k: int) -> int:
-    """Bytes of one encoded Reading of k servos."""
-    return 20 + 5 * k
+def crc_offset(k: int) -> int:
+    """Payload offset of a version-2 reading's crc field (k servos)."""
+    return 20 + 5 * k + (-k) % 4
+
+
+def message_size(k: int, version: int = FORMAT_VERSION) -> int:
+    """Bytes of one encoded Reading of k servos in take format ``version``."""
+    return 20 + 5 * k if version == 1 else crc_offset(k) + 4
+
+
+def text_checksum(text: str) -> str:
+    """CRC-32 of a metadata text (UTF-8), as the 8 hex digits stored in the take."""
+    return f"{zlib.crc32(text.encode('utf-8')):08x}"
+
+
+def info_checksum(info: dict[str, str]) -> str:
+    """CRC-32 of the "puppet.take" entries other than crc32 itself (sorted key=value lines)."""
+    lines = "\n".join(f"{key}={info[key]}" for key in sorted(info) if key != "crc32")
+    return text_checksum(lines)
 
 
 class ReadingCodec:
-    """Encodes Readings of k servos into one reused buffer, and decodes payloads.
+    """Encodes Readings of k servos into one reused buffer, and checks and decodes payloads.
 
-    buffer: bytearray of message_size(k) bytes, rewritten in place by encode().
+    version: take format version (1: no checksum; 2: crc field, see the module docstring).
+    buffer:  bytearray of message_size(k, version) bytes, rewritten in place by encode().
     """
 
-    def __init__(self, k: int):
+    def __init__(self, k: int, version: int = FORMAT_VERSION):
+        if version not in READABLE_VERSIONS:
+            raise ValueError(f"ReadingCodec: take format version {version} is not one of "
+                             f"{READABLE_VERSIONS}")
         self.k = int(k)
-        self.size = message_size(self.k)
+        self.version = int(version)
+        self.size = message_size(self.k, self.version)
+        self.crc_at = crc_offset(self.k) if self.version >= 2 else None
         self.buffer = bytearray(self.size)
         self.buffer[0:4] = CDR_LE_HEADER
         self.buffer[12:16] = np.uint32(self.k).tobytes()
         self.buffer[16 + 4 * self.k : 20 + 4 * self.k] = np.uint32(self.k).tobytes()
+        self._view = memoryview(self.buffer)
         self._t = np.frombuffer(self.buffer, dtype="<i8", count=1, offset=4)
         self._ticks = np.frombuffer(self.buffer, dtype="<i4", count=self.k, offset=16)
         self._ok = np.frombuffer(self.buffer, dtype=np.uint8, count=self.k, offset=20 + 4 * self.k)
+        if self.crc_at is not None:
+            self._crc = np.frombuffer(self.buffer, dtype="<u4", count=1, offset=self.crc_at)
 
     def encode(self, t_ns: int, ticks: np.ndarray, ok: np.ndarray) -> bytearray:
         """Write one reading into self.buffer and return it (valid until the next call).
@@ -81,18 +121,29 @@ class ReadingCodec:
         self._t[0] = t_ns
         self._ticks[:] = ticks
         self._ok[:] = ok
+        if self.crc_at is not None:
+            self._crc[0] = zlib.crc32(self._view[: self.crc_at])
         return self.buffer
 
-    def check(self, payload) -> str | None:
-        """None when payload is a well-formed reading of k servos, else what is wrong."""
+    def check(self, payload) -> tuple[str, str] | None:
+        """None when payload is a well-formed reading of k servos, else (reason, detail).
+
+        reason is "checksum mismatch" (version 2) or "malformed reading".
+        """
         if len(payload) != self.size:
-            return f"{len(payload)} bytes, expected {self.size} for {self.k} servos"
+            return "malformed reading", f"{len(payload)} bytes, expected {self.size} for {self.k} servos"
+        if self.crc_at is not None:
+            stored = int.from_bytes(payload[self.crc_at : self.crc_at + 4], "little")
+            actual = zlib.crc32(memoryview(payload)[: self.crc_at])
+            if stored != actual:
+                return "checksum mismatch", f"crc {stored:08x}, payload gives {actual:08x}"
         if bytes(payload[0:4]) != CDR_LE_HEADER:
-            return f"encapsulation header {bytes(payload[0:4]).hex()}, expected 00010000"
+            return ("malformed reading",
+                    f"encapsulation header {bytes(payload[0:4]).hex()}, expected 00010000")
         n1 = int.from_bytes(payload[12:16], "little")
         n2 = int.from_bytes(payload[16 + 4 * self.k : 20 + 4 * self.k], "little")
         if n1 != self.k or n2 != self.k:
-            return f"sequence lengths {n1}/{n2}, expected {self.k}"
+            return "malformed reading", f"sequence lengths {n1}/{n2}, expected {self.k}"
         return None
 
     def decode(self, payload) -> tuple[int, np.ndarray, np.ndarray]:
@@ -101,3 +152,8 @@ class ReadingCodec:
         ticks = np.frombuffer(payload, dtype="<i4", count=self.k, offset=16).astype(np.int32)
         ok = np.frombuffer(payload, dtype=np.uint8, count=self.k, offset=20 + 4 * self.k) != 0
         return t_ns, ticks, ok
+
+    @staticmethod
+    def t_ns_of(payload) -> int:
+        """The t_ns field of a payload (any version)."""
+        return int.from_bytes(payload[4:12], "little", signed=True)

@@ -1,12 +1,14 @@
-"""TakeReader: reads a take back, recovering what a crashed or truncated recording left."""
+"""TakeReader: reads a take back, recovering every intact reading a damaged file still holds."""
 
 from __future__ import annotations
 
 import json
 import mmap
 import struct
+import zlib
 from array import array
-from dataclasses import dataclass
+from collections import Counter
+from dataclasses import dataclass, field
 from io import BytesIO
 from pathlib import Path
 from typing import Iterator
@@ -18,14 +20,71 @@ from mcap.opcode import Opcode
 from mcap.records import Channel, Chunk, Header, Message, Metadata, Schema
 from mcap.stream_reader import breakup_chunk
 
-from puppet.bus.reading import Reading
+from puppet.reading import Reading
 from puppet.take import format as fmt
 from puppet.take.errors import TakeError, TakeRigMismatch
+from puppet.take.playback import MAX_GAP_S
 
 MCAP_MAGIC = b"\x89MCAP0\r\n"
 _RECORD_HEAD = struct.Struct("<BQ")
 _MESSAGE_HEAD = struct.Struct("<HIQQ")  # channel_id, sequence, log_time, publish_time
 _KNOWN_OPCODES = {int(op) for op in Opcode}
+_HEADER_OPCODES = (Opcode.HEADER, Opcode.METADATA, Opcode.SCHEMA, Opcode.CHANNEL)
+# Records a valid MCAP data section may hold that a take does not need.
+_QUIET_OPCODES = (Opcode.ATTACHMENT, Opcode.MESSAGE_INDEX)
+_RESYNC_WINDOW = 1 << 20  # bytes searched byte by byte for a header record after damage
+_PARSE_ERRORS = (struct.error, UnicodeDecodeError, ValueError, McapError, KeyError,
+                 IndexError, OverflowError, MemoryError)
+
+
+@dataclass
+class RecoveryReport:
+    """What reading a take found damaged, and what it did about it.
+
+    skipped: reason -> records skipped for it ("checksum mismatch", "malformed reading",
+             "log time disagrees", "out of order", "unknown channel", "corrupt record");
+             every other reading is still read.
+    details: the first few skips, in words, with their byte offsets.
+    notes:   damage that lost no reading (a corrupt rig map or calibration record, a damaged
+             schema or channel record, gaps that playback cuts), in words.
+    end:     why the file has no clean end (crash, kill, full disk, a damaged tail), or None.
+    """
+
+    skipped: Counter = field(default_factory=Counter)
+    details: list[str] = field(default_factory=list)
+    notes: list[str] = field(default_factory=list)
+    end: str | None = None
+
+    MAX_DETAILS = 3
+
+    def skip(self, reason: str, detail: str) -> None:
+        self.skipped[reason] += 1
+        if len(self.details) < self.MAX_DETAILS:
+            self.details.append(detail)
+
+    @property
+    def skipped_count(self) -> int:
+        return sum(self.skipped.values())
+
+    @property
+    def clean(self) -> bool:
+        """True when nothing was found wrong."""
+        return not self.skipped and not self.notes and self.end is None
+
+    def text(self) -> str | None:
+        """Everything found, in one line of words (None when clean)."""
+        if self.clean:
+            return None
+        parts = []
+        if self.skipped:
+            counts = ", ".join(f"{n} {reason}" for reason, n in sorted(self.skipped.items()))
+            more = "" if self.skipped_count <= len(self.details) else ", ..."
+            parts.append(f"skipped {self.skipped_count} damaged record(s) ({counts}): "
+                         + "; ".join(self.details) + more)
+        parts += self.notes
+        if self.end is not None:
+            parts.append(self.end)
+        return "; ".join(parts)
 
 
 class _ScanState:
@@ -34,12 +93,17 @@ class _ScanState:
     def __init__(self):
         self.header: Header | None = None
         self.info: dict[str, str] | None = None
+        self.info_damaged: str | None = None
         self.texts: dict[str, str] = {}
         self.schemas: dict[int, Schema] = {}
         self.channel: Channel | None = None
+        self.channel_id: int | None = None
+        self.version: int | None = None
         self.codec: fmt.ReadingCodec | None = None
+        self.msg_len: int | None = None  # MCAP body length of one reading's message record
         self.t_first: int | None = None
         self.last_t: int | None = None
+        self.orphans = 0  # reading records met before the take metadata could be read
 
 
 @dataclass
@@ -47,11 +111,11 @@ class TakeMetadata:
     """What a take was recorded with.
 
     ids:              (k,) int64 servo ids, the order of every reading's ticks and ok.
-    models:           servo id -> model name.
-    rig_map_text:     the rig map TOML, verbatim.
-    calibration_text: the calibration text, verbatim.
+    models:           servo id -> model name (empty if the metadata record was damaged).
+    rig_map_text:     the rig map TOML, verbatim ("" if its record was damaged).
+    calibration_text: the calibration text, verbatim ("" if its record was damaged).
     rig_name:         the rig's name.
-    format_version:   take format version (puppet.take.format.FORMAT_VERSION).
+    format_version:   take format version (puppet.take.format.READABLE_VERSIONS).
     created_unix_ns:  wall-clock time the recording started, ns since the Unix epoch.
     library:          the writer that made the file (MCAP header).
     """
@@ -71,17 +135,39 @@ def _parse(record_cls, body: bytes):
     return record_cls.read(ReadDataStream(BytesIO(body)))
 
 
-class TakeReader:
-    """Reads a take file; tolerant of a missing summary/footer and of a truncated or corrupt tail.
+def _schema_version(schema: Schema | None) -> int | None:
+    """The take format version whose reading schema this is, or None."""
+    if schema is None or schema.name != fmt.SCHEMA_NAME:
+        return None
+    text = schema.data.decode("utf-8", "replace")
+    return next((v for v, t in fmt.SCHEMA_TEXTS.items() if t == text), None)
 
-    Opening scans the file once (offsets of every reading, about 8 bytes each in memory).
+
+def _column(rows: np.ndarray, start: int, dtype: str) -> np.ndarray:
+    """(n,) values of one fixed-offset field of (n, record) byte rows (a copy)."""
+    width = np.dtype(dtype).itemsize
+    return np.ascontiguousarray(rows[:, start : start + width]).view(dtype)[:, 0]
+
+
+def _opname(opcode: int) -> str:
+    return Opcode(opcode).name.lower() if opcode in _KNOWN_OPCODES else f"0x{opcode:02x}"
+
+
+class TakeReader:
+    """Reads a take file, recovering every intact reading of a damaged one.
+
+    Opening scans the file once (offset and time of every reading, about 16 bytes each in
+    memory). Damage is skipped, never replayed: a record that cannot be read is stepped over
+    (every reading has the same size, so the next one is found again), a reading whose checksum
+    (format 2), layout, or timestamp (against the MCAP log time, and in order) is wrong is
+    skipped, and a damaged rig map or calibration record is reported and left out.
 
     metadata:    TakeMetadata.
+    report:      RecoveryReport: counts of what was skipped and why, notes, how the file ends.
+    recovery:    None for an undamaged, cleanly closed take, else report.text().
     truncated:   True when the file has no clean end (the writer did not close: crash, kill,
-                 full disk) or ends in a partial or corrupt record; every complete reading
-                 before that point is still read.
-    recovery:    None for a cleanly closed take, else what was found, in words.
-    valid_bytes: bytes of the file up to the end of the last good record.
+                 full disk) or ends in damage; every intact reading before that is still read.
+    valid_bytes: bytes of the file up to the end of the last record read.
     file_bytes:  size of the file.
     len(reader): number of readings; duration_s: last minus first timestamp, seconds.
     t_first_ns, t_last_ns: first and last timestamps (None for an empty take).
@@ -90,17 +176,21 @@ class TakeReader:
     def __init__(self, path):
         self.path = Path(path)
         self.truncated = False
-        self.recovery: str | None = None
+        self.report = RecoveryReport()
         self._offsets = array("Q")
+        self._times = array("q")
         self._payloads: list[bytes] | None = None
         self.t_first_ns: int | None = None
         self.t_last_ns: int | None = None
-        with self._open_map() as mm:
+        with self._open_map(first=True) as mm:
             self.file_bytes = len(mm)
             self._scan(mm)
+        self._note_gaps()
+        self.recovery: str | None = self.report.text()
 
     # ---- opening and scanning ----
-    def _open_map(self) -> mmap.mmap:
+    def _open_map(self, first: bool = False) -> mmap.mmap:
+        """The file mapped read-only; first: check (and report) its magic bytes."""
         try:
             f = open(self.path, "rb")
         except FileNotFoundError:
@@ -110,16 +200,18 @@ class TakeReader:
         except OSError as e:
             raise TakeError(self.path, f"cannot open take file: {e.strerror}") from e
         with f:
-            head = f.read(8)
+            head = f.read(8 + _RECORD_HEAD.size)
+            if not first:
+                return mmap.mmap(f.fileno(), 0, access=mmap.ACCESS_READ)
             if len(head) == 0:
                 raise TakeError(self.path, "empty file, not an MCAP take")
-            if head != MCAP_MAGIC:
-                raise TakeError(self.path, f"not an MCAP file (starts with {head!r})")
+            if head[:8] != MCAP_MAGIC:
+                # One or two damaged bytes of the magic, followed by a header record: a take.
+                wrong = sum(a != b for a, b in zip(head[:8], MCAP_MAGIC))
+                if len(head) < 17 or wrong > 2 or head[8] != Opcode.HEADER:
+                    raise TakeError(self.path, f"not an MCAP file (starts with {head[:8]!r})")
+                self.report.notes.append(f"the file's magic bytes are damaged ({head[:8]!r})")
             return mmap.mmap(f.fileno(), 0, access=mmap.ACCESS_READ)
-
-    def _stop(self, reason: str) -> None:
-        self.truncated = True
-        self.recovery = reason
 
     def _scan(self, mm: mmap.mmap) -> None:
         """Walk the records once: header records, reading offsets, and where the file ends."""
@@ -127,78 +219,289 @@ class TakeReader:
         pos = len(MCAP_MAGIC)
         s = _ScanState()
         clean_end = False
+        report = self.report
         while True:
             if pos == size:
-                self._stop(f"no clean end after byte {pos} (the recording did not close)")
+                report.end = f"no clean end after byte {pos} (the recording did not close)"
                 break
             if pos + _RECORD_HEAD.size > size:
-                self._stop(f"ends inside a record header at byte {pos} of {size}")
+                report.end = f"ends inside a record header at byte {pos} of {size}"
                 break
             opcode, length = _RECORD_HEAD.unpack_from(mm, pos)
             body = pos + _RECORD_HEAD.size
             end = body + length
+            damage = None  # (reason, what is wrong at pos, trusted end or None)
+            cut = False  # the damage is the file's end cutting a record
             if opcode not in _KNOWN_OPCODES:
-                self._stop(f"corrupt record at byte {pos} (opcode 0x{opcode:02x})")
-                break
-            if end > size:
-                self._stop(
-                    f"ends inside a {Opcode(opcode).name} record at byte {pos} "
-                    f"({end - size} of {length + 9} bytes missing)"
-                )
-                break
-            if opcode == Opcode.DATA_END:
-                clean_end = True
-                pos = end
-                break
-            problem = None
-            if opcode == Opcode.MESSAGE:
-                if length < _MESSAGE_HEAD.size:
-                    problem = f"{length} bytes"
-                else:
-                    channel_id, _, log_time, _ = _MESSAGE_HEAD.unpack_from(mm, body)
-                    start = body + _MESSAGE_HEAD.size
-                    problem = self._message(s, channel_id, log_time, mm[start:end], start)
-            elif opcode in (Opcode.HEADER, Opcode.METADATA, Opcode.SCHEMA, Opcode.CHANNEL,
-                            Opcode.CHUNK):
+                damage = ("corrupt record", f"corrupt record at byte {pos} (opcode 0x{opcode:02x})",
+                          None)
+            elif opcode == Opcode.MESSAGE and s.msg_len is not None and length != s.msg_len:
+                damage = ("corrupt record", f"corrupt message record at byte {pos} "
+                          f"({length + 9} bytes, a reading has {s.msg_len + 9})", None)
+            elif end > size:
+                cut = True
+                damage = ("corrupt record", f"ends inside a {_opname(opcode)} record at byte {pos} "
+                          f"({end - size} of {length + 9} bytes missing)", None)
+            elif opcode == Opcode.DATA_END:
+                if length == 4:
+                    clean_end = True
+                    pos = end
+                    break
+                damage = ("corrupt record", f"corrupt data end record at byte {pos}", None)
+            elif opcode == Opcode.MESSAGE:
+                if s.codec is not None and s.channel_id is not None and self._payloads is None:
+                    after = self._bulk(mm, s, pos)  # the common case: a run of good readings
+                    if after > pos:
+                        pos = after
+                        continue
+                damage = self._message_record(mm, s, pos, body, end)
+            elif opcode in _HEADER_OPCODES or opcode == Opcode.CHUNK:
                 try:
                     problem = self._record(s, opcode, mm[body:end])
-                except (struct.error, UnicodeDecodeError, ValueError, McapError, KeyError) as e:
-                    problem = repr(e)
-            if problem is not None:
-                self._stop(f"corrupt {Opcode(opcode).name.lower()} record at byte {pos}: {problem}")
+                except _PARSE_ERRORS as e:
+                    problem = f"{type(e).__name__}: {e}"
+                if problem is not None:
+                    damage = ("corrupt record", f"damaged {_opname(opcode)} record at byte {pos} "
+                              f"({problem})", end)
+            elif opcode in _QUIET_OPCODES:
+                pass
+            else:
+                damage = ("corrupt record", f"unexpected {_opname(opcode)} record at byte {pos}",
+                          end)
+            if damage is None:
+                pos = end
+                continue
+            reason, what, trusted_end = damage
+            if trusted_end is not None and self._boundary(mm, s, trusted_end):
+                report.skip(reason, what)
+                pos = trusted_end
+                continue
+            found = self._resync(mm, s, pos + 1)
+            if found is None:
+                report.end = what if cut else f"{what}; nothing readable after it"
                 break
-            pos = end
+            report.skip(reason, f"{what}; resumed at byte {found}")
+            pos = found
         self.valid_bytes = pos
-        if s.info is None or s.channel is None or len(s.texts) < 2:
+        self.truncated = not clean_end
+        self._finish(s)
+
+    def _finish(self, s: "_ScanState") -> None:
+        """Check the header records are usable and build the metadata."""
+        if s.info is None and s.channel is not None:
+            self._fallback_info(s)
+        if s.info is None or s.channel_id is None:
+            if s.info_damaged is not None:
+                raise TakeError(self.path, f"the take metadata record is damaged "
+                                f"({s.info_damaged}) and no servo ids can be recovered")
             if self.truncated and (s.info is not None or s.header is not None):
                 raise TakeError(
                     self.path,
-                    f"take ends before its header records are complete ({self.recovery}): "
+                    f"take ends before its header records are complete ({self.report.text()}): "
                     "no readings to recover",
                 )
-            raise self._not_puppet(s.info, s.header, s.texts)
-        if clean_end:
-            self.truncated = False
-            self.recovery = None
+            raise self._not_puppet(s.info, s.header)
         info = s.info
+        texts = {}
+        for name, what in ((fmt.RIG_MAP_METADATA, "rig map"),
+                           (fmt.CALIBRATION_METADATA, "calibration")):
+            text = s.texts.get(name)
+            crc = info.get(f"{name.split('.')[-1]}_crc32")
+            if text is None:
+                self.report.notes.append(f"no {what} metadata (its record is damaged or missing)")
+                text = ""
+            elif crc is not None and fmt.text_checksum(text) != crc:
+                self.report.notes.append(
+                    f"the {what} metadata is damaged (checksum mismatch); it is left out")
+                text = ""
+            texts[name] = text
         ids = np.asarray(json.loads(info["ids"]), dtype=np.int64)
         ids.setflags(write=False)
+        try:
+            created = int(info.get("created_unix_ns", "0"))
+        except ValueError:
+            created = 0
         self.metadata = TakeMetadata(
             ids=ids,
             models={int(i): m for i, m in json.loads(info["models"]).items()},
-            rig_map_text=s.texts[fmt.RIG_MAP_METADATA],
-            calibration_text=s.texts[fmt.CALIBRATION_METADATA],
+            rig_map_text=texts[fmt.RIG_MAP_METADATA],
+            calibration_text=texts[fmt.CALIBRATION_METADATA],
             rig_name=info.get("rig_name", ""),
-            format_version=int(info["format_version"]),
-            created_unix_ns=int(info.get("created_unix_ns", "0")),
+            format_version=s.version,
+            created_unix_ns=created,
             library=s.header.library if s.header is not None else "",
         )
-        self._codec = fmt.ReadingCodec(len(ids))
+        if s.orphans:
+            self.report.skip("corrupt record", f"{s.orphans} reading record(s) before the take "
+                             "metadata could be read")
+        self._codec = s.codec if s.codec is not None else fmt.ReadingCodec(len(ids), s.version)
         if self._payloads is not None:
             # A chunked take (rewritten by an MCAP tool): readings are held decoded-ready.
             self._offsets = array("Q", range(len(self._payloads)))
         if len(self._offsets):
             self.t_first_ns, self.t_last_ns = s.t_first, s.last_t
+
+    def _note_gaps(self) -> None:
+        """Report gaps between readings that playback cuts (see PlaybackClock.max_gap_s)."""
+        if len(self._times) < 2:
+            return
+        gaps = np.diff(np.frombuffer(self._times, dtype=np.int64))
+        long = np.flatnonzero(gaps > MAX_GAP_S * 1e9)
+        if long.size:
+            worst = int(long[np.argmax(gaps[long])])
+            at = (self._times[worst] - self._times[0]) * 1e-9
+            self.report.notes.append(
+                f"{long.size} gap(s) between readings longer than {MAX_GAP_S:g} s (the longest "
+                f"{gaps[worst] * 1e-9:.3g} s, {at:.3f} s into the take); playback cuts them "
+                f"to {MAX_GAP_S:g} s")
+
+    def _bulk(self, mm: mmap.mmap, s: "_ScanState", pos: int) -> int:
+        """Take in the run of back-to-back good readings starting at pos, checked all at once;
+        the position after the run (pos when the first one is not good: checked one by one)."""
+        record = _RECORD_HEAD.size + s.msg_len
+        n = (len(mm) - pos) // record
+        if n < 2:
+            return pos
+        k, codec = s.codec.k, s.codec
+        p0 = _RECORD_HEAD.size + _MESSAGE_HEAD.size  # payload offset inside a record
+        rows = np.frombuffer(mm, dtype=np.uint8, count=n * record, offset=pos).reshape(n, record)
+        t_ns = _column(rows, p0 + 4, "<i8")
+        good = ((rows[:, 0] == Opcode.MESSAGE) & (_column(rows, 1, "<u8") == s.msg_len)
+                & (_column(rows, 9, "<u2") == s.channel_id)
+                & (_column(rows, 15, "<u8").astype(np.int64) == t_ns)
+                & (_column(rows, p0, "<u4") == 0x0100)  # the CDR_LE encapsulation header
+                & (_column(rows, p0 + 12, "<u4") == k)
+                & (_column(rows, p0 + 16 + 4 * k, "<u4") == k))
+        ordered = np.diff(t_ns, prepend=t_ns[:1] if s.last_t is None else s.last_t) >= 0
+        bad = np.flatnonzero(~(good & ordered))
+        m = int(bad[0]) if bad.size else n
+        if codec.crc_at is not None and m:
+            stored = _column(rows, p0 + codec.crc_at, "<u4")[:m].tolist()
+            with memoryview(mm) as view:
+                for i in range(m):
+                    at = pos + i * record + p0
+                    if zlib.crc32(view[at : at + codec.crc_at]) != stored[i]:
+                        m = i
+                        break
+        del rows
+        if m == 0:
+            return pos
+        offsets = pos + p0 + record * np.arange(m, dtype=np.int64)
+        self._offsets.frombytes(offsets.astype(np.uint64).tobytes())
+        self._times.frombytes(t_ns[:m].astype(np.int64).tobytes())
+        if s.t_first is None:
+            s.t_first = int(t_ns[0])
+        s.last_t = int(t_ns[m - 1])
+        return pos + m * record
+
+    def _boundary(self, mm: mmap.mmap, s: "_ScanState", q: int) -> bool:
+        """True when a record may start at q (or the file ends there): a length can be trusted."""
+        size = len(mm)
+        if q >= size - _RECORD_HEAD.size:
+            return q <= size
+        opcode, length = _RECORD_HEAD.unpack_from(mm, q)
+        if opcode not in _KNOWN_OPCODES:
+            return False
+        if opcode == Opcode.MESSAGE and s.msg_len is not None:
+            return length == s.msg_len
+        return q + _RECORD_HEAD.size + length <= size
+
+    def _message_at(self, mm: mmap.mmap, s: "_ScanState", q: int) -> bool:
+        """True when a reading whose payload checks out starts at q."""
+        if q + _RECORD_HEAD.size + s.msg_len > len(mm):
+            return False
+        channel_id = struct.unpack_from("<H", mm, q + _RECORD_HEAD.size)[0]
+        if s.channel_id is not None and channel_id != s.channel_id:
+            return False
+        start = q + _RECORD_HEAD.size + _MESSAGE_HEAD.size
+        return s.codec.check(mm[start : start + s.codec.size]) is None
+
+    def _resync(self, mm: mmap.mmap, s: "_ScanState", start: int) -> int | None:
+        """The first position at or after start where a trustworthy record begins, or None.
+
+        A reading is found by its fixed record head (opcode, length) and a payload that checks
+        out; a data end record by its fixed form; before the readings, header records are
+        searched byte by byte (within _RESYNC_WINDOW) and must parse and be followed by a
+        record boundary.
+        """
+        best = None
+        if s.msg_len is not None:
+            signature = _RECORD_HEAD.pack(Opcode.MESSAGE, s.msg_len)
+            q = mm.find(signature, start)
+            while q != -1 and not self._message_at(mm, s, q):
+                q = mm.find(signature, q + 1)
+            best = None if q == -1 else q
+            stop = best if best is not None else len(mm)
+            q = mm.find(_RECORD_HEAD.pack(Opcode.DATA_END, 4), start, stop)
+            if q != -1 and q + 13 <= len(mm):
+                best = q
+        limit = min(best if best is not None else len(mm), start + _RESYNC_WINDOW)
+        if s.channel_id is None:
+            for q in range(start, limit - _RECORD_HEAD.size):
+                opcode = mm[q]
+                if opcode not in (Opcode.METADATA, Opcode.SCHEMA, Opcode.CHANNEL):
+                    continue
+                length = _RECORD_HEAD.unpack_from(mm, q)[1]
+                end = q + _RECORD_HEAD.size + length
+                if end > len(mm) or not self._boundary(mm, s, end):
+                    continue
+                cls = {Opcode.METADATA: Metadata, Opcode.SCHEMA: Schema,
+                       Opcode.CHANNEL: Channel}[opcode]
+                try:
+                    _parse(cls, mm[q + _RECORD_HEAD.size : end])
+                except _PARSE_ERRORS:
+                    continue
+                return q
+        return best
+
+    def _message_record(self, mm, s: "_ScanState", pos: int, body: int, end: int):
+        """Take in one message record; None, or (reason, what is wrong, trusted end)."""
+        if end - body < _MESSAGE_HEAD.size:
+            return ("corrupt record", f"corrupt message record at byte {pos} "
+                    f"({end - body} bytes)", None)
+        if s.codec is None:
+            if s.info is None and s.channel is not None:
+                self._fallback_info(s)
+            self._prepare_codec(s)
+        if s.codec is None:
+            s.orphans += 1
+            return None
+        channel_id, _, log_time, _ = _MESSAGE_HEAD.unpack_from(mm, body)
+        start = body + _MESSAGE_HEAD.size
+        problem = self._take_message(s, channel_id, log_time, mm[start:end])
+        if problem is None or problem == "other channel":
+            if problem is None and self._payloads is None:
+                self._offsets.append(start)
+            return None
+        reason, detail = problem
+        return reason, f"reading at byte {pos}: {detail}", end
+
+    def _take_message(self, s: "_ScanState", channel_id: int, log_time: int, payload):
+        """Check one message: None (a good reading, counted), "other channel", or (reason, detail)."""
+        if channel_id != s.channel_id:
+            if len(payload) != s.codec.size:
+                return "other channel"  # a message a tool added to the take: not a reading
+            if s.channel_id is None and s.codec.version >= 2 and s.codec.check(payload) is None:
+                s.channel_id = channel_id
+                self.report.notes.append(
+                    "the readings' channel record is damaged; readings recognised by checksum")
+            else:
+                return "unknown channel", f"channel id {channel_id}, readings are on {s.channel_id}"
+        problem = s.codec.check(payload)
+        if problem is not None:
+            return problem
+        t_ns = s.codec.t_ns_of(payload)
+        if t_ns != log_time:
+            return "log time disagrees", f"log time {log_time} ns, the reading says {t_ns} ns"
+        if s.last_t is not None and t_ns < s.last_t:
+            return "out of order", f"t_ns {t_ns} is before the previous reading's {s.last_t}"
+        if s.t_first is None:
+            s.t_first = t_ns
+        s.last_t = t_ns
+        self._times.append(t_ns)
+        if self._payloads is not None:
+            self._payloads.append(bytes(payload))
+        return None
 
     def _record(self, s: "_ScanState", opcode: int, body: bytes) -> str | None:
         """Take in one non-message record; a problem in words, or None."""
@@ -207,8 +510,13 @@ class TakeReader:
         elif opcode == Opcode.METADATA:
             meta = _parse(Metadata, body)
             if meta.name == fmt.TAKE_METADATA:
+                problem = self._check_info(meta.metadata)
+                if problem is not None:
+                    s.info_damaged = problem
+                    return problem
                 s.info = meta.metadata
-                self._check_info(s.info)
+                s.version = int(s.info["format_version"])
+                self._prepare_codec(s)
             elif meta.name in (fmt.RIG_MAP_METADATA, fmt.CALIBRATION_METADATA):
                 s.texts[meta.name] = meta.metadata.get("text", "")
         elif opcode == Opcode.SCHEMA:
@@ -217,78 +525,92 @@ class TakeReader:
         elif opcode == Opcode.CHANNEL:
             self._channel(s, _parse(Channel, body))
         else:  # a chunk: takes are written unchunked, but MCAP tools may rewrite them chunked
-            for rec in breakup_chunk(_parse(Chunk, body), validate_crc=True):
+            records = list(breakup_chunk(_parse(Chunk, body), validate_crc=True))
+            for rec in records:
                 if isinstance(rec, Schema):
                     s.schemas[rec.id] = rec
                 elif isinstance(rec, Channel):
                     self._channel(s, rec)
                 elif isinstance(rec, Message):
+                    if s.codec is None:
+                        raise self._not_puppet(s.info, s.header)
                     if self._payloads is None:
                         self._payloads = []
-                    problem = self._message(s, rec.channel_id, rec.log_time, rec.data, None)
-                    if problem is not None:
-                        return problem
+                    problem = self._take_message(s, rec.channel_id, rec.log_time, rec.data)
+                    if problem is not None and problem != "other channel":
+                        self.report.skip(problem[0], f"reading in a chunk: {problem[1]}")
         return None
+
+    def _prepare_codec(self, s: "_ScanState") -> None:
+        if s.codec is None and s.info is not None:
+            s.codec = fmt.ReadingCodec(int(s.info["servo_count"]), s.version)
+            s.msg_len = _MESSAGE_HEAD.size + s.codec.size
 
     def _channel(self, s: "_ScanState", ch: Channel) -> None:
-        if ch.topic == fmt.TOPIC:
-            self._check_channel(ch, s.schemas)
-            s.channel = ch
-
-    def _message(self, s: "_ScanState", channel_id: int, log_time: int, payload, offset):
-        """Take in one message; offset is its payload's file offset (None inside a chunk)."""
-        if s.info is None or s.channel is None:
-            raise self._not_puppet(s.info, s.header)
-        if channel_id != s.channel.id:
-            return None
-        if s.codec is None:
-            s.codec = fmt.ReadingCodec(int(s.info["servo_count"]))
-        problem = s.codec.check(payload)
+        if ch.topic != fmt.TOPIC:
+            return
+        version = s.version
+        if version is None:  # the take metadata is damaged: the schema tells the version
+            version = _schema_version(s.schemas.get(ch.schema_id))
+        problem = self._check_channel(ch, s.schemas, version)
         if problem is not None:
-            return problem
-        if s.last_t is not None and log_time < s.last_t:
-            return "time goes backwards"
-        if s.t_first is None:
-            s.t_first = log_time
-        s.last_t = log_time
-        if offset is None:
-            self._payloads.append(bytes(payload))
-        elif self._payloads is not None:
-            self._payloads.append(bytes(payload))
-        else:
-            self._offsets.append(offset)
-        return None
+            if version is None or version < 2:
+                raise TakeError(self.path, problem)
+            self.report.notes.append(f"{problem} (damaged; the readings' checksums are used)")
+        s.channel = ch
+        s.channel_id = ch.id
 
-    def _not_puppet(self, info, header, texts=None) -> TakeError:
+    def _fallback_info(self, s: "_ScanState") -> None:
+        """Rebuild the take metadata from the channel record when its own record is damaged."""
+        try:
+            ids = [int(i) for i in s.channel.metadata["ids"].split(",")]
+        except (KeyError, ValueError):
+            return
+        version = _schema_version(s.schemas.get(s.channel.schema_id))
+        if version is None:
+            return
+        s.info = {"format_version": str(version), "ids": json.dumps(ids), "models": "{}",
+                  "servo_count": str(len(ids)), "rig_name": ""}
+        s.version = version
+        damage = f"damaged ({s.info_damaged})" if s.info_damaged else "damaged or missing"
+        self.report.notes.append(
+            f"the take metadata record is {damage}; servo ids taken from the channel record, "
+            "servo models and rig name unknown, rig map and calibration unchecked")
+
+    def _not_puppet(self, info, header) -> TakeError:
         library = header.library if header is not None else "unknown"
         if info is None:
             return TakeError(
                 self.path, f"an MCAP file but not a puppet take (no {fmt.TAKE_METADATA} "
                 f"metadata; written by {library!r})"
             )
-        if texts is not None:
-            missing = [m for m in (fmt.RIG_MAP_METADATA, fmt.CALIBRATION_METADATA) if m not in texts]
-            if missing:
-                return TakeError(self.path, f"not a complete puppet take: no {missing} metadata")
         return TakeError(self.path, f"not a puppet take: no {fmt.TOPIC} channel")
 
-    def _check_info(self, info: dict[str, str]) -> None:
+    def _check_info(self, info: dict[str, str]) -> str | None:
+        """None when the take metadata is usable; its damage in words (format 2 checksum);
+        TakeError when it is well formed but not readable here."""
+        crc = info.get("crc32")
+        if crc is not None and fmt.info_checksum(info) != crc:
+            return "checksum mismatch"
         try:
             version = int(info["format_version"])
         except (KeyError, ValueError):
             raise TakeError(
                 self.path, f"{fmt.TAKE_METADATA} metadata has no valid format_version"
             ) from None
-        if version != fmt.FORMAT_VERSION:
-            newer = "newer" if version > fmt.FORMAT_VERSION else "older"
+        if version not in fmt.READABLE_VERSIONS:
+            newest = max(fmt.READABLE_VERSIONS)
+            newer = "newer" if version > newest else "older"
             raise TakeError(
                 self.path,
-                f"take format version {version} ({newer}); this puppet reads version "
-                f"{fmt.FORMAT_VERSION}",
+                f"take format version {version} ({newer}); this puppet reads versions "
+                f"{' and '.join(map(str, fmt.READABLE_VERSIONS))}",
             )
-        for field in ("ids", "models", "servo_count"):
-            if field not in info:
-                raise TakeError(self.path, f"{fmt.TAKE_METADATA} metadata lacks field {field!r}")
+        if version >= 2 and crc is None:
+            return "no crc32 entry"
+        for name in ("ids", "models", "servo_count"):
+            if name not in info:
+                raise TakeError(self.path, f"{fmt.TAKE_METADATA} metadata lacks field {name!r}")
         try:
             ids = json.loads(info["ids"])
             json.loads(info["models"])
@@ -299,29 +621,31 @@ class TakeReader:
             raise TakeError(
                 self.path, f"{fmt.TAKE_METADATA} metadata: {len(ids)} ids but servo_count {k}"
             )
+        return None
 
-    def _check_channel(self, ch: Channel, schemas: dict[int, Schema]) -> None:
+    def _check_channel(self, ch: Channel, schemas: dict[int, Schema], version) -> str | None:
+        """None when the readings' channel and schema are this format's; else what differs."""
         schema = schemas.get(ch.schema_id)
         if schema is None:
-            raise TakeError(self.path, f"channel {ch.topic} refers to missing schema {ch.schema_id}")
+            return f"channel {ch.topic} refers to missing schema {ch.schema_id}"
         if schema.name != fmt.SCHEMA_NAME or schema.encoding != fmt.SCHEMA_ENCODING:
-            raise TakeError(
-                self.path,
-                f"channel {ch.topic} has schema {schema.name!r} ({schema.encoding}); "
-                f"expected {fmt.SCHEMA_NAME!r} ({fmt.SCHEMA_ENCODING})",
-            )
-        if schema.data.decode("utf-8", "replace") != fmt.SCHEMA_TEXT:
-            raise TakeError(self.path, f"schema {schema.name!r} differs from this puppet's version")
+            return (f"channel {ch.topic} has schema {schema.name!r} ({schema.encoding}); "
+                    f"expected {fmt.SCHEMA_NAME!r} ({fmt.SCHEMA_ENCODING})")
+        expected = fmt.SCHEMA_TEXTS.get(version if version is not None else 1)
+        if schema.data.decode("utf-8", "replace") != expected:
+            return f"schema {schema.name!r} differs from this puppet's version"
         if ch.message_encoding != fmt.MESSAGE_ENCODING:
-            raise TakeError(
-                self.path,
-                f"channel {ch.topic} has message encoding {ch.message_encoding!r}, "
-                f"expected {fmt.MESSAGE_ENCODING!r}",
-            )
+            return (f"channel {ch.topic} has message encoding {ch.message_encoding!r}, "
+                    f"expected {fmt.MESSAGE_ENCODING!r}")
+        return None
 
     # ---- reading ----
     def __len__(self) -> int:
         return len(self._offsets)
+
+    def timestamps(self) -> np.ndarray:
+        """(N,) int64 t_ns of every reading, in order (a copy)."""
+        return np.array(self._times, dtype=np.int64)
 
     @property
     def duration_s(self) -> float:

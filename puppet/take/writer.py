@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import errno
 import json
 import os
 import time
@@ -11,7 +12,7 @@ import numpy as np
 from mcap.writer import CompressionType, IndexType, Writer
 
 import puppet
-from puppet.bus.reading import Reading
+from puppet.reading import Reading
 from puppet.take import format as fmt
 from puppet.take.errors import TakeError
 
@@ -23,6 +24,8 @@ class TakeWriter:
     operating system before returning, so a process killed with SIGKILL leaves every reading
     whose write() returned. fsync (for power loss) runs at most every fsync_interval_s seconds,
     inside write(), and at close(); call write() from a sink thread, not the bus thread.
+    A failed write (a full disk) raises TakeError naming the take and ends the recording;
+    every reading written before it stays readable.
 
     path:             take file to create (.mcap); an existing file is an error unless overwrite.
     ids:              (k,) int servo ids, in the order of Reading.ticks.
@@ -72,37 +75,45 @@ class TakeWriter:
             raise TakeError(self.path, "file exists; pass overwrite=True to replace it") from None
         except OSError as e:
             raise TakeError(self.path, f"cannot create take file: {e.strerror}") from e
+        self._failed: str | None = None
         self._mcap = Writer(
             self._file,
             compression=CompressionType.NONE,
             use_chunking=False,
             index_types=IndexType.METADATA,
         )
-        self._mcap.start(profile="", library=f"puppet/{puppet.__version__}")
-        self._mcap.add_metadata(
-            fmt.TAKE_METADATA,
-            {
-                "format_version": str(fmt.FORMAT_VERSION),
-                "rig_name": str(rig_name),
-                "ids": json.dumps([int(i) for i in self.ids]),
-                "models": json.dumps({str(i): self.models[i] for i in sorted(self.models)}),
-                "servo_count": str(self.k),
-                "created_unix_ns": str(time.time_ns()),
-            },
-        )
-        self._mcap.add_metadata(fmt.RIG_MAP_METADATA, {"text": str(rig_map_text)})
-        self._mcap.add_metadata(fmt.CALIBRATION_METADATA, {"text": str(calibration_text)})
-        schema_id = self._mcap.register_schema(
-            fmt.SCHEMA_NAME, fmt.SCHEMA_ENCODING, fmt.SCHEMA_TEXT.encode()
-        )
-        self._channel = self._mcap.register_channel(
-            fmt.TOPIC,
-            fmt.MESSAGE_ENCODING,
-            schema_id,
-            {"ids": ",".join(str(int(i)) for i in self.ids)},
-        )
-        self._mcap.flush()  # schema and channel records wait in mcap's builder until a flush
-        os.fsync(self._file.fileno())
+        info = {
+            "format_version": str(fmt.FORMAT_VERSION),
+            "rig_name": str(rig_name),
+            "ids": json.dumps([int(i) for i in self.ids]),
+            "models": json.dumps({str(i): self.models[i] for i in sorted(self.models)}),
+            "servo_count": str(self.k),
+            "created_unix_ns": str(time.time_ns()),
+            "rig_map_crc32": fmt.text_checksum(str(rig_map_text)),
+            "calibration_crc32": fmt.text_checksum(str(calibration_text)),
+        }
+        info["crc32"] = fmt.info_checksum(info)
+        try:
+            self._mcap.start(profile="", library=f"puppet/{puppet.__version__}")
+            self._mcap.add_metadata(fmt.TAKE_METADATA, info)
+            self._mcap.add_metadata(fmt.RIG_MAP_METADATA, {"text": str(rig_map_text)})
+            self._mcap.add_metadata(fmt.CALIBRATION_METADATA, {"text": str(calibration_text)})
+            schema_id = self._mcap.register_schema(
+                fmt.SCHEMA_NAME, fmt.SCHEMA_ENCODING, fmt.SCHEMA_TEXT.encode()
+            )
+            self._channel = self._mcap.register_channel(
+                fmt.TOPIC,
+                fmt.MESSAGE_ENCODING,
+                schema_id,
+                {"ids": ",".join(str(int(i)) for i in self.ids)},
+            )
+            self._mcap.flush()  # schema and channel records wait in mcap's builder until a flush
+            os.fsync(self._file.fileno())
+        except OSError as e:
+            self._closed = True
+            self._close_file()
+            self.path.unlink(missing_ok=True)  # made here, and holds no reading
+            self._fail(e, "cannot write the take's header")
         self._last_sync = time.monotonic()
 
     def write(self, reading: Reading) -> None:
@@ -112,6 +123,8 @@ class TakeWriter:
         """
         if self._closed:
             raise TakeError(self.path, "write() after close()")
+        if self._failed is not None:
+            raise TakeError(self.path, f"write() after a failed write: {self._failed}")
         if reading.ids is not self._ids_checked:
             if not np.array_equal(reading.ids, self.ids):
                 raise TakeError(
@@ -126,29 +139,59 @@ class TakeWriter:
                 self.path, f"reading t_ns {t_ns} is earlier than the previous {self._last_t_ns}"
             )
         payload = self._codec.encode(t_ns, reading.ticks, reading.ok)
-        self._mcap.add_message(
-            self._channel, log_time=t_ns, data=payload, publish_time=t_ns, sequence=self.count
-        )
-        self._file.flush()
+        try:
+            self._mcap.add_message(
+                self._channel, log_time=t_ns, data=payload, publish_time=t_ns, sequence=self.count
+            )
+            self._file.flush()
+        except OSError as e:
+            self._fail(e, f"cannot write reading {self.count}")
         self._last_t_ns = t_ns
         self.count += 1
         if self.fsync_interval_s is not None:
             now = time.monotonic()
             if now - self._last_sync >= self.fsync_interval_s:
-                os.fsync(self._file.fileno())
+                try:
+                    os.fsync(self._file.fileno())
+                except OSError as e:
+                    self._fail(e, f"cannot sync the take after reading {self.count - 1}")
                 self._last_sync = now
+
+    def _fail(self, err: OSError, doing: str) -> None:
+        """A write to the take failed (full disk, I/O error): refuse further writes, and raise.
+
+        Every reading written before stays readable (TakeReader recovers the take, which has no
+        clean end); close() then only closes the file.
+        """
+        what = "the disk is full" if err.errno == errno.ENOSPC else (err.strerror or str(err))
+        self._failed = f"{doing}: {what}; the {self.count} readings before it are kept"
+        raise TakeError(self.path, self._failed) from err
 
     def close(self) -> None:
         """Write the MCAP summary and footer, fsync and close. Safe to call twice."""
         if self._closed:
             return
         self._closed = True
+        if self._failed is not None:
+            self._close_file()
+            return
         try:
             self._mcap.finish()
             self._file.flush()
             os.fsync(self._file.fileno())
-        finally:
+        except OSError as e:
+            self._close_file()
+            self._fail(e, "cannot finish the take")
+        self._close_file()
+
+    def _close_file(self) -> None:
+        """Close the file; after a failed write its buffered bytes are dropped (they cannot
+        be written, and what was written before stays readable)."""
+        try:
             self._file.close()
+        except OSError:
+            # close() flushes again what the full disk refused; the file is closed regardless.
+            return
 
     def __enter__(self) -> "TakeWriter":
         return self

@@ -5,7 +5,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from puppet.bus.reading import Reading
+from puppet.reading import Reading
 from puppet.take import TakeWriter
 
 IDS = np.array([3, 7, 11, 12], dtype=np.int64)
@@ -45,3 +45,22 @@ def take_path(tmp_path):
         for i in range(200):
             w.write(reading_at(i, 10_000_000 + i * 2_000_000 + (i * 37) % 100))
     return path
+
+
+@pytest.fixture
+def small_disk(tmp_path):
+    """A 64 KiB tmpfs folder (a disk that fills up); skipped where mounting is not allowed."""
+    import subprocess
+
+    folder = tmp_path / "disk"
+    folder.mkdir()
+    try:
+        result = subprocess.run(["mount", "-t", "tmpfs", "-o", "size=64k", "tmpfs", str(folder)],
+                                capture_output=True, text=True, timeout=60)
+    except FileNotFoundError:
+        pytest.skip("no mount command on this machine: cannot make a small disk")
+    if result.returncode != 0:
+        pytest.skip(f"cannot mount a small tmpfs here (needs root or CAP_SYS_ADMIN): "
+                    f"{result.stderr.strip()}")
+    yield folder
+    subprocess.run(["umount", "-l", str(folder)], check=True, timeout=60)

@@ -70,3 +70,38 @@ def test_full_queue_refuses_instead_of_blocking(tmp_path, kit):
     gate.set()
     w.close()
     assert [r.t_ns for r in TakeReader(path).readings()] == [0, 1, 2]
+
+
+def test_close_cannot_hang_when_the_thread_meets_an_unexpected_error(tmp_path, kit):
+    """A reading the writer cannot encode (t_ns None) raises inside the thread; with the queue
+    full behind it, close() still returns, with a TakeError naming the take."""
+    path = tmp_path / "bg.mcap"
+    inner = kit.open_writer(path)
+    w = BackgroundTakeWriter(inner, max_queue=3)
+    w.write(kit.reading_at(0, 1_000))
+    bad = kit.reading_at(1, 2_000)
+    bad.t_ns = None
+    w.write(bad)
+    deadline = time.monotonic() + 30
+    while w._error is None and time.monotonic() < deadline:
+        time.sleep(0.001)
+    assert isinstance(w._error, TypeError)
+    for _ in range(3):  # what the loop had queued before it heard of the error
+        w._queue.put_nowait(kit.reading_at(2, 3_000))
+    errors = []
+
+    def close():
+        try:
+            w.close()
+        except TakeError as e:
+            errors.append(e)
+
+    closer = threading.Thread(target=close, daemon=True)
+    closer.start()
+    closer.join(60)
+    assert not closer.is_alive()
+    assert len(errors) == 1
+    assert str(path) in str(errors[0]) and "TypeError" in str(errors[0])
+    assert "the 1 readings written before it are kept" in str(errors[0])
+    r = TakeReader(path)
+    assert [g.t_ns for g in r.readings()] == [1_000] and r.truncated is False

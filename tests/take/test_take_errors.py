@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 from mcap.writer import CompressionType, Writer
 
-from puppet.bus.reading import Reading
+from puppet.reading import Reading
 from puppet.take import TakeError, TakeReader, TakeRigMismatch, TakeWriter, check_take_rig
 from puppet.take import format as fmt
 
@@ -71,9 +71,9 @@ def test_wrong_schema(tmp_path):
 
 def test_newer_format_version(tmp_path):
     p = tmp_path / "future.mcap"
-    write_foreign_mcap(p, puppet_info={**GOOD_INFO, "format_version": "2"})
+    write_foreign_mcap(p, puppet_info={**GOOD_INFO, "format_version": "3"})
     reason = open_error(p)
-    assert "version 2 (newer)" in reason and "reads version 1" in reason
+    assert "version 3 (newer)" in reason and "reads versions 1 and 2" in reason
 
 
 def test_malformed_take_metadata(tmp_path):

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from puppet.bus.reading import Reading
+from puppet.reading import Reading
 from puppet.take import PlaybackClock, TakeReader, pace
 
 
@@ -107,3 +107,35 @@ def test_pace_waits_for_each_frame_on_the_injected_clock():
     for i, t in out:
         assert t == pytest.approx(100.0 + i / 10)
     assert all(s == pytest.approx(0.07) for s in slept)
+
+
+def test_long_gaps_are_cut_and_reported(tmp_path, kit):
+    """A stall (or a wrong timestamp that passed every check) plays as max_gap_s, not hours."""
+    hour = 3600 * 10**9
+    times = [i * 10_000_000 for i in range(10)] + [hour + i * 10_000_000 for i in range(10)]
+    rs = [kit.reading_at(i, t) for i, t in enumerate(times)]
+    clock = PlaybackClock(rs, fps=100, max_gap_s=0.5)
+    frames = list(clock)
+    assert clock.cuts == [(90_000_000, hour - 90_000_000)]
+    # 0.09 s, the gap cut to 0.5 s, then 0.09 s: 0.68 s at 100 fps.
+    assert len(frames) == 69
+    assert [f.reading.t_ns for f in frames[:10]] == times[:10]
+    assert all(f.reading is rs[9] for f in frames[9:59])  # held through the cut gap
+    assert [f.reading.t_ns for f in frames[59:]] == times[10:]
+    assert frames[59].take_t_ns == hour
+    assert np.all(np.diff([f.take_t_ns for f in frames]) > 0)
+
+    path = tmp_path / "gap.mcap"
+    with kit.open_writer(path) as w:
+        for r in rs:
+            w.write(r)
+    reader = TakeReader(path)
+    assert reader.report.skipped_count == 0
+    assert "1 gap(s) between readings longer than 1 s" in reader.recovery
+    clock = PlaybackClock(reader, fps=100)  # the default cut, 1 s
+    assert len(clock) == len(list(clock)) == 119
+
+
+def test_bad_max_gap():
+    with pytest.raises(ValueError, match="max_gap_s must be > 0"):
+        PlaybackClock([], max_gap_s=0)

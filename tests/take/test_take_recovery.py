@@ -71,16 +71,24 @@ def test_zero_filled_tail_after_power_loss(tmp_path, kit):
     assert f"byte {sizes[6]}" in r.recovery and "opcode 0x00" in r.recovery
 
 
-def test_corrupt_length_field_stops_recovery_there(tmp_path, kit):
+def readings_are(r, kit, indices):
+    got = list(r.readings())
+    assert [g.ticks.tolist() for g in got] == [kit.reading_at(i, 0).ticks.tolist() for i in indices]
+    assert [g.ok.tolist() for g in got] == [kit.reading_at(i, 0).ok.tolist() for i in indices]
+    assert [g.t_ns for g in got] == [1_000 + i * 2_000_000 for i in indices]
+
+
+def test_corrupt_length_field_skips_that_reading_only(tmp_path, kit):
     path = tmp_path / "len.mcap"
     sizes = record_with_sizes(path, kit, 10)
     data = bytearray(path.read_bytes())
     data[sizes[4] + 1 : sizes[4] + 9] = (10**12).to_bytes(8, "little")  # reading 4's length
     path.write_bytes(bytes(data))
     r = TakeReader(path)
-    assert len(r) == 4
-    assert r.truncated is True
-    assert f"byte {sizes[4]}" in r.recovery
+    readings_are(r, kit, [0, 1, 2, 3, 5, 6, 7, 8, 9])
+    assert r.truncated is False  # the file still ends cleanly
+    assert r.report.skipped == {"corrupt record": 1}
+    assert f"byte {sizes[4]}" in r.recovery and f"resumed at byte {sizes[5]}" in r.recovery
 
 
 def test_corrupt_payload_is_detected(tmp_path, kit):
@@ -91,8 +99,9 @@ def test_corrupt_payload_is_detected(tmp_path, kit):
     data[payload : payload + 4] = b"\xff\xff\xff\xff"  # the CDR encapsulation header
     path.write_bytes(bytes(data))
     r = TakeReader(path)
-    assert len(r) == 7
-    assert "corrupt message record" in r.recovery and "encapsulation" in r.recovery
+    readings_are(r, kit, [0, 1, 2, 3, 4, 5, 6, 8, 9])
+    assert r.report.skipped == {"checksum mismatch": 1}
+    assert f"reading at byte {sizes[7]}" in r.recovery
 
 
 def test_garbage_appended_to_a_crashed_take(tmp_path, kit):

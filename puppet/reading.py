@@ -1,0 +1,25 @@
+"""Reading: one sample of every servo of a rig (shared by the bus, which makes readings, and the
+take, which stores them; it imports neither)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+
+@dataclass
+class Reading:
+    """Present Position of every servo of a rig, read in one group read.
+
+    t_ns:  monotonic timestamp of the read, nanoseconds (time.monotonic_ns()).
+    ids:   (k,) int: servo ids, in the rig map's order.
+    ticks: (k,) int32: signed, continuous encoder counts (4096 per turn); a failed servo
+           holds its last good value.
+    ok:    (k,) bool: False where this read failed for that servo.
+    """
+
+    t_ns: int
+    ids: np.ndarray
+    ticks: np.ndarray
+    ok: np.ndarray
