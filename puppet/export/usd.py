@@ -16,6 +16,7 @@ The layer is saved every ``save_every`` frames, so memory stays bounded on long 
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
 import numpy as np
@@ -34,6 +35,13 @@ def _usd():
     except ImportError as e:  # usd-core is a dependency; say so if an install lost it
         raise ExportError("--usd", f"USD export needs the usd-core package ({e})") from e
     return Gf, Sdf, Usd, UsdGeom, UsdSkel, Vt
+
+
+def _usd_reason(error: Exception) -> str:
+    """The distinct messages of a pxr error (it lists every C++ diagnostic with its source line)."""
+    found = re.findall(r" : '(.+?)'\s*$", str(error), flags=re.MULTILINE)
+    unique = list(dict.fromkeys(found))
+    return "; ".join(unique[:2]) if unique else str(error).strip()
 
 
 def _usd_matrices(M: np.ndarray) -> np.ndarray:
@@ -78,7 +86,7 @@ class UsdWriter:
         try:
             stage = Usd.Stage.CreateNew(str(self.path))
         except Exception as e:  # noqa: BLE001 - pxr raises Tf.ErrorException, a plain Exception
-            raise ExportError(self.path, f"cannot create USD stage: {e}") from e
+            raise ExportError(self.path, f"cannot create USD stage: {_usd_reason(e)}") from e
         self.stage = stage
         UsdGeom.SetStageUpAxis(stage, UsdGeom.Tokens.y if up == "Y" else UsdGeom.Tokens.z)
         UsdGeom.SetStageMetersPerUnit(stage, float(meters_per_unit))
@@ -143,7 +151,7 @@ class UsdWriter:
         try:
             saved = self.stage.GetRootLayer().Save()
         except Exception as e:  # noqa: BLE001 - pxr raises Tf.ErrorException
-            raise ExportError(self.path, f"cannot write USD: {e}") from e
+            raise ExportError(self.path, f"cannot write USD: {_usd_reason(e)}") from e
         if not saved or not self.path.exists():
             raise ExportError(self.path, "cannot write USD: the layer was not saved (disk full?)")
 
