@@ -139,6 +139,7 @@ class GltfWriter:
         self._translations: list[np.ndarray] = []
         self._rotations: list[np.ndarray] = []
         self._previous_q = None
+        self._lbs = None
         self._closed = False
 
     @property
@@ -158,16 +159,26 @@ class GltfWriter:
         self._translations.append(local[:, :, 3].astype(np.float32))
         self._rotations.append(q.astype(np.float32))
 
-    def skin(self, world: np.ndarray, V: np.ndarray | None = None) -> np.ndarray:
-        """(n, 3) linear blend skinning of the written skin for world (b, 3, 4): what a viewer shows."""
-        V = self.V if V is None else V
+    def skin(self, world: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
+        """(n, 3) linear blend skinning of the written skin for world (b, 3, 4): what a viewer shows.
+
+        Evaluated as one product ``L @ X`` with L (n, 4b) the file's weights times the rest
+        vertices in homogeneous coordinates and X (4b, 3) the stacked transposed transforms.
+        """
+        if self._lbs is None:
+            n = len(self.V)
+            dense = np.zeros((n, self.b))
+            for s in range(self.joints.shape[1]):
+                np.add.at(dense, (np.arange(n), self.joints[:, s]), self.weights[:, s])
+            Vh = np.hstack([self.V, np.ones((n, 1))])
+            self._lbs = (dense[:, :, None] * Vh[:, None, :]).reshape(n, 4 * self.b)
+            self._stacked = np.empty((self.b, 4, 3))
         P = np.asarray(world, np.float64)
-        out = np.zeros((len(V), 3))
-        for s in range(self.joints.shape[1]):
-            w = self.weights[:, s].astype(np.float64)[:, None]
-            Pj = P[self.joints[:, s]]
-            out += w * (np.einsum("nij,nj->ni", Pj[:, :, :3], V) + Pj[:, :, 3])
-        return out
+        self._stacked[:, :3, :] = np.swapaxes(P[:, :, :3], 1, 2)
+        self._stacked[:, 3, :] = P[:, :, 3]
+        if out is None:
+            out = np.empty((len(self.V), 3))
+        return np.matmul(self._lbs, self._stacked.reshape(4 * self.b, 3), out=out)
 
     def close(self) -> None:
         """Write the file (at least one frame is needed). Safe to call twice."""

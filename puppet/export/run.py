@@ -220,7 +220,6 @@ def _solve_and_write(pipeline, frames: Resampler, writers: dict, targets: dict, 
     """The per-frame loop: solve, deform (V' = M T), joint transforms, one record per writer."""
     rig = pipeline.rig
     sk = rig.skeleton
-    M = pipeline.model.lbs_matrix()                    # (n, 4m) float64
     T = np.empty(pipeline.T.shape, np.float64)
     deformed = np.empty((len(rig.V), 3))
     points = np.empty((order.n_out, 3))
@@ -232,13 +231,17 @@ def _solve_and_write(pipeline, frames: Resampler, writers: dict, targets: dict, 
     chain = np.empty((sk.bone_count, 3))
     local = np.empty((sk.bone_count, 3))
     gltf, usd, pc2, bvh = (writers.get(f) for f in FORMATS)
+    need_mesh = gltf is not None or usd is not None or pc2 is not None
+    M = pipeline.model.lbs_matrix() if need_mesh else None  # (n, 4m) float64: V' = M T
+    skinned = np.empty((order.n_out, 3))
     squares, count, worst, drift = 0.0, 0, 0.0, 0.0
     for f, reading in enumerate(frames):
         pipeline.solve(reading)
-        T[...] = pipeline.T
-        np.matmul(M, T, out=deformed)
         joints.update(pipeline.T)
-        order.take(deformed, out=points)
+        if need_mesh:
+            T[...] = pipeline.T
+            np.matmul(M, T, out=deformed)
+            order.take(deformed, out=points)
         if pc2 is not None:
             if up == "z":
                 pc2_points[:, 0] = points[:, 0]
@@ -253,7 +256,9 @@ def _solve_and_write(pipeline, frames: Resampler, writers: dict, targets: dict, 
                 usd.write(points, joints.world)
         if gltf is not None:
             gltf.write(joints.world)
-            error = np.linalg.norm(gltf.skin(joints.world) - points, axis=1)
+            gltf.skin(joints.world, out=skinned)
+            skinned -= points
+            error = np.sqrt(np.einsum("ij,ij->i", skinned, skinned))
             squares += float(np.dot(error, error))
             count += len(error)
             worst = max(worst, float(error.max()))
