@@ -32,6 +32,7 @@ from puppet.export.source_order import SourceOrder
 FORMATS = ("gltf", "usd", "pc2", "bvh")
 UP_AXES = ("y", "z")
 FIRST_FRAME = 1  # frame number of the take's first reading, in every format
+SUFFIXES = {"gltf": (".glb",), "usd": (".usdc", ".usda", ".usd")}  # the format follows the name
 
 
 @dataclass
@@ -152,6 +153,8 @@ def export_take(rig, reader, outputs: Outputs, *, fps: float = 30.0, up: str = "
         if key in seen:
             raise ExportError(target, f"given for both --{seen[key]} and --{fmt}")
         seen[key] = fmt
+        if fmt in SUFFIXES and target.suffix.lower() not in SUFFIXES[fmt]:
+            raise ExportError(target, f"--{fmt} files are named *{' or *'.join(SUFFIXES[fmt])}")
         check_output(target, inputs=inputs)
     ids = [int(i) for i in rig.servo_map.ids]
     if len(reader) == 0:

@@ -31,10 +31,10 @@ UP_AXES = ("Y", "Z")
 
 def _usd():
     try:
-        from pxr import Gf, Sdf, Usd, UsdGeom, UsdSkel, Vt
+        from pxr import Tf, Usd, UsdGeom, UsdSkel, Vt
     except ImportError as e:  # usd-core is a dependency; say so if an install lost it
         raise ExportError("--usd", f"USD export needs the usd-core package ({e})") from e
-    return Gf, Sdf, Usd, UsdGeom, UsdSkel, Vt
+    return Tf, Usd, UsdGeom, UsdSkel, Vt
 
 
 def _usd_reason(error: Exception) -> str:
@@ -66,8 +66,8 @@ class UsdWriter:
 
     def __init__(self, path, *, names, parents, heads, frames, V, F, fps: float, up: str = "Y",
                  meters_per_unit: float = 1.0, name: str = "character", save_every: int = 64):
-        Gf, Sdf, Usd, UsdGeom, UsdSkel, Vt = _usd()
-        self._Vt, self._Usd = Vt, Usd
+        Tf, Usd, UsdGeom, UsdSkel, Vt = _usd()
+        self._Tf, self._Vt, self._Usd = Tf, Vt, Usd
         self.path = Path(path)
         if up not in UP_AXES:
             raise ExportError(self.path, f"up axis must be one of {UP_AXES}, got {up!r}")
@@ -85,7 +85,7 @@ class UsdWriter:
         root = "/" + safe_names([name])[0][0]
         try:
             stage = Usd.Stage.CreateNew(str(self.path))
-        except Exception as e:  # noqa: BLE001 - pxr raises Tf.ErrorException, a plain Exception
+        except Tf.ErrorException as e:
             raise ExportError(self.path, f"cannot create USD stage: {_usd_reason(e)}") from e
         self.stage = stage
         UsdGeom.SetStageUpAxis(stage, UsdGeom.Tokens.y if up == "Y" else UsdGeom.Tokens.z)
@@ -150,7 +150,7 @@ class UsdWriter:
     def _save(self) -> None:
         try:
             saved = self.stage.GetRootLayer().Save()
-        except Exception as e:  # noqa: BLE001 - pxr raises Tf.ErrorException
+        except self._Tf.ErrorException as e:
             raise ExportError(self.path, f"cannot write USD: {_usd_reason(e)}") from e
         if not saved or not self.path.exists():
             raise ExportError(self.path, "cannot write USD: the layer was not saved (disk full?)")

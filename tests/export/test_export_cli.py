@@ -93,6 +93,14 @@ def test_the_take_itself_is_never_an_output(tmp_path, take30):
     assert Path(take30).read_bytes() == before
 
 
+def test_outputs_named_for_another_format_are_refused(tmp_path, take30):
+    result = run(take30, "--usd", tmp_path / "anim.txt", "--gltf", tmp_path / "anim.gltf")
+    assert_clean_error(result, "anim.txt", "--usd files are named *.usdc or *.usda or *.usd")
+    result = run(take30, "--pc2", tmp_path / "same.out", "--bvh", tmp_path / "same.out")
+    assert_clean_error(result, "given for both --pc2 and --bvh")
+    assert list(tmp_path.iterdir()) == []
+
+
 def test_an_unwritable_folder_is_refused(tmp_path, take30):
     if os.geteuid() == 0:  # root writes through file modes: a folder no one can create files in
         folder = Path("/proc/self")
