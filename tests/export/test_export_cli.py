@@ -94,8 +94,10 @@ def test_the_take_itself_is_never_an_output(tmp_path, take30):
 
 
 def test_outputs_named_for_another_format_are_refused(tmp_path, take30):
-    result = run(take30, "--usd", tmp_path / "anim.txt", "--gltf", tmp_path / "anim.gltf")
+    result = run(take30, "--usd", tmp_path / "anim.txt")
     assert_clean_error(result, "anim.txt", "--usd files are named *.usdc or *.usda or *.usd")
+    result = run(take30, "--gltf", tmp_path / "anim.gltf")  # the export is binary glTF
+    assert_clean_error(result, "anim.gltf", "--gltf files are named *.glb")
     result = run(take30, "--pc2", tmp_path / "same.out", "--bvh", tmp_path / "same.out")
     assert_clean_error(result, "given for both --pc2 and --bvh")
     assert list(tmp_path.iterdir()) == []
