@@ -85,15 +85,21 @@ def test_bvh_rebuilds_every_joint_of_the_solve(exported, critter, reference, fps
         np.testing.assert_allclose(offsets[k], expected, atol=1e-6)
     b = sk.bone_count
     full = set(critter.full_bones.tolist())
+    relative = set(critter.relative_bones.tolist())
+    assert full and relative
     for f in range(N):
         pos, rot = forward_kinematics(parents, offsets, channels, motion[f])
         Tb = reference.T[f].reshape(-1, 4, 3)[:b].astype(np.float64)
         pivots = np.einsum("bi,bij->bj", np.hstack([sk.heads, np.ones((b, 1))]), Tb)
         np.testing.assert_allclose(pos, pivots[order], atol=2e-5)  # sensed and solved joints
         fk = critter.pose(reference.angles[f])
+        joint_rotations = sk.joint_rotations(reference.angles[f])  # model space, per bone
         for k, j in enumerate(order):
             if j in full:  # sensed joints: exactly the forward kinematics of the servo angles
                 np.testing.assert_allclose(rot[k], fk[j, :, :3], atol=2e-5)
+            if j in relative:  # sensed below a solved joint: turned by its servos from its parent
+                local = rot[parents[k]].T @ rot[k]
+                np.testing.assert_allclose(local, joint_rotations[j], atol=2e-5)
     assert report.bvh_stretch_max_pct is not None
 
 
