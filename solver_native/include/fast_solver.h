@@ -79,6 +79,7 @@ class FastSolver {
   double local_step(const float* x, bool energy);  // S = K~^T x, R = polar; E(x) if energy
   void global_step(float* out);       // out = G R + Tb, then relative correction
   double quad_energy(const float* x);
+  bool converged(double E_old, double E, double tol, bool use_energy) const;  // tolerance stop after an iteration
 
   int m_, r_, kf_, kp_, kr_, mp_, rp_, window_;
   std::vector<float> csm_, g_, p2_, q_;
@@ -96,6 +97,7 @@ class FastSolver {
   double lin_ = 0.0;                    // sum_g tr(R_g^T C_g) from the last local step
   // Anderson
   std::vector<float> x_, gx_, f_, gprev_, fprev_, xacc_, dG_, dF_;
+  std::vector<float> xold_;  // T before the iteration (tolerance stop on the change in T)
   std::vector<double> gram_, gram_full_, rhs_, gamma_;  // gram_full_: by buffer slot
   std::vector<double> history_;
   SolveStats stats_;

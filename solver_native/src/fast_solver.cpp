@@ -103,7 +103,7 @@ FastSolver::FastSolver(int m, int r, int kf, int kp, int kr, const float* csm, c
   qx_.assign(3 * static_cast<size_t>(mp_), 0.0f);
   y_.assign(static_cast<size_t>(std::max(nR, 1)) * 3, 0.0f);
   const size_t D = 3 * static_cast<size_t>(mp_);
-  for (auto* v : {&x_, &gx_, &f_, &gprev_, &fprev_, &xacc_}) v->assign(D, 0.0f);
+  for (auto* v : {&x_, &gx_, &f_, &gprev_, &fprev_, &xacc_, &xold_}) v->assign(D, 0.0f);
   dG_.assign(D * window_, 0.0f);
   dF_.assign(D * window_, 0.0f);
   gram_.assign(static_cast<size_t>(window_) * window_, 0.0);
@@ -209,6 +209,21 @@ void FastSolver::set_dynamics(const float* mass_h2, const float* hm, const float
   cache_valid_ = false;
 }
 
+// Tolerance stop: a small non-negative energy decrease (relative to E_old), or a change in T
+// (max |dT| relative to max |T|) below tol. A rise is never convergence: the first iteration
+// after the targets move raises the energy (the start point violated the new constraints).
+bool FastSolver::converged(double E_old, double E, double tol, bool use_energy) const {
+  const double drop = E_old - E;
+  if (use_energy && drop >= 0.0 && drop <= tol * std::max(std::fabs(E_old), 1e-300)) return true;
+  float dmax = 0.0f, xmax = 0.0f;
+  const size_t D = 3 * static_cast<size_t>(mp_);
+  for (size_t i = 0; i < D; ++i) {
+    dmax = std::max(dmax, std::fabs(x_[i] - xold_[i]));
+    xmax = std::max(xmax, std::fabs(x_[i]));
+  }
+  return dmax <= tol * std::max(xmax, 1e-30f);
+}
+
 double FastSolver::local_step(const float* x, bool energy) {
   const int rr = 3 * rp_;
   k_->gemm3_sparse(csm_.data(), rr, rr, tile_off_.data(), tile_k_.data(), x, 1, mp_, s_.data(), rr);
@@ -284,6 +299,8 @@ void FastSolver::solve(const float* full, const float* rel, const float* pos, fl
   for (; it < iterations; ++it) {
     const double E_old = E;
     const bool last = it + 1 == iterations;
+    if (use_tol) std::memcpy(xold_.data(), x_.data(), D * sizeof(float));
+    bool accepted = false;  // an accelerated point was taken (its energy drop says nothing)
     if (!accelerate) {
       global_step(x_.data());
       E = local_step(x_.data(), need_energy || last);
@@ -337,6 +354,7 @@ void FastSolver::solve(const float* full, const float* rel, const float* pos, fl
         if (Ea <= E_old) {
           std::swap(x_, xacc_);
           E = Ea;
+          accepted = true;
         } else {
           ++stats_.rejected;
           nh = 0;
@@ -350,7 +368,7 @@ void FastSolver::solve(const float* full, const float* rel, const float* pos, fl
       }
     }
     if (record_history && stats_.history_size < cap) history_[stats_.history_size++] = E;
-    if (use_tol && E_old - E <= tol * std::max(std::fabs(E_old), 1e-300)) {
+    if (use_tol && converged(E_old, E, tol, !accepted)) {
       ++it;
       break;
     }
