@@ -26,11 +26,15 @@ class Pattern:
                 times a per-frame rotation R, and both handles map the rest point ``pivot``
                 ((3,) model units) to the same place.
     positional: vertex indices whose deformed position is given each frame.
+    contacts:   (vertex, axes) pairs: the vertex's deformed position is given in the named axes
+                only (axes a non-empty string of distinct 'x', 'y', 'z', e.g. "y": a foot at a
+                floor height, free to slide in x and z). Each column then gets its own solve.
     """
 
     full: tuple[int, ...] = ()
     relative: tuple[tuple[int, int, tuple[float, float, float]], ...] = ()
     positional: tuple[int, ...] = field(default=())
+    contacts: tuple[tuple[int, str], ...] = ()
 
     def validate(self, m: int, n: int) -> None:
         """Raise PatternError unless the pattern fits m handles and n vertices and is consistent:
@@ -67,6 +71,28 @@ class Pattern:
             pos.append(int(v))
         if len(set(pos)) != len(pos):
             raise PatternError("pattern.positional: a vertex is pinned twice")
+        seen = set()
+        for q, item in enumerate(self.contacts):
+            if len(item) != 2:
+                raise PatternError(f"pattern.contacts[{q}]: expected (vertex, axes), got {item!r}")
+            v, axes = item
+            if not isinstance(v, (int, np.integer)) or not 0 <= int(v) < n:
+                raise PatternError(f"pattern.contacts[{q}]: vertex {v!r} is not in 0..{n - 1}")
+            if (not isinstance(axes, str) or not axes or set(axes) - set("xyz")
+                    or len(set(axes)) != len(axes)):
+                raise PatternError(f"pattern.contacts[{q}]: axes {axes!r} must be distinct letters of 'xyz'")
+            for a in axes:
+                if (int(v), a) in seen:
+                    raise PatternError(f"pattern.contacts[{q}]: vertex {v} axis {a} is constrained twice")
+                seen.add((int(v), a))
+
+    def contact_axes(self) -> np.ndarray:
+        """(len(contacts), 3) int32: 1 where contact q constrains column x, y or z."""
+        out = np.zeros((len(self.contacts), 3), np.int32)
+        for q, (_, axes) in enumerate(self.contacts):
+            for a in axes:
+                out[q, "xyz".index(a)] = 1
+        return out
 
     def values(self) -> "Values":
         """Preallocated per-frame values for this pattern (identity rotations, zero targets)."""
@@ -74,6 +100,7 @@ class Pattern:
             full=np.zeros((len(self.full), 4, 3), np.float32),
             relative=np.tile(np.eye(3, dtype=np.float32), (len(self.relative), 1, 1)),
             positional=np.zeros((len(self.positional), 3), np.float32),
+            contact=np.zeros((len(self.contacts), 3), np.float32),
         )
 
 
@@ -85,8 +112,11 @@ class Values:
     relative:   (len(pattern.relative), 3, 3) float32: the rotation R of each relative joint
                 (child linear part = parent linear part @ R).
     positional: (len(pattern.positional), 3) float32: target positions, model units.
+    contact:    (len(pattern.contacts), 3) float32: target coordinates, model units; only the
+                contact's axes are read.
     """
 
     full: np.ndarray
     relative: np.ndarray
     positional: np.ndarray
+    contact: np.ndarray = field(default_factory=lambda: np.zeros((0, 3), np.float32))

@@ -8,7 +8,7 @@ import numpy as np
 
 from puppet import _native
 from puppet.fast.errors import FastError
-from puppet.fast.factor import factor
+from puppet.fast.factor import contact_rows, factor
 from puppet.fast.pattern import Pattern, Values
 
 
@@ -104,6 +104,8 @@ class Solver:
                 np.ascontiguousarray(force, np.float32),
                 float(dynamics.damping),
             )
+        if pattern.contacts:
+            self._native.set_contacts(contact_rows(pattern, model.V, model.weights64), pattern.contact_axes())
         self.stats = self._native.stats
         self._history = self._native.history
 
@@ -134,6 +136,7 @@ class Solver:
             values.full,
             values.relative,
             values.positional,
+            values.contact,
             T,
             iterations,
             0.0 if tol is None else float(tol),

@@ -108,5 +108,7 @@ def load_rig(path) -> Rig:
     else:
         calibration = Calibration(path=spec.calibration)
     # Joint errors (unknown joint, >3 servos, repeated order) name the rig file's line.
-    return Rig(spec.name, V, F, skeleton, W, spec.servo_map, calibration, spec.solver,
-               np.array(pins, np.int64), spec.fixed, path)
+    rig = Rig(spec.name, V, F, skeleton, W, spec.servo_map, calibration, spec.solver,
+              np.array(pins, np.int64), spec.fixed, path)
+    rig.set_extras(spec.extras)
+    return rig

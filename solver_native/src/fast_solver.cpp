@@ -114,6 +114,91 @@ FastSolver::FastSolver(int m, int r, int kf, int kp, int kr, const float* csm, c
   last_T_.assign(12 * static_cast<size_t>(m), 0.0f);
 }
 
+void FastSolver::set_contacts(int kc, const double* rows, const int32_t* axes) {
+  const int n4 = 4 * m_;
+  kc_ = kc;
+  crow64_.assign(rows, rows + static_cast<size_t>(kc) * n4);
+  crow_.assign(static_cast<size_t>(std::max(kc, 1)) * mp_, 0.0f);
+  for (int q = 0; q < kc; ++q)
+    for (int k = 0; k < n4; ++k) crow_[static_cast<size_t>(q) * mp_ + k] = static_cast<float>(rows[q * n4 + k]);
+  int most = 0;
+  for (int c = 0; c < 3; ++c) {
+    cidx_[c].clear();
+    for (int q = 0; q < kc; ++q)
+      if (axes[3 * q + c]) cidx_[c].push_back(q);
+    most = std::max(most, static_cast<int>(cidx_[c].size()));
+  }
+  ncmax_ = 3 * kr_ + most;
+  const size_t nm = static_cast<size_t>(std::max(ncmax_, 1));
+  wc_.assign(nm * n4, 0.0);
+  schurc_.assign(nm * nm, 0.0);
+  cbuf_.assign(nm, 0.0);
+  zc_.assign(3 * nm * mp_, 0.0f);
+  yc_.assign(nm, 0.0f);
+  cval_.assign(static_cast<size_t>(std::max(kc, 1)) * 3, 0.0f);
+  contacts_ready_ = false;
+  cache_valid_ = false;
+}
+
+void FastSolver::column_schur() {
+  const int n4 = 4 * m_, nR = 3 * kr_;
+  for (int c = 0; c < 3; ++c) {
+    const int nc = nR + static_cast<int>(cidx_[c].size());
+    float* zc = zc_.data() + static_cast<size_t>(c) * ncmax_ * mp_;
+    if (nc == 0) continue;
+    // W_c = H A_c^T: relative columns as in set_values, contact columns H M_v^T (H symmetric).
+    for (int qq = 0; qq < kr_; ++qq) {
+      const float* R = relR_.data() + 9 * qq;
+      for (int i = 0; i < 3; ++i) {
+        double* wcol = wc_.data() + static_cast<size_t>(3 * qq + i) * n4;
+        const double* hc = h_.data() + static_cast<size_t>(4 * child_[qq] + i) * n4;
+        for (int row = 0; row < n4; ++row) wcol[row] = hc[row];
+        for (int k = 0; k < 3; ++k) {
+          const double coef = R[3 * k + i];
+          const double* hp = h_.data() + static_cast<size_t>(4 * parent_[qq] + k) * n4;
+          for (int row = 0; row < n4; ++row) wcol[row] -= coef * hp[row];
+        }
+      }
+    }
+    for (int j = nR; j < nc; ++j) {
+      const double* a = crow64_.data() + static_cast<size_t>(cidx_[c][j - nR]) * n4;
+      double* wcol = wc_.data() + static_cast<size_t>(j) * n4;
+      for (int row = 0; row < n4; ++row) wcol[row] = 0.0;
+      for (int k = 0; k < n4; ++k) {
+        const double* hk = h_.data() + static_cast<size_t>(k) * n4;
+        for (int row = 0; row < n4; ++row) wcol[row] += a[k] * hk[row];
+      }
+    }
+    // S_c = A_c W_c.
+    for (int col = 0; col < nc; ++col) {
+      const double* wcol = wc_.data() + static_cast<size_t>(col) * n4;
+      for (int qq = 0; qq < kr_; ++qq) {
+        const float* R = relR_.data() + 9 * qq;
+        for (int i = 0; i < 3; ++i) {
+          double v = wcol[4 * child_[qq] + i];
+          for (int k = 0; k < 3; ++k) v -= static_cast<double>(R[3 * k + i]) * wcol[4 * parent_[qq] + k];
+          schurc_[static_cast<size_t>(col) * nc + 3 * qq + i] = v;
+        }
+      }
+      for (int j = nR; j < nc; ++j) {
+        const double* a = crow64_.data() + static_cast<size_t>(cidx_[c][j - nR]) * n4;
+        double v = 0.0;
+        for (int k = 0; k < n4; ++k) v += a[k] * wcol[k];
+        schurc_[static_cast<size_t>(col) * nc + j] = v;
+      }
+    }
+    if (!cholesky(schurc_.data(), nc))
+      throw std::invalid_argument(
+          "solve: the contacts and the other constraints are dependent (Schur complement not positive definite)");
+    for (int row = 0; row < n4; ++row) {
+      for (int j = 0; j < nc; ++j) cbuf_[j] = wc_[static_cast<size_t>(j) * n4 + row];
+      cholesky_solve(schurc_.data(), nc, cbuf_.data());
+      for (int j = 0; j < nc; ++j) zc[static_cast<size_t>(j) * mp_ + row] = static_cast<float>(cbuf_[j]);
+    }
+  }
+  contacts_ready_ = true;
+}
+
 void FastSolver::set_values(const float* full, const float* rel, const float* pos) {
   if (!all_finite(full, 12 * kf_)) throw std::invalid_argument("solve: values.full contains NaN or inf");
   if (!all_finite(rel, 9 * kr_)) throw std::invalid_argument("solve: values.relative contains NaN or inf");
@@ -122,8 +207,12 @@ void FastSolver::set_values(const float* full, const float* rel, const float* po
   std::fill(tb_.begin(), tb_.end(), 0.0f);
   if (kf_ > 0) k_->gemm3(p2_.data(), mp_, mp_, 4 * kf_, full, 3, 1, tb_.data(), mp_, true);
   if (kp_ > 0) k_->gemm3(p2_.data() + static_cast<size_t>(4 * kf_) * mp_, mp_, mp_, kp_, pos, 3, 1, tb_.data(), mp_, true);
+  if (kr_ > 0) std::memcpy(relR_.data(), rel, sizeof(float) * 9 * kr_);
+  if (kc_ > 0) {
+    if (kr_ > 0 || !contacts_ready_) column_schur();
+    return;
+  }
   if (kr_ == 0) return;
-  std::memcpy(relR_.data(), rel, sizeof(float) * 9 * kr_);
   const int n4 = 4 * m_, nR = 3 * kr_;
   // W = H A_R^T (column (q,i) = H[:,4c+i] - sum_k R[k][i] H[:,4p+k]).
   for (int qq = 0; qq < kr_; ++qq) {
@@ -238,6 +327,35 @@ void FastSolver::global_step(float* out) {
   const int rr = 3 * rp_;
   k_->gemm3(g_.data(), mp_, mp_, rr, rot_.data(), 1, rr, out, mp_, false);
   for (int i = 0; i < 3 * mp_; ++i) out[i] += tb_[i];
+  if (kc_ > 0) {
+    const int nR = 3 * kr_, n4 = 4 * m_;
+    for (int c = 0; c < 3; ++c) {
+      float* oc = out + c * mp_;
+      const int nc = nR + static_cast<int>(cidx_[c].size());
+      for (int qq = 0; qq < kr_; ++qq) {
+        const float* R = relR_.data() + 9 * qq;
+        for (int i = 0; i < 3; ++i) {
+          float v = oc[4 * child_[qq] + i];
+          for (int k = 0; k < 3; ++k) v -= R[3 * k + i] * oc[4 * parent_[qq] + k];
+          yc_[3 * qq + i] = -v;
+        }
+      }
+      for (int j = nR; j < nc; ++j) {
+        const int q = cidx_[c][j - nR];
+        const float* a = crow_.data() + static_cast<size_t>(q) * mp_;
+        double v = 0.0;
+        for (int k = 0; k < n4; ++k) v += static_cast<double>(a[k]) * oc[k];
+        yc_[j] = static_cast<float>(cval_[3 * q + c] - v);
+      }
+      const float* zc = zc_.data() + static_cast<size_t>(c) * ncmax_ * mp_;
+      for (int j = 0; j < nc; ++j) {
+        const float y = yc_[j];
+        const float* zj = zc + static_cast<size_t>(j) * mp_;
+        for (int row = 0; row < mp_; ++row) oc[row] += zj[row] * y;
+      }
+    }
+    return;
+  }
   if (kr_ == 0) return;
   // y = -(A_R out), then out += Z y.
   for (int qq = 0; qq < kr_; ++qq) {
@@ -253,11 +371,15 @@ void FastSolver::global_step(float* out) {
   k_->gemm3(z_.data(), mp_, mp_, 3 * kr_, y_.data(), 3, 1, out, mp_, true);
 }
 
-void FastSolver::solve(const float* full, const float* rel, const float* pos, float* T, int iterations,
-                       double tol, bool accelerate, bool record_history) {
+void FastSolver::solve(const float* full, const float* rel, const float* pos, const float* contact, float* T,
+                       int iterations, double tol, bool accelerate, bool record_history) {
   if (iterations < 0) throw std::invalid_argument("solve: iterations must be >= 0");
   if (!all_finite(T, 12 * m_))
     throw std::invalid_argument("solve: T contains NaN or inf (warm start from model.rest_T() instead)");
+  if (kc_ > 0) {
+    if (!all_finite(contact, 3 * kc_)) throw std::invalid_argument("solve: values.contact contains NaN or inf");
+    std::memcpy(cval_.data(), contact, sizeof(float) * 3 * kc_);
+  }
   set_values(full, rel, pos);
   const int n4 = 4 * m_;
   const size_t D = 3 * static_cast<size_t>(mp_);
