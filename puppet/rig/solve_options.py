@@ -13,9 +13,9 @@ out of it). Example::
     ...
 
     [solver.dynamics]             # secondary motion: inertia, damping, gravity
-    density = 2.0                 # mass per unit area (> = 0); larger: more lag
+    density = 0.002               # mass per unit area (>= 0): larger lags and swings longer
     damping = 0.9                 # 0 (no momentum) .. 1 (full momentum)
-    gravity = [0, -9.81, 0]       # model units / s^2
+    gravity = [0, -9.81, 0]       # model units / s^2 (default: none)
     dt = 0.016666                 # solver time step, seconds (> 0); frames take
     max_steps = 4                 #   round(elapsed / dt) steps (elapsed from the reading times)
 
@@ -54,9 +54,9 @@ class DynamicsOptions:
     """``[solver.dynamics]``: see puppet.fast.Dynamics (dt seconds, density >= 0, damping 0..1,
     gravity model units / s^2); max_steps caps the solver steps one frame may take."""
 
-    density: float = 1.0
+    density: float = 0.002
     damping: float = 0.9
-    gravity: tuple[float, float, float] = (0.0, -9.81, 0.0)
+    gravity: tuple[float, float, float] = (0.0, 0.0, 0.0)
     dt: float = 1.0 / 60.0
     max_steps: int = 4
 
