@@ -89,7 +89,7 @@ class FastSolver {
   void global_step(float* out);       // out = G R + Tb, then relative correction
   void column_schur();                // per-column Z_c with contacts (see above)
   double quad_energy(const float* x);
-  bool converged(double E_old, double E, double tol, bool use_energy) const;  // tolerance stop after an iteration
+  bool converged(double E_old, double E, double tol, bool use_energy, bool accelerated) const;  // tolerance stop after an iteration
 
   int m_, r_, kf_, kp_, kr_, mp_, rp_, window_;
   std::vector<float> csm_, g_, p2_, q_;

@@ -13,6 +13,7 @@ namespace puppet {
 namespace {
 
 constexpr int kPad = 8;
+constexpr double kEnergyResolution = 4e-6;  // relative to c0: rounding of E in float32 data
 inline int round_up(int x) { return (x + kPad - 1) / kPad * kPad; }
 
 bool all_finite(const float* p, std::ptrdiff_t n) {
@@ -298,19 +299,23 @@ void FastSolver::set_dynamics(const float* mass_h2, const float* hm, const float
   cache_valid_ = false;
 }
 
-// Tolerance stop: a small non-negative energy decrease (relative to E_old), or a change in T
-// (max |dT| relative to max |T|) below tol. A rise is never convergence: the first iteration
+// Tolerance stop: a small non-negative energy decrease (relative to E_old) on a plain step, or a
+// change in T below tol: the plain step max |G(T) - T| relative to max |T| (with acceleration,
+// the plain residual at the previous iterate). A rise is never convergence: the first iteration
 // after the targets move raises the energy (the start point violated the new constraints).
-bool FastSolver::converged(double E_old, double E, double tol, bool use_energy) const {
-  const double drop = E_old - E;
-  if (use_energy && drop >= 0.0 && drop <= tol * std::max(std::fabs(E_old), 1e-300)) return true;
-  float dmax = 0.0f, xmax = 0.0f;
+// The energy test is skipped where tol * E is below the energy's float32 resolution (~4e-6 c0):
+// there a "small non-negative decrease" is rounding noise, not convergence.
+bool FastSolver::converged(double E_old, double E, double tol, bool use_energy, bool accelerated) const {
+  const double drop = E_old - E, band = tol * std::fabs(E_old);
+  if (use_energy && band > kEnergyResolution * std::fabs(c0_) && drop >= 0.0 && drop <= band) return true;
+  float rmax = 0.0f, xmax = 0.0f;
   const size_t D = 3 * static_cast<size_t>(mp_);
+  const float* stepped = accelerated ? gx_.data() : x_.data();
   for (size_t i = 0; i < D; ++i) {
-    dmax = std::max(dmax, std::fabs(x_[i] - xold_[i]));
+    rmax = std::max(rmax, std::fabs(stepped[i] - xold_[i]));
     xmax = std::max(xmax, std::fabs(x_[i]));
   }
-  return dmax <= tol * std::max(xmax, 1e-30f);
+  return rmax <= tol * std::max(xmax, 1e-30f);
 }
 
 double FastSolver::local_step(const float* x, bool energy) {
@@ -490,7 +495,7 @@ void FastSolver::solve(const float* full, const float* rel, const float* pos, co
       }
     }
     if (record_history && stats_.history_size < cap) history_[stats_.history_size++] = E;
-    if (use_tol && converged(E_old, E, tol, !accepted)) {
+    if (use_tol && converged(E_old, E, tol, !accepted, accelerate)) {
       ++it;
       break;
     }
