@@ -57,6 +57,7 @@ class _PatternState:
                            for c in self.relative_bones),
             positional=tuple(int(v) for v in rig.pins),
             contacts=tuple((v, axes) for v, axes, _ in rig.contacts),
+            limits=rig.limits_for(~sensed),
         )
         start = time.perf_counter()
         self.solver: Solver = model.solver(self.pattern, dynamics=dynamics)

@@ -29,12 +29,18 @@ class Pattern:
     contacts:   (vertex, axes) pairs: the vertex's deformed position is given in the named axes
                 only (axes a non-empty string of distinct 'x', 'y', 'z', e.g. "y": a foot at a
                 floor height, free to slide in x and z). Each column then gets its own solve.
+    limits:     (child, parent, axis, swing_max, twist_min, twist_max) joint limits on free
+                handles: the child's rotation relative to the parent (child linear part =
+                parent linear part @ R) stays within a cone of half-angle swing_max about the
+                unit bone direction ``axis`` (model space, rest) and a twist about it in
+                [twist_min, twist_max] (radians). Enforced in every global step (projection).
     """
 
     full: tuple[int, ...] = ()
     relative: tuple[tuple[int, int, tuple[float, float, float]], ...] = ()
     positional: tuple[int, ...] = field(default=())
     contacts: tuple[tuple[int, str], ...] = ()
+    limits: tuple[tuple[int, int, tuple[float, float, float], float, float, float], ...] = ()
 
     def validate(self, m: int, n: int) -> None:
         """Raise PatternError unless the pattern fits m handles and n vertices and is consistent:
@@ -85,6 +91,23 @@ class Pattern:
                 if (int(v), a) in seen:
                     raise PatternError(f"pattern.contacts[{q}]: vertex {v} axis {a} is constrained twice")
                 seen.add((int(v), a))
+
+        constrained = set(full) | set(children)
+        for q, item in enumerate(self.limits):
+            if len(item) != 6:
+                raise PatternError(f"pattern.limits[{q}]: expected (child, parent, axis, swing, twist_min, twist_max)")
+            c, p, axis, swing, lo, hi = item
+            c, p = handle(c, f"limits[{q}] child"), handle(p, f"limits[{q}] parent")
+            if c == p or c in constrained:
+                raise PatternError(f"pattern.limits[{q}]: handle {c} must be free (not full, relative or its own parent)")
+            d = np.asarray(axis, np.float64)
+            if d.shape != (3,) or not np.isfinite(d).all() or abs(np.linalg.norm(d) - 1.0) > 1e-6:
+                raise PatternError(f"pattern.limits[{q}]: axis {axis!r} is not a unit vector")
+            if not (0.0 <= swing <= np.pi and -np.pi <= lo <= hi <= np.pi):
+                raise PatternError(f"pattern.limits[{q}]: need 0 <= swing <= pi and -pi <= twist_min <= twist_max <= pi, "
+                                   f"got {swing!r}, {lo!r}, {hi!r}")
+        if self.limits and self.contacts:
+            raise PatternError("pattern: joint limits together with contacts are not supported")
 
     def contact_axes(self) -> np.ndarray:
         """(len(contacts), 3) int32: 1 where contact q constrains column x, y or z."""

@@ -106,6 +106,14 @@ class Solver:
             )
         if pattern.contacts:
             self._native.set_contacts(contact_rows(pattern, model.V, model.weights64), pattern.contact_axes())
+        if pattern.limits:
+            lim = pattern.limits
+            self._native.set_limits(
+                np.array([c for c, *_ in lim], np.int32),
+                np.array([p for _, p, *_ in lim], np.int32),
+                np.array([a for _, _, a, *_ in lim], np.float64).reshape(-1, 3),
+                np.array([b[3:] for b in lim], np.float64).reshape(-1, 3),
+            )
         self.stats = self._native.stats
         self._history = self._native.history
 
@@ -148,6 +156,11 @@ class Solver:
     def reset_dynamics(self) -> None:
         """Forget the inertia history (after a cut or a jump): the next frame starts at rest."""
         self._native.reset_history()
+
+    @property
+    def active_limits(self) -> int:
+        """Joint limits projected in the last global step of the last solve."""
+        return self._native.active_limits
 
     @property
     def history(self) -> np.ndarray:

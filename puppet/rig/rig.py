@@ -125,8 +125,27 @@ class Rig:
                 if value is not None:
                     target["xyz".index(axis)] = value
             contacts.append((v, c.axes, tuple(float(x) for x in target)))
+        for i, lim in enumerate(extras.limits):
+            if lim.bone not in self.skeleton.names:
+                raise RigError(f"unknown bone {lim.bone!r}; bones are {list(self.skeleton.names)}",
+                               path=self.path, line=lim.line, field=f"limit {i + 1} bone")
         self.extras = extras
         self.contacts = tuple(contacts)
+
+    def limits_for(self, free: np.ndarray) -> tuple:
+        """Pattern.limits entries for the ``[[limit]]`` bones that are free ((b,) bool mask)."""
+        sk = self.skeleton
+        out = []
+        for lim in self.extras.limits:
+            j = sk.index(lim.bone)
+            p = int(sk.parents[j])
+            if p < 0 or not free[j]:
+                continue
+            d = np.asarray(sk.tails[j], np.float64) - np.asarray(sk.heads[j], np.float64)
+            d = tuple(float(x) for x in d / np.linalg.norm(d))
+            lo, hi = lim.twist_deg
+            out.append((j, p, d, float(np.radians(lim.swing_deg)), float(np.radians(lo)), float(np.radians(hi))))
+        return tuple(out)
 
     # ---- classification -------------------------------------------------------------------
     def _classify(self) -> None:
@@ -162,7 +181,8 @@ class Rig:
                          for c in self.relative_bones)
         return Pattern(full=tuple(int(j) for j in self.full_bones), relative=relative,
                        positional=tuple(int(v) for v in self.pins),
-                       contacts=tuple((v, axes) for v, axes, _ in self.contacts))
+                       contacts=tuple((v, axes) for v, axes, _ in self.contacts),
+                       limits=self.limits_for(~self.sensed))
 
     def fill_values(self, angles: np.ndarray, values: Values) -> None:
         """Write this frame's constraint values in place.

@@ -23,6 +23,11 @@ out of it). Example::
     vertex = 1234                 # or point = [x, y, z]: the nearest vertex
     axes = "y"                    # any of x, y, z: the coordinates held; the others stay free
     value = 0.0                   # one number per axis (or one for all); default: rest position
+
+    [[limit]]                     # joint limit of a free (solved) bone, relative to its parent
+    bone = "chest"
+    swing_deg = 20                # cone half-angle about the bone's rest direction
+    twist_deg = [-15, 15]         # twist about it, [min, max]
 """
 
 from __future__ import annotations
@@ -32,9 +37,10 @@ from dataclasses import dataclass, field
 import numpy as np
 
 DROPOUT_MODES = ("hold", "free")
-TOP_KEYS = ("on_dropout", "dropout_ms", "dropout_blend_frames", "contact")
+TOP_KEYS = ("on_dropout", "dropout_ms", "dropout_blend_frames", "contact", "limit")
 DYNAMICS_KEYS = ("density", "damping", "gravity", "dt", "max_steps")
 CONTACT_KEYS = ("vertex", "point", "axes", "value")
+LIMIT_KEYS = ("bone", "swing_deg", "twist_deg")
 
 
 @dataclass(frozen=True)
@@ -46,6 +52,16 @@ class ContactSpec:
     point: tuple[float, float, float] | None
     axes: str
     values: tuple[float | None, ...]
+    line: int | None
+
+
+@dataclass(frozen=True)
+class LimitSpec:
+    """One ``[[limit]]``: bone name, swing cone half-angle and twist range (degrees), line."""
+
+    bone: str
+    swing_deg: float
+    twist_deg: tuple[float, float]
     line: int | None
 
 
@@ -71,6 +87,7 @@ class SolveExtras:
     blend_frames:   frames over which a pattern switch is blended (both ways).
     dynamics:       secondary motion, or None.
     contacts:       ``[[contact]]`` entries in file order.
+    limits:         ``[[limit]]`` entries (joint limits of free bones).
     """
 
     on_dropout: str = "hold"
@@ -79,6 +96,7 @@ class SolveExtras:
     blend_frames: int = 6
     dynamics: DynamicsOptions | None = None
     contacts: tuple[ContactSpec, ...] = ()
+    limits: tuple[LimitSpec, ...] = ()
 
     def dropout_mode(self, servo_id: int) -> str:
         return self.servo_dropout.get(servo_id, self.on_dropout)
@@ -126,7 +144,38 @@ def read_solve_extras(doc: dict, lines, fail) -> SolveExtras:
     if not isinstance(contacts, list) or not all(isinstance(c, dict) for c in contacts):
         fail("must be an array of tables [[contact]]", "contact", lines.key("", 0, "contact"))
     parsed = tuple(_read_contact(i, c, lines, fail) for i, c in enumerate(contacts))
-    return SolveExtras(mode, servo_dropout, float(ms), blend, dynamics, parsed)
+    limits = doc.pop("limit", [])
+    if not isinstance(limits, list) or not all(isinstance(c, dict) for c in limits):
+        fail("must be an array of tables [[limit]]", "limit", lines.key("", 0, "limit"))
+    limits = tuple(_read_limit(i, t, lines, fail) for i, t in enumerate(limits))
+    return SolveExtras(mode, servo_dropout, float(ms), blend, dynamics, parsed, limits)
+
+
+def _read_limit(index: int, table: dict, lines, fail) -> LimitSpec:
+    label = f"limit {index + 1}"
+
+    def line(key):
+        return lines.key("limit", index, key)
+
+    for key in table:
+        if key not in LIMIT_KEYS:
+            fail(f"unknown key (known: {', '.join(LIMIT_KEYS)})", f"{label} {key}", line(key))
+    bone = table.get("bone")
+    if not isinstance(bone, str) or not bone:
+        fail(f"bone must be a bone name, got {bone!r}", f"{label} bone", line("bone"))
+    swing = table.get("swing_deg", 180.0)
+    if not _number(swing) or not 0 <= swing <= 180:
+        fail(f"swing_deg must be a number in 0..180, got {swing!r}", f"{label} swing_deg", line("swing_deg"))
+    twist = table.get("twist_deg", [-180.0, 180.0])
+    if not isinstance(twist, list) or len(twist) != 2 or not all(_number(x) for x in twist):
+        fail(f"twist_deg must be [min, max] degrees, got {twist!r}", f"{label} twist_deg", line("twist_deg"))
+    if twist[0] > twist[1]:
+        fail(f"twist_deg min {twist[0]} > max {twist[1]}", f"{label} twist_deg", line("twist_deg"))
+    if not -180 <= twist[0] <= twist[1] <= 180:
+        fail(f"twist_deg must lie within -180..180, got {twist!r}", f"{label} twist_deg", line("twist_deg"))
+    if "swing_deg" not in table and "twist_deg" not in table:
+        fail("needs swing_deg and/or twist_deg", label, lines.table("limit", index))
+    return LimitSpec(bone, float(swing), (float(twist[0]), float(twist[1])), line("bone"))
 
 
 def _read_dynamics(table, lines, fail) -> DynamicsOptions:

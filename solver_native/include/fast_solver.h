@@ -25,6 +25,14 @@
 // column gets its own Schur complement (the relative rows plus that column's contact rows):
 //   T[:, c] = Tf[:, c] + Z_c (b_c - A_c Tf[:, c]),   Z_c = H A_c^T (A_c H A_c^T)^{-1};
 // rebuilt per frame with relative joints (their rows move), once otherwise.
+// Joint limits on free handles (child c, parent p; swing cone about the bone axis d and a twist
+// range about it): after each global step, the relative rotation R = polar(A_p^{-1} A_c) (A the
+// linear parts) is split into swing * twist about d; where either is out of range, the step is
+// projected onto the limit: the rows A_c = A_p R_lim (R_lim: R with both angles clamped) are
+// added by a second Schur complement on the relative-constrained factor H_1:
+//   T += H_1 A_L^T (A_L H_1 A_L^T)^{-1} (-A_L T),   H_1 A_L^T = W_L - W_1 S_1^{-1} A_1 W_L.
+// Inside the limits nothing is added (the solve is unchanged). The last iteration is always a
+// plain step, so the returned T is within the limits. Not combined with contacts.
 // Anderson acceleration (window 5 by default) on T -> G(T); an accelerated point whose energy is above
 // the last accepted one is rejected for the plain step and the history restarts.
 //
@@ -71,6 +79,10 @@ class FastSolver {
   // Contacts: rows (kc, 4m) double, the vertex's LBS row M_v; axes (kc, 3) 0/1 per column.
   // Call once before solving; solve() then takes contact values (kc, 3) (unused axes ignored).
   void set_contacts(int kc, const double* rows, const int32_t* axes);
+  // Limits: child, parent (nl); axis (nl, 3) unit bone direction (model space, rest);
+  // bounds (nl, 3): swing max, twist min, twist max (radians).
+  void set_limits(int nl, const int32_t* child, const int32_t* parent, const double* axis, const double* bounds);
+  int active_limits() const { return active_; }  // limits projected in the last global step
   void reset_history() { have_prev_ = false; }
 
   const SolveStats& stats() const { return stats_; }
@@ -88,6 +100,8 @@ class FastSolver {
   double local_step(const float* x, bool energy);  // S = K~^T x, R = polar; E(x) if energy
   void global_step(float* out);       // out = G R + Tb, then relative correction
   void column_schur();                // per-column Z_c with contacts (see above)
+  void base_global_step(float* out);  // G R + Tb with the fixed, relative and contact rows
+  void project_limits(float* out);    // joint limits (see above)
   double quad_energy(const float* x);
   bool converged(double E_old, double E, double tol, bool use_energy, bool accelerated) const;  // tolerance stop after an iteration
 
@@ -108,6 +122,11 @@ class FastSolver {
   std::vector<double> crow64_, wc_, schurc_, cbuf_;  // rows (kc x 4m), W_c, S_c, scratch
   std::vector<float> crow_, cval_, zc_, yc_;          // rows (kc x mp), values (kc x 3), Z_c, y
   std::vector<int32_t> cidx_[3];                      // contacts constraining column c
+  // joint limits
+  int nl_ = 0, active_ = 0;
+  std::vector<int32_t> lchild_, lparent_, lact_;
+  std::vector<double> laxis_, lbound_, lrot_;          // (nl, 3), (nl, 3), active R_lim (nl, 9)
+  std::vector<double> wl_, cx_, sl_, yl_;               // W_L, S_1^{-1} A_1 W_L, S_L, y
   // per-iteration
   std::vector<float> s_, rot_, vwarm_, qx_, y_;  // vwarm_: per-cluster Jacobi warm start
   double lin_ = 0.0;                    // sum_g tr(R_g^T C_g) from the last local step

@@ -328,7 +328,243 @@ double FastSolver::local_step(const float* x, bool energy) {
   return quad_energy(x) - 2.0 * lin + c0_;
 }
 
+namespace {
+
+using Mat3 = double[3][3];
+
+bool inverse3(const Mat3& a, Mat3& inv) {
+  const double c00 = a[1][1] * a[2][2] - a[1][2] * a[2][1], c01 = a[1][2] * a[2][0] - a[1][0] * a[2][2],
+               c02 = a[1][0] * a[2][1] - a[1][1] * a[2][0];
+  const double det = a[0][0] * c00 + a[0][1] * c01 + a[0][2] * c02;
+  if (!(std::fabs(det) > 1e-300) || !std::isfinite(det)) return false;
+  const double id = 1.0 / det;
+  inv[0][0] = c00 * id;
+  inv[1][0] = c01 * id;
+  inv[2][0] = c02 * id;
+  inv[0][1] = (a[0][2] * a[2][1] - a[0][1] * a[2][2]) * id;
+  inv[1][1] = (a[0][0] * a[2][2] - a[0][2] * a[2][0]) * id;
+  inv[2][1] = (a[0][1] * a[2][0] - a[0][0] * a[2][1]) * id;
+  inv[0][2] = (a[0][1] * a[1][2] - a[0][2] * a[1][1]) * id;
+  inv[1][2] = (a[0][2] * a[1][0] - a[0][0] * a[1][2]) * id;
+  inv[2][2] = (a[0][0] * a[1][1] - a[0][1] * a[1][0]) * id;
+  return det > 0.0;
+}
+
+// Closest rotation by Higham's iteration X <- (X + X^{-T}) / 2 (det X > 0, near a rotation).
+bool polar3(Mat3& x) {
+  for (int it = 0; it < 12; ++it) {
+    Mat3 inv;
+    if (!inverse3(x, inv)) return false;
+    double change = 0.0;
+    for (int i = 0; i < 3; ++i)
+      for (int j = 0; j < 3; ++j) {
+        const double v = 0.5 * (x[i][j] + inv[j][i]);
+        change = std::max(change, std::fabs(v - x[i][j]));
+        x[i][j] = v;
+      }
+    if (change < 1e-12) break;
+  }
+  return true;
+}
+
+void quat_from(const Mat3& r, double q[4]) {  // q = (w, x, y, z)
+  const double tr = r[0][0] + r[1][1] + r[2][2];
+  if (tr > 0.0) {
+    const double s = 2.0 * std::sqrt(tr + 1.0);
+    q[0] = 0.25 * s;
+    q[1] = (r[2][1] - r[1][2]) / s;
+    q[2] = (r[0][2] - r[2][0]) / s;
+    q[3] = (r[1][0] - r[0][1]) / s;
+  } else if (r[0][0] > r[1][1] && r[0][0] > r[2][2]) {
+    const double s = 2.0 * std::sqrt(1.0 + r[0][0] - r[1][1] - r[2][2]);
+    q[0] = (r[2][1] - r[1][2]) / s;
+    q[1] = 0.25 * s;
+    q[2] = (r[0][1] + r[1][0]) / s;
+    q[3] = (r[0][2] + r[2][0]) / s;
+  } else if (r[1][1] > r[2][2]) {
+    const double s = 2.0 * std::sqrt(1.0 + r[1][1] - r[0][0] - r[2][2]);
+    q[0] = (r[0][2] - r[2][0]) / s;
+    q[1] = (r[0][1] + r[1][0]) / s;
+    q[2] = 0.25 * s;
+    q[3] = (r[1][2] + r[2][1]) / s;
+  } else {
+    const double s = 2.0 * std::sqrt(1.0 + r[2][2] - r[0][0] - r[1][1]);
+    q[0] = (r[1][0] - r[0][1]) / s;
+    q[1] = (r[0][2] + r[2][0]) / s;
+    q[2] = (r[1][2] + r[2][1]) / s;
+    q[3] = 0.25 * s;
+  }
+}
+
+void quat_mul(const double a[4], const double b[4], double out[4]) {
+  out[0] = a[0] * b[0] - a[1] * b[1] - a[2] * b[2] - a[3] * b[3];
+  out[1] = a[0] * b[1] + a[1] * b[0] + a[2] * b[3] - a[3] * b[2];
+  out[2] = a[0] * b[2] - a[1] * b[3] + a[2] * b[0] + a[3] * b[1];
+  out[3] = a[0] * b[3] + a[1] * b[2] - a[2] * b[1] + a[3] * b[0];
+}
+
+void matrix_from(const double q[4], double* r) {  // row-major 3x3
+  const double w = q[0], x = q[1], y = q[2], z = q[3];
+  r[0] = 1 - 2 * (y * y + z * z); r[1] = 2 * (x * y - z * w);     r[2] = 2 * (x * z + y * w);
+  r[3] = 2 * (x * y + z * w);     r[4] = 1 - 2 * (x * x + z * z); r[5] = 2 * (y * z - x * w);
+  r[6] = 2 * (x * z - y * w);     r[7] = 2 * (y * z + x * w);     r[8] = 1 - 2 * (x * x + y * y);
+}
+
+// Clamp rotation r to swing <= smax about axis d and twist in [tlo, thi]; false if inside.
+bool clamp_swing_twist(const Mat3& r, const double* d, double smax, double tlo, double thi, double* out) {
+  double q[4];
+  quat_from(r, q);
+  if (q[0] < 0.0)
+    for (double& v : q) v = -v;
+  const double s = q[1] * d[0] + q[2] * d[1] + q[3] * d[2];
+  const double tn = std::sqrt(q[0] * q[0] + s * s);
+  double twist = 0.0, qt[4] = {1.0, 0.0, 0.0, 0.0};
+  if (tn > 1e-12) {
+    qt[0] = q[0] / tn;
+    for (int i = 0; i < 3; ++i) qt[1 + i] = s * d[i] / tn;
+    twist = 2.0 * std::atan2(s / tn, qt[0]);
+  }
+  const double qt_conj[4] = {qt[0], -qt[1], -qt[2], -qt[3]};
+  double qs[4];
+  quat_mul(q, qt_conj, qs);
+  if (qs[0] < 0.0)
+    for (double& v : qs) v = -v;
+  const double sv = std::sqrt(qs[1] * qs[1] + qs[2] * qs[2] + qs[3] * qs[3]);
+  const double swing = 2.0 * std::atan2(sv, qs[0]);
+  const double twist_c = std::min(std::max(twist, tlo), thi), swing_c = std::min(swing, smax);
+  if (twist_c == twist && swing_c == swing) return false;
+  const double ct[4] = {std::cos(0.5 * twist_c), std::sin(0.5 * twist_c) * d[0], std::sin(0.5 * twist_c) * d[1],
+                        std::sin(0.5 * twist_c) * d[2]};
+  double cs[4] = {1.0, 0.0, 0.0, 0.0};
+  if (sv > 1e-12) {
+    const double k = std::sin(0.5 * swing_c) / sv;
+    cs[0] = std::cos(0.5 * swing_c);
+    cs[1] = qs[1] * k;
+    cs[2] = qs[2] * k;
+    cs[3] = qs[3] * k;
+  }
+  double qc[4];
+  quat_mul(cs, ct, qc);
+  matrix_from(qc, out);
+  return true;
+}
+
+}  // namespace
+
+void FastSolver::set_limits(int nl, const int32_t* child, const int32_t* parent, const double* axis,
+                            const double* bounds) {
+  nl_ = nl;
+  lchild_.assign(child, child + nl);
+  lparent_.assign(parent, parent + nl);
+  laxis_.assign(axis, axis + 3 * static_cast<size_t>(nl));
+  lbound_.assign(bounds, bounds + 3 * static_cast<size_t>(nl));
+  lact_.assign(std::max(nl, 1), 0);
+  lrot_.assign(9 * static_cast<size_t>(std::max(nl, 1)), 0.0);
+  const size_t nL = 3 * static_cast<size_t>(std::max(nl, 1)), n4 = 4 * static_cast<size_t>(m_);
+  wl_.assign(nL * n4, 0.0);
+  cx_.assign(nL * std::max<size_t>(3 * kr_, 1), 0.0);
+  sl_.assign(nL * nL, 0.0);
+  yl_.assign(nL * 3, 0.0);
+}
+
+void FastSolver::project_limits(float* out) {
+  const int n4 = 4 * m_, nR = 3 * kr_;
+  int a = 0;
+  for (int l = 0; l < nl_; ++l) {
+    Mat3 ap, ac, inv, x;
+    for (int i = 0; i < 3; ++i)
+      for (int j = 0; j < 3; ++j) {  // A[i][j] = T[4h + j, i]
+        ap[i][j] = out[i * mp_ + 4 * lparent_[l] + j];
+        ac[i][j] = out[i * mp_ + 4 * lchild_[l] + j];
+      }
+    if (!inverse3(ap, inv)) continue;
+    for (int i = 0; i < 3; ++i)
+      for (int j = 0; j < 3; ++j) x[i][j] = inv[i][0] * ac[0][j] + inv[i][1] * ac[1][j] + inv[i][2] * ac[2][j];
+    if (!polar3(x)) continue;
+    const double* b = lbound_.data() + 3 * l;
+    if (clamp_swing_twist(x, laxis_.data() + 3 * l, b[0], b[1], b[2], lrot_.data() + 9 * a)) lact_[a++] = l;
+  }
+  active_ = a;
+  if (a == 0) return;
+  const int nL = 3 * a;
+  // W_L = H A_L^T: column (q, i) = H[:, 4c+i] - sum_k R[k][i] H[:, 4p+k].
+  for (int q = 0; q < a; ++q) {
+    const int l = lact_[q];
+    const double* R = lrot_.data() + 9 * q;
+    for (int i = 0; i < 3; ++i) {
+      double* wcol = wl_.data() + static_cast<size_t>(3 * q + i) * n4;
+      const double* hc = h_.data() + static_cast<size_t>(4 * lchild_[l] + i) * n4;
+      for (int row = 0; row < n4; ++row) wcol[row] = hc[row];
+      for (int k = 0; k < 3; ++k) {
+        const double coef = R[3 * k + i];
+        const double* hp = h_.data() + static_cast<size_t>(4 * lparent_[l] + k) * n4;
+        for (int row = 0; row < n4; ++row) wcol[row] -= coef * hp[row];
+      }
+    }
+  }
+  if (kr_ > 0) {  // W_L -= W_1 S_1^{-1} (A_1 W_L): project onto the relative rows' null space
+    for (int col = 0; col < nL; ++col) {
+      double* wcol = wl_.data() + static_cast<size_t>(col) * n4;
+      double* cx = cx_.data() + static_cast<size_t>(col) * nR;
+      for (int qq = 0; qq < kr_; ++qq) {
+        const float* R = relR_.data() + 9 * qq;
+        for (int i = 0; i < 3; ++i) {
+          double v = wcol[4 * child_[qq] + i];
+          for (int k = 0; k < 3; ++k) v -= static_cast<double>(R[3 * k + i]) * wcol[4 * parent_[qq] + k];
+          cx[3 * qq + i] = v;
+        }
+      }
+      cholesky_solve(schur_.data(), nR, cx);
+      for (int j = 0; j < nR; ++j) {
+        const double c = cx[j];
+        const double* w1 = w_.data() + static_cast<size_t>(j) * n4;
+        for (int row = 0; row < n4; ++row) wcol[row] -= w1[row] * c;
+      }
+    }
+  }
+  // S_L = A_L W_L1, y = -(A_L out) per column; out += W_L1 S_L^{-1} y.
+  for (int col = 0; col < nL; ++col) {
+    const double* wcol = wl_.data() + static_cast<size_t>(col) * n4;
+    for (int q = 0; q < a; ++q) {
+      const int l = lact_[q];
+      const double* R = lrot_.data() + 9 * q;
+      for (int i = 0; i < 3; ++i) {
+        double v = wcol[4 * lchild_[l] + i];
+        for (int k = 0; k < 3; ++k) v -= R[3 * k + i] * wcol[4 * lparent_[l] + k];
+        sl_[static_cast<size_t>(col) * nL + 3 * q + i] = v;
+      }
+    }
+  }
+  if (!cholesky(sl_.data(), nL)) {
+    active_ = 0;  // limits that the constraints already fix: nothing to project
+    return;
+  }
+  for (int c = 0; c < 3; ++c) {
+    float* oc = out + c * mp_;
+    double* y = yl_.data() + static_cast<size_t>(c) * nL;
+    for (int q = 0; q < a; ++q) {
+      const int l = lact_[q];
+      const double* R = lrot_.data() + 9 * q;
+      for (int i = 0; i < 3; ++i) {
+        double v = oc[4 * lchild_[l] + i];
+        for (int k = 0; k < 3; ++k) v -= R[3 * k + i] * oc[4 * lparent_[l] + k];
+        y[3 * q + i] = -v;
+      }
+    }
+    cholesky_solve(sl_.data(), nL, y);
+    for (int j = 0; j < nL; ++j) {
+      const double* wcol = wl_.data() + static_cast<size_t>(j) * n4;
+      for (int row = 0; row < n4; ++row) oc[row] += static_cast<float>(wcol[row] * y[j]);
+    }
+  }
+}
+
 void FastSolver::global_step(float* out) {
+  base_global_step(out);
+  if (nl_ > 0) project_limits(out);
+}
+
+void FastSolver::base_global_step(float* out) {
   const int rr = 3 * rp_;
   k_->gemm3(g_.data(), mp_, mp_, rr, rot_.data(), 1, rr, out, mp_, false);
   for (int i = 0; i < 3 * mp_; ++i) out[i] += tb_[i];
@@ -381,6 +617,7 @@ void FastSolver::solve(const float* full, const float* rel, const float* pos, co
   if (iterations < 0) throw std::invalid_argument("solve: iterations must be >= 0");
   if (!all_finite(T, 12 * m_))
     throw std::invalid_argument("solve: T contains NaN or inf (warm start from model.rest_T() instead)");
+  if (kc_ > 0 && nl_ > 0) throw std::invalid_argument("solve: joint limits are not supported together with contacts");
   if (kc_ > 0) {
     if (!all_finite(contact, 3 * kc_)) throw std::invalid_argument("solve: values.contact contains NaN or inf");
     std::memcpy(cval_.data(), contact, sizeof(float) * 3 * kc_);
@@ -428,7 +665,7 @@ void FastSolver::solve(const float* full, const float* rel, const float* pos, co
     const bool last = it + 1 == iterations;
     if (use_tol) std::memcpy(xold_.data(), x_.data(), D * sizeof(float));
     bool accepted = false;  // an accelerated point was taken (its energy drop says nothing)
-    if (!accelerate) {
+    if (!accelerate || (nl_ > 0 && last)) {  // with limits the returned T comes from a plain step
       global_step(x_.data());
       E = local_step(x_.data(), need_energy || last);
     } else {
@@ -499,6 +736,11 @@ void FastSolver::solve(const float* full, const float* rel, const float* pos, co
       ++it;
       break;
     }
+  }
+  if (nl_ > 0 && accelerate && it > 0 && it < iterations) {
+    // Stopped early (tol) after an accelerated step: finish on a plain step inside the limits.
+    global_step(x_.data());
+    E = local_step(x_.data(), true);
   }
   stats_.iterations = it;
   stats_.energy = E;

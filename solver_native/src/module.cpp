@@ -133,6 +133,22 @@ NB_MODULE(_native, m) {
            },
            nb::arg("rows"), nb::arg("axes"),
            "Per-axis positional rows (contacts): rows (kc, 4m) float64 LBS rows, axes (kc, 3) int32 0/1.")
+      .def("set_limits",
+           [](FastSolver& s, ConstIndexVec child, ConstIndexVec parent, ConstMatrixD axis, ConstMatrixD bounds) {
+             const size_t nl = child.shape(0);
+             if (parent.shape(0) != nl || axis.shape(0) != nl || axis.shape(1) != 3 || bounds.shape(0) != nl ||
+                 bounds.shape(1) != 3)
+               throw std::invalid_argument("set_limits: expected child, parent (nl,), axis (nl, 3), bounds (nl, 3)");
+             for (size_t i = 0; i < nl; ++i)
+               if (child.data()[i] < 0 || child.data()[i] >= s.m() || parent.data()[i] < 0 ||
+                   parent.data()[i] >= s.m())
+                 throw std::invalid_argument("set_limits: handle index out of range");
+             s.set_limits(static_cast<int>(nl), child.data(), parent.data(), axis.data(), bounds.data());
+           },
+           nb::arg("child"), nb::arg("parent"), nb::arg("axis"), nb::arg("bounds"),
+           "Joint limits on free handles: axis (nl, 3) unit bone directions, bounds (nl, 3) radians "
+           "(swing max, twist min, twist max).")
+      .def_prop_ro("active_limits", &FastSolver::active_limits, "limits projected in the last global step")
       .def("reset_history", &FastSolver::reset_history,
            "Forget the inertia history: the next solve starts at rest (no velocity).")
       .def_prop_ro("stats", [](FastSolver& s) -> const SolveStats& { return s.stats(); },
