@@ -281,10 +281,55 @@ def live_cases(V, F, frames, quick):
     values = pattern.values()
     plain = model.solver(pattern)
     dyn = model.solver(pattern, dynamics=Dynamics(dt=1 / 60, density=1e-3, damping=0.9, gravity=(0, -9.8, 0)))
+    # Joint limits between consecutive bones (5 degree cone and twist about x): active every frame.
+    five = np.radians(5.0)
+    limits = tuple((j, j - 1, (1.0, 0.0, 0.0), five, -five, five) for j in range(1, 5))
+    limited = model.solver(Pattern(positional=pins, limits=limits))
     out = {
         "us_per_iter": per_iter_us(plain, values, V, pins, diag, axes, frames, model),
         "dynamics_us_per_iter": per_iter_us(dyn, values, V, pins, diag, axes, frames, model),
+        "limits_us_per_iter": per_iter_us(limited, values, V, pins, diag, axes, frames, model),
+        "limits_active": limited.active_limits,
     }
+    return out
+
+
+def builtin_limits_case(frames):
+    """The built-in character in an extreme pose (neck, head, upper arms at their servo limits),
+    spine and chest limited to 5 degrees: us per iteration with and without the limits."""
+    from puppet.rig import builtin
+
+    rig = builtin()
+    o = rig.solver_options
+    model = FastModel(rig.V, rig.F, rig.W, clusters=o.clusters, extra_weights=o.extra_weights, energy=o.energy)
+    base = rig.pattern()
+    sk = rig.skeleton
+    five = np.radians(5.0)
+    limits = []
+    for name in ("spine", "chest"):
+        j = sk.index(name)
+        d = sk.tails[j] - sk.heads[j]
+        limits.append((j, int(sk.parents[j]), tuple(float(x) for x in d / np.linalg.norm(d)), five, -five, five))
+    limited = Pattern(full=base.full, relative=base.relative, positional=base.positional, limits=tuple(limits))
+    angles = np.zeros(len(rig.servo_map))
+    for k, servo in enumerate(rig.servo_map.servos):
+        if servo.joint in ("neck", "head"):
+            angles[k] = servo.limits[1]
+        elif servo.joint.startswith("upperarm"):
+            angles[k] = servo.limits[1] if servo.sign > 0 else servo.limits[0]
+    out = {}
+    for name, pattern in (("plain", base), ("limits", limited)):
+        solver = model.solver(pattern)
+        values = pattern.values()
+        times = []
+        T = model.rest_T()
+        for f in range(frames):
+            rig.fill_values(angles * (0.9 + 0.1 * np.sin(f / 7)), values)
+            t0 = time.perf_counter_ns()
+            solver.solve(values, T, iterations=10)
+            times.append((time.perf_counter_ns() - t0) / 10 / 1e3)
+        out[f"{name}_us_per_iter"] = statistics.median(times[20:])
+        out[f"{name}_active"] = solver.active_limits if pattern.limits else 0
     return out
 
 
@@ -426,6 +471,12 @@ def main(argv=None):
     live = live_cases(V, F, args.frames, args.quick)
     print(f"\nm5_r50 again: plain {live['us_per_iter']:.2f} us/it, dynamics on {live['dynamics_us_per_iter']:.2f} "
           f"us/it (x{live['dynamics_us_per_iter'] / live['us_per_iter']:.2f})")
+    print(f"  limits on (4 active 5-degree limits): {live['limits_us_per_iter']:.2f} us/it "
+          f"(x{live['limits_us_per_iter'] / live['us_per_iter']:.2f}, {live['limits_active']} active)")
+    blim = builtin_limits_case(args.frames)
+    print(f"built-in character, extreme pose: {blim['plain_us_per_iter']:.2f} us/it, spine and chest limited "
+          f"{blim['limits_us_per_iter']:.2f} us/it (+{blim['limits_us_per_iter'] - blim['plain_us_per_iter']:.2f}, "
+          f"{blim['limits_active']} active)")
     tol = tol_case(frames=10 if args.quick else 30)
     for key, t in tol["tol"].items():
         print(f"tolerance stop, built-in character, tol {key}: {t['iters_mean']:.1f} iterations/frame "
@@ -448,7 +499,7 @@ def main(argv=None):
                   f"   native/portable {c['native_arch_us'] / c['portable_us']:.3f}")
     with open(args.json, "w") as fh:
         json.dump({"native_simd": _native.simd, "frames": args.frames, "cases": results, "live": live,
-                   "tol": tol, "switch": sw, "builds": builds}, fh, indent=2)
+                   "tol": tol, "switch": sw, "builtin_limits": blim, "builds": builds}, fh, indent=2)
 
 
 if __name__ == "__main__":

@@ -29,8 +29,8 @@
 // range about it): after each global step, the relative rotation R = polar(A_p^{-1} A_c) (A the
 // linear parts) is split into swing * twist about d; where either is out of range, the step is
 // projected onto the limit: the rows A_c = A_p R_lim (R_lim: R with both angles clamped) are
-// added by a second Schur complement on the relative-constrained factor H_1:
-//   T += H_1 A_L^T (A_L H_1 A_L^T)^{-1} (-A_L T),   H_1 A_L^T = W_L - W_1 S_1^{-1} A_1 W_L.
+// added by a second Schur complement on the relative-constrained factor H_1 (made per frame):
+//   T += H_1 A_L^T (A_L H_1 A_L^T)^{-1} (-A_L T),   H_1 = H - W_1 S_1^{-1} W_1^T.
 // Inside the limits nothing is added (the solve is unchanged). The last iteration is always a
 // plain step, so the returned T is within the limits. Not combined with contacts.
 // Anderson acceleration (window 5 by default) on T -> G(T); an accelerated point whose energy is above
@@ -126,7 +126,7 @@ class FastSolver {
   int nl_ = 0, active_ = 0;
   std::vector<int32_t> lchild_, lparent_, lact_;
   std::vector<double> laxis_, lbound_, lrot_;          // (nl, 3), (nl, 3), active R_lim (nl, 9)
-  std::vector<double> wl_, cx_, sl_, yl_;               // W_L, S_1^{-1} A_1 W_L, S_L, y
+  std::vector<double> wl_, h1_, sl_, yl_;               // W_L1, H_1 (4m x 4m), S_L, y
   // per-iteration
   std::vector<float> s_, rot_, vwarm_, qx_, y_;  // vwarm_: per-cluster Jacobi warm start
   double lin_ = 0.0;                    // sum_g tr(R_g^T C_g) from the last local step

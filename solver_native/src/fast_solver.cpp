@@ -253,6 +253,16 @@ void FastSolver::set_values(const float* full, const float* rel, const float* po
     for (int j = 0; j < nR; ++j) b[j] = w_[static_cast<size_t>(j) * n4 + row];
     cholesky_solve(schur_.data(), nR, b);
     for (int j = 0; j < nR; ++j) z_[static_cast<size_t>(j) * mp_ + row] = static_cast<float>(b[j]);
+    if (nl_ > 0) {  // H_1 = H - W S^{-1} W^T (symmetric; row `row` = column `row`)
+      double* h1 = h1_.data() + static_cast<size_t>(row) * n4;
+      const double* h = h_.data() + static_cast<size_t>(row) * n4;
+      for (int col = 0; col < n4; ++col) h1[col] = h[col];
+      for (int j = 0; j < nR; ++j) {
+        const double bj = b[j];
+        const double* wj = w_.data() + static_cast<size_t>(j) * n4;
+        for (int col = 0; col < n4; ++col) h1[col] -= bj * wj[col];
+      }
+    }
   }
 }
 
@@ -462,13 +472,13 @@ void FastSolver::set_limits(int nl, const int32_t* child, const int32_t* parent,
   lrot_.assign(9 * static_cast<size_t>(std::max(nl, 1)), 0.0);
   const size_t nL = 3 * static_cast<size_t>(std::max(nl, 1)), n4 = 4 * static_cast<size_t>(m_);
   wl_.assign(nL * n4, 0.0);
-  cx_.assign(nL * std::max<size_t>(3 * kr_, 1), 0.0);
+  h1_.assign(kr_ > 0 ? n4 * n4 : 1, 0.0);
   sl_.assign(nL * nL, 0.0);
   yl_.assign(nL * 3, 0.0);
 }
 
 void FastSolver::project_limits(float* out) {
-  const int n4 = 4 * m_, nR = 3 * kr_;
+  const int n4 = 4 * m_;
   int a = 0;
   for (int l = 0; l < nl_; ++l) {
     Mat3 ap, ac, inv, x;
@@ -487,38 +497,20 @@ void FastSolver::project_limits(float* out) {
   active_ = a;
   if (a == 0) return;
   const int nL = 3 * a;
-  // W_L = H A_L^T: column (q, i) = H[:, 4c+i] - sum_k R[k][i] H[:, 4p+k].
+  // W_L1 = H_1 A_L^T: column (q, i) = H_1[:, 4c+i] - sum_k R[k][i] H_1[:, 4p+k], with H_1 the
+  // factor after this frame's relative rows (H itself without them).
+  const double* h1 = kr_ > 0 ? h1_.data() : h_.data();
   for (int q = 0; q < a; ++q) {
     const int l = lact_[q];
     const double* R = lrot_.data() + 9 * q;
     for (int i = 0; i < 3; ++i) {
       double* wcol = wl_.data() + static_cast<size_t>(3 * q + i) * n4;
-      const double* hc = h_.data() + static_cast<size_t>(4 * lchild_[l] + i) * n4;
+      const double* hc = h1 + static_cast<size_t>(4 * lchild_[l] + i) * n4;
       for (int row = 0; row < n4; ++row) wcol[row] = hc[row];
       for (int k = 0; k < 3; ++k) {
         const double coef = R[3 * k + i];
-        const double* hp = h_.data() + static_cast<size_t>(4 * lparent_[l] + k) * n4;
+        const double* hp = h1 + static_cast<size_t>(4 * lparent_[l] + k) * n4;
         for (int row = 0; row < n4; ++row) wcol[row] -= coef * hp[row];
-      }
-    }
-  }
-  if (kr_ > 0) {  // W_L -= W_1 S_1^{-1} (A_1 W_L): project onto the relative rows' null space
-    for (int col = 0; col < nL; ++col) {
-      double* wcol = wl_.data() + static_cast<size_t>(col) * n4;
-      double* cx = cx_.data() + static_cast<size_t>(col) * nR;
-      for (int qq = 0; qq < kr_; ++qq) {
-        const float* R = relR_.data() + 9 * qq;
-        for (int i = 0; i < 3; ++i) {
-          double v = wcol[4 * child_[qq] + i];
-          for (int k = 0; k < 3; ++k) v -= static_cast<double>(R[3 * k + i]) * wcol[4 * parent_[qq] + k];
-          cx[3 * qq + i] = v;
-        }
-      }
-      cholesky_solve(schur_.data(), nR, cx);
-      for (int j = 0; j < nR; ++j) {
-        const double c = cx[j];
-        const double* w1 = w_.data() + static_cast<size_t>(j) * n4;
-        for (int row = 0; row < n4; ++row) wcol[row] -= w1[row] * c;
       }
     }
   }
