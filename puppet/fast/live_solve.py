@@ -28,6 +28,10 @@ from puppet.fast.pattern import Pattern, Values
 from puppet.fast.solver import Dynamics, Solver
 
 
+NOTHING_FREE: frozenset = frozenset()
+"""The base pattern's key: no bone made free."""
+
+
 @dataclass
 class LiveStats:
     """What the last frame did: solver iterations (all steps and patterns) and steps taken."""
@@ -108,6 +112,7 @@ class LiveSolve:
         self._threshold_ns = int(extras.dropout_ms * 1e6)
         self.blend_frames = extras.blend_frames
         self._last_ok_ns = np.zeros(len(servos), np.int64)
+        self._age = np.zeros(len(servos), np.int64)
         self._late = np.zeros(len(servos), bool)
         self._prev_t_ns: int | None = None
         b = rig.skeleton.bone_count
@@ -116,9 +121,9 @@ class LiveSolve:
         self._blend = model.rest_T()
         self.states: dict[frozenset, _PatternState] = {}
         self.factor_ms: dict[frozenset, float] = {}
-        self.current = self._state(frozenset())
+        self.current = self._state(NOTHING_FREE)
         self.solver = self.current.solver
-        self.free_bones: frozenset = frozenset()
+        self.free_bones: frozenset = NOTHING_FREE
         self._from: _PatternState | None = None
         self._blend_step = 0
         self.switches = 0
@@ -145,11 +150,12 @@ class LiveSolve:
     def _dropped(self, ok: np.ndarray, t_ns: int) -> frozenset:
         if self._prev_t_ns is None:
             self._last_ok_ns[:] = t_ns
-        self._last_ok_ns[ok] = t_ns
-        np.greater(t_ns - self._last_ok_ns, self._threshold_ns, out=self._late)
+        np.copyto(self._last_ok_ns, t_ns, where=ok)
+        np.subtract(t_ns, self._last_ok_ns, out=self._age)
+        np.greater(self._age, self._threshold_ns, out=self._late)
         self._late &= self._frees
         if not self._late.any():
-            return frozenset()
+            return NOTHING_FREE
         return frozenset(int(b) for b in self._servo_bone[self._late])
 
     def solve(self, ok: np.ndarray, t_ns: int, angles: np.ndarray, T: np.ndarray, iterations: int) -> LiveStats:
