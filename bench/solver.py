@@ -9,6 +9,11 @@ the same mesh: a plain NumPy implementation of the same iteration (us per iterat
 full-space igl.arap_solve (ms per iteration).
 
     python bench/solver.py --json out.json [--frames 200] [--quick]
+
+Also: the live-solve cases (dynamics on, the tolerance stop, the dropout pattern switch on the
+built-in character), and, when a -march=native build of the module exists in build/native-arch
+(cmake -S . -B build/native-arch -DPUPPET_NATIVE_ARCH=ON && cmake --build build/native-arch),
+its per-iteration times next to this (portable, runtime-dispatched) build's.
 """
 
 from __future__ import annotations
@@ -23,8 +28,27 @@ import time
 # core the solver runs on (and the targets are single-threaded figures).
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
+import sys  # noqa: E402
+from pathlib import Path  # noqa: E402
+
 import numpy as np  # noqa: E402
 
+
+def _use_module(argv):
+    """--module SO: load that build of puppet._native (e.g. the -march=native one) instead."""
+    if "--module" in argv:
+        import importlib.machinery
+        import importlib.util
+
+        path = argv[argv.index("--module") + 1]
+        loader = importlib.machinery.ExtensionFileLoader("puppet._native", path)
+        spec = importlib.util.spec_from_file_location("puppet._native", path, loader=loader)
+        module = importlib.util.module_from_spec(spec)
+        loader.exec_module(module)
+        sys.modules["puppet._native"] = module
+
+
+_use_module(sys.argv)
 from puppet import _native  # noqa: E402
 from puppet.fast import FastModel, Pattern  # noqa: E402
 
@@ -185,15 +209,252 @@ def run_case(name, V, F, bones, extra, r, frames, quick):
     }
 
 
+def tol_case(tols=(1e-4, 1e-5), frames=30):
+    """The tolerance stop on the built-in character (its own pattern, the demo performance at 30
+    frames per second, warm-started): iterations per frame and the largest distance (of the
+    bounding-box diagonal) from the converged result, for each tol; and the fixed budget a
+    fixed-count solve needs so that every frame lands within 1e-4 (both accelerated, from the
+    same start each frame)."""
+    from puppet.demo import Performance
+    from puppet.rig import builtin
+
+    rig = builtin()
+    o = rig.solver_options
+    model = FastModel(rig.V, rig.F, rig.W, clusters=o.clusters, extra_weights=o.extra_weights, energy=o.energy)
+    pattern = rig.pattern()
+    solver, reference = model.solver(pattern), model.solver(pattern)
+    values = pattern.values()
+    M = model.lbs_matrix()
+    diag = float(np.linalg.norm(rig.V.max(0) - rig.V.min(0)))
+    perf = Performance(rig)
+    ids = [s.id for s in rig.servo_map.servos]
+    out = {"frames": frames, "tol": {}}
+    needed = []
+    for tol in tols:
+        T = model.rest_T()
+        iters, errs = [], []
+        for f in range(frames):
+            ticks = np.array([perf.position(i, f / 30) for i in ids]).round().astype(np.int32)
+            rig.fill_values(rig.servo_map.angles(ticks), values)
+            start = T.copy()
+            Tc = start.copy()
+            reference.solve(values, Tc, iterations=3000)
+            Vc = M @ Tc
+            iters.append(solver.solve(values, T, iterations=1000, tol=tol).iterations)
+            errs.append(float(np.abs(M @ T - Vc).max() / diag))
+            if tol == tols[0]:
+                Tk = start.copy()
+                for k in range(1, 1001):  # a fixed budget k: the same solve with k iterations
+                    Tk[:] = start
+                    solver.solve(values, Tk, iterations=k)
+                    if np.abs(M @ Tk - Vc).max() <= 1e-4 * diag:
+                        break
+                needed.append(k)
+        out["tol"][f"{tol:g}"] = {"iters_mean": float(np.mean(iters)), "iters_max": int(max(iters)),
+                                  "err_max_of_diag": max(errs)}
+    out["fixed_budget_for_1e-4"] = int(max(needed))
+    return out
+
+
+def per_iter_us(solver, values, V, pins, diag, axes, frames, model):
+    T = model.rest_T()
+    times = []
+    for f in range(frames + 20):
+        values.positional[:] = frame_targets(V, pins, f, diag, axes)
+        t0 = time.perf_counter_ns()
+        solver.solve(values, T, iterations=10)
+        if f >= 20:
+            times.append((time.perf_counter_ns() - t0) / 10 / 1e3)
+    return statistics.median(times)
+
+
+def live_cases(V, F, frames, quick):
+    """m=5, r=50 again: the plain per-iteration time (baseline of this block) and with dynamics on."""
+    from puppet.fast import Dynamics
+
+    diag = float(np.linalg.norm(V.max(0) - V.min(0)))
+    W = bone_weights(V, 5)
+    model = FastModel(V, F, W, clusters=50, energy="spokes_and_rims", cache_dir=False)
+    pins = tuple(int(np.argmax(W[:, j])) for j in range(5))
+    pattern = Pattern(positional=pins)
+    axes = np.random.default_rng(1).normal(size=(len(pins), 3))
+    values = pattern.values()
+    plain = model.solver(pattern)
+    dyn = model.solver(pattern, dynamics=Dynamics(dt=1 / 60, density=1e-3, damping=0.9, gravity=(0, -9.8, 0)))
+    # Joint limits between consecutive bones (5 degree cone and twist about x): active every frame.
+    five = np.radians(5.0)
+    limits = tuple((j, j - 1, (1.0, 0.0, 0.0), five, -five, five) for j in range(1, 5))
+    limited = model.solver(Pattern(positional=pins, limits=limits))
+    out = {
+        "us_per_iter": per_iter_us(plain, values, V, pins, diag, axes, frames, model),
+        "dynamics_us_per_iter": per_iter_us(dyn, values, V, pins, diag, axes, frames, model),
+        "limits_us_per_iter": per_iter_us(limited, values, V, pins, diag, axes, frames, model),
+        "limits_active": limited.active_limits,
+    }
+    return out
+
+
+def builtin_limits_case(frames):
+    """The built-in character in an extreme pose (neck, head, upper arms at their servo limits),
+    spine and chest limited to 5 degrees: us per iteration with and without the limits."""
+    from puppet.rig import builtin
+
+    rig = builtin()
+    o = rig.solver_options
+    model = FastModel(rig.V, rig.F, rig.W, clusters=o.clusters, extra_weights=o.extra_weights, energy=o.energy)
+    base = rig.pattern()
+    sk = rig.skeleton
+    five = np.radians(5.0)
+    limits = []
+    for name in ("spine", "chest"):
+        j = sk.index(name)
+        d = sk.tails[j] - sk.heads[j]
+        limits.append((j, int(sk.parents[j]), tuple(float(x) for x in d / np.linalg.norm(d)), five, -five, five))
+    limited = Pattern(full=base.full, relative=base.relative, positional=base.positional, limits=tuple(limits))
+    angles = np.zeros(len(rig.servo_map))
+    for k, servo in enumerate(rig.servo_map.servos):
+        if servo.joint in ("neck", "head"):
+            angles[k] = servo.limits[1]
+        elif servo.joint.startswith("upperarm"):
+            angles[k] = servo.limits[1] if servo.sign > 0 else servo.limits[0]
+    out = {}
+    for name, pattern in (("plain", base), ("limits", limited)):
+        solver = model.solver(pattern)
+        values = pattern.values()
+        times = []
+        T = model.rest_T()
+        for f in range(frames):
+            rig.fill_values(angles * (0.9 + 0.1 * np.sin(f / 7)), values)
+            t0 = time.perf_counter_ns()
+            solver.solve(values, T, iterations=10)
+            times.append((time.perf_counter_ns() - t0) / 10 / 1e3)
+        out[f"{name}_us_per_iter"] = statistics.median(times[20:])
+        out[f"{name}_active"] = solver.active_limits if pattern.limits else 0
+    return out
+
+
+def switch_case():
+    """The built-in character: refactor time of the dropout pattern (the neck made free), the
+    cached switch, and the largest per-frame vertex jump at both switches (still puppet, neck
+    servo silent 500 ms, answering 26 degrees away), blended (6 frames) and not."""
+    from puppet.bus import Reading
+    from puppet.fast.live_solve import LiveSolve, _PatternState
+    from puppet.pipeline import Pipeline
+    from puppet.rig import builtin
+    from puppet.rig.solve_options import SolveExtras
+
+    rig = builtin()
+    rig.extras = SolveExtras(on_dropout="free")
+    neck = rig.skeleton.names.index("neck")
+    with Pipeline(rig, render=False) as pipeline:
+        model = pipeline.model
+        refactor = []
+        for _ in range(7):
+            state = _PatternState(rig, model, frozenset({neck}), None)
+            refactor.append(state.factor_ms)
+        live = LiveSolve(rig, model)
+        ok_all = np.ones(len(rig.servo_map), bool)
+        T = model.rest_T()
+        angles = np.zeros(len(rig.servo_map))
+        cached = []
+        live.solve(ok_all, 0, angles, T, 8)
+        live._state(frozenset({neck}))
+        for _ in range(50):  # a cached switch each way: the pattern lookup and the warm start
+            t0 = time.perf_counter_ns()
+            live._switch(frozenset({neck}) if not live.free_bones else frozenset(), T)
+            cached.append((time.perf_counter_ns() - t0) / 1e6)
+    ids = np.array([s.id for s in rig.servo_map.servos])
+    from puppet.demo import Performance
+
+    perf = Performance(rig)
+    pose = np.array([perf.position(i, 0.0) for i in ids]).round().astype(np.int32)  # a held stance
+    jumps = {}
+    for blend in (6, 1):
+        rig.extras = SolveExtras(on_dropout="free", blend_frames=blend)
+        with Pipeline(rig, render=False) as pipeline:
+            M = pipeline.model.lbs_matrix()
+            prev, steps = None, []
+            for f in range(80):
+                ok = np.ones(len(ids), bool)
+                ticks = pose.copy()
+                if 20 <= f < 50:
+                    ok[0] = False
+                if f >= 50:
+                    ticks[0] += 300
+                pipeline.solve(Reading(int(f / 60 * 1e9), ids, ticks, ok))
+                Vd = M @ pipeline.T
+                steps.append(0.0 if prev is None else float(np.linalg.norm(Vd - prev, axis=1).max()))
+                prev = Vd
+        jumps[blend] = (max(steps[29:37]), max(steps[50:58]))
+    rig.extras = SolveExtras()
+    return {
+        "m": model.m,
+        "r": model.r,
+        "refactor_ms": statistics.median(refactor),
+        "cached_switch_ms": statistics.median(cached),
+        "jump_to_free": jumps[6][0],
+        "jump_to_sensed": jumps[6][1],
+        "jump_to_free_unblended": jumps[1][0],
+        "jump_to_sensed_unblended": jumps[1][1],
+        "diag": float(np.linalg.norm(rig.V.max(0) - rig.V.min(0))),
+    }
+
+
+NATIVE_ARCH_BUILD = Path(__file__).resolve().parents[1] / "build" / "native-arch"
+"""Where a -march=native build of the module is looked for (see README, Developer loop)."""
+
+CASES = [("m5_r50", 5, 0, 50), ("m24_r100", 24, 0, 100), ("m25_5b20x_r200", 5, 20, 200)]
+
+
+def per_iter_cases(V, F, frames):
+    """Per-iteration medians (plain, accelerated) of every case, for comparing two builds."""
+    out = {}
+    for name, bones, extra, r in CASES:
+        diag = float(np.linalg.norm(V.max(0) - V.min(0)))
+        W = bone_weights(V, bones)
+        model = FastModel(V, F, W, clusters=r, extra_weights=extra, energy="spokes_and_rims", cache_dir=False)
+        pins = tuple(int(np.argmax(W[:, j])) for j in range(bones))
+        pattern = Pattern(positional=pins)
+        solver = model.solver(pattern)
+        axes = np.random.default_rng(1).normal(size=(len(pins), 3))
+        out[name] = per_iter_us(solver, pattern.values(), V, pins, diag, axes, frames, model)
+    return out
+
+
+def compare_builds(V, F, frames, args):
+    """This build against the -march=native one (if built): per-iteration medians of each case,
+    the other build run in a subprocess on the same mesh right after this one."""
+    import glob
+    import subprocess
+    import tempfile
+
+    found = sorted(glob.glob(str(NATIVE_ARCH_BUILD / "_native*.so")))
+    if not found:
+        return None
+    mine = per_iter_cases(V, F, frames)
+    with tempfile.TemporaryDirectory() as tmp:
+        out = Path(tmp) / "other.json"
+        subprocess.run([sys.executable, __file__, "--module", found[0], "--per-iter-only", "--json", str(out),
+                        "--frames", str(frames)], check=True)
+        other = json.loads(out.read_text())
+    return {"portable_simd": _native.simd, "native_arch_simd": other["native_simd"], "native_arch_module": found[0],
+            "cases": {k: {"portable_us": mine[k], "native_arch_us": other["per_iter"][k]} for k in mine}}
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--json", required=True, help="write results here")
     ap.add_argument("--frames", type=int, default=200, help="timed frames per case (>= 200 for the record)")
     ap.add_argument("--quick", action="store_true", help="smaller sample counts (smoke run)")
+    ap.add_argument("--module", help="use this build of puppet._native (a .so file)")
+    ap.add_argument("--per-iter-only", action="store_true", help="only the per-iteration medians (build comparison)")
     args = ap.parse_args(argv)
     V, F = character()
-    cases = [("m5_r50", 5, 0, 50), ("m24_r100", 24, 0, 100), ("m25_5b20x_r200", 5, 20, 200)]
-    results = [run_case(name, V, F, b, x, r, args.frames, args.quick) for name, b, x, r in cases]
+    if args.per_iter_only:
+        with open(args.json, "w") as fh:
+            json.dump({"native_simd": _native.simd, "per_iter": per_iter_cases(V, F, args.frames)}, fh)
+        return
+    results = [run_case(name, V, F, b, x, r, args.frames, args.quick) for name, b, x, r in CASES]
     header = (
         f"{'case':<16}{'n':>7}{'m':>4}{'r':>5}{'us/it':>8}{'us/it acc':>10}{'prec s':>8}{'refac ms':>9}"
         f"{'it plain':>9}{'it acc':>7}{'numpy us':>10}{'full ms':>9}{'x numpy':>9}{'x full':>9}"
@@ -207,8 +468,38 @@ def main(argv=None):
             f"{c['numpy_us_per_iter']:>10.1f}{c['full_arap_ms_per_iter']:>9.1f}"
             f"{c['numpy_us_per_iter'] / c['us_per_iter']:>9.0f}{c['full_arap_ms_per_iter'] * 1e3 / c['us_per_iter']:>9.0f}"
         )
+    live = live_cases(V, F, args.frames, args.quick)
+    print(f"\nm5_r50 again: plain {live['us_per_iter']:.2f} us/it, dynamics on {live['dynamics_us_per_iter']:.2f} "
+          f"us/it (x{live['dynamics_us_per_iter'] / live['us_per_iter']:.2f})")
+    print(f"  limits on (4 active 5-degree limits): {live['limits_us_per_iter']:.2f} us/it "
+          f"(x{live['limits_us_per_iter'] / live['us_per_iter']:.2f}, {live['limits_active']} active)")
+    blim = builtin_limits_case(args.frames)
+    print(f"built-in character, extreme pose: {blim['plain_us_per_iter']:.2f} us/it, spine and chest limited "
+          f"{blim['limits_us_per_iter']:.2f} us/it (+{blim['limits_us_per_iter'] - blim['plain_us_per_iter']:.2f}, "
+          f"{blim['limits_active']} active)")
+    tol = tol_case(frames=10 if args.quick else 30)
+    for key, t in tol["tol"].items():
+        print(f"tolerance stop, built-in character, tol {key}: {t['iters_mean']:.1f} iterations/frame "
+              f"(max {t['iters_max']}), within {t['err_max_of_diag']:.1e} of the diagonal of the converged result")
+    print(f"  a fixed budget needs {tol['fixed_budget_for_1e-4']} iterations for every frame to be within 1e-4")
+    sw = switch_case()
+    print(f"built-in character (m={sw['m']}, r={sw['r']}): dropout pattern switch: refactor "
+          f"{sw['refactor_ms']:.2f} ms, cached {sw['cached_switch_ms']:.3f} ms; largest per-frame vertex jump "
+          f"(of the {sw['diag']:.2f} diagonal) to free {sw['jump_to_free']:.4f} (unblended "
+          f"{sw['jump_to_free_unblended']:.4f}), back to sensed {sw['jump_to_sensed']:.4f} (unblended "
+          f"{sw['jump_to_sensed_unblended']:.4f})")
+    builds = compare_builds(V, F, args.frames, args)
+    if builds is None:
+        print(f"(no -march=native build in {NATIVE_ARCH_BUILD}: build comparison skipped)")
+    else:
+        print(f"builds, us/iteration: portable ({builds['portable_simd']} kernels) vs -march=native "
+              f"({builds['native_arch_simd']}):")
+        for name, c in builds["cases"].items():
+            print(f"  {name:<16}{c['portable_us']:>8.2f}{c['native_arch_us']:>8.2f}"
+                  f"   native/portable {c['native_arch_us'] / c['portable_us']:.3f}")
     with open(args.json, "w") as fh:
-        json.dump({"native_simd": _native.simd, "frames": args.frames, "cases": results}, fh, indent=2)
+        json.dump({"native_simd": _native.simd, "frames": args.frames, "cases": results, "live": live,
+                   "tol": tol, "switch": sw, "builtin_limits": blim, "builds": builds}, fh, indent=2)
 
 
 if __name__ == "__main__":

@@ -20,6 +20,7 @@ import numpy as np
 
 from puppet.bus import Reading
 from puppet.fast import FastModel
+from puppet.fast.live_solve import LiveSolve
 from puppet.rig import Rig
 
 BONE_KIND_STATES = {"full": "sensed", "relative": "relative", "free": "free"}
@@ -53,7 +54,9 @@ class Pipeline:
         self.model = FastModel(rig.V, rig.F, rig.W, clusters=options.clusters,
                                extra_weights=options.extra_weights, energy=options.energy)
         self.pattern = rig.pattern()
-        self.solver = self.model.solver(self.pattern)
+        # Dropout switching and dynamics (rig options), else the plain per-frame solve.
+        self.live = LiveSolve(rig, self.model) if LiveSolve.wanted(rig) else None
+        self.solver = self.live.solver if self.live else self.model.solver(self.pattern)
         self.values = self.pattern.values()
         self.T = self.model.rest_T()
         self.angles = np.zeros(len(rig.servo_map), np.float64)
@@ -90,13 +93,18 @@ class Pipeline:
     def solve(self, reading: Reading) -> np.ndarray:
         """Solve this reading's pose into ``self.T`` (in place) and return it.
 
-        A servo flagged not ok keeps the tick value the reader held for it (its last good one).
+        A servo flagged not ok keeps the tick value the reader held for it (its last good one);
+        with the rig option ``on_dropout = "free"`` its bones are solved instead once it has been
+        silent long enough, and dynamics step by the readings' times (``puppet.fast.live_solve``).
         """
         rig = self.rig
         rig.servo_map.angles(reading.ticks, out=self.angles)
-        rig.fill_values(self.angles, self.values)
         start = time.perf_counter_ns()
-        stats = self.solver.solve(self.values, self.T, iterations=self.iterations)
+        if self.live is not None:
+            stats = self.live.solve(reading.ok, reading.t_ns, self.angles, self.T, self.iterations)
+        else:
+            rig.fill_values(self.angles, self.values)
+            stats = self.solver.solve(self.values, self.T, iterations=self.iterations)
         self.solve_ns += time.perf_counter_ns() - start
         self.solver_iterations += int(stats.iterations)
         if not reading.ok.all():

@@ -51,6 +51,12 @@ def constraint_rows(pattern: Pattern, V: np.ndarray, weights: np.ndarray) -> np.
     return A
 
 
+def contact_rows(pattern: Pattern, V: np.ndarray, weights: np.ndarray) -> np.ndarray:
+    """(kc, 4m) float64: the LBS row M_v of each contact vertex (row M_v T[:, c] = target_c)."""
+    rows = [(weights[v][:, None] * np.append(V[v], 1.0)[None, :]).ravel() for v, _ in pattern.contacts]
+    return np.array(rows, np.float64).reshape(len(rows), 4 * weights.shape[1])
+
+
 def _describe_null(vec: np.ndarray, m: int) -> str:
     blocks = vec.reshape(m, 4)
     mag = np.linalg.norm(blocks, axis=1)
@@ -108,15 +114,16 @@ def factor(pattern: Pattern, V: np.ndarray, weights: np.ndarray, Q: np.ndarray, 
             )
         H = N @ (scipy.linalg.cho_solve(chol, N.T / d[:, None], check_finite=False) / d[:, None])
         H = 0.5 * (H + H.T)
-    if pattern.relative:
-        _check_relative(pattern, H)
+    if pattern.relative or pattern.contacts:
+        _check_relative(pattern, H, contact_rows(pattern, V, weights))
     P2 = pinv[:, :nvals] - H @ (Q @ pinv[:, :nvals])
     G = H @ K
     return Factor(G=G, P2=P2, H=H)
 
 
-def _check_relative(pattern: Pattern, H: np.ndarray) -> None:
-    """The relative rows (at R = I) must be independent on the fixed rows' null space."""
+def _check_relative(pattern: Pattern, H: np.ndarray, contacts: np.ndarray) -> None:
+    """The relative rows (at R = I) and, per column, that column's contact rows must be independent
+    on the fixed rows' null space."""
     n4 = H.shape[0]
     kr = len(pattern.relative)
     AR = np.zeros((3 * kr, n4))
@@ -124,10 +131,25 @@ def _check_relative(pattern: Pattern, H: np.ndarray) -> None:
         for i in range(3):
             AR[3 * q + i, 4 * c + i] = 1.0
             AR[3 * q + i, 4 * p + i] = -1.0
-    S = AR @ H @ AR.T
-    lam, vecs = np.linalg.eigh(0.5 * (S + S.T))
-    if not lam[0] > max(lam[-1], 1e-300) / CONDITION_LIMIT:
-        q = int(np.argmax(np.abs(vecs[:, 0]))) // 3
+    axes = pattern.contact_axes()
+    for col in range(3 if pattern.contacts else 1):
+        rows = np.flatnonzero(axes[:, col]) if pattern.contacts else np.zeros(0, int)
+        A = np.vstack([AR, contacts[rows]])
+        if A.shape[0] == 0:
+            continue
+        S = A @ H @ A.T
+        lam, vecs = np.linalg.eigh(0.5 * (S + S.T))
+        if lam[0] > max(lam[-1], 1e-300) / CONDITION_LIMIT:
+            continue
+        worst = int(np.argmax(np.abs(vecs[:, 0])))
+        if worst >= 3 * kr:
+            q = int(rows[worst - 3 * kr])
+            v, ax = pattern.contacts[q]
+            raise PatternError(
+                f"pattern.contacts[{q}] (vertex {v}, axes {ax!r}): the contact and the other constraints "
+                "over-determine the handles (e.g. a vertex whose handles are all fixed, or pinned twice); remove it"
+            )
+        q = worst // 3
         c, p, _ = pattern.relative[q]
         raise PatternError(
             f"pattern.relative[{q}] (child {c}, parent {p}): the relative rows and the other constraints "

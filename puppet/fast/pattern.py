@@ -26,11 +26,21 @@ class Pattern:
                 times a per-frame rotation R, and both handles map the rest point ``pivot``
                 ((3,) model units) to the same place.
     positional: vertex indices whose deformed position is given each frame.
+    contacts:   (vertex, axes) pairs: the vertex's deformed position is given in the named axes
+                only (axes a non-empty string of distinct 'x', 'y', 'z', e.g. "y": a foot at a
+                floor height, free to slide in x and z). Each column then gets its own solve.
+    limits:     (child, parent, axis, swing_max, twist_min, twist_max) joint limits on free
+                handles: the child's rotation relative to the parent (child linear part =
+                parent linear part @ R) stays within a cone of half-angle swing_max about the
+                unit bone direction ``axis`` (model space, rest) and a twist about it in
+                [twist_min, twist_max] (radians). Enforced in every global step (projection).
     """
 
     full: tuple[int, ...] = ()
     relative: tuple[tuple[int, int, tuple[float, float, float]], ...] = ()
     positional: tuple[int, ...] = field(default=())
+    contacts: tuple[tuple[int, str], ...] = ()
+    limits: tuple[tuple[int, int, tuple[float, float, float], float, float, float], ...] = ()
 
     def validate(self, m: int, n: int) -> None:
         """Raise PatternError unless the pattern fits m handles and n vertices and is consistent:
@@ -67,6 +77,45 @@ class Pattern:
             pos.append(int(v))
         if len(set(pos)) != len(pos):
             raise PatternError("pattern.positional: a vertex is pinned twice")
+        seen = set()
+        for q, item in enumerate(self.contacts):
+            if len(item) != 2:
+                raise PatternError(f"pattern.contacts[{q}]: expected (vertex, axes), got {item!r}")
+            v, axes = item
+            if not isinstance(v, (int, np.integer)) or not 0 <= int(v) < n:
+                raise PatternError(f"pattern.contacts[{q}]: vertex {v!r} is not in 0..{n - 1}")
+            if (not isinstance(axes, str) or not axes or set(axes) - set("xyz")
+                    or len(set(axes)) != len(axes)):
+                raise PatternError(f"pattern.contacts[{q}]: axes {axes!r} must be distinct letters of 'xyz'")
+            for a in axes:
+                if (int(v), a) in seen:
+                    raise PatternError(f"pattern.contacts[{q}]: vertex {v} axis {a} is constrained twice")
+                seen.add((int(v), a))
+
+        constrained = set(full) | set(children)
+        for q, item in enumerate(self.limits):
+            if len(item) != 6:
+                raise PatternError(f"pattern.limits[{q}]: expected (child, parent, axis, swing, twist_min, twist_max)")
+            c, p, axis, swing, lo, hi = item
+            c, p = handle(c, f"limits[{q}] child"), handle(p, f"limits[{q}] parent")
+            if c == p or c in constrained:
+                raise PatternError(f"pattern.limits[{q}]: handle {c} must be free (not full, relative or its own parent)")
+            d = np.asarray(axis, np.float64)
+            if d.shape != (3,) or not np.isfinite(d).all() or abs(np.linalg.norm(d) - 1.0) > 1e-6:
+                raise PatternError(f"pattern.limits[{q}]: axis {axis!r} is not a unit vector")
+            if not (0.0 <= swing <= np.pi and -np.pi <= lo <= hi <= np.pi):
+                raise PatternError(f"pattern.limits[{q}]: need 0 <= swing <= pi and -pi <= twist_min <= twist_max <= pi, "
+                                   f"got {swing!r}, {lo!r}, {hi!r}")
+        if self.limits and self.contacts:
+            raise PatternError("pattern: joint limits together with contacts are not supported")
+
+    def contact_axes(self) -> np.ndarray:
+        """(len(contacts), 3) int32: 1 where contact q constrains column x, y or z."""
+        out = np.zeros((len(self.contacts), 3), np.int32)
+        for q, (_, axes) in enumerate(self.contacts):
+            for a in axes:
+                out[q, "xyz".index(a)] = 1
+        return out
 
     def values(self) -> "Values":
         """Preallocated per-frame values for this pattern (identity rotations, zero targets)."""
@@ -74,6 +123,7 @@ class Pattern:
             full=np.zeros((len(self.full), 4, 3), np.float32),
             relative=np.tile(np.eye(3, dtype=np.float32), (len(self.relative), 1, 1)),
             positional=np.zeros((len(self.positional), 3), np.float32),
+            contact=np.zeros((len(self.contacts), 3), np.float32),
         )
 
 
@@ -85,8 +135,11 @@ class Values:
     relative:   (len(pattern.relative), 3, 3) float32: the rotation R of each relative joint
                 (child linear part = parent linear part @ R).
     positional: (len(pattern.positional), 3) float32: target positions, model units.
+    contact:    (len(pattern.contacts), 3) float32: target coordinates, model units; only the
+                contact's axes are read.
     """
 
     full: np.ndarray
     relative: np.ndarray
     positional: np.ndarray
+    contact: np.ndarray = field(default_factory=lambda: np.zeros((0, 3), np.float32))

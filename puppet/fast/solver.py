@@ -8,7 +8,7 @@ import numpy as np
 
 from puppet import _native
 from puppet.fast.errors import FastError
-from puppet.fast.factor import factor
+from puppet.fast.factor import contact_rows, factor
 from puppet.fast.pattern import Pattern, Values
 
 
@@ -104,6 +104,16 @@ class Solver:
                 np.ascontiguousarray(force, np.float32),
                 float(dynamics.damping),
             )
+        if pattern.contacts:
+            self._native.set_contacts(contact_rows(pattern, model.V, model.weights64), pattern.contact_axes())
+        if pattern.limits:
+            lim = pattern.limits
+            self._native.set_limits(
+                np.array([c for c, *_ in lim], np.int32),
+                np.array([p for _, p, *_ in lim], np.int32),
+                np.array([a for _, _, a, *_ in lim], np.float64).reshape(-1, 3),
+                np.array([b[3:] for b in lim], np.float64).reshape(-1, 3),
+            )
         self.stats = self._native.stats
         self._history = self._native.history
 
@@ -121,7 +131,10 @@ class Solver:
         values: per-frame targets for this solver's pattern (float32, C-contiguous arrays).
         T:      (4m, 3) float32 C-contiguous; rows 4j..4j+3 hold handle j's transform
                 transposed (a rest point p goes to [p 1] @ T[4j:4j+4]).
-        tol:    stop early when an iteration lowers the energy by less than tol (relative).
+        tol:    stop early once an iteration lowers the energy by a small non-negative amount
+                (at most tol relative to the energy) or changes T by at most tol (max |dT|
+                relative to max |T|). A rise never stops it (the first iteration after the
+                targets move raises the energy); ``iterations`` stays the upper bound.
         accelerate: Anderson acceleration; a step that would raise the energy is rejected.
         history: record the energy after every iteration (see :attr:`history`).
         Returns the reused ``stats`` object. Wrong dtype/layout raises TypeError, NaN/inf or
@@ -131,6 +144,7 @@ class Solver:
             values.full,
             values.relative,
             values.positional,
+            values.contact,
             T,
             iterations,
             0.0 if tol is None else float(tol),
@@ -142,6 +156,11 @@ class Solver:
     def reset_dynamics(self) -> None:
         """Forget the inertia history (after a cut or a jump): the next frame starts at rest."""
         self._native.reset_history()
+
+    @property
+    def active_limits(self) -> int:
+        """Joint limits projected in the last global step of the last solve."""
+        return self._native.active_limits
 
     @property
     def history(self) -> np.ndarray:

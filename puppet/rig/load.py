@@ -112,6 +112,7 @@ def load_rig(path) -> Rig:
     # Joint errors (unknown joint, >3 servos, repeated order) name the rig file's line.
     rig = Rig(spec.name, V, F, skeleton, W, spec.servo_map, calibration, spec.solver,
               np.array(pins, np.int64), spec.fixed, path, source_index)
+    rig.set_extras(spec.extras)
     _check_placeable(rig)
     return rig
 

@@ -21,6 +21,7 @@ from puppet.rig.calibration import Calibration
 from puppet.rig.errors import RigError
 from puppet.rig.servo_map import ServoMap
 from puppet.rig.skeleton import Skeleton
+from puppet.rig.solve_options import SolveExtras
 from puppet.rig.weight_check import WeightReport, check_weights
 
 ENERGIES = ("spokes", "spokes_and_rims", "elements")
@@ -55,6 +56,8 @@ class Rig:
     pins:           (p,) int64 vertex indices held at their rest positions.
     fixed:          names of bones declared fixed (sensed, identity joint).
     path:           the file the rig was loaded from, if any.
+    extras:         live-solve options (dropout handling, dynamics, contacts as written).
+    contacts:       (vertex, axes, (x, y, z) targets) per-axis constraints (see set_extras).
     source_index:   (n_source,) int64 or None: for each vertex of the character file, in the
                     file's own order, its index in ``V`` (the loader welds copies that the file
                     split at UV seams). None means the file's order is ``V``'s. Exports that must
@@ -73,6 +76,8 @@ class Rig:
     fixed: tuple[str, ...] = ()
     path: Path | None = None
     source_index: np.ndarray | None = None
+    extras: SolveExtras = field(default_factory=SolveExtras)
+    contacts: tuple[tuple[int, str, tuple[float, float, float]], ...] = ()
 
     def __post_init__(self) -> None:
         self.V = np.ascontiguousarray(self.V, np.float64)
@@ -101,6 +106,46 @@ class Rig:
         b = self.skeleton.bone_count
         self._rotations = np.empty((b, 3, 3))
         self._pose = np.empty((b, 3, 4))
+
+    def set_extras(self, extras: SolveExtras) -> None:
+        """Adopt the rig file's live-solve options; contacts resolve to vertices here (a point
+        takes the nearest vertex; a missing value takes the rest coordinate)."""
+        n = len(self.V)
+        contacts = []
+        for i, c in enumerate(extras.contacts):
+            if c.vertex is not None:
+                if c.vertex >= n:
+                    raise RigError(f"vertex {c.vertex} out of range: mesh has {n} vertices",
+                                   path=self.path, line=c.line, field=f"contact {i + 1} vertex")
+                v = c.vertex
+            else:
+                v = int(np.argmin(((self.V - np.asarray(c.point)) ** 2).sum(axis=1)))
+            target = self.V[v].copy()
+            for axis, value in zip(c.axes, c.values):
+                if value is not None:
+                    target["xyz".index(axis)] = value
+            contacts.append((v, c.axes, tuple(float(x) for x in target)))
+        for i, lim in enumerate(extras.limits):
+            if lim.bone not in self.skeleton.names:
+                raise RigError(f"unknown bone {lim.bone!r}; bones are {list(self.skeleton.names)}",
+                               path=self.path, line=lim.line, field=f"limit {i + 1} bone")
+        self.extras = extras
+        self.contacts = tuple(contacts)
+
+    def limits_for(self, free: np.ndarray) -> tuple:
+        """Pattern.limits entries for the ``[[limit]]`` bones that are free ((b,) bool mask)."""
+        sk = self.skeleton
+        out = []
+        for lim in self.extras.limits:
+            j = sk.index(lim.bone)
+            p = int(sk.parents[j])
+            if p < 0 or not free[j]:
+                continue
+            d = np.asarray(sk.tails[j], np.float64) - np.asarray(sk.heads[j], np.float64)
+            d = tuple(float(x) for x in d / np.linalg.norm(d))
+            lo, hi = lim.twist_deg
+            out.append((j, p, d, float(np.radians(lim.swing_deg)), float(np.radians(lo)), float(np.radians(hi))))
+        return tuple(out)
 
     # ---- classification -------------------------------------------------------------------
     def _classify(self) -> None:
@@ -135,7 +180,9 @@ class Rig:
         relative = tuple((int(c), int(sk.parents[c]), tuple(float(x) for x in sk.heads[c]))
                          for c in self.relative_bones)
         return Pattern(full=tuple(int(j) for j in self.full_bones), relative=relative,
-                       positional=tuple(int(v) for v in self.pins))
+                       positional=tuple(int(v) for v in self.pins),
+                       contacts=tuple((v, axes) for v, axes, _ in self.contacts),
+                       limits=self.limits_for(~self.sensed))
 
     def fill_values(self, angles: np.ndarray, values: Values) -> None:
         """Write this frame's constraint values in place.
@@ -153,6 +200,8 @@ class Rig:
             values.relative[i] = rot[j]
         for i, v in enumerate(self.pins):
             values.positional[i] = self.V[v]
+        for i, (_, _, target) in enumerate(self.contacts):
+            values.contact[i] = target
 
     def pose(self, angles: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
         """Forward kinematics of every bone, (bones, 3, 4); see :meth:`Skeleton.pose`."""

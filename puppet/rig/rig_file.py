@@ -42,6 +42,7 @@ import numpy as np
 from puppet.rig.errors import RigError
 from puppet.rig.rig import ENERGIES, SolverOptions
 from puppet.rig.servo_map import X_SERIES_MODELS, Servo, ServoMap
+from puppet.rig.solve_options import SolveExtras, read_solve_extras
 
 NAMED_AXES = {"x": (1.0, 0, 0), "y": (0, 1.0, 0), "z": (0, 0, 1.0)}
 SERVO_KEYS = {"id", "model", "joint", "axis", "order", "sign", "gear", "zero_ticks", "limits_deg"}
@@ -94,6 +95,7 @@ class RigFile:
     pin_vertices: list[tuple[int, int]] = field(default_factory=list)   # (vertex, line)
     pin_points: list[tuple[np.ndarray, int]] = field(default_factory=list)  # (point, line)
     skin: int | None = None       # glTF skin index; None: the file's only skin
+    extras: SolveExtras = field(default_factory=SolveExtras)  # contacts, dynamics, dropout
 
 
 def read_rig_file(path) -> RigFile:
@@ -114,6 +116,7 @@ def read_rig_file(path) -> RigFile:
     def fail(message, field_name, line):
         raise RigError(message, path=path, field=field_name, line=line)
 
+    extras = read_solve_extras(doc, lines, fail)  # takes its own keys out of doc
     for key in doc:
         if key not in TOP_KEYS:
             fail(f"unknown key (known: {sorted(TOP_KEYS)})", key, lines.key("", 0, key))
@@ -161,7 +164,7 @@ def read_rig_file(path) -> RigFile:
         else:
             fail("needs 'vertex' or 'point'", f"pin {i + 1}", line)
     return RigFile(path, name, mesh, skeleton, weights, calibration, tuple(fixed), solver,
-                   servo_map, pin_vertices, pin_points, skin)
+                   servo_map, pin_vertices, pin_points, skin, extras)
 
 
 def _read_solver(table, lines, fail) -> SolverOptions:

@@ -29,5 +29,6 @@ using PosValues = nb::ndarray<const float, nb::shape<-1, 3>, nb::c_contig, nb::d
 using ConstMatrixF = nb::ndarray<const float, nb::ndim<2>, nb::c_contig, nb::device::cpu>;
 using ConstMatrixD = nb::ndarray<const double, nb::ndim<2>, nb::c_contig, nb::device::cpu>;
 using ConstIndexVec = nb::ndarray<const int32_t, nb::ndim<1>, nb::c_contig, nb::device::cpu>;
+using ConstMatrixI = nb::ndarray<const int32_t, nb::ndim<2>, nb::c_contig, nb::device::cpu>;
 
 }  // namespace puppet

@@ -20,6 +20,19 @@
 // Relative joints (child c, parent p, rotation R): rows T[4c+i] - sum_k R[k,i] T[4p+k] = 0,
 // i = 0..2, added per frame by a Schur complement on the fixed-row factorisation:
 //   T = Tf - Z (A_R Tf),   Z = H A_R^T (A_R H A_R^T)^{-1}   (Tf: solution with fixed rows only).
+// Contacts (per-axis positional rows, e.g. a foot vertex at height 0 with x and z free): row
+// M_v T[:, c] = value for the axes c listed. The rows differ between the columns x, y, z, so each
+// column gets its own Schur complement (the relative rows plus that column's contact rows):
+//   T[:, c] = Tf[:, c] + Z_c (b_c - A_c Tf[:, c]),   Z_c = H A_c^T (A_c H A_c^T)^{-1};
+// rebuilt per frame with relative joints (their rows move), once otherwise.
+// Joint limits on free handles (child c, parent p; swing cone about the bone axis d and a twist
+// range about it): after each global step, the relative rotation R = polar(A_p^{-1} A_c) (A the
+// linear parts) is split into swing * twist about d; where either is out of range, the step is
+// projected onto the limit: the rows A_c = A_p R_lim (R_lim: R with both angles clamped) are
+// added by a second Schur complement on the relative-constrained factor H_1 (made per frame):
+//   T += H_1 A_L^T (A_L H_1 A_L^T)^{-1} (-A_L T),   H_1 = H - W_1 S_1^{-1} W_1^T.
+// Inside the limits nothing is added (the solve is unchanged). The last iteration is always a
+// plain step, so the returned T is within the limits. Not combined with contacts.
 // Anderson acceleration (window 5 by default) on T -> G(T); an accelerated point whose energy is above
 // the last accepted one is rejected for the plain step and the history restarts.
 //
@@ -53,8 +66,8 @@ class FastSolver {
 
   // full (kf,4,3), rel (kr,3,3), pos (kp,3), T (4m,3) in/out. Throws std::invalid_argument
   // on non-finite input. iterations >= 0; tol <= 0 means a fixed count.
-  void solve(const float* full, const float* rel, const float* pos, float* T, int iterations,
-             double tol, bool accelerate, bool record_history);
+  void solve(const float* full, const float* rel, const float* pos, const float* contact, float* T,
+             int iterations, double tol, bool accelerate, bool record_history);
 
   // Optional dynamics (secondary motion): the energy gains (1/h^2) |T - Tp|^2_{M~} - 2 tr(T^T F)
   // with the inertial prediction Tp = T1 + damping (T1 - T2) from the last two returned T.
@@ -63,6 +76,13 @@ class FastSolver {
   // The constructor's g, p2, h come from that factor; its q stays the static Q.
   void set_dynamics(const float* mass_h2, const float* hm, const float* hforce, const float* force,
                     float damping);
+  // Contacts: rows (kc, 4m) double, the vertex's LBS row M_v; axes (kc, 3) 0/1 per column.
+  // Call once before solving; solve() then takes contact values (kc, 3) (unused axes ignored).
+  void set_contacts(int kc, const double* rows, const int32_t* axes);
+  // Limits: child, parent (nl); axis (nl, 3) unit bone direction (model space, rest);
+  // bounds (nl, 3): swing max, twist min, twist max (radians).
+  void set_limits(int nl, const int32_t* child, const int32_t* parent, const double* axis, const double* bounds);
+  int active_limits() const { return active_; }  // limits projected in the last global step
   void reset_history() { have_prev_ = false; }
 
   const SolveStats& stats() const { return stats_; }
@@ -73,12 +93,17 @@ class FastSolver {
   size_t kf() const { return static_cast<size_t>(kf_); }
   size_t kp() const { return static_cast<size_t>(kp_); }
   size_t kr() const { return static_cast<size_t>(kr_); }
+  size_t kc() const { return static_cast<size_t>(kc_); }
 
  private:
   void set_values(const float* full, const float* rel, const float* pos);
   double local_step(const float* x, bool energy);  // S = K~^T x, R = polar; E(x) if energy
   void global_step(float* out);       // out = G R + Tb, then relative correction
+  void column_schur();                // per-column Z_c with contacts (see above)
+  void base_global_step(float* out);  // G R + Tb with the fixed, relative and contact rows
+  void project_limits(float* out);    // joint limits (see above)
   double quad_energy(const float* x);
+  bool converged(double E_old, double E, double tol, bool use_energy, bool accelerated) const;  // tolerance stop after an iteration
 
   int m_, r_, kf_, kp_, kr_, mp_, rp_, window_;
   std::vector<float> csm_, g_, p2_, q_;
@@ -91,11 +116,23 @@ class FastSolver {
   std::vector<float> tb_, z_;           // Tb (3 x mp), Z (3kr x mp)
   std::vector<double> w_, schur_;       // W (4m x 3kr), S (3kr x 3kr)
   std::vector<float> relR_;             // (kr, 3, 3)
+  // contacts
+  int kc_ = 0, ncmax_ = 0;
+  bool contacts_ready_ = false;
+  std::vector<double> crow64_, wc_, schurc_, cbuf_;  // rows (kc x 4m), W_c, S_c, scratch
+  std::vector<float> crow_, cval_, zc_, yc_;          // rows (kc x mp), values (kc x 3), Z_c, y
+  std::vector<int32_t> cidx_[3];                      // contacts constraining column c
+  // joint limits
+  int nl_ = 0, active_ = 0;
+  std::vector<int32_t> lchild_, lparent_, lact_;
+  std::vector<double> laxis_, lbound_, lrot_;          // (nl, 3), (nl, 3), active R_lim (nl, 9)
+  std::vector<double> wl_, h1_, sl_, yl_;               // W_L1, H_1 (4m x 4m), S_L, y
   // per-iteration
   std::vector<float> s_, rot_, vwarm_, qx_, y_;  // vwarm_: per-cluster Jacobi warm start
   double lin_ = 0.0;                    // sum_g tr(R_g^T C_g) from the last local step
   // Anderson
   std::vector<float> x_, gx_, f_, gprev_, fprev_, xacc_, dG_, dF_;
+  std::vector<float> xold_;  // T before the iteration (tolerance stop on the change in T)
   std::vector<double> gram_, gram_full_, rhs_, gamma_;  // gram_full_: by buffer slot
   std::vector<double> history_;
   SolveStats stats_;

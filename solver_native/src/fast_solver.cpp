@@ -13,6 +13,7 @@ namespace puppet {
 namespace {
 
 constexpr int kPad = 8;
+constexpr double kEnergyResolution = 4e-6;  // relative to c0: rounding of E in float32 data
 inline int round_up(int x) { return (x + kPad - 1) / kPad * kPad; }
 
 bool all_finite(const float* p, std::ptrdiff_t n) {
@@ -103,7 +104,7 @@ FastSolver::FastSolver(int m, int r, int kf, int kp, int kr, const float* csm, c
   qx_.assign(3 * static_cast<size_t>(mp_), 0.0f);
   y_.assign(static_cast<size_t>(std::max(nR, 1)) * 3, 0.0f);
   const size_t D = 3 * static_cast<size_t>(mp_);
-  for (auto* v : {&x_, &gx_, &f_, &gprev_, &fprev_, &xacc_}) v->assign(D, 0.0f);
+  for (auto* v : {&x_, &gx_, &f_, &gprev_, &fprev_, &xacc_, &xold_}) v->assign(D, 0.0f);
   dG_.assign(D * window_, 0.0f);
   dF_.assign(D * window_, 0.0f);
   gram_.assign(static_cast<size_t>(window_) * window_, 0.0);
@@ -114,6 +115,91 @@ FastSolver::FastSolver(int m, int r, int kf, int kp, int kr, const float* csm, c
   last_T_.assign(12 * static_cast<size_t>(m), 0.0f);
 }
 
+void FastSolver::set_contacts(int kc, const double* rows, const int32_t* axes) {
+  const int n4 = 4 * m_;
+  kc_ = kc;
+  crow64_.assign(rows, rows + static_cast<size_t>(kc) * n4);
+  crow_.assign(static_cast<size_t>(std::max(kc, 1)) * mp_, 0.0f);
+  for (int q = 0; q < kc; ++q)
+    for (int k = 0; k < n4; ++k) crow_[static_cast<size_t>(q) * mp_ + k] = static_cast<float>(rows[q * n4 + k]);
+  int most = 0;
+  for (int c = 0; c < 3; ++c) {
+    cidx_[c].clear();
+    for (int q = 0; q < kc; ++q)
+      if (axes[3 * q + c]) cidx_[c].push_back(q);
+    most = std::max(most, static_cast<int>(cidx_[c].size()));
+  }
+  ncmax_ = 3 * kr_ + most;
+  const size_t nm = static_cast<size_t>(std::max(ncmax_, 1));
+  wc_.assign(nm * n4, 0.0);
+  schurc_.assign(nm * nm, 0.0);
+  cbuf_.assign(nm, 0.0);
+  zc_.assign(3 * nm * mp_, 0.0f);
+  yc_.assign(nm, 0.0f);
+  cval_.assign(static_cast<size_t>(std::max(kc, 1)) * 3, 0.0f);
+  contacts_ready_ = false;
+  cache_valid_ = false;
+}
+
+void FastSolver::column_schur() {
+  const int n4 = 4 * m_, nR = 3 * kr_;
+  for (int c = 0; c < 3; ++c) {
+    const int nc = nR + static_cast<int>(cidx_[c].size());
+    float* zc = zc_.data() + static_cast<size_t>(c) * ncmax_ * mp_;
+    if (nc == 0) continue;
+    // W_c = H A_c^T: relative columns as in set_values, contact columns H M_v^T (H symmetric).
+    for (int qq = 0; qq < kr_; ++qq) {
+      const float* R = relR_.data() + 9 * qq;
+      for (int i = 0; i < 3; ++i) {
+        double* wcol = wc_.data() + static_cast<size_t>(3 * qq + i) * n4;
+        const double* hc = h_.data() + static_cast<size_t>(4 * child_[qq] + i) * n4;
+        for (int row = 0; row < n4; ++row) wcol[row] = hc[row];
+        for (int k = 0; k < 3; ++k) {
+          const double coef = R[3 * k + i];
+          const double* hp = h_.data() + static_cast<size_t>(4 * parent_[qq] + k) * n4;
+          for (int row = 0; row < n4; ++row) wcol[row] -= coef * hp[row];
+        }
+      }
+    }
+    for (int j = nR; j < nc; ++j) {
+      const double* a = crow64_.data() + static_cast<size_t>(cidx_[c][j - nR]) * n4;
+      double* wcol = wc_.data() + static_cast<size_t>(j) * n4;
+      for (int row = 0; row < n4; ++row) wcol[row] = 0.0;
+      for (int k = 0; k < n4; ++k) {
+        const double* hk = h_.data() + static_cast<size_t>(k) * n4;
+        for (int row = 0; row < n4; ++row) wcol[row] += a[k] * hk[row];
+      }
+    }
+    // S_c = A_c W_c.
+    for (int col = 0; col < nc; ++col) {
+      const double* wcol = wc_.data() + static_cast<size_t>(col) * n4;
+      for (int qq = 0; qq < kr_; ++qq) {
+        const float* R = relR_.data() + 9 * qq;
+        for (int i = 0; i < 3; ++i) {
+          double v = wcol[4 * child_[qq] + i];
+          for (int k = 0; k < 3; ++k) v -= static_cast<double>(R[3 * k + i]) * wcol[4 * parent_[qq] + k];
+          schurc_[static_cast<size_t>(col) * nc + 3 * qq + i] = v;
+        }
+      }
+      for (int j = nR; j < nc; ++j) {
+        const double* a = crow64_.data() + static_cast<size_t>(cidx_[c][j - nR]) * n4;
+        double v = 0.0;
+        for (int k = 0; k < n4; ++k) v += a[k] * wcol[k];
+        schurc_[static_cast<size_t>(col) * nc + j] = v;
+      }
+    }
+    if (!cholesky(schurc_.data(), nc))
+      throw std::invalid_argument(
+          "solve: the contacts and the other constraints are dependent (Schur complement not positive definite)");
+    for (int row = 0; row < n4; ++row) {
+      for (int j = 0; j < nc; ++j) cbuf_[j] = wc_[static_cast<size_t>(j) * n4 + row];
+      cholesky_solve(schurc_.data(), nc, cbuf_.data());
+      for (int j = 0; j < nc; ++j) zc[static_cast<size_t>(j) * mp_ + row] = static_cast<float>(cbuf_[j]);
+    }
+  }
+  contacts_ready_ = true;
+}
+
 void FastSolver::set_values(const float* full, const float* rel, const float* pos) {
   if (!all_finite(full, 12 * kf_)) throw std::invalid_argument("solve: values.full contains NaN or inf");
   if (!all_finite(rel, 9 * kr_)) throw std::invalid_argument("solve: values.relative contains NaN or inf");
@@ -122,8 +208,12 @@ void FastSolver::set_values(const float* full, const float* rel, const float* po
   std::fill(tb_.begin(), tb_.end(), 0.0f);
   if (kf_ > 0) k_->gemm3(p2_.data(), mp_, mp_, 4 * kf_, full, 3, 1, tb_.data(), mp_, true);
   if (kp_ > 0) k_->gemm3(p2_.data() + static_cast<size_t>(4 * kf_) * mp_, mp_, mp_, kp_, pos, 3, 1, tb_.data(), mp_, true);
+  if (kr_ > 0) std::memcpy(relR_.data(), rel, sizeof(float) * 9 * kr_);
+  if (kc_ > 0) {
+    if (kr_ > 0 || !contacts_ready_) column_schur();
+    return;
+  }
   if (kr_ == 0) return;
-  std::memcpy(relR_.data(), rel, sizeof(float) * 9 * kr_);
   const int n4 = 4 * m_, nR = 3 * kr_;
   // W = H A_R^T (column (q,i) = H[:,4c+i] - sum_k R[k][i] H[:,4p+k]).
   for (int qq = 0; qq < kr_; ++qq) {
@@ -163,6 +253,16 @@ void FastSolver::set_values(const float* full, const float* rel, const float* po
     for (int j = 0; j < nR; ++j) b[j] = w_[static_cast<size_t>(j) * n4 + row];
     cholesky_solve(schur_.data(), nR, b);
     for (int j = 0; j < nR; ++j) z_[static_cast<size_t>(j) * mp_ + row] = static_cast<float>(b[j]);
+    if (nl_ > 0) {  // H_1 = H - W S^{-1} W^T (symmetric; row `row` = column `row`)
+      double* h1 = h1_.data() + static_cast<size_t>(row) * n4;
+      const double* h = h_.data() + static_cast<size_t>(row) * n4;
+      for (int col = 0; col < n4; ++col) h1[col] = h[col];
+      for (int j = 0; j < nR; ++j) {
+        const double bj = b[j];
+        const double* wj = w_.data() + static_cast<size_t>(j) * n4;
+        for (int col = 0; col < n4; ++col) h1[col] -= bj * wj[col];
+      }
+    }
   }
 }
 
@@ -209,6 +309,25 @@ void FastSolver::set_dynamics(const float* mass_h2, const float* hm, const float
   cache_valid_ = false;
 }
 
+// Tolerance stop: a small non-negative energy decrease (relative to E_old) on a plain step, or a
+// change in T below tol: the plain step max |G(T) - T| relative to max |T| (with acceleration,
+// the plain residual at the previous iterate). A rise is never convergence: the first iteration
+// after the targets move raises the energy (the start point violated the new constraints).
+// The energy test is skipped where tol * E is below the energy's float32 resolution (~4e-6 c0):
+// there a "small non-negative decrease" is rounding noise, not convergence.
+bool FastSolver::converged(double E_old, double E, double tol, bool use_energy, bool accelerated) const {
+  const double drop = E_old - E, band = tol * std::fabs(E_old);
+  if (use_energy && band > kEnergyResolution * std::fabs(c0_) && drop >= 0.0 && drop <= band) return true;
+  float rmax = 0.0f, xmax = 0.0f;
+  const size_t D = 3 * static_cast<size_t>(mp_);
+  const float* stepped = accelerated ? gx_.data() : x_.data();
+  for (size_t i = 0; i < D; ++i) {
+    rmax = std::max(rmax, std::fabs(stepped[i] - xold_[i]));
+    xmax = std::max(xmax, std::fabs(x_[i]));
+  }
+  return rmax <= tol * std::max(xmax, 1e-30f);
+}
+
 double FastSolver::local_step(const float* x, bool energy) {
   const int rr = 3 * rp_;
   k_->gemm3_sparse(csm_.data(), rr, rr, tile_off_.data(), tile_k_.data(), x, 1, mp_, s_.data(), rr);
@@ -219,10 +338,257 @@ double FastSolver::local_step(const float* x, bool energy) {
   return quad_energy(x) - 2.0 * lin + c0_;
 }
 
+namespace {
+
+using Mat3 = double[3][3];
+
+bool inverse3(const Mat3& a, Mat3& inv) {
+  const double c00 = a[1][1] * a[2][2] - a[1][2] * a[2][1], c01 = a[1][2] * a[2][0] - a[1][0] * a[2][2],
+               c02 = a[1][0] * a[2][1] - a[1][1] * a[2][0];
+  const double det = a[0][0] * c00 + a[0][1] * c01 + a[0][2] * c02;
+  if (!(std::fabs(det) > 1e-300) || !std::isfinite(det)) return false;
+  const double id = 1.0 / det;
+  inv[0][0] = c00 * id;
+  inv[1][0] = c01 * id;
+  inv[2][0] = c02 * id;
+  inv[0][1] = (a[0][2] * a[2][1] - a[0][1] * a[2][2]) * id;
+  inv[1][1] = (a[0][0] * a[2][2] - a[0][2] * a[2][0]) * id;
+  inv[2][1] = (a[0][1] * a[2][0] - a[0][0] * a[2][1]) * id;
+  inv[0][2] = (a[0][1] * a[1][2] - a[0][2] * a[1][1]) * id;
+  inv[1][2] = (a[0][2] * a[1][0] - a[0][0] * a[1][2]) * id;
+  inv[2][2] = (a[0][0] * a[1][1] - a[0][1] * a[1][0]) * id;
+  return det > 0.0;
+}
+
+// Closest rotation by Higham's iteration X <- (X + X^{-T}) / 2 (det X > 0, near a rotation).
+bool polar3(Mat3& x) {
+  for (int it = 0; it < 12; ++it) {
+    Mat3 inv;
+    if (!inverse3(x, inv)) return false;
+    double change = 0.0;
+    for (int i = 0; i < 3; ++i)
+      for (int j = 0; j < 3; ++j) {
+        const double v = 0.5 * (x[i][j] + inv[j][i]);
+        change = std::max(change, std::fabs(v - x[i][j]));
+        x[i][j] = v;
+      }
+    if (change < 1e-12) break;
+  }
+  return true;
+}
+
+void quat_from(const Mat3& r, double q[4]) {  // q = (w, x, y, z)
+  const double tr = r[0][0] + r[1][1] + r[2][2];
+  if (tr > 0.0) {
+    const double s = 2.0 * std::sqrt(tr + 1.0);
+    q[0] = 0.25 * s;
+    q[1] = (r[2][1] - r[1][2]) / s;
+    q[2] = (r[0][2] - r[2][0]) / s;
+    q[3] = (r[1][0] - r[0][1]) / s;
+  } else if (r[0][0] > r[1][1] && r[0][0] > r[2][2]) {
+    const double s = 2.0 * std::sqrt(1.0 + r[0][0] - r[1][1] - r[2][2]);
+    q[0] = (r[2][1] - r[1][2]) / s;
+    q[1] = 0.25 * s;
+    q[2] = (r[0][1] + r[1][0]) / s;
+    q[3] = (r[0][2] + r[2][0]) / s;
+  } else if (r[1][1] > r[2][2]) {
+    const double s = 2.0 * std::sqrt(1.0 + r[1][1] - r[0][0] - r[2][2]);
+    q[0] = (r[0][2] - r[2][0]) / s;
+    q[1] = (r[0][1] + r[1][0]) / s;
+    q[2] = 0.25 * s;
+    q[3] = (r[1][2] + r[2][1]) / s;
+  } else {
+    const double s = 2.0 * std::sqrt(1.0 + r[2][2] - r[0][0] - r[1][1]);
+    q[0] = (r[1][0] - r[0][1]) / s;
+    q[1] = (r[0][2] + r[2][0]) / s;
+    q[2] = (r[1][2] + r[2][1]) / s;
+    q[3] = 0.25 * s;
+  }
+}
+
+void quat_mul(const double a[4], const double b[4], double out[4]) {
+  out[0] = a[0] * b[0] - a[1] * b[1] - a[2] * b[2] - a[3] * b[3];
+  out[1] = a[0] * b[1] + a[1] * b[0] + a[2] * b[3] - a[3] * b[2];
+  out[2] = a[0] * b[2] - a[1] * b[3] + a[2] * b[0] + a[3] * b[1];
+  out[3] = a[0] * b[3] + a[1] * b[2] - a[2] * b[1] + a[3] * b[0];
+}
+
+void matrix_from(const double q[4], double* r) {  // row-major 3x3
+  const double w = q[0], x = q[1], y = q[2], z = q[3];
+  r[0] = 1 - 2 * (y * y + z * z); r[1] = 2 * (x * y - z * w);     r[2] = 2 * (x * z + y * w);
+  r[3] = 2 * (x * y + z * w);     r[4] = 1 - 2 * (x * x + z * z); r[5] = 2 * (y * z - x * w);
+  r[6] = 2 * (x * z - y * w);     r[7] = 2 * (y * z + x * w);     r[8] = 1 - 2 * (x * x + y * y);
+}
+
+// Clamp rotation r to swing <= smax about axis d and twist in [tlo, thi]; false if inside.
+bool clamp_swing_twist(const Mat3& r, const double* d, double smax, double tlo, double thi, double* out) {
+  double q[4];
+  quat_from(r, q);
+  if (q[0] < 0.0)
+    for (double& v : q) v = -v;
+  const double s = q[1] * d[0] + q[2] * d[1] + q[3] * d[2];
+  const double tn = std::sqrt(q[0] * q[0] + s * s);
+  double twist = 0.0, qt[4] = {1.0, 0.0, 0.0, 0.0};
+  if (tn > 1e-12) {
+    qt[0] = q[0] / tn;
+    for (int i = 0; i < 3; ++i) qt[1 + i] = s * d[i] / tn;
+    twist = 2.0 * std::atan2(s / tn, qt[0]);
+  }
+  const double qt_conj[4] = {qt[0], -qt[1], -qt[2], -qt[3]};
+  double qs[4];
+  quat_mul(q, qt_conj, qs);
+  if (qs[0] < 0.0)
+    for (double& v : qs) v = -v;
+  const double sv = std::sqrt(qs[1] * qs[1] + qs[2] * qs[2] + qs[3] * qs[3]);
+  const double swing = 2.0 * std::atan2(sv, qs[0]);
+  const double twist_c = std::min(std::max(twist, tlo), thi), swing_c = std::min(swing, smax);
+  if (twist_c == twist && swing_c == swing) return false;
+  const double ct[4] = {std::cos(0.5 * twist_c), std::sin(0.5 * twist_c) * d[0], std::sin(0.5 * twist_c) * d[1],
+                        std::sin(0.5 * twist_c) * d[2]};
+  double cs[4] = {1.0, 0.0, 0.0, 0.0};
+  if (sv > 1e-12) {
+    const double k = std::sin(0.5 * swing_c) / sv;
+    cs[0] = std::cos(0.5 * swing_c);
+    cs[1] = qs[1] * k;
+    cs[2] = qs[2] * k;
+    cs[3] = qs[3] * k;
+  }
+  double qc[4];
+  quat_mul(cs, ct, qc);
+  matrix_from(qc, out);
+  return true;
+}
+
+}  // namespace
+
+void FastSolver::set_limits(int nl, const int32_t* child, const int32_t* parent, const double* axis,
+                            const double* bounds) {
+  nl_ = nl;
+  lchild_.assign(child, child + nl);
+  lparent_.assign(parent, parent + nl);
+  laxis_.assign(axis, axis + 3 * static_cast<size_t>(nl));
+  lbound_.assign(bounds, bounds + 3 * static_cast<size_t>(nl));
+  lact_.assign(std::max(nl, 1), 0);
+  lrot_.assign(9 * static_cast<size_t>(std::max(nl, 1)), 0.0);
+  const size_t nL = 3 * static_cast<size_t>(std::max(nl, 1)), n4 = 4 * static_cast<size_t>(m_);
+  wl_.assign(nL * n4, 0.0);
+  h1_.assign(kr_ > 0 ? n4 * n4 : 1, 0.0);
+  sl_.assign(nL * nL, 0.0);
+  yl_.assign(nL * 3, 0.0);
+}
+
+void FastSolver::project_limits(float* out) {
+  const int n4 = 4 * m_;
+  int a = 0;
+  for (int l = 0; l < nl_; ++l) {
+    Mat3 ap, ac, inv, x;
+    for (int i = 0; i < 3; ++i)
+      for (int j = 0; j < 3; ++j) {  // A[i][j] = T[4h + j, i]
+        ap[i][j] = out[i * mp_ + 4 * lparent_[l] + j];
+        ac[i][j] = out[i * mp_ + 4 * lchild_[l] + j];
+      }
+    if (!inverse3(ap, inv)) continue;
+    for (int i = 0; i < 3; ++i)
+      for (int j = 0; j < 3; ++j) x[i][j] = inv[i][0] * ac[0][j] + inv[i][1] * ac[1][j] + inv[i][2] * ac[2][j];
+    if (!polar3(x)) continue;
+    const double* b = lbound_.data() + 3 * l;
+    if (clamp_swing_twist(x, laxis_.data() + 3 * l, b[0], b[1], b[2], lrot_.data() + 9 * a)) lact_[a++] = l;
+  }
+  active_ = a;
+  if (a == 0) return;
+  const int nL = 3 * a;
+  // W_L1 = H_1 A_L^T: column (q, i) = H_1[:, 4c+i] - sum_k R[k][i] H_1[:, 4p+k], with H_1 the
+  // factor after this frame's relative rows (H itself without them).
+  const double* h1 = kr_ > 0 ? h1_.data() : h_.data();
+  for (int q = 0; q < a; ++q) {
+    const int l = lact_[q];
+    const double* R = lrot_.data() + 9 * q;
+    for (int i = 0; i < 3; ++i) {
+      double* wcol = wl_.data() + static_cast<size_t>(3 * q + i) * n4;
+      const double* hc = h1 + static_cast<size_t>(4 * lchild_[l] + i) * n4;
+      for (int row = 0; row < n4; ++row) wcol[row] = hc[row];
+      for (int k = 0; k < 3; ++k) {
+        const double coef = R[3 * k + i];
+        const double* hp = h1 + static_cast<size_t>(4 * lparent_[l] + k) * n4;
+        for (int row = 0; row < n4; ++row) wcol[row] -= coef * hp[row];
+      }
+    }
+  }
+  // S_L = A_L W_L1, y = -(A_L out) per column; out += W_L1 S_L^{-1} y.
+  for (int col = 0; col < nL; ++col) {
+    const double* wcol = wl_.data() + static_cast<size_t>(col) * n4;
+    for (int q = 0; q < a; ++q) {
+      const int l = lact_[q];
+      const double* R = lrot_.data() + 9 * q;
+      for (int i = 0; i < 3; ++i) {
+        double v = wcol[4 * lchild_[l] + i];
+        for (int k = 0; k < 3; ++k) v -= R[3 * k + i] * wcol[4 * lparent_[l] + k];
+        sl_[static_cast<size_t>(col) * nL + 3 * q + i] = v;
+      }
+    }
+  }
+  if (!cholesky(sl_.data(), nL)) {
+    active_ = 0;  // limits that the constraints already fix: nothing to project
+    return;
+  }
+  for (int c = 0; c < 3; ++c) {
+    float* oc = out + c * mp_;
+    double* y = yl_.data() + static_cast<size_t>(c) * nL;
+    for (int q = 0; q < a; ++q) {
+      const int l = lact_[q];
+      const double* R = lrot_.data() + 9 * q;
+      for (int i = 0; i < 3; ++i) {
+        double v = oc[4 * lchild_[l] + i];
+        for (int k = 0; k < 3; ++k) v -= R[3 * k + i] * oc[4 * lparent_[l] + k];
+        y[3 * q + i] = -v;
+      }
+    }
+    cholesky_solve(sl_.data(), nL, y);
+    for (int j = 0; j < nL; ++j) {
+      const double* wcol = wl_.data() + static_cast<size_t>(j) * n4;
+      for (int row = 0; row < n4; ++row) oc[row] += static_cast<float>(wcol[row] * y[j]);
+    }
+  }
+}
+
 void FastSolver::global_step(float* out) {
+  base_global_step(out);
+  if (nl_ > 0) project_limits(out);
+}
+
+void FastSolver::base_global_step(float* out) {
   const int rr = 3 * rp_;
   k_->gemm3(g_.data(), mp_, mp_, rr, rot_.data(), 1, rr, out, mp_, false);
   for (int i = 0; i < 3 * mp_; ++i) out[i] += tb_[i];
+  if (kc_ > 0) {
+    const int nR = 3 * kr_, n4 = 4 * m_;
+    for (int c = 0; c < 3; ++c) {
+      float* oc = out + c * mp_;
+      const int nc = nR + static_cast<int>(cidx_[c].size());
+      for (int qq = 0; qq < kr_; ++qq) {
+        const float* R = relR_.data() + 9 * qq;
+        for (int i = 0; i < 3; ++i) {
+          float v = oc[4 * child_[qq] + i];
+          for (int k = 0; k < 3; ++k) v -= R[3 * k + i] * oc[4 * parent_[qq] + k];
+          yc_[3 * qq + i] = -v;
+        }
+      }
+      for (int j = nR; j < nc; ++j) {
+        const int q = cidx_[c][j - nR];
+        const float* a = crow_.data() + static_cast<size_t>(q) * mp_;
+        double v = 0.0;
+        for (int k = 0; k < n4; ++k) v += static_cast<double>(a[k]) * oc[k];
+        yc_[j] = static_cast<float>(cval_[3 * q + c] - v);
+      }
+      const float* zc = zc_.data() + static_cast<size_t>(c) * ncmax_ * mp_;
+      for (int j = 0; j < nc; ++j) {
+        const float y = yc_[j];
+        const float* zj = zc + static_cast<size_t>(j) * mp_;
+        for (int row = 0; row < mp_; ++row) oc[row] += zj[row] * y;
+      }
+    }
+    return;
+  }
   if (kr_ == 0) return;
   // y = -(A_R out), then out += Z y.
   for (int qq = 0; qq < kr_; ++qq) {
@@ -238,11 +604,16 @@ void FastSolver::global_step(float* out) {
   k_->gemm3(z_.data(), mp_, mp_, 3 * kr_, y_.data(), 3, 1, out, mp_, true);
 }
 
-void FastSolver::solve(const float* full, const float* rel, const float* pos, float* T, int iterations,
-                       double tol, bool accelerate, bool record_history) {
+void FastSolver::solve(const float* full, const float* rel, const float* pos, const float* contact, float* T,
+                       int iterations, double tol, bool accelerate, bool record_history) {
   if (iterations < 0) throw std::invalid_argument("solve: iterations must be >= 0");
   if (!all_finite(T, 12 * m_))
     throw std::invalid_argument("solve: T contains NaN or inf (warm start from model.rest_T() instead)");
+  if (kc_ > 0 && nl_ > 0) throw std::invalid_argument("solve: joint limits are not supported together with contacts");
+  if (kc_ > 0) {
+    if (!all_finite(contact, 3 * kc_)) throw std::invalid_argument("solve: values.contact contains NaN or inf");
+    std::memcpy(cval_.data(), contact, sizeof(float) * 3 * kc_);
+  }
   set_values(full, rel, pos);
   const int n4 = 4 * m_;
   const size_t D = 3 * static_cast<size_t>(mp_);
@@ -284,7 +655,9 @@ void FastSolver::solve(const float* full, const float* rel, const float* pos, fl
   for (; it < iterations; ++it) {
     const double E_old = E;
     const bool last = it + 1 == iterations;
-    if (!accelerate) {
+    if (use_tol) std::memcpy(xold_.data(), x_.data(), D * sizeof(float));
+    bool accepted = false;  // an accelerated point was taken (its energy drop says nothing)
+    if (!accelerate || (nl_ > 0 && last)) {  // with limits the returned T comes from a plain step
       global_step(x_.data());
       E = local_step(x_.data(), need_energy || last);
     } else {
@@ -337,6 +710,7 @@ void FastSolver::solve(const float* full, const float* rel, const float* pos, fl
         if (Ea <= E_old) {
           std::swap(x_, xacc_);
           E = Ea;
+          accepted = true;
         } else {
           ++stats_.rejected;
           nh = 0;
@@ -350,10 +724,15 @@ void FastSolver::solve(const float* full, const float* rel, const float* pos, fl
       }
     }
     if (record_history && stats_.history_size < cap) history_[stats_.history_size++] = E;
-    if (use_tol && E_old - E <= tol * std::max(std::fabs(E_old), 1e-300)) {
+    if (use_tol && converged(E_old, E, tol, !accepted, accelerate)) {
       ++it;
       break;
     }
+  }
+  if (nl_ > 0 && accelerate && it > 0 && it < iterations) {
+    // Stopped early (tol) after an accelerated step: finish on a plain step inside the limits.
+    global_step(x_.data());
+    E = local_step(x_.data(), true);
   }
   stats_.iterations = it;
   stats_.energy = E;

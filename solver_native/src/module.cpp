@@ -57,8 +57,8 @@ FastSolver* make_solver(int m, int r, int kf, int kp, int kr, ConstMatrixF csm, 
                         rel_child.data(), rel_parent.data(), anderson_window, history_capacity);
 }
 
-void solve_py(FastSolver& s, FullValues full, ConstMat3Stack rel, PosValues pos, TransformsF T, int iterations,
-              double tol, bool accelerate, bool record_history) {
+void solve_py(FastSolver& s, FullValues full, ConstMat3Stack rel, PosValues pos, PosValues contact, TransformsF T,
+              int iterations, double tol, bool accelerate, bool record_history) {
   // Counts are checked by the Python facade against the pattern too; this guards the raw binding.
   if (T.shape(0) != 4 * static_cast<size_t>(s.m()))
     throw std::invalid_argument("solve: T has " + std::to_string(T.shape(0)) + " rows, expected 4m = " +
@@ -66,7 +66,8 @@ void solve_py(FastSolver& s, FullValues full, ConstMat3Stack rel, PosValues pos,
   if (full.shape(0) != s.kf()) throw std::invalid_argument(shape_msg("values.full", full.shape(0), s.kf()));
   if (rel.shape(0) != s.kr()) throw std::invalid_argument(shape_msg("values.relative", rel.shape(0), s.kr()));
   if (pos.shape(0) != s.kp()) throw std::invalid_argument(shape_msg("values.positional", pos.shape(0), s.kp()));
-  s.solve(full.data(), rel.data(), pos.data(), T.data(), iterations, tol, accelerate, record_history);
+  if (contact.shape(0) != s.kc()) throw std::invalid_argument(shape_msg("values.contact", contact.shape(0), s.kc()));
+  s.solve(full.data(), rel.data(), pos.data(), contact.data(), T.data(), iterations, tol, accelerate, record_history);
 }
 
 }  // namespace
@@ -108,7 +109,7 @@ NB_MODULE(_native, m) {
            nb::arg("p2"), nb::arg("q"), nb::arg("h"), nb::arg("c0"), nb::arg("rel_child"), nb::arg("rel_parent"),
            nb::arg("anderson_window") = 5, nb::arg("history_capacity") = 1024)
       .def("solve", &solve_py, nb::arg("full").noconvert(), nb::arg("relative").noconvert(),
-           nb::arg("positional").noconvert(), nb::arg("T").noconvert(), nb::arg("iterations"), nb::arg("tol"),
+           nb::arg("positional").noconvert(), nb::arg("contact").noconvert(), nb::arg("T").noconvert(), nb::arg("iterations"), nb::arg("tol"),
            nb::arg("accelerate"), nb::arg("record_history"), nb::call_guard<nb::gil_scoped_release>(),
            "Run FAST iterations, updating T (4m, 3) float32 in place (warm start from T).")
       .def("set_dynamics",
@@ -123,6 +124,31 @@ NB_MODULE(_native, m) {
            },
            nb::arg("mass_h2"), nb::arg("hm"), nb::arg("hforce"), nb::arg("force"), nb::arg("damping"),
            "Enable dynamics (see fast_solver.h): the solver's factor must be made with Q + M~/h^2.")
+      .def("set_contacts",
+           [](FastSolver& s, ConstMatrixD rows, ConstMatrixI axes) {
+             const size_t n4 = 4 * static_cast<size_t>(s.m());
+             if (rows.shape(1) != n4 || axes.shape(0) != rows.shape(0) || axes.shape(1) != 3)
+               throw std::invalid_argument("set_contacts: expected rows (kc, 4m) and axes (kc, 3)");
+             s.set_contacts(static_cast<int>(rows.shape(0)), rows.data(), axes.data());
+           },
+           nb::arg("rows"), nb::arg("axes"),
+           "Per-axis positional rows (contacts): rows (kc, 4m) float64 LBS rows, axes (kc, 3) int32 0/1.")
+      .def("set_limits",
+           [](FastSolver& s, ConstIndexVec child, ConstIndexVec parent, ConstMatrixD axis, ConstMatrixD bounds) {
+             const size_t nl = child.shape(0);
+             if (parent.shape(0) != nl || axis.shape(0) != nl || axis.shape(1) != 3 || bounds.shape(0) != nl ||
+                 bounds.shape(1) != 3)
+               throw std::invalid_argument("set_limits: expected child, parent (nl,), axis (nl, 3), bounds (nl, 3)");
+             for (size_t i = 0; i < nl; ++i)
+               if (child.data()[i] < 0 || child.data()[i] >= s.m() || parent.data()[i] < 0 ||
+                   parent.data()[i] >= s.m())
+                 throw std::invalid_argument("set_limits: handle index out of range");
+             s.set_limits(static_cast<int>(nl), child.data(), parent.data(), axis.data(), bounds.data());
+           },
+           nb::arg("child"), nb::arg("parent"), nb::arg("axis"), nb::arg("bounds"),
+           "Joint limits on free handles: axis (nl, 3) unit bone directions, bounds (nl, 3) radians "
+           "(swing max, twist min, twist max).")
+      .def_prop_ro("active_limits", &FastSolver::active_limits, "limits projected in the last global step")
       .def("reset_history", &FastSolver::reset_history,
            "Forget the inertia history: the next solve starts at rest (no velocity).")
       .def_prop_ro("stats", [](FastSolver& s) -> const SolveStats& { return s.stats(); },
