@@ -27,6 +27,11 @@ from puppet.render.skin_weights import TEXTURE_WIDTH, lbs_matrix, pack_weights
 
 SKINNING_MODES = ("gpu", "cpu")
 WEIGHT_LAYOUTS = ("auto", "dense", "pairs")
+#: Rows per block in the bounding box reduction of the skinned positions.
+BOX_BLOCK = 64
+#: Where FXAA filters: the character's rectangle on screen (the rest of the frame, ground and
+#: background, has no hard edge), or the whole frame.
+FXAA_REGIONS = ("character", "frame")
 #: Up to this many handles the weights go to the shader densely (13 vec4 attributes at most).
 DENSE_MAX_HANDLES = 52
 
@@ -75,7 +80,8 @@ class Renderer:
     context: a moderngl.Context to share (else an EGL context is created, owned and released
     with the renderer); weight_tolerance: drop weights with |w| <= this (0: only exact zeros,
     so the shader computes M @ T exactly); shadow_sphere_count, shadow_resolution: contact
-    shadow detail; bone_width_px: skeleton overlay width [px].
+    shadow detail; bone_width_px: skeleton overlay width [px]; fxaa_region: "character" (filter
+    only the rectangle on screen around the skinned mesh and its bones) or "frame".
 
     Per-frame state lives in preallocated arrays: `image` (height, width, 3) uint8 is the frame
     buffer draw() returns; skinned_positions() returns a view of the skinning pass's output.
@@ -104,6 +110,7 @@ class Renderer:
         shadow_sphere_count: int = 24,
         shadow_resolution: int = 128,
         bone_width_px: float = 5.0,
+        fxaa_region: str = "character",
     ):
         if skinning not in SKINNING_MODES:
             raise RenderInputError(f"skinning: expected one of {SKINNING_MODES}, got {skinning!r}")
@@ -201,7 +208,13 @@ class Renderer:
             [(self._vbo_rest, "3f", "in_position"), (self._vbo_normal, "3f", "in_normal"), *skin_content],
         )
         self._skinned = ctx.buffer(reserve=self.n * 24)  # (position, normal) per vertex
-        self._captured = np.zeros((self.n, 6), dtype=np.float32)
+        # Read-back of the skinning pass, padded to whole blocks of BOX_BLOCK rows (copies of row
+        # 0) so that the bounding box reduces along long contiguous rows (numpy reduces (n, 3)
+        # along axis 0 about 50x slower than along rows).
+        padded_rows = -(-self.n // BOX_BLOCK) * BOX_BLOCK
+        self._captured_padded = np.zeros((padded_rows, 6), dtype=np.float32)
+        self._captured = self._captured_padded[: self.n]
+        self._box_lanes = np.zeros((2, BOX_BLOCK * 6), dtype=np.float32)
         self._captured_positions = np.zeros((self.n, 3), dtype=np.float32)
         self._captured_normals = np.zeros((self.n, 3), dtype=np.float32)
 
@@ -285,6 +298,12 @@ class Renderer:
         # FXAA), then resolved (MSAA) or filtered (FXAA) into _resolved, which is read back.
         self.samples = 0 if samples <= 1 else min(int(samples), int(ctx.max_samples))
         self.fxaa = bool(fxaa)
+        if fxaa_region not in FXAA_REGIONS:
+            raise RenderInputError(f"fxaa_region: expected one of {FXAA_REGIONS}, got {fxaa_region!r}")
+        self.fxaa_region = fxaa_region
+        self._box = np.zeros((2, 3), dtype=np.float32)
+        self._corners = np.ones((8, 4), dtype=np.float32)
+        self._clip = np.zeros((8, 4), dtype=np.float32)
         if self.fxaa and self.samples:
             raise RenderInputError(f"fxaa: use it instead of MSAA (samples=0), got samples={samples}")
         size = (self.width, self.height)
@@ -408,7 +427,7 @@ class Renderer:
         return self._captured_normals
 
     def draw(self, T: np.ndarray, *, bones=None, bone_states=None, out: np.ndarray | None = None) -> np.ndarray:
-        """Render the character skinned by T and read it back.
+        """Render the character skinned by T and read it back: ``render`` then ``read``.
 
         T: (4m, 3) float32, rows 4j..4j+3 are handle j's 3x4 affine transform transposed
         (v' = [v 1] @ T[4j:4j+4]). bones: optional (b, 2, 3) rest heads and tails, bone i moves
@@ -417,6 +436,13 @@ class Renderer:
         Returns (height, width, 3) uint8 RGB, top row first: `out`, or the renderer's own
         `image` array, which the next draw overwrites.
         """
+        self.render(T, bones=bones, bone_states=bone_states)
+        return self.read(out)
+
+    def render(self, T: np.ndarray, *, bones=None, bone_states=None) -> None:
+        """Issue every pass of one frame (skinning, shadow, ground, mesh, bones, antialias) without
+        waiting for it: on llvmpipe this is the vertex work and triangle binning on the calling
+        thread; the rasterizer threads then fill the tiles while ``read`` waits. Arguments as draw's."""
         ctx = self.ctx
         blocks = self._upload(T)
         if self.skinning == "cpu":
@@ -455,9 +481,50 @@ class Renderer:
         if self.samples:
             ctx.copy_framebuffer(self._resolved, self._target)
         elif self.fxaa:
+            if self.fxaa_region == "character":
+                # Only the character and its bones have hard edges (the ground fades out
+                # smoothly): copy the frame, then filter only their rectangle on screen.
+                ctx.copy_framebuffer(self._resolved, self._target)
+                self._resolved.scissor = self._character_rect(bones is not None)
             self._resolved.use()
             self._aliased.use(location=2)
             self._fxaa_vao.render(moderngl.TRIANGLES, vertices=3)
+            self._resolved.scissor = None
+
+    def _character_rect(self, with_bones: bool) -> tuple[int, int, int, int]:
+        """(x, y, width, height) [px] of the framebuffer that holds every skinned vertex (their
+        bounding box's corners, projected) and the drawn bones, plus a margin for the filter."""
+        self._skinned.read_into(self._captured)
+        self._captured_padded[self.n:] = self._captured[0]
+        rows = self._captured_padded.reshape(-1, BOX_BLOCK * 6)
+        np.min(rows, axis=0, out=self._box_lanes[0])
+        np.max(rows, axis=0, out=self._box_lanes[1])
+        lanes = self._box_lanes.reshape(2, BOX_BLOCK, 6)
+        np.min(lanes[0, :, :3], axis=0, out=self._box[0])
+        np.max(lanes[1, :, :3], axis=0, out=self._box[1])
+        if with_bones and self._bone_instances is not None:
+            ends = self._bone_instances[:, :6].reshape(-1, 3)
+            np.minimum(self._box[0, :3], ends.min(axis=0), out=self._box[0, :3])
+            np.maximum(self._box[1, :3], ends.max(axis=0), out=self._box[1, :3])
+        corners = self._corners
+        corners[:, 0] = self._box[[0, 1, 0, 1, 0, 1, 0, 1], 0]
+        corners[:, 1] = self._box[[0, 0, 1, 1, 0, 0, 1, 1], 1]
+        corners[:, 2] = self._box[[0, 0, 0, 0, 1, 1, 1, 1], 2]
+        np.matmul(corners, self._view_proj_gl, out=self._clip)  # rows: clip coordinates
+        w = self._clip[:, 3]
+        if not np.all(w > 1e-6):  # a corner behind the camera: filter the whole frame
+            return (0, 0, self.width, self.height)
+        ndc = self._clip[:, :2] / w[:, None]
+        margin = 2.0 + (self.bone_width_px if with_bones else 0.0)
+        x0 = max(0, int(np.floor((ndc[:, 0].min() * 0.5 + 0.5) * self.width - margin)))
+        x1 = min(self.width, int(np.ceil((ndc[:, 0].max() * 0.5 + 0.5) * self.width + margin)))
+        y0 = max(0, int(np.floor((ndc[:, 1].min() * 0.5 + 0.5) * self.height - margin)))
+        y1 = min(self.height, int(np.ceil((ndc[:, 1].max() * 0.5 + 0.5) * self.height + margin)))
+        return (x0, y0, max(0, x1 - x0), max(0, y1 - y0))
+
+    def read(self, out: np.ndarray | None = None) -> np.ndarray:
+        """Wait for the frame ``render`` issued and read it back as (height, width, 3) uint8 RGB,
+        top row first, into ``out`` or the renderer's own ``image`` array."""
         image = self.image if out is None else out
         if image.shape != self.image.shape or image.dtype != np.uint8 or not image.flags.c_contiguous:
             raise RenderInputError(
