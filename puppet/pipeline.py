@@ -381,8 +381,10 @@ def run_live(pipeline: Pipeline, source, *, seconds: float | None = None,
 
 
 def run_frames(pipeline: Pipeline, readings: Iterable[Reading], *, sinks: Iterable = (),
-               on_frame: Callable[[Pipeline], None] | None = None) -> Summary:
+               on_frame: Callable[[Pipeline], None] | None = None,
+               should_stop: Callable[[], bool] = lambda: False) -> Summary:
     """Solve (and draw into ``sinks``) one frame per reading, as fast as possible: playback.
+    ``should_stop()`` (Ctrl-C, SIGTERM) ends it early, after a whole frame.
 
     Deterministic: the same readings give the same T on every run (fixed iterations, warm
     start from the rest pose, no wall clock in the path).
@@ -394,6 +396,8 @@ def run_frames(pipeline: Pipeline, readings: Iterable[Reading], *, sinks: Iterab
     start = time.monotonic()
     stages = StageClock()
     for reading in readings:
+        if should_stop():
+            break
         stages.lap("idle")  # reading the take
         not_ok += not reading.ok.all()
         pipeline.solve(reading)
