@@ -23,7 +23,8 @@ from puppet.render.contact_shadow import shadow_spheres
 from puppet.render.context import create_context
 from puppet.render.errors import RenderError, RenderInputError
 from puppet.render.overlay import BONE_CORNERS, rest_segments, state_color
-from puppet.render.skin_weights import TEXTURE_WIDTH, lbs_matrix, pack_weights
+from puppet.render.skin_weights import (TEXTURE_WIDTH, attribute_slots, check_weights, lbs_matrix,
+                                        pack_weights)
 
 SKINNING_MODES = ("gpu", "cpu")
 WEIGHT_LAYOUTS = ("auto", "dense", "pairs")
@@ -152,9 +153,10 @@ class Renderer:
         # about 3x faster per term on llvmpipe than per-vertex handle lookups); "pairs": each
         # vertex's nonzero (weight, handle) pairs in attribute slots, those that do not fit
         # spilled into a texture with per-vertex spans. Both are exact (only zeros are skipped).
-        packed = pack_weights(W, tolerance=weight_tolerance)
-        self.max_weights_per_vertex = packed.max_per_vertex
-        self.dropped_weight_abs_max = packed.dropped_abs_max
+        W = check_weights(W)
+        keep = np.abs(W) > weight_tolerance
+        self.max_weights_per_vertex = int(keep.sum(axis=1).max())
+        self.dropped_weight_abs_max = float(np.abs(W[~keep]).max()) if not keep.all() else 0.0
         self._vbo_rest = ctx.buffer(V.astype(np.float32))
         self._vbo_normal = ctx.buffer(_vertex_normals(V, F.astype(np.int64)))
         if weight_layout not in WEIGHT_LAYOUTS:
@@ -162,15 +164,18 @@ class Renderer:
         if weight_layout == "dense" and self.m > DENSE_MAX_HANDLES:
             raise RenderInputError(f"weight_layout: dense takes at most {DENSE_MAX_HANDLES} handles, W has {self.m}")
         if weight_layout == "auto":  # a dense term costs about a third of a pair's (no gathers)
-            weight_layout = "dense" if self.m <= min(DENSE_MAX_HANDLES, 3 * packed.slots) else "pairs"
+            slots = attribute_slots(self.max_weights_per_vertex)
+            weight_layout = "dense" if self.m <= min(DENSE_MAX_HANDLES, 3 * slots) else "pairs"
         self.weight_layout = weight_layout
         dense = weight_layout == "dense"
+        # Packing the pairs sorts every row (about 0.1 s for the critter): only when used.
+        packed = None if dense else pack_weights(W, tolerance=weight_tolerance)
         self._spill = not dense and packed.spilled > 0
         self._weight_buffers = []
         if dense:
             groups = -(-self.m // 4)
             dense_weights = np.zeros((self.n, 4 * groups), dtype=np.float32)
-            dense_weights[:, : self.m] = np.where(np.abs(W) > weight_tolerance, W, 0.0)
+            dense_weights[:, : self.m] = np.where(keep, W, 0.0)
             self._weight_buffers.append(ctx.buffer(dense_weights))
             skin_content = [
                 (self._weight_buffers[0], " ".join(["4f"] * groups), *[f"in_dense{g}" for g in range(groups)])
@@ -193,7 +198,8 @@ class Renderer:
                 skin_content.append((self._weight_buffers[-1], "2u", "in_span"))
             skin = shaders.skin_chunk(packed.slots, self._spill)
         self._ibo = ctx.buffer(F)
-        self._weights = ctx.texture((TEXTURE_WIDTH, packed.entries.shape[0]), 2, packed.entries, dtype="f4")
+        entries = np.zeros((1, TEXTURE_WIDTH, 2), np.float32) if packed is None else packed.entries
+        self._weights = ctx.texture((TEXTURE_WIDTH, entries.shape[0]), 2, entries, dtype="f4")
         self._weights.filter = (moderngl.NEAREST, moderngl.NEAREST)
         self._ubo = ctx.buffer(reserve=self._rows.nbytes)
         defines = dict(HANDLES=self.m, WEIGHTS_WIDTH=TEXTURE_WIDTH, WEIGHTS_SHIFT=TEXTURE_WIDTH.bit_length() - 1)
