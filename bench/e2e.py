@@ -15,7 +15,7 @@ its own process. Two cases, run in turns (a shared machine's load falls on both 
 
 ``--compare`` runs every case again with the settings before the issue-15 work (BASELINE:
 dense skinning of every handle, FXAA over the whole frame, the video encoder fed on the loop's
-thread with libx264's default preset), interleaved with the current ones, and reports current /
+thread with libx264's default preset, no late latching), interleaved with the current ones, and reports current /
 baseline ratios. ``first_frame_s`` here runs from the call of run_demo (setup: rig, hw_sim,
 reader, pipeline) to the first frame; ``puppet demo --json`` reports it from the command's start.
 ``cpu_ms_per_frame``: CPU time per frame of the loop's thread (the critical path), of this
@@ -48,8 +48,9 @@ from puppet.render.sinks import DEFAULT_PRESET  # noqa: E402
 #: Case name -> (video, antialias, overlay).
 CASES = {"plain": (False, "auto", False), "video-fxaa": (True, "fxaa", True)}
 #: Settings of run_demo / VideoSink before the issue-15 work, for --compare.
-BASELINE = {"render": {"weight_layout": "dense", "fxaa_region": "frame"}, "encoder": "inline", "preset": None}
-CURRENT = {"render": {}, "encoder": "thread", "preset": DEFAULT_PRESET}
+BASELINE = {"render": {"weight_layout": "dense", "fxaa_region": "frame"}, "encoder": "inline", "preset": None,
+            "latch_fps": None}
+CURRENT = {"render": {}, "encoder": "thread", "preset": DEFAULT_PRESET, "latch_fps": 60.0}
 
 
 class CountingSink:
@@ -92,7 +93,7 @@ def run_case(case: str, variant: str, args, folder: Path) -> dict:
                                height=args.size[1], iterations=args.iterations, overlay=overlay,
                                antialias=antialias, video_fps=args.fps, timing=True,
                                baud=1_000_000, rate_hz=args.rate, render_options=settings["render"],
-                               started_s=time.monotonic(), on_frame=on_frame)
+                               started_s=time.monotonic(), on_frame=on_frame, latch_fps=settings["latch_fps"])
     d = summary.as_dict()
     frames = max(1, d["frames"])
 

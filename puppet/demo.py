@@ -79,7 +79,7 @@ def run_demo(*, seconds: float, sinks_for: Callable[[Pipeline], list], faults=No
              latency_ms: int = 3, render_options: dict | None = None,
              should_stop: Callable[[], bool] = lambda: False,
              on_frame: Callable[[Summary], None] | None = None,
-             started_s: float | None = None) -> tuple[Summary, object]:
+             started_s: float | None = None, latch_fps: float | None = 60.0) -> tuple[Summary, object]:
     """Run the built-in character on hw_sim for ``seconds``; returns (summary, setup report).
 
     sinks_for: called with the ready Pipeline, returns the sinks to feed (e.g. a VideoSink).
@@ -88,7 +88,7 @@ def run_demo(*, seconds: float, sinks_for: Callable[[Pipeline], list], faults=No
     latency_ms: the SDK's latency assumption; 3 ms leaves the simulator (a process competing
         for the same cores as the renderer and the video encoder) room to answer late.
     render_options: more Renderer keywords (see Pipeline), for benchmarks.
-    should_stop: polled every frame (Ctrl-C, SIGTERM); started_s: see ``run_live``.
+    should_stop: polled every frame (Ctrl-C, SIGTERM); started_s, latch_fps: see ``run_live``.
 
     Order of setup: hw_sim forks its server first, while this process has no thread and no GL
     context (forking a process that has threads can deadlock the child); the reader process is
@@ -108,7 +108,7 @@ def run_demo(*, seconds: float, sinks_for: Callable[[Pipeline], list], faults=No
                 try:
                     summary = run_live(pipeline, source, seconds=seconds, sinks=sinks,
                                        video_fps=video_fps, should_stop=should_stop,
-                                       on_frame=on_frame, started_s=started_s)
+                                       on_frame=on_frame, started_s=started_s, latch_fps=latch_fps)
                 except BaseException:
                     for sink in sinks:  # an error or a second Ctrl-C: keep no half file
                         getattr(sink, "abort", sink.close)()

@@ -311,11 +311,46 @@ class VideoClock:
         return count
 
 
+class LateLatch:
+    """Late latching: when the loop has time to spare at ``min_fps``, wait briefly for a reading
+    newer than the newest in hand, so that the frame starts from a younger reading (lower
+    reading-to-frame latency, at the cost of the spare time).
+
+    min_fps: the frame rate to keep; period_s: the source's period between readings. It waits
+    only when a frame's own work (a running mean of solve..sinks) plus one period still fits
+    in 1 / min_fps and the newest reading is older than half a period; it waits one period
+    at most.
+    """
+
+    def __init__(self, min_fps: float, period_s: float):
+        self.budget_s = 1.0 / min_fps
+        self.period_s = period_s
+        self.work_s = self.budget_s  # no spare time assumed until frames have been measured
+
+    def note_work(self, seconds: float) -> None:
+        self.work_s += 0.1 * (seconds - self.work_s)
+
+    def top_up(self, source, batch: list) -> list:
+        """``batch`` plus any readings that came while waiting for a fresher one."""
+        if self.work_s + self.period_s > self.budget_s:
+            return batch
+        age_s = (time.monotonic_ns() - batch[-1].t_ns) / 1e9
+        if age_s < 0.5 * self.period_s:
+            return batch
+        deadline = time.monotonic() + self.period_s
+        while time.monotonic() < deadline:
+            newer = source.drain()
+            if newer:
+                return batch + newer
+            time.sleep(0.0002)
+        return batch
+
+
 def run_live(pipeline: Pipeline, source, *, seconds: float | None = None,
              sinks: Iterable = (), video_fps: float = 30.0, recorder=None,
              should_stop: Callable[[], bool] = lambda: False,
              on_frame: Callable[[Summary], None] | None = None,
-             started_s: float | None = None) -> Summary:
+             started_s: float | None = None, latch_fps: float | None = 60.0) -> Summary:
     """Run the live loop until ``seconds`` pass or ``should_stop()`` (e.g. Ctrl-C).
 
     source:   a started ReaderProcess or ReaderThread: ``drain()``, ``latest(timeout)`` and
@@ -325,6 +360,7 @@ def run_live(pipeline: Pipeline, source, *, seconds: float | None = None,
               repeated when the loop runs slower than the video); empty: solve only, no render.
     started_s: ``time.monotonic()`` when the work began, for ``Summary.first_frame_s``
               (None: the process's start, i.e. the command's).
+    latch_fps: late latching (``LateLatch``) while the loop keeps this frame rate; None: off.
     """
     sinks = list(sinks)
     render = bool(sinks) and pipeline.renderer is not None
@@ -333,6 +369,8 @@ def run_live(pipeline: Pipeline, source, *, seconds: float | None = None,
     start = time.monotonic()
     clock = VideoClock(video_fps, start)
     stages = StageClock()
+    rate_hz = getattr(source, "rate_hz", None)
+    latch = LateLatch(latch_fps, 1.0 / rate_hz) if latch_fps and rate_hz else None
     image = None
     while not should_stop():
         now = time.monotonic()
@@ -344,12 +382,15 @@ def run_live(pipeline: Pipeline, source, *, seconds: float | None = None,
             if newest is None:
                 continue
             batch = [newest]
+        if latch is not None:
+            batch = latch.top_up(source, batch)
         summary.readings += len(batch)
         if recorder is not None:
             for reading in batch:
                 recorder.write(reading)
         reading = batch[-1]
         stages.lap("idle")
+        work_start = time.perf_counter()
         stages.set("age", (time.monotonic_ns() - reading.t_ns) / 1e6)
         if not reading.ok.all():
             not_ok += 1
@@ -369,6 +410,8 @@ def run_live(pipeline: Pipeline, source, *, seconds: float | None = None,
                 for sink in sinks:
                     sink.write(image)
             stages.lap("sinks")
+        if latch is not None:
+            latch.note_work(time.perf_counter() - work_start)
         if on_frame is not None:
             on_frame(summary)
         stages.frame_done()
