@@ -33,6 +33,9 @@ BOX_BLOCK = 64
 #: Where FXAA filters: the character's rectangle on screen (the rest of the frame, ground and
 #: background, has no hard edge), or the whole frame.
 FXAA_REGIONS = ("character", "frame")
+#: How FXAA runs: "mark_edges" (edge pixels marked in the depth buffer, then the blur only
+#: there: on llvmpipe half the cost of one pass) or "one_pass" (every pixel tests and blurs).
+FXAA_PASSES = ("mark_edges", "one_pass")
 #: Up to this many handles the weights go to the shader densely (13 vec4 attributes at most).
 DENSE_MAX_HANDLES = 52
 
@@ -82,7 +85,8 @@ class Renderer:
     with the renderer); weight_tolerance: drop weights with |w| <= this (0: only exact zeros,
     so the shader computes M @ T exactly); shadow_sphere_count, shadow_resolution: contact
     shadow detail; bone_width_px: skeleton overlay width [px]; fxaa_region: "character" (filter
-    only the rectangle on screen around the skinned mesh and its bones) or "frame".
+    only the rectangle on screen around the skinned mesh and its bones) or "frame";
+    fxaa_passes: "mark_edges" or "one_pass" (see FXAA_PASSES).
 
     Per-frame state lives in preallocated arrays: `image` (height, width, 3) uint8 is the frame
     buffer draw() returns; skinned_positions() returns a view of the skinning pass's output.
@@ -112,6 +116,7 @@ class Renderer:
         shadow_resolution: int = 128,
         bone_width_px: float = 5.0,
         fxaa_region: str = "character",
+        fxaa_passes: str = "mark_edges",
     ):
         if skinning not in SKINNING_MODES:
             raise RenderInputError(f"skinning: expected one of {SKINNING_MODES}, got {skinning!r}")
@@ -307,6 +312,11 @@ class Renderer:
         if fxaa_region not in FXAA_REGIONS:
             raise RenderInputError(f"fxaa_region: expected one of {FXAA_REGIONS}, got {fxaa_region!r}")
         self.fxaa_region = fxaa_region
+        if fxaa_passes not in FXAA_PASSES:
+            raise RenderInputError(f"fxaa_passes: expected one of {FXAA_PASSES}, got {fxaa_passes!r}")
+        self.fxaa_passes = fxaa_passes
+        self._fxaa_vaos = []
+        self._fxaa_progs = []
         self._box = np.zeros((2, 3), dtype=np.float32)
         self._corners = np.ones((8, 4), dtype=np.float32)
         self._clip = np.zeros((8, 4), dtype=np.float32)
@@ -324,12 +334,16 @@ class Renderer:
             self._aliased.filter = (moderngl.LINEAR, moderngl.LINEAR)
             self._aliased.repeat_x = self._aliased.repeat_y = False
             self._target = ctx.framebuffer(self._aliased, ctx.depth_renderbuffer(size))
-            self._fxaa_prog = ctx.program(
-                vertex_shader=shaders.source(shaders.FXAA_VERTEX), fragment_shader=shaders.source(shaders.FXAA_FRAGMENT)
-            )
-            self._fxaa_prog["u_texel"].value = (1.0 / self.width, 1.0 / self.height)
-            self._fxaa_prog["u_image"].value = 2
-            self._fxaa_vao = ctx.vertex_array(self._fxaa_prog, [])
+            fragments = {"one_pass": [shaders.FXAA_FRAGMENT],
+                         "mark_edges": [shaders.FXAA_MARK_FRAGMENT, shaders.FXAA_BLUR_FRAGMENT]}[fxaa_passes]
+            self._fxaa_progs = [ctx.program(vertex_shader=shaders.source(shaders.FXAA_VERTEX),
+                                            fragment_shader=shaders.source(fragment)) for fragment in fragments]
+            for prog in self._fxaa_progs:
+                if "u_texel" in prog:  # the mark pass does not blur: no texel size
+                    prog["u_texel"].value = (1.0 / self.width, 1.0 / self.height)
+                prog["u_image"].value = 2
+            self._fxaa_vaos = [ctx.vertex_array(prog, []) for prog in self._fxaa_progs]
+            self._fxaa_vao = self._fxaa_vaos[-1]
         else:
             self._target = self._resolved
 
@@ -487,15 +501,37 @@ class Renderer:
         if self.samples:
             ctx.copy_framebuffer(self._resolved, self._target)
         elif self.fxaa:
-            if self.fxaa_region == "character":
-                # Only the character and its bones have hard edges (the ground fades out
-                # smoothly): copy the frame, then filter only their rectangle on screen.
-                ctx.copy_framebuffer(self._resolved, self._target)
-                self._resolved.scissor = self._character_rect(bones is not None)
-            self._resolved.use()
-            self._aliased.use(location=2)
+            self._antialias_fxaa(bones is not None)
+
+    def _antialias_fxaa(self, with_bones: bool) -> None:
+        """FXAA from the aliased texture into _resolved. With fxaa_region "character", only the
+        character's rectangle is filtered (the ground fades out smoothly: no hard edge) over a
+        copy of the frame; with fxaa_passes "mark_edges", a first pass marks edge pixels in the
+        depth buffer and the blur runs only there (the copy holds every other pixel)."""
+        ctx = self.ctx
+        partial = self.fxaa_region == "character" or len(self._fxaa_vaos) > 1
+        if partial:
+            ctx.copy_framebuffer(self._resolved, self._target)
+        if self.fxaa_region == "character":
+            self._resolved.scissor = self._character_rect(with_bones)
+        self._resolved.use()
+        self._aliased.use(location=2)
+        if len(self._fxaa_vaos) == 1:
             self._fxaa_vao.render(moderngl.TRIANGLES, vertices=3)
-            self._resolved.scissor = None
+        else:
+            mark, blur = self._fxaa_vaos
+            ctx.enable(moderngl.DEPTH_TEST)
+            ctx.depth_func = "1"  # always: the mark pass writes 0 on edges, 1 elsewhere
+            self._resolved.color_mask = (False, False, False, False)
+            mark.render(moderngl.TRIANGLES, vertices=3)
+            self._resolved.color_mask = (True, True, True, True)
+            self._resolved.depth_mask = False
+            ctx.depth_func = ">"  # the blur triangle at depth 0.5 passes over the marks only
+            blur.render(moderngl.TRIANGLES, vertices=3)
+            self._resolved.depth_mask = True
+            ctx.depth_func = "<"
+            ctx.disable(moderngl.DEPTH_TEST)
+        self._resolved.scissor = None
 
     def _character_rect(self, with_bones: bool) -> tuple[int, int, int, int]:
         """(x, y, width, height) [px] of the framebuffer that holds every skinned vertex (their
@@ -595,8 +631,7 @@ class Renderer:
             objects.append(self._vbo_positions)
         if self._bone_vao is not None:
             objects += [self._bone_vao, self._bone_vbo]
-        if self._fxaa_vao is not None:
-            objects += [self._fxaa_vao, self._fxaa_prog]
+        objects += self._fxaa_vaos + self._fxaa_progs
         for fbo in {id(self._target): self._target, id(self._resolved): self._resolved}.values():
             objects += list(fbo.color_attachments) + [fbo.depth_attachment, fbo]
         # Bind framebuffer 0 first: moderngl rebinds the current framebuffer after creating one, and
