@@ -486,13 +486,13 @@ class Renderer:
         self._target.clear(*self._background, 1.0)
         ctx.enable(moderngl.DEPTH_TEST)
         ctx.front_face = "cw"  # the vertical flip in the projection mirrors the winding
-        if self.ground:
-            self._occlusion_texture.use(location=1)
-            self._ground_vao.render(moderngl.TRIANGLES)
         if self.cull_back_faces:
             ctx.enable(moderngl.CULL_FACE)
         self._mesh_vao.render(moderngl.TRIANGLES)
         ctx.disable(moderngl.CULL_FACE)
+        if self.ground:  # after the mesh: the early depth test skips the ground it hides
+            self._occlusion_texture.use(location=1)
+            self._ground_vao.render(moderngl.TRIANGLES)
         if bones is not None:
             ctx.disable(moderngl.DEPTH_TEST)
             self._draw_bones(bones, bone_states, blocks)
