@@ -51,10 +51,11 @@ class Pipeline:
     iterations: FAST local/global iterations per frame (warm-started from the last frame).
     render:     build a Renderer (False for solve-only work: exports, records).
     width, height: frame size, pixels.
-    antialias:  'msaa' (4 samples), 'fxaa' (a filter pass over the character's rectangle on
-                screen), 'none', or 'auto': MSAA on a hardware GL, FXAA on a software rasterizer
-                (Mesa llvmpipe), where MSAA triples the mesh pass and FXAA costs a fraction of a
-                millisecond. A mode this GL cannot do raises RenderError naming those it can.
+    antialias:  'msaa' (4 samples), 'fxaa' (a filter over the character's rectangle on screen,
+                blurring only the edge pixels), 'none', or 'auto': MSAA on a hardware GL, FXAA on
+                a software rasterizer (Mesa llvmpipe), where MSAA triples the mesh pass and FXAA
+                costs about 2.5 ms of CPU at 640x480, spread over the rasterizer's threads. A mode
+                this GL cannot do raises RenderError naming those it can.
     overlay:    draw the skeleton with bones coloured by state.
     render_options: more Renderer keywords (weight_layout, fxaa_region, ...), for benchmarks.
 
