@@ -103,6 +103,8 @@ def run_demo(*, seconds: float, sinks_for: Callable[[Pipeline], list], faults=No
         try:
             with Pipeline(rig, iterations=iterations, width=width, height=height, overlay=overlay,
                           antialias=antialias, render_options=render_options) as pipeline:
+                if pipeline.renderer is not None:
+                    pipeline.draw()  # compiles the shaders (llvmpipe: at first use) while the reader starts
                 report = starting.wait()
                 sinks = sinks_for(pipeline)
                 try:
