@@ -10,11 +10,14 @@ from __future__ import annotations
 import math
 import threading
 from collections.abc import Callable
+from typing import TYPE_CHECKING
 
 import hw_sim
 from puppet.bus.reader_process import ReaderProcess
-from puppet.pipeline import Pipeline, Summary, run_live
 from puppet.rig import Rig, builtin
+
+if TYPE_CHECKING:
+    from puppet.pipeline import Pipeline, Summary
 
 TICKS_PER_TURN = 4096
 
@@ -100,6 +103,10 @@ def run_demo(*, seconds: float, sinks_for: Callable[[Pipeline], list], faults=No
     with hw_sim.serve(models, motion=Performance(rig), faults=faults, timing=timing, baud=baud) as bus:
         source = ReaderProcess(bus.link, models, rate_hz=rate_hz, baud=baud, latency_ms=latency_ms)
         starting = _Starting(source)
+        # Imported only now: the solver and renderer imports (scipy, moderngl) then overlap with
+        # the reader process's own start.
+        from puppet.pipeline import Pipeline, run_live
+
         try:
             with Pipeline(rig, iterations=iterations, width=width, height=height, overlay=overlay,
                           antialias=antialias, render_options=render_options) as pipeline:
