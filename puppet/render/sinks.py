@@ -87,7 +87,9 @@ class VideoSink:
     quality / 10) for libx264). preset: libx264 preset (None: ffmpeg's default, 'medium').
     encoder: 'thread' (default): write() copies the frame into one of ``queue_frames``
     preallocated buffers and a thread of its own feeds ffmpeg's pipe, so a full pipe never stalls
-    the caller (until every buffer waits); 'inline': write() feeds the pipe itself.
+    the caller (until every buffer waits: 8 frames, a quarter second at 30 fps, absorb an
+    encoder's hiccup; an encoder slower than the frames on average slows the caller down, no
+    frame is dropped); 'inline': write() feeds the pipe itself.
 
     The video is written to a temporary file next to ``path`` and renamed to ``path`` when
     ffmpeg has finished it (``close``): a failed encoder (killed, disk full) never leaves a
@@ -96,7 +98,7 @@ class VideoSink:
 
     def __init__(self, path, fps: float = 30.0, *, size: tuple[int, int] | None = None, quality: float = 7.0,
                  codec: str = "libx264", preset: str | None = DEFAULT_PRESET, encoder: str = "thread",
-                 queue_frames: int = 3):
+                 queue_frames: int = 8):
         self.path = Path(path)
         if not fps > 0:
             raise SinkError(f"{self.path}: fps must be positive, got {fps}")
