@@ -4,8 +4,8 @@ Servo reading (hw_sim, timing model on, 1 Mbps, fast sync read) -> calibration -
 render (this machine's GL renderer: Mesa llvmpipe on CPU machines) -> frame, with the bus read in
 its own process. Two cases, run in turns (a shared machine's load falls on both alike):
 
-    plain:       640x480, antialias 'auto', no overlay, frames go to a sink that only counts them
-                 (the loop without the video encoder);
+    plain:       640x480, antialias 'auto' (FXAA on llvmpipe), no overlay, frames go to a sink
+                 that only counts them (the loop without the video encoder);
     video-fxaa:  ``puppet demo`` as the README runs it: FXAA, the bone overlay, an MP4 written
                  (``--video --antialias fxaa`` selects this case alone).
 
@@ -14,9 +14,10 @@ its own process. Two cases, run in turns (a shared machine's load falls on both 
     python bench/e2e.py --compare --rounds 3      # each case also with the baseline settings
 
 ``--compare`` runs every case again with the settings before the issue-15 work (BASELINE:
-dense skinning of every handle, FXAA in one pass over the whole frame, the video encoder fed on the loop's
-thread with libx264's default preset, no late latching), interleaved with the current ones, and reports current /
-baseline ratios. ``first_frame_s`` here runs from the call of run_demo (setup: rig, hw_sim,
+FXAA in one pass over the whole frame, the video encoder fed on the loop's thread with
+libx264's default preset, no late latching), interleaved with the current ones, and reports
+current / baseline ratios. (Dense skinning stays: the sparse "pairs" layout measured 2x slower
+on llvmpipe, see puppet/render/renderer.py.) ``first_frame_s`` here runs from the call of run_demo (setup: rig, hw_sim,
 reader, pipeline) to the first frame; ``puppet demo --json`` reports it from the command's start.
 ``cpu_ms_per_frame``: CPU time per frame of the loop's thread (the critical path), of this
 whole process (llvmpipe's rasterizer threads, the encoder thread) and of the child processes

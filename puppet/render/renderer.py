@@ -158,6 +158,10 @@ class Renderer:
         # about 3x faster per term on llvmpipe than per-vertex handle lookups); "pairs": each
         # vertex's nonzero (weight, handle) pairs in attribute slots, those that do not fit
         # spilled into a texture with per-vertex spans. Both are exact (only zeros are skipped).
+        # Measured on the critter (26 handles, 8.3 weights above 1e-6 per vertex, 18 at most):
+        # dense 1.5 ms of the loop thread's CPU per frame, pairs above 1e-6 3.0 ms; a per-vec4
+        # "skip zero weights" branch is 4x slower (llvmpipe runs both sides); splitting the
+        # vertices into ranges with few handles each needs 70+ draws for 0.6x the work.
         W = check_weights(W)
         keep = np.abs(W) > weight_tolerance
         self.max_weights_per_vertex = int(keep.sum(axis=1).max())
