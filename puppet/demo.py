@@ -8,12 +8,16 @@ within its limits, left and right half a cycle apart), reads it through the same
 from __future__ import annotations
 
 import math
+import threading
 from collections.abc import Callable
+from typing import TYPE_CHECKING
 
 import hw_sim
 from puppet.bus.reader_process import ReaderProcess
-from puppet.pipeline import Pipeline, Summary, run_live
 from puppet.rig import Rig, builtin
+
+if TYPE_CHECKING:
+    from puppet.pipeline import Pipeline, Summary
 
 TICKS_PER_TURN = 4096
 
@@ -42,12 +46,43 @@ class Performance:
         return zero + angle * scale
 
 
+class _Starting:
+    """``source.start()`` on a thread of its own, so that the reader's child process (spawned:
+    a fresh interpreter that imports the bus code and opens the port) gets going while this
+    process builds the pipeline. ``wait()`` returns the setup report or raises the start's error."""
+
+    def __init__(self, source):
+        self._source = source
+        self._result = None
+        self._error = None
+        self._thread = threading.Thread(target=self._run, name="puppet-reader-start", daemon=True)
+        self._thread.start()
+
+    def _run(self) -> None:
+        try:
+            self._result = self._source.start()
+        except BaseException as err:  # noqa: BLE001 - handed to wait(), raised there
+            self._error = err
+
+    def join(self) -> None:
+        """Wait for the start to end, whatever its outcome (before stopping the source)."""
+        self._thread.join()
+
+    def wait(self):
+        self._thread.join()
+        if self._error is not None:
+            raise self._error
+        return self._result
+
+
 def run_demo(*, seconds: float, sinks_for: Callable[[Pipeline], list], faults=None, width: int = 640,
              height: int = 480, iterations: int = 8, video_fps: float = 30.0, overlay: bool = True,
              antialias: str = "auto",
              timing: bool = True, baud: int = 1_000_000, rate_hz: float = 250.0,
-             latency_ms: int = 3,
-             on_frame: Callable[[Summary], None] | None = None) -> tuple[Summary, object]:
+             latency_ms: int = 3, render_options: dict | None = None,
+             should_stop: Callable[[], bool] = lambda: False,
+             on_frame: Callable[[Summary], None] | None = None,
+             started_s: float | None = None, latch_fps: float | None = 60.0) -> tuple[Summary, object]:
     """Run the built-in character on hw_sim for ``seconds``; returns (summary, setup report).
 
     sinks_for: called with the ready Pipeline, returns the sinks to feed (e.g. a VideoSink).
@@ -55,20 +90,41 @@ def run_demo(*, seconds: float, sinks_for: Callable[[Pipeline], list], faults=No
     rate_hz: bus readings per second (the reader process's steady rate).
     latency_ms: the SDK's latency assumption; 3 ms leaves the simulator (a process competing
         for the same cores as the renderer and the video encoder) room to answer late.
+    render_options: more Renderer keywords (see Pipeline), for benchmarks.
+    should_stop: polled every frame (Ctrl-C, SIGTERM); started_s, latch_fps: see ``run_live``.
+
+    Order of setup: hw_sim forks its server first, while this process has no thread and no GL
+    context (forking a process that has threads can deadlock the child); the reader process is
+    spawned (fork and exec at once, safe with threads) and opens the bus while the pipeline
+    (precompute, GL context, shaders) is built here.
     """
     rig = builtin()
     models = rig.servo_map.models
-    with Pipeline(rig, iterations=iterations, width=width, height=height, overlay=overlay,
-                  antialias=antialias) as pipeline:
-        with hw_sim.serve(models, motion=Performance(rig), faults=faults, timing=timing, baud=baud) as bus:
-            source = ReaderProcess(bus.link, models, rate_hz=rate_hz, baud=baud, latency_ms=latency_ms)
-            report = source.start()
-            sinks = sinks_for(pipeline)
-            try:
-                summary = run_live(pipeline, source, seconds=seconds, sinks=sinks,
-                                   video_fps=video_fps, on_frame=on_frame)
-            finally:
+    with hw_sim.serve(models, motion=Performance(rig), faults=faults, timing=timing, baud=baud) as bus:
+        source = ReaderProcess(bus.link, models, rate_hz=rate_hz, baud=baud, latency_ms=latency_ms)
+        starting = _Starting(source)
+        # Imported only now: the solver and renderer imports (scipy, moderngl) then overlap with
+        # the reader process's own start.
+        from puppet.pipeline import Pipeline, run_live
+
+        try:
+            with Pipeline(rig, iterations=iterations, width=width, height=height, overlay=overlay,
+                          antialias=antialias, render_options=render_options) as pipeline:
+                if pipeline.renderer is not None:
+                    pipeline.draw()  # compiles the shaders (llvmpipe: at first use) while the reader starts
+                report = starting.wait()
+                sinks = sinks_for(pipeline)
+                try:
+                    summary = run_live(pipeline, source, seconds=seconds, sinks=sinks,
+                                       video_fps=video_fps, should_stop=should_stop,
+                                       on_frame=on_frame, started_s=started_s, latch_fps=latch_fps)
+                except BaseException:
+                    for sink in sinks:  # an error or a second Ctrl-C: keep no half file
+                        getattr(sink, "abort", sink.close)()
+                    raise
                 for sink in sinks:
                     sink.close()
-                source.stop()
+        finally:
+            starting.join()
+            source.stop()
     return summary, report

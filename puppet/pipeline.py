@@ -12,6 +12,7 @@ Everything the per-frame path touches is allocated once in ``Pipeline.__init__``
 
 from __future__ import annotations
 
+import os
 import time
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
@@ -28,6 +29,22 @@ ANTIALIAS = ("auto", "msaa", "fxaa", "none")
 SOFTWARE_GL = ("llvmpipe", "softpipe", "swrast", "lavapipe")
 
 
+def resolve_antialias(antialias: str, gl_renderer: str, max_samples: int) -> str:
+    """The antialiasing mode to use on a GL: 'auto' becomes MSAA on a hardware GL and FXAA on a
+    software rasterizer; 'msaa' on a GL without multisampling (max_samples < 2) raises
+    RenderError naming the modes this GL can do."""
+    from puppet.render import RenderError
+
+    software = any(name in gl_renderer.lower() for name in SOFTWARE_GL)
+    available = ("msaa", "fxaa", "none") if max_samples >= 2 else ("fxaa", "none")
+    if antialias == "auto":
+        return "fxaa" if software or "msaa" not in available else "msaa"
+    if antialias not in available:
+        raise RenderError(f"antialias {antialias!r}: this GL ({gl_renderer}) cannot do it "
+                          f"(max samples {max_samples}); available: {', '.join(available)}")
+    return antialias
+
+
 class Pipeline:
     """Per-rig state that turns readings into solved transforms and rendered frames.
 
@@ -35,17 +52,21 @@ class Pipeline:
     iterations: FAST local/global iterations per frame (warm-started from the last frame).
     render:     build a Renderer (False for solve-only work: exports, records).
     width, height: frame size, pixels.
-    antialias:  'msaa' (4 samples), 'fxaa' (a cheap filter pass), 'none', or 'auto': MSAA on a
-                hardware GL, none on a software rasterizer (Mesa llvmpipe), where MSAA triples
-                the mesh pass and FXAA adds ~3 ms: live loops keep their frame rate and latency.
+    antialias:  'msaa' (4 samples), 'fxaa' (a filter over the character's rectangle on screen,
+                blurring only the edge pixels), 'none', or 'auto': MSAA on a hardware GL, FXAA on
+                a software rasterizer (Mesa llvmpipe), where MSAA triples the mesh pass and FXAA
+                costs about 2.5 ms of CPU at 640x480, spread over the rasterizer's threads. A mode
+                this GL cannot do raises RenderError naming those it can.
     overlay:    draw the skeleton with bones coloured by state.
+    render_options: more Renderer keywords (weight_layout, fxaa_region, ...), for benchmarks.
 
     Fields: model (FastModel), solver, values (the pattern's per-frame Values), T (4m, 3)
     float32 handle transforms, angles (k,) float64 radians in servo-map order, renderer.
     """
 
     def __init__(self, rig: Rig, *, iterations: int = 8, render: bool = True, width: int = 640,
-                 height: int = 480, antialias: str = "auto", overlay: bool = False):
+                 height: int = 480, antialias: str = "auto", overlay: bool = False,
+                 render_options: dict | None = None):
         if antialias not in ANTIALIAS:
             raise ValueError(f"antialias: {antialias!r} is not one of {ANTIALIAS}")
         options = rig.solver_options
@@ -77,18 +98,21 @@ class Pipeline:
         self.renderer = None
         self.antialias = "none"
         if render:
-            from puppet.render import Renderer, create_context
+            from puppet.render import RenderError, Renderer, create_context
             from puppet.render.context import gl_renderer_name
 
             self._context = create_context()
-            if antialias == "auto":
-                gl_name = gl_renderer_name(self._context).lower()
-                software = any(name in gl_name for name in SOFTWARE_GL)
-                antialias = "none" if software else "msaa"
+            try:
+                antialias = resolve_antialias(antialias, gl_renderer_name(self._context),
+                                              int(self._context.max_samples))
+            except RenderError:
+                self._context.release()
+                raise
             self.antialias = antialias
             self.renderer = Renderer(rig.V, rig.F, self.model.weights, width=width, height=height,
                                      samples=4 if antialias == "msaa" else 0,
-                                     fxaa=antialias == "fxaa", context=self._context)
+                                     fxaa=antialias == "fxaa", context=self._context,
+                                     **(render_options or {}))
 
     def solve(self, reading: Reading) -> np.ndarray:
         """Solve this reading's pose into ``self.T`` (in place) and return it.
@@ -119,12 +143,22 @@ class Pipeline:
             self.bone_states[bone] = "faulted"
 
     def draw(self) -> np.ndarray:
-        """Render the current T: (height, width, 3) uint8."""
+        """Render the current T: (height, width, 3) uint8 (``render`` then ``read``)."""
+        self.render()
+        return self.read()
+
+    def render(self) -> None:
+        """Issue the frame of the current T (skinning and every pass; see Renderer.render)."""
         if self.renderer is None:
             raise RuntimeError("Pipeline: built with render=False")
         if self.overlay:
-            return self.renderer.draw(self.T, bones=self.bone_segments, bone_states=self.bone_states)
-        return self.renderer.draw(self.T)
+            self.renderer.render(self.T, bones=self.bone_segments, bone_states=self.bone_states)
+        else:
+            self.renderer.render(self.T)
+
+    def read(self) -> np.ndarray:
+        """Wait for the issued frame and read it back: (height, width, 3) uint8."""
+        return self.renderer.read()
 
     def deformed(self) -> np.ndarray:
         """(n, 3) float64 deformed vertices V' = M T of the current T (CPU, for exports)."""
@@ -143,6 +177,57 @@ class Pipeline:
         self.close()
 
 
+#: The stages of one frame, in loop order (``Summary.stages_ms``, milliseconds per frame):
+#: age: how old the reading is when the loop takes it (bus timestamp to now); solve: servo map
+#: and FAST solve; draw: skinning and every render pass issued (on llvmpipe: the vertex work
+#: and triangle binning, on the loop's thread); readback: waiting for the rasterizer and copying
+#: the image; sinks: handing the frame to the sinks (video encoder, PNG files, live view);
+#: idle: the rest of the frame: waiting for a reading, draining the reader, recording, callbacks.
+#: A frame's latency is age + solve + draw + readback.
+STAGES = ("age", "solve", "draw", "readback", "sinks", "idle")
+
+
+class StageClock:
+    """Times the loop's stages, in one place: ``lap(stage)`` charges the time since the previous
+    lap to ``stage`` for the current frame; ``frame_done()`` files the frame's times into ``ms``
+    ({stage: [ms per frame]}); a stage not lapped in a frame counts 0 for it."""
+
+    def __init__(self):
+        self.ms: dict[str, list[float]] = {stage: [] for stage in STAGES}
+        self._frame = dict.fromkeys(STAGES, 0.0)
+        self._last = time.perf_counter_ns()
+
+    def lap(self, stage: str) -> None:
+        now = time.perf_counter_ns()
+        self._frame[stage] += (now - self._last) / 1e6
+        self._last = now
+
+    def set(self, stage: str, ms: float) -> None:
+        """A stage measured elsewhere (the reading's age), in milliseconds."""
+        self._frame[stage] = ms
+
+    def frame_done(self) -> None:
+        for stage, value in self._frame.items():
+            self.ms[stage].append(value)
+            self._frame[stage] = 0.0
+
+
+def process_age_s() -> float | None:
+    """Seconds since this process started (Linux /proc, 10 ms resolution); None elsewhere.
+    A command's time to its first frame is this, taken when the first frame is done."""
+    try:
+        with open("/proc/self/stat") as f:
+            fields = f.read().rsplit(")", 1)[1].split()
+        start_ticks = int(fields[19])  # field 22 of proc(5): starttime, clock ticks after boot
+        return time.clock_gettime(time.CLOCK_BOOTTIME) - start_ticks / os.sysconf("SC_CLK_TCK")
+    except (OSError, ValueError, IndexError, AttributeError):
+        return None
+
+
+def _stat(values: list[float], q: float) -> float:
+    return round(float(np.percentile(values, q)), 3) if values else float("nan")
+
+
 @dataclass
 class Summary:
     """What a run did. Latency runs from the servo reading's timestamp to the finished frame.
@@ -150,6 +235,8 @@ class Summary:
     frames: frames solved (and rendered, when rendering). seconds: wall time of the loop.
     readings: bus readings consumed. latency_ms: per frame. solver_us_per_iter: mean.
     faults: {kind: count} of bus events, plus 'servo_not_ok' readings with a flagged servo.
+    stages_ms: {stage: [ms per frame]} for each of STAGES (see there).
+    first_frame_s: seconds from the process's start (the command) to the first finished frame.
     """
 
     frames: int = 0
@@ -159,6 +246,8 @@ class Summary:
     solver_us_per_iter: float = 0.0
     iterations_per_frame: float = 0.0
     faults: dict[str, int] = field(default_factory=dict)
+    stages_ms: dict[str, list[float]] = field(default_factory=dict)
+    first_frame_s: float | None = None
 
     @property
     def fps(self) -> float:
@@ -166,6 +255,12 @@ class Summary:
 
     def percentile_ms(self, q: float) -> float:
         return float(np.percentile(self.latency_ms, q)) if self.latency_ms else float("nan")
+
+    def stage_stats(self) -> dict[str, dict[str, float]]:
+        """{stage: {"median", "p99", "mean"}} in milliseconds per frame."""
+        return {stage: {"median": _stat(ms, 50), "p99": _stat(ms, 99),
+                        "mean": round(float(np.mean(ms)), 3) if ms else float("nan")}
+                for stage, ms in self.stages_ms.items()}
 
     def as_dict(self) -> dict:
         return {
@@ -178,6 +273,8 @@ class Summary:
             "solver_us_per_iter": round(self.solver_us_per_iter, 3),
             "iterations_per_frame": round(self.iterations_per_frame, 2),
             "faults": dict(self.faults),
+            "stages_ms": self.stage_stats(),
+            "first_frame_s": None if self.first_frame_s is None else round(self.first_frame_s, 3),
         }
 
     def text(self) -> str:
@@ -186,6 +283,12 @@ class Summary:
         if self.latency_ms:  # live runs only: playback has no reading-to-frame latency
             lines.append(f"latency reading->frame: median {d['latency_median_ms']} ms, "
                          f"p99 {d['latency_p99_ms']} ms")
+        stages = d["stages_ms"]
+        if stages:
+            lines.append("stages ms median/p99: " + ", ".join(
+                f"{stage} {s['median']}/{s['p99']}" for stage, s in stages.items()))
+        if d["first_frame_s"] is not None:
+            lines.append(f"first frame {d['first_frame_s']} s after the command started")
         lines.append(f"solver: {d['solver_us_per_iter']} us/iteration, "
                      f"{d['iterations_per_frame']} iterations/frame")
         faults = ", ".join(f"{k} {v}" for k, v in sorted(d["faults"].items())) or "none"
@@ -217,10 +320,46 @@ class VideoClock:
         return count
 
 
+class LateLatch:
+    """Late latching: when the loop has time to spare at ``min_fps``, wait briefly for a reading
+    newer than the newest in hand, so that the frame starts from a younger reading (lower
+    reading-to-frame latency, at the cost of the spare time).
+
+    min_fps: the frame rate to keep; period_s: the source's period between readings. It waits
+    only when a frame's own work (a running mean of solve..sinks) plus one period still fits
+    in 1 / min_fps and the newest reading is older than half a period; it waits one period
+    at most.
+    """
+
+    def __init__(self, min_fps: float, period_s: float):
+        self.budget_s = 1.0 / min_fps
+        self.period_s = period_s
+        self.work_s = self.budget_s  # no spare time assumed until frames have been measured
+
+    def note_work(self, seconds: float) -> None:
+        self.work_s += 0.1 * (seconds - self.work_s)
+
+    def top_up(self, source, batch: list) -> list:
+        """``batch`` plus any readings that came while waiting for a fresher one."""
+        if self.work_s + self.period_s > self.budget_s:
+            return batch
+        age_s = (time.monotonic_ns() - batch[-1].t_ns) / 1e9
+        if age_s < 0.5 * self.period_s:
+            return batch
+        deadline = time.monotonic() + self.period_s
+        while time.monotonic() < deadline:
+            newer = source.drain()
+            if newer:
+                return batch + newer
+            time.sleep(0.0002)
+        return batch
+
+
 def run_live(pipeline: Pipeline, source, *, seconds: float | None = None,
              sinks: Iterable = (), video_fps: float = 30.0, recorder=None,
              should_stop: Callable[[], bool] = lambda: False,
-             on_frame: Callable[[Summary], None] | None = None) -> Summary:
+             on_frame: Callable[[Summary], None] | None = None,
+             started_s: float | None = None, latch_fps: float | None = 60.0) -> Summary:
     """Run the live loop until ``seconds`` pass or ``should_stop()`` (e.g. Ctrl-C).
 
     source:   a started ReaderProcess or ReaderThread: ``drain()``, ``latest(timeout)`` and
@@ -228,6 +367,9 @@ def run_live(pipeline: Pipeline, source, *, seconds: float | None = None,
               newest one is solved and drawn.
     sinks:    objects with ``write(image)`` fed at ``video_fps`` by wall clock (a frame is
               repeated when the loop runs slower than the video); empty: solve only, no render.
+    started_s: ``time.monotonic()`` when the work began, for ``Summary.first_frame_s``
+              (None: the process's start, i.e. the command's).
+    latch_fps: late latching (``LateLatch``) while the loop keeps this frame rate; None: off.
     """
     sinks = list(sinks)
     render = bool(sinks) and pipeline.renderer is not None
@@ -235,6 +377,9 @@ def run_live(pipeline: Pipeline, source, *, seconds: float | None = None,
     not_ok = 0
     start = time.monotonic()
     clock = VideoClock(video_fps, start)
+    stages = StageClock()
+    rate_hz = getattr(source, "rate_hz", None)
+    latch = LateLatch(latch_fps, 1.0 / rate_hz) if latch_fps and rate_hz else None
     image = None
     while not should_stop():
         now = time.monotonic()
@@ -246,25 +391,41 @@ def run_live(pipeline: Pipeline, source, *, seconds: float | None = None,
             if newest is None:
                 continue
             batch = [newest]
+        if latch is not None:
+            batch = latch.top_up(source, batch)
         summary.readings += len(batch)
         if recorder is not None:
             for reading in batch:
                 recorder.write(reading)
         reading = batch[-1]
+        stages.lap("idle")
+        work_start = time.perf_counter()
+        stages.set("age", (time.monotonic_ns() - reading.t_ns) / 1e6)
         if not reading.ok.all():
             not_ok += 1
         pipeline.solve(reading)
+        stages.lap("solve")
         if render:
-            image = pipeline.draw()
+            pipeline.render()
+            stages.lap("draw")
+            image = pipeline.read()
+            stages.lap("readback")
         summary.latency_ms.append((time.monotonic_ns() - reading.t_ns) / 1e6)
+        if summary.frames == 0:
+            summary.first_frame_s = process_age_s() if started_s is None else time.monotonic() - started_s
         summary.frames += 1
         if image is not None:
             for _ in range(clock.due(time.monotonic())):
                 for sink in sinks:
                     sink.write(image)
+            stages.lap("sinks")
+        if latch is not None:
+            latch.note_work(time.perf_counter() - work_start)
         if on_frame is not None:
             on_frame(summary)
+        stages.frame_done()
     summary.seconds = time.monotonic() - start
+    summary.stages_ms = stages.ms
     summary.faults = dict(source.log.counts)
     if not_ok:
         summary.faults["servo_not_ok"] = not_ok
@@ -272,8 +433,10 @@ def run_live(pipeline: Pipeline, source, *, seconds: float | None = None,
 
 
 def run_frames(pipeline: Pipeline, readings: Iterable[Reading], *, sinks: Iterable = (),
-               on_frame: Callable[[Pipeline], None] | None = None) -> Summary:
+               on_frame: Callable[[Pipeline], None] | None = None,
+               should_stop: Callable[[], bool] = lambda: False) -> Summary:
     """Solve (and draw into ``sinks``) one frame per reading, as fast as possible: playback.
+    ``should_stop()`` (Ctrl-C, SIGTERM) ends it early, after a whole frame.
 
     Deterministic: the same readings give the same T on every run (fixed iterations, warm
     start from the rest pose, no wall clock in the path).
@@ -283,18 +446,31 @@ def run_frames(pipeline: Pipeline, readings: Iterable[Reading], *, sinks: Iterab
     summary = Summary()
     not_ok = 0
     start = time.monotonic()
+    stages = StageClock()
     for reading in readings:
+        if should_stop():
+            break
+        stages.lap("idle")  # reading the take
         not_ok += not reading.ok.all()
         pipeline.solve(reading)
+        stages.lap("solve")
         if render:
-            image = pipeline.draw()
+            pipeline.render()
+            stages.lap("draw")
+            image = pipeline.read()
+            stages.lap("readback")
             for sink in sinks:
                 sink.write(image)
+            stages.lap("sinks")
         if on_frame is not None:
             on_frame(pipeline)
+        if summary.frames == 0:
+            summary.first_frame_s = process_age_s()
         summary.frames += 1
         summary.readings += 1
+        stages.frame_done()
     summary.seconds = time.monotonic() - start
+    summary.stages_ms = {stage: ms for stage, ms in stages.ms.items() if stage != "age"}
     if not_ok:
         summary.faults["servo_not_ok"] = not_ok  # flagged servos recorded in the take
     return _finish(summary, pipeline)

@@ -10,6 +10,8 @@ from pathlib import Path
 
 import click
 
+from puppet.errors import PuppetError
+
 
 def fail(message: str) -> None:
     """Exit 1 with 'Error: message' on stderr."""
@@ -48,31 +50,55 @@ def print_setup(report, port: str) -> None:
 
 
 class StopFlag:
-    """Set by SIGINT/SIGTERM so loops end cleanly and every sink is closed."""
+    """Set by SIGINT/SIGTERM so loops end cleanly and every sink is closed (a video gets its
+    index: playable). A second signal while stopping raises KeyboardInterrupt (forced stop:
+    outputs are then discarded, not left half written). ``signal_name`` names the first one."""
 
     def __init__(self):
         self.stop = False
+        self.signal_name: str | None = None
         signal.signal(signal.SIGINT, self._set)
         signal.signal(signal.SIGTERM, self._set)
 
-    def _set(self, *_):
+    def _set(self, signum, _frame):
+        if self.stop:
+            raise KeyboardInterrupt
         self.stop = True
+        self.signal_name = signal.Signals(signum).name
 
     def __call__(self) -> bool:
         return self.stop
 
 
-def make_sinks(out: str | None, frames: str | None, fps: float) -> list:
-    """Frame sinks for a video file and/or a PNG folder."""
+def make_sinks(out: str | None, frames: str | None, fps: float, inputs=()) -> list:
+    """Frame sinks for a video file and/or a PNG folder; the video may not be one of ``inputs``
+    (it is written to a temporary file and renamed into place when finished)."""
+    from puppet.atomic import check_output
     from puppet.render import PngSink, VideoSink
 
     sinks = []
     if out:
-        sinks.append(VideoSink(out, fps))
+        sinks.append(VideoSink(check_output(out, inputs=inputs, what="video"), fps))
     if frames:
         Path(frames).mkdir(parents=True, exist_ok=True)
         sinks.append(PngSink(frames))
     return sinks
+
+
+def close_sinks(sinks, *, failed: bool = False) -> None:
+    """Close every sink (finishing its file), or abort them after a failure (``failed``): no half
+    written video is renamed into place. The first sink error is raised after all are closed."""
+    error = None
+    for sink in sinks:
+        try:
+            if failed and hasattr(sink, "abort"):
+                sink.abort()
+            else:
+                sink.close()
+        except PuppetError as err:
+            error = error or err
+    if error is not None:
+        raise error
 
 
 def progress(seconds: float | None, label: str):

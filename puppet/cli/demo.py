@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import click
 
-from puppet.cli.common import Null, make_sinks, print_summary, progress
+from puppet.cli.common import Null, StopFlag, make_sinks, print_summary, progress
 
 
 @click.command()
@@ -16,7 +16,7 @@ from puppet.cli.common import Null, make_sinks, print_summary, progress
 @click.option("--size", default=(640, 480), type=(int, int), show_default=True, help="Frame size.")
 @click.option("--fps", default=30.0, show_default=True, help="Video frame rate.")
 @click.option("--antialias", type=click.Choice(["auto", "msaa", "fxaa", "none"]), default="auto",
-              show_default=True, help="auto: MSAA on a GPU, none on a software renderer.")
+              show_default=True, help="auto: MSAA on a GPU, FXAA on a software renderer.")
 @click.option("--json", "as_json", is_flag=True, help="Print the summary as JSON.")
 def demo(out: str, seconds: float, faults: str | None, size: tuple[int, int], fps: float,
          antialias: str, as_json: bool) -> None:
@@ -29,10 +29,11 @@ def demo(out: str, seconds: float, faults: str | None, size: tuple[int, int], fp
     from puppet.demo import run_demo
 
     bar, on_frame = progress(seconds, "demo")
+    stop = StopFlag()  # Ctrl-C or SIGTERM: stop after this frame, finish the video (playable)
     with bar if bar is not None else Null():
         summary, report = run_demo(seconds=seconds, faults=faults, width=size[0], height=size[1],
                                    video_fps=fps, on_frame=on_frame, antialias=antialias,
-                                   sinks_for=lambda _p: make_sinks(out, None, fps))
+                                   should_stop=stop, sinks_for=lambda _p: make_sinks(out, None, fps))
     print_summary(summary, as_json, extra={"video": out, "read_mode": report.read_mode})
 
 

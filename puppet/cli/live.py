@@ -18,7 +18,7 @@ from puppet.cli.common import StopFlag, load_rig, make_sinks, print_summary, sta
 @click.option("--seconds", default=None, type=float, help="Stop after this long (default: Ctrl-C).")
 @click.option("--fps", default=30.0, show_default=True, help="Video frame rate.")
 @click.option("--antialias", type=click.Choice(["auto", "msaa", "fxaa", "none"]), default="auto",
-              show_default=True, help="auto: MSAA on a GPU, none on a software renderer.")
+              show_default=True, help="auto: MSAA on a GPU, FXAA on a software renderer.")
 def live(rig_path: str, port: str, baud: int, take_path: str | None, out: str | None,
          frames: str | None, seconds: float | None, fps: float, antialias: str,
          force: bool) -> None:

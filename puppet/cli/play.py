@@ -6,7 +6,7 @@ import sys
 
 import click
 
-from puppet.cli.common import fail, make_sinks, open_take, print_summary
+from puppet.cli.common import StopFlag, close_sinks, fail, make_sinks, open_take, print_summary
 
 
 @click.command()
@@ -33,19 +33,23 @@ def play(take: str, rig_path: str | None, out: str | None, frames: str | None, s
     if not out and not frames:
         fail("nothing to write: give --out VIDEO and/or --frames FOLDER")
     rig, reader = open_take(take, rig_path)
-    sinks = make_sinks(out, frames, fps)
+    sinks = make_sinks(out, frames, fps, inputs=[take])
     ids = [int(i) for i in rig.servo_map.ids]
+    stop = StopFlag()  # Ctrl-C or SIGTERM: stop after this frame, finish the video (playable)
     try:
         with Pipeline(rig, overlay=True, antialias=antialias) as pipeline:
             clock = PlaybackClock(reader.readings(ids=ids), fps=fps, speed=speed)
             total = clock.frame_count(reader.t_last_ns - reader.t_first_ns)
             with click.progressbar(length=total, label="play", file=sys.stderr) as bar:
                 summary = run_frames(pipeline, (f.reading for f in clock), sinks=sinks,
-                                     on_frame=lambda _p: bar.update(1))
-    finally:
-        for sink in sinks:
-            sink.close()
+                                     on_frame=lambda _p: bar.update(1), should_stop=stop)
+    except BaseException:
+        close_sinks(sinks, failed=True)
+        raise
+    close_sinks(sinks)
+    if stop():
+        click.echo(f"stopped by {stop.signal_name} after {summary.frames} of {total} frames; "
+                   "the outputs hold those frames", err=True)
     print_summary(summary, False, extra={"take": take, "video": out} if out else {"take": take})
-
 
 COMMANDS = (play,)

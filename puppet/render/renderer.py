@@ -23,10 +23,19 @@ from puppet.render.contact_shadow import shadow_spheres
 from puppet.render.context import create_context
 from puppet.render.errors import RenderError, RenderInputError
 from puppet.render.overlay import BONE_CORNERS, rest_segments, state_color
-from puppet.render.skin_weights import TEXTURE_WIDTH, lbs_matrix, pack_weights
+from puppet.render.skin_weights import (TEXTURE_WIDTH, attribute_slots, check_weights, lbs_matrix,
+                                        pack_weights)
 
 SKINNING_MODES = ("gpu", "cpu")
 WEIGHT_LAYOUTS = ("auto", "dense", "pairs")
+#: Rows per block in the bounding box reduction of the skinned positions.
+BOX_BLOCK = 64
+#: Where FXAA filters: the character's rectangle on screen (the rest of the frame, ground and
+#: background, has no hard edge), or the whole frame.
+FXAA_REGIONS = ("character", "frame")
+#: How FXAA runs: "mark_edges" (edge pixels marked in the depth buffer, then the blur only
+#: there: on llvmpipe half the cost of one pass) or "one_pass" (every pixel tests and blurs).
+FXAA_PASSES = ("mark_edges", "one_pass")
 #: Up to this many handles the weights go to the shader densely (13 vec4 attributes at most).
 DENSE_MAX_HANDLES = 52
 
@@ -75,7 +84,9 @@ class Renderer:
     context: a moderngl.Context to share (else an EGL context is created, owned and released
     with the renderer); weight_tolerance: drop weights with |w| <= this (0: only exact zeros,
     so the shader computes M @ T exactly); shadow_sphere_count, shadow_resolution: contact
-    shadow detail; bone_width_px: skeleton overlay width [px].
+    shadow detail; bone_width_px: skeleton overlay width [px]; fxaa_region: "character" (filter
+    only the rectangle on screen around the skinned mesh and its bones) or "frame";
+    fxaa_passes: "mark_edges" or "one_pass" (see FXAA_PASSES).
 
     Per-frame state lives in preallocated arrays: `image` (height, width, 3) uint8 is the frame
     buffer draw() returns; skinned_positions() returns a view of the skinning pass's output.
@@ -104,6 +115,8 @@ class Renderer:
         shadow_sphere_count: int = 24,
         shadow_resolution: int = 128,
         bone_width_px: float = 5.0,
+        fxaa_region: str = "character",
+        fxaa_passes: str = "mark_edges",
     ):
         if skinning not in SKINNING_MODES:
             raise RenderInputError(f"skinning: expected one of {SKINNING_MODES}, got {skinning!r}")
@@ -145,9 +158,14 @@ class Renderer:
         # about 3x faster per term on llvmpipe than per-vertex handle lookups); "pairs": each
         # vertex's nonzero (weight, handle) pairs in attribute slots, those that do not fit
         # spilled into a texture with per-vertex spans. Both are exact (only zeros are skipped).
-        packed = pack_weights(W, tolerance=weight_tolerance)
-        self.max_weights_per_vertex = packed.max_per_vertex
-        self.dropped_weight_abs_max = packed.dropped_abs_max
+        # Measured on the critter (26 handles, 8.3 weights above 1e-6 per vertex, 18 at most):
+        # dense 1.5 ms of the loop thread's CPU per frame, pairs above 1e-6 3.0 ms; a per-vec4
+        # "skip zero weights" branch is 4x slower (llvmpipe runs both sides); splitting the
+        # vertices into ranges with few handles each needs 70+ draws for 0.6x the work.
+        W = check_weights(W)
+        keep = np.abs(W) > weight_tolerance
+        self.max_weights_per_vertex = int(keep.sum(axis=1).max())
+        self.dropped_weight_abs_max = float(np.abs(W[~keep]).max()) if not keep.all() else 0.0
         self._vbo_rest = ctx.buffer(V.astype(np.float32))
         self._vbo_normal = ctx.buffer(_vertex_normals(V, F.astype(np.int64)))
         if weight_layout not in WEIGHT_LAYOUTS:
@@ -155,15 +173,18 @@ class Renderer:
         if weight_layout == "dense" and self.m > DENSE_MAX_HANDLES:
             raise RenderInputError(f"weight_layout: dense takes at most {DENSE_MAX_HANDLES} handles, W has {self.m}")
         if weight_layout == "auto":  # a dense term costs about a third of a pair's (no gathers)
-            weight_layout = "dense" if self.m <= min(DENSE_MAX_HANDLES, 3 * packed.slots) else "pairs"
+            slots = attribute_slots(self.max_weights_per_vertex)
+            weight_layout = "dense" if self.m <= min(DENSE_MAX_HANDLES, 3 * slots) else "pairs"
         self.weight_layout = weight_layout
         dense = weight_layout == "dense"
+        # Packing the pairs sorts every row (about 0.1 s for the critter): only when used.
+        packed = None if dense else pack_weights(W, tolerance=weight_tolerance)
         self._spill = not dense and packed.spilled > 0
         self._weight_buffers = []
         if dense:
             groups = -(-self.m // 4)
             dense_weights = np.zeros((self.n, 4 * groups), dtype=np.float32)
-            dense_weights[:, : self.m] = np.where(np.abs(W) > weight_tolerance, W, 0.0)
+            dense_weights[:, : self.m] = np.where(keep, W, 0.0)
             self._weight_buffers.append(ctx.buffer(dense_weights))
             skin_content = [
                 (self._weight_buffers[0], " ".join(["4f"] * groups), *[f"in_dense{g}" for g in range(groups)])
@@ -186,7 +207,8 @@ class Renderer:
                 skin_content.append((self._weight_buffers[-1], "2u", "in_span"))
             skin = shaders.skin_chunk(packed.slots, self._spill)
         self._ibo = ctx.buffer(F)
-        self._weights = ctx.texture((TEXTURE_WIDTH, packed.entries.shape[0]), 2, packed.entries, dtype="f4")
+        entries = np.zeros((1, TEXTURE_WIDTH, 2), np.float32) if packed is None else packed.entries
+        self._weights = ctx.texture((TEXTURE_WIDTH, entries.shape[0]), 2, entries, dtype="f4")
         self._weights.filter = (moderngl.NEAREST, moderngl.NEAREST)
         self._ubo = ctx.buffer(reserve=self._rows.nbytes)
         defines = dict(HANDLES=self.m, WEIGHTS_WIDTH=TEXTURE_WIDTH, WEIGHTS_SHIFT=TEXTURE_WIDTH.bit_length() - 1)
@@ -201,7 +223,13 @@ class Renderer:
             [(self._vbo_rest, "3f", "in_position"), (self._vbo_normal, "3f", "in_normal"), *skin_content],
         )
         self._skinned = ctx.buffer(reserve=self.n * 24)  # (position, normal) per vertex
-        self._captured = np.zeros((self.n, 6), dtype=np.float32)
+        # Read-back of the skinning pass, padded to whole blocks of BOX_BLOCK rows (copies of row
+        # 0) so that the bounding box reduces along long contiguous rows (numpy reduces (n, 3)
+        # along axis 0 about 50x slower than along rows).
+        padded_rows = -(-self.n // BOX_BLOCK) * BOX_BLOCK
+        self._captured_padded = np.zeros((padded_rows, 6), dtype=np.float32)
+        self._captured = self._captured_padded[: self.n]
+        self._box_lanes = np.zeros((2, BOX_BLOCK * 6), dtype=np.float32)
         self._captured_positions = np.zeros((self.n, 3), dtype=np.float32)
         self._captured_normals = np.zeros((self.n, 3), dtype=np.float32)
 
@@ -285,6 +313,17 @@ class Renderer:
         # FXAA), then resolved (MSAA) or filtered (FXAA) into _resolved, which is read back.
         self.samples = 0 if samples <= 1 else min(int(samples), int(ctx.max_samples))
         self.fxaa = bool(fxaa)
+        if fxaa_region not in FXAA_REGIONS:
+            raise RenderInputError(f"fxaa_region: expected one of {FXAA_REGIONS}, got {fxaa_region!r}")
+        self.fxaa_region = fxaa_region
+        if fxaa_passes not in FXAA_PASSES:
+            raise RenderInputError(f"fxaa_passes: expected one of {FXAA_PASSES}, got {fxaa_passes!r}")
+        self.fxaa_passes = fxaa_passes
+        self._fxaa_vaos = []
+        self._fxaa_progs = []
+        self._box = np.zeros((2, 3), dtype=np.float32)
+        self._corners = np.ones((8, 4), dtype=np.float32)
+        self._clip = np.zeros((8, 4), dtype=np.float32)
         if self.fxaa and self.samples:
             raise RenderInputError(f"fxaa: use it instead of MSAA (samples=0), got samples={samples}")
         size = (self.width, self.height)
@@ -299,12 +338,16 @@ class Renderer:
             self._aliased.filter = (moderngl.LINEAR, moderngl.LINEAR)
             self._aliased.repeat_x = self._aliased.repeat_y = False
             self._target = ctx.framebuffer(self._aliased, ctx.depth_renderbuffer(size))
-            self._fxaa_prog = ctx.program(
-                vertex_shader=shaders.source(shaders.FXAA_VERTEX), fragment_shader=shaders.source(shaders.FXAA_FRAGMENT)
-            )
-            self._fxaa_prog["u_texel"].value = (1.0 / self.width, 1.0 / self.height)
-            self._fxaa_prog["u_image"].value = 2
-            self._fxaa_vao = ctx.vertex_array(self._fxaa_prog, [])
+            fragments = {"one_pass": [shaders.FXAA_FRAGMENT],
+                         "mark_edges": [shaders.FXAA_MARK_FRAGMENT, shaders.FXAA_BLUR_FRAGMENT]}[fxaa_passes]
+            self._fxaa_progs = [ctx.program(vertex_shader=shaders.source(shaders.FXAA_VERTEX),
+                                            fragment_shader=shaders.source(fragment)) for fragment in fragments]
+            for prog in self._fxaa_progs:
+                if "u_texel" in prog:  # the mark pass does not blur: no texel size
+                    prog["u_texel"].value = (1.0 / self.width, 1.0 / self.height)
+                prog["u_image"].value = 2
+            self._fxaa_vaos = [ctx.vertex_array(prog, []) for prog in self._fxaa_progs]
+            self._fxaa_vao = self._fxaa_vaos[-1]
         else:
             self._target = self._resolved
 
@@ -408,7 +451,7 @@ class Renderer:
         return self._captured_normals
 
     def draw(self, T: np.ndarray, *, bones=None, bone_states=None, out: np.ndarray | None = None) -> np.ndarray:
-        """Render the character skinned by T and read it back.
+        """Render the character skinned by T and read it back: ``render`` then ``read``.
 
         T: (4m, 3) float32, rows 4j..4j+3 are handle j's 3x4 affine transform transposed
         (v' = [v 1] @ T[4j:4j+4]). bones: optional (b, 2, 3) rest heads and tails, bone i moves
@@ -417,6 +460,13 @@ class Renderer:
         Returns (height, width, 3) uint8 RGB, top row first: `out`, or the renderer's own
         `image` array, which the next draw overwrites.
         """
+        self.render(T, bones=bones, bone_states=bone_states)
+        return self.read(out)
+
+    def render(self, T: np.ndarray, *, bones=None, bone_states=None) -> None:
+        """Issue every pass of one frame (skinning, shadow, ground, mesh, bones, antialias) without
+        waiting for it: on llvmpipe this is the vertex work and triangle binning on the calling
+        thread; the rasterizer threads then fill the tiles while ``read`` waits. Arguments as draw's."""
         ctx = self.ctx
         blocks = self._upload(T)
         if self.skinning == "cpu":
@@ -440,13 +490,13 @@ class Renderer:
         self._target.clear(*self._background, 1.0)
         ctx.enable(moderngl.DEPTH_TEST)
         ctx.front_face = "cw"  # the vertical flip in the projection mirrors the winding
-        if self.ground:
-            self._occlusion_texture.use(location=1)
-            self._ground_vao.render(moderngl.TRIANGLES)
         if self.cull_back_faces:
             ctx.enable(moderngl.CULL_FACE)
         self._mesh_vao.render(moderngl.TRIANGLES)
         ctx.disable(moderngl.CULL_FACE)
+        if self.ground:  # after the mesh: the early depth test skips the ground it hides
+            self._occlusion_texture.use(location=1)
+            self._ground_vao.render(moderngl.TRIANGLES)
         if bones is not None:
             ctx.disable(moderngl.DEPTH_TEST)
             self._draw_bones(bones, bone_states, blocks)
@@ -455,9 +505,72 @@ class Renderer:
         if self.samples:
             ctx.copy_framebuffer(self._resolved, self._target)
         elif self.fxaa:
-            self._resolved.use()
-            self._aliased.use(location=2)
+            self._antialias_fxaa(bones is not None)
+
+    def _antialias_fxaa(self, with_bones: bool) -> None:
+        """FXAA from the aliased texture into _resolved. With fxaa_region "character", only the
+        character's rectangle is filtered (the ground fades out smoothly: no hard edge) over a
+        copy of the frame; with fxaa_passes "mark_edges", a first pass marks edge pixels in the
+        depth buffer and the blur runs only there (the copy holds every other pixel)."""
+        ctx = self.ctx
+        partial = self.fxaa_region == "character" or len(self._fxaa_vaos) > 1
+        if partial:
+            ctx.copy_framebuffer(self._resolved, self._target)
+        if self.fxaa_region == "character":
+            self._resolved.scissor = self._character_rect(with_bones)
+        self._resolved.use()
+        self._aliased.use(location=2)
+        if len(self._fxaa_vaos) == 1:
             self._fxaa_vao.render(moderngl.TRIANGLES, vertices=3)
+        else:
+            mark, blur = self._fxaa_vaos
+            ctx.enable(moderngl.DEPTH_TEST)
+            ctx.depth_func = "1"  # always: the mark pass writes 0 on edges, 1 elsewhere
+            self._resolved.color_mask = (False, False, False, False)
+            mark.render(moderngl.TRIANGLES, vertices=3)
+            self._resolved.color_mask = (True, True, True, True)
+            self._resolved.depth_mask = False
+            ctx.depth_func = ">"  # the blur triangle at depth 0.5 passes over the marks only
+            blur.render(moderngl.TRIANGLES, vertices=3)
+            self._resolved.depth_mask = True
+            ctx.depth_func = "<"
+            ctx.disable(moderngl.DEPTH_TEST)
+        self._resolved.scissor = None
+
+    def _character_rect(self, with_bones: bool) -> tuple[int, int, int, int]:
+        """(x, y, width, height) [px] of the framebuffer that holds every skinned vertex (their
+        bounding box's corners, projected) and the drawn bones, plus a margin for the filter."""
+        self._skinned.read_into(self._captured)
+        self._captured_padded[self.n:] = self._captured[0]
+        rows = self._captured_padded.reshape(-1, BOX_BLOCK * 6)
+        np.min(rows, axis=0, out=self._box_lanes[0])
+        np.max(rows, axis=0, out=self._box_lanes[1])
+        lanes = self._box_lanes.reshape(2, BOX_BLOCK, 6)
+        np.min(lanes[0, :, :3], axis=0, out=self._box[0])
+        np.max(lanes[1, :, :3], axis=0, out=self._box[1])
+        if with_bones and self._bone_instances is not None:
+            ends = self._bone_instances[:, :6].reshape(-1, 3)
+            np.minimum(self._box[0, :3], ends.min(axis=0), out=self._box[0, :3])
+            np.maximum(self._box[1, :3], ends.max(axis=0), out=self._box[1, :3])
+        corners = self._corners
+        corners[:, 0] = self._box[[0, 1, 0, 1, 0, 1, 0, 1], 0]
+        corners[:, 1] = self._box[[0, 0, 1, 1, 0, 0, 1, 1], 1]
+        corners[:, 2] = self._box[[0, 0, 0, 0, 1, 1, 1, 1], 2]
+        np.matmul(corners, self._view_proj_gl, out=self._clip)  # rows: clip coordinates
+        w = self._clip[:, 3]
+        if not np.all(w > 1e-6):  # a corner behind the camera: filter the whole frame
+            return (0, 0, self.width, self.height)
+        ndc = self._clip[:, :2] / w[:, None]
+        margin = 2.0 + (self.bone_width_px if with_bones else 0.0)
+        x0 = max(0, int(np.floor((ndc[:, 0].min() * 0.5 + 0.5) * self.width - margin)))
+        x1 = min(self.width, int(np.ceil((ndc[:, 0].max() * 0.5 + 0.5) * self.width + margin)))
+        y0 = max(0, int(np.floor((ndc[:, 1].min() * 0.5 + 0.5) * self.height - margin)))
+        y1 = min(self.height, int(np.ceil((ndc[:, 1].max() * 0.5 + 0.5) * self.height + margin)))
+        return (x0, y0, max(0, x1 - x0), max(0, y1 - y0))
+
+    def read(self, out: np.ndarray | None = None) -> np.ndarray:
+        """Wait for the frame ``render`` issued and read it back as (height, width, 3) uint8 RGB,
+        top row first, into ``out`` or the renderer's own ``image`` array."""
         image = self.image if out is None else out
         if image.shape != self.image.shape or image.dtype != np.uint8 or not image.flags.c_contiguous:
             raise RenderInputError(
@@ -522,8 +635,7 @@ class Renderer:
             objects.append(self._vbo_positions)
         if self._bone_vao is not None:
             objects += [self._bone_vao, self._bone_vbo]
-        if self._fxaa_vao is not None:
-            objects += [self._fxaa_vao, self._fxaa_prog]
+        objects += self._fxaa_vaos + self._fxaa_progs
         for fbo in {id(self._target): self._target, id(self._resolved): self._resolved}.values():
             objects += list(fbo.color_attachments) + [fbo.depth_attachment, fbo]
         # Bind framebuffer 0 first: moderngl rebinds the current framebuffer after creating one, and

@@ -279,35 +279,57 @@ void main() {
 }
 """
 
-FXAA_FRAGMENT = """
+# The 3x3 neighbourhood's corners by unfiltered fetches (cheaper than filtered ones), their luma
+# range, and whether the pixel sits on an edge.
+FXAA_NEIGHBOURS = """
 uniform sampler2D u_image;
 uniform vec2 u_texel;            // 1 / (width, height)
 in vec2 v_uv;
 out vec4 f_color;
 const vec3 LUMA = vec3(0.299, 0.587, 0.114);
-void main() {
-    // The 3x3 neighbourhood's corners by unfiltered fetches (cheaper than filtered ones).
+vec3 center; float nw, ne, sw, se, lo, hi;
+bool on_edge() {
     ivec2 p = ivec2(gl_FragCoord.xy);
     ivec2 last = textureSize(u_image, 0) - 1;
-    vec3 center = texelFetch(u_image, p, 0).rgb;
-    float nw = dot(texelFetch(u_image, clamp(p + ivec2(-1, -1), ivec2(0), last), 0).rgb, LUMA);
-    float ne = dot(texelFetch(u_image, clamp(p + ivec2(1, -1), ivec2(0), last), 0).rgb, LUMA);
-    float sw = dot(texelFetch(u_image, clamp(p + ivec2(-1, 1), ivec2(0), last), 0).rgb, LUMA);
-    float se = dot(texelFetch(u_image, clamp(p + ivec2(1, 1), ivec2(0), last), 0).rgb, LUMA);
+    center = texelFetch(u_image, p, 0).rgb;
+    nw = dot(texelFetch(u_image, clamp(p + ivec2(-1, -1), ivec2(0), last), 0).rgb, LUMA);
+    ne = dot(texelFetch(u_image, clamp(p + ivec2(1, -1), ivec2(0), last), 0).rgb, LUMA);
+    sw = dot(texelFetch(u_image, clamp(p + ivec2(-1, 1), ivec2(0), last), 0).rgb, LUMA);
+    se = dot(texelFetch(u_image, clamp(p + ivec2(1, 1), ivec2(0), last), 0).rgb, LUMA);
     float m = dot(center, LUMA);
-    float lo = min(m, min(min(nw, ne), min(sw, se)));
-    float hi = max(m, max(max(nw, ne), max(sw, se)));
-    if (hi - lo < max(0.05, hi * 0.125)) {   // no edge here: keep the pixel
-        f_color = vec4(center, 1.0);
-        return;
-    }
-    // Blur along the edge: the direction perpendicular to the luma gradient.
+    lo = min(m, min(min(nw, ne), min(sw, se)));
+    hi = max(m, max(max(nw, ne), max(sw, se)));
+    return hi - lo >= max(0.05, hi * 0.125);
+}
+vec3 blur_along_edge() {
+    // The direction perpendicular to the luma gradient.
     vec2 dir = vec2(-((nw + ne) - (sw + se)), (nw + sw) - (ne + se));
     float reduce = max((nw + ne + sw + se) * (0.25 / 8.0), 1.0 / 128.0);
     dir = clamp(dir / (min(abs(dir.x), abs(dir.y)) + reduce), -8.0, 8.0) * u_texel;
     vec3 near = 0.5 * (texture(u_image, v_uv - dir / 6.0).rgb + texture(u_image, v_uv + dir / 6.0).rgb);
     vec3 far = 0.5 * near + 0.25 * (texture(u_image, v_uv - dir * 0.5).rgb + texture(u_image, v_uv + dir * 0.5).rgb);
     float far_luma = dot(far, LUMA);
-    f_color = vec4((far_luma < lo || far_luma > hi) ? near : far, 1.0);
+    return (far_luma < lo || far_luma > hi) ? near : far;
 }
+"""
+
+# One pass: every pixel tests for an edge and blurs there (llvmpipe shades both branches).
+FXAA_FRAGMENT = FXAA_NEIGHBOURS + """
+void main() {
+    if (!on_edge()) {   // no edge here: keep the pixel
+        f_color = vec4(center, 1.0);
+        return;
+    }
+    f_color = vec4(blur_along_edge(), 1.0);
+}
+"""
+
+# Two passes, for llvmpipe: the first marks edge pixels in the depth buffer (depth 0, else 1;
+# colour writes off), the second blurs with the depth test passing only there, so that the
+# rasterizer's early depth test skips the blur everywhere else (half the cost of one pass).
+FXAA_MARK_FRAGMENT = FXAA_NEIGHBOURS + """
+void main() { gl_FragDepth = on_edge() ? 0.0 : 1.0; f_color = vec4(center, 1.0); }
+"""
+FXAA_BLUR_FRAGMENT = FXAA_NEIGHBOURS + """
+void main() { on_edge(); f_color = vec4(blur_along_edge(), 1.0); }
 """

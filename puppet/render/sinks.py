@@ -1,15 +1,22 @@
-"""Frame sinks: numbered PNG files in a folder, or an MP4 video (H.264 via imageio-ffmpeg).
+"""Frame sinks: numbered PNG files in a folder, or an MP4 video (H.264 by imageio-ffmpeg's ffmpeg).
 
 Both take (height, width, 3) uint8 RGB images, top row first (what Renderer.draw returns),
-write each frame as it comes (nothing is buffered in memory), and close on `with` exit.
+write each frame as it comes (the video keeps at most a few frames queued for its encoder),
+and close on `with` exit.
 """
 
+import queue
+import subprocess
+import tempfile
+import threading
+from fractions import Fraction
 from pathlib import Path
 
 import imageio.v3 as iio
 import imageio_ffmpeg
 import numpy as np
 
+from puppet.atomic import commit, temporary_sibling
 from puppet.render.errors import SinkError
 
 
@@ -64,56 +71,175 @@ class PngSink:
         self.close()
 
 
+#: Encoder presets (libx264) measured on a 2-core machine, 640x480 demo frames at crf 15, CPU
+#: per frame [ms] / file size for 5 s: default (medium) 8.8 / 441 KiB, veryfast 4.2 / 414 KiB,
+#: superfast 3.5 / 1027 KiB, ultrafast 2.1 / 1396 KiB. veryfast: half the CPU of the default
+#: for the same size (bench/e2e.py), which a live loop on two cores needs.
+DEFAULT_PRESET = "veryfast"
+ENCODER_MODES = ("thread", "inline")
+
+
 class VideoSink:
-    """An MP4 file (H.264, yuv420p) at fps frames per second.
+    """An MP4 file (H.264, yuv420p) at fps frames per second, encoded by an ffmpeg process.
 
     size: (width, height) [px], or None to take it from the first frame; width and height must be
-    even (yuv420p). quality: 0 (worst) .. 10 (best), imageio-ffmpeg's scale.
+    even (yuv420p). quality: 0 (worst) .. 10 (best), imageio-ffmpeg's scale (crf = 51 (1 -
+    quality / 10) for libx264). preset: libx264 preset (None: ffmpeg's default, 'medium').
+    encoder: 'thread' (default): write() copies the frame into one of ``queue_frames``
+    preallocated buffers and a thread of its own feeds ffmpeg's pipe, so a full pipe never stalls
+    the caller (until every buffer waits: 8 frames, a quarter second at 30 fps, absorb an
+    encoder's hiccup; an encoder slower than the frames on average slows the caller down, no
+    frame is dropped); 'inline': write() feeds the pipe itself.
+
+    The video is written to a temporary file next to ``path`` and renamed to ``path`` when
+    ffmpeg has finished it (``close``): a failed encoder (killed, disk full) never leaves a
+    half file behind, and raises SinkError naming the file on the next write() or on close().
     """
 
     def __init__(self, path, fps: float = 30.0, *, size: tuple[int, int] | None = None, quality: float = 7.0,
-                 codec: str = "libx264"):
+                 codec: str = "libx264", preset: str | None = DEFAULT_PRESET, encoder: str = "thread",
+                 queue_frames: int = 8):
         self.path = Path(path)
         if not fps > 0:
             raise SinkError(f"{self.path}: fps must be positive, got {fps}")
         if not self.path.parent.is_dir():
             raise SinkError(f"{self.path}: folder {self.path.parent} does not exist")
+        if encoder not in ENCODER_MODES:
+            raise SinkError(f"{self.path}: encoder must be one of {ENCODER_MODES}, got {encoder!r}")
         self.fps = float(fps)
         self.quality = float(quality)
         self.codec = codec
+        self.preset = "medium" if preset in (None, "default") else preset
+        self.encoder = encoder
         self.count = 0
+        self._queue_frames = max(1, int(queue_frames))
+        self._temporary = temporary_sibling(self.path)
         self._size = None
-        self._writer = None
+        self._process = None
+        self._log = None
+        self._thread = None
+        self._error = None       # what went wrong with the encoder (a message), None while fine
+        self._reported = False   # the error was raised once already
         self._closed = False
         if size is not None:
             self._open(tuple(int(s) for s in size))
+
+    def _command(self, size: tuple[int, int]) -> list[str]:
+        crf = int((1 - self.quality / 10.0) * 51)
+        quality = ["-crf", str(crf), "-preset", self.preset] if self.codec == "libx264" else []
+        return [imageio_ffmpeg.get_ffmpeg_exe(), "-y", "-f", "rawvideo", "-pix_fmt", "rgb24",
+                "-s", f"{size[0]}x{size[1]}", "-r", str(Fraction(self.fps).limit_denominator()),
+                "-i", "-", "-an", "-vcodec", self.codec, "-pix_fmt", "yuv420p", *quality,
+                "-v", "error", str(self._temporary)]
 
     def _open(self, size: tuple[int, int]) -> None:
         if size[0] % 2 or size[1] % 2 or min(size) < 2:
             raise SinkError(f"{self.path}: video size {size[0]}x{size[1]} must be even in both directions (yuv420p)")
         self._size = size
-        self._writer = imageio_ffmpeg.write_frames(
-            str(self.path), size, fps=self.fps, quality=self.quality, codec=self.codec,
-            pix_fmt_in="rgb24", pix_fmt_out="yuv420p", macro_block_size=1,
-        )
-        self._writer.send(None)  # start ffmpeg
+        self._log = tempfile.TemporaryFile()
+        try:
+            # A session of its own: a Ctrl-C in the terminal goes to puppet, which then finishes
+            # the video, and not to ffmpeg (which would stop before writing the file's index).
+            self._process = subprocess.Popen(self._command(size), stdin=subprocess.PIPE, stdout=subprocess.DEVNULL,
+                                             stderr=self._log, start_new_session=True)
+        except OSError as err:
+            raise SinkError(f"{self.path}: cannot start the video encoder: {err}") from err
+        if self.encoder == "thread":
+            self._free = queue.Queue()
+            for _ in range(self._queue_frames):
+                self._free.put(np.empty((size[1], size[0], 3), np.uint8))
+            self._pending = queue.Queue()
+            self._thread = threading.Thread(target=self._pump, name="puppet-video-encoder", daemon=True)
+            self._thread.start()
+
+    def _feed(self, frame: np.ndarray) -> bool:
+        """Write one frame into ffmpeg's pipe (releases the GIL while it waits); False on failure."""
+        try:
+            self._process.stdin.write(memoryview(frame).cast("B"))
+            return True
+        except (BrokenPipeError, OSError, ValueError) as err:
+            self._error = self._error or f"the video encoder stopped taking frames ({err})"
+            return False
+
+    def _pump(self) -> None:
+        """The encoder thread: frames from the pending queue into the pipe, buffers back to the free list."""
+        while True:
+            frame = self._pending.get()
+            if frame is None:
+                return
+            if self._error is None:
+                self._feed(frame)
+            self._free.put(frame)
+
+    def _raise_error(self) -> None:
+        self._reported = True
+        raise SinkError(f"{self.path}: {self._error}{self._ffmpeg_says()}")
+
+    def _ffmpeg_says(self) -> str:
+        if self._log is None:
+            return ""
+        self._log.seek(0)
+        text = self._log.read().decode(errors="replace").strip()
+        return f"; ffmpeg: {text.splitlines()[-1]}" if text else ""
 
     def write(self, image: np.ndarray) -> None:
         """Append one frame (height, width, 3) uint8 of the sink's size."""
         if self._closed:
             raise SinkError(f"{self.path}: the sink is closed")
-        if self._writer is None:
+        if self._process is None:
             self._open(_check_frame(image, None, str(self.path)))
         _check_frame(image, self._size, str(self.path))
-        self._writer.send(np.ascontiguousarray(image))
+        if self._error is None and self._process.poll() is not None:
+            self._error = f"the video encoder exited (status {self._process.returncode}) before the end"
+        if self._error is not None:
+            self._raise_error()
+        if self._thread is None:
+            if not self._feed(np.ascontiguousarray(image)):
+                self._raise_error()
+        else:
+            frame = self._free.get()
+            np.copyto(frame, image)
+            self._pending.put(frame)
         self.count += 1
 
     def close(self) -> None:
-        """Finish the file (flushes ffmpeg); further writes raise SinkError."""
-        if self._writer is not None:
-            self._writer.close()
-            self._writer = None
+        """Finish the file: let ffmpeg write its index, then rename it into place. Raises SinkError
+        naming the file when the encoder failed (once: a later close does nothing)."""
+        if self._closed:
+            return
         self._closed = True
+        if self._process is None:
+            return
+        try:
+            if self._thread is not None:
+                self._pending.put(None)
+                self._thread.join()
+            try:
+                self._process.stdin.close()
+            except (BrokenPipeError, OSError) as err:
+                self._error = self._error or f"the video encoder stopped taking frames ({err})"
+            status = self._process.wait()
+            if self._error is None and status != 0:
+                self._error = f"the video encoder failed (status {status})"
+            if self._error is None:
+                try:
+                    commit(self._temporary, self.path)
+                except OSError as err:
+                    self._error = f"cannot finish the video file: {err}"
+            if self._error is not None and not self._reported:
+                self._raise_error()
+        finally:
+            self._temporary.unlink(missing_ok=True)
+            if self._log is not None:
+                self._log.close()
+
+    def abort(self) -> None:
+        """Stop the encoder now and remove the unfinished file (nothing is renamed into place)."""
+        if self._process is not None and self._process.poll() is None:
+            self._process.kill()
+        self._error = self._error or "aborted"
+        self._reported = True
+        self.close()
 
     def __enter__(self) -> "VideoSink":
         return self

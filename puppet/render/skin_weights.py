@@ -49,8 +49,8 @@ class PackedWeights:
     dropped_abs_max: float
 
 
-def pack_weights(W: np.ndarray, *, tolerance: float = 0.0) -> PackedWeights:
-    """Pack W (n, m) float: keep every w_ij with |w_ij| > tolerance, in row order."""
+def check_weights(W) -> np.ndarray:
+    """W as an array after checking it is a finite (n, m) matrix of numbers (RenderInputError)."""
     W = np.asarray(W)
     if W.ndim != 2 or W.shape[0] == 0 or W.shape[1] == 0:
         raise RenderInputError(f"W: expected a (n, m) weight matrix, got shape {W.shape}")
@@ -59,13 +59,25 @@ def pack_weights(W: np.ndarray, *, tolerance: float = 0.0) -> PackedWeights:
     if not np.all(np.isfinite(W)):
         bad = np.argwhere(~np.isfinite(W))[0]
         raise RenderInputError(f"W: non-finite weight at vertex {bad[0]}, handle {bad[1]}")
+    return W
+
+
+def attribute_slots(max_per_vertex: int) -> int:
+    """Pairs per vertex carried in attributes for rows of at most max_per_vertex nonzeros: whole
+    uvec4s of handle indices (multiples of 8), at least 8, at most MAX_SLOTS."""
+    return min(MAX_SLOTS, max(8, -(-int(max_per_vertex) // 8) * 8))
+
+
+def pack_weights(W: np.ndarray, *, tolerance: float = 0.0) -> PackedWeights:
+    """Pack W (n, m) float: keep every w_ij with |w_ij| > tolerance, in row order."""
+    W = check_weights(W)
     n, m = W.shape
     if m > 2**16:
         raise RenderInputError(f"W: {m} handles, at most 65536 are supported")
     keep = np.abs(W) > tolerance
     counts = keep.sum(axis=1)
     max_per_vertex = int(counts.max())
-    slots = min(MAX_SLOTS, max(8, -(-max_per_vertex // 8) * 8))  # whole uvec4s of handles
+    slots = attribute_slots(max_per_vertex)
     # Each row's kept pairs, largest |w| first; rank r of vertex i goes to slot r or spills.
     order = np.argsort(np.where(keep, -np.abs(W), np.inf), axis=1, kind="stable")
     ranked_w = np.take_along_axis(np.where(keep, W, 0.0), order, axis=1)

@@ -3,6 +3,7 @@
 import threading
 
 import numpy as np
+import pytest
 
 import hw_sim
 from puppet.bus import Reading
@@ -82,16 +83,28 @@ def test_playback_is_deterministic(critter):
     assert not np.allclose(runs[0][0], runs[0][-1])
 
 
-def test_antialias_auto_picks_no_msaa_on_a_software_renderer(critter):
+def test_antialias_auto_picks_fxaa_on_a_software_renderer(critter):
     with Pipeline(critter, width=64, height=48) as pipeline:
         software = "llvmpipe" in pipeline.renderer.gl_renderer
-        assert pipeline.antialias == ("none" if software else "msaa")
+        assert pipeline.antialias == ("fxaa" if software else "msaa")
+        assert pipeline.renderer.fxaa == software
         image = pipeline.draw()
         assert image.shape == (48, 64, 3)
 
 
-def test_antialias_must_be_known(critter):
-    import pytest
+def test_antialias_a_gl_cannot_do_names_what_it_can():
+    from puppet.pipeline import resolve_antialias
+    from puppet.render import RenderError
 
+    with pytest.raises(RenderError, match=r"antialias 'msaa': this GL \(some GL\) cannot do it "
+                                          r"\(max samples 1\); available: fxaa, none"):
+        resolve_antialias("msaa", "some GL", max_samples=1)
+    assert resolve_antialias("auto", "some GL", max_samples=1) == "fxaa"
+    assert resolve_antialias("auto", "NVIDIA H100", max_samples=8) == "msaa"
+    assert resolve_antialias("auto", "llvmpipe (LLVM 15.0.6, 256 bits)", max_samples=4) == "fxaa"
+    assert resolve_antialias("msaa", "llvmpipe (LLVM 15.0.6, 256 bits)", max_samples=4) == "msaa"
+
+
+def test_antialias_must_be_known(critter):
     with pytest.raises(ValueError, match="antialias"):
         Pipeline(critter, render=False, antialias="smooth")

@@ -86,3 +86,18 @@ def helpers():
     h.tube, h.two_bone_weights, h.rotation_z = tube, two_bone_weights, rotation_z
     h.handle_T, h.rotation_about, h.IDENTITY = handle_T, rotation_about, IDENTITY
     return h
+
+
+@pytest.fixture(scope="session")
+def posed_critter():
+    """The built-in critter (26 handles: 18 bones and 8 extra weights) and a T solved from a pose."""
+    from puppet.bus import Reading
+    from puppet.pipeline import Pipeline
+    from puppet.rig import builtin
+
+    rig = builtin()
+    pipeline = Pipeline(rig, render=False)
+    k = len(rig.servo_map)
+    ticks = (rig.servo_map.zero + 350 * np.sin(np.arange(k))).astype(np.int32)
+    pipeline.solve(Reading(0, rig.servo_map.ids, ticks, np.ones(k, bool)))
+    return rig, np.asarray(pipeline.model.weights), pipeline.T.copy(), pipeline.bone_segments

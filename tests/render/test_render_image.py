@@ -212,3 +212,23 @@ def test_two_renderers_sharing_a_context_do_not_disturb_each_other(gl_context, b
                 assert np.abs(interleaved.astype(int) - alone).max() <= 1
                 assert np.abs(second_interleaved.astype(int) - second_alone).max() <= 1
         assert np.abs(first.draw(T).astype(int) - alone).max() <= 1  # after the other one's release
+
+
+def test_fxaa_over_the_character_rectangle_equals_fxaa_over_the_frame(gl_context, posed_critter):
+    """FXAA filters only the character's rectangle on screen (the ground fades out smoothly),
+    blurring only the pixels its first pass marked as edges: the same image as one pass over
+    the whole frame, and the silhouette is still smoothed."""
+    rig, W, T, bones = posed_critter
+    images = {}
+    for name, options in {"frame": dict(fxaa=True, fxaa_region="frame", fxaa_passes="one_pass"),
+                          "character": dict(fxaa=True, fxaa_region="character", fxaa_passes="mark_edges"),
+                          "none": dict(fxaa=False)}.items():
+        with Renderer(rig.V, rig.F, W, width=320, height=240, samples=0, context=gl_context, **options) as renderer:
+            images[name] = renderer.draw(T, bones=bones).copy()
+            if name == "character":
+                x, y, w, h = renderer._character_rect(True)
+                assert 0 < w * h < 0.8 * 320 * 240  # a part of the frame, not all of it
+    difference = np.abs(images["character"].astype(int) - images["frame"].astype(int)).max(axis=2)
+    assert difference.max() <= 2
+    smoothed = np.abs(images["character"].astype(int) - images["none"].astype(int)).max(axis=2) > 8
+    assert smoothed.sum() > 100  # silhouette pixels blended by the filter

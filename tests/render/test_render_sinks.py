@@ -65,3 +65,39 @@ def test_sinks_refuse_bad_frames_and_sizes(tmp_path):
     with PngSink(tmp_path / "frames") as sink:
         with pytest.raises(SinkError, match=r"expected a \(height, width, 3\) uint8 RGB image, got float64"):
             sink.write(np.zeros((48, 64, 3)))
+
+
+def test_video_appears_only_when_finished_and_a_dead_encoder_is_an_error(tmp_path):
+    frame = np.full((48, 64, 3), 90, np.uint8)
+    path = tmp_path / "take.mp4"
+    video = VideoSink(path, fps=30)
+    video.write(frame)
+    assert not path.exists()  # written to a temporary sibling until close
+    video.close()
+    assert imageio_ffmpeg.count_frames_and_secs(str(path))[0] == 1
+
+    broken = tmp_path / "broken.mp4"
+    video = VideoSink(broken, fps=30)
+    video.write(frame)
+    video._process.kill()  # the encoder dies (killed, disk full) while frames still come
+    video._process.wait()
+    with pytest.raises(SinkError, match=r"broken\.mp4: the video encoder"):
+        for _ in range(100):  # the failure surfaces on a following write at the latest
+            video.write(frame)
+    video.close()  # reported once; close cleans up without raising again
+    assert not broken.exists()
+    assert [p.name for p in tmp_path.iterdir() if "partial" in p.name] == []
+
+
+@pytest.mark.parametrize("encoder", ["thread", "inline"])
+def test_both_encoder_modes_write_the_same_frames(tmp_path, encoder):
+    rng = np.random.default_rng(1)
+    frames = [np.repeat(np.repeat(rng.integers(0, 255, (6, 8, 3), np.uint8), 8, 0), 8, 1) for _ in range(5)]
+    path = tmp_path / f"{encoder}.mp4"
+    with VideoSink(path, fps=10, encoder=encoder) as video:
+        for f in frames:
+            video.write(f)
+    decoded = [np.frombuffer(raw, np.uint8).reshape(48, 64, 3) for raw in list(imageio_ffmpeg.read_frames(str(path)))[1:]]
+    assert len(decoded) == 5
+    for original, back in zip(frames, decoded):
+        assert np.abs(original.astype(float) - back.astype(float)).mean() < 6.0

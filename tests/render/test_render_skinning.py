@@ -124,3 +124,25 @@ def test_bad_T_and_bad_weights_name_the_field(gl_context, bar):
         Renderer(V, F + len(V), W, context=gl_context)
     with pytest.raises(RenderInputError, match="weight_layout: dense takes at most 52 handles, W has 60"):
         Renderer(V, F, np.ones((len(V), 60)), weight_layout="dense", context=gl_context)
+
+
+def test_sparse_skinning_gives_the_dense_vertices_and_image(gl_context, posed_critter):
+    """Weights above 1e-6 only, as (weight, handle) pairs, against every weight of every handle."""
+    rig, W, T, bones = posed_critter
+    diagonal = float(np.linalg.norm(rig.V.max(axis=0) - rig.V.min(axis=0)))
+    results = {}
+    for layout, tolerance in (("dense", 0.0), ("pairs", 1e-6)):
+        with Renderer(rig.V, rig.F, W, width=320, height=240, samples=0, fxaa=True, weight_layout=layout,
+                      weight_tolerance=tolerance, context=gl_context) as renderer:
+            assert renderer.weight_layout == layout
+            if layout == "pairs":
+                assert 0.0 < renderer.dropped_weight_abs_max <= 1e-6
+                assert renderer.max_weights_per_vertex < W.shape[1]
+            results[layout] = (renderer.skinned_positions(T).copy(), renderer.draw(T, bones=bones).copy())
+    dense_positions, dense_image = results["dense"]
+    sparse_positions, sparse_image = results["pairs"]
+    np.testing.assert_allclose(dense_positions, lbs_matrix(rig.V, W).astype(np.float64) @ T, atol=1e-5 * diagonal)
+    assert np.abs(sparse_positions - dense_positions).max() <= 1e-5 * diagonal
+    difference = np.abs(sparse_image.astype(int) - dense_image.astype(int)).max(axis=2)
+    assert difference.max() <= 16  # a pixel on a silhouette may round differently, nothing more
+    assert np.mean(difference > 2) < 1e-3
