@@ -14,8 +14,7 @@ import hw_sim
 from puppet.bus.reader_process import ReaderProcess
 from puppet.pipeline import Pipeline, Summary, run_live
 from puppet.rig import Rig, builtin
-
-TICKS_PER_TURN = 4096
+from puppet.servo_models import TICKS_PER_TURN
 
 
 class Performance:

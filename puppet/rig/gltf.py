@@ -160,6 +160,9 @@ def read_gltf(path) -> GltfCharacter:
     path = Path(path)
     if not path.exists():
         raise RigError("glTF file not found", path=path)
+    if path.suffix.lower() == ".glb" and path.is_file() and path.stat().st_size < 12:
+        raise RigError(f"{path.stat().st_size} bytes: too short for a binary glTF (12-byte header)",
+                       path=path)
     try:
         gltf = pygltflib.GLTF2.load(str(path))
     except (ValueError, KeyError, TypeError, OSError) as err:

@@ -11,7 +11,7 @@ import numpy as np
 from puppet.rig.calibration import Calibration
 from puppet.rig.errors import RigError
 from puppet.rig.rig import Rig
-from puppet.rig.rig_file import read_rig_file
+from puppet.rig.rig_file import RigFile, read_rig_file, read_rig_text
 from puppet.rig.servo_map import ServoMap
 from puppet.rig.skeleton import Skeleton
 from puppet.rig.weight_check import normalize_weights
@@ -93,20 +93,65 @@ def load_rig(path) -> Rig:
         return Rig(path.stem, V, F, skeleton, W, ServoMap([], path=path), path=path)
     if suffix != ".toml":
         raise RigError(f"unknown rig format {suffix!r} (known: .toml, .glb, .gltf, .npz)", path=path)
-    spec = read_rig_file(path)
+    return rig_from_spec(read_rig_file(path))
+
+
+def load_rig_text(text: str, *, label, base) -> Rig:
+    """A rig from rig-file TOML held in memory (e.g. the rig map stored in a take).
+
+    label: what errors name (e.g. "take.mcap (rig map)"); base: the folder the text's character
+    paths are relative to.
+    """
+    return rig_from_spec(read_rig_text(text, path=label, base=base))
+
+
+def rig_from_spec(spec: RigFile) -> Rig:
+    """Read a parsed rig file's character and join it to the servo map.
+
+    Errors found only once the character is known (pins out of range, unknown fixed bones, more
+    clusters than vertices, nothing holding the character in space) name the rig file's line.
+    """
+    path, lines = spec.path, spec.lines
     V, F, W, skeleton = _read_character(spec)
-    pins = []
+    n = len(V)
+
+    def fail(message, field_name, line):
+        raise RigError(message, path=path, field=field_name, line=line)
+
+    pins: list[int] = []
+    where: dict[int, int] = {}
     for vertex, line in spec.pin_vertices:
-        if vertex >= len(V):
-            raise RigError(f"pin vertex {vertex} out of range: mesh has {len(V)} vertices",
-                           path=path, line=line, field="pin vertex")
+        if vertex >= n:
+            fail(f"pin vertex {vertex} out of range: the mesh has {n} vertices", "pin vertex", line)
         pins.append(vertex)
-    for point, _ in spec.pin_points:
+        where.setdefault(vertex, line)
+    for point, line in spec.pin_points:
         pins.append(int(np.argmin(((V - point) ** 2).sum(axis=1))))
+        where.setdefault(pins[-1], line)
+    for i, vertex in enumerate(pins):
+        if vertex in pins[:i]:
+            line = (spec.pin_vertices + spec.pin_points)[i][1]
+            fail(f"vertex {vertex} is pinned twice (first at line {where[vertex]})", "pin", line)
+    for name in spec.fixed:
+        if name not in skeleton.names:
+            fail(f"unknown fixed bone {name!r}; bones are {list(skeleton.names)}", "fixed",
+                 lines.top("fixed") if lines else None)
+    opts = spec.solver
+    if opts.clusters > n:
+        fail(f"{opts.clusters} clusters but the mesh has only {n} vertices", "solver.clusters",
+             lines.key("solver", 0, "clusters") if lines else None)
+    if opts.extra_weights > n:
+        fail(f"{opts.extra_weights} extra weights but the mesh has only {n} vertices",
+             "solver.extra_weights", lines.key("solver", 0, "extra_weights") if lines else None)
     if spec.calibration is not None and spec.calibration.exists():
         calibration = Calibration.load(spec.calibration)
     else:
         calibration = Calibration(path=spec.calibration)
     # Joint errors (unknown joint, >3 servos, repeated order) name the rig file's line.
-    return Rig(spec.name, V, F, skeleton, W, spec.servo_map, calibration, spec.solver,
-               np.array(pins, np.int64), spec.fixed, path)
+    rig = Rig(spec.name, V, F, skeleton, W, spec.servo_map, calibration, spec.solver,
+              np.array(pins, np.int64), spec.fixed, path)
+    problem = rig.anchor_problem()
+    if problem is not None:
+        line = lines.top("fixed") if lines else None
+        fail(problem, "fixed", line)
+    return rig
