@@ -12,6 +12,7 @@ from dataclasses import dataclass, field
 from hw_sim.errors import UnknownModelError
 
 EEPROM_END = 64  # addresses 0..63 are EEPROM: writable only while Torque Enable is 0
+TICKS_PER_TURN = 4096  # encoder counts per output turn (device-side copy of puppet's)
 
 
 @dataclass(frozen=True)

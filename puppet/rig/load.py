@@ -96,13 +96,28 @@ def load_rig(path) -> Rig:
     return rig_from_spec(read_rig_file(path))
 
 
-def load_rig_text(text: str, *, label, base) -> Rig:
-    """A rig from rig-file TOML held in memory (e.g. the rig map stored in a take).
+def load_rig_text(text: str, *, label, bases, hint: str = "") -> Rig:
+    """A rig from rig-file TOML held in memory (e.g. the rig map a take stores).
 
-    label: what errors name (e.g. "take.mcap (rig map)"); base: the folder the text's character
-    paths are relative to.
+    label: what errors name (e.g. "take.mcap (rig map)"). bases: folders to resolve the text's
+    relative character paths against, tried in order: the first where the mesh file exists
+    wins. RigError naming the mesh and every place looked (then ``hint``) when none has it.
     """
-    return rig_from_spec(read_rig_text(text, path=label, base=base))
+    bases = list(dict.fromkeys(Path(b) for b in bases))
+    tried = []
+    for base in bases:
+        spec = read_rig_text(text, path=label, base=base)
+        if spec.mesh.exists():
+            return rig_from_spec(spec)
+        tried.append(str(spec.mesh))
+    raise RigError(f"character file not found: looked at {' and '.join(tried)}"
+                   + (f"; {hint}" if hint else ""), path=label, field="mesh",
+                   line=spec.lines.top("mesh") if spec.lines else None)
+
+
+def builtin_name() -> str:
+    """The built-in rig's name, from its file (no character is read)."""
+    return read_rig_file(BUILTIN_RIG).name
 
 
 def rig_from_spec(spec: RigFile) -> Rig:
