@@ -39,8 +39,16 @@ def read_character_npz(path):
         raise RigError("character file not found", path=path) from None
     except (OSError, ValueError, zipfile.BadZipFile) as err:
         raise RigError(f"not a character .npz: {err}", path=path) from err
-    skeleton = Skeleton(tuple(str(n) for n in arrays["names"]), arrays["parents"], arrays["heads"],
-                        arrays["tails"], arrays["frames"])
+    for key in ("V", "W", "heads", "tails", "frames"):
+        if not np.issubdtype(arrays[key].dtype, np.number) or not np.isfinite(arrays[key]).all():
+            raise RigError("not all finite numbers", path=path, field=key)
+    try:
+        skeleton = Skeleton(tuple(str(n) for n in arrays["names"]), arrays["parents"],
+                            arrays["heads"], arrays["tails"], arrays["frames"])
+    except RigError as err:
+        raise err.at(path) from None
+    except (ValueError, TypeError) as err:  # arrays of the wrong shape or kind
+        raise RigError(f"skeleton arrays unusable: {err}", path=path, field="skeleton") from None
     W = normalize_weights(arrays["W"], path=path, field_name="W")
     return arrays["V"].astype(np.float64), arrays["F"].astype(np.int32), W, skeleton
 
@@ -62,7 +70,8 @@ def _read_character(spec):
 
         V, F = read_mesh(spec.mesh)
         if spec.skeleton is None:
-            raise RigError("an .obj/.ply mesh needs 'skeleton = \"....tgf\"'", path=spec.path, field="skeleton")
+            raise RigError("an .obj/.ply mesh needs 'skeleton = \"....tgf\"'", path=spec.path,
+                           field="skeleton", line=spec.lines.top("mesh") if spec.lines else None)
         skeleton, columns = read_tgf(spec.skeleton)
         if spec.weights is not None:
             raw = read_dmat(spec.weights)
@@ -76,7 +85,7 @@ def _read_character(spec):
             W = bbw_weights(V, F, skeleton, path=spec.mesh)
         return V, F, W, skeleton
     raise RigError(f"unknown character format {suffix!r} (known: .npz, .glb, .gltf, .obj, .ply)",
-                   path=spec.path, field="mesh")
+                   path=spec.path, field="mesh", line=spec.lines.top("mesh") if spec.lines else None)
 
 
 def load_rig(path) -> Rig:

@@ -92,6 +92,9 @@ class Rig:
         if self.W.shape != (n, self.skeleton.bone_count):
             raise RigError(f"weights have shape {self.W.shape}, mesh has {n} vertices and "
                            f"skeleton {self.skeleton.bone_count} bones", path=self.path, field="weights")
+        if not np.isfinite(self.W).all():
+            bad = int(np.flatnonzero(~np.isfinite(self.W).all(axis=1))[0])
+            raise RigError(f"weights of vertex {bad} are not finite", path=self.path, field="weights")
         bad_pins = self.pins[(self.pins < 0) | (self.pins >= n)]
         if len(bad_pins):
             raise RigError(f"pin vertex {int(bad_pins[0])} out of range (mesh has {n} vertices)",

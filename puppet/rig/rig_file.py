@@ -81,6 +81,7 @@ class _Lines:
 
     def __init__(self, text: str) -> None:
         self.tables: dict[tuple[str, int], int] = {}
+        self.roots: dict[str, int] = {}  # first line of any table under a top-level name
         self.keys: dict[tuple[str, int, str], int] = {}
         current, counts = ("", 0), {"": 0}
         for number, line in enumerate(text.splitlines(), 1):
@@ -90,6 +91,7 @@ class _Lines:
                 counts[name] = counts.get(name, -1) + 1
                 current = (name, counts[name])
                 self.tables[current] = number
+                self.roots.setdefault(name.split(".")[0], number)
                 continue
             key = self._key.match(line)
             if key:
@@ -103,7 +105,7 @@ class _Lines:
 
     def top(self, key: str) -> int | None:
         """Line of a top-level key, or of the table of that name."""
-        return self.keys.get(("", 0, key)) or self.table(key, 0)
+        return self.keys.get(("", 0, key)) or self.table(key, 0) or self.roots.get(key)
 
 
 @dataclass
@@ -113,7 +115,7 @@ class RigFile:
     path:         the rig file (or a label such as "take.mcap (rig map)" for text from a take).
     lines:        where each key is, for errors found after the character is read
                   (``lines.top("fixed")``, ``lines.key("solver", 0, "clusters")``).
-    pin_vertices: [(vertex index, line)]; pin_points: [((3,) float64 point, line)].
+    pin_vertices: [(vertex index, line of the key)]; pin_points: [((3,) float64 point, line)].
     """
 
     path: Path
@@ -150,7 +152,7 @@ def read_rig_file(path) -> RigFile:
     return read_rig_text(text, path=path, base=path.parent)
 
 
-_TOML_LINE = re.compile(r"\(at line (\d+), column \d+\)")
+_TOML_LINE = re.compile(r"\(at line (\d+), column \d+\)|\(at end of document\)")
 
 
 def read_rig_text(text: str, *, path, base) -> RigFile:
@@ -164,8 +166,10 @@ def read_rig_text(text: str, *, path, base) -> RigFile:
     except tomllib.TOMLDecodeError as err:
         found = _TOML_LINE.search(str(err))
         message = _TOML_LINE.sub("", str(err)).strip()
-        raise RigError(f"not valid TOML: {message}", path=path,
-                       line=int(found.group(1)) if found else None) from None
+        line = None
+        if found:  # tomllib names a line and column, or the end of the text
+            line = int(found.group(1)) if found.group(1) else max(1, len(text.splitlines()))
+        raise RigError(f"not valid TOML: {message}", path=path, line=line) from None
     except RecursionError:
         raise RigError("not a rig file: tables or arrays nested too deeply", path=path) from None
     lines = _Lines(text)
@@ -225,10 +229,10 @@ def read_rig_text(text: str, *, path, base) -> RigFile:
             if isinstance(v, bool) or not isinstance(v, int) or v < 0:
                 fail(f"must be a vertex index >= 0, got {show(v)}", f"{label} vertex",
                      lines.key("pin", i, "vertex"))
-            pin_vertices.append((v, line))
+            pin_vertices.append((v, lines.key("pin", i, "vertex")))
         else:
-            pin_points.append((_vector(pin["point"], f"{label} point",
-                                       lines.key("pin", i, "point"), fail), line))
+            at = lines.key("pin", i, "point")
+            pin_points.append((_vector(pin["point"], f"{label} point", at, fail), at))
     return RigFile(Path(str(path)), name, mesh, skeleton, weights, calibration, tuple(fixed),
                    solver, servo_map, pin_vertices, pin_points, lines)
 
