@@ -105,10 +105,12 @@ class Spin:
 
 
 class WithinLimits:
-    """A performance fitted to a rig: servo k swings sinusoidally about its ``zero_ticks`` with an
-    amplitude of ``reach`` times the smaller of its two joint limits (at most ``max_deg``), each
-    servo a little behind the one before; the joint angle never leaves its limits.
+    """A performance fitted to a rig: each servo swings sinusoidally inside its joint limits,
+    each a little behind the one before.
 
+    The swing is centred on the rest pose (``zero_ticks``) when the rest pose lies inside the
+    limits, with an amplitude of ``reach`` times the nearer limit; otherwise on the middle of the
+    limits, with ``reach`` times half their span. Amplitudes are capped at ``max_deg``.
     servos: objects with ``id``, ``zero_ticks``, ``sign``, ``gear`` (servo turns per joint turn)
     and ``limits_deg`` (low, high), e.g. ``hw_sim.rig_servos.RigServo``. Ids it does not name
     hold 2048.
@@ -119,15 +121,15 @@ class WithinLimits:
         self.params: dict[int, tuple[float, float, float]] = {}
         for k, s in enumerate(servos):
             low, high = s.limits_deg
-            # Keep the swing inside the limits even when zero is not between them.
-            half = min(abs(low), abs(high)) if low < 0 < high else 0.0
-            amplitude_deg = min(reach * half, max_deg)
+            centre_deg = 0.0 if low < 0.0 < high else 0.5 * (low + high)
+            amplitude_deg = min(reach * min(centre_deg - low, high - centre_deg), max_deg)
             ticks_per_deg = s.sign * s.gear * TICKS_PER_TURN / 360.0
-            self.params[int(s.id)] = (float(s.zero_ticks), amplitude_deg * ticks_per_deg, 0.6 * k)
+            self.params[int(s.id)] = (s.zero_ticks + centre_deg * ticks_per_deg,
+                                      amplitude_deg * ticks_per_deg, 0.6 * k)
 
     def position(self, joint: int, t: float) -> float:
-        zero, amplitude, phase = self.params.get(joint, (CENTER, 0.0, 0.0))
-        return zero + amplitude * math.sin(2.0 * math.pi * t / self.period_s + phase)
+        centre, amplitude, phase = self.params.get(joint, (CENTER, 0.0, 0.0))
+        return centre + amplitude * math.sin(2.0 * math.pi * t / self.period_s + phase)
 
 
 def _read_table(path: Path) -> tuple[list[int], list[float], list[list[float]]]:
