@@ -310,7 +310,7 @@ def _read_servo(index: int, table: dict, lines: _Lines, fail) -> Servo:
         axis = np.array(NAMED_AXES[key.lstrip("+-")]) * (-1.0 if negative else 1.0)
     else:
         axis = _vector(raw_axis, f"{label} axis", line("axis"), fail)
-    norm = float(np.linalg.norm(axis))
+    norm = math.hypot(*axis)  # no overflow for huge but finite components
     if not 1e-9 < norm < math.inf:
         fail(f"axis {show(raw_axis)} has zero length or is not finite", f"{label} axis", line("axis"))
     order = table.get("order", 1)

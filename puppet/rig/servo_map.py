@@ -156,7 +156,7 @@ def _check_servo(s: Servo, path) -> None:
 
     if isinstance(s.id, bool) or not isinstance(s.id, (int, np.integer)) or not 0 <= s.id <= 252:
         fail(f"id must be an integer 0..252, got {s.id!r}", "id")
-    if s.model not in MODELS:
+    if not isinstance(s.model, str) or s.model not in MODELS:
         fail(f"unknown model {s.model!r} (known: {known_models()})", "model")
     axis = np.asarray(s.axis, dtype=float)
     if axis.shape != (3,) or not np.isfinite(axis).all() or not abs(np.linalg.norm(axis) - 1) < 1e-6:

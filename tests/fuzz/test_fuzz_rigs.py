@@ -116,7 +116,7 @@ def variants(tmp_path: Path) -> list[Case]:
         cases.append(Case(name, text_of(lines), line))
 
     for name, value in [("nan", "[nan, 0, 0]"), ("inf", "[inf, 0, 0]"), ("-inf", "[0, -inf, 1]"),
-                        ("overflowing norm", "[1e308, 1e308, 0]"), ("zero", "[0, 0, 0]"),
+                        ("overflowing float", "[1e309, 0, 0]"), ("zero", "[0, 0, 0]"),
                         ("unknown name", '"w"'), ("two numbers", "[1, 0]"), ("bool", "true"),
                         ("table", "{ x = 1 }"), ("strings", '["1", "0", "0"]')]:
         servo_field(f"axis {name}", "axis", value)
