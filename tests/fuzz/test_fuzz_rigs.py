@@ -316,3 +316,38 @@ def test_a_few_broken_rigs_as_a_real_command(cases, name):
     result = subprocess.run([sys.executable, "-c", "from puppet.cli import main; main()",
                              "rig", "info", str(path)], capture_output=True, text=True, timeout=120)
     check_clean(case, path, result.returncode, result.stderr)
+
+
+def classify(case: Case, path: Path, command: list[str]) -> str:
+    """One case run as a real command: clean | traceback | hang | silent wrong | vague error."""
+    try:
+        result = subprocess.run([*command, "rig", "info", str(path)], capture_output=True,
+                                text=True, timeout=60)
+    except subprocess.TimeoutExpired:
+        return "hang"
+    if "Traceback" in result.stderr or "internal error" in result.stderr:
+        return "traceback"
+    if result.returncode == 0:
+        return "silent wrong"
+    try:
+        check_clean(case, path, result.returncode, result.stderr)
+    except AssertionError:
+        return "vague error"  # exit 1, but the file or the line is not named
+    return "clean"
+
+
+if __name__ == "__main__":
+    # The before/after table: python tests/fuzz/test_fuzz_rigs.py [PUPPET_COMMAND...]
+    # (default: this interpreter's puppet; pass another checkout's command to compare).
+    import collections
+    import tempfile
+
+    command = sys.argv[1:] or [sys.executable, "-c", "from puppet.cli import main; main()"]
+    folder = Path(tempfile.mkdtemp(prefix="fuzz_rigs_"))
+    outcomes = collections.Counter()
+    for case in variants(folder):
+        outcome = classify(case, write_case(case, folder), command)
+        outcomes[outcome] += 1
+        if outcome != "clean":
+            print(f"{outcome:13} {case.name}")
+    print(dict(outcomes), f"of {sum(outcomes.values())} cases")
