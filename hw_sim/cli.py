@@ -9,7 +9,43 @@ import sys
 from hw_sim.control_table import MODELS
 from hw_sim.errors import HwSimError
 from hw_sim.faults import parse_ids
-from hw_sim.motion import BUILTIN
+from hw_sim.motion import BUILTIN, WithinLimits
+from hw_sim.rig_servos import read_rig_servos
+
+
+def parse_servos(text: str, default_model: str) -> dict[int, str]:
+    """'1-3:XL330-M288,4-9:XL430-W250' or '1-14' -> {id: model}; ValueError on anything else.
+
+    Each comma-separated item is ``IDS[:MODEL]`` (IDS: ``a`` or ``a-b``); items without a model
+    get ``default_model``.
+    """
+    servos: dict[int, str] = {}
+    for item in text.split(","):
+        ids_text, colon, model = item.strip().partition(":")
+        model = model.strip() if colon else default_model
+        if model not in MODELS:
+            raise ValueError(f"unknown model {model!r} (known: {', '.join(MODELS)})")
+        for i in parse_ids(ids_text):
+            if i in servos:
+                raise ValueError(f"servo id {i} is given twice")
+            servos[i] = model
+    return servos
+
+
+def describe(servos: dict[int, str]) -> str:
+    """{1: 'A', 2: 'A', 5: 'B'} -> '1-2: A; 5: B'."""
+    by_model: dict[str, list[int]] = {}
+    for i, model in sorted(servos.items()):
+        by_model.setdefault(model, []).append(i)
+    parts = []
+    for model, ids in by_model.items():
+        runs, start = [], ids[0]
+        for a, b in zip(ids, ids[1:] + [None]):
+            if b != a + 1:
+                runs.append(f"{start}-{a}" if a != start else f"{a}")
+                start = b
+        parts.append(f"{','.join(runs)}: {model}")
+    return "; ".join(parts)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -17,12 +53,18 @@ def build_parser() -> argparse.ArgumentParser:
         prog="hw-sim",
         description="Simulated Dynamixel bus on a pseudo-terminal; prints the port to open.",
     )
-    parser.add_argument("--servos", default="1-14", help="servo ids, e.g. 1-14 or 1,2,5")
+    parser.add_argument("--servos", default=None,
+                        help="servo ids and models, e.g. 1-14, 1,2,5 or 1-3:XL330-M288,4-9:XL430-W250 "
+                             "(ids without a model get --model; default 1-14)")
+    parser.add_argument("--rig", default=None, metavar="RIG",
+                        help="a puppet rig file (TOML): serve exactly its servos (ids and models); "
+                             "the default motion then swings each joint inside its limits")
     parser.add_argument("--model", default="XL330-M288", choices=sorted(MODELS),
-                        help="servo model")
-    parser.add_argument("--motion", default="wave",
+                        help="servo model for ids given without one")
+    parser.add_argument("--motion", default=None,
                         help=f"motion source: {', '.join(sorted(BUILTIN))}, a keyframe CSV "
-                             "path, or replay:PATH (CSV or NPZ of recorded ticks)")
+                             "path, or replay:PATH (CSV, NPZ or a take of recorded ticks); "
+                             "default: wave, or with --rig a swing within the rig's limits")
     parser.add_argument("--faults", default=None, help="fault schedule file")
     parser.add_argument("--baud", type=int, default=1_000_000, help="bus baud rate (bit/s)")
     parser.add_argument("--timing", action="store_true",
@@ -38,13 +80,28 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     from hw_sim.server import Server  # after parsing: --help stays instant
+    motion = args.motion
+    if args.rig is not None:
+        if args.servos is not None:
+            print("hw-sim: give --rig or --servos, not both", file=sys.stderr)
+            return 2
+        try:
+            rig_servos = read_rig_servos(args.rig)
+        except HwSimError as exc:
+            print(f"hw-sim: --rig: {exc}", file=sys.stderr)
+            return 2
+        servos = {s.id: s.model for s in rig_servos}
+        if motion is None:
+            motion = WithinLimits(rig_servos)
+    else:
+        try:
+            servos = parse_servos(args.servos or "1-14", args.model)
+        except ValueError as exc:
+            print(f"hw-sim: --servos {args.servos!r}: {exc}", file=sys.stderr)
+            return 2
+    motion_name = "within the rig's limits" if isinstance(motion, WithinLimits) else motion or "wave"
     try:
-        ids = parse_ids(args.servos)
-    except ValueError as exc:
-        print(f"hw-sim: --servos {args.servos!r}: {exc}", file=sys.stderr)
-        return 2
-    try:
-        server = Server({i: args.model for i in ids}, motion=args.motion, faults=args.faults,
+        server = Server(servos, motion=motion or "wave", faults=args.faults,
                         timing=args.timing, baud=args.baud, return_delay_us=args.return_delay_us,
                         echo=args.echo, strict_baud=args.strict_baud)
     except (HwSimError, ValueError) as exc:
@@ -52,8 +109,8 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     signal.signal(signal.SIGTERM, lambda *_: server.stop())
     print(server.path, flush=True)
-    print(f"hw-sim: {len(ids)} x {args.model} (ids {args.servos}) at {args.baud} baud, "
-          f"motion {args.motion}; stable link {server.link}; Ctrl-C to stop", file=sys.stderr,
+    print(f"hw-sim: {len(servos)} servos ({describe(servos)}) at {args.baud} baud, "
+          f"motion {motion_name}; stable link {server.link}; Ctrl-C to stop", file=sys.stderr,
           flush=True)
     try:
         server.run()

@@ -1,4 +1,4 @@
-"""X-series control tables declared as data: XL330-M288, XL430-W250, XM430-W350.
+"""X-series control tables declared as data: the X330, X430 and X540 models in MODEL_SPECS.
 
 Each ``Field`` is one control-table item: address, size in bytes, access, default, valid range
 (inclusive; ``None`` = any value of its size), EEPROM or RAM, signedness. Sources: the ROBOTIS
@@ -12,6 +12,7 @@ from dataclasses import dataclass, field
 from hw_sim.errors import UnknownModelError
 
 EEPROM_END = 64  # addresses 0..63 are EEPROM: writable only while Torque Enable is 0
+TICKS_PER_TURN = 4096  # encoder counts per output turn (device-side copy of puppet's)
 
 
 @dataclass(frozen=True)
@@ -43,6 +44,7 @@ class ServoModel:
     indirect: ``[(first_address_item, first_data_item, count), ...]``; Indirect Address n holds
     (2 bytes) the address that Indirect Data n (1 byte) mirrors.
     baud_rates: Baud Rate (8) index -> bits per second.
+    fast_sync_read_firmware: first firmware with Fast Sync Read (NO_FAST_SYNC_READ: none).
     """
 
     name: str
@@ -52,6 +54,7 @@ class ServoModel:
     size: int
     indirect: tuple[tuple[int, int, int], ...]
     baud_rates: dict[int, int]
+    fast_sync_read_firmware: int = 45
     by_name: dict[str, Field] = field(default_factory=dict, compare=False)
     by_addr: dict[int, Field] = field(default_factory=dict, compare=False)
 
@@ -77,11 +80,101 @@ _BAUD_X330 = {0: 9600, 1: 57600, 2: 115200, 3: 1_000_000, 4: 2_000_000, 5: 3_000
 _BAUD_X430 = {**_BAUD_X330, 7: 4_500_000}
 
 
-def _x_series(name: str, number: int, *, temp_limit: int, max_v: tuple, min_v: tuple,
-              current_limit: int | None, velocity_limit: int, modes: tuple, shutdown: int,
-              gains: tuple, present_126: str, indirect: tuple, size: int,
-              baud_max: int) -> ServoModel:
-    vi, vp, pd, pi, pp = gains
+@dataclass(frozen=True)
+class Family:
+    """What a servo series shares: table size, indirect blocks, top baud index, Shutdown default,
+    Velocity Limit range."""
+
+    size: int
+    indirect: tuple[tuple[int, int, int], ...]
+    baud_max: int
+    shutdown: int
+    velocity_limit_max: int
+
+
+FAMILIES = {
+    "X330": Family(228, ((168, 208, 20),), 6, 53, 2047),
+    "X430": Family(662, ((168, 224, 28), (578, 634, 28)), 7, 52, 1023),
+    "X540": Family(662, ((168, 224, 28), (578, 634, 28)), 7, 52, 1023),
+}
+
+NO_FAST_SYNC_READ = 256  # above any Firmware Version byte: the model has no Fast Sync Read
+
+_ALL_MODES = (0, 1, 3, 4, 5, 16)
+_NO_CURRENT_MODES = (1, 3, 4, 16)
+
+
+@dataclass(frozen=True)
+class ModelSpec:
+    """One row of the model table: what differs between models of a family.
+
+    max_voltage / min_voltage: (default, lo, hi) in 0.1 V; current_limit: default and top of
+    Current Limit (38) or None when the model has no current sensing (Present Load at 126);
+    velocity_limit: Velocity Limit (44) default, 0.229 rpm; gains: Velocity I, Velocity P,
+    Position D, Position I, Position P defaults; nominal_voltage: Present Input Voltage, 0.1 V.
+    Model numbers are exact (e-manual, SDK model list); limits and gains follow the e-manual
+    tables where read (XL330-M288, XL430-W250, XM430-W350, XH430-W350, XC330-T288) and the
+    nearest sibling's otherwise.
+    """
+
+    name: str
+    number: int
+    family: str
+    fast_sync_read_firmware: int
+    temp_limit: int
+    max_voltage: tuple[int, int, int]
+    min_voltage: tuple[int, int, int]
+    current_limit: int | None
+    velocity_limit: int
+    modes: tuple[int, ...]
+    gains: tuple[int, int, int, int, int]
+    nominal_voltage: int
+
+
+_V5 = ((70, 31, 70), (35, 31, 70))      # X330 5 V models
+_V12_X330 = ((140, 55, 140), (55, 55, 140))
+_V12_X430 = ((140, 60, 140), (60, 60, 140))
+_V12_XM = ((160, 95, 160), (95, 95, 160))
+_G_X330 = (1600, 180, 0, 0, 400)
+_G_XL430 = (1000, 100, 4000, 0, 640)
+_G_XM = (1920, 100, 0, 0, 800)
+
+MODEL_SPECS: tuple[ModelSpec, ...] = (
+    ModelSpec("XL330-M077", 1190, "X330", 46, 70, *_V5, 1750, 2047, _ALL_MODES, _G_X330, 50),
+    ModelSpec("XL330-M288", 1200, "X330", 46, 70, *_V5, 1750, 445, _ALL_MODES, _G_X330, 50),
+    ModelSpec("XC330-T181", 1210, "X330", 46, 70, *_V12_X330, 910, 1023, _ALL_MODES, _G_X330, 120),
+    ModelSpec("XC330-T288", 1220, "X330", 46, 70, *_V12_X330, 910, 620, _ALL_MODES, _G_X330, 120),
+    ModelSpec("XC330-M181", 1230, "X330", 46, 70, *_V5, 2352, 1023, _ALL_MODES, _G_X330, 50),
+    ModelSpec("XC330-M288", 1240, "X330", 46, 70, *_V5, 2352, 620, _ALL_MODES, _G_X330, 50),
+    ModelSpec("XL430-W250", 1060, "X430", 45, 72, *_V12_X430, None, 265, _NO_CURRENT_MODES,
+              _G_XL430, 115),
+    ModelSpec("2XL430-W250", 1090, "X430", NO_FAST_SYNC_READ, 72, *_V12_X430, None, 265,
+              _NO_CURRENT_MODES, _G_XL430, 115),
+    ModelSpec("XC430-W150", 1070, "X430", 45, 72, *_V12_X430, None, 460, _NO_CURRENT_MODES,
+              _G_XL430, 115),
+    ModelSpec("XC430-W240", 1080, "X430", 45, 72, *_V12_X430, None, 306, _NO_CURRENT_MODES,
+              _G_XL430, 115),
+    ModelSpec("XM430-W210", 1030, "X430", 45, 80, *_V12_XM, 1193, 330, _ALL_MODES, _G_XM, 120),
+    ModelSpec("XM430-W350", 1020, "X430", 45, 80, *_V12_XM, 1193, 200, _ALL_MODES, _G_XM, 120),
+    ModelSpec("XH430-W210", 1010, "X430", 45, 80, *_V12_XM, 648, 210, _ALL_MODES,
+              (1920, 100, 0, 0, 900), 120),
+    ModelSpec("XH430-W350", 1000, "X430", 45, 80, *_V12_XM, 648, 280, _ALL_MODES,
+              (1920, 100, 0, 0, 900), 120),
+    ModelSpec("XM540-W150", 1130, "X540", 45, 80, *_V12_XM, 2047, 230, _ALL_MODES, _G_XM, 120),
+    ModelSpec("XM540-W270", 1120, "X540", 45, 80, *_V12_XM, 2047, 128, _ALL_MODES, _G_XM, 120),
+)
+"""Every model hw_sim serves (device-side copy: puppet.servo_models names the same models with
+the same numbers and Fast Sync Read firmware; tests/hw_sim/test_hwsim_models.py checks)."""
+
+
+def _x_series(spec: "ModelSpec") -> ServoModel:
+    """The full control table of one model from its row of MODEL_SPECS."""
+    name, number, family = spec.name, spec.number, FAMILIES[spec.family]
+    temp_limit, max_v, min_v = spec.temp_limit, spec.max_voltage, spec.min_voltage
+    current_limit, velocity_limit, modes = spec.current_limit, spec.velocity_limit, spec.modes
+    shutdown, indirect, size, baud_max = family.shutdown, family.indirect, family.size, family.baud_max
+    present_126 = "Present Current" if current_limit is not None else "Present Load"
+    vi, vp, pd, pi, pp = spec.gains
     F = Field
     fields = [
         F("Model Number", 0, 2, "R", number),
@@ -100,7 +193,7 @@ def _x_series(name: str, number: int, *, temp_limit: int, max_v: tuple, min_v: t
         F("Max Voltage Limit", 32, 2, "RW", max_v[0], max_v[1], max_v[2]),
         F("Min Voltage Limit", 34, 2, "RW", min_v[0], min_v[1], min_v[2]),
         F("PWM Limit", 36, 2, "RW", 885, 0, 885),
-        F("Velocity Limit", 44, 4, "RW", velocity_limit, 0, 2047 if number == 1200 else 1023),
+        F("Velocity Limit", 44, 4, "RW", velocity_limit, 0, family.velocity_limit_max),
         F("Max Position Limit", 48, 4, "RW", 4095, 0, 4095),
         F("Min Position Limit", 52, 4, "RW", 0, 0, 4095),
         F("Startup Configuration", 60, 1, "RW", 0, 0, 3),
@@ -140,7 +233,7 @@ def _x_series(name: str, number: int, *, temp_limit: int, max_v: tuple, min_v: t
         fields.append(F("Current Limit", 38, 2, "RW", current_limit, 0, current_limit))
         fields.append(F("Goal Current", 102, 2, "RW", current_limit, -current_limit,
                         current_limit, signed=True))
-    if number == 1200:
+    if spec.family == "X330":
         fields.append(F("PWM Slope", 62, 1, "RW", 140, 1, 255))
     for addr_item, data_item, count in indirect:
         for n in range(count):
@@ -150,7 +243,8 @@ def _x_series(name: str, number: int, *, temp_limit: int, max_v: tuple, min_v: t
                             data_item + n, 1, "RW", 0, 0, 255))
     fields.sort(key=lambda f: f.addr)
     return ServoModel(name, number, 52, tuple(fields), size, indirect,
-                      _BAUD_X330 if baud_max == 6 else _BAUD_X430)
+                      _BAUD_X330 if baud_max == 6 else _BAUD_X430,
+                      fast_sync_read_firmware=spec.fast_sync_read_firmware)
 
 
 def _indirect_base(indirect: tuple, addr_item: int) -> int:
@@ -162,31 +256,14 @@ def _indirect_base(indirect: tuple, addr_item: int) -> int:
     return base
 
 
-MODELS: dict[str, ServoModel] = {
-    "XL330-M288": _x_series(
-        "XL330-M288", 1200, temp_limit=70, max_v=(70, 31, 70), min_v=(35, 31, 70),
-        current_limit=1750, velocity_limit=445, modes=(0, 1, 3, 4, 5, 16), shutdown=53,
-        gains=(1600, 180, 0, 0, 400), present_126="Present Current",
-        indirect=((168, 208, 20),), size=228, baud_max=6),
-    "XL430-W250": _x_series(
-        "XL430-W250", 1060, temp_limit=72, max_v=(140, 60, 140), min_v=(60, 60, 140),
-        current_limit=None, velocity_limit=265, modes=(1, 3, 4, 16), shutdown=52,
-        gains=(1000, 100, 4000, 0, 640), present_126="Present Load",
-        indirect=((168, 224, 28), (578, 634, 28)), size=662, baud_max=7),
-    "XM430-W350": _x_series(
-        "XM430-W350", 1020, temp_limit=80, max_v=(160, 95, 160), min_v=(95, 95, 160),
-        current_limit=1193, velocity_limit=200, modes=(0, 1, 3, 4, 5, 16), shutdown=52,
-        gains=(1920, 100, 0, 0, 800), present_126="Present Current",
-        indirect=((168, 224, 28), (578, 634, 28)), size=662, baud_max=7),
-}
+MODELS: dict[str, ServoModel] = {spec.name: _x_series(spec) for spec in MODEL_SPECS}
 
 # Nominal supply (0.1 V) and idle temperature (deg C) per model, for Present Input Voltage etc.
-NOMINAL_VOLTAGE = {"XL330-M288": 50, "XL430-W250": 115, "XM430-W350": 120}
+NOMINAL_VOLTAGE = {spec.name: spec.nominal_voltage for spec in MODEL_SPECS}
 IDLE_TEMPERATURE = 31
 
 # Valid operating modes per model (the range check above is min..max; this is the exact set).
-OPERATING_MODES = {"XL330-M288": {0, 1, 3, 4, 5, 16}, "XL430-W250": {1, 3, 4, 16},
-                   "XM430-W350": {0, 1, 3, 4, 5, 16}}
+OPERATING_MODES = {spec.name: set(spec.modes) for spec in MODEL_SPECS}
 
 
 def get_model(name: str) -> ServoModel:

@@ -7,6 +7,8 @@ started, ``joint`` the id the servo was created with. Positions are continuous c
 - ``Hold``: every joint still (2048 unless told otherwise).
 - ``Programmatic``: positions set by tests (``SimBus.set_positions``).
 - ``Wave`` / ``Walk`` / ``Spin``: built-in performances.
+- ``WithinLimits``: every servo of a rig swings about its zero ticks inside its joint limits
+  (``hw-sim --rig``'s default motion).
 - ``Keyframes``: linear interpolation of a keyframe file, looping.
 - ``Replay``: sample-and-hold replay of recorded ticks: a puppet take (.mcap), or CSV / NPZ.
 
@@ -25,6 +27,7 @@ import math
 from pathlib import Path
 from typing import Protocol
 
+from hw_sim.control_table import TICKS_PER_TURN
 from hw_sim.errors import MotionFileError
 
 CENTER = 2048.0
@@ -87,7 +90,7 @@ class Walk:
             deg = 50.0 * max(0.0, math.sin(phase + 0.6)) ** 2
         else:            # ankle: follows the hip, smaller
             deg = -12.0 * math.sin(phase + 0.3)
-        return CENTER + deg * 4096.0 / 360.0
+        return CENTER + deg * TICKS_PER_TURN / 360.0
 
 
 class Spin:
@@ -98,7 +101,35 @@ class Spin:
 
     def position(self, joint: int, t: float) -> float:
         direction = 1.0 if joint % 2 else -1.0
-        return CENTER + direction * self.rpm / 60.0 * 4096.0 * t
+        return CENTER + direction * self.rpm / 60.0 * TICKS_PER_TURN * t
+
+
+class WithinLimits:
+    """A performance fitted to a rig: each servo swings sinusoidally inside its joint limits,
+    each a little behind the one before.
+
+    The swing is centred on the rest pose (``zero_ticks``) when the rest pose lies inside the
+    limits, with an amplitude of ``reach`` times the nearer limit; otherwise on the middle of the
+    limits, with ``reach`` times half their span. Amplitudes are capped at ``max_deg``.
+    servos: objects with ``id``, ``zero_ticks``, ``sign``, ``gear`` (servo turns per joint turn)
+    and ``limits_deg`` (low, high), e.g. ``hw_sim.rig_servos.RigServo``. Ids it does not name
+    hold 2048.
+    """
+
+    def __init__(self, servos, period_s: float = 2.4, reach: float = 0.7, max_deg: float = 50.0):
+        self.period_s = period_s
+        self.params: dict[int, tuple[float, float, float]] = {}
+        for k, s in enumerate(servos):
+            low, high = s.limits_deg
+            centre_deg = 0.0 if low < 0.0 < high else 0.5 * (low + high)
+            amplitude_deg = min(reach * min(centre_deg - low, high - centre_deg), max_deg)
+            ticks_per_deg = s.sign * s.gear * TICKS_PER_TURN / 360.0
+            self.params[int(s.id)] = (s.zero_ticks + centre_deg * ticks_per_deg,
+                                      amplitude_deg * ticks_per_deg, 0.6 * k)
+
+    def position(self, joint: int, t: float) -> float:
+        centre, amplitude, phase = self.params.get(joint, (CENTER, 0.0, 0.0))
+        return centre + amplitude * math.sin(2.0 * math.pi * t / self.period_s + phase)
 
 
 def _read_table(path: Path) -> tuple[list[int], list[float], list[list[float]]]:

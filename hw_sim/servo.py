@@ -17,11 +17,9 @@ import random
 
 from hw_sim import codec
 from hw_sim.control_table import (EEPROM_END, IDLE_TEMPERATURE, NOMINAL_VOLTAGE,
-                                  OPERATING_MODES, Field, ServoModel)
-
-TICKS_PER_REV = 4096
-VELOCITY_UNIT_TICKS_S = 0.229 / 60.0 * TICKS_PER_REV   # one 0.229 rpm unit in ticks/s
-ACCEL_UNIT_TICKS_S2 = 214.577 / 3600.0 * TICKS_PER_REV  # one 214.577 rev/min^2 unit in ticks/s^2
+                                  OPERATING_MODES, TICKS_PER_TURN, Field, ServoModel)
+VELOCITY_UNIT_TICKS_S = 0.229 / 60.0 * TICKS_PER_TURN   # one 0.229 rpm unit in ticks/s
+ACCEL_UNIT_TICKS_S2 = 214.577 / 3600.0 * TICKS_PER_TURN  # one 214.577 rev/min^2 unit in ticks/s^2
 
 # Hardware Error Status (70) bits.
 HW_ERROR_BITS = {"input_voltage": 0x01, "overheating": 0x04, "encoder": 0x08,
@@ -158,7 +156,7 @@ class Servo:
         self._boot(now)
 
     def _rebase(self) -> None:
-        self.base = math.floor(self.shaft / TICKS_PER_REV) * TICKS_PER_REV
+        self.base = math.floor(self.shaft / TICKS_PER_TURN) * TICKS_PER_TURN
 
     def latch_hardware_error(self, bits: int) -> None:
         """Set Hardware Error Status bits; torque goes off when Shutdown enables one of them."""

@@ -19,7 +19,7 @@ from puppet.rig import Rig, builtin
 if TYPE_CHECKING:
     from puppet.pipeline import Pipeline, Summary
 
-TICKS_PER_TURN = 4096
+from puppet.servo_models import TICKS_PER_TURN
 
 
 class Performance:

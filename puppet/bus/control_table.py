@@ -1,12 +1,18 @@
 """The X-series control-table items and servo models this bus uses, declared as data.
 
-Addresses and sizes are Protocol 2.0, shared by XL330-M288, XL430-W250 and XM430-W350
-(ROBOTIS e-manual). Nothing else in ``puppet.bus`` writes a bare address.
+Addresses and sizes are Protocol 2.0, shared by every model of ``puppet.servo_models.MODELS``
+(X330, X430 and X540 series; ROBOTIS e-manual). Nothing else in ``puppet.bus`` writes a bare
+address.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
+
+# The servo models and ticks per turn are one table shared with the rig (puppet.servo_models);
+# re-exported here so the bus reads every servo fact from this module.
+from puppet.servo_models import (MODELS, MODELS_BY_NUMBER, TICKS_PER_TURN,  # noqa: F401
+                                 ServoModel, model_named)
 
 
 @dataclass(frozen=True)
@@ -39,8 +45,6 @@ GOAL_POSITION = Item("Goal Position", 116, 4, signed=True)
 REALTIME_TICK = Item("Realtime Tick", 120, 2)
 PRESENT_POSITION = Item("Present Position", 132, 4, signed=True)
 
-TICKS_PER_TURN = 4096
-"""Encoder counts per output revolution (12-bit absolute encoder)."""
 REALTIME_TICK_WRAP = 32768
 """Realtime Tick counts milliseconds and wraps to 0 after 32767."""
 
@@ -82,31 +86,3 @@ def describe_status_error(error: int) -> str:
     if number:
         parts.append(STATUS_ERRORS.get(number, f"error number {number}"))
     return ", ".join(parts) if parts else "none"
-
-
-@dataclass(frozen=True)
-class ServoModel:
-    """A Dynamixel model: name, model number, first firmware with Fast Sync Read."""
-
-    name: str
-    number: int
-    fast_sync_read_firmware: int
-
-
-MODELS: dict[str, ServoModel] = {
-    m.name: m
-    for m in (
-        ServoModel("XL330-M288", 1200, 46),
-        ServoModel("XL430-W250", 1060, 45),
-        ServoModel("XM430-W350", 1020, 45),
-    )
-}
-MODELS_BY_NUMBER: dict[int, ServoModel] = {m.number: m for m in MODELS.values()}
-
-
-def model_named(name: str) -> ServoModel:
-    """The model called ``name``; ValueError naming the known models otherwise."""
-    try:
-        return MODELS[name]
-    except KeyError:
-        raise ValueError(f"unknown servo model {name!r}; known: {', '.join(MODELS)}") from None

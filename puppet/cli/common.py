@@ -138,6 +138,13 @@ def print_summary(summary, as_json: bool, extra: dict | None = None) -> None:
     click.echo(summary.text())
 
 
+RIG_SOURCE_MARK = "# puppet: recorded from rig file "
+"""Last line added to the rig map text a take stores: where that rig file was when recording
+began, so ``play``/``export`` without ``--rig`` find its character files (relative paths are
+relative to it). A TOML comment: the stored text parses as the rig file did, same line numbers;
+takes without it (older ones) still play."""
+
+
 def rig_files(rig) -> list[Path]:
     """The files a rig was loaded from: rig file, character files, calibration (may be none)."""
     files = [rig.path] if rig.path is not None else []
@@ -166,7 +173,11 @@ def take_writer(take_path: str, rig, *, force: bool = False):
     from puppet.take import TakeWriter
 
     check_take_path(take_path, rig, force=force)
-    map_text = rig.path.read_text() if rig.path is not None and rig.path.suffix == ".toml" else ""
+    map_text = ""
+    if rig.path is not None and rig.path.suffix == ".toml":
+        map_text = rig.path.read_text(encoding="utf-8")
+        map_text += ("" if map_text.endswith("\n") or not map_text else "\n")
+        map_text += f"{RIG_SOURCE_MARK}{rig.path.resolve()}\n"
     calibration = {str(i): int(z) for i, z in zip(rig.servo_map.ids, rig.servo_map.zero)}
     return TakeWriter(take_path, ids=[int(i) for i in rig.servo_map.ids],
                       models=dict(rig.servo_map.models), rig_map_text=map_text,
@@ -175,7 +186,7 @@ def take_writer(take_path: str, rig, *, force: bool = False):
 
 
 def open_take(take: str, rig_path: str | None):
-    """(rig, TakeReader) for a take; the rig is the take's own when --rig is not given."""
+    """(rig, TakeReader) for a take; the rig is the one stored in the take when --rig is not given."""
     from puppet.rig import Calibration
     from puppet.take import TakeReader
 
@@ -183,13 +194,7 @@ def open_take(take: str, rig_path: str | None):
     if len(reader) == 0:
         fail(f"{take}: the take holds no readings")
     meta = reader.metadata
-    if rig_path is None:
-        rig = load_rig(None)
-        if meta.rig_name != rig.name:
-            fail(f"{take}: take from another rig: recorded with rig {meta.rig_name!r}, not the "
-                 f"built-in rig {rig.name!r}; pass --rig with that rig's file")
-    else:
-        rig = load_rig(rig_path)
+    rig = load_rig(rig_path) if rig_path is not None else take_rig(take, meta)
     reader.check_rig([int(i) for i in rig.servo_map.ids], dict(rig.servo_map.models),
                      rig_name=rig.name)
     try:  # replay with the calibration the take was recorded with
@@ -201,3 +206,28 @@ def open_take(take: str, rig_path: str | None):
     if reader.recovery is not None:
         click.echo(f"warning: {take}: {reader.recovery}", err=True)
     return rig, reader
+
+
+def take_rig(take: str, meta):
+    """The rig a take was recorded with, from the rig map text it stores.
+
+    Its character files are looked for relative to where the rig file was when recording began
+    (RIG_SOURCE_MARK), then next to the take, then (for a take of the built-in rig) in the
+    built-in rig's folder; the error names the missing file and the --rig option.
+    """
+    from puppet.rig import builtin
+    from puppet.rig.load import BUILTIN_RIG, builtin_name, load_rig_text
+
+    text = meta.rig_map_text
+    if not text.strip():
+        if meta.rig_name == builtin_name():
+            return builtin()
+        fail(f"{take}: the take stores no rig map (recorded with rig {meta.rig_name!r} loaded "
+             "from a character file); pass --rig with that rig's file")
+    bases = [Path(line[len(RIG_SOURCE_MARK):].strip()).parent
+             for line in text.splitlines()[-1:] if line.startswith(RIG_SOURCE_MARK)]
+    bases.append(Path(take).resolve().parent)
+    if meta.rig_name == builtin_name():
+        bases.append(BUILTIN_RIG.parent)
+    return load_rig_text(text, label=f"{take} (rig map)", bases=bases,
+                         hint="pass --rig with the rig file")

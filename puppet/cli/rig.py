@@ -74,7 +74,11 @@ def rig_axes(rig_path: str, out: str, every_joint: bool, angle: float) -> None:
 @click.argument("rig_path", required=False)
 @click.option("--json", "as_json", is_flag=True, help="Print JSON instead of text.")
 def rig_info(rig_path: str | None, as_json: bool) -> None:
-    """Vertices, bones, servos and constraint kinds of a rig (built-in when omitted)."""
+    """Vertices, bones, servos and constraint kinds of a rig (built-in when omitted).
+
+    The first line names the rig's file: the built-in critter's rig file is a complete example
+    to copy, and what ``hw-sim --rig`` serves.
+    """
     from puppet.rig import builtin, load_rig
 
     start = time.perf_counter()
@@ -83,7 +87,8 @@ def rig_info(rig_path: str | None, as_json: bool) -> None:
     kinds = loaded.bone_kinds()
     report = loaded.check_weights()
     file_vertices = len(loaded.V) if loaded.source_index is None else len(loaded.source_index)
-    info = {"name": loaded.name, "vertices": len(loaded.V), "file_vertices": file_vertices,
+    info = {"name": loaded.name, "path": str(loaded.path) if loaded.path else None,
+            "vertices": len(loaded.V), "file_vertices": file_vertices,
             "triangles": len(loaded.F),
             "bones": loaded.skeleton.bone_count, "servos": len(loaded.servo_map),
             "full": kinds["full"], "relative": kinds["relative"], "free": kinds["free"],
@@ -104,6 +109,9 @@ def rig_info(rig_path: str | None, as_json: bool) -> None:
     click.echo(f"solver     clusters={opts.clusters} extra_weights={opts.extra_weights} energy={opts.energy}")
     click.echo(f"weights    {report.summary()}")
     click.echo(f"load       {load_s:.3f} s")
+    anchor = loaded.anchor_problem()
+    if anchor is not None:  # a bare character (.glb/.npz): a rig file must fix this
+        click.echo(f"warning: {anchor}", err=True)
 
 
 COMMANDS = (rig,)

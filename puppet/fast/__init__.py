@@ -13,9 +13,25 @@ puppet._native.FastSolver), model (precompute and its cache), pattern (constrain
 """
 
 from puppet.fast.errors import FastError, MeshError, PatternError, WeightsError
-from puppet.fast.model import FastModel
 from puppet.fast.pattern import Pattern, Values
-from puppet.fast.solver import Dynamics, Solver
+
+# The solver and the precompute load the native module: imported on first use, so that the
+# pure-numpy parts (pattern, energy names, errors) can be imported without a compiled solver
+# (the rig needs Pattern and ENERGIES; reading a rig must not need puppet._native).
+_LAZY = {"FastModel": "puppet.fast.model", "Solver": "puppet.fast.solver",
+         "Dynamics": "puppet.fast.solver"}
+
+
+def __getattr__(name: str):
+    module = _LAZY.get(name)
+    if module is None:
+        raise AttributeError(f"module 'puppet.fast' has no attribute {name!r}")
+    import importlib
+
+    value = getattr(importlib.import_module(module), name)
+    globals()[name] = value
+    return value
+
 
 __all__ = [
     "FastModel",

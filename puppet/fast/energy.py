@@ -22,10 +22,8 @@ from __future__ import annotations
 import numpy as np
 import scipy.sparse as sp
 
+from puppet.fast.energy_names import ENERGIES
 from puppet.fast.errors import MeshError
-
-ENERGIES = ("spokes", "spokes_and_rims", "elements")
-"""Energy types, as data: each maps to an edge-set construction below."""
 
 # Edges of a tet (corner pairs) in the order of libigl's cotmatrix_entries.
 _TET_EDGES = np.array([[1, 2], [2, 0], [0, 1], [3, 0], [3, 1], [3, 2]])

@@ -8,7 +8,8 @@ or a bare .glb/.gltf/.npz character). A :class:`Rig` gives the solver its constr
 from puppet.rig.calibration import Calibration
 from puppet.rig.errors import RigError
 from puppet.rig.load import builtin, load_rig
-from puppet.rig.rig import ENERGIES, Rig, SolverOptions
+from puppet.fast.energy_names import ENERGIES
+from puppet.rig.rig import Rig, SolverOptions
 from puppet.rig.servo_map import Servo, ServoMap
 from puppet.rig.skeleton import Joint, Skeleton
 from puppet.rig.weight_check import WeightReport, check_weights

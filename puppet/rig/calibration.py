@@ -20,6 +20,9 @@ import numpy as np
 
 from puppet.rig.errors import RigError
 
+INT32 = (-(2**31), 2**31 - 1)
+"""Range of a servo's Present Position, hence of zero ticks."""
+
 
 @dataclass
 class Calibration:
@@ -83,7 +86,7 @@ class Calibration:
                 doc = json.loads(raw)
             else:
                 doc = tomllib.loads(raw.decode("utf-8"))
-        except (json.JSONDecodeError, tomllib.TOMLDecodeError, UnicodeDecodeError) as err:
+        except (json.JSONDecodeError, tomllib.TOMLDecodeError, UnicodeDecodeError, RecursionError) as err:
             raise RigError(f"not valid {'JSON' if path.suffix.lower() == '.json' else 'TOML'}: {err}",
                            path=path) from err
         table = doc.get("zero_ticks") if isinstance(doc, dict) else None
@@ -96,8 +99,11 @@ class Calibration:
             except ValueError:
                 raise RigError(f"servo id {key!r} is not an integer", path=path,
                                field=f"zero_ticks.{key}") from None
-            if isinstance(value, bool) or not isinstance(value, int):
-                raise RigError(f"zero ticks must be an integer, got {value!r}", path=path,
+            if not 0 <= servo_id <= 252:
+                raise RigError(f"servo id {servo_id} is not in 0..252", path=path,
+                               field=f"zero_ticks.{key}")
+            if isinstance(value, bool) or not isinstance(value, int) or not INT32[0] <= value <= INT32[1]:
+                raise RigError(f"zero ticks must be a 32-bit integer, got {value!r}", path=path,
                                field=f"zero_ticks.{key}")
             zero[servo_id] = value
         return cls(zero, path)

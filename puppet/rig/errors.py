@@ -11,10 +11,12 @@ class RigError(PuppetError, ValueError):
     path:  the file at fault, or None for in-memory data.
     field: the field, key or record at fault (e.g. "servo 7 limits", "accessor 3").
     line:  1-based line in ``path`` where the fault is, when known.
+    message: the fault alone, without the place (``str(err)`` has both).
     """
 
     def __init__(self, message: str, *, path: object = None, field: str | None = None,
                  line: int | None = None) -> None:
+        self.message = message
         self.path = None if path is None else str(path)
         self.field = field
         self.line = line
@@ -24,3 +26,9 @@ class RigError(PuppetError, ValueError):
         if field:
             where += f": {field}"
         super().__init__(f"{where}: {message}")
+
+    def at(self, path) -> "RigError":
+        """This error placed in ``path`` when it names no file yet (in-memory data read from it)."""
+        if self.path is not None:
+            return self
+        return RigError(self.message, path=path, field=self.field, line=self.line)

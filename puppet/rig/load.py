@@ -11,7 +11,7 @@ import numpy as np
 from puppet.rig.calibration import Calibration
 from puppet.rig.errors import RigError
 from puppet.rig.rig import Rig
-from puppet.rig.rig_file import read_rig_file
+from puppet.rig.rig_file import RigFile, read_rig_file, read_rig_text
 from puppet.rig.servo_map import ServoMap
 from puppet.rig.skeleton import Skeleton
 from puppet.rig.weight_check import normalize_weights
@@ -39,8 +39,16 @@ def read_character_npz(path):
         raise RigError("character file not found", path=path) from None
     except (OSError, ValueError, zipfile.BadZipFile) as err:
         raise RigError(f"not a character .npz: {err}", path=path) from err
-    skeleton = Skeleton(tuple(str(n) for n in arrays["names"]), arrays["parents"], arrays["heads"],
-                        arrays["tails"], arrays["frames"])
+    for key in ("V", "W", "heads", "tails", "frames"):
+        if not np.issubdtype(arrays[key].dtype, np.number) or not np.isfinite(arrays[key]).all():
+            raise RigError("not all finite numbers", path=path, field=key)
+    try:
+        skeleton = Skeleton(tuple(str(n) for n in arrays["names"]), arrays["parents"],
+                            arrays["heads"], arrays["tails"], arrays["frames"])
+    except RigError as err:
+        raise err.at(path) from None
+    except (ValueError, TypeError) as err:  # arrays of the wrong shape or kind
+        raise RigError(f"skeleton arrays unusable: {err}", path=path, field="skeleton") from None
     W = normalize_weights(arrays["W"], path=path, field_name="W")
     return arrays["V"].astype(np.float64), arrays["F"].astype(np.int32), W, skeleton
 
@@ -63,7 +71,8 @@ def _read_character(spec):
 
         V, F = read_mesh(spec.mesh)
         if spec.skeleton is None:
-            raise RigError("an .obj/.ply mesh needs 'skeleton = \"....tgf\"'", path=spec.path, field="skeleton")
+            raise RigError("an .obj/.ply mesh needs 'skeleton = \"....tgf\"'", path=spec.path,
+                           field="skeleton", line=spec.lines.top("mesh") if spec.lines else None)
         skeleton, columns = read_tgf(spec.skeleton)
         if spec.weights is not None:
             raw = read_dmat(spec.weights)
@@ -77,7 +86,7 @@ def _read_character(spec):
             W = bbw_weights(V, F, skeleton, path=spec.mesh)
         return V, F, W, skeleton, None
     raise RigError(f"unknown character format {suffix!r} (known: .npz, .glb, .gltf, .obj, .ply)",
-                   path=spec.path, field="mesh")
+                   path=spec.path, field="mesh", line=spec.lines.top("mesh") if spec.lines else None)
 
 
 def load_rig(path) -> Rig:
@@ -95,16 +104,71 @@ def load_rig(path) -> Rig:
         return Rig(path.stem, V, F, skeleton, W, ServoMap([], path=path), path=path)
     if suffix != ".toml":
         raise RigError(f"unknown rig format {suffix!r} (known: .toml, .glb, .gltf, .npz)", path=path)
-    spec = read_rig_file(path)
+    return rig_from_spec(read_rig_file(path))
+
+
+def load_rig_text(text: str, *, label, bases, hint: str = "") -> Rig:
+    """A rig from rig-file TOML held in memory (e.g. the rig map a take stores).
+
+    label: what errors name (e.g. "take.mcap (rig map)"). bases: folders to resolve the text's
+    relative character paths against, tried in order: the first where the mesh file exists
+    wins. RigError naming the mesh and every place looked (then ``hint``) when none has it.
+    """
+    bases = list(dict.fromkeys(Path(b) for b in bases))
+    tried = []
+    for base in bases:
+        spec = read_rig_text(text, path=label, base=base)
+        if spec.mesh.exists():
+            return rig_from_spec(spec)
+        tried.append(str(spec.mesh))
+    raise RigError(f"character file not found: looked at {' and '.join(tried)}"
+                   + (f"; {hint}" if hint else ""), path=label, field="mesh",
+                   line=spec.lines.top("mesh") if spec.lines else None)
+
+
+def builtin_name() -> str:
+    """The built-in rig's name, from its file (no character is read)."""
+    return read_rig_file(BUILTIN_RIG).name
+
+
+def rig_from_spec(spec: RigFile) -> Rig:
+    """Read a parsed rig file's character and join it to the servo map.
+
+    Errors found only once the character is known (pins out of range, unknown fixed bones, more
+    clusters than vertices, nothing holding the character in space) name the rig file's line.
+    """
+    path, lines = spec.path, spec.lines
     V, F, W, skeleton, source_index = _read_character(spec)
-    pins = []
+    n = len(V)
+
+    def fail(message, field_name, line):
+        raise RigError(message, path=path, field=field_name, line=line)
+
+    pins: list[int] = []
+    where: dict[int, int] = {}
     for vertex, line in spec.pin_vertices:
-        if vertex >= len(V):
-            raise RigError(f"pin vertex {vertex} out of range: mesh has {len(V)} vertices",
-                           path=path, line=line, field="pin vertex")
+        if vertex >= n:
+            fail(f"pin vertex {vertex} out of range: the mesh has {n} vertices", "pin vertex", line)
         pins.append(vertex)
-    for point, _ in spec.pin_points:
+        where.setdefault(vertex, line)
+    for point, line in spec.pin_points:
         pins.append(int(np.argmin(((V - point) ** 2).sum(axis=1))))
+        where.setdefault(pins[-1], line)
+    for i, vertex in enumerate(pins):
+        if vertex in pins[:i]:
+            line = (spec.pin_vertices + spec.pin_points)[i][1]
+            fail(f"vertex {vertex} is pinned twice (first at line {where[vertex]})", "pin", line)
+    for name in spec.fixed:
+        if name not in skeleton.names:
+            fail(f"unknown fixed bone {name!r}; bones are {list(skeleton.names)}", "fixed",
+                 lines.top("fixed") if lines else None)
+    opts = spec.solver
+    if opts.clusters > n:
+        fail(f"{opts.clusters} clusters but the mesh has only {n} vertices", "solver.clusters",
+             lines.key("solver", 0, "clusters") if lines else None)
+    if opts.extra_weights > n:
+        fail(f"{opts.extra_weights} extra weights but the mesh has only {n} vertices",
+             "solver.extra_weights", lines.key("solver", 0, "extra_weights") if lines else None)
     if spec.calibration is not None and spec.calibration.exists():
         calibration = Calibration.load(spec.calibration)
     else:
@@ -113,6 +177,10 @@ def load_rig(path) -> Rig:
     rig = Rig(spec.name, V, F, skeleton, W, spec.servo_map, calibration, spec.solver,
               np.array(pins, np.int64), spec.fixed, path, source_index)
     rig.set_extras(spec.extras)
+    problem = rig.anchor_problem()
+    if problem is not None:
+        line = lines.top("fixed") if lines else None
+        fail(problem, "fixed", line)
     _check_placeable(rig)
     return rig
 

@@ -16,6 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
+from puppet.fast.energy_names import ENERGIES
 from puppet.fast.pattern import Pattern, Values
 from puppet.rig.calibration import Calibration
 from puppet.rig.errors import RigError
@@ -24,7 +25,6 @@ from puppet.rig.skeleton import Skeleton
 from puppet.rig.solve_options import SolveExtras
 from puppet.rig.weight_check import WeightReport, check_weights
 
-ENERGIES = ("spokes", "spokes_and_rims", "elements")
 
 
 @dataclass(frozen=True)
@@ -85,13 +85,21 @@ class Rig:
         self.W = np.ascontiguousarray(self.W, np.float64)
         self.pins = np.asarray(self.pins, np.int64).reshape(-1)
         n = len(self.V)
-        if self.V.ndim != 2 or self.V.shape[1] != 3:
-            raise RigError(f"vertices have shape {self.V.shape}, expected (n, 3)", path=self.path, field="mesh")
+        if self.V.ndim != 2 or self.V.shape[1] != 3 or n == 0:
+            raise RigError(f"vertices have shape {self.V.shape}, expected (n, 3) with n > 0",
+                           path=self.path, field="mesh")
+        if not np.isfinite(self.V).all():
+            bad = int(np.flatnonzero(~np.isfinite(self.V).all(axis=1))[0])
+            raise RigError(f"vertex {bad} is not finite: {self.V[bad].tolist()}", path=self.path,
+                           field="mesh")
         if self.F.ndim != 2 or self.F.shape[1] != 3 or (len(self.F) and (self.F.min() < 0 or self.F.max() >= n)):
             raise RigError(f"triangles must be (f, 3) indices below {n}", path=self.path, field="mesh")
         if self.W.shape != (n, self.skeleton.bone_count):
             raise RigError(f"weights have shape {self.W.shape}, mesh has {n} vertices and "
                            f"skeleton {self.skeleton.bone_count} bones", path=self.path, field="weights")
+        if not np.isfinite(self.W).all():
+            bad = int(np.flatnonzero(~np.isfinite(self.W).all(axis=1))[0])
+            raise RigError(f"weights of vertex {bad} are not finite", path=self.path, field="weights")
         bad_pins = self.pins[(self.pins < 0) | (self.pins >= n)]
         if len(bad_pins):
             raise RigError(f"pin vertex {int(bad_pins[0])} out of range (mesh has {n} vertices)",
@@ -169,6 +177,20 @@ class Rig:
         return {"full": [names[i] for i in self.full_bones],
                 "relative": [names[i] for i in self.relative_bones],
                 "free": [names[i] for i in self.free_bones]}
+
+    def anchor_problem(self) -> str | None:
+        """What is wrong when nothing holds the character in space, else None.
+
+        The solve needs a bone whose whole chain to the root is sensed or ``fixed`` (a full
+        bone), or a pinned vertex; otherwise the global translation is free and the solver
+        cannot factor its constraint pattern.
+        """
+        if len(self.full_bones) or len(self.pins):
+            return None
+        root = self.skeleton.names[int(np.flatnonzero(self.skeleton.parents < 0)[0])]
+        return (f"nothing holds the character in space: the root bone {root!r} is free (no servo "
+                f"on it and not fixed) and no vertex is pinned; add fixed = [\"{root}\"] or a "
+                "[[pin]] table (vertex = INDEX or point = [x, y, z])")
 
     def check_weights(self) -> WeightReport:
         return check_weights(self.W, len(self.V), self.skeleton.names)

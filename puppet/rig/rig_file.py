@@ -11,53 +11,79 @@ Example (paths are relative to the rig file)::
     fixed = ["hips"]              # bones held rigidly (sensed, identity joint)
 
     [solver]
-    clusters = 100
-    extra_weights = 8
+    clusters = 100                # 1 .. MAX_CLUSTERS, and at most the mesh's vertex count
+    extra_weights = 8             # 0 .. MAX_EXTRA_WEIGHTS
     energy = "spokes_and_rims"    # spokes | spokes_and_rims | elements
 
     [[servo]]
-    id = 1
-    model = "XL330-M288"
+    id = 1                        # 0 .. 252
+    model = "XL330-M288"          # one of puppet.servo_models.MODELS
     joint = "neck"                # bone name
     axis = "x"                    # x | y | z | -x ... or [ax, ay, az] in the bone's rest frame
     order = 1                     # composition order within the joint
-    sign = 1
-    gear = 1.0
-    zero_ticks = 2048
-    limits_deg = [-60, 60]
+    sign = 1                      # 1 or -1
+    gear = 1.0                    # servo turns per joint turn, GEAR_RANGE
+    zero_ticks = 2048             # ticks at the rest pose (int32)
+    limits_deg = [-60, 60]        # low < high, within +-LIMIT_RANGE_DEG
 
     [[pin]]
     vertex = 1234                 # or point = [x, y, z]: the nearest vertex
+
+Every number must be finite (TOML allows ``nan`` and ``inf``: they are refused). Every error is
+a RigError naming the file, the line of the key (or of its table) and the field.
 """
 
 from __future__ import annotations
 
+import math
+import os
 import re
+import reprlib
 import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
+from puppet.fast.energy_names import ENERGIES
 from puppet.rig.errors import RigError
-from puppet.rig.rig import ENERGIES, SolverOptions
-from puppet.rig.servo_map import X_SERIES_MODELS, Servo, ServoMap
+from puppet.rig.rig import SolverOptions
+from puppet.rig.servo_map import GEAR_RANGE, INT32, Servo, ServoMap
 from puppet.rig.solve_options import SolveExtras, read_solve_extras
+from puppet.servo_models import MODELS, known_models
 
 NAMED_AXES = {"x": (1.0, 0, 0), "y": (0, 1.0, 0), "z": (0, 0, 1.0)}
 SERVO_KEYS = {"id", "model", "joint", "axis", "order", "sign", "gear", "zero_ticks", "limits_deg"}
-TOP_KEYS = {"name", "mesh", "skin", "skeleton", "weights", "calibration", "fixed", "solver", "servo",
-            "pin"}
+PIN_KEYS = {"vertex", "point"}
+SOLVER_KEYS = {"clusters", "extra_weights", "energy"}
+TOP_KEYS = {"name", "mesh", "skin", "skeleton", "weights", "calibration", "fixed", "solver", "servo", "pin"}
+
+LIMIT_RANGE_DEG = 360.0
+"""Joint limits lie within +-one turn of the rest pose (servo_map.LIMIT_RANGE, in degrees)."""
+MAX_CLUSTERS = 5000
+"""Rotation clusters; also at most the mesh's vertex count (checked when the mesh is read)."""
+MAX_EXTRA_WEIGHTS = 200
+"""Extra (free) weight functions: each adds a handle to every per-frame solve."""
+MAX_PATH_LENGTH = 4096
+
+_show = reprlib.Repr()
+_show.maxlevel, _show.maxstring, _show.maxother, _show.maxlist = 2, 40, 40, 4
+
+
+def show(value) -> str:
+    """A short repr for error messages (deeply nested or huge values stay short)."""
+    return _show.repr(value)
 
 
 class _Lines:
     """Finds the line of a table or key in TOML text (tomllib reports values, not lines)."""
 
-    _header = re.compile(r"^\s*\[\[?\s*([A-Za-z0-9_.\-]+)\s*\]\]?")
+    _header = re.compile(r"^\s*\[\[?\s*([A-Za-z_][A-Za-z0-9_.\-]*)\s*\]\]?\s*(#.*)?$")
     _key = re.compile(r"^\s*([A-Za-z0-9_\-]+)\s*=")
 
     def __init__(self, text: str) -> None:
         self.tables: dict[tuple[str, int], int] = {}
+        self.roots: dict[str, int] = {}  # first line of any table under a top-level name
         self.keys: dict[tuple[str, int, str], int] = {}
         current, counts = ("", 0), {"": 0}
         for number, line in enumerate(text.splitlines(), 1):
@@ -67,21 +93,32 @@ class _Lines:
                 counts[name] = counts.get(name, -1) + 1
                 current = (name, counts[name])
                 self.tables[current] = number
+                self.roots.setdefault(name.split(".")[0], number)
                 continue
             key = self._key.match(line)
             if key:
                 self.keys.setdefault((*current, key.group(1)), number)
 
-    def table(self, name: str, index: int) -> int | None:
+    def table(self, name: str, index: int = 0) -> int | None:
         return self.tables.get((name, index))
 
     def key(self, table: str, index: int, key: str) -> int | None:
         return self.keys.get((table, index, key)) or self.table(table, index)
 
+    def top(self, key: str) -> int | None:
+        """Line of a top-level key, or of the table of that name."""
+        return self.keys.get(("", 0, key)) or self.table(key, 0) or self.roots.get(key)
+
 
 @dataclass
 class RigFile:
-    """A parsed, validated rig file; mesh paths are absolute."""
+    """A parsed, validated rig file; character paths are absolute.
+
+    path:         the rig file (or a label such as "take.mcap (rig map)" for text from a take).
+    lines:        where each key is, for errors found after the character is read
+                  (``lines.top("fixed")``, ``lines.key("solver", 0, "clusters")``).
+    pin_vertices: [(vertex index, line of the key)]; pin_points: [((3,) float64 point, line)].
+    """
 
     path: Path
     name: str
@@ -92,8 +129,9 @@ class RigFile:
     fixed: tuple[str, ...]
     solver: SolverOptions
     servo_map: ServoMap
-    pin_vertices: list[tuple[int, int]] = field(default_factory=list)   # (vertex, line)
-    pin_points: list[tuple[np.ndarray, int]] = field(default_factory=list)  # (point, line)
+    pin_vertices: list[tuple[int, int]] = field(default_factory=list)
+    pin_points: list[tuple[np.ndarray, int]] = field(default_factory=list)
+    lines: _Lines | None = None
     skin: int | None = None       # glTF skin index; None: the file's only skin
     extras: SolveExtras = field(default_factory=SolveExtras)  # contacts, dynamics, dropout
 
@@ -102,15 +140,42 @@ def read_rig_file(path) -> RigFile:
     """Parse and validate a rig TOML file; every error names the file and the line."""
     path = Path(path)
     try:
-        text = path.read_text(encoding="utf-8")
+        raw = path.read_bytes()
     except FileNotFoundError:
         raise RigError("rig file not found", path=path) from None
-    except (OSError, UnicodeDecodeError) as err:
-        raise RigError(f"cannot read rig file: {err}", path=path) from err
+    except IsADirectoryError:
+        raise RigError("is a folder, not a rig file", path=path) from None
+    except OSError as err:
+        raise RigError(f"cannot read rig file: {err.strerror or err}", path=path) from err
+    try:
+        text = raw.decode("utf-8")
+    except UnicodeDecodeError as err:
+        line = raw[:err.start].count(b"\n") + 1
+        raise RigError(f"not UTF-8 text (byte 0x{raw[err.start]:02x} at offset {err.start}); "
+                       "a rig file is TOML", path=path, line=line) from None
+    return read_rig_text(text, path=path, base=path.parent)
+
+
+_TOML_LINE = re.compile(r"\(at line (\d+), column \d+\)|\(at end of document\)")
+
+
+def read_rig_text(text: str, *, path, base) -> RigFile:
+    """Parse and validate rig TOML ``text``; character files are resolved relative to ``base``.
+
+    path: what errors name (the rig file, or e.g. "take.mcap (rig map)").
+    """
+    base = Path(base)
     try:
         doc = tomllib.loads(text)
     except tomllib.TOMLDecodeError as err:
-        raise RigError(f"not valid TOML: {err}", path=path) from err
+        found = _TOML_LINE.search(str(err))
+        message = _TOML_LINE.sub("", str(err)).strip()
+        line = None
+        if found:  # tomllib names a line and column, or the end of the text
+            line = int(found.group(1)) if found.group(1) else max(1, len(text.splitlines()))
+        raise RigError(f"not valid TOML: {message}", path=path, line=line) from None
+    except RecursionError:
+        raise RigError("not a rig file: tables or arrays nested too deeply", path=path) from None
     lines = _Lines(text)
 
     def fail(message, field_name, line):
@@ -119,132 +184,163 @@ def read_rig_file(path) -> RigFile:
     extras = read_solve_extras(doc, lines, fail)  # takes its own keys out of doc
     for key in doc:
         if key not in TOP_KEYS:
-            fail(f"unknown key (known: {sorted(TOP_KEYS)})", key, lines.key("", 0, key))
+            fail(f"unknown key (known: {', '.join(sorted(TOP_KEYS))})", key, lines.top(key))
 
     def file_key(key, required):
         value = doc.get(key)
         if value is None:
             if required:
-                fail("missing (the character's mesh file)", key, None)
+                fail("missing: the character's mesh file (e.g. mesh = \"creature.glb\")", key, None)
             return None
-        if not isinstance(value, str) or not value:
-            fail(f"must be a file path, got {value!r}", key, lines.key("", 0, key))
-        return (path.parent / value).resolve()
+        if (not isinstance(value, str) or not value.strip() or "\0" in value
+                or len(value) > MAX_PATH_LENGTH):
+            fail(f"must be a file path, got {show(value)}", key, lines.top(key))
+        return Path(os.path.abspath(base / value))
 
     mesh = file_key("mesh", True)
     skeleton, weights, calibration = file_key("skeleton", False), file_key("weights", False), \
         file_key("calibration", False)
-    name = doc.get("name", path.stem)
-    if not isinstance(name, str):
-        fail(f"must be a string, got {name!r}", "name", lines.key("", 0, "name"))
+    name = doc.get("name", Path(str(path)).stem)
+    if not isinstance(name, str) or not name:
+        fail(f"must be a non-empty string, got {show(name)}", "name", lines.top("name"))
     skin = doc.get("skin")
     if skin is not None and (isinstance(skin, bool) or not isinstance(skin, int) or skin < 0):
-        fail(f"must be a glTF skin index >= 0, got {skin!r}", "skin", lines.key("", 0, "skin"))
+        fail(f"must be a glTF skin index >= 0, got {show(skin)}", "skin", lines.top("skin"))
     fixed = doc.get("fixed", [])
-    if not isinstance(fixed, list) or not all(isinstance(f, str) for f in fixed):
-        fail(f"must be a list of bone names, got {fixed!r}", "fixed", lines.key("", 0, "fixed"))
+    if not isinstance(fixed, list) or not all(isinstance(f, str) and f for f in fixed):
+        fail(f"must be a list of bone names, got {show(fixed)}", "fixed", lines.top("fixed"))
+    if len(set(fixed)) != len(fixed):
+        fail(f"a bone is listed twice in {show(fixed)}", "fixed", lines.top("fixed"))
 
     solver = _read_solver(doc.get("solver", {}), lines, fail)
     servos = doc.get("servo", [])
-    if not isinstance(servos, list):
-        fail("must be an array of tables [[servo]]", "servo", lines.key("", 0, "servo"))
+    if not isinstance(servos, list) or not all(isinstance(s, dict) for s in servos):
+        fail("must be an array of tables [[servo]]", "servo", lines.top("servo"))
     parsed = [_read_servo(i, s, lines, fail) for i, s in enumerate(servos)]
     servo_map = ServoMap(parsed, path=path)
 
+    pins = doc.get("pin", [])
+    if not isinstance(pins, list) or not all(isinstance(p, dict) for p in pins):
+        fail("must be an array of tables [[pin]]", "pin", lines.top("pin"))
     pin_vertices, pin_points = [], []
-    for i, pin in enumerate(doc.get("pin", [])):
+    for i, pin in enumerate(pins):
         line = lines.table("pin", i)
+        label = f"pin #{i + 1}"
+        for key in pin:
+            if key not in PIN_KEYS:
+                fail(f"unknown key (known: {', '.join(sorted(PIN_KEYS))})", f"{label} {key}",
+                     lines.key("pin", i, key))
+        if len(pin) != 1:
+            fail("needs exactly one of 'vertex = INDEX' or 'point = [x, y, z]'", label, line)
         if "vertex" in pin:
             v = pin["vertex"]
             if isinstance(v, bool) or not isinstance(v, int) or v < 0:
-                fail(f"must be a vertex index >= 0, got {v!r}", f"pin {i + 1} vertex", line)
-            pin_vertices.append((v, line))
-        elif "point" in pin:
-            pin_points.append((_vector(pin["point"], f"pin {i + 1} point", line, fail), line))
+                fail(f"must be a vertex index >= 0, got {show(v)}", f"{label} vertex",
+                     lines.key("pin", i, "vertex"))
+            pin_vertices.append((v, lines.key("pin", i, "vertex")))
         else:
-            fail("needs 'vertex' or 'point'", f"pin {i + 1}", line)
-    return RigFile(path, name, mesh, skeleton, weights, calibration, tuple(fixed), solver,
-                   servo_map, pin_vertices, pin_points, skin, extras)
+            at = lines.key("pin", i, "point")
+            pin_points.append((_vector(pin["point"], f"{label} point", at, fail), at))
+    return RigFile(Path(str(path)), name, mesh, skeleton, weights, calibration, tuple(fixed),
+                   solver, servo_map, pin_vertices, pin_points, lines, skin, extras)
+
+
+def _integer(value, low: int, high: int) -> bool:
+    return not isinstance(value, bool) and isinstance(value, int) and low <= value <= high
+
+
+def _number(value) -> bool:
+    """A finite TOML number (int or float, not bool, not nan/inf)."""
+    return (not isinstance(value, bool) and isinstance(value, (int, float))
+            and math.isfinite(value))
 
 
 def _read_solver(table, lines, fail) -> SolverOptions:
     if not isinstance(table, dict):
-        fail("must be a table [solver]", "solver", lines.key("", 0, "solver"))
+        fail("must be a table [solver]", "solver", lines.top("solver"))
     defaults = SolverOptions()
+    for key in table:
+        if key not in SOLVER_KEYS:
+            fail(f"unknown solver option (known: {', '.join(sorted(SOLVER_KEYS))})",
+                 f"solver.{key}", lines.key("solver", 0, key))
     clusters = table.get("clusters", defaults.clusters)
     extra = table.get("extra_weights", defaults.extra_weights)
     energy = table.get("energy", defaults.energy)
-    for key in table:
-        if key not in ("clusters", "extra_weights", "energy"):
-            fail("unknown solver option (known: clusters, extra_weights, energy)",
-                 f"solver.{key}", lines.key("solver", 0, key))
-    if isinstance(clusters, bool) or not isinstance(clusters, int) or clusters < 1:
-        fail(f"must be an integer >= 1, got {clusters!r}", "solver.clusters", lines.key("solver", 0, "clusters"))
-    if isinstance(extra, bool) or not isinstance(extra, int) or extra < 0:
-        fail(f"must be an integer >= 0, got {extra!r}", "solver.extra_weights",
-             lines.key("solver", 0, "extra_weights"))
-    if energy not in ENERGIES:
-        fail(f"unknown energy {energy!r} (known: {', '.join(ENERGIES)})", "solver.energy",
+    if not _integer(clusters, 1, MAX_CLUSTERS):
+        fail(f"must be an integer 1..{MAX_CLUSTERS} (and at most the mesh's vertex count), "
+             f"got {show(clusters)}", "solver.clusters", lines.key("solver", 0, "clusters"))
+    if not _integer(extra, 0, MAX_EXTRA_WEIGHTS):
+        fail(f"must be an integer 0..{MAX_EXTRA_WEIGHTS}, got {show(extra)}",
+             "solver.extra_weights", lines.key("solver", 0, "extra_weights"))
+    if not isinstance(energy, str) or energy not in ENERGIES:
+        fail(f"unknown energy {show(energy)} (known: {', '.join(ENERGIES)})", "solver.energy",
              lines.key("solver", 0, "energy"))
     return SolverOptions(clusters, extra, energy)
 
 
 def _vector(value, field_name, line, fail) -> np.ndarray:
-    if (not isinstance(value, list) or len(value) != 3
-            or not all(isinstance(x, (int, float)) and not isinstance(x, bool) for x in value)):
-        fail(f"must be three numbers, got {value!r}", field_name, line)
-    return np.array(value, np.float64)
+    if not isinstance(value, list) or len(value) != 3 or not all(map(_number, value)):
+        fail(f"must be three finite numbers, got {show(value)}", field_name, line)
+    vector = np.array(value, np.float64)
+    if not np.isfinite(vector).all():  # finite ints can still overflow a float64
+        fail(f"must be three finite numbers, got {show(value)}", field_name, line)
+    return vector
 
 
 def _read_servo(index: int, table: dict, lines: _Lines, fail) -> Servo:
     header = lines.table("servo", index)
     label = f"servo #{index + 1}"
-    servo_id = table.get("id")
-    if isinstance(servo_id, bool) or not isinstance(servo_id, int) or not 0 <= servo_id <= 252:
-        fail(f"id must be an integer 0..252, got {servo_id!r}", f"{label} id", lines.key("servo", index, "id"))
-    label = f"servo {servo_id}"
 
     def line(key):
         return lines.key("servo", index, key)
 
+    servo_id = table.get("id")
+    if not _integer(servo_id, 0, 252):
+        fail(f"id must be an integer 0..252, got {show(servo_id)}", f"{label} id", line("id"))
+    label = f"servo {servo_id}"
     for key in table:
         if key not in SERVO_KEYS:
-            fail(f"unknown key (known: {sorted(SERVO_KEYS)})", f"{label} {key}", line(key))
+            fail(f"unknown key (known: {', '.join(sorted(SERVO_KEYS))})", f"{label} {key}", line(key))
     model = table.get("model")
-    if model not in X_SERIES_MODELS:
-        fail(f"unknown model {model!r} (known: {', '.join(X_SERIES_MODELS)})", f"{label} model", line("model"))
+    if not isinstance(model, str) or model not in MODELS:
+        fail(f"unknown model {show(model)} (known: {known_models()})", f"{label} model",
+             line("model"))
     joint = table.get("joint")
     if not isinstance(joint, str) or not joint:
-        fail(f"joint must be a bone name, got {joint!r}", f"{label} joint", line("joint"))
+        fail(f"joint must be a bone name, got {show(joint)}", f"{label} joint", line("joint"))
     raw_axis = table.get("axis")
     if isinstance(raw_axis, str):
         key = raw_axis.strip().lower()
         negative = key.startswith("-")
-        if key.lstrip("+-") not in NAMED_AXES:
-            fail(f"axis must be x, y, z (optionally signed) or three numbers, got {raw_axis!r}",
+        if key.lstrip("+-") not in NAMED_AXES or len(key) > 2:
+            fail(f"axis must be x, y, z (optionally signed) or three numbers, got {show(raw_axis)}",
                  f"{label} axis", line("axis"))
         axis = np.array(NAMED_AXES[key.lstrip("+-")]) * (-1.0 if negative else 1.0)
     else:
         axis = _vector(raw_axis, f"{label} axis", line("axis"), fail)
-    norm = float(np.linalg.norm(axis))
-    if norm < 1e-9:
-        fail(f"axis {raw_axis!r} has zero length", f"{label} axis", line("axis"))
+    norm = math.hypot(*axis)  # no overflow for huge but finite components
+    if not 1e-9 < norm < math.inf:
+        fail(f"axis {show(raw_axis)} has zero length or is not finite", f"{label} axis", line("axis"))
     order = table.get("order", 1)
-    if isinstance(order, bool) or not isinstance(order, int) or not 1 <= order <= 3:
-        fail(f"order must be 1, 2 or 3, got {order!r}", f"{label} order", line("order"))
+    if not _integer(order, 1, 3):
+        fail(f"order must be 1, 2 or 3, got {show(order)}", f"{label} order", line("order"))
     sign = table.get("sign", 1)
-    if sign not in (1, -1) or isinstance(sign, bool):
-        fail(f"sign must be 1 or -1, got {sign!r}", f"{label} sign", line("sign"))
+    if not _integer(sign, -1, 1) or sign == 0:
+        fail(f"sign must be 1 or -1, got {show(sign)}", f"{label} sign", line("sign"))
     gear = table.get("gear", 1.0)
-    if isinstance(gear, bool) or not isinstance(gear, (int, float)) or not gear > 0:
-        fail(f"gear must be a number > 0, got {gear!r}", f"{label} gear", line("gear"))
+    low, high = GEAR_RANGE
+    if not _number(gear) or not low <= gear <= high:
+        fail(f"gear must be a number {low}..{high} (servo turns per joint turn; use sign = -1 "
+             f"to reverse), got {show(gear)}", f"{label} gear", line("gear"))
     zero = table.get("zero_ticks", 2048)
-    if isinstance(zero, bool) or not isinstance(zero, int):
-        fail(f"zero_ticks must be an integer, got {zero!r}", f"{label} zero_ticks", line("zero_ticks"))
+    if not _integer(zero, *INT32):
+        fail(f"zero_ticks must be an integer {INT32[0]}..{INT32[1]}, got {show(zero)}",
+             f"{label} zero_ticks", line("zero_ticks"))
     limits = table.get("limits_deg", [-180.0, 180.0])
-    if (not isinstance(limits, list) or len(limits) != 2
-            or not all(isinstance(x, (int, float)) and not isinstance(x, bool) for x in limits)):
-        fail(f"limits_deg must be [low, high] degrees, got {limits!r}", f"{label} limits_deg", line("limits_deg"))
+    if (not isinstance(limits, list) or len(limits) != 2 or not all(map(_number, limits))
+            or not all(abs(x) <= LIMIT_RANGE_DEG for x in limits)):
+        fail(f"limits_deg must be [low, high]: finite degrees within +-{LIMIT_RANGE_DEG:g}, "
+             f"got {show(limits)}", f"{label} limits_deg", line("limits_deg"))
     if not limits[0] < limits[1]:
         fail(f"limits reversed or empty: low {limits[0]} >= high {limits[1]}", f"{label} limits_deg",
              line("limits_deg"))

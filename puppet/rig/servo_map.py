@@ -11,15 +11,16 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from puppet.rig.calibration import Calibration
+from puppet.rig.calibration import INT32, Calibration
 from puppet.rig.errors import RigError
 from puppet.rig.skeleton import Joint, Skeleton
 
-TICKS_PER_TURN = 4096
+from puppet.servo_models import MODELS, TICKS_PER_TURN, known_models
 
-# X-series models a rig may name (the bus layer owns their control tables).
-X_SERIES_MODELS = ("XL330-M077", "XL330-M288", "XC330-M288", "XL430-W250", "2XL430-W250",
-                   "XM430-W210", "XM430-W350", "XM540-W270", "XH430-W350")
+GEAR_RANGE = (0.01, 100.0)
+"""Servo turns per joint turn: a gear ratio outside this is a typo, not a mechanism."""
+LIMIT_RANGE = (-2 * np.pi, 2 * np.pi)
+"""Joint limits (radians) lie within one turn either side of the rest pose."""
 
 
 @dataclass(frozen=True)
@@ -63,6 +64,7 @@ class ServoMap:
         self.path = path
         seen: dict[int, Servo] = {}
         for s in self.servos:
+            _check_servo(s, path)
             if s.id in seen:
                 raise RigError(f"duplicate servo id {s.id} (first at line {seen[s.id].line})",
                                path=path, line=s.line or None, field=f"servo {s.id} id")
@@ -145,3 +147,27 @@ class ServoMap:
             joints.append(Joint(bone, np.array([self.servos[i].axis for i in members], float),
                                 np.array(members, np.int64)))
         return tuple(joints)
+
+
+def _check_servo(s: Servo, path) -> None:
+    """RigError naming the servo (and its line) unless every field is in range and finite."""
+    def fail(message, key):
+        raise RigError(message, path=path, line=s.line or None, field=f"servo {s.id} {key}")
+
+    if isinstance(s.id, bool) or not isinstance(s.id, (int, np.integer)) or not 0 <= s.id <= 252:
+        fail(f"id must be an integer 0..252, got {s.id!r}", "id")
+    if not isinstance(s.model, str) or s.model not in MODELS:
+        fail(f"unknown model {s.model!r} (known: {known_models()})", "model")
+    axis = np.asarray(s.axis, dtype=float)
+    if axis.shape != (3,) or not np.isfinite(axis).all() or not abs(np.linalg.norm(axis) - 1) < 1e-6:
+        fail(f"axis must be a finite (3,) unit vector, got {axis.tolist()}", "axis")
+    if s.sign not in (1, -1):
+        fail(f"sign must be 1 or -1, got {s.sign!r}", "sign")
+    if not GEAR_RANGE[0] <= s.gear <= GEAR_RANGE[1]:  # also false for nan
+        fail(f"gear must be {GEAR_RANGE[0]}..{GEAR_RANGE[1]}, got {s.gear!r}", "gear")
+    if not INT32[0] <= s.zero_ticks <= INT32[1]:
+        fail(f"zero ticks must be a 32-bit integer, got {s.zero_ticks!r}", "zero_ticks")
+    lo, hi = s.limits
+    if not LIMIT_RANGE[0] <= lo < hi <= LIMIT_RANGE[1]:
+        fail(f"limits must be finite radians with low < high within one turn, got {s.limits!r}",
+             "limits")

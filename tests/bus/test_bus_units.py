@@ -25,8 +25,10 @@ def test_item_round_trips_signed_present_position():
 
 
 def test_models_are_data_with_their_numbers():
-    assert {m.name: m.number for m in ct.MODELS.values()} == {
+    numbers = {m.name: m.number for m in ct.MODELS.values()}
+    assert {name: numbers[name] for name in ("XL330-M288", "XL430-W250", "XM430-W350")} == {
         "XL330-M288": 1200, "XL430-W250": 1060, "XM430-W350": 1020}
+    assert len(set(numbers.values())) == len(numbers)  # one model per number
     with pytest.raises(ValueError, match="XL320"):
         ct.model_named("XL320")
 

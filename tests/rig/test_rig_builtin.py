@@ -7,7 +7,7 @@ import numpy as np
 
 from puppet.rig import builtin
 from puppet.rig.bbw import check_bbw_input
-from puppet.rig.servo_map import X_SERIES_MODELS
+from puppet.servo_models import MODELS
 
 
 def test_builtin_meets_its_promises():
@@ -19,7 +19,7 @@ def test_builtin_meets_its_promises():
     assert len(rig.servo_map) >= 12
     np.testing.assert_array_equal(rig.servo_map.ids, np.arange(1, len(rig.servo_map) + 1))
     assert set(rig.servo_map.models.values()) <= {"XL330-M288", "XL430-W250", "XM430-W350"}
-    assert set(rig.servo_map.models.values()) <= set(X_SERIES_MODELS)
+    assert set(rig.servo_map.models.values()) <= set(MODELS)
     assert np.abs(rig.servo_map.zero - 2048).max() <= 16
     kinds = rig.bone_kinds()
     assert len(kinds["free"]) >= 2 and {"spine", "tail1"} <= set(kinds["free"])

@@ -1,0 +1,153 @@
+"""Every command of the README's "Using it" block runs as written, in order, in one folder.
+
+Substitutions a reader makes too: ``/dev/ttyUSB0`` becomes the port printed by the block's
+``hw-sim --rig`` (the simulated bus serving the rig's servos); ``my.toml`` is the built-in rig
+copied as the README says (its ``mesh`` pointing at ``critter.npz``, plus a calibration file
+name for ``calibrate``); ``faults.txt`` is a small fault file. ``hw-sim`` lines keep serving
+until the end; ``live`` and ``record`` (which run until Ctrl-C) get Ctrl-C once their take holds
+readings. Every command must exit 0 and write the files it names (--out, --record, --pc2,
+--bvh, --frames). A README line the test has no input file for fails with the line quoted.
+"""
+
+from __future__ import annotations
+
+import re
+import shlex
+import signal
+import subprocess
+import threading
+import time
+from pathlib import Path
+
+import pytest
+
+from puppet.rig.load import BUILTIN_RIG
+
+README = Path(__file__).resolve().parents[2] / "README.md"
+PORT_PLACEHOLDER = "/dev/ttyUSB0"
+OUTPUT_OPTIONS = ("--out", "--record", "--pc2", "--bvh", "--frames")
+UNTIL_CTRL_C = ("live", "record")  # puppet commands that run until Ctrl-C unless --seconds
+
+
+def using_it_commands() -> list[str]:
+    """The command lines of the first ```bash block after '## Using it' (comments dropped)."""
+    text = README.read_text()
+    section = text[text.index("## Using it"):]
+    block = re.search(r"```bash\n(.*?)```", section, re.S).group(1)
+    return [line for line in (shlex.join(shlex.split(raw, comments=True)) for raw in block.splitlines())
+            if line]
+
+
+def write_inputs(folder: Path) -> None:
+    """The files the README's commands read: my.toml, faults.txt."""
+    text = BUILTIN_RIG.read_text().replace('mesh = "critter.npz"',
+                                           f'mesh = "{BUILTIN_RIG.parent / "critter.npz"}"')
+    text = text.replace('fixed = ["hips"]', 'calibration = "my.calibration.toml"\nfixed = ["hips"]')
+    (folder / "my.toml").write_text(text)
+    (folder / "faults.txt").write_text("0.5 drop ids=3 for=0.2\n1.0 noise ids=2 amplitude=3 for=0.5\n")
+
+
+def readings_in(take: Path) -> int:
+    from puppet.take import TakeError, TakeReader
+
+    try:
+        return len(TakeReader(take))
+    except (TakeError, OSError):
+        return 0
+
+
+class Background:
+    """A command started like `cmd &`, its output read on a thread (so it never blocks)."""
+
+    def __init__(self, argv: list[str], cwd: Path) -> None:
+        self.argv = argv
+        self.proc = subprocess.Popen(argv, cwd=cwd, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                                     text=True)
+        self.lines: list[str] = []
+        self.errors: list[str] = []
+        self._got_line = threading.Event()
+        self._readers = [threading.Thread(target=self._read, daemon=True),
+                         threading.Thread(target=self._read_errors, daemon=True)]
+        for reader in self._readers:
+            reader.start()
+
+    def _read(self) -> None:
+        for line in self.proc.stdout:
+            self.lines.append(line.strip())
+            self._got_line.set()
+        self._got_line.set()  # end of output
+
+    def _read_errors(self) -> None:
+        self.errors.extend(self.proc.stderr)
+
+    def first_line(self, timeout: float = 120) -> str:
+        """The first line it printed (hw-sim: the port), waiting up to ``timeout`` s for it."""
+        self._got_line.wait(timeout)
+        return self.lines[0] if self.lines else ""
+
+    def interrupt(self, timeout: float = 120) -> tuple[int, str]:
+        """Ctrl-C; (exit code, stderr)."""
+        if self.proc.poll() is None:
+            self.proc.send_signal(signal.SIGINT)
+        try:
+            self.proc.wait(timeout=timeout)
+        except subprocess.TimeoutExpired:
+            self.proc.kill()
+            self.proc.wait()
+        for reader in self._readers:
+            reader.join(timeout=30)
+        return self.proc.returncode, "".join(self.errors)
+
+
+def test_readme_lists_the_commands_a_user_needs():
+    commands = using_it_commands()
+    assert any(c.startswith("hw-sim --rig") for c in commands)
+    for name in ("rig info", "scan", "calibrate", "live", "record", "play", "export", "demo"):
+        assert any(c.startswith(f"puppet {name}") for c in commands), name
+
+
+def test_every_using_it_command_runs_as_written(tmp_path):
+    write_inputs(tmp_path)
+    servers: list[Background] = []
+    port = None
+    try:
+        for line in using_it_commands():
+            started = time.monotonic()
+            argv = shlex.split(line)
+            if argv[0] == "hw-sim":
+                server = Background(argv, tmp_path)
+                servers.append(server)
+                assert server.first_line().startswith("/dev/"), (line, server.proc.poll())
+                if "--rig" in argv:
+                    port = server.first_line()
+                continue
+            if PORT_PLACEHOLDER in argv:
+                assert port is not None, f"{line!r}: no 'hw-sim --rig' line before it gives a port"
+                argv = [port if a == PORT_PLACEHOLDER else a for a in argv]
+            outputs = [argv[k + 1] for k, a in enumerate(argv[:-1]) if a in OUTPUT_OPTIONS]
+            if argv[:2] in (["puppet", c] for c in UNTIL_CTRL_C) and "--seconds" not in argv:
+                take = argv[argv.index("--record" if argv[1] == "live" else "--out") + 1]
+                run = Background(argv, tmp_path)
+                deadline = time.monotonic() + 180
+                while readings_in(tmp_path / take) < 20 and run.proc.poll() is None:
+                    assert time.monotonic() < deadline, f"{line!r}: no readings recorded"
+                    time.sleep(0.2)
+                code, stderr = run.interrupt()
+            else:
+                result = subprocess.run(argv, cwd=tmp_path, capture_output=True, text=True,
+                                        timeout=600)
+                code, stderr = result.returncode, result.stderr
+            assert code == 0, f"{line!r} exited {code}:\n{stderr[-3000:]}"
+            assert "Traceback" not in stderr, (line, stderr)
+            for name in outputs:
+                assert (tmp_path / name).exists(), f"{line!r} did not write {name}"
+            print(f"{time.monotonic() - started:6.1f} s  {line}")  # shown with -s or on failure
+    finally:
+        for server in servers:
+            code, stderr = server.interrupt()
+            assert code == 0, stderr
+
+
+@pytest.mark.parametrize("command", ["puppet rig info my.toml --json"])
+def test_the_block_is_parsed_into_runnable_lines(command):
+    assert command in using_it_commands()

@@ -1,0 +1,177 @@
+"""One model table: hw_sim's device-side copy agrees with puppet's, every model is served and
+read, ``hw-sim --rig`` serves exactly a rig's servos with a motion inside its limits, and
+``hw-sim --servos IDS:MODEL,...`` serves mixed models without a rig."""
+
+from __future__ import annotations
+
+import signal
+import subprocess
+import sys
+import time
+
+import pytest
+
+import hw_sim
+import hw_sim.cli
+from hw_sim.control_table import MODELS as SIM_MODELS
+from hw_sim.control_table import TICKS_PER_TURN as SIM_TICKS_PER_TURN
+from hw_sim.motion import WithinLimits
+from hw_sim.rig_servos import RigFileError, RigServo, read_rig_servos
+from puppet.servo_models import MODELS, TICKS_PER_TURN
+
+PRESENT_POSITION = 132
+
+
+def test_the_device_side_table_agrees_with_puppets():
+    assert {m.name: (m.number, m.fast_sync_read_firmware) for m in SIM_MODELS.values()} == \
+        {m.name: (m.number, m.fast_sync_read_firmware) for m in MODELS.values()}
+    assert SIM_TICKS_PER_TURN == TICKS_PER_TURN
+    for model in SIM_MODELS.values():  # the items puppet reads sit where puppet reads them
+        assert (model.field("Model Number").addr, model.field("Present Position").addr,
+                model.field("Present Position").size) == (0, 132, 4)
+
+
+def test_hw_sim_imports_nothing_of_puppet():
+    code = ("import sys, hw_sim, hw_sim.cli, hw_sim.rig_servos, hw_sim.control_table\n"
+            "print(sorted(m for m in sys.modules if m == 'puppet' or m.startswith('puppet.')))\n")
+    result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
+    assert result.stdout.strip() == "[]", result.stderr
+
+
+def test_every_model_is_served_and_read_by_the_bus():
+    from puppet.bus import ServoReader
+
+    servos = {k + 1: name for k, name in enumerate(MODELS)}
+    with hw_sim.serve(servos) as bus:
+        reader = ServoReader(bus.port, servos)
+        try:
+            report = reader.open()
+            assert sorted(report.found) == sorted(servos)
+            assert report.missing == []
+            reading = reader.read_clean(timeout_s=30.0)
+            assert reading.ticks.tolist() == [2048] * len(servos)
+        finally:
+            reader.close()
+
+
+def rig_file(tmp_path, calibration: str = ""):
+    path = tmp_path / "mixed.toml"
+    path.write_text(f'mesh = "x.glb"\n{calibration}'
+                    '[[servo]]\nid = 3\nmodel = "XC330-T288"\njoint = "a"\naxis = "x"\n'
+                    'zero_ticks = 1000\nlimits_deg = [-20, 60]\n'
+                    '[[servo]]\nid = 7\nmodel = "XM540-W270"\njoint = "b"\naxis = "y"\nsign = -1\n'
+                    'gear = 2.0\nzero_ticks = 3000\nlimits_deg = [-45, 45]\n'
+                    '[[servo]]\nid = 20\nmodel = "2XL430-W250"\njoint = "c"\naxis = "z"\n'
+                    'limits_deg = [10, 80]\n')
+    return path
+
+
+def test_a_rig_files_servos_are_read_device_side(tmp_path):
+    path = rig_file(tmp_path, 'calibration = "cal.toml"\n')
+    (tmp_path / "cal.toml").write_text("[zero_ticks]\n7 = 3100\n")
+    assert read_rig_servos(path) == [
+        RigServo(3, "XC330-T288", 1000, 1, 1.0, (-20.0, 60.0)),
+        RigServo(7, "XM540-W270", 3100, -1, 2.0, (-45.0, 45.0)),
+        RigServo(20, "2XL430-W250", 2048, 1, 1.0, (10.0, 80.0))]
+    bad = tmp_path / "bad.toml"
+    bad.write_text('[[servo]]\nid = 1\nmodel = "XC330-M999"\n')
+    with pytest.raises(RigFileError, match=r"bad.toml: servo 1: hw_sim does not simulate model 'XC330-M999'"):
+        read_rig_servos(bad)
+
+
+def test_the_fitted_motion_stays_inside_every_joint_limit():
+    servos = [RigServo(3, "XC330-T288", 1000, 1, 1.0, (-20.0, 60.0)),
+              RigServo(7, "XM540-W270", 3100, -1, 2.0, (-45.0, 45.0)),
+              RigServo(20, "2XL430-W250", 2048, 1, 1.0, (10.0, 80.0))]
+    motion = WithinLimits(servos)
+    for s in servos:
+        angles = [s.sign * (motion.position(s.id, t / 100) - s.zero_ticks) * 360 / TICKS_PER_TURN / s.gear
+                  for t in range(0, 480)]
+        assert s.limits_deg[0] <= min(angles) and max(angles) <= s.limits_deg[1]
+        low, high = s.limits_deg
+        centre = 0.0 if low < 0 < high else (low + high) / 2  # the rest pose when it is inside
+        assert max(angles) - min(angles) > 1.3 * 0.7 * min(centre - low, high - centre)
+    assert motion.position(99, 1.0) == 2048.0
+
+
+def test_servos_option_parses_mixed_models():
+    assert hw_sim.cli.parse_servos("1-3:XL330-M288,4-5:XL430-W250,7", "XM430-W350") == {
+        1: "XL330-M288", 2: "XL330-M288", 3: "XL330-M288", 4: "XL430-W250", 5: "XL430-W250",
+        7: "XM430-W350"}
+    for bad, message in [("1-3:XL999", "unknown model 'XL999'"), ("1-3,2", "servo id 2 is given twice"),
+                         ("5-2:XL430-W250", "backwards"), ("300", "outside 0..252")]:
+        with pytest.raises(ValueError, match=message):
+            hw_sim.cli.parse_servos(bad, "XL330-M288")
+
+
+class HwSim:
+    """``hw-sim ARGS`` as a user runs it: the port it prints, stopped with Ctrl-C."""
+
+    def __init__(self, *args: str) -> None:
+        self.proc = subprocess.Popen([sys.executable, "-m", "hw_sim.cli", *args],
+                                     stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        self.port = self.proc.stdout.readline().strip()
+
+    def stop(self) -> str:
+        self.proc.send_signal(signal.SIGINT)
+        assert self.proc.wait(timeout=30) == 0
+        return self.proc.stderr.read()
+
+
+def served(open_sdk, short, port: str, expected: dict[int, int], ids) -> dict[int, int]:
+    """{id: model number} of the ids in ``ids`` that answer a ping: those in ``expected`` are
+    pinged with the patient deadline, the others (which must stay silent) with a short one."""
+    sdk = open_sdk(port)
+    out = {}
+    for i in ids:
+        if i in expected:
+            number, result, _ = sdk.packet.ping(sdk.port, i)
+        else:
+            with short():
+                number, result, _ = sdk.packet.ping(sdk.port, i)
+        if result == 0:
+            out[i] = number
+    return out
+
+
+def test_hw_sim_rig_serves_exactly_the_rigs_servos_within_limits(tmp_path, open_sdk, short):
+    path = rig_file(tmp_path)
+    sim = HwSim("--rig", str(path))
+    try:
+        assert sim.port.startswith("/dev/pts/")
+        expected = {3: 1220, 7: 1120, 20: 1090}
+        assert served(open_sdk, short, sim.port, expected, range(1, 22)) == expected
+        sdk = open_sdk(sim.port)
+        servos = read_rig_servos(path)
+        seen = {s.id: [] for s in servos}
+        start = time.monotonic()
+        while time.monotonic() - start < 2.6:  # one period of the motion (2.4 s), sampled
+            for s in servos:
+                ticks, result, _ = sdk.packet.read4ByteTxRx(sdk.port, s.id, PRESENT_POSITION)
+                if result == 0:
+                    ticks -= (1 << 32) if ticks >= 1 << 31 else 0
+                    seen[s.id].append(s.sign * (ticks - s.zero_ticks) * 360 / TICKS_PER_TURN / s.gear)
+        for s in servos:
+            assert len(seen[s.id]) > 10
+            assert s.limits_deg[0] - 0.2 <= min(seen[s.id]) and max(seen[s.id]) <= s.limits_deg[1] + 0.2
+            assert max(seen[s.id]) - min(seen[s.id]) > 10  # it moves
+    finally:
+        err = sim.stop()
+    assert "3 servos (3: XC330-T288; 7: XM540-W270; 20: 2XL430-W250)" in err
+    assert "motion within the rig's limits" in err
+
+
+def test_hw_sim_servos_serves_mixed_models_without_a_rig(open_sdk, short):
+    sim = HwSim("--servos", "1-3:XL330-M288,4-9:XL430-W250", "--motion", "wave")
+    try:
+        expected = {**{i: 1200 for i in (1, 2, 3)}, **{i: 1060 for i in range(4, 10)}}
+        assert served(open_sdk, short, sim.port, expected, range(1, 11)) == expected
+    finally:
+        sim.stop()
+
+
+def test_hw_sim_rig_errors_are_named(tmp_path, capsys):
+    assert hw_sim.cli.main(["--rig", str(tmp_path / "none.toml")]) == 2
+    assert f"hw-sim: --rig: {tmp_path / 'none.toml'}: cannot read rig file" in capsys.readouterr().err
+    assert hw_sim.cli.main(["--rig", str(rig_file(tmp_path)), "--servos", "1-3"]) == 2
+    assert "give --rig or --servos, not both" in capsys.readouterr().err
