@@ -332,6 +332,9 @@ def read_gltf(path, skin: int | None = None) -> GltfCharacter:
     path = Path(path)
     if not path.exists():
         raise RigError("glTF file not found", path=path)
+    if path.suffix.lower() == ".glb" and path.is_file() and path.stat().st_size < 12:
+        raise RigError(f"{path.stat().st_size} bytes: too short for a binary glTF (12-byte header)",
+                       path=path)
     _check_container(path)
     try:
         gltf = pygltflib.GLTF2.load(str(path))
