@@ -19,7 +19,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from puppet.bus import Reading
-from puppet.fast import FastModel
+from puppet.fast import FastModel, Pattern
 from puppet.rig import Rig
 
 BONE_KIND_STATES = {"full": "sensed", "relative": "relative", "free": "free"}
@@ -52,9 +52,10 @@ class Pipeline:
         self.iterations = int(iterations)
         self.model = FastModel(rig.V, rig.F, rig.W, clusters=options.clusters,
                                extra_weights=options.extra_weights, energy=options.energy)
-        self.pattern = rig.pattern()
+        self.pattern = self._rig_pattern = rig.pattern()
         self.solver = self.model.solver(self.pattern)
         self.values = self.pattern.values()
+        self.handle_targets = self.values.positional[len(self._rig_pattern.positional):]
         self.T = self.model.rest_T()
         self.angles = np.zeros(len(rig.servo_map), np.float64)
         self.solve_ns = 0          # time spent in Solver.solve, all frames
@@ -104,6 +105,30 @@ class Pipeline:
         elif self.bone_states != self._base_states:
             self.bone_states[:] = self._base_states
         return self.T
+
+    def set_handles(self, vertices) -> float:
+        """Pin these vertices (the live view's dragged point handles) on top of the rig's own
+        constraints: a new pattern, so the solver is refactored. Returns the refactor seconds.
+
+        vertices: vertex indices (no repeats, none of the rig's pins). Their targets are the rows
+        of ``self.handle_targets`` ((h, 3) float32, model units), kept across solves until the
+        next call; set them before each solve. A PatternError (e.g. a vertex held only by sensed
+        bones: redundant) leaves the current pattern in place.
+        """
+        rig_pattern = self._rig_pattern
+        pattern = Pattern(full=rig_pattern.full, relative=rig_pattern.relative,
+                          positional=rig_pattern.positional + tuple(int(v) for v in vertices))
+        start = time.perf_counter()
+        solver = self.model.solver(pattern)
+        seconds = time.perf_counter() - start
+        values = pattern.values()
+        values.full[:] = self.values.full
+        values.relative[:] = self.values.relative
+        kept = min(len(self.values.positional), len(values.positional))
+        values.positional[:kept] = self.values.positional[:kept]
+        self.pattern, self.solver, self.values = pattern, solver, values
+        self.handle_targets = values.positional[len(rig_pattern.positional):]
+        return seconds
 
     def _mark_faulted(self, ok: np.ndarray) -> None:
         self.bone_states[:] = self._base_states
