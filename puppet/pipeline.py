@@ -237,7 +237,7 @@ class VideoClock:
 def run_live(pipeline: Pipeline, source, *, seconds: float | None = None,
              sinks: Iterable = (), video_fps: float = 30.0, recorder=None,
              should_stop: Callable[[], bool] = lambda: False,
-             on_frame: Callable[[Summary], None] | None = None) -> Summary:
+             on_frame: Callable[[Summary], None] | None = None, view=None) -> Summary:
     """Run the live loop until ``seconds`` pass or ``should_stop()`` (e.g. Ctrl-C).
 
     source:   a started ReaderProcess or ReaderThread: ``drain()``, ``latest(timeout)`` and
@@ -245,6 +245,9 @@ def run_live(pipeline: Pipeline, source, *, seconds: float | None = None,
               newest one is solved and drawn.
     sinks:    objects with ``write(image)`` fed at ``video_fps`` by wall clock (a frame is
               repeated when the loop runs slower than the video); empty: solve only, no render.
+    view:     a live view (puppet.view.View) or None: ``view.apply(pipeline)`` before each
+              solve (page input: handles, camera), ``view.frame(pipeline, batch, image, log)``
+              after it (it renders for its viewers only when they can take a frame).
     """
     sinks = list(sinks)
     render = bool(sinks) and pipeline.renderer is not None
@@ -257,6 +260,8 @@ def run_live(pipeline: Pipeline, source, *, seconds: float | None = None,
         now = time.monotonic()
         if seconds is not None and now - start >= seconds:
             break
+        if view is not None:
+            view.apply(pipeline)
         batch = source.drain()
         if not batch:
             newest = source.latest(timeout=0.5)
@@ -275,6 +280,8 @@ def run_live(pipeline: Pipeline, source, *, seconds: float | None = None,
             image = pipeline.draw()
         summary.latency_ms.append((time.monotonic_ns() - reading.t_ns) / 1e6)
         summary.frames += 1
+        if view is not None:
+            view.frame(pipeline, batch, image if render else None, source.log)
         if image is not None:
             for _ in range(clock.due(time.monotonic())):
                 for sink in sinks:
