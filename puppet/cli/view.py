@@ -76,3 +76,32 @@ def view(rig_path: str | None, address: str, seconds: float | None, size: tuple[
 
 
 COMMANDS = (view,)
+
+
+def play_in_view(take: str, rig_path: str | None, out: str | None, frames: str | None,
+                 speed: float, fps: float, view_address: str) -> None:
+    """``puppet play TAKE --view``: the take on the wall clock, paused, scrubbed and sped up from
+    the page, until Ctrl-C; --out / --frames get the frames as shown."""
+    from puppet.cli.common import make_sinks, open_take, print_summary
+    from puppet.pipeline import Pipeline, run_live
+    from puppet.take.markers import read_markers
+    from puppet.view import TakeSource
+
+    live_view = open_view(view_address, mode="play")
+    try:
+        rig, reader = open_take(take, rig_path)
+        t_ns, ticks, ok = reader.arrays(ids=[int(i) for i in rig.servo_map.ids])
+        marks = [((t - int(t_ns[0])) / 1e9, name) for t, name in read_markers(take)]
+        source = TakeSource(rig.servo_map.ids, t_ns, ticks, ok, speed=speed, markers=marks)
+        sinks = make_sinks(out, frames, fps)
+        try:
+            with Pipeline(rig, overlay=True) as pipeline:
+                live_view.attach(pipeline, source=source)
+                summary = run_live(pipeline, source, sinks=sinks, video_fps=fps,
+                                   should_stop=StopFlag(), view=live_view)
+        finally:
+            for sink in sinks:
+                sink.close()
+    finally:
+        live_view.close()
+    print_summary(summary, False, extra={"take": take})

@@ -1,0 +1,187 @@
+"""``puppet demo --view`` in a real browser: frames, the servo panel, dragging the tail, recording
+from the page, several viewers, and bad input that must not stop the loop."""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import subprocess
+
+import aiohttp
+import numpy as np
+
+from puppet.take import TakeReader
+from puppet.take.markers import read_markers
+
+
+def test_frames_arrive_and_change(new_page, demo, tmp_path, tools):
+    page = tools.open_view(new_page, demo)
+    first = tools.frame_image(page)
+    seq = page.evaluate("puppetView.shownSeq")
+    tools.wait_js(page, f"puppetView.shownSeq > {seq} + 5")
+    second = tools.frame_image(page)
+    page.screenshot(path=str(tmp_path / "demo_view.png"))
+    assert first.shape == (480, 640, 3)
+    changed = np.abs(first.astype(int) - second.astype(int)).max(axis=2) > 30
+    assert changed.sum() > 100  # the critter moved between the two frames
+    tools.wait_js(page, "puppetView.panel && puppetView.panel.latency_ms.median !== null")
+
+
+def test_servo_panel_flags_a_dropped_servo(new_page, demo, tmp_path, tools):
+    page = tools.open_view(new_page, demo)
+    row = f"#servos tbody tr[data-id='{tools.DROPPED_SERVO}']"
+    tools.wait_until(lambda: page.locator(row).get_attribute("class") == "flagged",
+                     what=f"servo {tools.DROPPED_SERVO} flagged on the panel")
+    assert page.locator(f"{row} td").nth(3).inner_text() == "flagged"
+    assert page.locator(f"{row} td").nth(4).inner_text() != ""  # its last fault is named
+    assert page.locator("#faults li").count() > 0
+    page.screenshot(path=str(tmp_path / "flagged.png"))
+
+
+def _is_character(pixel_block: np.ndarray) -> bool:
+    """Any pixel of the (warm, orange) character in a block of the frame."""
+    rgb = pixel_block.reshape(-1, 3).astype(int)
+    return bool(((rgb[:, 0] - rgb[:, 2]) > 45).any())
+
+
+def test_drag_on_the_tail_moves_the_tail(new_page, demo, tmp_path, tools):
+    page = tools.open_view(new_page, demo)
+    # The panel's bones are projected with the current camera: wait for the side view.
+    tools.wait_js(page, "puppetView.bones.length > 0")
+    before = page.evaluate("puppetView.bones.find(b => b.name === 'tail3').b")
+    page.click("button[data-preset='side']")
+    tools.wait_until(lambda: np.hypot(*np.subtract(
+        page.evaluate("puppetView.bones.find(b => b.name === 'tail3').b"), before)) > 5,
+        what="the side view")
+    seq = page.evaluate("puppetView.shownSeq")
+    tools.wait_js(page, f"puppetView.shownSeq > {seq} + 3")
+    tail = page.evaluate("puppetView.bones.find(b => b.name === 'tail3')")
+    grab = (np.array(tail["a"]) + 2 * np.array(tail["b"])) / 3
+    image = tools.frame_image(page)
+    targets = [grab + d for d in ((0, -90), (-90, 0), (90, 0), (0, 90), (-70, -70), (70, -70))]
+    targets = [t for t in targets if 8 <= t[0] < 632 and 8 <= t[1] < 472
+               and not _is_character(image[int(t[1]) - 4:int(t[1]) + 5, int(t[0]) - 4:int(t[0]) + 5])]
+    assert targets, "no background next to the tail to drag it to"
+    target = targets[0]
+    box = page.locator("#marks").bounding_box()
+    scale = box["width"] / 640
+    page.mouse.move(box["x"] + grab[0] * scale, box["y"] + grab[1] * scale)
+    page.mouse.down()
+    page.mouse.move(box["x"] + target[0] * scale, box["y"] + target[1] * scale, steps=12)
+    page.mouse.up()
+    pick = tools.wait_js(page, "puppetView.lastPick")
+    assert pick["handle"] is not None, "the press on the tail did not hit the surface"
+    tx, ty = int(target[0]), int(target[1])
+    tools.wait_until(lambda: _is_character(tools.frame_image(page)[ty - 4:ty + 5, tx - 4:tx + 5]),
+               what="the tail in the next frames where it was dragged")
+    page.screenshot(path=str(tmp_path / "tail_dragged.png"))
+    assert "refactor" in page.inner_text("#notices")
+    # Later frames keep it there (the handle holds while the servos move the rest).
+    seq = page.evaluate("puppetView.shownSeq")
+    tools.wait_js(page, f"puppetView.shownSeq > {seq} + 5")
+    assert _is_character(tools.frame_image(page)[ty - 4:ty + 5, tx - 4:tx + 5])
+    # Remove it (right click on the page-drawn handle).
+    spot = tools.wait_js(page, "puppetView.handleSpots.length === 1 && puppetView.handleSpots[0]")
+    page.mouse.click(box["x"] + spot["x"] * scale, box["y"] + spot["y"] * scale, button="right")
+    tools.wait_js(page, "puppetView.handles.length === 0")
+    page.click("#reset")
+
+
+def test_record_from_the_page_survives_closing_it_and_plays_back(new_page, demo, tmp_path, tools):
+    page = tools.open_view(new_page, demo)
+    page.click("#record")
+    tools.wait_js(page, "puppetView.recording.on && puppetView.recording.readings > 100")
+    page.fill("#marker-name", "nice bit")
+    page.click("#marker")
+    tools.wait_js(page, "puppetView.markers.some(m => m.name === 'nice bit')")
+    readings = page.evaluate("puppetView.recording.readings")
+    page.context.close()  # closing the page never stops a recording
+    other = tools.open_view(new_page, demo)
+    # A late joiner gets the state first: the recording still runs.
+    assert other.evaluate("puppetView.recording.on") is True
+    tools.wait_js(other, f"puppetView.recording.readings > {readings} + 50")
+    other.click("#record")
+    state = tools.wait_js(other, "!puppetView.recording.on && puppetView.recording.path && puppetView.recording")
+    take = demo.cwd / state["path"]
+    reader = TakeReader(take)
+    assert len(reader) > readings + 50
+    assert not reader.truncated
+    assert [name for _, name in read_markers(take)] == ["nice bit"]
+    frames = tmp_path / "frames"
+    result = subprocess.run(tools.PUPPET + ["play", str(take), "--frames", str(frames), "--antialias", "none"],
+                            capture_output=True, text=True, timeout=600)
+    assert result.returncode == 0, result.stderr
+    assert len(list(frames.glob("*.png"))) > 10
+
+
+def test_three_viewers_each_get_frames(new_page, demo, tools):
+    pages = [tools.open_view(new_page, demo) for _ in range(3)]
+    counts = [p.evaluate("puppetView.shown") for p in pages]
+    for p, count in zip(pages, counts):
+        tools.wait_js(p, f"puppetView.shown > {count} + 5")
+    assert len({p.evaluate("puppetView.viewer") for p in pages}) == 3
+    assert all(p.evaluate("puppetView.panel.viewer.drops") >= 0 for p in pages)
+    # One viewer orbiting on its own camera gets frames of its own.
+    pages[0].click("#own")
+    pages[0].click("button[data-preset='side']")
+    tools.wait_js(pages[0], "puppetView.panel.viewer.camera > 0")
+    count = pages[0].evaluate("puppetView.shown")
+    tools.wait_js(pages[0], f"puppetView.shown > {count} + 3")
+
+
+async def _bad_clients(url: str) -> dict:
+    """Malformed and oversized messages, a cross-origin socket, a client gone mid-stream."""
+    base = url.rstrip("/")
+    origin = base
+    ws_base = base.replace("http://", "ws://")
+    out = {}
+    async with aiohttp.ClientSession() as session:
+        async with session.ws_connect(f"{ws_base}/ws/control?client=bad1", origin=origin) as ws:
+            snapshot = json.loads((await ws.receive()).data)
+            out["snapshot"] = snapshot["type"]
+            await ws.send_str("not json at all")
+            await ws.send_str(json.dumps({"type": "no_such_thing"}))
+            await ws.send_str(json.dumps({"type": "drag", "key": "x", "x": 1, "y": 2}))
+            await ws.send_str(json.dumps({"type": "zoom", "factor": float("1e300")}))
+            await ws.send_str("x" * 20000)  # oversized: the server closes this socket
+            while True:
+                msg = await ws.receive()
+                if msg.type in (aiohttp.WSMsgType.CLOSE, aiohttp.WSMsgType.CLOSED, aiohttp.WSMsgType.ERROR):
+                    break
+            out["oversized_close"] = ws.close_code
+        async with session.ws_connect(f"{ws_base}/ws/frames?client=bad2", origin=origin) as ws:
+            msg = await ws.receive()
+            out["frame_bytes"] = len(msg.data)
+            await ws.send_str("{malformed")
+        # closed here without acknowledging: a client gone mid-stream
+        try:
+            async with session.ws_connect(f"{ws_base}/ws/control?client=bad3", origin="http://evil.example"):
+                out["cross_origin"] = "accepted"
+        except aiohttp.WSServerHandshakeError as err:
+            out["cross_origin"] = err.status
+    return out
+
+
+def test_bad_input_leaves_the_loop_running(new_page, demo, tools):
+    page = tools.open_view(new_page, demo)
+    result = asyncio.run(_bad_clients(demo.url))
+    assert result["snapshot"] == "snapshot"
+    assert result["oversized_close"] == 1009  # message too big
+    assert result["frame_bytes"] > 24
+    assert result["cross_origin"] == 403
+    # A drag that starts on the background: no handle, a warning, the view goes on.
+    box = page.locator("#marks").bounding_box()
+    page.mouse.move(box["x"] + 3, box["y"] + 3)
+    page.mouse.down()
+    page.mouse.move(box["x"] + 40, box["y"] + 30, steps=5)
+    page.mouse.up()
+    pick = tools.wait_js(page, "puppetView.lastPick")
+    assert pick["handle"] is None
+    count = page.evaluate("puppetView.shown")
+    tools.wait_js(page, f"puppetView.shown > {count} + 10")
+    tools.wait_until(lambda: "started on the background" in demo.stderr(), what="the background-drag warning")
+    err = demo.stderr()
+    assert "not a JSON object" in err
+    assert "unknown message type 'no_such_thing'" in err
+    assert "from origin 'http://evil.example'" in err
+    assert "Traceback" not in err
