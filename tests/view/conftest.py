@@ -7,6 +7,7 @@ fixed sleeps before an assertion, no rate thresholds.
 
 from __future__ import annotations
 
+import asyncio
 import os
 import re
 import shutil
@@ -168,8 +169,56 @@ def frame_image(page):
     return np.asarray(Image.open(io.BytesIO(png)).convert("RGB"))
 
 
-def open_view(new_page, process, frames: int = 3):
-    """A page on a running view, once it has shown some frames."""
-    page = new_page(process.url)
+def open_view(new_page, target, frames: int = 3):
+    """A page on a running view (a PuppetProcess or a URL), once it has shown some frames."""
+    page = new_page(target if isinstance(target, str) else target.url)
     wait_js(page, f"window.puppetView && puppetView.shown >= {frames}")
     return page
+
+
+def is_character(block) -> bool:
+    """Any pixel of the (warm, orange) character in a block (h, w, 3) of a frame."""
+    rgb = block.reshape(-1, 3).astype(int)
+    return bool(((rgb[:, 0] - rgb[:, 2]) > 45).any())
+
+
+def drag_tail(page):
+    """Turn the shared camera to the side, press on the tail and drag it onto the background.
+    Returns the target (x, y) image position; fails if the press missed the surface."""
+    import numpy as np
+
+    wait_js(page, "puppetView.bones.length > 0")
+    before = page.evaluate("puppetView.bones.find(b => b.name === 'tail3').b")
+    page.click("button[data-preset='side']")
+    wait_until(lambda: np.hypot(*np.subtract(
+        page.evaluate("puppetView.bones.find(b => b.name === 'tail3').b"), before)) > 5,
+        what="the side view")
+    seq = page.evaluate("puppetView.shownSeq")
+    wait_js(page, f"puppetView.shownSeq > {seq} + 3")
+    tail = page.evaluate("puppetView.bones.find(b => b.name === 'tail3')")
+    grab = (np.array(tail["a"]) + 2 * np.array(tail["b"])) / 3
+    image = frame_image(page)
+    width, height = image.shape[1], image.shape[0]
+    targets = [grab + d for d in ((0, -90), (-90, 0), (90, 0), (0, 90), (-70, -70), (70, -70))]
+    targets = [t for t in targets if 8 <= t[0] < width - 8 and 8 <= t[1] < height - 8
+               and not is_character(image[int(t[1]) - 4:int(t[1]) + 5, int(t[0]) - 4:int(t[0]) + 5])]
+    assert targets, "no background next to the tail to drag it to"
+    target = targets[0]
+    box = page.locator("#marks").bounding_box()
+    scale = box["width"] / width
+    page.mouse.move(box["x"] + grab[0] * scale, box["y"] + grab[1] * scale)
+    page.mouse.down()
+    page.mouse.move(box["x"] + target[0] * scale, box["y"] + target[1] * scale, steps=12)
+    page.mouse.up()
+    pick = wait_js(page, "puppetView.lastPick")
+    assert pick["handle"] is not None, "the press on the tail did not hit the surface"
+    return int(target[0]), int(target[1])
+
+
+def run_async(coroutine):
+    """Run a coroutine to completion on its own thread (playwright's sync API holds an event loop
+    on this one)."""
+    import concurrent.futures
+
+    with concurrent.futures.ThreadPoolExecutor(1) as pool:
+        return pool.submit(asyncio.run, coroutine).result(timeout=WAIT_S)

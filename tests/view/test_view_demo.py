@@ -3,7 +3,6 @@ from the page, several viewers, and bad input that must not stop the loop."""
 
 from __future__ import annotations
 
-import asyncio
 import json
 import subprocess
 
@@ -38,49 +37,20 @@ def test_servo_panel_flags_a_dropped_servo(new_page, demo, tmp_path, tools):
     page.screenshot(path=str(tmp_path / "flagged.png"))
 
 
-def _is_character(pixel_block: np.ndarray) -> bool:
-    """Any pixel of the (warm, orange) character in a block of the frame."""
-    rgb = pixel_block.reshape(-1, 3).astype(int)
-    return bool(((rgb[:, 0] - rgb[:, 2]) > 45).any())
-
-
 def test_drag_on_the_tail_moves_the_tail(new_page, demo, tmp_path, tools):
     page = tools.open_view(new_page, demo)
-    # The panel's bones are projected with the current camera: wait for the side view.
-    tools.wait_js(page, "puppetView.bones.length > 0")
-    before = page.evaluate("puppetView.bones.find(b => b.name === 'tail3').b")
-    page.click("button[data-preset='side']")
-    tools.wait_until(lambda: np.hypot(*np.subtract(
-        page.evaluate("puppetView.bones.find(b => b.name === 'tail3').b"), before)) > 5,
-        what="the side view")
-    seq = page.evaluate("puppetView.shownSeq")
-    tools.wait_js(page, f"puppetView.shownSeq > {seq} + 3")
-    tail = page.evaluate("puppetView.bones.find(b => b.name === 'tail3')")
-    grab = (np.array(tail["a"]) + 2 * np.array(tail["b"])) / 3
-    image = tools.frame_image(page)
-    targets = [grab + d for d in ((0, -90), (-90, 0), (90, 0), (0, 90), (-70, -70), (70, -70))]
-    targets = [t for t in targets if 8 <= t[0] < 632 and 8 <= t[1] < 472
-               and not _is_character(image[int(t[1]) - 4:int(t[1]) + 5, int(t[0]) - 4:int(t[0]) + 5])]
-    assert targets, "no background next to the tail to drag it to"
-    target = targets[0]
-    box = page.locator("#marks").bounding_box()
-    scale = box["width"] / 640
-    page.mouse.move(box["x"] + grab[0] * scale, box["y"] + grab[1] * scale)
-    page.mouse.down()
-    page.mouse.move(box["x"] + target[0] * scale, box["y"] + target[1] * scale, steps=12)
-    page.mouse.up()
-    pick = tools.wait_js(page, "puppetView.lastPick")
-    assert pick["handle"] is not None, "the press on the tail did not hit the surface"
-    tx, ty = int(target[0]), int(target[1])
-    tools.wait_until(lambda: _is_character(tools.frame_image(page)[ty - 4:ty + 5, tx - 4:tx + 5]),
+    tx, ty = tools.drag_tail(page)
+    tools.wait_until(lambda: tools.is_character(tools.frame_image(page)[ty - 4:ty + 5, tx - 4:tx + 5]),
                what="the tail in the next frames where it was dragged")
     page.screenshot(path=str(tmp_path / "tail_dragged.png"))
     assert "refactor" in page.inner_text("#notices")
     # Later frames keep it there (the handle holds while the servos move the rest).
     seq = page.evaluate("puppetView.shownSeq")
     tools.wait_js(page, f"puppetView.shownSeq > {seq} + 5")
-    assert _is_character(tools.frame_image(page)[ty - 4:ty + 5, tx - 4:tx + 5])
+    assert tools.is_character(tools.frame_image(page)[ty - 4:ty + 5, tx - 4:tx + 5])
     # Remove it (right click on the page-drawn handle).
+    box = page.locator("#marks").bounding_box()
+    scale = box["width"] / 640
     spot = tools.wait_js(page, "puppetView.handleSpots.length === 1 && puppetView.handleSpots[0]")
     page.mouse.click(box["x"] + spot["x"] * scale, box["y"] + spot["y"] * scale, button="right")
     tools.wait_js(page, "puppetView.handles.length === 0")
@@ -164,7 +134,7 @@ async def _bad_clients(url: str) -> dict:
 
 def test_bad_input_leaves_the_loop_running(new_page, demo, tools):
     page = tools.open_view(new_page, demo)
-    result = asyncio.run(_bad_clients(demo.url))
+    result = tools.run_async(_bad_clients(demo.url))
     assert result["snapshot"] == "snapshot"
     assert result["oversized_close"] == 1009  # message too big
     assert result["frame_bytes"] > 24
