@@ -156,6 +156,7 @@ def demo(tmp_path_factory):
     assert status == 0, process.stderr()
     assert "Traceback" not in process.stderr()
     assert "frames" in process.stdout()  # the summary: the loop ended cleanly on Ctrl-C
+    assert (folder / "demo.mp4").stat().st_size > 0  # --view works together with --out
 
 
 def frame_image(page):

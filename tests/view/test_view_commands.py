@@ -132,3 +132,26 @@ def test_play_view_pauses_and_seeks(new_page, tools, tmp_path):
         status = play.stop()
     assert status == 0, play.stderr()
     assert "Traceback" not in play.stderr()
+
+
+def test_live_view_with_record_and_frames_marks_the_take(new_page, tools, tmp_path):
+    import hw_sim
+    from puppet.take import TakeReader
+    from puppet.take.markers import read_markers
+
+    rig = builtin()
+    with hw_sim.serve(rig.servo_map.models, motion="wave") as bus:
+        live = tools.PuppetProcess(["live", "--rig", str(rig.path), "--port", bus.link,
+                                    "--record", "take.mcap", "--frames", "frames",
+                                    "--view", str(tools.free_port())], tmp_path)
+        try:
+            page = tools.open_view(new_page, live)
+            page.fill("#marker-name", "cue")
+            page.click("#marker")
+            tools.wait_js(page, "puppetView.markers.some(m => m.name === 'cue')")
+        finally:
+            status = live.stop()
+    assert status == 0, live.stderr()
+    assert [name for _, name in read_markers(tmp_path / "take.mcap")] == ["cue"]
+    assert len(TakeReader(tmp_path / "take.mcap")) > 10
+    assert len(list((tmp_path / "frames").glob("*.png"))) > 0

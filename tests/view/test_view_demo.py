@@ -43,6 +43,9 @@ def test_drag_on_the_tail_moves_the_tail(new_page, demo, tmp_path, tools):
     tools.wait_until(lambda: tools.is_character(tools.frame_image(page)[ty - 4:ty + 5, tx - 4:tx + 5]),
                what="the tail in the next frames where it was dragged")
     page.screenshot(path=str(tmp_path / "tail_dragged.png"))
+    # Frames were cheaper while the handle moved; a sharp one follows when it stops.
+    assert page.evaluate("puppetView.drafts") > 0
+    tools.wait_js(page, "!puppetView.draft")
     assert "refactor" in page.inner_text("#notices")
     # Later frames keep it there (the handle holds while the servos move the rest).
     seq = page.evaluate("puppetView.shownSeq")
@@ -78,10 +81,11 @@ def test_record_from_the_page_survives_closing_it_and_plays_back(new_page, demo,
     assert not reader.truncated
     assert [name for _, name in read_markers(take)] == ["nice bit"]
     frames = tmp_path / "frames"
-    result = subprocess.run(tools.PUPPET + ["play", str(take), "--frames", str(frames), "--antialias", "none"],
+    result = subprocess.run(tools.PUPPET + ["play", str(take), "--frames", str(frames), "--antialias", "none",
+                                          "--fps", "5"],
                             capture_output=True, text=True, timeout=600)
     assert result.returncode == 0, result.stderr
-    assert len(list(frames.glob("*.png"))) > 10
+    assert len(list(frames.glob("*.png"))) > 3
 
 
 def test_three_viewers_each_get_frames(new_page, demo, tools):

@@ -14,7 +14,7 @@ const client = Array.from(crypto.getRandomValues(new Uint8Array(12)), b => b.toS
 // Everything the page knows, readable from the console and by tests.
 const state = {
   client, viewer: null, mode: null, width: 640, height: 480,
-  shownSeq: -1, shown: 0, draft: false, fps: 0, shownTimes: [],
+  shownSeq: -1, shown: 0, draft: false, drafts: 0, fps: 0, shownTimes: [],
   servos: [], handles: [], handleSpots: [], bones: [], overlay: true, ownCamera: false,
   recording: { on: false }, faults: [], markers: [], notices: [], panel: null, playback: null,
   connected: { frames: false, control: false }, lastPick: null,
@@ -65,6 +65,7 @@ function connectFrames() {
       bitmap.close();
       state.shownSeq = seq;
       state.draft = (flags & FLAG_DRAFT) !== 0;
+      if (state.draft) state.drafts += 1;
       state.shown += 1;
       const now = performance.now();
       state.shownTimes.push(now);
