@@ -115,6 +115,34 @@ def run_case(viewers: int, seconds: float, warmup: float, size) -> dict:
     }
 
 
+def refactor_times(repeats: int = 15) -> dict:
+    """Median ms of Pipeline.set_handles (a pattern switch: refactor) with 1, 2 and 3 handles on
+    the critter's tail, ears and chest, and of a per-frame solve with them (rhs only)."""
+    from puppet.bus import Reading
+    from puppet.pipeline import Pipeline
+    from puppet.rig import builtin
+
+    rig = builtin()
+    names = ("tail3", "ear_L", "chest")
+    bones = [rig.skeleton.names.index(n) for n in names]
+    vertices = [int(np.argmax(rig.W[:, b])) for b in bones]
+    ids = rig.servo_map.ids
+    reading = Reading(0, ids, np.round(rig.servo_map.zero).astype(np.int32), np.ones(len(ids), bool))
+    out = {}
+    with Pipeline(rig, render=False) as pipeline:
+        for count in (1, 2, 3):
+            times = [pipeline.set_handles(vertices[:count]) * 1e3 for _ in range(repeats)]
+            solve = []
+            for _ in range(repeats):
+                start = time.perf_counter()
+                pipeline.solve(reading)
+                solve.append((time.perf_counter() - start) * 1e3)
+            out[f"handles_{count}"] = {"refactor_ms": round(float(np.median(times)), 3),
+                                       "solve_ms": round(float(np.median(solve)), 3)}
+        out["m"] = pipeline.model.m
+    return out
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seconds", type=float, default=10.0, help="measured seconds per case")
@@ -124,6 +152,11 @@ def main() -> None:
     parser.add_argument("--json", default=None, help="write the result here")
     args = parser.parse_args()
 
+    refactor = refactor_times()
+    print("pattern switch (refactor) with point handles, m =", refactor["m"])
+    for count in (1, 2, 3):
+        r = refactor[f"handles_{count}"]
+        print(f"  {count} handle(s): refactor {r['refactor_ms']} ms, then solve {r['solve_ms']} ms per frame")
     cases = [run_case(n, args.seconds, args.warmup, args.size) for n in args.viewers]
     base = next((c["loop_fps"] for c in cases if c["viewers"] == 0), None)
     for case in cases:
@@ -139,7 +172,7 @@ def main() -> None:
         print(f"{c['viewers']:>7} {c['page_fps']:>9} {c['loop_fps']:>9} {str(c['latency_median_ms']):>11} "
               f"{str(c['latency_p99_ms']):>11} {str(c['bytes_per_frame']):>12} "
               f"{str(c['loop_fps_vs_no_viewer']):>10}")
-    result = {"cases": cases, "size": list(args.size), "machine": "shared; figures are noisy",
+    result = {"cases": cases, "refactor": refactor, "size": list(args.size), "machine": "shared; figures are noisy",
               "targets": {"page_fps": 30, "loop_fps": 60, "latency_median_ms": 40, "latency_p99_ms": 80}}
     for case in cases:  # the issue's flat keys, per viewer count
         if case["viewers"] in (1, 3):
