@@ -16,7 +16,6 @@ import moderngl
 import numpy as np
 
 from puppet.render.camera import Camera
-from puppet.render.errors import RenderInputError
 
 PICK_VERTEX = """
 #version 330
@@ -131,13 +130,3 @@ class Picker:
     def __exit__(self, *exc) -> None:
         self.release()
 
-
-def check_pixel(x, y, width: int, height: int) -> tuple[int, int]:
-    """(x, y) as ints inside a width x height image, else RenderInputError naming the pixel."""
-    try:
-        xi, yi = int(x), int(y)
-    except (TypeError, ValueError):
-        raise RenderInputError(f"pick: pixel ({x!r}, {y!r}) is not two integers") from None
-    if not (0 <= xi < width and 0 <= yi < height):
-        raise RenderInputError(f"pick: pixel ({xi}, {yi}) is outside the {width}x{height} image")
-    return xi, yi

@@ -220,6 +220,8 @@ class View:
                     self._playback(msg["action"], msg["value"])
             except PuppetError as err:
                 self._warn(f"{kind}: {err}")
+                if kind == "pick":  # the page's pending drag becomes an orbit
+                    self.server.send_to(client, {"type": "pick_miss", "key": msg["key"]})
         for camera_id, (dx, dy, px, py, zoom) in moves.items():
             camera = self._camera(camera_id)
             if dx or dy:
@@ -397,7 +399,7 @@ class View:
                 self._recorder = None
         if log_source is not None:
             self._take_events(log_source)
-        if now >= self._next_panel:
+        if now >= self._next_panel and self.server.viewers:
             self._next_panel = now + 1.0 / PANEL_HZ
             self._update_panel(pipeline, reading, now)
         server = self.server

@@ -340,6 +340,7 @@ $("speed").onchange = () => send({ type: "playback", action: "speed", value: Num
 
 setInterval(() => {
   const t = state.shownTimes;
+  while (t.length && performance.now() - t[0] > 2000) t.shift();
   state.fps = t.length > 1 ? (t.length - 1) * 1000 / (t[t.length - 1] - t[0]) : 0;
   $("fps").textContent = state.fps.toFixed(0);
 }, 500);
