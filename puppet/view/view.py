@@ -10,7 +10,9 @@ Threads: the loop (GL, solver, handles, cameras, recording), the server (sockets
 slots), the encoder (JPEG). The loop renders for the view only when some viewer has credit for
 a frame, the encoder is free and the picture changed, at most ``max_fps`` per camera and one
 view render per loop frame; the shared camera, untouched, reuses the frame the loop already drew
-for its video (no render at all). That keeps the loop's rate first: viewers share the leftover.
+for its video (no render at all). Renders for viewers take at most VIEW_SHARE of the loop's wall
+time (after a render of d seconds the next waits d seconds): the loop's rate comes first, viewers
+(one shared camera, or their own) share what is left.
 """
 
 from __future__ import annotations
@@ -35,6 +37,7 @@ from puppet.view.server import ViewServer
 log = logging.getLogger("puppet.view")
 
 RING = 64                 # frames remembered for picking (about 1 s at 60 fps)
+VIEW_SHARE = 0.5          # most of the loop's wall time spent rendering for viewers
 INTERACTION_S = 0.3       # frames are drafts until this long after the last camera/handle move
 ORBIT_RAD_PER_PX = 0.01
 MODES = ("live", "play", "rig")
@@ -121,6 +124,7 @@ class View:
         self._panel: dict = {"type": "panel"}
         self._camera_panels: dict[int, dict] = {}
         self._last_reading = None
+        self._next_render_s = 0.0
         self._t0 = time.monotonic()
         self._angles_deg = np.zeros(len(self._servo_ids))
         self.frames_rendered = 0
@@ -404,7 +408,7 @@ class View:
             self._update_panel(pipeline, reading, now)
         server = self.server
         demand = server.demand
-        if not demand or self._encoder.busy:
+        if not demand or self._encoder.busy or now < self._next_render_s:
             return
         camera_id = self._choose_camera(pipeline, demand, now)
         if camera_id is None:
@@ -444,6 +448,7 @@ class View:
             np.copyto(buffer, image)
             self.frames_reused += 1
         else:
+            start = time.monotonic()
             own = renderer.camera
             if camera is not own:
                 renderer.camera = camera
@@ -456,6 +461,10 @@ class View:
             finally:
                 if camera is not own:
                     renderer.camera = own
+            # The loop's rate comes first: after a render of d seconds for viewers, the next one
+            # waits d (1 / VIEW_SHARE - 1) seconds, so viewers get at most that share of its time.
+            end = time.monotonic()
+            self._next_render_s = end + (end - start) * (1.0 / VIEW_SHARE - 1.0)
             self.frames_rendered += 1
         self._seq += 1
         seq = self._seq
