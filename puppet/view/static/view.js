@@ -109,7 +109,7 @@ const handlers = {
     $("faults").replaceChildren(); m.faults.forEach(addFault);
     setOverlay(m.overlay); setRecording(m.recording);
     $("playback").hidden = m.mode !== "play";
-    $("record").disabled = m.mode === "play";
+    $("record").disabled = m.mode !== "live";  // a take of the rest pose or of a take: nothing new
     if (m.panel && m.panel.servos) handlers.panel(m.panel);
   },
   panel(m) {
