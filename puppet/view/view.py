@@ -228,6 +228,9 @@ class View:
                     self.server.send_to(client, {"type": "pick_miss", "key": msg["key"]})
         for camera_id, (dx, dy, px, py, zoom) in moves.items():
             camera = self._camera(camera_id)
+            limit = 2.0 * self.width  # pixels per frame: a bogus message cannot throw the camera away
+            dx, dy, px, py = (min(max(v, -limit), limit) for v in (dx, dy, px, py))
+            zoom = min(max(zoom, 0.05), 20.0)
             if dx or dy:
                 camera.orbit(-dx * ORBIT_RAD_PER_PX, dy * ORBIT_RAD_PER_PX)
             if px or py:
@@ -313,6 +316,8 @@ class View:
         if index is None:
             return
         handle = self._handles[index]
+        x = min(max(x, -self.width), 2 * self.width)  # a cursor far off the image moves no further
+        y = min(max(y, -self.height), 2 * self.height)
         camera = self._camera(camera_id).camera()
         view_proj = self._picker.view_proj(camera)
         back = camera.basis()[2]
