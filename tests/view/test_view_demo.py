@@ -3,6 +3,7 @@ from the page, several viewers, and bad input that must not stop the loop."""
 
 from __future__ import annotations
 
+import asyncio
 import json
 import subprocess
 
@@ -159,3 +160,53 @@ def test_bad_input_leaves_the_loop_running(new_page, demo, tools):
     assert "unknown message type 'no_such_thing'" in err
     assert "from origin 'http://evil.example'" in err
     assert "Traceback" not in err
+
+
+async def _slow_viewer(url: str, wait_s: float) -> dict:
+    """A viewer that never acknowledges: it gets its credit's worth of frames, then only a
+    latest-wins slot (drops counted); one acknowledgement releases the newest frame."""
+    import time
+
+    base = url.rstrip("/").replace("http://", "ws://")
+    origin = url.rstrip("/")
+    out = {"frames": []}
+    async with aiohttp.ClientSession() as session:
+        async with session.ws_connect(f"{base}/ws/control?client=slow", origin=origin) as control, \
+                session.ws_connect(f"{base}/ws/frames?client=slow", origin=origin) as frames:
+            deadline = time.monotonic() + wait_s
+            while len(out["frames"]) < 2:
+                msg = await frames.receive(timeout=wait_s)
+                out["frames"].append(tools_header(msg.data))
+            drops = 0
+            while drops < 3 and time.monotonic() < deadline:  # the page keeps the camera busy
+                msg = json.loads((await control.receive(timeout=wait_s)).data)
+                if msg.get("type") == "panel":
+                    drops = msg["viewer"]["drops"]
+            out["drops"] = drops
+            try:
+                extra = await frames.receive(timeout=1.0)
+                out["extra_before_ack"] = len(extra.data)
+            except asyncio.TimeoutError:
+                out["extra_before_ack"] = 0
+            await frames.send_str(json.dumps({"type": "ack", "seq": out["frames"][0][3]}))
+            msg = await frames.receive(timeout=wait_s)
+            out["after_ack"] = tools_header(msg.data)
+    return out
+
+
+def tools_header(data: bytes):
+    from puppet.view.protocol import FRAME_HEADER
+
+    return FRAME_HEADER.unpack_from(data)
+
+
+def test_a_slow_viewer_gets_fewer_frames_and_drops_are_counted(new_page, demo, tools):
+    page = tools.open_view(new_page, demo)
+    result = tools.run_async(_slow_viewer(demo.url, 60.0))
+    first, second = result["frames"]
+    assert first[3] < second[3]
+    assert result["extra_before_ack"] == 0  # no third frame without an acknowledgement
+    assert result["drops"] >= 3  # replaced in its slot while it did not answer
+    assert result["after_ack"][3] > second[3] + 3  # the newest frame, not the next in a queue
+    count = page.evaluate("puppetView.shown")
+    tools.wait_js(page, f"puppetView.shown > {count} + 5")  # the page was not slowed down
