@@ -111,7 +111,7 @@ class View:
         self._handles: list[Handle] = []
         self._next_handle = 1
         self._keys: dict[tuple[str, int], int] = {}  # (client, key) -> handle id
-        self._missed: set = set()
+        self._told_background: set = set()
         self._recorder = None
         self._record_path: Path | None = None
         self._markers: list[dict] = []
@@ -194,10 +194,7 @@ class View:
                     handle = self._keys.get((client, msg["key"]))
                     if handle is not None:
                         drags[handle] = (msg["camera"], msg["x"], msg["y"])
-                    elif (client, msg["key"]) in self._missed:
-                        self._missed.discard((client, msg["key"]))
-                        self._warn(f"a drag that started on the background (at {msg['x']:.0f}, "
-                                   f"{msg['y']:.0f}) moves no handle")
+                    # else: a drag that started on the background (warned at its pick)
                 elif kind == "remove":
                     self._remove(pipeline, msg["handle"])
                 elif kind == "preset":
@@ -265,9 +262,11 @@ class View:
         hit = self._picker.pick(T, camera, x, y)
         pick_ms = (time.perf_counter() - start) * 1e3
         if hit is None:
-            self._missed.add((client, msg["key"]))
             self.server.send_to(client, {"type": "pick_miss", "key": msg["key"]})
-            log.info("view: pick at (%d, %d) found the background", x, y)
+            if client not in self._told_background:  # once per viewer: it is also how one orbits
+                self._told_background.add(client)
+                self._warn(f"a drag that started on the background (at {x}, {y}) moves no handle; "
+                           "such drags turn the camera")
             return
         model = pipeline.model
         point, corners = surface_point(model, self._F, pipeline.T, hit.triangle, hit.bary)
