@@ -11,8 +11,8 @@ slots), the encoder (JPEG). The loop renders for the view only when some viewer 
 a frame, the encoder is free and the picture changed, at most ``max_fps`` per camera and one
 view render per loop frame; the shared camera, untouched, reuses the frame the loop already drew
 for its video (no render at all). Renders for viewers take at most VIEW_SHARE of the loop's wall
-time (after a render of d seconds the next waits d seconds): the loop's rate comes first, viewers
-(one shared camera, or their own) share what is left.
+time (after a render of d seconds the next waits d (1 / VIEW_SHARE - 1) seconds): the loop's rate
+comes first; viewers (one shared camera, or their own) share what is left.
 """
 
 from __future__ import annotations
@@ -37,7 +37,7 @@ from puppet.view.server import ViewServer
 log = logging.getLogger("puppet.view")
 
 RING = 64                 # frames remembered for picking (about 1 s at 60 fps)
-VIEW_SHARE = 0.5          # most of the loop's wall time spent rendering for viewers
+VIEW_SHARE = 0.6          # the most of the loop's wall time spent rendering for viewers
 INTERACTION_S = 0.3       # frames are drafts until this long after the last camera/handle move
 ORBIT_RAD_PER_PX = 0.01
 MODES = ("live", "play", "rig")
