@@ -129,12 +129,12 @@ class ViewServer:
         app = web.Application(middlewares=[self._guard], client_max_size=MAX_CLIENT_MESSAGE)
         app.router.add_get("/", self._index)
         app.router.add_get("/static/{name}", self._file)
-        app.router.add_get("/favicon.ico", lambda _request: web.Response(status=204))
+        app.router.add_get("/favicon.ico", self._no_icon)
         app.router.add_get("/ws/frames", self._frames_socket)
         app.router.add_get("/ws/control", self._control_socket)
-        self._runner = web.AppRunner(app, access_log=None, handle_signals=False)
+        self._runner = web.AppRunner(app, access_log=None, handle_signals=False, shutdown_timeout=1.0)
         await self._runner.setup()
-        await web.SockSite(self._runner, self._sock, shutdown_timeout=1.0).start()
+        await web.SockSite(self._runner, self._sock).start()
 
     async def _shutdown(self) -> None:
         for viewer in list(self.viewers.values()):
@@ -180,6 +180,9 @@ class ViewServer:
     async def _index(self, request: web.Request) -> web.Response:
         body, kind = self._static["index.html"]
         return web.Response(body=body, content_type=kind, headers=PAGE_HEADERS)
+
+    async def _no_icon(self, request: web.Request) -> web.Response:
+        return web.Response(status=204)
 
     async def _file(self, request: web.Request) -> web.Response:
         item = self._static.get(request.match_info["name"])

@@ -191,3 +191,39 @@ def test_marks_go_in_the_take_and_old_readers_skip_them(tmp_path):
     reader = TakeReader(path)
     assert len(reader) == 20 and not reader.truncated
     assert reader.arrays()[1][:, 0].tolist() == list(range(20))
+
+
+def test_nothing_is_rendered_or_encoded_without_a_viewer():
+    from puppet.demo import run_demo
+    from puppet.view import View
+
+    view = View("127.0.0.1:0")
+    try:
+        summary, _ = run_demo(seconds=2.0, sinks_for=lambda _p: [], view=view)
+        stats = view.stats()
+    finally:
+        view.close()
+    assert summary.frames > 5
+    assert (stats["frames_rendered"], stats["frames_reused"], stats["frames_sent"]) == (0, 0, 0)
+    assert view._encoder.encoded == 0
+
+
+def test_camera_moves_are_merged_into_one_change_per_frame(critter_pipeline):
+    from puppet.view import View
+
+    view = View("127.0.0.1:0")
+    try:
+        view.attach(critter_pipeline)
+        camera = view._cameras[0]
+        version = camera.version
+        for dx in (5.0, 7.0, -2.0):
+            view.command("page", {"type": "orbit", "dx": dx, "dy": 1.0, "camera": 0})
+        view.command("page", {"type": "zoom", "factor": 0.5, "camera": 0})
+        yaw = camera.yaw
+        view.apply(critter_pipeline)
+        assert camera.version == version + 2  # one orbit (three events merged) and one zoom
+        assert camera.yaw == pytest.approx((yaw - 10.0 * 0.01) % (2 * math.pi))
+        view.apply(critter_pipeline)  # nothing new: nothing changes
+        assert camera.version == version + 2
+    finally:
+        view.close()
