@@ -75,18 +75,20 @@ class _Starting:
         return self._result
 
 
-def run_demo(*, seconds: float, sinks_for: Callable[[Pipeline], list], faults=None, width: int = 640,
+def run_demo(*, seconds: float | None, sinks_for: Callable[[Pipeline], list], faults=None, width: int = 640,
              height: int = 480, iterations: int = 8, video_fps: float = 30.0, overlay: bool = True,
              antialias: str = "auto",
              timing: bool = True, baud: int = 1_000_000, rate_hz: float = 250.0,
              latency_ms: int = 3, render_options: dict | None = None,
              should_stop: Callable[[], bool] = lambda: False,
              on_frame: Callable[[Summary], None] | None = None,
-             started_s: float | None = None, latch_fps: float | None = 60.0) -> tuple[Summary, object]:
+             started_s: float | None = None, latch_fps: float | None = 60.0, view=None) -> tuple[Summary, object]:
     """Run the built-in character on hw_sim for ``seconds``; returns (summary, setup report).
 
     sinks_for: called with the ready Pipeline, returns the sinks to feed (e.g. a VideoSink).
+    seconds: length of the run (None: until ``should_stop()``).
     faults: a hw_sim fault file (or schedule) to play during the run.
+    view: a puppet.view.View (bound, not attached) to watch the run in a browser.
     rate_hz: bus readings per second (the reader process's steady rate).
     latency_ms: the SDK's latency assumption; 3 ms leaves the simulator (a process competing
         for the same cores as the renderer and the video encoder) room to answer late.
@@ -115,9 +117,12 @@ def run_demo(*, seconds: float, sinks_for: Callable[[Pipeline], list], faults=No
                 report = starting.wait()
                 sinks = sinks_for(pipeline)
                 try:
+                    if view is not None:
+                        view.attach(pipeline, source=source)
                     summary = run_live(pipeline, source, seconds=seconds, sinks=sinks,
                                        video_fps=video_fps, should_stop=should_stop,
-                                       on_frame=on_frame, started_s=started_s, latch_fps=latch_fps)
+                                       on_frame=on_frame, started_s=started_s, latch_fps=latch_fps,
+                                       view=view)
                 except BaseException:
                     for sink in sinks:  # an error or a second Ctrl-C: keep no half file
                         getattr(sink, "abort", sink.close)()

@@ -20,7 +20,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from puppet.bus import Reading
-from puppet.fast import FastModel
+from puppet.fast import FastModel, Pattern
+from puppet.fast.errors import PatternError
 from puppet.fast.live_solve import LiveSolve
 from puppet.rig import Rig
 
@@ -74,11 +75,12 @@ class Pipeline:
         self.iterations = int(iterations)
         self.model = FastModel(rig.V, rig.F, rig.W, clusters=options.clusters,
                                extra_weights=options.extra_weights, energy=options.energy)
-        self.pattern = rig.pattern()
+        self.pattern = self._rig_pattern = rig.pattern()
         # Dropout switching and dynamics (rig options), else the plain per-frame solve.
         self.live = LiveSolve(rig, self.model) if LiveSolve.wanted(rig) else None
         self.solver = self.live.solver if self.live else self.model.solver(self.pattern)
         self.values = self.pattern.values()
+        self.handle_targets = self.values.positional[len(self._rig_pattern.positional):]
         self.T = self.model.rest_T()
         self.angles = np.zeros(len(rig.servo_map), np.float64)
         self.solve_ns = 0          # time spent in Solver.solve, all frames
@@ -136,6 +138,33 @@ class Pipeline:
         elif self.bone_states != self._base_states:
             self.bone_states[:] = self._base_states
         return self.T
+
+    def set_handles(self, vertices) -> float:
+        """Pin these vertices (the live view's dragged point handles) on top of the rig's own
+        constraints: a new pattern, so the solver is refactored. Returns the refactor seconds.
+
+        vertices: vertex indices (no repeats, none of the rig's pins). Their targets are the rows
+        of ``self.handle_targets`` ((h, 3) float32, model units), kept across solves until the
+        next call; set them before each solve. A PatternError (e.g. a vertex held only by sensed
+        bones: redundant) leaves the current pattern in place.
+        """
+        if self.live is not None:
+            raise PatternError("point handles are not combined with the rig's live solve options "
+                               "(on_dropout = \"free\", [solver.dynamics]) yet")
+        rig_pattern = self._rig_pattern
+        pattern = Pattern(full=rig_pattern.full, relative=rig_pattern.relative,
+                          positional=rig_pattern.positional + tuple(int(v) for v in vertices))
+        start = time.perf_counter()
+        solver = self.model.solver(pattern)
+        seconds = time.perf_counter() - start
+        values = pattern.values()
+        values.full[:] = self.values.full
+        values.relative[:] = self.values.relative
+        kept = min(len(self.values.positional), len(values.positional))
+        values.positional[:kept] = self.values.positional[:kept]
+        self.pattern, self.solver, self.values = pattern, solver, values
+        self.handle_targets = values.positional[len(rig_pattern.positional):]
+        return seconds
 
     def _mark_faulted(self, ok: np.ndarray) -> None:
         self.bone_states[:] = self._base_states
@@ -359,7 +388,8 @@ def run_live(pipeline: Pipeline, source, *, seconds: float | None = None,
              sinks: Iterable = (), video_fps: float = 30.0, recorder=None,
              should_stop: Callable[[], bool] = lambda: False,
              on_frame: Callable[[Summary], None] | None = None,
-             started_s: float | None = None, latch_fps: float | None = 60.0) -> Summary:
+             started_s: float | None = None, latch_fps: float | None = 60.0,
+             view=None) -> Summary:
     """Run the live loop until ``seconds`` pass or ``should_stop()`` (e.g. Ctrl-C).
 
     source:   a started ReaderProcess or ReaderThread: ``drain()``, ``latest(timeout)`` and
@@ -370,6 +400,9 @@ def run_live(pipeline: Pipeline, source, *, seconds: float | None = None,
     started_s: ``time.monotonic()`` when the work began, for ``Summary.first_frame_s``
               (None: the process's start, i.e. the command's).
     latch_fps: late latching (``LateLatch``) while the loop keeps this frame rate; None: off.
+    view:     a live view (puppet.view.View) or None: ``view.apply(pipeline)`` before each
+              solve (page input: handles, camera), ``view.frame(pipeline, batch, image, log)``
+              after it (it renders for its viewers only when they can take a frame).
     """
     sinks = list(sinks)
     render = bool(sinks) and pipeline.renderer is not None
@@ -385,6 +418,8 @@ def run_live(pipeline: Pipeline, source, *, seconds: float | None = None,
         now = time.monotonic()
         if seconds is not None and now - start >= seconds:
             break
+        if view is not None:
+            view.apply(pipeline)
         batch = source.drain()
         if not batch:
             newest = source.latest(timeout=0.5)
@@ -414,6 +449,8 @@ def run_live(pipeline: Pipeline, source, *, seconds: float | None = None,
         if summary.frames == 0:
             summary.first_frame_s = process_age_s() if started_s is None else time.monotonic() - started_s
         summary.frames += 1
+        if view is not None:
+            view.frame(pipeline, batch, image if render else None, source.log)
         if image is not None:
             for _ in range(clock.due(time.monotonic())):
                 for sink in sinks:

@@ -58,14 +58,15 @@ def main() -> None:
       puppet calibrate --rig my.toml --port /dev/ttyUSB0
       puppet live --rig my.toml --port /dev/ttyUSB0 --record take.mcap --out live.mp4
       puppet play take.mcap --out take.mp4 --speed 0.5
+      puppet demo --view                   watch in a browser; drag the tail
       puppet export take.mcap --gltf anim.glb --pc2 mesh.pc2 --up z --fps 24
     """
 
 
 def _register() -> None:
-    from puppet.cli import bus, demo, export, live, play, record, rig
+    from puppet.cli import bus, demo, export, live, play, record, rig, view
 
-    for module in (demo, live, record, play, export, bus, rig):
+    for module in (demo, live, record, play, export, bus, rig, view):
         for command in module.COMMANDS:
             main.add_command(command)
 

@@ -5,12 +5,13 @@ from __future__ import annotations
 import click
 
 from puppet.cli.common import Null, StopFlag, make_sinks, print_summary, progress
+from puppet.cli.view import open_view, take_factory_for, view_option
 
 
 @click.command()
 @click.option("--out", default="demo.mp4", show_default=True, help="Video file to write.")
-@click.option("--seconds", default=10.0, show_default=True, type=click.FloatRange(min=0.1),
-              help="Length of the run.")
+@click.option("--seconds", default=None, type=click.FloatRange(min=0.1),
+              help="Length of the run [default: 10; with --view: until Ctrl-C].")
 @click.option("--faults", default=None, type=click.Path(exists=True, dir_okay=False),
               help="hw_sim fault file to play during the run.")
 @click.option("--size", default=(640, 480), type=(int, int), show_default=True, help="Frame size.")
@@ -18,22 +19,34 @@ from puppet.cli.common import Null, StopFlag, make_sinks, print_summary, progres
 @click.option("--antialias", type=click.Choice(["auto", "msaa", "fxaa", "none"]), default="auto",
               show_default=True, help="auto: MSAA on a GPU, FXAA on a software renderer.")
 @click.option("--json", "as_json", is_flag=True, help="Print the summary as JSON.")
-def demo(out: str, seconds: float, faults: str | None, size: tuple[int, int], fps: float,
-         antialias: str, as_json: bool) -> None:
+@view_option
+def demo(out: str, seconds: float | None, faults: str | None, size: tuple[int, int], fps: float,
+         antialias: str, as_json: bool, view_address: str | None) -> None:
     """Run the live loop on the built-in character and a simulated bus, into a video.
 
     \b
     Example:
       puppet demo --seconds 5 --out demo.mp4
+      puppet demo --view                 watch it at http://127.0.0.1:8765/ (Ctrl-C stops)
     """
     from puppet.demo import run_demo
+    from puppet.rig import builtin
 
+    live_view = None
+    if view_address is not None:  # bound before the simulated bus starts
+        live_view = open_view(view_address, mode="live", take_factory=take_factory_for(builtin()))
+    elif seconds is None:
+        seconds = 10.0
     bar, on_frame = progress(seconds, "demo")
-    stop = StopFlag()  # Ctrl-C or SIGTERM: stop after this frame, finish the video (playable)
-    with bar if bar is not None else Null():
-        summary, report = run_demo(seconds=seconds, faults=faults, width=size[0], height=size[1],
-                                   video_fps=fps, on_frame=on_frame, antialias=antialias,
-                                   should_stop=stop, sinks_for=lambda _p: make_sinks(out, None, fps))
+    try:
+        with bar if bar is not None else Null():
+            summary, report = run_demo(seconds=seconds, faults=faults, width=size[0], height=size[1],
+                                       video_fps=fps, on_frame=on_frame, antialias=antialias,
+                                       sinks_for=lambda _p: make_sinks(out, None, fps),
+                                       view=live_view, should_stop=StopFlag())
+    finally:
+        if live_view is not None:
+            live_view.close()
     print_summary(summary, as_json, extra={"video": out, "read_mode": report.read_mode})
 
 

@@ -2,9 +2,12 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import click
 
 from puppet.cli.common import StopFlag, load_rig, make_sinks, print_summary, start_reader, take_writer
+from puppet.cli.view import open_view, take_factory_for, view_option
 
 
 @click.command()
@@ -19,37 +22,53 @@ from puppet.cli.common import StopFlag, load_rig, make_sinks, print_summary, sta
 @click.option("--fps", default=30.0, show_default=True, help="Video frame rate.")
 @click.option("--antialias", type=click.Choice(["auto", "msaa", "fxaa", "none"]), default="auto",
               show_default=True, help="auto: MSAA on a GPU, FXAA on a software renderer.")
+@view_option
 def live(rig_path: str, port: str, baud: int, take_path: str | None, out: str | None,
          frames: str | None, seconds: float | None, fps: float, antialias: str,
-         force: bool) -> None:
+         force: bool, view_address: str | None) -> None:
     """Read the puppet, solve and render live until Ctrl-C.
 
     \b
     Example:
       puppet live --rig my.toml --port /dev/ttyUSB0 --record take.mcap --out live.mp4
+      puppet live --rig my.toml --port /dev/ttyUSB0 --view     watch at the printed URL
     """
     from puppet.pipeline import Pipeline, run_live
     from puppet.take import BackgroundTakeWriter
 
     rig = load_rig(rig_path)
+    live_view = None
+    if view_address is not None:  # bound before the bus is touched: a taken port fails first
+        takes = Path(take_path).parent if take_path else Path(".")
+        live_view = open_view(view_address, mode="live", take_factory=take_factory_for(rig),
+                              takes_dir=takes)
     sinks = make_sinks(out, frames, fps)
     stop = StopFlag()
-    with Pipeline(rig, render=bool(sinks), overlay=True, antialias=antialias) as pipeline:
-        source = start_reader(rig, port, baud)
-        try:
-            # On its own thread: a periodic fsync must not stall a frame.
-            recorder = (BackgroundTakeWriter(take_writer(take_path, rig, force=force))
-                        if take_path else None)
+    try:
+        with Pipeline(rig, render=bool(sinks) or live_view is not None, overlay=True,
+                      antialias=antialias) as pipeline:
+            source = start_reader(rig, port, baud)
             try:
-                summary = run_live(pipeline, source, seconds=seconds, sinks=sinks, video_fps=fps,
-                                   recorder=recorder, should_stop=stop)
+                # On its own thread: a periodic fsync must not stall a frame.
+                recorder = (BackgroundTakeWriter(take_writer(take_path, rig, force=force))
+                            if take_path else None)
+                try:
+                    if live_view is not None:
+                        live_view.attach(pipeline, source=source, recorder=recorder)
+                    summary = run_live(pipeline, source, seconds=seconds, sinks=sinks, video_fps=fps,
+                                       recorder=recorder, should_stop=stop, view=live_view)
+                finally:
+                    if live_view is not None:
+                        live_view.close()
+                    if recorder is not None:
+                        recorder.close()
             finally:
-                if recorder is not None:
-                    recorder.close()
-        finally:
-            for sink in sinks:
-                sink.close()
-            source.stop()
+                for sink in sinks:
+                    sink.close()
+                source.stop()
+    finally:
+        if live_view is not None:
+            live_view.close()
     print_summary(summary, False, extra={"take": take_path} if take_path else None)
 
 

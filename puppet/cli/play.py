@@ -7,6 +7,7 @@ import sys
 import click
 
 from puppet.cli.common import StopFlag, close_sinks, fail, make_sinks, open_take, print_summary
+from puppet.cli.view import view_option
 
 
 @click.command()
@@ -19,19 +20,26 @@ from puppet.cli.common import StopFlag, close_sinks, fail, make_sinks, open_take
 @click.option("--fps", default=30.0, show_default=True, help="Output frame rate.")
 @click.option("--antialias", type=click.Choice(["msaa", "fxaa", "none"]), default="msaa",
               show_default=True, help="Offline: MSAA by default, whatever the renderer.")
+@view_option
 def play(take: str, rig_path: str | None, out: str | None, frames: str | None, speed: float,
-         fps: float, antialias: str) -> None:
+         fps: float, antialias: str, view_address: str | None) -> None:
     """Replay a take through the solver and renderer (deterministic).
 
     \b
     Example:
       puppet play take.mcap --out take.mp4 --speed 0.5
+      puppet play take.mcap --view       pause, scrub and change speed in the browser
     """
     from puppet.pipeline import Pipeline, run_frames
     from puppet.take import PlaybackClock
 
+    if view_address is not None:
+        from puppet.cli.view import play_in_view
+
+        play_in_view(take, rig_path, out, frames, speed, fps, view_address)
+        return
     if not out and not frames:
-        fail("nothing to write: give --out VIDEO and/or --frames FOLDER")
+        fail("nothing to write: give --out VIDEO and/or --frames FOLDER (or watch it: --view)")
     rig, reader = open_take(take, rig_path)
     sinks = make_sinks(out, frames, fps, inputs=[take])
     ids = [int(i) for i in rig.servo_map.ids]

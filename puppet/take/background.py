@@ -4,12 +4,18 @@ from __future__ import annotations
 
 import queue
 import threading
+from typing import NamedTuple
 
 from puppet.reading import Reading
 from puppet.take.errors import TakeError
 from puppet.take.writer import TakeWriter
 
 _STOP = object()
+
+
+class _Mark(NamedTuple):
+    t_ns: int
+    name: str
 
 
 class BackgroundTakeWriter:
@@ -45,6 +51,9 @@ class BackgroundTakeWriter:
                 return
             if self._error is None:
                 try:
+                    if isinstance(item, _Mark):
+                        self.writer.mark(item.t_ns, item.name)
+                        continue
                     self.writer.write(item)
                 except BaseException as e:  # noqa: BLE001 - kept and raised in the caller's thread
                     self._error = e
@@ -72,6 +81,13 @@ class BackgroundTakeWriter:
                 self.path, f"take writer queue is full ({self._queue.maxsize} readings): "
                 "the disk cannot keep up"
             ) from None
+
+    def mark(self, t_ns: int, name: str) -> None:
+        """Queue a named time mark (TakeWriter.mark), in order with the readings."""
+        if self._closed:
+            raise TakeError(self.path, "mark() after close()")
+        self._raise_error()
+        self._queue.put(_Mark(int(t_ns), str(name)))
 
     def close(self) -> None:
         """Write everything queued, close the take, and raise the writer thread's error if any."""

@@ -167,6 +167,29 @@ class TakeWriter:
         self._failed = f"{doing}: {what}; the {self.count} readings before it are kept"
         raise TakeError(self.path, self._failed) from err
 
+    def mark(self, t_ns: int, name: str) -> None:
+        """Store a named time mark (e.g. "good take") on its own channel (see puppet.take.markers);
+        in the file when this returns, like a reading."""
+        from puppet.take import markers
+
+        if self._closed:
+            raise TakeError(self.path, "mark() after close()")
+        try:
+            payload = markers.encode_marker(t_ns, name)
+        except ValueError as err:
+            raise TakeError(self.path, f"mark: {err}") from None
+        if getattr(self, "_marker_channel", None) is None:
+            schema = self._mcap.register_schema(markers.MARKER_SCHEMA_NAME, markers.MARKER_SCHEMA_ENCODING,
+                                                markers.MARKER_SCHEMA.encode())
+            self._marker_channel = self._mcap.register_channel(markers.MARKER_TOPIC,
+                                                               markers.MARKER_MESSAGE_ENCODING, schema)
+            self._marker_count = 0
+        self._mcap.add_message(self._marker_channel, log_time=int(t_ns), data=payload,
+                               publish_time=int(t_ns), sequence=self._marker_count)
+        self._marker_count += 1
+        self._mcap.flush()
+        self._file.flush()
+
     def close(self) -> None:
         """Write the MCAP summary and footer, fsync and close. Safe to call twice."""
         if self._closed:

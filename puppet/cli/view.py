@@ -1,0 +1,107 @@
+"""``puppet view``: the rig alone in the browser, posed only by dragged point handles (no bus);
+and the ``--view`` option the live, demo and play commands share."""
+
+from __future__ import annotations
+
+import logging
+
+import click
+
+from puppet.cli.common import StopFlag, load_rig
+
+view_option = click.option(
+    "--view", "view_address", is_flag=False, flag_value="", default=None, metavar="[HOST:]PORT",
+    help="Watch live in a browser (default 127.0.0.1:8765; another host gets a URL with a token); "
+         "prints the URL.")
+
+
+class _ViewLogFormat(logging.Formatter):
+    def format(self, record: logging.LogRecord) -> str:
+        text = record.getMessage()
+        return f"warning: {text}" if record.levelno >= logging.WARNING else text
+
+
+def open_view(address: str | None, *, mode: str, take_factory=None, takes_dir="."):
+    """Bind the live view's address now (a taken port fails before any hardware is touched),
+    route its log to stderr, print its URL; returns the View (attach it to the pipeline)."""
+    from puppet.view import View
+
+    view = View(address, mode=mode, take_factory=take_factory, takes_dir=takes_dir)
+    logger = logging.getLogger("puppet.view")
+    if not logger.handlers:
+        handler = logging.StreamHandler()
+        handler.setFormatter(_ViewLogFormat())
+        logger.addHandler(handler)
+        logger.setLevel(logging.INFO)
+        logger.propagate = False
+    click.echo(f"view: {view.url}", err=True)
+    return view
+
+
+def take_factory_for(rig):
+    """path -> an open BackgroundTakeWriter for the rig (the page's record button)."""
+    from puppet.cli.common import take_writer
+    from puppet.take import BackgroundTakeWriter
+
+    return lambda path: BackgroundTakeWriter(take_writer(str(path), rig))
+
+
+@click.command()
+@click.option("--rig", "rig_path", default=None, help="Rig file (default: the built-in critter).")
+@click.option("--address", "address", default="", metavar="[HOST:]PORT",
+              help="Where to serve the page (default 127.0.0.1:8765).")
+@click.option("--seconds", default=None, type=float, help="Stop after this long (default: Ctrl-C).")
+@click.option("--size", default=(640, 480), type=(int, int), show_default=True, help="Frame size.")
+def view(rig_path: str | None, address: str, seconds: float | None, size: tuple[int, int]) -> None:
+    """Show a rig in the browser in its rest pose; drag point handles to pose it (no bus).
+
+    \b
+    Example:
+      puppet view --rig my.toml
+    """
+    from puppet.pipeline import Pipeline, run_live
+    from puppet.view import RestSource
+
+    live_view = open_view(address, mode="rig")
+    try:
+        rig = load_rig(rig_path)
+        stop = StopFlag()
+        with Pipeline(rig, overlay=True, width=size[0], height=size[1]) as pipeline:
+            source = RestSource(rig.servo_map.ids, rig.servo_map.zero)
+            live_view.attach(pipeline, source=source)
+            summary = run_live(pipeline, source, seconds=seconds, should_stop=stop, view=live_view)
+    finally:
+        live_view.close()
+    click.echo(f"frames {summary.frames} in {summary.seconds:.1f} s; handles {len(live_view.handles())}")
+
+
+COMMANDS = (view,)
+
+
+def play_in_view(take: str, rig_path: str | None, out: str | None, frames: str | None,
+                 speed: float, fps: float, view_address: str) -> None:
+    """``puppet play TAKE --view``: the take on the wall clock, paused, scrubbed and sped up from
+    the page, until Ctrl-C; --out / --frames get the frames as shown."""
+    from puppet.cli.common import make_sinks, open_take, print_summary
+    from puppet.pipeline import Pipeline, run_live
+    from puppet.take.markers import read_markers
+    from puppet.view import TakeSource
+
+    live_view = open_view(view_address, mode="play")
+    try:
+        rig, reader = open_take(take, rig_path)
+        t_ns, ticks, ok = reader.arrays(ids=[int(i) for i in rig.servo_map.ids])
+        marks = [((t - int(t_ns[0])) / 1e9, name) for t, name in read_markers(take)]
+        source = TakeSource(rig.servo_map.ids, t_ns, ticks, ok, speed=speed, markers=marks)
+        sinks = make_sinks(out, frames, fps)
+        try:
+            with Pipeline(rig, overlay=True) as pipeline:
+                live_view.attach(pipeline, source=source)
+                summary = run_live(pipeline, source, sinks=sinks, video_fps=fps,
+                                   should_stop=StopFlag(), view=live_view)
+        finally:
+            for sink in sinks:
+                sink.close()
+    finally:
+        live_view.close()
+    print_summary(summary, False, extra={"take": take})

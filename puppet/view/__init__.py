@@ -1,0 +1,19 @@
+"""The live view: watch the character in a browser while performing, and drag point handles.
+
+    view = View("127.0.0.1:8765")        # binds at once (a taken port is a ViewError)
+    view.attach(pipeline, source=source)  # serves the page at view.url
+    run_live(pipeline, source, view=view)
+
+Modules: address (``[HOST:]PORT``, socket, token), protocol (frame header, limits), orbit
+(camera), handles (point handles, drag geometry), encoder (JPEG thread, latest-wins slot),
+server (aiohttp: page, sockets, credit), sources (rest pose, take playback), view (the loop's
+side). The page and its script are in ``static/`` (no CDN, no build step).
+"""
+
+from puppet.view.address import DEFAULT_HOST, DEFAULT_PORT, parse_address
+from puppet.view.errors import ViewError
+from puppet.view.sources import RestSource, TakeSource
+from puppet.view.view import View
+
+__all__ = ["DEFAULT_HOST", "DEFAULT_PORT", "RestSource", "TakeSource", "View", "ViewError",
+           "parse_address"]

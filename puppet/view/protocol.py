@@ -1,0 +1,36 @@
+"""The wire format between the view's server and its page.
+
+Frames (``/ws/frames``, server to page): one binary WebSocket message per frame, a fixed
+little-endian header then the JPEG bytes (no base64, no JSON):
+
+    offset 0   uint8   type (FRAME_JPEG)
+    offset 1   uint8   flags (FLAG_DRAFT: a cheaper frame while the camera or a handle moves)
+    offset 2   uint16  camera id (0: the shared camera)
+    offset 4   uint32  sequence number (per view, increasing)
+    offset 8   int64   reading time, ns (the servo reading the frame shows; server's monotonic clock)
+    offset 16  int64   send time, ns (server's monotonic clock)
+    offset 24  ...     JPEG
+
+The page answers each frame once it is drawn with ``{"type": "ack", "seq": N}`` on the same
+socket; the server computes reading-to-page latency on its own clock. Control (``/ws/control``)
+carries small JSON messages both ways: panel, snapshot, faults, handles; input from the page.
+"""
+
+from __future__ import annotations
+
+import struct
+
+FRAME_HEADER = struct.Struct("<BBHIqq")
+FRAME_JPEG = 1
+FLAG_DRAFT = 1
+
+#: Frames a viewer may have in flight (sent, not yet acknowledged).
+CREDIT = 2
+#: Largest message the page may send (bytes); bigger ones close that socket.
+MAX_CLIENT_MESSAGE = 4096
+#: Panel messages per second.
+PANEL_HZ = 15.0
+
+
+def frame_header(flags: int, camera: int, seq: int, reading_t_ns: int, send_t_ns: int) -> bytes:
+    return FRAME_HEADER.pack(FRAME_JPEG, flags, camera, seq & 0xFFFFFFFF, reading_t_ns, send_t_ns)

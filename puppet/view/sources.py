@@ -1,0 +1,127 @@
+"""Reading sources for the view-only modes, with the loop's source interface
+(``drain()``, ``latest(timeout)``, ``log``), so ``run_live`` runs them like a bus reader.
+
+RestSource: no bus at all: the rig's zero ticks (its rest pose) at a steady rate; the pose then
+comes only from the view's dragged handles (``puppet view``).
+TakeSource: a take played on the wall clock with pause, seek and speed from the page
+(``puppet play TAKE --view``); each reading is stamped with the time it is shown.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+
+import numpy as np
+
+from puppet.bus.health import EventLog
+from puppet.bus.reading import Reading
+
+
+class RestSource:
+    """The rig's rest pose (zero ticks, every servo ok) at ``rate_hz`` readings per second."""
+
+    def __init__(self, ids: np.ndarray, zero_ticks: np.ndarray, rate_hz: float = 60.0):
+        self.ids = np.asarray(ids)
+        self._ticks = np.asarray(np.round(zero_ticks), np.int32)
+        self._ok = np.ones(len(self.ids), bool)
+        self.period_s = 1.0 / rate_hz
+        self.log = EventLog()
+        self._next = time.monotonic()
+
+    def drain(self) -> list[Reading]:
+        return []
+
+    def latest(self, timeout: float | None = 1.0) -> Reading | None:
+        now = time.monotonic()
+        wait = self._next - now
+        if wait > (timeout or 0.0):
+            time.sleep(timeout or 0.0)
+            return None
+        if wait > 0:
+            time.sleep(wait)
+        self._next = max(self._next + self.period_s, time.monotonic())
+        return Reading(time.monotonic_ns(), self.ids, self._ticks, self._ok)
+
+
+class TakeSource:
+    """A take's readings played on the wall clock at ``rate_hz`` frames per second.
+
+    t_ns, ticks, ok: the take's arrays (TakeReader.arrays). Controls (any thread): pause(),
+    play(), seek(seconds from the first reading), set_speed(factor). At the end it holds the
+    last reading (paused).
+    """
+
+    def __init__(self, ids, t_ns: np.ndarray, ticks: np.ndarray, ok: np.ndarray, *,
+                 speed: float = 1.0, rate_hz: float = 60.0, markers=()):
+        self.ids = np.asarray(ids)
+        self._t = np.asarray(t_ns, np.int64) - int(t_ns[0])
+        self._ticks, self._ok = ticks, ok
+        self.duration_s = float(self._t[-1]) / 1e9
+        self.speed = float(speed)
+        self.paused = False
+        self.markers = list(markers)
+        self.period_s = 1.0 / rate_hz
+        self.log = EventLog()
+        self._lock = threading.Lock()
+        self._position_s = 0.0
+        self._last = time.monotonic()
+        self._next = self._last
+
+    @property
+    def position_s(self) -> float:
+        return self._position_s
+
+    def pause(self) -> None:
+        with self._lock:
+            self._advance()
+            self.paused = True
+
+    def play(self) -> None:
+        with self._lock:
+            self._advance()
+            if self._position_s >= self.duration_s:
+                self._position_s = 0.0
+            self.paused = False
+
+    def seek(self, seconds: float) -> None:
+        with self._lock:
+            self._advance()
+            self._position_s = float(np.clip(seconds, 0.0, self.duration_s))
+
+    def set_speed(self, factor: float) -> None:
+        with self._lock:
+            self._advance()
+            self.speed = float(np.clip(factor, 0.05, 8.0))
+
+    def _advance(self) -> None:
+        now = time.monotonic()
+        if not self.paused:
+            self._position_s += (now - self._last) * self.speed
+            if self._position_s >= self.duration_s:
+                self._position_s = self.duration_s
+                self.paused = True
+        self._last = now
+
+    def drain(self) -> list[Reading]:
+        return []
+
+    def latest(self, timeout: float | None = 1.0) -> Reading | None:
+        now = time.monotonic()
+        wait = self._next - now
+        if wait > (timeout or 0.0):
+            time.sleep(timeout or 0.0)
+            return None
+        if wait > 0:
+            time.sleep(wait)
+        self._next = max(self._next + self.period_s, time.monotonic())
+        with self._lock:
+            self._advance()
+            index = int(np.searchsorted(self._t, int(self._position_s * 1e9), side="right")) - 1
+        index = max(index, 0)
+        return Reading(time.monotonic_ns(), self.ids, self._ticks[index], self._ok[index])
+
+    def state(self) -> dict:
+        return {"position_s": round(self._position_s, 3), "duration_s": round(self.duration_s, 3),
+                "paused": self.paused, "speed": self.speed,
+                "markers": [{"t_s": round(t, 3), "name": n} for t, n in self.markers]}

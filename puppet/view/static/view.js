@@ -1,0 +1,349 @@
+// puppet live view: frames from the server's renderer on one socket, panel and input on another.
+// Frame message: 24-byte little-endian header (type u8, flags u8, camera u16, seq u32,
+// reading time i64 ns, send time i64 ns) then a JPEG. Each frame is acknowledged once drawn.
+"use strict";
+
+const HEADER = 24;
+const FLAG_DRAFT = 1;
+const HANDLE_RADIUS = 7;
+
+const query = new URLSearchParams(location.search);
+const token = query.get("token");
+const client = Array.from(crypto.getRandomValues(new Uint8Array(12)), b => b.toString(16).padStart(2, "0")).join("");
+
+// Everything the page knows, readable from the console and by tests.
+const state = {
+  client, viewer: null, mode: null, width: 640, height: 480,
+  shownSeq: -1, shown: 0, draft: false, drafts: 0, fps: 0, shownTimes: [],
+  servos: [], handles: [], handleSpots: [], bones: [], overlay: true, ownCamera: false,
+  recording: { on: false }, faults: [], markers: [], notices: [], panel: null, playback: null,
+  connected: { frames: false, control: false }, lastPick: null,
+};
+window.puppetView = state;
+
+const frameCanvas = document.getElementById("frame");
+const frameCtx = frameCanvas.getContext("2d");
+const marks = document.getElementById("marks");
+const marksCtx = marks.getContext("2d");
+const $ = id => document.getElementById(id);
+
+function socketUrl(path) {
+  const url = new URL(path, location.href);
+  url.protocol = location.protocol === "https:" ? "wss:" : "ws:";
+  url.search = "";
+  url.searchParams.set("client", client);
+  if (token) url.searchParams.set("token", token);
+  return url.toString();
+}
+
+// ---- frames -------------------------------------------------------------------------------
+let frames = null;
+let drawing = Promise.resolve();
+
+function connectFrames() {
+  frames = new WebSocket(socketUrl("ws/frames"));
+  frames.binaryType = "arraybuffer";
+  frames.onopen = () => { state.connected.frames = true; showConnection(); };
+  frames.onclose = () => { state.connected.frames = false; showConnection(); setTimeout(connectFrames, 1000); };
+  frames.onmessage = event => {
+    const data = event.data;
+    if (!(data instanceof ArrayBuffer) || data.byteLength <= HEADER) return;
+    const head = new DataView(data, 0, HEADER);
+    const flags = head.getUint8(1);
+    const seq = head.getUint32(4, true);
+    const blob = new Blob([new Uint8Array(data, HEADER)], { type: "image/jpeg" });
+    const socket = frames;
+    // Decode in parallel, draw in order; acknowledge after drawing (the server's credit).
+    const decoded = createImageBitmap(blob);
+    drawing = drawing.then(() => decoded).then(bitmap => {
+      if (bitmap.width !== frameCanvas.width || bitmap.height !== frameCanvas.height) {
+        frameCanvas.width = marks.width = bitmap.width;
+        frameCanvas.height = marks.height = bitmap.height;
+        state.width = bitmap.width; state.height = bitmap.height;
+      }
+      frameCtx.drawImage(bitmap, 0, 0);
+      bitmap.close();
+      state.shownSeq = seq;
+      state.draft = (flags & FLAG_DRAFT) !== 0;
+      if (state.draft) state.drafts += 1;
+      state.shown += 1;
+      const now = performance.now();
+      state.shownTimes.push(now);
+      while (state.shownTimes.length && now - state.shownTimes[0] > 2000) state.shownTimes.shift();
+    }, () => {}).finally(() => {
+      if (socket.readyState === WebSocket.OPEN) socket.send(JSON.stringify({ type: "ack", seq }));
+    });
+  };
+}
+
+// ---- control ------------------------------------------------------------------------------
+let control = null;
+const pending = [];
+
+function send(message) {
+  if (control && control.readyState === WebSocket.OPEN) control.send(JSON.stringify(message));
+  else pending.push(message);
+}
+
+function connectControl() {
+  control = new WebSocket(socketUrl("ws/control"));
+  control.onopen = () => {
+    state.connected.control = true; showConnection();
+    while (pending.length) control.send(JSON.stringify(pending.shift()));
+    if (state.ownCamera) send({ type: "camera_mode", own: true });
+  };
+  control.onclose = () => { state.connected.control = false; showConnection(); setTimeout(connectControl, 1000); };
+  control.onmessage = event => {
+    let message;
+    try { message = JSON.parse(event.data); } catch (e) { return; }
+    const handler = handlers[message.type];
+    if (handler) handler(message);
+  };
+}
+
+const handlers = {
+  snapshot(m) {
+    state.viewer = m.viewer; state.mode = m.mode; state.servos = m.servos; state.handles = m.handles;
+    state.faults = m.faults.slice(); state.markers = m.markers.slice(); state.overlay = m.overlay;
+    buildServoTable(m.servos);
+    $("faults").replaceChildren(); m.faults.forEach(addFault);
+    setOverlay(m.overlay); setRecording(m.recording);
+    $("playback").hidden = m.mode !== "play";
+    $("record").disabled = m.mode !== "live";  // a take of the rest pose or of a take: nothing new
+    if (m.panel && m.panel.servos) handlers.panel(m.panel);
+  },
+  panel(m) {
+    state.panel = m;
+    if (m.servos) updateServos(m.servos);
+    if (m.handles) state.handleSpots = m.handles;
+    if (m.bones) state.bones = m.bones;
+    if (m.viewer) { $("drops").textContent = m.viewer.drops + (m.drops ? ` (+${m.drops} skipped)` : ""); }
+    $("loop-fps").textContent = m.loop_fps !== undefined ? m.loop_fps.toFixed(0) : "–";
+    if (m.latency_ms && m.latency_ms.median !== null) $("latency").textContent = `${m.latency_ms.median} (p99 ${m.latency_ms.p99})`;
+    if (m.recording) setRecording(m.recording);
+    if (m.playback) updatePlayback(m.playback);
+    drawMarks();
+  },
+  fault(m) { state.faults.push(m); addFault(m); },
+  handles(m) { state.handles = m.handles; },
+  handle(m) {
+    state.lastPick = { key: m.key, handle: m.handle, refactor_ms: m.refactor_ms };
+    if (drag && drag.key === m.key) { drag.handle = m.handle; drag.pending = false; }
+    if (m.refactor_ms !== undefined) note(`handle ${m.handle}: refactor ${m.refactor_ms} ms`);
+  },
+  pick_miss(m) {
+    state.lastPick = { key: m.key, handle: null };
+    if (drag && drag.key === m.key) {  // the background: the drag orbits instead
+      drag.pending = false; drag.orbit = true;
+      queueMove("orbit", drag.x - drag.startX, drag.y - drag.startY);
+    }
+  },
+  overlay(m) { setOverlay(m.on); },
+  recording(m) { setRecording(m); },
+  marker(m) { state.markers.push(m); note(`marker "${m.name}" at ${m.t_s} s`); },
+  notice(m) { note(m.text); },
+};
+
+function showConnection() {
+  const ok = state.connected.frames && state.connected.control;
+  const el = $("connection");
+  el.textContent = ok ? `viewer ${state.viewer ?? ""}` : "disconnected";
+  el.className = ok ? "ok" : "bad";
+}
+
+function note(text) {
+  state.notices.push(text);
+  const li = document.createElement("li");
+  li.textContent = text;
+  $("notices").prepend(li);
+  while ($("notices").children.length > 50) $("notices").lastChild.remove();
+}
+
+// ---- panel --------------------------------------------------------------------------------
+function buildServoTable(servos) {
+  const body = $("servos").tBodies[0];
+  body.replaceChildren();
+  for (const s of servos) {
+    const row = body.insertRow();
+    row.dataset.id = s.id;
+    row.insertCell().textContent = s.id;
+    row.insertCell().textContent = s.joint;
+    const angle = row.insertCell(); angle.className = "num"; angle.textContent = "–";
+    row.insertCell().textContent = "–";
+    row.insertCell().textContent = "";
+  }
+}
+
+function updateServos(servos) {
+  const body = $("servos").tBodies[0];
+  servos.forEach((s, i) => {
+    const row = body.rows[i];
+    if (!row) return;
+    row.cells[2].textContent = s.deg.toFixed(1);
+    row.cells[3].textContent = s.ok ? "ok" : "flagged";
+    row.cells[3].className = s.ok ? "state-ok" : "";
+    row.cells[4].textContent = s.fault;
+    row.classList.toggle("flagged", !s.ok);
+  });
+}
+
+function addFault(f) {
+  const li = document.createElement("li");
+  li.textContent = `${f.t_s.toFixed(2)} s ${f.kind}${f.ids.length ? " ids " + f.ids.join(",") : ""}${f.detail ? ": " + f.detail : ""}`;
+  $("faults").prepend(li);
+  while ($("faults").children.length > 200) $("faults").lastChild.remove();
+}
+
+function setOverlay(on) { state.overlay = on; $("overlay").setAttribute("aria-pressed", String(on)); }
+
+function setRecording(r) {
+  state.recording = r;
+  const button = $("record");
+  button.textContent = r.on ? "■ stop" : "● record";
+  button.classList.toggle("recording", r.on);
+  $("recording-state").textContent = r.on ? `recording ${r.path} (${r.readings ?? 0} readings)` :
+    (r.path ? `last take: ${r.path}` : "");
+}
+
+function updatePlayback(p) {
+  state.playback = p;
+  const scrub = $("scrub");
+  scrub.max = String(p.duration_s || 1);
+  if (!scrubbing) scrub.value = String(p.position_s);
+  $("clock").textContent = `${p.position_s.toFixed(1)} / ${p.duration_s.toFixed(1)} s`;
+  $("pause").textContent = p.paused ? "play" : "pause";
+}
+
+// ---- marks drawn by the page (handles, the drag in progress) --------------------------------
+function drawMarks() {
+  marksCtx.clearRect(0, 0, marks.width, marks.height);
+  for (const spot of state.handleSpots) {
+    if (drag && drag.handle === spot.id && !drag.orbit) continue;
+    circle(spot.x, spot.y, "#ffd54a");
+  }
+  if (drag && !drag.orbit && !drag.pan) circle(drag.x, drag.y, drag.pending ? "#aaa" : "#ffd54a");
+}
+
+function circle(x, y, color) {
+  marksCtx.beginPath();
+  marksCtx.arc(x, y, HANDLE_RADIUS, 0, 2 * Math.PI);
+  marksCtx.fillStyle = color; marksCtx.globalAlpha = 0.85; marksCtx.fill();
+  marksCtx.globalAlpha = 1; marksCtx.lineWidth = 2; marksCtx.strokeStyle = "#222"; marksCtx.stroke();
+}
+
+// ---- input --------------------------------------------------------------------------------
+let drag = null;
+let nextKey = 1;
+let moves = {};
+let scrubbing = false;
+
+function imagePoint(event) {
+  const box = marks.getBoundingClientRect();
+  return [(event.clientX - box.left) * marks.width / box.width, (event.clientY - box.top) * marks.height / box.height];
+}
+
+function handleAt(x, y) {
+  let best = null, bestD = HANDLE_RADIUS + 4;
+  for (const spot of state.handleSpots) {
+    const d = Math.hypot(spot.x - x, spot.y - y);
+    if (d <= bestD) { best = spot; bestD = d; }
+  }
+  return best;
+}
+
+// Camera moves and drags are sent at most once per animation frame (merged).
+function queueMove(kind, dx, dy) {
+  const m = moves[kind] || (moves[kind] = { dx: 0, dy: 0 });
+  m.dx += dx; m.dy += dy;
+  scheduleFlush();
+}
+let flushScheduled = false;
+function scheduleFlush() {
+  if (flushScheduled) return;
+  flushScheduled = true;
+  requestAnimationFrame(flush);
+}
+function flush() {
+  flushScheduled = false;
+  for (const [kind, m] of Object.entries(moves)) if (m.dx || m.dy) send({ type: kind, dx: m.dx, dy: m.dy });
+  moves = {};
+  if (drag && drag.dirty && !drag.orbit && !drag.pan) {
+    send({ type: "drag", key: drag.key, x: drag.x, y: drag.y });
+    drag.dirty = false;
+  }
+  drawMarks();
+}
+
+marks.addEventListener("pointerdown", event => {
+  if (event.button === 2) return;
+  marks.setPointerCapture(event.pointerId);
+  const [x, y] = imagePoint(event);
+  const key = nextKey++;
+  drag = { key, x, y, startX: x, startY: y, lastX: x, lastY: y, dirty: false, pending: false,
+           handle: null, orbit: false, pan: event.button === 1 || event.shiftKey };
+  if (drag.pan) return;
+  const spot = handleAt(x, y);
+  if (spot) {
+    drag.handle = spot.id;
+    send({ type: "grab", key, handle: spot.id });
+  } else {
+    drag.pending = true;
+    send({ type: "pick", key, seq: Math.max(state.shownSeq, 0), x, y });
+  }
+  drawMarks();
+});
+
+marks.addEventListener("pointermove", event => {
+  if (!drag) return;
+  const [x, y] = imagePoint(event);
+  const dx = x - drag.lastX, dy = y - drag.lastY;
+  drag.lastX = x; drag.lastY = y; drag.x = x; drag.y = y;
+  if (drag.pan) queueMove("pan", dx, dy);
+  else if (drag.orbit) queueMove("orbit", dx, dy);
+  else { drag.dirty = true; scheduleFlush(); }
+});
+
+function endDrag() {
+  if (drag && drag.dirty && !drag.orbit && !drag.pan) send({ type: "drag", key: drag.key, x: drag.x, y: drag.y });
+  drag = null;
+  drawMarks();
+}
+marks.addEventListener("pointerup", endDrag);
+marks.addEventListener("pointercancel", endDrag);
+
+function removeAt(event) {
+  const [x, y] = imagePoint(event);
+  const spot = handleAt(x, y);
+  if (spot) send({ type: "remove", handle: spot.id });
+}
+marks.addEventListener("contextmenu", event => { event.preventDefault(); removeAt(event); });
+marks.addEventListener("dblclick", event => { event.preventDefault(); removeAt(event); });
+marks.addEventListener("wheel", event => {
+  event.preventDefault();
+  send({ type: "zoom", factor: Math.exp(Math.max(-0.5, Math.min(0.5, event.deltaY * 0.001))) });
+}, { passive: false });
+
+$("overlay").onclick = () => send({ type: "overlay", on: !state.overlay });
+document.querySelectorAll("[data-preset]").forEach(b => { b.onclick = () => send({ type: "preset", name: b.dataset.preset }); });
+$("reset").onclick = () => send({ type: "reset" });
+$("own").onclick = () => {
+  state.ownCamera = !state.ownCamera;
+  $("own").setAttribute("aria-pressed", String(state.ownCamera));
+  send({ type: "camera_mode", own: state.ownCamera });
+};
+$("record").onclick = () => send({ type: "record", on: !state.recording.on });
+$("marker").onclick = () => send({ type: "marker", name: ($("marker-name").value || "mark").slice(0, 80) });
+$("pause").onclick = () => send({ type: "playback", action: state.playback && state.playback.paused ? "play" : "pause", value: 0 });
+$("scrub").addEventListener("input", () => { scrubbing = true; send({ type: "playback", action: "seek", value: Number($("scrub").value) }); });
+$("scrub").addEventListener("change", () => { scrubbing = false; });
+$("speed").onchange = () => send({ type: "playback", action: "speed", value: Number($("speed").value) });
+
+setInterval(() => {
+  const t = state.shownTimes;
+  while (t.length && performance.now() - t[0] > 2000) t.shift();
+  state.fps = t.length > 1 ? (t.length - 1) * 1000 / (t[t.length - 1] - t[0]) : 0;
+  $("fps").textContent = state.fps.toFixed(0);
+}, 500);
+
+connectControl();
+connectFrames();

@@ -1,0 +1,212 @@
+"""``puppet demo --view`` in a real browser: frames, the servo panel, dragging the tail, recording
+from the page, several viewers, and bad input that must not stop the loop."""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import subprocess
+
+import aiohttp
+import numpy as np
+
+from puppet.take import TakeReader
+from puppet.take.markers import read_markers
+
+
+def test_frames_arrive_and_change(new_page, demo, tmp_path, tools):
+    page = tools.open_view(new_page, demo)
+    first = tools.frame_image(page)
+    seq = page.evaluate("puppetView.shownSeq")
+    tools.wait_js(page, f"puppetView.shownSeq > {seq} + 5")
+    second = tools.frame_image(page)
+    page.screenshot(path=str(tmp_path / "demo_view.png"))
+    assert first.shape == (480, 640, 3)
+    changed = np.abs(first.astype(int) - second.astype(int)).max(axis=2) > 30
+    assert changed.sum() > 100  # the critter moved between the two frames
+    tools.wait_js(page, "puppetView.panel && puppetView.panel.latency_ms.median !== null")
+
+
+def test_servo_panel_flags_a_dropped_servo(new_page, demo, tmp_path, tools):
+    page = tools.open_view(new_page, demo)
+    row = f"#servos tbody tr[data-id='{tools.DROPPED_SERVO}']"
+    tools.wait_until(lambda: page.locator(row).get_attribute("class") == "flagged",
+                     what=f"servo {tools.DROPPED_SERVO} flagged on the panel")
+    assert page.locator(f"{row} td").nth(3).inner_text() == "flagged"
+    assert page.locator(f"{row} td").nth(4).inner_text() != ""  # its last fault is named
+    assert page.locator("#faults li").count() > 0
+    page.screenshot(path=str(tmp_path / "flagged.png"))
+
+
+def test_drag_on_the_tail_moves_the_tail(new_page, demo, tmp_path, tools):
+    page = tools.open_view(new_page, demo)
+    tx, ty = tools.drag_tail(page)
+    tools.wait_until(lambda: tools.is_character(tools.frame_image(page)[ty - 4:ty + 5, tx - 4:tx + 5]),
+               what="the tail in the next frames where it was dragged")
+    page.screenshot(path=str(tmp_path / "tail_dragged.png"))
+    # Frames were cheaper while the handle moved; a sharp one follows when it stops.
+    assert page.evaluate("puppetView.drafts") > 0
+    tools.wait_js(page, "!puppetView.draft")
+    assert "refactor" in page.inner_text("#notices")
+    # Later frames keep it there (the handle holds while the servos move the rest).
+    seq = page.evaluate("puppetView.shownSeq")
+    tools.wait_js(page, f"puppetView.shownSeq > {seq} + 5")
+    assert tools.is_character(tools.frame_image(page)[ty - 4:ty + 5, tx - 4:tx + 5])
+    # Remove it (right click on the page-drawn handle).
+    box = page.locator("#marks").bounding_box()
+    scale = box["width"] / 640
+    spot = tools.wait_js(page, "puppetView.handleSpots.length === 1 && puppetView.handleSpots[0]")
+    page.mouse.click(box["x"] + spot["x"] * scale, box["y"] + spot["y"] * scale, button="right")
+    tools.wait_js(page, "puppetView.handles.length === 0")
+    page.click("#reset")
+
+
+def test_record_from_the_page_survives_closing_it_and_plays_back(new_page, demo, tmp_path, tools):
+    page = tools.open_view(new_page, demo)
+    page.click("#record")
+    tools.wait_js(page, "puppetView.recording.on && puppetView.recording.readings > 100")
+    page.fill("#marker-name", "nice bit")
+    page.click("#marker")
+    tools.wait_js(page, "puppetView.markers.some(m => m.name === 'nice bit')")
+    readings = page.evaluate("puppetView.recording.readings")
+    page.context.close()  # closing the page never stops a recording
+    other = tools.open_view(new_page, demo)
+    # A late joiner gets the state first: the recording still runs.
+    assert other.evaluate("puppetView.recording.on") is True
+    tools.wait_js(other, f"puppetView.recording.readings > {readings} + 50")
+    other.click("#record")
+    state = tools.wait_js(other, "!puppetView.recording.on && puppetView.recording.path && puppetView.recording")
+    take = demo.cwd / state["path"]
+    reader = TakeReader(take)
+    assert len(reader) > readings + 50
+    assert not reader.truncated
+    assert [name for _, name in read_markers(take)] == ["nice bit"]
+    frames = tmp_path / "frames"
+    result = subprocess.run(tools.PUPPET + ["play", str(take), "--frames", str(frames), "--antialias", "none",
+                                          "--fps", "5"],
+                            capture_output=True, text=True, timeout=600)
+    assert result.returncode == 0, result.stderr
+    assert len(list(frames.glob("*.png"))) > 3
+
+
+def test_three_viewers_each_get_frames(new_page, demo, tools):
+    pages = [tools.open_view(new_page, demo) for _ in range(3)]
+    counts = [p.evaluate("puppetView.shown") for p in pages]
+    for p, count in zip(pages, counts):
+        tools.wait_js(p, f"puppetView.shown > {count} + 5")
+    assert len({p.evaluate("puppetView.viewer") for p in pages}) == 3
+    assert all(p.evaluate("puppetView.panel.viewer.drops") >= 0 for p in pages)
+    # One viewer orbiting on its own camera gets frames of its own.
+    pages[0].click("#own")
+    pages[0].click("button[data-preset='side']")
+    tools.wait_js(pages[0], "puppetView.panel.viewer.camera > 0")
+    count = pages[0].evaluate("puppetView.shown")
+    tools.wait_js(pages[0], f"puppetView.shown > {count} + 3")
+
+
+async def _bad_clients(url: str) -> dict:
+    """Malformed and oversized messages, a cross-origin socket, a client gone mid-stream."""
+    base = url.rstrip("/")
+    origin = base
+    ws_base = base.replace("http://", "ws://")
+    out = {}
+    async with aiohttp.ClientSession() as session:
+        async with session.ws_connect(f"{ws_base}/ws/control?client=bad1", origin=origin) as ws:
+            snapshot = json.loads((await ws.receive()).data)
+            out["snapshot"] = snapshot["type"]
+            await ws.send_str("not json at all")
+            await ws.send_str(json.dumps({"type": "no_such_thing"}))
+            await ws.send_str(json.dumps({"type": "drag", "key": "x", "x": 1, "y": 2}))
+            await ws.send_str(json.dumps({"type": "zoom", "factor": float("1e300")}))
+            await ws.send_str("x" * 20000)  # oversized: the server closes this socket
+            while True:
+                msg = await ws.receive()
+                if msg.type in (aiohttp.WSMsgType.CLOSE, aiohttp.WSMsgType.CLOSED, aiohttp.WSMsgType.ERROR):
+                    break
+            out["oversized_close"] = ws.close_code
+        async with session.ws_connect(f"{ws_base}/ws/frames?client=bad2", origin=origin) as ws:
+            msg = await ws.receive()
+            out["frame_bytes"] = len(msg.data)
+            await ws.send_str("{malformed")
+        # closed here without acknowledging: a client gone mid-stream
+        try:
+            async with session.ws_connect(f"{ws_base}/ws/control?client=bad3", origin="http://evil.example"):
+                out["cross_origin"] = "accepted"
+        except aiohttp.WSServerHandshakeError as err:
+            out["cross_origin"] = err.status
+    return out
+
+
+def test_bad_input_leaves_the_loop_running(new_page, demo, tools):
+    page = tools.open_view(new_page, demo)
+    result = tools.run_async(_bad_clients(demo.url))
+    assert result["snapshot"] == "snapshot"
+    assert result["oversized_close"] == 1009  # message too big
+    assert result["frame_bytes"] > 24
+    assert result["cross_origin"] == 403
+    # A drag that starts on the background: no handle, a warning, the view goes on.
+    box = page.locator("#marks").bounding_box()
+    page.mouse.move(box["x"] + 3, box["y"] + 3)
+    page.mouse.down()
+    page.mouse.move(box["x"] + 40, box["y"] + 30, steps=5)
+    page.mouse.up()
+    pick = tools.wait_js(page, "puppetView.lastPick")
+    assert pick["handle"] is None
+    count = page.evaluate("puppetView.shown")
+    tools.wait_js(page, f"puppetView.shown > {count} + 10")
+    tools.wait_until(lambda: "started on the background" in demo.stderr(), what="the background-drag warning")
+    err = demo.stderr()
+    assert "not a JSON object" in err
+    assert "unknown message type 'no_such_thing'" in err
+    assert "from origin 'http://evil.example'" in err
+    assert "Traceback" not in err
+
+
+async def _slow_viewer(url: str, wait_s: float) -> dict:
+    """A viewer that never acknowledges: it gets its credit's worth of frames, then only a
+    latest-wins slot (drops counted); one acknowledgement releases the newest frame."""
+    import time
+
+    base = url.rstrip("/").replace("http://", "ws://")
+    origin = url.rstrip("/")
+    out = {"frames": []}
+    async with aiohttp.ClientSession() as session:
+        async with session.ws_connect(f"{base}/ws/control?client=slow", origin=origin) as control, \
+                session.ws_connect(f"{base}/ws/frames?client=slow", origin=origin) as frames:
+            deadline = time.monotonic() + wait_s
+            while len(out["frames"]) < 2:
+                msg = await frames.receive(timeout=wait_s)
+                out["frames"].append(tools_header(msg.data))
+            drops = 0
+            while drops < 3 and time.monotonic() < deadline:  # the page keeps the camera busy
+                msg = json.loads((await control.receive(timeout=wait_s)).data)
+                if msg.get("type") == "panel":
+                    drops = msg["viewer"]["drops"]
+            out["drops"] = drops
+            try:
+                extra = await frames.receive(timeout=1.0)
+                out["extra_before_ack"] = len(extra.data)
+            except asyncio.TimeoutError:
+                out["extra_before_ack"] = 0
+            await frames.send_str(json.dumps({"type": "ack", "seq": out["frames"][0][3]}))
+            msg = await frames.receive(timeout=wait_s)
+            out["after_ack"] = tools_header(msg.data)
+    return out
+
+
+def tools_header(data: bytes):
+    from puppet.view.protocol import FRAME_HEADER
+
+    return FRAME_HEADER.unpack_from(data)
+
+
+def test_a_slow_viewer_gets_fewer_frames_and_drops_are_counted(new_page, demo, tools):
+    page = tools.open_view(new_page, demo)
+    result = tools.run_async(_slow_viewer(demo.url, 60.0))
+    first, second = result["frames"]
+    assert first[3] < second[3]
+    assert result["extra_before_ack"] == 0  # no third frame without an acknowledgement
+    assert result["drops"] >= 3  # replaced in its slot while it did not answer
+    assert result["after_ack"][3] > second[3] + 3  # the newest frame, not the next in a queue
+    count = page.evaluate("puppetView.shown")
+    tools.wait_js(page, f"puppetView.shown > {count} + 5")  # the page was not slowed down

@@ -1,0 +1,229 @@
+"""The live view's parts without a browser: address and access rules, the frame header, page
+input checks, the orbit camera, drag geometry, exact picking, handles on top of the servo
+constraints, marks in a take."""
+
+from __future__ import annotations
+
+import math
+import socket
+
+import numpy as np
+import pytest
+
+from puppet.bus import Reading
+from puppet.pipeline import Pipeline
+from puppet.render import Camera
+from puppet.rig import builtin
+from puppet.view import ViewError, parse_address
+from puppet.view.address import DEFAULT_PORT, Access, bind, is_loopback
+from puppet.view.handles import drag_target, pixel_ray, project, surface_point
+from puppet.view.orbit import OrbitCamera
+from puppet.view.protocol import FLAG_DRAFT, FRAME_HEADER, FRAME_JPEG, frame_header
+from puppet.view.server import check_input
+
+
+def test_addresses_parse():
+    assert parse_address(None) == ("127.0.0.1", DEFAULT_PORT)
+    assert parse_address("") == ("127.0.0.1", DEFAULT_PORT)
+    assert parse_address("9000") == ("127.0.0.1", 9000)
+    assert parse_address("0.0.0.0:9001") == ("0.0.0.0", 9001)
+    assert parse_address("[::1]:9002") == ("::1", 9002)
+    assert parse_address("myhost") == ("myhost", DEFAULT_PORT)
+    with pytest.raises(ViewError, match="port 'http' is not a number"):
+        parse_address("localhost:http")
+    with pytest.raises(ViewError, match="port 70000 is not in 0..65535"):
+        parse_address("70000")
+
+
+def test_loopback_needs_no_token_and_beyond_it_a_constant_time_token():
+    assert is_loopback("127.0.0.1") and is_loopback("localhost") and is_loopback("::1")
+    assert not is_loopback("0.0.0.0") and not is_loopback("192.168.1.4")
+    local = Access.for_host("127.0.0.1", 8765)
+    assert local.token is None and local.token_ok(None)
+    assert local.url() == "http://127.0.0.1:8765/"
+    assert local.host_ok("127.0.0.1:8765") and local.host_ok("localhost:8765")
+    assert not local.host_ok("evil.example:8765")  # DNS rebinding onto loopback
+    wide = Access.for_host("0.0.0.0", 8765)
+    assert wide.token is not None and len(wide.token) >= 20
+    assert wide.url().endswith(f"?token={wide.token}")
+    assert wide.token_ok(wide.token)
+    assert not wide.token_ok(None) and not wide.token_ok(wide.token[:-1]) and not wide.token_ok("")
+    assert Access.for_host("0.0.0.0", 8765).token != wide.token  # random per run
+
+
+def test_a_taken_port_is_a_clear_error():
+    with socket.socket() as taken:
+        taken.bind(("127.0.0.1", 0))
+        taken.listen()
+        port = taken.getsockname()[1]
+        with pytest.raises(ViewError) as err:
+            bind("127.0.0.1", port)
+    assert str(err.value) == (f"--view: address 127.0.0.1:{port} is already in use (port {port}); "
+                              f"stop the other program or pick another port, e.g. --view {port + 1}")
+
+
+def test_frame_header_is_fixed_little_endian():
+    data = frame_header(FLAG_DRAFT, 3, 2**32 + 5, 123456789012, 987654321098)
+    assert len(data) == FRAME_HEADER.size == 24
+    assert FRAME_HEADER.unpack(data) == (FRAME_JPEG, FLAG_DRAFT, 3, 5, 123456789012, 987654321098)
+
+
+@pytest.mark.parametrize("message, problem", [
+    (None, "not a JSON object"),
+    ({"type": "launch"}, "unknown message type 'launch'"),
+    ({"type": "drag", "key": 1, "x": "3", "y": 4}, "drag: field 'x' missing or invalid"),
+    ({"type": "drag", "key": 1, "x": float("nan"), "y": 4}, "drag: field 'x' missing or invalid"),
+    ({"type": "zoom", "factor": 1e300}, "zoom: field 'factor' missing or invalid"),
+    ({"type": "marker", "name": "x" * 81}, "marker: field 'name' missing or invalid"),
+    ({"type": "pick", "key": True, "seq": 1, "x": 0, "y": 0}, None),  # bool is an int in JSON terms
+    ({"type": "orbit", "dx": 3.5, "dy": -2}, None),
+])
+def test_page_input_is_checked(message, problem):
+    assert check_input(message) == problem
+
+
+def test_orbit_camera_keeps_distance_and_target():
+    start = Camera.framing(np.array([[-1.0, 0, -1], [1, 2, 1]]))
+    orbit = OrbitCamera(start)
+    assert orbit.pristine and orbit.camera() is start
+    distance = np.linalg.norm(start.eye - start.target)
+    orbit.orbit(math.pi / 2, 0.0)
+    moved = orbit.camera()
+    assert not orbit.pristine
+    assert np.linalg.norm(moved.eye - moved.target) == pytest.approx(distance)
+    assert np.allclose(moved.target, start.target)
+    orbit.orbit(0.0, 10.0)  # pitch is clamped short of the pole
+    assert orbit.pitch < math.pi / 2
+    orbit.zoom(0.5)
+    assert np.linalg.norm(orbit.camera().eye - orbit.camera().target) == pytest.approx(distance / 2)
+    orbit.reset()
+    assert orbit.pristine and np.allclose(orbit.camera().eye, start.eye)
+
+
+def test_drag_ray_hits_the_point_it_projects_from():
+    camera = Camera.framing(np.array([[-1.0, 0, -1], [1, 2, 1]]))
+    flip = np.diag([1.0, -1.0, 1.0, 1.0])
+    view_proj = flip @ camera.projection_matrix(640 / 480, 2.0) @ camera.view_matrix()
+    point = np.array([0.3, 1.1, -0.2])
+    (x, y), = project(view_proj, 640, 480, point[None])
+    origin, direction = pixel_ray(view_proj, 640, 480, x, y)
+    closest = origin + direction * ((point - origin) @ direction)
+    assert np.linalg.norm(closest - point) < 1e-6
+    back = camera.basis()[2]
+    target = drag_target(view_proj, 640, 480, x + 50, y, point, back)
+    assert abs((target - point) @ back) < 1e-9  # stays in the plane facing the camera
+    assert np.allclose(project(view_proj, 640, 480, target[None])[0], [x + 50, y], atol=1e-6)
+
+
+@pytest.fixture(scope="module")
+def critter_pipeline():
+    with Pipeline(builtin(), overlay=True) as pipeline:
+        yield pipeline
+
+
+def rest_reading(rig) -> Reading:
+    ids = rig.servo_map.ids
+    return Reading(0, ids, np.round(rig.servo_map.zero).astype(np.int32), np.ones(len(ids), bool))
+
+
+def test_picking_is_exact(critter_pipeline):
+    from puppet.render.picking import Picker
+
+    pipeline = critter_pipeline
+    pipeline.solve(rest_reading(pipeline.rig))
+    renderer = pipeline.renderer
+    with Picker(renderer) as picker:
+        view_proj = picker.view_proj(renderer.camera)
+        hits = 0
+        for x, y in [(320, 240), (300, 150), (330, 300), (280, 200)]:
+            pick = picker.pick(pipeline.T, renderer.camera, x, y)
+            if pick is None:
+                continue
+            hits += 1
+            point, _ = surface_point(pipeline.model, np.asarray(pipeline.rig.F, np.int64), pipeline.T,
+                                     pick.triangle, pick.bary)
+            # The picked surface point projects back onto the pixel's center.
+            assert np.allclose(project(view_proj, renderer.width, renderer.height, point[None])[0],
+                               [x + 0.5, y + 0.5], atol=0.02)
+        assert hits >= 3
+        assert picker.pick(pipeline.T, renderer.camera, 3, 3) is None  # the background
+        assert picker.pick(pipeline.T, renderer.camera, -1, 10) is None  # off the image
+
+
+def test_handles_join_the_servo_constraints(critter_pipeline):
+    pipeline = critter_pipeline
+    rig = pipeline.rig
+    reading = rest_reading(rig)
+    reading.ticks[:] += 200  # a pose away from rest
+    tail = rig.skeleton.names.index("tail3")
+    vertex = int(np.argmax(rig.W[:, tail] * np.linalg.norm(rig.V - rig.skeleton.heads[tail], axis=1)))
+    try:
+        seconds = pipeline.set_handles([vertex])
+        assert seconds > 0
+        target = rig.V[vertex] + np.array([0.0, 0.3, 0.1])
+        pipeline.handle_targets[0] = target
+        for _ in range(20):
+            pipeline.solve(reading)
+        deformed = pipeline.deformed()
+        assert np.linalg.norm(deformed[vertex] - target) < 1e-4  # the dragged point is where it was put
+        blocks = pipeline.T.reshape(-1, 4, 3)
+        for q, bone in enumerate(rig.full_bones):  # sensed legs stay where the servos put them
+            assert np.abs(blocks[bone] - pipeline.values.full[q]).max() < 1e-5
+    finally:
+        pipeline.set_handles([])
+    assert pipeline.pattern.positional == tuple(int(v) for v in rig.pins)
+
+
+def test_marks_go_in_the_take_and_old_readers_skip_them(tmp_path):
+    from puppet.take import BackgroundTakeWriter, TakeReader, TakeWriter
+    from puppet.take.markers import read_markers
+
+    ids = np.array([1, 2])
+    path = tmp_path / "marked.mcap"
+    writer = BackgroundTakeWriter(TakeWriter(path, ids=ids, models={1: "XL330-M288", 2: "XL330-M288"},
+                                             rig_map_text="", calibration_text="", rig_name="two"))
+    for i in range(20):
+        writer.write(Reading(1000 + i, ids, np.array([i, -i], np.int32), np.ones(2, bool)))
+        if i in (5, 12):
+            writer.mark(1000 + i, f"mark {i}")
+    writer.close()
+    assert read_markers(path) == [(1005, "mark 5"), (1012, "mark 12")]
+    reader = TakeReader(path)
+    assert len(reader) == 20 and not reader.truncated
+    assert reader.arrays()[1][:, 0].tolist() == list(range(20))
+
+
+def test_nothing_is_rendered_or_encoded_without_a_viewer():
+    from puppet.demo import run_demo
+    from puppet.view import View
+
+    view = View("127.0.0.1:0")
+    try:
+        summary, _ = run_demo(seconds=2.0, sinks_for=lambda _p: [], view=view)
+        stats = view.stats()
+    finally:
+        view.close()
+    assert summary.frames > 5
+    assert (stats["frames_rendered"], stats["frames_reused"], stats["frames_sent"]) == (0, 0, 0)
+    assert view._encoder.encoded == 0
+
+
+def test_camera_moves_are_merged_into_one_change_per_frame(critter_pipeline):
+    from puppet.view import View
+
+    view = View("127.0.0.1:0")
+    try:
+        view.attach(critter_pipeline)
+        camera = view._cameras[0]
+        version = camera.version
+        for dx in (5.0, 7.0, -2.0):
+            view.command("page", {"type": "orbit", "dx": dx, "dy": 1.0, "camera": 0})
+        view.command("page", {"type": "zoom", "factor": 0.5, "camera": 0})
+        yaw = camera.yaw
+        view.apply(critter_pipeline)
+        assert camera.version == version + 2  # one orbit (three events merged) and one zoom
+        assert camera.yaw == pytest.approx((yaw - 10.0 * 0.01) % (2 * math.pi))
+        view.apply(critter_pipeline)  # nothing new: nothing changes
+        assert camera.version == version + 2
+    finally:
+        view.close()
