@@ -98,6 +98,7 @@ class _ScanState:
         self.schemas: dict[int, Schema] = {}
         self.channel: Channel | None = None
         self.channel_id: int | None = None
+        self.other_channels: set[int] = set()  # channels of other topics (e.g. /puppet/markers)
         self.version: int | None = None
         self.codec: fmt.ReadingCodec | None = None
         self.msg_len: int | None = None  # MCAP body length of one reading's message record
@@ -235,7 +236,8 @@ class TakeReader:
             if opcode not in _KNOWN_OPCODES:
                 damage = ("corrupt record", f"corrupt record at byte {pos} (opcode 0x{opcode:02x})",
                           None)
-            elif opcode == Opcode.MESSAGE and s.msg_len is not None and length != s.msg_len:
+            elif (opcode == Opcode.MESSAGE and s.msg_len is not None and length != s.msg_len
+                  and not self._other_channel_message(mm, s, body, end)):
                 damage = ("corrupt record", f"corrupt message record at byte {pos} "
                           f"({length + 9} bytes, a reading has {s.msg_len + 9})", None)
             elif end > size:
@@ -402,8 +404,10 @@ class TakeReader:
         opcode, length = _RECORD_HEAD.unpack_from(mm, q)
         if opcode not in _KNOWN_OPCODES:
             return False
-        if opcode == Opcode.MESSAGE and s.msg_len is not None:
-            return length == s.msg_len
+        if opcode == Opcode.MESSAGE and s.msg_len is not None and length != s.msg_len:
+            body = q + _RECORD_HEAD.size  # a message of another topic (a marker) may follow
+            return (body + 2 <= size and struct.unpack_from("<H", mm, body)[0] in s.other_channels
+                    and body + length <= size)
         return q + _RECORD_HEAD.size + length <= size
 
     def _message_at(self, mm: mmap.mmap, s: "_ScanState", q: int) -> bool:
@@ -454,6 +458,13 @@ class TakeReader:
                 return q
         return best
 
+    def _other_channel_message(self, mm: mmap.mmap, s: "_ScanState", body: int, end: int) -> bool:
+        """A whole message record on a channel of another topic (a marker): not a damaged reading."""
+        if end > len(mm) or end - body < _MESSAGE_HEAD.size:
+            return False
+        channel_id = struct.unpack_from("<H", mm, body)[0]
+        return channel_id in s.other_channels and self._boundary(mm, s, end)
+
     def _message_record(self, mm, s: "_ScanState", pos: int, body: int, end: int):
         """Take in one message record; None, or (reason, what is wrong, trusted end)."""
         if end - body < _MESSAGE_HEAD.size:
@@ -479,7 +490,7 @@ class TakeReader:
     def _take_message(self, s: "_ScanState", channel_id: int, log_time: int, payload):
         """Check one message: None (a good reading, counted), "other channel", or (reason, detail)."""
         if channel_id != s.channel_id:
-            if len(payload) != s.codec.size:
+            if channel_id in s.other_channels or len(payload) != s.codec.size:
                 return "other channel"  # a message a tool added to the take: not a reading
             if s.channel_id is None and s.codec.version >= 2 and s.codec.check(payload) is None:
                 s.channel_id = channel_id
@@ -548,6 +559,7 @@ class TakeReader:
 
     def _channel(self, s: "_ScanState", ch: Channel) -> None:
         if ch.topic != fmt.TOPIC:
+            s.other_channels.add(ch.id)
             return
         version = s.version
         if version is None:  # the take metadata is damaged: the schema tells the version

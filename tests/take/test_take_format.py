@@ -8,7 +8,8 @@ import zlib
 import numpy as np
 from mcap.writer import CompressionType, Writer
 
-from puppet.take import TakeReader
+from puppet.reading import Reading
+from puppet.take import TakeReader, TakeWriter
 from puppet.take import format as fmt
 
 RECORD_HEAD = 9 + 22  # MCAP record head (opcode, length) + message head before the payload
@@ -204,3 +205,22 @@ def test_damaged_magic_bytes(tmp_path, kit):
     r = TakeReader(p)
     assert_readings(r, kit, range(4))
     assert "magic bytes are damaged" in r.recovery
+
+
+def test_marks_on_their_own_channel_are_not_damage(tmp_path):
+    """A take with named marks (the live view's marker button) reads clean, marks in order."""
+    from puppet.take.markers import read_markers
+
+    path = tmp_path / "marked.mcap"
+    with TakeWriter(path, ids=[1, 2], models={1: "XL330-M288", 2: "XL330-M288"},
+                    rig_map_text="", calibration_text="", rig_name="x") as writer:
+        for i in range(6):
+            writer.write(Reading(1_000 + i * 1_000_000, np.array([1, 2]),
+                                 np.array([i, 2 * i], np.int32), np.ones(2, bool)))
+            if i in (2, 3):
+                writer.mark(1_000 + i * 1_000_000, f"mark {i}")
+                writer.mark(1_000 + i * 1_000_000, f"again {i}")
+    reader = TakeReader(path)
+    assert len(reader) == 6
+    assert reader.recovery is None
+    assert [name for _, name in read_markers(path)] == ["mark 2", "again 2", "mark 3", "again 3"]
