@@ -58,14 +58,15 @@ def main() -> None:
       puppet calibrate --rig my.toml --port /dev/ttyUSB0
       puppet live --rig my.toml --port /dev/ttyUSB0 --record take.mcap --out live.mp4
       puppet play take.mcap --out take.mp4 --speed 0.5
+      puppet perform take.mcap --rig my.toml --port /dev/ttyUSB0
       puppet export take.mcap --pc2 mesh.pc2 --bvh skeleton.bvh
     """
 
 
 def _register() -> None:
-    from puppet.cli import bus, demo, export, live, play, record, rig
+    from puppet.cli import bus, demo, export, live, perform, play, record, rig
 
-    for module in (demo, live, record, play, export, bus, rig):
+    for module in (demo, live, record, play, export, bus, rig, perform):
         for command in module.COMMANDS:
             main.add_command(command)
 
