@@ -214,7 +214,8 @@ def perform(rig, reader, port: str, options: PerformOptions | None = None,
             error.report = report
             raise error
         if isinstance(error, (BusError,)):
-            raise DriveError(f"performance stopped, torque off: {error}", report) from error
+            done = "torque off" if torque_may_be_on else "torque never went on"
+            raise DriveError(f"performance stopped ({done}): {error}", report) from error
         raise error
     return report
 
@@ -300,7 +301,7 @@ def _wait(seconds: float, bus: DriveBus, opts, check_signal, keepalive: bool = T
 
 def _read_positions(bus: DriveBus) -> np.ndarray:
     """Present Position of every servo (one read each, so that none is missing)."""
-    return np.array([bus.link.read(i, it.PRESENT_POSITION) for i in bus.ids], float)
+    return np.array([bus.read(i, it.PRESENT_POSITION) for i in bus.ids], float)
 
 
 def _limits(bus: DriveBus, goals: TakeGoals) -> tuple[np.ndarray, np.ndarray]:
@@ -335,7 +336,7 @@ class _Health:
         for n in np.flatnonzero(state.alert):
             dxl_id = bus.ids[n]
             try:
-                bits = bus.link.read(dxl_id, it.HARDWARE_ERROR_STATUS)
+                bits = bus.read(dxl_id, it.HARDWARE_ERROR_STATUS)
                 what = describe_hardware_error(bits)
             except BusError as err:
                 what = f"unreadable ({err})"

@@ -16,12 +16,14 @@ import numpy as np
 
 from puppet.bus.configure import Change, ensure_status_return, identify, SetupReport
 from puppet.bus.control_table import RETURN_DELAY_TIME, describe_hardware_error
-from puppet.bus.errors import BusError, PortError
+from puppet.bus.errors import BusError, PortError, ServoCorrupt, ServoTimeout
 from puppet.bus.link import BusLink
 from puppet.drive import items as it
 from puppet.drive.errors import DriveError
 
 _STATE = struct.Struct("<BBhhiiiiHB")  # Moving .. Present Temperature (25 bytes)
+ATTEMPTS = 3
+"""Tries of a single-servo read or write outside the loop (a reply lost to noise is retried)."""
 
 
 @dataclass
@@ -78,8 +80,27 @@ class DriveBus:
         self.state = State(*(np.zeros(k, bool) for _ in range(2)),
                            *(np.zeros(k, np.int64) for _ in range(6)))
 
+    def read(self, dxl_id: int, item) -> int:
+        """Read one item, tried up to ``ATTEMPTS`` times on a timeout or corrupt reply."""
+        for attempt in range(ATTEMPTS):
+            try:
+                return self.link.read(dxl_id, item)
+            except (ServoTimeout, ServoCorrupt):
+                if attempt == ATTEMPTS - 1:
+                    raise
+        raise AssertionError("unreachable")
+
+    def write(self, dxl_id: int, item, value: int) -> None:
+        """Write one item (idempotent), tried up to ``ATTEMPTS`` times like ``read``."""
+        for attempt in range(ATTEMPTS):
+            try:
+                return self.link.write(dxl_id, item, value)
+            except (ServoTimeout, ServoCorrupt):
+                if attempt == ATTEMPTS - 1:
+                    raise
+
     def _change(self, dxl_id: int, item, old: int, new: int, why: str = "") -> None:
-        self.link.write(dxl_id, item, new)
+        self.write(dxl_id, item, new)
         self.changes.append(Change(dxl_id, item.name, old, new))
         self.log(f"servo {dxl_id}: {item.name} {old} -> {new}{' (' + why + ')' if why else ''}")
 
@@ -99,8 +120,14 @@ class DriveBus:
     def _prepare_one(self, dxl_id: int, firmware: int, use_watchdog: bool) -> ServoSetup:
         link, model = self.link, self.models[dxl_id]
         info = ServoSetup(dxl_id, model, firmware)
-        ensure_status_return(link, dxl_id, self.changes)
-        hw = link.read(dxl_id, it.HARDWARE_ERROR_STATUS)
+        for attempt in range(ATTEMPTS):
+            try:
+                ensure_status_return(link, dxl_id, self.changes)
+                break
+            except (ServoTimeout, ServoCorrupt):
+                if attempt == ATTEMPTS - 1:
+                    raise
+        hw = self.read(dxl_id, it.HARDWARE_ERROR_STATUS)
         if hw:
             raise DriveError(f"servo {dxl_id}: hardware error latched ({describe_hardware_error(hw)}); "
                              "let it cool or fix the load, then power-cycle or reboot it")
@@ -111,19 +138,19 @@ class DriveBus:
                 f">= {it.BUS_WATCHDOG_FIRMWARE}): if this host died the servo would keep its last "
                 "goal with torque on; update the firmware, or pass --no-watchdog to perform anyway")
         if info.watchdog:
-            wd = link.read(dxl_id, it.BUS_WATCHDOG)
+            wd = self.read(dxl_id, it.BUS_WATCHDOG)
             if wd == it.WATCHDOG_TRIPPED:
                 self.recovered.append(dxl_id)
                 self._change(dxl_id, it.BUS_WATCHDOG, wd, 0,
                              "its Bus Watchdog had stopped it: the host fell silent; cleared")
             elif wd != 0:
                 self._change(dxl_id, it.BUS_WATCHDOG, wd, 0, "left set; cleared")
-        torque = link.read(dxl_id, it.TORQUE_ENABLE)
+        torque = self.read(dxl_id, it.TORQUE_ENABLE)
         if torque:  # hold where it is before anything else
-            link.write(dxl_id, it.GOAL_POSITION, link.read(dxl_id, it.PRESENT_POSITION))
-        mode = link.read(dxl_id, it.OPERATING_MODE)
-        drive = link.read(dxl_id, it.DRIVE_MODE)
-        delay = link.read(dxl_id, RETURN_DELAY_TIME)
+            self.write(dxl_id, it.GOAL_POSITION, self.read(dxl_id, it.PRESENT_POSITION))
+        mode = self.read(dxl_id, it.OPERATING_MODE)
+        drive = self.read(dxl_id, it.DRIVE_MODE)
+        delay = self.read(dxl_id, RETURN_DELAY_TIME)
         unwanted = it.DRIVE_MODE_TORQUE_ON_BY_GOAL | it.DRIVE_MODE_TIME_PROFILE
         eeprom = mode not in it.POSITION_MODES or drive & unwanted or delay != 0
         if eeprom and torque:
@@ -144,12 +171,12 @@ class DriveBus:
             self._change(dxl_id, it.TORQUE_ENABLE, 1, 0, "torque goes on only after the goal is set")
         info.mode = mode
         if mode == it.POSITION_MODE:
-            info.lo = link.read(dxl_id, it.MIN_POSITION_LIMIT)
-            info.hi = link.read(dxl_id, it.MAX_POSITION_LIMIT)
-        info.temperature_limit = link.read(dxl_id, it.TEMPERATURE_LIMIT)
+            info.lo = self.read(dxl_id, it.MIN_POSITION_LIMIT)
+            info.hi = self.read(dxl_id, it.MAX_POSITION_LIMIT)
+        info.temperature_limit = self.read(dxl_id, it.TEMPERATURE_LIMIT)
         unit = it.CURRENT_UNIT_MA.get(model)
         if unit is not None:
-            info.current_limit_ma = link.read(dxl_id, it.CURRENT_LIMIT) * unit
+            info.current_limit_ma = self.read(dxl_id, it.CURRENT_LIMIT) * unit
         return info
 
     # ---- group writes ---------------------------------------------------------------------
@@ -169,7 +196,7 @@ class DriveBus:
         """Read Torque Enable back from every servo; DriveError naming those that differ."""
         wrong = {}
         for i in self.ids:
-            value = self.link.read(i, it.TORQUE_ENABLE)
+            value = self.read(i, it.TORQUE_ENABLE)
             if value != want:
                 wrong[i] = value
         if wrong:
@@ -208,7 +235,7 @@ class DriveBus:
             self.log(f"torque off (group write) failed: {err}")
         for i in self.ids:
             try:
-                self.link.write(i, it.TORQUE_ENABLE, 0)
+                self.write(i, it.TORQUE_ENABLE, 0)
             except PortError as err:
                 self.log(f"servo {i}: torque off failed: {err}")
                 break  # the port is gone: every further call would fail the same way
@@ -217,14 +244,14 @@ class DriveBus:
         after: dict[int, int | None] = {}
         for i in self.ids:
             try:
-                after[i] = self.link.read(i, it.TORQUE_ENABLE)
+                after[i] = self.read(i, it.TORQUE_ENABLE)
             except BusError:
                 after[i] = None
         for i, value in after.items():
             if value == 0 and self.setup.get(i, ServoSetup(i, "", 0)).watchdog:
                 try:
-                    if self.link.read(i, it.BUS_WATCHDOG) != 0:
-                        self.link.write(i, it.BUS_WATCHDOG, 0)
+                    if self.read(i, it.BUS_WATCHDOG) != 0:
+                        self.write(i, it.BUS_WATCHDOG, 0)
                 except BusError as err:
                     self.log(f"servo {i}: clearing the Bus Watchdog failed: {err}")
         return after

@@ -6,13 +6,11 @@ from __future__ import annotations
 import hw_sim
 from hw_sim.servo import VELOCITY_UNIT_TICKS_S
 
-from tests.drive.conftest import wait_for
-
 DATA_RANGE = 0x04
 ACCESS = 0x07
 
 
-def test_bus_watchdog_trips_refuses_goals_until_cleared(open_sdk):
+def test_bus_watchdog_trips_refuses_goals_until_cleared(open_sdk, wait_for):
     with hw_sim.serve([1]) as bus:
         sdk = open_sdk(bus.port)
         assert sdk.write(1, 64, 1, 1) == 0
@@ -32,7 +30,7 @@ def test_bus_watchdog_trips_refuses_goals_until_cleared(open_sdk):
         assert servo.get("Goal Position") == 2500
 
 
-def test_bus_watchdog_stays_quiet_while_the_host_talks(open_sdk):
+def test_bus_watchdog_stays_quiet_while_the_host_talks(open_sdk, wait_for):
     with hw_sim.serve([1]) as bus:
         sdk = open_sdk(bus.port)
         assert sdk.write(1, 64, 1, 1) == 0
@@ -42,14 +40,14 @@ def test_bus_watchdog_stays_quiet_while_the_host_talks(open_sdk):
         assert bus.servo(1).get("Bus Watchdog") == 100
 
 
-def test_firmware_without_bus_watchdog_refuses_the_item(open_sdk):
+def test_firmware_without_bus_watchdog_refuses_the_item(open_sdk, wait_for):
     with hw_sim.serve([1]) as bus:
         bus.servo(1).set("Firmware Version", 30)
         sdk = open_sdk(bus.port)
         assert sdk.write(1, 98, 1, 5) == ACCESS
 
 
-def test_time_based_profile_takes_profile_velocity_ms(open_sdk):
+def test_time_based_profile_takes_profile_velocity_ms(open_sdk, wait_for):
     with hw_sim.serve([1]) as bus:
         sdk = open_sdk(bus.port)
         servo = bus.servo(1)
@@ -73,7 +71,7 @@ def test_time_based_profile_takes_profile_velocity_ms(open_sdk):
         assert servo.get("Moving") == 0
 
 
-def test_torque_on_by_goal_update(open_sdk):
+def test_torque_on_by_goal_update(open_sdk, wait_for):
     with hw_sim.serve([1]) as bus:
         sdk = open_sdk(bus.port)
         assert sdk.write(1, 10, 1, 0x08) == 0
@@ -82,7 +80,7 @@ def test_torque_on_by_goal_update(open_sdk):
         assert bus.servo(1).get("Torque Enable") == 1
 
 
-def test_current_rises_with_load_and_overload_latches(open_sdk):
+def test_current_rises_with_load_and_overload_latches(open_sdk, wait_for):
     with hw_sim.serve([1]) as bus:
         sdk = open_sdk(bus.port)
         servo = bus.servo(1)
@@ -98,7 +96,7 @@ def test_current_rises_with_load_and_overload_latches(open_sdk):
         assert error & 0x80
 
 
-def test_current_rises_with_acceleration(open_sdk):
+def test_current_rises_with_acceleration(open_sdk, wait_for):
     with hw_sim.serve([1, 2]) as bus:
         sdk = open_sdk(bus.port)
         for i in (1, 2):
@@ -118,7 +116,7 @@ def test_current_rises_with_acceleration(open_sdk):
         assert peaks[2] > peaks[1]
 
 
-def test_temperature_rises_with_sustained_current(open_sdk):
+def test_temperature_rises_with_sustained_current(open_sdk, wait_for):
     with hw_sim.serve([1]) as bus:
         sdk = open_sdk(bus.port)
         servo = bus.servo(1)
