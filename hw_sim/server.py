@@ -266,6 +266,8 @@ class Server:
             self.counts[ins.inst] += 1
             replies = self.bus.handle(ins, now)
             if not replies:
+                # A write that nobody answers still holds the line for its own bytes.
+                line_free += ins.raw_len * self.byte_s if self.timing else 0.0
                 continue
             if not self.timing:
                 out = b"".join(r for r, _ in replies)

@@ -14,9 +14,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from puppet.bus.configure import Change, ensure_status_return, identify, SetupReport
+from puppet.bus.configure import (Change, SetupReport, ensure_status_return, identify,
+                                  supports_fast_sync_read)
 from puppet.bus.control_table import RETURN_DELAY_TIME, describe_hardware_error
-from puppet.bus.errors import BusError, PortError, ServoCorrupt, ServoTimeout
+from puppet.bus.errors import BusError, PortError, ServoCorrupt, ServoStatusError, ServoTimeout
 from puppet.bus.link import BusLink
 from puppet.drive import items as it
 from puppet.drive.errors import DriveError
@@ -76,6 +77,7 @@ class DriveBus:
         self.changes: list[Change] = []
         self.recovered: list[int] = []
         self.setup: dict[int, ServoSetup] = {}
+        self.fast_read = False  # Fast Sync Read for the state (every servo's firmware has it)
         k = len(self.ids)
         self.state = State(*(np.zeros(k, bool) for _ in range(2)),
                            *(np.zeros(k, np.int64) for _ in range(6)))
@@ -116,6 +118,7 @@ class DriveBus:
         for dxl_id in self.ids:
             self.setup[dxl_id] = self._prepare_one(dxl_id, report.found[dxl_id].firmware,
                                                    use_watchdog)
+        self.fast_read = supports_fast_sync_read(self.models, report.found)
 
     def _prepare_one(self, dxl_id: int, firmware: int, use_watchdog: bool) -> ServoSetup:
         link, model = self.link, self.models[dxl_id]
@@ -124,7 +127,7 @@ class DriveBus:
             try:
                 ensure_status_return(link, dxl_id, self.changes)
                 break
-            except (ServoTimeout, ServoCorrupt):
+            except (ServoTimeout, ServoCorrupt, ServoStatusError):  # a late reply misread
                 if attempt == ATTEMPTS - 1:
                     raise
         hw = self.read(dxl_id, it.HARDWARE_ERROR_STATUS)
@@ -204,9 +207,11 @@ class DriveBus:
 
     # ---- the cycle's read -------------------------------------------------------------------
     def read_state(self) -> State:
-        """One Sync Read of Moving .. Present Temperature (25 bytes) from every servo, with each
-        status error byte kept (the alert bit). Fills and returns ``self.state``."""
-        result = self.link.sync_read(self.ids, it.STATE)
+        """One Sync Read (Fast Sync Read where every servo has it) of Moving .. Present
+        Temperature (25 bytes) from every servo, with each status error byte kept (the alert
+        bit). Fills and returns ``self.state``."""
+        read = self.link.fast_sync_read if self.fast_read else self.link.sync_read
+        result = read(self.ids, it.STATE)
         s = self.state
         s.failures = result.failed
         for n, dxl_id in enumerate(self.ids):
