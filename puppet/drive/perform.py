@@ -110,6 +110,9 @@ class PerformReport:
             table = getattr(self, name)
             if table:
                 lines.append(f"{name.replace('_', ' ')} (cycles or readings per servo): {table}")
+        if not self.torque_after:
+            lines.append("torque: never turned on")
+            return "\n".join(lines)
         off = [i for i, v in self.torque_after.items() if v == 0]
         unknown = {i: v for i, v in self.torque_after.items() if v != 0}
         lines.append(f"torque off (read back): servos {off}"

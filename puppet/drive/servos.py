@@ -9,6 +9,7 @@ records every change; nothing here runs inside the loop except ``write_goals``,
 from __future__ import annotations
 
 import struct
+import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
@@ -25,6 +26,9 @@ from puppet.drive.errors import DriveError
 _STATE = struct.Struct("<BBhhiiiiHB")  # Moving .. Present Temperature (25 bytes)
 ATTEMPTS = 3
 """Tries of a single-servo read or write outside the loop (a reply lost to noise is retried)."""
+IDENTIFY_ROUNDS = 3
+IDENTIFY_PAUSE_S = 0.5
+"""Rounds of pings (3 each) for servos that did not answer, this far apart, before refusing."""
 
 
 @dataclass
@@ -113,6 +117,12 @@ class DriveBus:
         Bus Watchdog (unless ``use_watchdog`` is False). Recovers a tripped watchdog."""
         report = SetupReport()
         identify(self.link, self.models, report)
+        for _ in range(IDENTIFY_ROUNDS - 1):  # a servo still booting, a reply lost to noise
+            if not report.missing:
+                break
+            time.sleep(IDENTIFY_PAUSE_S)
+            missing, report.missing = report.missing, []
+            identify(self.link, {i: self.models[i] for i in missing}, report)
         if report.missing:
             raise DriveError(f"servos {report.missing} did not answer on {self.link.port_name}")
         for dxl_id in self.ids:

@@ -215,3 +215,15 @@ def test_torque_on_by_goal_update_is_turned_off(rig, wave_take):
         report = _perform(rig, wave_take, bus.port)
         assert "servo 9: Drive Mode 8 -> 0" in report.changes
         assert _all_off(bus, rig)
+
+
+def test_countdown_is_announced_and_keeps_the_watchdog_fed(rig, wave_take):
+    lines = []
+    with hw_sim.serve(dict(rig.servo_map.models)) as bus:
+        report = perform(rig, TakeReader(wave_take), bus.port,
+                         PerformOptions(**{**OPTIONS, "yes": False, "countdown_s": 3,
+                                           "watchdog_ms": 1000.0}), log=lines.append)
+        assert report.stop_reason == "end of take"
+        assert any(line.startswith("moving to the first pose") for line in lines)
+        assert lines.index("3...") < lines.index("2...") < lines.index("1...")
+        assert _all_off(bus, rig)
