@@ -51,15 +51,40 @@ def test_performed_take_tracks_and_ends_with_torque_off(rig, wave_take):
         assert {bus.servo(int(i)).get("Bus Watchdog") for i in rig.servo_map.ids} == {0}
 
 
-def test_start_goes_from_present_no_faster_than_the_start_profile(rig, make_take, tmp_path):
+def test_start_goes_from_present_no_faster_than_the_start_profile(rig, make_take, tmp_path,
+                                                                  wait_for):
     k = len(rig.servo_map.ids)
     take = make_take(tmp_path / "still.mcap", rig, np.full((20, k), 10.0))
     with hw_sim.serve(dict(rig.servo_map.models)) as bus:
         # The puppet was left away from the take's first pose: torque on must not jump.
         bus.set_positions({int(i): 2048 + 300 * (1 if n % 2 else -1)
                            for n, i in enumerate(rig.servo_map.ids)})
-        report = _perform(rig, take, bus.port, start_speed_deg_s=40.0)
+        # Watched from the simulator's side too, from setup until playback begins, once the
+        # hand that put them there has let go.
+        ids = [int(i) for i in rig.servo_map.ids]
+        wait_for(lambda: all(bus.servo(i).get("Present Velocity") == 0 for i in ids),
+                 what="the joints at rest")
+        seen = dict.fromkeys(ids, 0)
+        watching = threading.Event()
+
+        def watch():
+            while True:
+                for i in ids:
+                    speed = abs(bus.servo(i).get("Present Velocity"))
+                    if watching.is_set():  # playback began: this reading may be from it
+                        return
+                    seen[i] = max(seen[i], speed)
+
+        def on_phase(phase):
+            if phase == "setup":
+                threading.Thread(target=watch, daemon=True).start()
+            if phase == "playback":
+                watching.set()
+
+        report = _perform(rig, take, bus.port, start_speed_deg_s=40.0, on_phase=on_phase)
         unit = it.VELOCITY_UNIT_DEG_S
+        assert max(seen.values()) > 0
+        assert max(seen.values()) * unit <= report.start_profile_deg_s + unit
         assert 40.0 - unit <= report.start_profile_deg_s <= 40.0 + unit
         speeds = report.start_max_speed_deg_s
         assert max(speeds.values()) > 0  # they did move
