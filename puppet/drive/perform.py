@@ -239,7 +239,7 @@ def _start(bus: DriveBus, goals: TakeGoals, opts, report, say, check_signal, pha
         info = bus.setup[dxl_id]
         if info.mode != it.POSITION_MODE and not lo[n] - 2048 <= present[n] <= hi[n] + 2048:
             raise DriveError(
-                f"servo {dxl_id}: present position {present[n]} is outside the rig's range "
+                f"servo {dxl_id}: present position {present[n]:.0f} is outside the rig's range "
                 f"{lo[n]:.0f}..{hi[n]:.0f} ticks in {it.POSITION_MODES[info.mode]} mode (the turn "
                 "count is lost at power-up): turn the joint into range by hand")
     bus.write_all(it.GOAL_POSITION, present)

@@ -252,3 +252,16 @@ def test_countdown_is_announced_and_keeps_the_watchdog_fed(rig, wave_take):
         assert any(line.startswith("moving to the first pose") for line in lines)
         assert lines.index("3...") < lines.index("2...") < lines.index("1...")
         assert _all_off(bus, rig)
+
+
+def test_multi_turn_servo_out_of_range_is_refused_before_torque(rig, wave_take, wait_for):
+    with hw_sim.serve(dict(rig.servo_map.models)) as bus:
+        bus.servo(1).set("Operating Mode", 4)           # extended position: counts turns
+        bus.set_positions({1: 2048 + 2 * 4096})          # turned twice by hand since power-up
+        wait_for(lambda: bus.servo(1).get("Present Position") == 2048 + 2 * 4096,
+                 what="the turned joint")
+        with pytest.raises(DriveError) as info:
+            _perform(rig, wave_take, bus.port)
+        assert str(info.value).startswith("servo 1: present position 10240 is outside")
+        assert "extended position" in str(info.value)
+        assert _all_off(bus, rig)
