@@ -186,12 +186,14 @@ def perform(rig, reader, port: str, options: PerformOptions | None = None,
                 raise _Stopped(signals.which)
         try:
             link.open()
+            # From here every way out turns torque off: a servo may still hold torque from an
+            # earlier run (stopped by its watchdog) until setup reaches it.
+            torque_may_be_on = True
             phase("setup")
             bus.prepare(opts.watchdog)
             report.changes = [f"servo {c.id}: {c.item} {c.old} -> {c.new}" for c in bus.changes]
             report.recovered = list(bus.recovered)
             check_signal()
-            torque_may_be_on = True  # from the first torque write on, every way out stops
             start_pose = _start(bus, goals, opts, report, say, check_signal, phase)
             _playback(bus, goals, servo_map, start_pose, opts, report, say, check_signal, phase)
             report.stop_reason = "end of take"

@@ -3,6 +3,7 @@ then recovery by the next perform; errors as ``Error:`` lines."""
 
 from __future__ import annotations
 
+import json
 import queue
 import signal
 import subprocess
@@ -80,12 +81,15 @@ def test_sigkill_leaves_servos_to_their_watchdog_and_next_perform_recovers(rig, 
         wait_for(lambda: all(bus.servo(i).get("Bus Watchdog") == -1 for i in ids),
                  what="every servo's Bus Watchdog to trip")
         assert all(bus.servo(i).get("Present Velocity") == 0 for i in ids)
-        again = Perform(wave_take, bus.port)
+        again = Perform(wave_take, bus.port, "--json")
         code, out, err = again.finish()
         assert code == 0, err
         for i in ids:
             assert f"servo {i}: Bus Watchdog -1 -> 0" in err
-        assert "stopped: end of take" in out
+        report = json.loads(out)
+        assert report["stop_reason"] == "end of take"
+        assert sorted(report["recovered"]) == ids
+        assert report["torque_after"] == {str(i): 0 for i in ids}
         assert set(_torque(bus, ids).values()) == {0}
 
 
