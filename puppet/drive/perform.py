@@ -206,20 +206,25 @@ def perform(rig, reader, port: str, options: PerformOptions | None = None,
             report.stop_reason = f"{type(err).__name__}: {err}"
             error = err
         finally:
-            phase("stop")
-            if torque_may_be_on:
+            if torque_may_be_on:  # first, before anything that could fail
                 report.torque_after = bus.torque_off()
                 if isinstance(error, PortError) and any(v is None for v in report.torque_after.values()):
                     say(f"the port is gone: the servos' Bus Watchdog stops them "
                         f"({opts.watchdog_ms:.0f} ms after the last frame)" if opts.watchdog
                         else "the port is gone and --no-watchdog was given: the servos keep their last goal")
             link.close()
+            phase("stop")
     if error is not None:
         if isinstance(error, DriveError):
             error.report = report
             raise error
         if isinstance(error, (BusError,)):
-            done = "torque off" if torque_may_be_on else "torque never went on"
+            if not torque_may_be_on:
+                done = "torque never went on"
+            elif report.torque_after and set(report.torque_after.values()) == {0}:
+                done = "torque off"
+            else:
+                done = "torque off NOT confirmed on every servo"
             raise DriveError(f"performance stopped ({done}): {error}", report) from error
         raise error
     return report

@@ -14,9 +14,9 @@ def test_bus_watchdog_trips_refuses_goals_until_cleared(open_sdk, wait_for):
     with hw_sim.serve([1]) as bus:
         sdk = open_sdk(bus.port)
         assert sdk.write(1, 64, 1, 1) == 0
-        assert sdk.write(1, 98, 1, 5) == 0          # 100 ms
         assert sdk.write(1, 112, 4, 20) == 0        # slow profile
         assert sdk.write(1, 116, 4, 3000) == 0      # start a long move
+        assert sdk.write(1, 98, 1, 5) == 0          # 100 ms, then the host falls silent
         servo = bus.servo(1)
         # The host stays silent: the servo stops by itself, holding where it is.
         wait_for(lambda: servo.get("Bus Watchdog") == -1, what="watchdog trip")
@@ -36,7 +36,7 @@ def test_bus_watchdog_stays_quiet_while_the_host_talks(open_sdk, wait_for):
         assert sdk.write(1, 64, 1, 1) == 0
         assert sdk.write(1, 98, 1, 100) == 0        # 2 s
         for _ in range(20):
-            assert sdk.packet.read4ByteTxRx(sdk.port, 1, 132)[1] == 0
+            sdk.read4(1, 132)
         assert bus.servo(1).get("Bus Watchdog") == 100
 
 
@@ -92,8 +92,7 @@ def test_current_rises_with_load_and_overload_latches(open_sdk, wait_for):
         bus.inject("load", 1, current=5000)       # beyond the motor: overload, torque off
         wait_for(lambda: servo.get("Hardware Error Status") & 0x20, what="overload")
         assert servo.get("Torque Enable") == 0
-        code, error = sdk.packet.read1ByteTxRx(sdk.port, 1, 64)[1:]
-        assert error & 0x80
+        assert sdk.read_status(1, 64) & 0x80
 
 
 def test_current_rises_with_acceleration(open_sdk, wait_for):
