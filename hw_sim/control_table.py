@@ -210,7 +210,7 @@ def _x_series(spec: "ModelSpec") -> ServoModel:
         F("Position P Gain", 84, 2, "RW", pp, 0, 16383),
         F("Feedforward 2nd Gain", 88, 2, "RW", 0, 0, 16383),
         F("Feedforward 1st Gain", 90, 2, "RW", 0, 0, 16383),
-        F("Bus Watchdog", 98, 1, "RW", 0, 0, 127),
+        F("Bus Watchdog", 98, 1, "RW", 0, 0, 127, signed=True),  # -1 after a trip
         F("Goal PWM", 100, 2, "RW", 885, -885, 885, signed=True),
         F("Goal Velocity", 104, 4, "RW", 0, -velocity_limit, velocity_limit, signed=True),
         F("Profile Acceleration", 108, 4, "RW", 0, 0, 32767),
@@ -261,6 +261,13 @@ MODELS: dict[str, ServoModel] = {spec.name: _x_series(spec) for spec in MODEL_SP
 # Nominal supply (0.1 V) and idle temperature (deg C) per model, for Present Input Voltage etc.
 NOMINAL_VOLTAGE = {spec.name: spec.nominal_voltage for spec in MODEL_SPECS}
 IDLE_TEMPERATURE = 31
+
+# Actuation model per model: Present Current unit (mA per unit; XL430 reports Present Load in
+# 0.1 % of its stall current instead), the current the motor can deliver (mA; the Current Limit
+# where the model has one), and the first firmware with the Bus Watchdog.
+CURRENT_UNIT_MA = {"XL330-M288": 1.0, "XL430-W250": None, "XM430-W350": 2.69}
+STALL_CURRENT_MA = {"XL330-M288": 1750.0, "XL430-W250": 1400.0, "XM430-W350": 3209.0}
+BUS_WATCHDOG_FIRMWARE = 38
 
 # Valid operating modes per model (the range check above is min..max; this is the exact set).
 OPERATING_MODES = {spec.name: set(spec.modes) for spec in MODEL_SPECS}

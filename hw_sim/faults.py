@@ -20,6 +20,8 @@ hardware_error     latch Hardware Error Status bits (alert bit in every status, 
                    encoder, or bits (int). Cleared only by reboot or power cycle.
 noise              Present Position jitters by +-amplitude counts (default 2)
 echo               half-duplex echo: the host sees its own instruction before each reply (bus-wide)
+load               an external load on the shaft: params current (mA drawn holding it, default
+                   800), heat (heating speed factor, default 1: larger heats faster)
 =================  ==========================================================================
 
 Fault file (one fault per line, ``#`` comments)::
@@ -55,6 +57,7 @@ KINDS: dict[str, dict[str, tuple[type, object]]] = {
     "hardware_error": {"error": (str, "overload"), "bits": (int, None)},
     "noise": {"amplitude": (int, 2)},
     "echo": {},
+    "load": {"current": (float, 800.0), "heat": (float, 1.0)},
 }
 REPLY_KINDS = ("drop", "bad_crc", "truncate", "error_status")
 BUS_KINDS = ("unplug", "replug", "echo")

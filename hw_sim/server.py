@@ -183,6 +183,11 @@ class Server:
                 undo.append(s)
         elif kind == "echo":
             self.echo = True
+        elif kind == "load":
+            for s in self._hit(fault):
+                s.refresh(now)
+                s.load_ma, s.heat_gain = fault.params["current"], fault.params["heat"]
+                undo.append(s)
         if kind not in ("power_on", "replug", "hardware_error") or end is not None:
             self.windows.append((end, fault, undo))
 
@@ -205,6 +210,10 @@ class Server:
                 s.noise = 0
         elif kind == "echo":
             self.echo = False
+        elif kind == "load":
+            for s in undo:
+                s.refresh(now)
+                s.load_ma, s.heat_gain = 0.0, 1.0
 
     def clear_faults(self) -> None:
         """End every active fault (power returns, the adapter is replugged, twins leave).
@@ -257,6 +266,8 @@ class Server:
             self.counts[ins.inst] += 1
             replies = self.bus.handle(ins, now)
             if not replies:
+                # A write that nobody answers still holds the line for its own bytes.
+                line_free += ins.raw_len * self.byte_s if self.timing else 0.0
                 continue
             if not self.timing:
                 out = b"".join(r for r, _ in replies)

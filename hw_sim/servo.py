@@ -1,9 +1,18 @@
 """One simulated servo: its control table (bytes), reads/writes with the real error rules, and its
-behaviour in time (motion source with torque off; with torque on, velocity-based profile motion
-in position modes 3/4/5 and constant Goal Velocity in mode 1; ticks, reboot).
+behaviour in time (motion source with torque off; with torque on, velocity-based or time-based
+(Drive Mode bit 2) profile motion in position modes 3/4/5 and constant Goal Velocity in mode 1;
+ticks, reboot).
 
-Not modelled: time-based profiles (Drive Mode bit 2), reverse direction (bit 0), current/PWM
-dynamics (modes 0 and 16 hold still), Bus Watchdog, per-mode gain resets.
+Actuation: Present Current rises with acceleration, speed and an external load (``load_ma``);
+a demand above the motor's current for ``OVERLOAD_S`` latches the overload error; Present
+Temperature follows the current (I² heating, first-order cooling; ``heat_gain`` speeds it up);
+Moving / Moving Status; the Bus Watchdog (98, 20 ms units, active while torque is on): when
+nothing reaches the servo for longer, it stops where it is, the item reads -1 and Goal
+Position / Velocity / PWM / Current writes get a data range error until it is written 0;
+Drive Mode bit 3 (torque on by goal update).
+
+Not modelled: reverse direction (bit 0), current/PWM dynamics (modes 0 and 16 hold still),
+per-mode gain resets.
 
 Positions are encoder counts (4096 per turn). ``shaft`` is the physical shaft angle as a
 continuous count; Present Position = shaft - base + Homing Offset, where ``base`` (a multiple of
@@ -16,16 +25,30 @@ import math
 import random
 
 from hw_sim import codec
-from hw_sim.control_table import (EEPROM_END, IDLE_TEMPERATURE, NOMINAL_VOLTAGE,
-                                  OPERATING_MODES, TICKS_PER_TURN, Field, ServoModel)
-VELOCITY_UNIT_TICKS_S = 0.229 / 60.0 * TICKS_PER_TURN   # one 0.229 rpm unit in ticks/s
-ACCEL_UNIT_TICKS_S2 = 214.577 / 3600.0 * TICKS_PER_TURN  # one 214.577 rev/min^2 unit in ticks/s^2
+from hw_sim.control_table import (BUS_WATCHDOG_FIRMWARE, CURRENT_UNIT_MA, EEPROM_END,
+                                  IDLE_TEMPERATURE, NOMINAL_VOLTAGE, OPERATING_MODES,
+                                  STALL_CURRENT_MA, TICKS_PER_TURN, Field, ServoModel)
+
+TICKS_PER_REV = TICKS_PER_TURN
+VELOCITY_UNIT_TICKS_S = 0.229 / 60.0 * TICKS_PER_REV   # one 0.229 rpm unit in ticks/s
+ACCEL_UNIT_TICKS_S2 = 214.577 / 3600.0 * TICKS_PER_REV  # one 214.577 rev/min^2 unit in ticks/s^2
 
 # Hardware Error Status (70) bits.
 HW_ERROR_BITS = {"input_voltage": 0x01, "overheating": 0x04, "encoder": 0x08,
                  "electrical_shock": 0x10, "overload": 0x20}
 
 _DYNAMIC_START, _DYNAMIC_END = 120, 148  # Realtime Tick .. Backup Ready
+
+# Actuation model (see the module docstring). Currents in mA, temperatures in deg C.
+IDLE_CURRENT_MA = 60.0
+CURRENT_PER_ACCEL = 0.0002     # mA per tick/s^2
+CURRENT_PER_SPEED = 0.02       # mA per tick/s
+OVERLOAD_S = 1.0               # seconds of demand above the motor's current before it latches
+HEATING_C_PER_S_A2 = 0.4       # deg C per second per A^2
+COOLING_TAU_S = 120.0          # first-order cooling time constant
+WATCHDOG_UNIT_S = 0.020        # Bus Watchdog unit
+WATCHDOG_TRIPPED = 0xFF        # the item's raw byte after a trip (-1)
+_GOAL_ADDRS = (100, 102, 104, 116)  # Goal PWM, Current, Velocity, Position
 
 
 def _addr_map(model: ServoModel) -> list:
@@ -69,6 +92,8 @@ class Servo:
         self.temperature = float(IDLE_TEMPERATURE)
         self.voltage = NOMINAL_VOLTAGE.get(model.name, 50)
         self.registered: tuple[int, bytes] | None = None
+        self.load_ma = 0.0    # external load on the shaft (fault "load"), mA to hold it
+        self.heat_gain = 1.0  # heating speed factor (fault "load" heat=)
         self._boot(now)
 
     # ---- raw control-table access -------------------------------------------------------
@@ -128,10 +153,15 @@ class Servo:
         self.registered = None
         self.shaft = float(self.motion.position(self.joint, now))
         self.velocity = 0.0  # ticks/s
+        self._last_velocity = 0.0
         self._last_t = now
         self._last_shaft = self.shaft
         self._rebase()
         self.temperature = float(IDLE_TEMPERATURE)
+        self.current_ma = 0.0
+        self.overload_s = 0.0
+        self.heard_t = now
+        self._traj: tuple[float, float, float, float, float] | None = None
         self.refresh(now)
 
     def reboot(self, now: float) -> None:
@@ -174,14 +204,20 @@ class Servo:
 
     def refresh(self, now: float) -> None:
         """Advance behaviour to ``now`` (seconds) and update the read-only RAM items."""
+        mem = self.mem
+        if mem[64] and 0 < mem[98] < 0x80 and self.powered:
+            trip_t = self.heard_t + mem[98] * WATCHDOG_UNIT_S
+            if now > trip_t:
+                if trip_t > self._last_t:
+                    self.refresh(trip_t)
+                self._watchdog_trip()
         dt = now - self._last_t
         self.now = now
-        mem = self.mem
         if self.powered and dt > 0:
             if mem[64]:
                 mode = mem[11]
                 if mode in (3, 4, 5):
-                    self._profile_step(dt)
+                    self._profile_step(dt, now)
                 elif mode == 1:  # velocity control: turn at Goal Velocity
                     self.velocity = self._get_raw(104, 4, True) * VELOCITY_UNIT_TICKS_S
                     self.shaft += self.velocity * dt
@@ -190,10 +226,11 @@ class Servo:
             else:
                 self.shaft = float(self.motion.position(self.joint, now))
                 self.velocity = (self.shaft - self._last_shaft) / dt if dt > 1e-4 else self.velocity
+            accel = abs(self.velocity - self._last_velocity) / dt
             self._last_t = now
             self._last_shaft = self.shaft
-            if mem[64]:
-                self.temperature = min(self.temperature + dt * 0.02, 90.0)
+            self._last_velocity = self.velocity
+            self._actuation_step(dt, accel)
         tick = int((now - self.boot_t) * 1000.0) % 32768
         vel_units = int(round(self.velocity / VELOCITY_UNIT_TICKS_S))
         moving = 1 if abs(vel_units) > self._get_raw(24, 4) else 0
@@ -204,16 +241,94 @@ class Servo:
         mem[132:136] = pos.to_bytes(4, "little", signed=True)
         if mem[64]:
             goal = self._get_raw(116, 4, True)
-            mem[123] = (0x01 if abs(goal - pos) <= 1 else 0) | (0x02 if moving else 0)
+            ongoing = moving or (self._traj is not None and now < self._traj[0] + self._traj[3])
+            kind = 0x30 if self._get_raw(108, 4) else 0x10
+            mem[123] = ((0x01 if abs(goal - pos) <= 1 and not ongoing else 0)
+                        | (0x02 | kind if ongoing else 0))
             mem[136:140] = vel_units.to_bytes(4, "little", signed=True)
             mem[140:144] = pos.to_bytes(4, "little", signed=True)
         else:
             mem[123] = 0
+        unit = CURRENT_UNIT_MA.get(self.model.name)
+        stall = STALL_CURRENT_MA.get(self.model.name, 1000.0)
+        present = (int(round(self.current_ma / unit)) if unit
+                   else int(round(1000.0 * self.current_ma / stall)))
+        present = max(-32768, min(32767, present))
+        mem[126:128] = present.to_bytes(2, "little", signed=True)
         mem[144:146] = int(self.voltage).to_bytes(2, "little")
         mem[146] = max(0, min(255, int(self.temperature)))
 
-    def _profile_step(self, dt: float) -> None:
+    def _actuation_step(self, dt: float, accel: float) -> None:
+        """Present Current, overload and temperature over ``dt`` s at ``accel`` ticks/s^2."""
+        stall = STALL_CURRENT_MA.get(self.model.name, 1000.0)
+        if self.mem[64]:
+            demand = (IDLE_CURRENT_MA + CURRENT_PER_ACCEL * accel
+                      + CURRENT_PER_SPEED * abs(self.velocity) + self.load_ma)
+            limit = self._get_raw(38, 2) * (CURRENT_UNIT_MA.get(self.model.name) or 1.0) \
+                if "Current Limit" in self.model.by_name else stall
+            limit = min(limit, stall)
+            if demand > limit:
+                self.overload_s += dt
+            else:
+                self.overload_s = max(0.0, self.overload_s - dt)
+            self.current_ma = min(demand, limit)
+            if self.overload_s > OVERLOAD_S:
+                self.latch_hardware_error(0x20)
+        else:
+            self.current_ma = 0.0
+            self.overload_s = 0.0
+        amps = self.current_ma / 1000.0
+        heating = HEATING_C_PER_S_A2 * self.heat_gain * amps * amps
+        cooling = (self.temperature - IDLE_TEMPERATURE) / COOLING_TAU_S
+        self.temperature = min(self.temperature + dt * (heating - cooling), 150.0)
+        if self.temperature > self.mem[31] and not self.mem[70] & 0x04:
+            self.latch_hardware_error(0x04)
+
+    def _watchdog_trip(self) -> None:
+        """The host fell silent past the Bus Watchdog: stop here, hold, refuse goals."""
+        self.mem[98] = WATCHDOG_TRIPPED
+        self._traj = None
+        self.velocity = 0.0
+        self.mem[116:120] = self._present_position().to_bytes(4, "little", signed=True)
+
+    def hear(self, now: float) -> None:
+        """An instruction reached this servo at ``now``: advance, then restart the watchdog."""
+        self.refresh(now)
+        self.heard_t = now
+
+    def _start_time_profile(self, now: float) -> None:
+        """A new Goal Position under a time-based profile (Drive Mode bit 2): the move takes
+        Profile Velocity ms, accelerating for Profile Acceleration ms (at most half of it)."""
+        total = self._get_raw(112, 4) / 1000.0
+        if total <= 0:
+            self._traj = None
+            return
+        ramp = min(self._get_raw(108, 4) / 1000.0, total / 2.0)
+        target = self._get_raw(116, 4, True) - self._get_raw(20, 4, True) + self.base
+        self._traj = (now, self.shaft, float(target), total, ramp)
+
+    def _time_profile_at(self, now: float) -> tuple[float, float]:
+        """(shaft, velocity) of the time-based trajectory at ``now``."""
+        t0, p0, p1, total, ramp = self._traj
+        tau = min(max(now - t0, 0.0), total)
+        dist = p1 - p0
+        vpeak = dist / (total - ramp)
+        if ramp > 0 and tau < ramp:
+            return p0 + 0.5 * vpeak / ramp * tau * tau, vpeak * tau / ramp
+        if tau < total - ramp or ramp == 0:
+            if tau >= total:
+                return p1, 0.0
+            return p0 + vpeak * (tau - 0.5 * ramp), vpeak
+        rest = total - tau
+        return p1 - 0.5 * vpeak / ramp * rest * rest, vpeak * rest / ramp
+
+    def _profile_step(self, dt: float, now: float | None = None) -> None:
         """Move the shaft toward Goal Position under Profile Velocity / Acceleration."""
+        if self._traj is not None and now is not None:
+            self.shaft, self.velocity = self._time_profile_at(now)
+            if now >= self._traj[0] + self._traj[3]:
+                self._traj = None
+            return
         homing = self._get_raw(20, 4, True)
         target = self._get_raw(116, 4, True) - homing + self.base
         pv = self._get_raw(112, 4)
@@ -242,6 +357,7 @@ class Servo:
     def read(self, addr: int, length: int, now: float) -> tuple[int, bytes]:
         """(error, data) for a Read of ``length`` bytes at ``addr``; data empty on error."""
         end = addr + length
+        self.hear(now)
         if length == 0 or end > self.model.size:
             return codec.ERR_ACCESS, b""
         if end > _DYNAMIC_START and addr < _DYNAMIC_END:
@@ -276,6 +392,10 @@ class Servo:
                 return codec.ERR_ACCESS
             if f.eeprom and self.mem[64]:
                 return codec.ERR_ACCESS
+            if f.addr == 98 and self.mem[6] < BUS_WATCHDOG_FIRMWARE:
+                return codec.ERR_ACCESS  # firmware without the Bus Watchdog
+            if f.addr in _GOAL_ADDRS and self.mem[98] == WATCHDOG_TRIPPED:
+                return codec.ERR_DATA_RANGE  # refused until the watchdog is cleared
             value = int.from_bytes(data[k - addr:k - addr + f.size], "little", signed=f.signed)
             if f.lo is not None and not f.lo <= value <= f.hi:
                 return codec.ERR_DATA_RANGE
@@ -290,10 +410,10 @@ class Servo:
 
     def write(self, addr: int, data: bytes, now: float) -> int:
         """Apply a Write (all-or-nothing); returns the error number (0 = done)."""
+        self.hear(now)
         err = self.check_write(addr, data)
         if err:
             return err
-        self.refresh(now)
         end = addr + len(data)
         torque_before, mode_before = self.mem[64], self.mem[11]
         if addr <= 64 < end and data[64 - addr] == 1 and self.mem[70]:
@@ -320,6 +440,11 @@ class Servo:
                 self.mem[116:120] = self._present_position().to_bytes(4, "little", signed=True)
         if (self.mem[10] & 0x08) and addr <= 116 < end and not self.mem[64] and not self.mem[70]:
             self.mem[64] = 1  # Drive Mode bit 3: Torque On by Goal Update
+            self.velocity = 0.0
+        if not self.mem[64]:
+            self._traj = None
+        elif addr <= 116 < end and self.mem[10] & 0x04 and self.mem[11] in (3, 4, 5):
+            self._start_time_profile(now)
         self.refresh(now)
         return 0
 

@@ -59,14 +59,15 @@ def main() -> None:
       puppet live --rig my.toml --port /dev/ttyUSB0 --record take.mcap --out live.mp4
       puppet play take.mcap --out take.mp4 --speed 0.5
       puppet demo --view                   watch in a browser; drag the tail
+      puppet perform take.mcap --rig my.toml --port /dev/ttyUSB0
       puppet export take.mcap --gltf anim.glb --pc2 mesh.pc2 --up z --fps 24
     """
 
 
 def _register() -> None:
-    from puppet.cli import bus, demo, export, live, play, record, rig, view
+    from puppet.cli import bus, demo, export, live, perform, play, record, rig, view
 
-    for module in (demo, live, record, play, export, bus, rig, view):
+    for module in (demo, live, record, play, export, bus, rig, view, perform):
         for command in module.COMMANDS:
             main.add_command(command)
 

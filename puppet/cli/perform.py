@@ -1,0 +1,71 @@
+"""``puppet perform``: play a take on the puppet's servos (torque on; off on every way out)."""
+
+from __future__ import annotations
+
+import json
+
+import click
+
+from puppet.cli.common import load_rig
+
+
+@click.command()
+@click.argument("take")
+@click.option("--rig", "rig_path", default=None, help="Rig file of the puppet (default: built-in).")
+@click.option("--port", required=True, help="Serial port of the bus.")
+@click.option("--baud", default=1_000_000, show_default=True, help="Bus speed, bit/s.")
+@click.option("--speed", default=1.0, show_default=True, type=click.FloatRange(min=0.01),
+              help="Playback speed factor.")
+@click.option("--loop", is_flag=True, help="Repeat the take until stopped.")
+@click.option("--yes", is_flag=True, help="No countdown before the move to the first pose.")
+@click.option("--no-watchdog", is_flag=True,
+              help="Perform on servos without the Bus Watchdog (a host crash leaves them driving).")
+@click.option("--watchdog-ms", default=100.0, show_default=True, type=click.FloatRange(min=20),
+              help="Bus Watchdog period (at least three loop periods).")
+@click.option("--rate", "rate_hz", default=100.0, show_default=True,
+              type=click.FloatRange(min=1, max=1000), help="Goal writes per second.")
+@click.option("--latency-ms", default=None, type=click.IntRange(1, 255),
+              help="Adapter latency the SDK timeouts assume (default: the adapter's, or 1).")
+@click.option("--json", "as_json", is_flag=True, help="Print the report as one JSON line.")
+def perform(take: str, rig_path: str | None, port: str, baud: int, speed: float, loop: bool,
+            yes: bool, no_watchdog: bool, watchdog_ms: float, rate_hz: float,
+            latency_ms: int | None, as_json: bool) -> None:
+    """Perform a take on the puppet's servos.
+
+    Goals come from the take's joint angles through this rig's calibration, clamped to its
+    limits and rate-limited. Torque goes on with goal = present, then a slow move to the first
+    pose after a countdown; on any stop torque goes off and is read back.
+
+    \b
+    Example:
+      puppet perform take.mcap --rig my.toml --port /dev/ttyUSB0 --speed 0.5
+    """
+    from puppet.drive import DriveError, PerformOptions
+    from puppet.drive import perform as run
+    from puppet.take import TakeReader
+
+    rig = load_rig(rig_path)
+    reader = TakeReader(take)
+    if reader.truncated:
+        click.echo(f"warning: {take}: {reader.recovery}", err=True)
+    options = PerformOptions(speed=speed, loop=loop, yes=yes, watchdog=not no_watchdog,
+                             watchdog_ms=watchdog_ms, rate_hz=rate_hz, baud=baud,
+                             latency_ms=latency_ms)
+
+    def log(line: str) -> None:
+        click.echo(line, err=True)
+
+    try:
+        report = run(rig, reader, port, options, log=log,
+                     on_phase=lambda p: click.echo(f"phase: {p}", err=True))
+    except DriveError as err:
+        if err.report is not None:
+            click.echo(err.report.text(), err=True)
+        raise
+    if as_json:
+        click.echo(json.dumps(report.as_dict()))
+    else:
+        click.echo(report.text())
+
+
+COMMANDS = (perform,)

@@ -1,0 +1,149 @@
+"""Goal positions from a take: recorded ticks -> joint angles (the take's calibration) -> goal
+ticks (the performing rig's calibration), interpolated in time, clamped, rate-limited.
+
+A take recorded on one puppet plays on another with its own calibration: the joint angle is
+what carries over, ``angle = sign · (ticks − zero_take) · 2π / 4096 / gear`` (wrapped into one
+turn for direct drive) and ``goal = angle / (sign · 2π / 4096 / gear) + zero_rig``.
+Readings flagged not-ok hold that servo's last good value (the first good one before it).
+"""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+
+from puppet.drive.errors import DriveError
+
+TICKS_PER_TURN = 4096
+
+
+def take_zero_ticks(metadata, path) -> dict[int, int]:
+    """The zero ticks a take was recorded with ({} when it has none); DriveError if unreadable."""
+    text = metadata.calibration_text
+    if not text:
+        return {}
+    try:
+        table = json.loads(text).get("zero_ticks", {})
+        return {int(k): int(v) for k, v in table.items()}
+    except (ValueError, AttributeError, TypeError) as err:
+        raise DriveError(f"{path}: unreadable calibration in the take: {err}") from None
+
+
+class TakeGoals:
+    """A take's motion as goal ticks for one rig's servos.
+
+    servos: the rig's servo definitions (rig.servo_map.servos), k of them, in bus order.
+    t_s: (N,) seconds from the first reading. ticks: (N, k) int32; ok: (N, k) bool.
+    take_zero: {id: zero ticks of the recording}; rig_zero: (k,) zero ticks of this rig.
+
+    Attributes: ``duration_s``; ``flagged`` {id: readings flagged not-ok (held)};
+    ``never_ok`` ids with no good reading at all (they hold where they are);
+    ``lo``/``hi`` (k,) float goal-tick limits from the rig's joint limits.
+    """
+
+    def __init__(self, servos, t_s: np.ndarray, ticks: np.ndarray, ok: np.ndarray,
+                 take_zero: dict[int, int], rig_zero: np.ndarray) -> None:
+        self.ids = np.array([s.id for s in servos], np.int64)
+        k = len(self.ids)
+        if ticks.shape != (len(t_s), k) or len(t_s) == 0:
+            raise DriveError(f"take readings shape {ticks.shape} does not fit {k} servos")
+        self.t_s = np.asarray(t_s, float)
+        self.duration_s = float(self.t_s[-1] - self.t_s[0]) if len(self.t_s) > 1 else 0.0
+        self.t_s = self.t_s - self.t_s[0]
+        scale = np.array([s.sign * 2 * np.pi / TICKS_PER_TURN / s.gear for s in servos])
+        wrap = np.array([s.gear == 1.0 for s in servos], bool)
+        zero_take = np.array([take_zero.get(int(s.id), s.zero_ticks) for s in servos], np.int64)
+        diff = ticks.astype(np.int64) - zero_take
+        wrapped = (diff + TICKS_PER_TURN // 2) % TICKS_PER_TURN - TICKS_PER_TURN // 2
+        diff = np.where(wrap, wrapped, diff)
+        angles = diff * scale
+        ok = np.asarray(ok, bool)
+        self.flagged = {int(i): int(n) for i, n in zip(self.ids, (~ok).sum(axis=0)) if n}
+        self.never_ok = [int(i) for i, any_ok in zip(self.ids, ok.any(axis=0)) if not any_ok]
+        for j in range(k):  # hold the last good value; before the first good one, that one
+            good = np.flatnonzero(ok[:, j])
+            if len(good) == 0:
+                angles[:, j] = np.nan
+                continue
+            last = np.maximum.accumulate(np.where(ok[:, j], np.arange(len(ok)), -1))
+            last[last < 0] = good[0]
+            angles[:, j] = angles[last, j]
+        self._scale = scale
+        self._zero = np.asarray(rig_zero, float)
+        self.goals = angles / scale + self._zero  # (N, k) float ticks; NaN: hold
+        lo = np.array([s.limits[0] for s in servos]) / scale + self._zero
+        hi = np.array([s.limits[1] for s in servos]) / scale + self._zero
+        self.lo, self.hi = np.minimum(lo, hi), np.maximum(lo, hi)
+        self._out = np.empty(k)
+
+    @classmethod
+    def from_take(cls, reader, servo_map) -> "TakeGoals":
+        """Goals for ``servo_map``'s servos from an open TakeReader (refused, TakeRigMismatch,
+        when the take's servos or models are not the rig's)."""
+        ids = [int(i) for i in servo_map.ids]
+        reader.check_rig(ids, dict(servo_map.models))
+        t_ns, ticks, ok = reader.arrays(ids=ids)
+        if len(t_ns) == 0:
+            raise DriveError(f"{reader.path}: the take holds no readings")
+        return cls(servo_map.servos, (t_ns - t_ns[0]) * 1e-9, ticks, ok,
+                   take_zero_ticks(reader.metadata, reader.path), servo_map.zero)
+
+    def degrees(self, ticks) -> np.ndarray:
+        """(k,) tick differences -> joint degrees (absolute value)."""
+        return np.abs(np.asarray(ticks, float) * self._scale) * 180.0 / np.pi
+
+    def at(self, t: float) -> np.ndarray:
+        """(k,) goal ticks (float; NaN = hold) at ``t`` seconds into the take, linearly
+        interpolated; before the start the first row, after the end the last. Reuses one
+        output array: copy it to keep it."""
+        times, goals, out = self.t_s, self.goals, self._out
+        n = len(times)
+        i = int(np.searchsorted(times, t, side="right"))
+        if i <= 0:
+            out[:] = goals[0]
+        elif i >= n:
+            out[:] = goals[n - 1]
+        else:
+            t0, t1 = times[i - 1], times[i]
+            a = (t - t0) / (t1 - t0) if t1 > t0 else 1.0
+            np.multiply(goals[i - 1], 1.0 - a, out=out)
+            out += a * goals[i]
+        return out
+
+
+class GoalShaper:
+    """Clamp goals to limits and limit their change per cycle; count what it did per servo.
+
+    lo/hi: (k,) goal-tick limits. max_step: (k,) most ticks a goal may move in one cycle.
+    ``clamped`` / ``rate_limited``: (k,) int64 cycles in which a servo's goal was changed.
+    """
+
+    def __init__(self, lo: np.ndarray, hi: np.ndarray, max_step: np.ndarray) -> None:
+        self.lo, self.hi = np.asarray(lo, float), np.asarray(hi, float)
+        self.max_step = np.asarray(max_step, float)
+        k = len(self.lo)
+        self.clamped = np.zeros(k, np.int64)
+        self.rate_limited = np.zeros(k, np.int64)
+        self._tmp = np.empty(k)
+        self.last = np.zeros(k)
+
+    def start(self, present: np.ndarray) -> None:
+        """Begin from the servos' present positions."""
+        self.last[:] = present
+
+    def shape(self, wanted: np.ndarray) -> np.ndarray:
+        """(k,) goal ticks for this cycle from ``wanted`` (NaN = hold the last goal)."""
+        tmp = self._tmp
+        np.copyto(tmp, wanted)
+        hold = np.isnan(tmp)
+        tmp[hold] = self.last[hold]
+        over = (tmp < self.lo) | (tmp > self.hi)
+        self.clamped += over & ~hold
+        np.clip(tmp, self.lo, self.hi, out=tmp)
+        tmp -= self.last
+        fast = np.abs(tmp) > self.max_step
+        self.rate_limited += fast
+        np.clip(tmp, -self.max_step, self.max_step, out=tmp)
+        self.last += tmp
+        return self.last

@@ -1,0 +1,438 @@
+"""A take performed on the puppet's servos, with no jerk, no runaway and torque off on every
+way out.
+
+Sequence: setup (torque off; see ``servos.DriveBus.prepare``) -> Goal Position := Present
+Position -> a slow start profile -> torque on -> Bus Watchdog set to a few loop periods ->
+countdown (unless ``yes``) -> a slow move to the take's first pose, waited for until every
+servo reports it has arrived (Moving 0, Moving Status in-position) -> playback: each cycle one
+Sync Write of goals then one Sync Read of Moving .. Present Temperature -> stop.
+
+Health watchdog while torque is on: every cycle (the state read) Present Temperature against
+a host limit below the servo's own, Present Current against a host cap on sustained current,
+the alert bit of each status (then Hardware Error Status is read to name the error), servos
+that stop answering; every ``WATCHDOG_CHECK_CYCLES`` cycles the Bus Watchdog items (-1 = it
+tripped). Any of these stops the performance naming the servo and the reading.
+
+Stop (end of take, SIGINT, SIGTERM, bus error, any exception): torque off by one Sync Write
+with no reply, then servo by servo, then read back; see ``DriveBus.torque_off``.
+"""
+
+from __future__ import annotations
+
+import math
+import signal
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import asdict, dataclass, field
+
+import numpy as np
+
+from puppet.bus.control_table import describe_hardware_error
+from puppet.bus.errors import BusError, PortError
+from puppet.bus.link import BusLink
+from puppet.drive import items as it
+from puppet.drive.errors import DriveError, HealthStop
+from puppet.drive.goals import GoalShaper, TakeGoals
+from puppet.drive.servos import DriveBus
+
+WATCHDOG_CHECK_CYCLES = 10
+"""The Bus Watchdog items are read every this many cycles (the state read is every cycle)."""
+READ_FAILURES_TO_STOP = 10
+"""Consecutive cycles a servo may fail to answer before the performance stops."""
+TICKS_PER_DEGREE = 4096 / 360.0
+
+
+@dataclass
+class PerformOptions:
+    """How to perform.
+
+    speed: take time per wall second. loop: repeat the take. yes: no countdown.
+    watchdog: set the servos' Bus Watchdog (False: --no-watchdog). rate_hz: goal writes per
+    second. watchdog_ms: Bus Watchdog period, ms (rounded up to 20 ms units; at least three
+    loop periods). start_speed_deg_s / start_accel_deg_s2: the slow start profile (joint
+    degrees of a direct-drive servo). max_speed_deg_s: the per-cycle rate limit of goals and
+    the playback profile. temperature_margin_c: host limit = servo limit - margin, at most
+    temperature_cap_c. current_fraction / current_sustain_s: host cap on sustained current.
+    countdown_s: seconds of countdown. arrive_timeout_s: extra time allowed to arrive.
+    baud, latency_ms: the link (see BusLink).
+    """
+
+    speed: float = 1.0
+    loop: bool = False
+    yes: bool = False
+    watchdog: bool = True
+    rate_hz: float = 100.0
+    watchdog_ms: float = 100.0
+    start_speed_deg_s: float = 30.0
+    start_accel_deg_s2: float = 200.0
+    max_speed_deg_s: float = 360.0
+    temperature_margin_c: float = 10.0
+    temperature_cap_c: float = 65.0
+    current_fraction: float = 0.8
+    current_sustain_s: float = 0.3
+    countdown_s: int = 3
+    arrive_timeout_s: float = 10.0
+    baud: int = 1_000_000
+    latency_ms: int | None = None
+
+
+@dataclass
+class PerformReport:
+    """What a performance did. Per-servo dicts are keyed by servo id."""
+
+    stop_reason: str = "not started"
+    cycles: int = 0
+    playback_s: float = 0.0
+    rate_hz: float = 0.0
+    start_profile_deg_s: float = 0.0
+    start_max_speed_deg_s: dict = field(default_factory=dict)
+    tracking_median_deg: float | None = None
+    tracking_p99_deg: float | None = None
+    clamped: dict = field(default_factory=dict)
+    rate_limited: dict = field(default_factory=dict)
+    flagged: dict = field(default_factory=dict)
+    changes: list = field(default_factory=list)
+    recovered: list = field(default_factory=list)
+    torque_after: dict = field(default_factory=dict)
+    log: list = field(default_factory=list)
+
+    def as_dict(self) -> dict:
+        return asdict(self)
+
+    def text(self) -> str:
+        lines = [f"stopped: {self.stop_reason}",
+                 f"cycles: {self.cycles} in {self.playback_s:.2f} s ({self.rate_hz:.0f} Hz)"]
+        if self.tracking_median_deg is not None:
+            lines.append(f"tracking: median {self.tracking_median_deg:.2f} deg, "
+                         f"p99 {self.tracking_p99_deg:.2f} deg")
+        for name in ("clamped", "rate_limited", "flagged"):
+            table = getattr(self, name)
+            if table:
+                lines.append(f"{name.replace('_', ' ')} (cycles or readings per servo): {table}")
+        if not self.torque_after:
+            lines.append("torque: never turned on")
+            return "\n".join(lines)
+        off = [i for i, v in self.torque_after.items() if v == 0]
+        unknown = {i: v for i, v in self.torque_after.items() if v != 0}
+        lines.append(f"torque off (read back): servos {off}"
+                     + (f"; NOT confirmed: {unknown}" if unknown else ""))
+        return "\n".join(lines)
+
+
+class _Signals:
+    """SIGINT / SIGTERM set ``which`` instead of raising, so the loop stops through its one
+    stop path (installed only in the main thread; restored on exit)."""
+
+    def __init__(self) -> None:
+        self.which: str | None = None
+        self._saved: dict = {}
+
+    def __enter__(self) -> "_Signals":
+        if threading.current_thread() is threading.main_thread():
+            for sig in (signal.SIGINT, signal.SIGTERM):
+                self._saved[sig] = signal.signal(sig, self._set)
+        return self
+
+    def _set(self, signum, _frame) -> None:
+        self.which = signal.Signals(signum).name
+
+    def __exit__(self, *exc) -> None:
+        for sig, handler in self._saved.items():
+            signal.signal(sig, handler)
+
+
+class _Stopped(Exception):
+    """A signal asked the performance to stop (internal)."""
+
+
+def _deg_to_ticks(deg: float) -> float:
+    return deg * TICKS_PER_DEGREE
+
+
+def perform(rig, reader, port: str, options: PerformOptions | None = None,
+            log: Callable[[str], None] | None = None, on_phase: Callable[[str], None] | None = None
+            ) -> PerformReport:
+    """Perform the take open in ``reader`` (TakeReader) on ``rig``'s servos at ``port``.
+
+    log: one line per event (changes, recoveries, countdown, failures); on_phase: called with
+    'setup', 'start', 'playback', 'stop' as they begin. Returns the PerformReport of a
+    performance that ended at the end of the take or by a signal; raises DriveError (its
+    ``report`` attached, torque already off) for anything else.
+    """
+    opts = options or PerformOptions()
+    report = PerformReport()
+    lines = report.log
+
+    def say(text: str) -> None:
+        lines.append(text)
+        if log is not None:
+            log(text)
+
+    phase = on_phase or (lambda _p: None)
+    goals = TakeGoals.from_take(reader, rig.servo_map)
+    report.flagged = dict(goals.flagged)
+    if goals.flagged:
+        say(f"flagged readings in the take (those servos hold their last good value): {goals.flagged}")
+    servo_map = rig.servo_map
+    ids = [int(i) for i in servo_map.ids]
+    link = BusLink(port, baud=opts.baud, latency_ms=opts.latency_ms)
+    bus = DriveBus(link, ids, dict(servo_map.models), say)
+    torque_may_be_on = False
+    error: BaseException | None = None
+    with _Signals() as signals:
+        def check_signal() -> None:
+            if signals.which:
+                raise _Stopped(signals.which)
+        try:
+            link.open()
+            # From here every way out turns torque off: a servo may still hold torque from an
+            # earlier run (stopped by its watchdog) until setup reaches it.
+            torque_may_be_on = True
+            phase("setup")
+            bus.prepare(opts.watchdog)
+            report.changes = [f"servo {c.id}: {c.item} {c.old} -> {c.new}" for c in bus.changes]
+            report.recovered = list(bus.recovered)
+            check_signal()
+            start_pose = _start(bus, goals, opts, report, say, check_signal, phase)
+            _playback(bus, goals, servo_map, start_pose, opts, report, say, check_signal, phase)
+            report.stop_reason = "end of take"
+        except _Stopped as stop:
+            report.stop_reason = f"stopped by {stop}"
+        except PortError as err:
+            report.stop_reason = f"bus error: {err}"
+            error = err
+        except BaseException as err:  # noqa: BLE001 - every way out turns torque off, then re-raises
+            report.stop_reason = f"{type(err).__name__}: {err}"
+            error = err
+        finally:
+            if torque_may_be_on:  # first, before anything that could fail
+                report.torque_after = bus.torque_off()
+                if isinstance(error, PortError) and any(v is None for v in report.torque_after.values()):
+                    say(f"the port is gone: the servos' Bus Watchdog stops them "
+                        f"({opts.watchdog_ms:.0f} ms after the last frame)" if opts.watchdog
+                        else "the port is gone and --no-watchdog was given: the servos keep their last goal")
+            link.close()
+            phase("stop")
+    if error is not None:
+        if isinstance(error, DriveError):
+            error.report = report
+            raise error
+        if isinstance(error, (BusError,)):
+            if not torque_may_be_on:
+                done = "torque never went on"
+            elif report.torque_after and set(report.torque_after.values()) == {0}:
+                done = "torque off"
+            else:
+                done = "torque off NOT confirmed on every servo"
+            raise DriveError(f"performance stopped ({done}): {error}", report) from error
+        raise error
+    return report
+
+
+def _watchdog_units(opts: PerformOptions) -> int:
+    period_ms = 1000.0 / opts.rate_hz
+    ms = max(opts.watchdog_ms, 3 * period_ms)
+    return max(1, min(127, math.ceil(ms / (it.WATCHDOG_UNIT_S * 1000.0))))
+
+
+def _start(bus: DriveBus, goals: TakeGoals, opts, report, say, check_signal, phase) -> np.ndarray:
+    """Goal := present, slow profile, torque on, watchdog, countdown, slow move to the first
+    pose; returns that pose, (k,) goal ticks."""
+    phase("start")
+    present = _read_positions(bus)
+    lo, hi = _limits(bus, goals)
+    for n, dxl_id in enumerate(bus.ids):
+        info = bus.setup[dxl_id]
+        if info.mode != it.POSITION_MODE and not lo[n] - 2048 <= present[n] <= hi[n] + 2048:
+            raise DriveError(
+                f"servo {dxl_id}: present position {present[n]:.0f} is outside the rig's range "
+                f"{lo[n]:.0f}..{hi[n]:.0f} ticks in {it.POSITION_MODES[info.mode]} mode (the turn "
+                "count is lost at power-up): turn the joint into range by hand")
+    bus.write_all(it.GOAL_POSITION, present)
+    start_units = max(1, round(opts.start_speed_deg_s / it.VELOCITY_UNIT_DEG_S))
+    accel_units = max(1, round(opts.start_accel_deg_s2 / it.ACCEL_UNIT_DEG_S2))
+    report.start_profile_deg_s = start_units * it.VELOCITY_UNIT_DEG_S
+    bus.write_all(it.PROFILE_VELOCITY, start_units)   # never 0 (= full speed) for the start
+    bus.write_all(it.PROFILE_ACCELERATION, accel_units)
+    bus.write_all(it.TORQUE_ENABLE, 1)
+    bus.check_torque(1)
+    if opts.watchdog:
+        units = _watchdog_units(opts)
+        bus.write_all(it.BUS_WATCHDOG, units)
+        say(f"Bus Watchdog {units * 20} ms on every servo")
+    first = np.clip(np.where(np.isnan(goals.goals[0]), present, goals.goals[0]), lo, hi)
+    distance = np.abs(first - present).max() / TICKS_PER_DEGREE
+    if not opts.yes:
+        say(f"moving to the first pose ({distance:.0f} deg at most, "
+            f"{report.start_profile_deg_s:.0f} deg/s) in {opts.countdown_s}")
+        for n in range(opts.countdown_s, 0, -1):
+            say(f"{n}...")
+            _wait(1.0, bus, opts, check_signal)
+    bus.write_goals(first)
+    timeout = distance / max(report.start_profile_deg_s, 1e-3) * 3 + opts.arrive_timeout_s
+    deadline = time.monotonic() + timeout
+    speeds = np.zeros(len(bus.ids))
+    health = _Health(bus, opts)
+    while True:
+        check_signal()
+        state = bus.read_state()
+        health.check(state, 1.0 / opts.rate_hz)
+        np.maximum(speeds, np.where(state.ok, np.abs(state.velocity), 0), out=speeds)
+        if (state.ok.all() and not state.moving.any()
+                and (state.moving_status & it.MOVING_STATUS_IN_POSITION).all()):
+            break
+        if time.monotonic() > deadline:
+            late = [i for i, m, s in zip(bus.ids, state.moving, state.moving_status)
+                    if m or not s & it.MOVING_STATUS_IN_POSITION]
+            raise DriveError(f"servos {late} did not reach the first pose within {timeout:.0f} s")
+        _wait(1.0 / opts.rate_hz, bus, opts, check_signal, keepalive=False)
+    report.start_max_speed_deg_s = {i: float(v * it.VELOCITY_UNIT_DEG_S)
+                                    for i, v in zip(bus.ids, speeds)}
+    play_units = max(1, round(opts.max_speed_deg_s / it.VELOCITY_UNIT_DEG_S))
+    bus.write_all(it.PROFILE_ACCELERATION, 0)
+    bus.write_all(it.PROFILE_VELOCITY, play_units)
+    return first
+
+
+def _wait(seconds: float, bus: DriveBus, opts, check_signal, keepalive: bool = True) -> None:
+    """Wait ``seconds``, still talking to the servos often enough for their Bus Watchdog."""
+    end = time.monotonic() + seconds
+    step = min(1.0 / opts.rate_hz, opts.watchdog_ms / 3000.0)
+    while True:
+        check_signal()
+        left = end - time.monotonic()
+        if left <= 0:
+            return
+        if keepalive:
+            bus.read_state()
+        time.sleep(min(step, left))
+
+
+def _read_positions(bus: DriveBus) -> np.ndarray:
+    """Present Position of every servo (one read each, so that none is missing)."""
+    return np.array([bus.read(i, it.PRESENT_POSITION) for i in bus.ids], float)
+
+
+def _limits(bus: DriveBus, goals: TakeGoals) -> tuple[np.ndarray, np.ndarray]:
+    """(k,) goal-tick limits: the rig's joint limits within the servo's own position limits."""
+    lo, hi = goals.lo.copy(), goals.hi.copy()
+    for n, dxl_id in enumerate(bus.ids):
+        info = bus.setup[dxl_id]
+        if info.lo is not None:
+            lo[n] = max(lo[n], info.lo)
+            hi[n] = min(hi[n], info.hi)
+    return lo, hi
+
+
+class _Health:
+    """The host-side health watchdog over each cycle's state (see the module docstring)."""
+
+    def __init__(self, bus: DriveBus, opts: PerformOptions) -> None:
+        self.bus, self.opts = bus, opts
+        k = len(bus.ids)
+        self.temp_limit = np.array([min(bus.setup[i].temperature_limit - opts.temperature_margin_c,
+                                        opts.temperature_cap_c) for i in bus.ids])
+        self.current_cap = np.array([
+            (bus.setup[i].current_limit_ma or math.inf) * opts.current_fraction for i in bus.ids])
+        self.unit = np.array([it.CURRENT_UNIT_MA.get(bus.models[i]) or 0.0 for i in bus.ids])
+        self.over_s = np.zeros(k)
+        self.misses = np.zeros(k, np.int64)
+        self.cycles = 0
+
+    def check(self, state, dt: float) -> None:
+        bus = self.bus
+        self.cycles += 1
+        for n in np.flatnonzero(state.alert):
+            dxl_id = bus.ids[n]
+            try:
+                bits = bus.read(dxl_id, it.HARDWARE_ERROR_STATUS)
+                what = describe_hardware_error(bits)
+            except BusError as err:
+                what = f"unreadable ({err})"
+            raise HealthStop(dxl_id, f"hardware error: {what} (alert bit in its status)")
+        self.misses = np.where(state.ok, 0, self.misses + 1)
+        if (self.misses >= READ_FAILURES_TO_STOP).any():
+            n = int(np.argmax(self.misses))
+            dxl_id = bus.ids[n]
+            raise DriveError(f"servo {dxl_id}: no usable reading for {self.misses[n]} cycles "
+                             f"({state.failures.get(dxl_id)})")
+        hot = state.ok & (state.temperature > self.temp_limit)
+        if hot.any():
+            n = int(np.flatnonzero(hot)[0])
+            raise HealthStop(bus.ids[n], f"Present Temperature {state.temperature[n]} C above the "
+                             f"host limit {self.temp_limit[n]:.0f} C (servo limit "
+                             f"{bus.setup[bus.ids[n]].temperature_limit} C)")
+        current = np.abs(state.current) * self.unit
+        over = state.ok & (current > self.current_cap)
+        self.over_s = np.where(over, self.over_s + dt, 0.0)
+        if (self.over_s > self.opts.current_sustain_s).any():
+            n = int(np.argmax(self.over_s))
+            raise HealthStop(bus.ids[n], f"Present Current {current[n]:.0f} mA above the host cap "
+                             f"{self.current_cap[n]:.0f} mA for {self.over_s[n]:.2f} s")
+        if self.opts.watchdog and self.cycles % WATCHDOG_CHECK_CYCLES == 0:
+            for dxl_id, value in bus.read_watchdogs().items():
+                if value == it.WATCHDOG_TRIPPED:
+                    raise HealthStop(dxl_id, "Bus Watchdog tripped (it heard nothing for longer "
+                                     "than its period): it stopped and refuses goals")
+
+
+def _playback(bus: DriveBus, goals: TakeGoals, servo_map, start_pose: np.ndarray, opts, report,
+              say, check_signal, phase) -> None:
+    """The loop: one goal Sync Write and one state Sync Read per cycle, paced to rate_hz."""
+    phase("playback")
+    period = 1.0 / opts.rate_hz
+    lo, hi = _limits(bus, goals)
+    max_step = np.full(len(bus.ids), _deg_to_ticks(opts.max_speed_deg_s) * period)
+    gears = np.array([s.gear for s in servo_map.servos])
+    max_step *= gears  # a geared servo turns gear times the joint
+    shaper = GoalShaper(lo, hi, max_step)
+    shaper.start(start_pose)
+    health = _Health(bus, opts)
+    errors: list[np.ndarray] = []
+    t0 = time.monotonic()
+    next_t = t0
+    last_write = t0
+    stale_s = max(opts.watchdog_ms / 1000.0, 3 * period)
+    cycles = 0
+    take_len = goals.duration_s
+    while True:
+        check_signal()
+        now = time.monotonic()
+        t_take = (now - t0) * opts.speed
+        if t_take > take_len:
+            if not opts.loop:
+                break
+            t_take %= take_len if take_len > 0 else 1.0
+        if now - last_write > stale_s:
+            say(f"warning: {now - last_write:.3f} s since the last goal frame (stalled host loop)")
+        wanted = goals.at(t_take)
+        command = shaper.shape(wanted)
+        bus.write_goals(command)
+        last_write = time.monotonic()
+        state = bus.read_state()
+        health.check(state, period)
+        target = np.clip(np.where(np.isnan(wanted), command, wanted), lo, hi)
+        err = goals.degrees(np.where(state.ok, state.position - target, 0))
+        errors.append(err[state.ok])
+        cycles += 1
+        report.cycles = cycles
+        next_t += period
+        sleep = next_t - time.monotonic()
+        if sleep > 0:
+            time.sleep(sleep)
+        else:
+            next_t = time.monotonic()
+    elapsed = time.monotonic() - t0
+    report.cycles = cycles
+    report.playback_s = elapsed
+    report.rate_hz = cycles / elapsed if elapsed > 0 else 0.0
+    report.clamped = {i: int(c) for i, c in zip(bus.ids, shaper.clamped) if c}
+    report.rate_limited = {i: int(c) for i, c in zip(bus.ids, shaper.rate_limited) if c}
+    if report.clamped:
+        say(f"goals clamped to the limits (cycles per servo): {report.clamped}")
+    if errors:
+        flat = np.concatenate(errors)
+        if flat.size:
+            report.tracking_median_deg = float(np.median(flat))
+            report.tracking_p99_deg = float(np.percentile(flat, 99))

@@ -1,0 +1,267 @@
+"""``perform`` against hw_sim with the real dynamixel_sdk: tracking, the slow start, the stop
+paths (torque read back from the simulated servos), the health watchdog, bad input."""
+
+from __future__ import annotations
+
+import threading
+
+import numpy as np
+import pytest
+
+import hw_sim
+from puppet.drive import DriveError, HealthStop, PerformOptions, perform
+from puppet.drive import items as it
+from puppet.take import TakeReader
+from puppet.take.errors import TakeRigMismatch
+
+# Patient link (SDK deadline ~40 ms) and watchdog (2 s): a loaded 2-core machine must not
+# trip either by itself.
+OPTIONS = dict(yes=True, latency_ms=20, watchdog_ms=2000.0)
+
+
+def _perform(rig, take, port, on_phase=None, **kw):
+    return perform(rig, TakeReader(take), port, PerformOptions(**{**OPTIONS, **kw}),
+                   on_phase=on_phase)
+
+
+def _torque(bus, rig):
+    return {int(i): bus.servo(int(i)).get("Torque Enable") for i in rig.servo_map.ids}
+
+
+def _all_off(bus, rig):
+    return set(_torque(bus, rig).values()) == {0}
+
+
+def _during_playback(action):
+    """An on_phase callback that runs ``action()`` in a thread once playback begins."""
+    def on_phase(phase):
+        if phase == "playback":
+            threading.Thread(target=action, daemon=True).start()
+    return on_phase
+
+
+def test_performed_take_tracks_and_ends_with_torque_off(rig, wave_take):
+    with hw_sim.serve(dict(rig.servo_map.models)) as bus:
+        report = _perform(rig, wave_take, bus.port)
+        assert report.stop_reason == "end of take"
+        assert report.cycles > 0
+        assert 0 <= report.tracking_median_deg <= report.tracking_p99_deg < 10.0
+        assert report.torque_after == dict.fromkeys(map(int, rig.servo_map.ids), 0)
+        assert _all_off(bus, rig)
+        assert {bus.servo(int(i)).get("Bus Watchdog") for i in rig.servo_map.ids} == {0}
+
+
+def test_start_goes_from_present_no_faster_than_the_start_profile(rig, make_take, tmp_path,
+                                                                  wait_for):
+    k = len(rig.servo_map.ids)
+    take = make_take(tmp_path / "still.mcap", rig, np.full((20, k), 10.0))
+    with hw_sim.serve(dict(rig.servo_map.models)) as bus:
+        # The puppet was left away from the take's first pose: torque on must not jump.
+        bus.set_positions({int(i): 2048 + 300 * (1 if n % 2 else -1)
+                           for n, i in enumerate(rig.servo_map.ids)})
+        # Watched from the simulator's side too, from setup until playback begins, once the
+        # hand that put them there has let go.
+        ids = [int(i) for i in rig.servo_map.ids]
+        wait_for(lambda: all(bus.servo(i).get("Present Velocity") == 0 for i in ids),
+                 what="the joints at rest")
+        seen = dict.fromkeys(ids, 0)
+        watching = threading.Event()
+
+        def watch():
+            while True:
+                for i in ids:
+                    speed = abs(bus.servo(i).get("Present Velocity"))
+                    if watching.is_set():  # playback began: this reading may be from it
+                        return
+                    seen[i] = max(seen[i], speed)
+
+        def on_phase(phase):
+            if phase == "setup":
+                threading.Thread(target=watch, daemon=True).start()
+            if phase == "playback":
+                watching.set()
+
+        report = _perform(rig, take, bus.port, start_speed_deg_s=40.0, on_phase=on_phase)
+        unit = it.VELOCITY_UNIT_DEG_S
+        assert max(seen.values()) > 0
+        assert max(seen.values()) * unit <= report.start_profile_deg_s + unit
+        assert 40.0 - unit <= report.start_profile_deg_s <= 40.0 + unit
+        speeds = report.start_max_speed_deg_s
+        assert max(speeds.values()) > 0  # they did move
+        assert all(v <= report.start_profile_deg_s + unit for v in speeds.values())
+        assert _all_off(bus, rig)
+
+
+def test_exception_during_playback_leaves_torque_off(rig, wave_take):
+    class Boom(RuntimeError):
+        pass
+
+    def on_phase(phase):
+        if phase == "playback":
+            raise Boom("a bug in the loop")
+
+    with hw_sim.serve(dict(rig.servo_map.models)) as bus:
+        with pytest.raises(Boom) as info:
+            _perform(rig, wave_take, bus.port, on_phase=on_phase)
+        assert str(info.value) == "a bug in the loop"
+        assert _all_off(bus, rig)
+
+
+def test_overload_stops_the_performance_naming_the_servo(rig, wave_take):
+    # Servo 4 is an XL430 (no current item): its own overload error (alert bit) stops it.
+    with hw_sim.serve(dict(rig.servo_map.models)) as bus:
+        with pytest.raises(HealthStop) as info:
+            _perform(rig, wave_take, bus.port, loop=True,
+                     on_phase=_during_playback(lambda: bus.inject("load", 4, current=9000)))
+        assert info.value.dxl_id == 4
+        assert "overload" in str(info.value)
+        assert str(info.value).startswith("servo 4:")
+        assert _all_off(bus, rig)
+
+
+def test_sustained_current_above_the_host_cap_stops_it(rig, wave_take):
+    # Servo 2 is an XL330 (Current Limit 1750 mA): the host cap (80 %) trips first.
+    with hw_sim.serve(dict(rig.servo_map.models)) as bus:
+        with pytest.raises(HealthStop) as info:
+            _perform(rig, wave_take, bus.port, loop=True,
+                     on_phase=_during_playback(lambda: bus.inject("load", 2, current=9000)))
+        assert info.value.dxl_id == 2
+        assert "Present Current" in str(info.value)
+        assert _all_off(bus, rig)
+
+
+def test_over_temperature_stops_the_performance_naming_the_servo(rig, wave_take):
+    with hw_sim.serve(dict(rig.servo_map.models)) as bus:
+        with pytest.raises(HealthStop) as info:
+            _perform(rig, wave_take, bus.port, loop=True,
+                     on_phase=_during_playback(lambda: bus.inject("load", 3, current=1000, heat=200)))
+        assert info.value.dxl_id == 3
+        assert "Present Temperature" in str(info.value)
+        assert "host limit 60 C" in str(info.value)
+        assert _all_off(bus, rig)
+
+
+def test_vanished_port_stops_by_watchdog_and_next_perform_recovers(rig, wave_take, wait_for):
+    ids = [int(i) for i in rig.servo_map.ids]
+    with hw_sim.serve(dict(rig.servo_map.models)) as bus:
+        with pytest.raises(DriveError) as info:
+            _perform(rig, wave_take, bus.link, loop=True,
+                     on_phase=_during_playback(lambda: bus.inject("unplug")))
+        assert "lost" in str(info.value)
+        # Nobody can talk to them: each servo's Bus Watchdog stops it (torque still on).
+        wait_for(lambda: all(bus.servo(i).get("Bus Watchdog") == -1 for i in ids),
+                 what="every watchdog trips")
+        assert set(_torque(bus, rig).values()) == {1}
+        assert all(bus.servo(i).get("Present Velocity") == 0 for i in ids)
+        bus.clear_faults()  # plugged back in: the same link path works again
+        report = _perform(rig, wave_take, bus.link)
+        assert sorted(report.recovered) == ids
+        assert report.stop_reason == "end of take"
+        assert _all_off(bus, rig)
+
+
+def test_take_from_another_rig_is_refused(rig, make_take, tmp_path):
+    k = len(rig.servo_map.ids)
+    ids = [int(i) for i in rig.servo_map.ids][:-1]
+    models = {i: rig.servo_map.models[i] for i in ids}
+    take = make_take(tmp_path / "other.mcap", rig, np.zeros((10, k)), ids=ids, models=models,
+                     rig_name="other")
+    with pytest.raises(TakeRigMismatch) as info:
+        _perform(rig, take, "/nonexistent/port")
+    assert "take from another rig" in str(info.value)
+    assert "[15]" in str(info.value)
+
+
+def test_goals_outside_the_limits_are_clamped(rig, make_take, tmp_path):
+    k = len(rig.servo_map.ids)
+    angles = np.zeros((30, k))
+    angles[:, 0] = 60.0  # servo 1 (neck) is limited to +-40 degrees
+    take = make_take(tmp_path / "far.mcap", rig, angles)
+    with hw_sim.serve(dict(rig.servo_map.models)) as bus:
+        report = _perform(rig, take, bus.port)
+        assert report.clamped.get(1, 0) > 0
+        assert set(report.clamped) == {1}
+        hi = rig.servo_map.ticks_for(np.radians(np.full(k, 40.0)))[0]
+        assert abs(bus.servo(1).get("Goal Position") - hi) <= 1
+
+
+def test_another_calibration_plays_the_same_joint_angles(rig, make_take, tmp_path):
+    k = len(rig.servo_map.ids)
+    angles = np.full((20, k), 5.0)
+    zero = {int(i): int(z) + 100 for i, z in zip(rig.servo_map.ids, rig.servo_map.zero)}
+    take = make_take(tmp_path / "other_cal.mcap", rig, angles, zero=zero)
+    with hw_sim.serve(dict(rig.servo_map.models)) as bus:
+        _perform(rig, take, bus.port)
+        want = rig.servo_map.ticks_for(np.radians(angles[0]))
+        got = [bus.servo(int(i)).get("Goal Position") for i in rig.servo_map.ids]
+        assert np.abs(np.array(got) - want).max() <= 1
+
+
+def test_flagged_readings_hold_and_are_reported(rig, make_take, tmp_path):
+    k = len(rig.servo_map.ids)
+    ok = np.ones((20, k), bool)
+    ok[:, 4] = False  # servo 5 never read well: it holds where it is
+    take = make_take(tmp_path / "flagged.mcap", rig, np.full((20, k), 20.0), ok=ok)
+    with hw_sim.serve(dict(rig.servo_map.models)) as bus:
+        bus.set_positions({5: 2000})
+        report = _perform(rig, take, bus.port)
+        assert report.flagged == {5: 20}
+        assert abs(bus.servo(5).get("Goal Position") - 2000) <= 1
+
+
+def test_firmware_without_bus_watchdog_is_refused_unless_told(rig, wave_take):
+    with hw_sim.serve(dict(rig.servo_map.models)) as bus:
+        bus.servo(7).set("Firmware Version", 30)
+        with pytest.raises(DriveError) as info:
+            _perform(rig, wave_take, bus.port)
+        assert str(info.value).startswith("servo 7: firmware 30 has no Bus Watchdog")
+        assert "--no-watchdog" in str(info.value)
+        assert _all_off(bus, rig)
+        report = _perform(rig, wave_take, bus.port, watchdog=False)
+        assert report.stop_reason == "end of take"
+        assert _all_off(bus, rig)
+
+
+def test_wrong_operating_mode_with_torque_on_changes_only_after_torque_off(rig, wave_take):
+    with hw_sim.serve(dict(rig.servo_map.models)) as bus:
+        bus.servo(6).set("Operating Mode", 1)
+        bus.servo(6).set("Torque Enable", 1)
+        report = _perform(rig, wave_take, bus.port)
+        mine = [c for c in report.changes if c.startswith("servo 6:")]
+        assert mine.index("servo 6: Torque Enable 1 -> 0") < mine.index("servo 6: Operating Mode 1 -> 3")
+        assert any("torque is on in operating mode 1" in line for line in report.log)
+        assert bus.servo(6).get("Operating Mode") == 3
+        assert _all_off(bus, rig)
+
+
+def test_torque_on_by_goal_update_is_turned_off(rig, wave_take):
+    with hw_sim.serve(dict(rig.servo_map.models)) as bus:
+        bus.servo(9).set("Drive Mode", 0x08)
+        report = _perform(rig, wave_take, bus.port)
+        assert "servo 9: Drive Mode 8 -> 0" in report.changes
+        assert _all_off(bus, rig)
+
+
+def test_countdown_is_announced_and_keeps_the_watchdog_fed(rig, wave_take):
+    lines = []
+    with hw_sim.serve(dict(rig.servo_map.models)) as bus:
+        report = perform(rig, TakeReader(wave_take), bus.port,
+                         PerformOptions(**{**OPTIONS, "yes": False, "countdown_s": 3,
+                                           "watchdog_ms": 1000.0}), log=lines.append)
+        assert report.stop_reason == "end of take"
+        assert any(line.startswith("moving to the first pose") for line in lines)
+        assert lines.index("3...") < lines.index("2...") < lines.index("1...")
+        assert _all_off(bus, rig)
+
+
+def test_multi_turn_servo_out_of_range_is_refused_before_torque(rig, wave_take, wait_for):
+    with hw_sim.serve(dict(rig.servo_map.models)) as bus:
+        bus.servo(1).set("Operating Mode", 4)           # extended position: counts turns
+        bus.set_positions({1: 2048 + 2 * 4096})          # turned twice by hand since power-up
+        wait_for(lambda: bus.servo(1).get("Present Position") == 2048 + 2 * 4096,
+                 what="the turned joint")
+        with pytest.raises(DriveError) as info:
+            _perform(rig, wave_take, bus.port)
+        assert str(info.value).startswith("servo 1: present position 10240 is outside")
+        assert "extended position" in str(info.value)
+        assert _all_off(bus, rig)
