@@ -53,12 +53,15 @@ def main() -> None:
     Examples:
       puppet demo                          built-in character on a simulated bus
       puppet rig info --json               check the built-in rig
-      hw-sim --servos 1-15 &               a simulated bus; prints its port
+      hw-sim --rig my.toml &               a simulated bus with the rig's servos; prints its port
       puppet scan --port /dev/ttyUSB0
       puppet calibrate --rig my.toml --port /dev/ttyUSB0
       puppet live --rig my.toml --port /dev/ttyUSB0 --record take.mcap --out live.mp4
       puppet play take.mcap --out take.mp4 --speed 0.5
       puppet export take.mcap --gltf anim.glb --pc2 mesh.pc2 --up z --fps 24
+      puppet rig init creature.glb --out creature.toml    a starting rig for your character
+      puppet rig axes creature.toml --all --out sheet.png each joint turned: pick axes
+      puppet calibrate --rig creature.toml --port /dev/ttyUSB0 --guided
     """
 
 
