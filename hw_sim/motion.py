@@ -150,7 +150,7 @@ class OneAtATime:
     """
 
     def __init__(self, servos, reach_deg: float = 30.0, settle_s: float = 5.0, ramp_s: float = 0.4,
-                 hold_s: float = 2.5, rest_s: float = 1.2, quiet_s: float = 2.0):
+                 hold_s: float = 3.0, rest_s: float = 1.2, quiet_s: float = 2.0):
         self.settle_s, self.ramp_s, self.hold_s, self.rest_s = settle_s, ramp_s, hold_s, rest_s
         self.quiet_s = quiet_s
         self.period_s = 2.0 * ramp_s + hold_s + rest_s   # one servo's turn, s
