@@ -60,7 +60,7 @@ def main() -> None:
       puppet play take.mcap --out take.mp4 --speed 0.5
       puppet export take.mcap --gltf anim.glb --pc2 mesh.pc2 --up z --fps 24
       puppet rig init creature.glb --out creature.toml    a starting rig for your character
-      puppet rig axes creature.toml --all --out sheet.png each joint turned: pick axes
+      puppet rig axes creature.toml --out sheet.png       each joint turned: pick axes
       puppet calibrate --rig creature.toml --port /dev/ttyUSB0 --guided
     """
 

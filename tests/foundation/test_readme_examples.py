@@ -87,6 +87,16 @@ def option(argv: list[str], name: str) -> str | None:
     return argv[argv.index(name) + 1] if name in argv[:-1] else None
 
 
+def port_for(line: str, ports: dict[str, str], latest: str | None) -> str:
+    """The port a README line means by /dev/ttyUSB0: that of the latest ``hw-sim --rig RIG`` serving
+    the rig the line names with --rig (none named: the latest ``hw-sim --rig``'s); ``ports`` is
+    {rig file: port}. Fails quoting the line when no such hw-sim line came before it."""
+    rig = option(shlex.split(line), "--rig")
+    port = latest if rig is None else ports.get(rig)
+    assert port is not None, f"{line!r}: no 'hw-sim --rig {rig or 'RIG'}' line before it gives a port"
+    return port
+
+
 def readings_in(take: Path) -> int:
     from puppet.take import TakeError, TakeReader
 
@@ -172,9 +182,7 @@ def test_every_using_it_command_runs_as_written(tmp_path):
                     ports[rig] = latest_port = server.first_line()
                 continue
             if PORT_PLACEHOLDER in argv:
-                port = latest_port if rig is None else ports.get(rig)
-                assert port is not None, (f"{line!r}: no 'hw-sim --rig {rig or 'RIG'}' line before it "
-                                          "gives a port")
+                port = port_for(line, ports, latest_port)
                 argv = [port if a == PORT_PLACEHOLDER else a for a in argv]
             outputs = [argv[k + 1] for k, a in enumerate(argv[:-1]) if a in OUTPUT_OPTIONS]
             if argv[:2] in (["puppet", c] for c in UNTIL_CTRL_C) and "--seconds" not in argv:
@@ -203,6 +211,19 @@ def test_every_using_it_command_runs_as_written(tmp_path):
         for server in servers:
             code, stderr = server.interrupt()
             assert code == 0, stderr
+
+
+def test_each_line_gets_the_port_of_the_bus_serving_its_rig():
+    ports = {"my.toml": "/dev/pts/1", "creature.toml": "/dev/pts/2"}
+    assert port_for("puppet calibrate --rig creature.toml --port /dev/ttyUSB0 --guided", ports,
+                    "/dev/pts/2") == "/dev/pts/2"
+    assert port_for("puppet record --rig my.toml --port /dev/ttyUSB0 --out t.mcap", ports,
+                    "/dev/pts/2") == "/dev/pts/1"
+    assert port_for("puppet scan --port /dev/ttyUSB0", ports, "/dev/pts/1") == "/dev/pts/1"
+    line = "puppet live --rig other.toml --port /dev/ttyUSB0"
+    with pytest.raises(AssertionError) as failure:
+        port_for(line, ports, "/dev/pts/1")
+    assert str(failure.value).startswith(f"{line!r}: no 'hw-sim --rig other.toml' line before it")
 
 
 @pytest.mark.parametrize("command", ["puppet rig info my.toml --json"])
