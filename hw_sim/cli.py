@@ -9,8 +9,11 @@ import sys
 from hw_sim.control_table import MODELS
 from hw_sim.errors import HwSimError
 from hw_sim.faults import parse_ids
-from hw_sim.motion import BUILTIN, WithinLimits
-from hw_sim.rig_servos import read_rig_servos
+from hw_sim.motion import BUILTIN, OneAtATime, WithinLimits
+from hw_sim.rig_servos import RigServo, read_rig_servos
+
+#: ``--motion guided``: each servo in turn out and back, as a person following calibrate --guided.
+GUIDED = "guided"
 
 
 def parse_servos(text: str, default_model: str) -> dict[int, str]:
@@ -62,7 +65,9 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--model", default="XL330-M288", choices=sorted(MODELS),
                         help="servo model for ids given without one")
     parser.add_argument("--motion", default=None,
-                        help=f"motion source: {', '.join(sorted(BUILTIN))}, a keyframe CSV "
+                        help=f"motion source: {', '.join(sorted(BUILTIN))}, {GUIDED} (each servo in "
+                             "turn, in the rig file's order, turned 30 degrees positive and back, as "
+                             "a person following 'puppet calibrate --guided'), a keyframe CSV "
                              "path, or replay:PATH (CSV, NPZ or a take of recorded ticks); "
                              "default: wave, or with --rig a swing within the rig's limits")
     parser.add_argument("--faults", default=None, help="fault schedule file")
@@ -99,7 +104,16 @@ def main(argv: list[str] | None = None) -> int:
         except ValueError as exc:
             print(f"hw-sim: --servos {args.servos!r}: {exc}", file=sys.stderr)
             return 2
-    motion_name = "within the rig's limits" if isinstance(motion, WithinLimits) else motion or "wave"
+        rig_servos = [RigServo(i, model) for i, model in sorted(servos.items())]
+    if motion == GUIDED:
+        motion = OneAtATime(rig_servos)
+    if isinstance(motion, WithinLimits):
+        motion_name = "within the rig's limits"
+    elif isinstance(motion, OneAtATime):
+        motion_name = (f"{GUIDED}: servos {', '.join(str(s.id) for s in rig_servos)} one at a time, "
+                       "from the first time the host reads")
+    else:
+        motion_name = motion or "wave"
     try:
         server = Server(servos, motion=motion or "wave", faults=args.faults,
                         timing=args.timing, baud=args.baud, return_delay_us=args.return_delay_us,

@@ -9,6 +9,8 @@ started, ``joint`` the id the servo was created with. Positions are continuous c
 - ``Wave`` / ``Walk`` / ``Spin``: built-in performances.
 - ``WithinLimits``: every servo of a rig swings about its zero ticks inside its joint limits
   (``hw-sim --rig``'s default motion).
+- ``OneAtATime``: a person following ``puppet calibrate --guided``: each servo in turn is turned
+  in its joint's positive direction, held and brought back (``hw-sim --motion guided``).
 - ``Keyframes``: linear interpolation of a keyframe file, looping.
 - ``Replay``: sample-and-hold replay of recorded ticks: a puppet take (.mcap), or CSV / NPZ.
 
@@ -130,6 +132,50 @@ class WithinLimits:
     def position(self, joint: int, t: float) -> float:
         centre, amplitude, phase = self.params.get(joint, (CENTER, 0.0, 0.0))
         return centre + amplitude * math.sin(2.0 * math.pi * t / self.period_s + phase)
+
+
+class OneAtATime:
+    """A person following ``puppet calibrate --guided``: the puppet rests, then each servo in turn
+    (in the order given: the rig file's) is turned in its joint's positive direction, held, and
+    brought back to rest; every other servo stays at rest. Once the last is back, all rest.
+
+    A sequence starts when the host first asks for positions after the bus has been quiet for
+    ``quiet_s`` seconds (so each run of the calibration gets the whole sequence, whenever it is
+    started): ``settle_s`` at rest (the host reads the rest pose), then per servo ``ramp_s`` out
+    to ``reach_deg`` of joint turn (0.9 of the upper limit when that is nearer), ``hold_s`` held,
+    ``ramp_s`` back, ``rest_s`` at rest.
+    servos: objects with ``id``, ``zero_ticks``, ``sign``, ``gear`` (servo turns per joint turn)
+    and ``limits_deg`` (low, high), e.g. ``hw_sim.rig_servos.RigServo``. Ids it does not name
+    hold 2048. The boot-time position (t = 0) is not a host asking.
+    """
+
+    def __init__(self, servos, reach_deg: float = 30.0, settle_s: float = 5.0, ramp_s: float = 0.4,
+                 hold_s: float = 3.0, rest_s: float = 1.2, quiet_s: float = 2.0):
+        self.settle_s, self.ramp_s, self.hold_s, self.rest_s = settle_s, ramp_s, hold_s, rest_s
+        self.quiet_s = quiet_s
+        self.period_s = 2.0 * ramp_s + hold_s + rest_s   # one servo's turn, s
+        self.params: dict[int, tuple[float, float, int]] = {}   # id -> (rest, reach ticks, turn)
+        for k, s in enumerate(servos):
+            high = s.limits_deg[1]
+            reach = min(reach_deg, 0.9 * high) if high > 0.0 else reach_deg
+            self.params[int(s.id)] = (float(s.zero_ticks),
+                                      reach * s.sign * s.gear * TICKS_PER_TURN / 360.0, k)
+        self.start: float | None = None    # when the current sequence began, s
+        self.last_asked: float | None = None
+
+    def position(self, joint: int, t: float) -> float:
+        if t > 0.0:
+            if self.last_asked is None or t - self.last_asked > self.quiet_s:
+                self.start = t
+            self.last_asked = t if self.last_asked is None else max(self.last_asked, t)
+        rest, reach, turn = self.params.get(joint, (CENTER, 0.0, 0))
+        if self.start is None:
+            return rest
+        local = t - self.start - self.settle_s - turn * self.period_s
+        if local <= 0.0 or local >= self.period_s - self.rest_s:
+            return rest
+        out = min(local, self.period_s - self.rest_s - local) / self.ramp_s
+        return rest + reach * min(out, 1.0)
 
 
 def _read_table(path: Path) -> tuple[list[int], list[float], list[list[float]]]:

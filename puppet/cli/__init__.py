@@ -53,7 +53,7 @@ def main() -> None:
     Examples:
       puppet demo                          built-in character on a simulated bus
       puppet rig info --json               check the built-in rig
-      hw-sim --servos 1-15 &               a simulated bus; prints its port
+      hw-sim --rig my.toml &               a simulated bus with the rig's servos; prints its port
       puppet scan --port /dev/ttyUSB0
       puppet calibrate --rig my.toml --port /dev/ttyUSB0
       puppet live --rig my.toml --port /dev/ttyUSB0 --record take.mcap --out live.mp4
@@ -61,6 +61,9 @@ def main() -> None:
       puppet demo --view                   watch in a browser; drag the tail
       puppet perform take.mcap --rig my.toml --port /dev/ttyUSB0
       puppet export take.mcap --gltf anim.glb --pc2 mesh.pc2 --up z --fps 24
+      puppet rig init creature.glb --out creature.toml    a starting rig for your character
+      puppet rig axes creature.toml --out sheet.png       each joint turned: pick axes
+      puppet calibrate --rig creature.toml --port /dev/ttyUSB0 --guided
     """
 
 

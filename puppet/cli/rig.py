@@ -49,6 +49,7 @@ def rig_axes(rig_path: str, out: str, every_joint: bool, angle: float) -> None:
     """Render each servo's joint turned -ANGLE and +ANGLE: pick axis and sign by looking.
 
     One pair of panels per servo (per joint axis with --all), the positive side framed green.
+    A rig without [[servo]] blocks yet (fresh from `rig init`) shows every joint, as --all.
 
     \b
     Example:
@@ -59,9 +60,11 @@ def rig_axes(rig_path: str, out: str, every_joint: bool, angle: float) -> None:
     from puppet.render.axes_sheet import Turn, render_turn_sheet, save_sheet
 
     loaded = load_rig(rig_path)
+    if not every_joint and len(loaded.servo_map) == 0:
+        click.echo(f"{rig_path}: no [[servo]] blocks yet: showing every joint about x, y and z "
+                   "(as --all); fill in a block's joint and axis to see just its servo", err=True)
+        every_joint = True
     turns = [Turn(*t) for t in axis_turns(loaded, every_joint)]
-    if not turns:
-        fail(f"{rig_path}: the rig has no [[servo]] blocks yet; pass --all to see every joint's axes")
     sk = loaded.skeleton
     sheet = render_turn_sheet(loaded.V, loaded.F, loaded.W, sk.heads, sk.tails, sk.parents, turns,
                               angle_deg=angle)

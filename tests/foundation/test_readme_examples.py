@@ -1,32 +1,54 @@
 """Every command of the README's "Using it" block runs as written, in order, in one folder.
 
-Substitutions a reader makes too: ``/dev/ttyUSB0`` becomes the port printed by the block's
-``hw-sim --rig`` (the simulated bus serving the rig's servos); ``my.toml`` is the built-in rig
-copied as the README says (its ``mesh`` pointing at ``critter.npz``, plus a calibration file
-name for ``calibrate``); ``faults.txt`` is a small fault file. ``hw-sim`` lines keep serving
-until the end; ``live`` and ``record`` (which run until Ctrl-C) get Ctrl-C once their take holds
-readings. Every command must exit 0 and write the files it names (--out, --record, --pc2,
---bvh, --frames). A README line the test has no input file for fails with the line quoted.
+Substitutions a reader makes too:
+
+- ``/dev/ttyUSB0`` becomes the port printed by the most recent earlier ``hw-sim --rig RIG`` line
+  serving the rig file the line names with ``--rig`` (a line naming no rig, like ``scan``: the
+  most recent ``hw-sim --rig`` line's port);
+- ``my.toml`` is the built-in rig copied as the README says (its ``mesh`` pointing at
+  ``critter.npz``, plus a calibration file name for ``calibrate``); ``faults.txt`` is a small
+  fault file; ``creature.glb`` is the skinned test character of ``tests/rig/character.py``;
+- the manual step the README describes below the block: once ``rig init`` has written
+  ``creature.toml``, before the first line that serves or calibrates it, the test fills in three
+  of its commented ``[[servo]]`` blocks (``model``, ``joint``, ``axis``) as a user would;
+- Enter is pressed when a command asks (``calibrate --guided``: "hold the rest pose").
+
+``hw-sim`` lines keep serving until the end; ``live`` and ``record`` (which run until Ctrl-C) get
+Ctrl-C once their take holds readings. Every command must exit 0 and write the files it names
+(--out, --record, --pc2, --bvh, --frames). A README line the test has no input file or port for
+fails with the line quoted.
 """
 
 from __future__ import annotations
 
+import importlib.util
 import re
 import shlex
 import signal
 import subprocess
 import threading
 import time
+import urllib.error
+import urllib.request
 from pathlib import Path
 
 import pytest
 
 from puppet.rig.load import BUILTIN_RIG
 
+CHARACTER_MODULE = Path(__file__).resolve().parents[1] / "rig" / "character.py"
+
 README = Path(__file__).resolve().parents[2] / "README.md"
 PORT_PLACEHOLDER = "/dev/ttyUSB0"
 OUTPUT_OPTIONS = ("--out", "--record", "--pc2", "--bvh", "--frames")
 UNTIL_CTRL_C = ("live", "record")  # puppet commands that run until Ctrl-C unless --seconds
+CHARACTER_RIG = "creature.toml"
+#: The user's edit of the fresh creature.toml: {joint: {key: TOML value}} for the blocks filled in.
+CHARACTER_SERVOS = {
+    "neck": {"model": '"XL330-M288"', "axis": '"x"'},
+    "tail base": {"model": '"XL430-W250"', "axis": '"z"'},
+    "leg.L": {"model": '"XM430-W350"', "axis": '"x"'},
+}
 
 
 def using_it_commands() -> list[str]:
@@ -38,13 +60,68 @@ def using_it_commands() -> list[str]:
             if line]
 
 
+def character_module():
+    """tests/rig/character.py (the shared skinned glTF test character), loaded by path as
+    tests/rig/conftest.py does (pytest runs with --import-mode=importlib)."""
+    spec = importlib.util.spec_from_file_location("readme_test_character", CHARACTER_MODULE)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
 def write_inputs(folder: Path) -> None:
-    """The files the README's commands read: my.toml, faults.txt."""
+    """The files the README's commands read: my.toml, faults.txt, creature.glb."""
     text = BUILTIN_RIG.read_text().replace('mesh = "critter.npz"',
                                            f'mesh = "{BUILTIN_RIG.parent / "critter.npz"}"')
     text = text.replace('fixed = ["hips"]', 'calibration = "my.calibration.toml"\nfixed = ["hips"]')
     (folder / "my.toml").write_text(text)
     (folder / "faults.txt").write_text("0.5 drop ids=3 for=0.2\n1.0 noise ids=2 amplitude=3 for=0.5\n")
+    character_module().write_glb(folder / "creature.glb")
+
+
+def fill_in_servos(rig: Path) -> None:
+    """The user's step after `rig init`: uncomment a [[servo]] block per servo, set model and axis."""
+    rig.write_text(character_module().enable_servos(rig.read_text(), CHARACTER_SERVOS))
+
+
+def option(argv: list[str], name: str) -> str | None:
+    """The value after ``name`` in argv, or None."""
+    return argv[argv.index(name) + 1] if name in argv[:-1] else None
+
+
+def port_for(line: str, ports: dict[str, str], latest: str | None) -> str:
+    """The port a README line means by /dev/ttyUSB0: that of the latest ``hw-sim --rig RIG`` serving
+    the rig the line names with --rig (none named: the latest ``hw-sim --rig``'s); ``ports`` is
+    {rig file: port}. Fails quoting the line when no such hw-sim line came before it."""
+    rig = option(shlex.split(line), "--rig")
+    port = latest if rig is None else ports.get(rig)
+    assert port is not None, f"{line!r}: no 'hw-sim --rig {rig or 'RIG'}' line before it gives a port"
+    return port
+
+
+def view_url(run: "Background", line: str, timeout: float = 180) -> str:
+    """The URL a --view command prints on stderr ('view: URL'), once it is serving."""
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        for text in list(run.errors):
+            if text.startswith("view: "):
+                return text.split()[1]
+        assert run.proc.poll() is None, f"{line!r} ended: {''.join(run.errors)[-2000:]}"
+        time.sleep(0.2)
+    raise AssertionError(f"{line!r}: printed no 'view: URL' line")
+
+
+def open_page(run: "Background", url: str, line: str, timeout: float = 180) -> tuple[int, bytes]:
+    """(HTTP status, body) of the view's page, retried while the command is still starting."""
+    deadline = time.monotonic() + timeout
+    while True:
+        try:
+            with urllib.request.urlopen(url, timeout=60) as page:
+                return page.status, page.read()
+        except (urllib.error.URLError, ConnectionError):
+            assert run.proc.poll() is None, f"{line!r} ended: {''.join(run.errors)[-2000:]}"
+            assert time.monotonic() < deadline, f"{line!r}: {url} never answered"
+            time.sleep(0.5)
 
 
 def readings_in(take: Path) -> int:
@@ -102,30 +179,52 @@ class Background:
 def test_readme_lists_the_commands_a_user_needs():
     commands = using_it_commands()
     assert any(c.startswith("hw-sim --rig") for c in commands)
-    for name in ("rig info", "scan", "calibrate", "live", "record", "play", "export", "demo"):
+    for name in ("rig info", "scan", "calibrate", "live", "record", "play", "export", "demo",
+                 "rig init", "rig axes"):
         assert any(c.startswith(f"puppet {name}") for c in commands), name
+    assert any(c.startswith("puppet calibrate") and "--guided" in c for c in commands)
 
 
 def test_every_using_it_command_runs_as_written(tmp_path):
     write_inputs(tmp_path)
     servers: list[Background] = []
-    port = None
+    ports: dict[str, str] = {}   # rig file -> port of the latest hw-sim serving it
+    latest_port = None
+    servos_filled = False
     try:
         for line in using_it_commands():
             started = time.monotonic()
             argv = shlex.split(line)
+            rig = option(argv, "--rig")
+            if rig == CHARACTER_RIG and not servos_filled:
+                assert (tmp_path / rig).exists(), f"{line!r}: no 'rig init' line before it writes {rig}"
+                fill_in_servos(tmp_path / rig)
+                servos_filled = True
             if argv[0] == "hw-sim":
                 server = Background(argv, tmp_path)
                 servers.append(server)
-                assert server.first_line().startswith("/dev/"), (line, server.proc.poll())
-                if "--rig" in argv:
-                    port = server.first_line()
+                assert server.first_line().startswith("/dev/"), (line, server.proc.poll(),
+                                                                 "".join(server.errors))
+                if rig is not None:
+                    ports[rig] = latest_port = server.first_line()
                 continue
             if PORT_PLACEHOLDER in argv:
-                assert port is not None, f"{line!r}: no 'hw-sim --rig' line before it gives a port"
+                port = port_for(line, ports, latest_port)
                 argv = [port if a == PORT_PLACEHOLDER else a for a in argv]
             outputs = [argv[k + 1] for k, a in enumerate(argv[:-1]) if a in OUTPUT_OPTIONS]
-            if argv[:2] in (["puppet", c] for c in UNTIL_CTRL_C) and "--seconds" not in argv:
+            if "--view" in argv or argv[:2] == ["puppet", "view"]:  # serves until Ctrl-C
+                take = option(argv, "--record")
+                run = Background(argv, tmp_path)
+                url = view_url(run, line)
+                status, html = open_page(run, url, line)  # the page a user opens
+                assert status == 200, (line, status)
+                assert b"<html" in html.lower(), line
+                deadline = time.monotonic() + 180
+                while take is not None and readings_in(tmp_path / take) < 20 and run.proc.poll() is None:
+                    assert time.monotonic() < deadline, f"{line!r}: no readings recorded"
+                    time.sleep(0.2)
+                code, stderr = run.interrupt()
+            elif argv[:2] in (["puppet", c] for c in UNTIL_CTRL_C) and "--seconds" not in argv:
                 take = argv[argv.index("--record" if argv[1] == "live" else "--out") + 1]
                 run = Background(argv, tmp_path)
                 deadline = time.monotonic() + 180
@@ -135,9 +234,14 @@ def test_every_using_it_command_runs_as_written(tmp_path):
                 code, stderr = run.interrupt()
             else:
                 result = subprocess.run(argv, cwd=tmp_path, capture_output=True, text=True,
-                                        timeout=600)
+                                        input="\n", timeout=600)
                 code, stderr = result.returncode, result.stderr
             assert code == 0, f"{line!r} exited {code}:\n{stderr[-3000:]}"
+            if "--guided" in argv:  # every servo the user filled in was found, in the file's order
+                found = [row.split(" (")[0].strip() for row in result.stdout.splitlines()
+                         if row.startswith("  ") and ": servo " in row]
+                assert found == [j for j in character_module().NAMES if j in CHARACTER_SERVOS], (
+                    line, result.stdout, stderr)
             assert "Traceback" not in stderr, (line, stderr)
             for name in outputs:
                 assert (tmp_path / name).exists(), f"{line!r} did not write {name}"
@@ -146,6 +250,19 @@ def test_every_using_it_command_runs_as_written(tmp_path):
         for server in servers:
             code, stderr = server.interrupt()
             assert code == 0, stderr
+
+
+def test_each_line_gets_the_port_of_the_bus_serving_its_rig():
+    ports = {"my.toml": "/dev/pts/1", "creature.toml": "/dev/pts/2"}
+    assert port_for("puppet calibrate --rig creature.toml --port /dev/ttyUSB0 --guided", ports,
+                    "/dev/pts/2") == "/dev/pts/2"
+    assert port_for("puppet record --rig my.toml --port /dev/ttyUSB0 --out t.mcap", ports,
+                    "/dev/pts/2") == "/dev/pts/1"
+    assert port_for("puppet scan --port /dev/ttyUSB0", ports, "/dev/pts/1") == "/dev/pts/1"
+    line = "puppet live --rig other.toml --port /dev/ttyUSB0"
+    with pytest.raises(AssertionError) as failure:
+        port_for(line, ports, "/dev/pts/1")
+    assert str(failure.value).startswith(f"{line!r}: no 'hw-sim --rig other.toml' line before it")
 
 
 @pytest.mark.parametrize("command", ["puppet rig info my.toml --json"])

@@ -62,12 +62,14 @@ def test_axes_sheet_all_adds_every_joint_without_a_servo(tmp_path, character):
     assert iio.imread(out).shape == ((pairs + 1) // 2 * PANEL_H, 4 * PANEL_W, 3)
 
 
-def test_axes_sheet_refuses_a_rig_without_servos_and_its_own_input(tmp_path, character):
+def test_axes_sheet_of_a_rig_without_servos_shows_every_joint_and_refuses_its_own_input(tmp_path, character):
     rig = _rig(tmp_path, character, {})
-    result = run("rig", "axes", rig, "--out", tmp_path / "none.png")
-    assert result.returncode == 1 and "Traceback" not in result.stderr
-    assert "beast.toml: the rig has no [[servo]] blocks yet; pass --all" in result.stderr
-    assert not (tmp_path / "none.png").exists()
+    result = run("rig", "axes", rig, "--out", tmp_path / "fresh.png")
+    assert result.returncode == 0, result.stderr
+    assert "beast.toml: no [[servo]] blocks yet: showing every joint about x, y and z (as --all)" in result.stderr
+    pairs = 3 * len(character.NAMES)
+    assert f"{2 * pairs} panels: {pairs} pairs" in result.stdout
+    assert iio.imread(tmp_path / "fresh.png").shape == ((pairs + 1) // 2 * PANEL_H, 4 * PANEL_W, 3)
     result = run("rig", "axes", rig, "--out", rig, "--all")
     assert result.returncode == 1 and "Traceback" not in result.stderr
     assert "the axes sheet is a PNG" in result.stderr
