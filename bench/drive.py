@@ -10,7 +10,10 @@ Cases: 1 Mbps and 4 Mbps. For each:
   performed with the default options (100 Hz, default profile; Bus Watchdog 500 ms so that
   a stall of this shared machine does not trip it), present vs take, as
   ``perform`` reports it;
-- ``sense_to_goal_*``: null (actuators in ``live`` are not built yet).
+- ``sense_to_goal_median_ms`` / ``_p99_ms``: ``live``'s path with the built-in actuated-tail
+  rig (critter_tail.toml: these 15 sensors plus one tail actuator) for ``--live-seconds``: the
+  reader process, the solve, the goal channel; from a sensor reading's time stamp to the Sync
+  Write of the tail goal solved from it (solve only, no render).
 
 Figures on a shared machine vary with load; the ratio to the wire ceiling is the comparable one.
 
@@ -38,7 +41,11 @@ from puppet.bus.reading import Reading
 from puppet.drive import PerformOptions, perform
 from puppet.drive import items as it
 from puppet.drive.servos import DriveBus
-from puppet.rig import builtin
+from puppet.bus.reader_process import ReaderProcess
+from puppet.drive.actuators import ActuationPlan, LiveActuation
+from puppet.pipeline import Pipeline, run_live
+from puppet.rig import builtin, load_rig
+from puppet.rig.load import BUILTIN_RIG
 from puppet.take import TakeReader, TakeWriter
 
 SERVOS = 15
@@ -93,7 +100,30 @@ def _wave_take(path: Path, rig) -> Path:
     return path
 
 
-def run_cases(iterations: int) -> list[dict]:
+TAIL_RIG = BUILTIN_RIG.parent / "critter_tail.toml"
+
+
+def _sense_to_goal(baud: int, seconds: float) -> tuple[float, float]:
+    """(median, p99) ms from a sensor reading to its tail goal on the bus, in live's path."""
+    rig = load_rig(TAIL_RIG)
+    plan = ActuationPlan.for_rig(rig, 500.0, watchdog_ms=2000.0)
+    actuation = LiveActuation(rig)
+    with hw_sim.serve(dict(rig.servo_map.models), motion="wave", timing=True, baud=baud,
+                      return_delay_us=0) as sim:
+        source = ReaderProcess(sim.port, rig.servo_map.models, rate_hz=500.0, baud=baud,
+                               latency_ms=1, actuation=plan)
+        source.start()
+        actuation.source = source
+        try:
+            with Pipeline(rig, render=False) as pipeline:
+                run_live(pipeline, source, seconds=seconds, after_solve=actuation.after_solve)
+            delays = source.goal_delays_ms()
+        finally:
+            source.stop()
+    return float(np.median(delays)), float(np.percentile(delays, 99))
+
+
+def run_cases(iterations: int, live_seconds: float = 5.0) -> list[dict]:
     rig = builtin()
     models = dict(rig.servo_map.models)
     assert len(models) == SERVOS
@@ -106,6 +136,7 @@ def run_cases(iterations: int) -> list[dict]:
                 report = perform(rig, TakeReader(take), sim.port,
                                  PerformOptions(yes=True, baud=baud, latency_ms=4,
                                                 watchdog_ms=500.0))
+            s2g_median, s2g_p99 = _sense_to_goal(baud, live_seconds)
             ceiling = wire_ceiling_hz(SERVOS, baud, fast)
             cases.append({"servos": SERVOS, "baud": baud, "read": "fast" if fast else "sync",
                           "cycle_hz": round(cycle_hz, 1),
@@ -113,7 +144,8 @@ def run_cases(iterations: int) -> list[dict]:
                           "ratio": round(cycle_hz / ceiling, 3),
                           "tracking_median_deg": round(report.tracking_median_deg, 3),
                           "tracking_p99_deg": round(report.tracking_p99_deg, 3),
-                          "sense_to_goal_median_ms": None, "sense_to_goal_p99_ms": None,
+                          "sense_to_goal_median_ms": round(s2g_median, 2),
+                          "sense_to_goal_p99_ms": round(s2g_p99, 2),
                           "read_failures": failures})
     return cases
 
@@ -122,13 +154,16 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--json", default=None, help="write results to this JSON file")
     parser.add_argument("--iterations", type=int, default=300, help="timed cycles per case")
+    parser.add_argument("--live-seconds", type=float, default=5.0,
+                        help="live run per case for the sense-to-goal delay")
     args = parser.parse_args(argv)
-    cases = run_cases(args.iterations)
+    cases = run_cases(args.iterations, args.live_seconds)
     print(f"{'servos':>6} {'baud':>9} {'cycle Hz':>9} {'ceiling Hz':>10} {'ratio':>6} "
-          f"{'track med':>9} {'track p99':>9} {'fails':>5}")
+          f"{'track med':>9} {'track p99':>9} {'s2g med':>8} {'s2g p99':>8} {'fails':>5}")
     for c in cases:
         print(f"{c['servos']:>6} {c['baud']:>9} {c['cycle_hz']:>9.1f} {c['wire_ceiling_hz']:>10.1f} "
               f"{c['ratio']:>6.3f} {c['tracking_median_deg']:>9.3f} {c['tracking_p99_deg']:>9.3f} "
+              f"{c['sense_to_goal_median_ms']:>8.2f} {c['sense_to_goal_p99_ms']:>8.2f} "
               f"{c['read_failures']:>5}")
     if args.json:
         Path(args.json).write_text(json.dumps({"cases": cases}, indent=2) + "\n")

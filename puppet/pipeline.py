@@ -389,7 +389,7 @@ def run_live(pipeline: Pipeline, source, *, seconds: float | None = None,
              should_stop: Callable[[], bool] = lambda: False,
              on_frame: Callable[[Summary], None] | None = None,
              started_s: float | None = None, latch_fps: float | None = 60.0,
-             view=None) -> Summary:
+             view=None, after_solve: Callable[[Pipeline, Reading], None] | None = None) -> Summary:
     """Run the live loop until ``seconds`` pass or ``should_stop()`` (e.g. Ctrl-C).
 
     source:   a started ReaderProcess or ReaderThread: ``drain()``, ``latest(timeout)`` and
@@ -403,6 +403,8 @@ def run_live(pipeline: Pipeline, source, *, seconds: float | None = None,
     view:     a live view (puppet.view.View) or None: ``view.apply(pipeline)`` before each
               solve (page input: handles, camera), ``view.frame(pipeline, batch, image, log)``
               after it (it renders for its viewers only when they can take a frame).
+    after_solve: called with (pipeline, reading) right after each solve, before drawing (the
+              actuators' goals from ``pipeline.T``).
     """
     sinks = list(sinks)
     render = bool(sinks) and pipeline.renderer is not None
@@ -439,6 +441,8 @@ def run_live(pipeline: Pipeline, source, *, seconds: float | None = None,
         if not reading.ok.all():
             not_ok += 1
         pipeline.solve(reading)
+        if after_solve is not None:
+            after_solve(pipeline, reading)
         stages.lap("solve")
         if render:
             pipeline.render()

@@ -11,11 +11,22 @@ The child fills slot ``written % slots`` and then increments ``written``; the co
 the slots it has not seen and re-checks ``written`` to drop any slot overwritten meanwhile.
 Setup report, bus events and errors come back over a pipe; commands (goals, reboot, stop) go
 down another.
+
+Goal channel (only with ``actuation``: a rig's actuator servos, see puppet.drive.actuators), a
+second shared block written only by the consumer: seq (1,) int64, src_t_ns (1,) int64, goals
+(a,) float64 continuous ticks. The consumer makes seq odd, writes, makes it even (a seqlock); the
+child copies the goals when seq is even and new, then once per cycle writes the latest ones
+(clamped, rate-limited) with one Sync Write just before the cycle's read. For each new goal it
+notes (src_t_ns, bus_t_ns) in a small ring (``goal_delays_ms``): the sensor reading the goal was
+solved from, and when it went on the bus. The child turns the actuators' torque off on every
+way out of its loop (stop, SIGTERM, its parent gone, an exception) and reports the read-back.
 """
 
 from __future__ import annotations
 
 import multiprocessing as mp
+import os
+import signal
 import time
 from collections.abc import Mapping
 from multiprocessing import shared_memory
@@ -48,24 +59,113 @@ def _ring_size(slots: int, k: int) -> int:
     return size + (-size) % 8 + 8
 
 
-def _child(shm_name, slots, port, servos, options, rate_hz, events, commands, stop):
-    """The reader process: open the bus, then read at rate_hz into the ring until stop."""
+DELAY_SLOTS = 4096
+"""(source reading, goal on the bus) time pairs the goal channel keeps (the newest)."""
+
+
+def _goal_arrays(buf, a: int):
+    seq = np.ndarray((1,), np.int64, buf, 0)
+    src_t_ns = np.ndarray((1,), np.int64, buf, 8)
+    goals = np.ndarray((a,), np.float64, buf, 16)
+    offset = 16 + 8 * a
+    delay_src = np.ndarray((DELAY_SLOTS,), np.int64, buf, offset)
+    delay_bus = np.ndarray((DELAY_SLOTS,), np.int64, buf, offset + 8 * DELAY_SLOTS)
+    delay_n = np.ndarray((1,), np.int64, buf, offset + 16 * DELAY_SLOTS)
+    return seq, src_t_ns, goals, delay_src, delay_bus, delay_n
+
+
+def _goal_size(a: int) -> int:
+    return 16 + 8 * a + 16 * DELAY_SLOTS + 8
+
+
+class _GoalInbox:
+    """The child's side of the goal channel: the newest consistent goals, once each."""
+
+    def __init__(self, buf, a: int) -> None:
+        (self.seq, self.src_t_ns, self.goals, self.delay_src, self.delay_bus,
+         self.delay_n) = _goal_arrays(buf, a)
+        self.seen = 0
+        self.wanted = np.empty(a)
+        self.src = 0
+
+    def take(self) -> bool:
+        """Copy new goals into ``wanted`` (and their reading's time into ``src``); False if none."""
+        first = int(self.seq[0])
+        if first == self.seen or first % 2:
+            return False
+        self.wanted[:] = self.goals
+        src = int(self.src_t_ns[0])
+        if int(self.seq[0]) != first:  # rewritten while copying: take it next cycle
+            return False
+        self.seen, self.src = first, src
+        return True
+
+    def note(self, bus_t_ns: int) -> None:
+        n = int(self.delay_n[0])
+        self.delay_src[n % DELAY_SLOTS] = self.src
+        self.delay_bus[n % DELAY_SLOTS] = bus_t_ns
+        self.delay_n[0] = n + 1
+
+
+def _torque_off(driver, events) -> None:
+    """Torque off the actuators (if on) and tell the parent what reads back."""
+    if driver is None or not driver.torque_on:
+        return
+    after = driver.stop()
+    try:
+        events.send(("torque_off", after))
+    except OSError:  # the parent is gone: there is nobody to tell
+        return
+
+
+def _child(shm_name, slots, port, servos, options, rate_hz, events, commands, stop,
+           actuation=None, goal_shm_name=None):
+    """The reader process: open the bus, then read at rate_hz into the ring until stop (with
+    ``actuation``: drive its actuators from the goal channel, torque off on the way out)."""
     from puppet.bus.errors import BusError
     from puppet.bus.reader import ServoReader
 
     shm = shared_memory.SharedMemory(name=shm_name)
+    goal_shm = driver = inbox = reader = None
+    parent = os.getppid()
+    if actuation is not None:  # the parent stops us (Ctrl-C reaches the whole group)
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
+        signal.signal(signal.SIGTERM, lambda *_: stop.set())
     try:
         t_ns, ticks, ok, written = _ring_arrays(shm.buf, slots, len(servos))
         reader = ServoReader(port, servos, **options)
         try:
             report = reader.open()
+            if actuation is not None:
+                from puppet.drive.actuators import ActuatorDriver
+                from puppet.drive.errors import DriveError
+
+                goal_shm = shared_memory.SharedMemory(name=goal_shm_name)
+                inbox = _GoalInbox(goal_shm.buf, len(actuation.ids))
+                driver = ActuatorDriver(actuation, reader, lambda text: events.send(("note", text)))
+                try:
+                    driver.start()
+                except DriveError as exc:
+                    raise ValueError(str(exc)) from None
+                report.changes.extend(driver.bus.changes)
         except (BusError, ValueError) as exc:
+            _torque_off(driver, events)
             events.send(("error", f"{type(exc).__name__}: {exc}"))
             return
         events.send(("report", report))
         period_ns = int(1e9 / rate_hz) if rate_hz else 0
         next_ns = time.monotonic_ns()
         while not stop.is_set():
+            if driver is not None:
+                if os.getppid() != parent:  # the host process is gone
+                    break
+                new = inbox.take()
+                try:
+                    driver.write(inbox.wanted if new else None)
+                    if new:
+                        inbox.note(time.monotonic_ns())
+                except BusError as exc:
+                    reader.log.add("write_failed", list(actuation.ids), str(exc))
             while commands.poll():
                 name, arg = commands.recv()
                 if name == "goals":
@@ -87,8 +187,14 @@ def _child(shm_name, slots, port, servos, options, rate_hz, events, commands, st
                     next_ns = now  # an overrun: do not burst to catch up
                 else:
                     stop.wait((next_ns - now) / 1e9)
-        reader.close()
     finally:
+        _torque_off(driver, events)
+        if reader is not None:
+            reader.close()
+        if inbox is not None:
+            del inbox
+        if goal_shm is not None:
+            goal_shm.close()
         del t_ns, ticks, ok, written
         shm.close()
 
@@ -101,14 +207,23 @@ class ReaderProcess:
     slots:   readings the ring holds (a consumer that falls further behind loses the oldest).
     options: passed to ``ServoReader`` in the child (baud, latency_ms, read_mode, ...).
 
+    actuation: an ``ActuationPlan`` (puppet.drive.actuators) to drive a rig's actuators from
+             ``set_actuator_goals``; ``torque_after`` then holds their Torque Enable read back
+             at the end ({id: value or None}) and ``notes`` the setup's changes and recoveries.
+
     ``start()`` waits for the child's setup and returns its SetupReport (``report``), or raises
     ReaderProcessError with the child's message. ``drain()`` gives every new reading, oldest
     first; ``latest(timeout)`` the newest. ``log`` mirrors the child's bus events.
     """
 
     def __init__(self, port: str, servos: Mapping[int, str], *, rate_hz: float = 500.0,
-                 slots: int = 4096, **options):
+                 slots: int = 4096, actuation=None, **options):
         self.port = str(port)
+        self.actuation = actuation
+        self.torque_after: dict | None = None
+        self.notes: list[str] = []
+        self._goal_shm = None
+        self._goal_seq = 0
         self.servos = {int(i): str(m) for i, m in servos.items()}
         self.ids = np.array(list(self.servos), np.int64)
         self.rate_hz = rate_hz
@@ -130,10 +245,18 @@ class ReaderProcess:
         self._events, child_events = self._ctx.Pipe(duplex=False)
         child_commands, self._commands = self._ctx.Pipe(duplex=False)
         self._stop = self._ctx.Event()
+        goal_name = None
+        if self.actuation is not None:
+            a = len(self.actuation.ids)
+            self._goal_shm = shared_memory.SharedMemory(create=True, size=_goal_size(a))
+            (self._goal_seq_arr, self._goal_src, self._goals, self._delay_src, self._delay_bus,
+             self._delay_n) = _goal_arrays(self._goal_shm.buf, a)
+            self._goal_seq_arr[0] = self._delay_n[0] = 0
+            goal_name = self._goal_shm.name
         self._proc = self._ctx.Process(
             target=_child, name="puppet-bus-reader", daemon=True,
             args=(self._shm.name, self.slots, self.port, self.servos, self.options, self.rate_hz,
-                  child_events, child_commands, self._stop))
+                  child_events, child_commands, self._stop, self.actuation, goal_name))
         self._proc.start()
         deadline = time.monotonic() + timeout_s
         while self.report is None:
@@ -155,6 +278,10 @@ class ReaderProcess:
         elif kind == "event":
             self.log.events.append(payload)
             self.log.counts[payload.kind] = self.log.counts.get(payload.kind, 0) + 1
+        elif kind == "note":
+            self.notes.append(payload)
+        elif kind == "torque_off":
+            self.torque_after = payload
         elif kind == "error":
             self.stop()
             raise ReaderProcessError(f"{self.port}: {payload}")
@@ -202,6 +329,40 @@ class ReaderProcess:
         """Goal positions (continuous ticks) for the reader's actuators."""
         self._commands.send(("goals", {int(i): int(t) for i, t in goals.items()}))
 
+    def set_actuator_goals(self, goals: np.ndarray, src_t_ns: int) -> None:
+        """The actuators' wanted goals, (a,) continuous ticks (NaN: hold), solved from the
+        reading taken at ``src_t_ns``; the child writes them from its next cycle on."""
+        seq = self._goal_seq_arr
+        seq[0] += 1  # odd: being written
+        self._goals[:] = goals
+        self._goal_src[0] = src_t_ns
+        seq[0] += 1
+
+    def goal_delays_ms(self) -> np.ndarray:
+        """(n,) ms from each sensor reading to its actuator goal's Sync Write (the newest
+        DELAY_SLOTS goals written; empty without actuation)."""
+        if self._goal_shm is None:
+            return np.zeros(0)
+        n = min(int(self._delay_n[0]), DELAY_SLOTS)
+        return (self._delay_bus[:n] - self._delay_src[:n]) / 1e6
+
+    def _torque_off_from_here(self) -> None:
+        """The child died without turning its actuators off: open the port and do it here."""
+        from puppet.bus.errors import BusError
+        from puppet.bus.link import BusLink
+        from puppet.drive.servos import DriveBus
+
+        link = BusLink(self.port, **{k: v for k, v in self.options.items()
+                                     if k in ("baud", "latency_ms")})
+        try:
+            link.open()
+            bus = DriveBus(link, self.actuation.ids, self.actuation.models, self.notes.append)
+            self.torque_after = bus.torque_off()
+        except BusError as err:
+            self.notes.append(f"torque off after the reader process died failed: {err}")
+        finally:
+            link.close()
+
     def reboot(self, dxl_id: int) -> None:
         self._commands.send(("reboot", int(dxl_id)))
 
@@ -213,11 +374,25 @@ class ReaderProcess:
                 self._proc.kill()
                 self._proc.join()
             self._proc = None
+            if self.actuation is not None and self.report is not None:
+                while self._events.poll():  # its torque-off report, if it got that far
+                    try:
+                        self._take_message()
+                    except ReaderProcessError:
+                        break
+                if self.torque_after is None:
+                    self._torque_off_from_here()
         if self._shm is not None:
             del self._t_ns, self._ticks, self._ok, self._written
             self._shm.close()
             self._shm.unlink()
             self._shm = None
+        if self._goal_shm is not None:
+            del (self._goal_seq_arr, self._goal_src, self._goals, self._delay_src,
+                 self._delay_bus, self._delay_n)
+            self._goal_shm.close()
+            self._goal_shm.unlink()
+            self._goal_shm = None
 
     def __enter__(self) -> ReaderProcess:
         self.start()

@@ -25,13 +25,15 @@ def load_rig(rig_path: str | None):
     return builtin() if rig_path is None else load(rig_path)
 
 
-def start_reader(rig, port: str, baud: int, rate_hz: float = 500.0):
-    """A started ReaderProcess reading the rig's servos on ``port``; reports what setup did."""
+def start_reader(rig, port: str, baud: int, rate_hz: float = 500.0, actuation=None):
+    """A started ReaderProcess reading the rig's servos on ``port``; reports what setup did.
+    actuation: an ActuationPlan to drive the rig's actuator servos (puppet.drive.actuators)."""
     from puppet.bus.reader_process import ReaderProcess, ReaderProcessError
 
     if not rig.servo_map.ids.size:
         fail(f"{rig.path or rig.name}: the rig has no servos to read")
-    source = ReaderProcess(port, rig.servo_map.models, rate_hz=rate_hz, baud=baud)
+    source = ReaderProcess(port, rig.servo_map.models, rate_hz=rate_hz, baud=baud,
+                           actuation=actuation)
     try:
         report = source.start()
     except ReaderProcessError as err:

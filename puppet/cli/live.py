@@ -8,6 +8,23 @@ import click
 
 from puppet.cli.common import StopFlag, load_rig, make_sinks, print_summary, start_reader, take_writer
 from puppet.cli.view import open_view, take_factory_for, view_option
+from puppet.drive.actuators import ActuationPlan, LiveActuation
+
+READ_RATE_HZ = 500.0
+"""Bus cycles per second in live (a read of every servo, and the actuators' goal write)."""
+
+
+def report_actuators(source) -> None:
+    """Say on stderr what the actuators' setup changed and their torque read back at the end."""
+    for note in source.notes:
+        click.echo(note, err=True)
+    after = source.torque_after or {}
+    on = sorted(i for i, v in after.items() if v != 0)
+    if on:
+        click.echo(f"warning: actuator servos {on}: torque not confirmed off (read back {after})",
+                   err=True)
+    else:
+        click.echo(f"actuators {sorted(after)}: torque off (read back)", err=True)
 
 
 @click.command()
@@ -22,11 +39,16 @@ from puppet.cli.view import open_view, take_factory_for, view_option
 @click.option("--fps", default=30.0, show_default=True, help="Video frame rate.")
 @click.option("--antialias", type=click.Choice(["auto", "msaa", "fxaa", "none"]), default="auto",
               show_default=True, help="auto: MSAA on a GPU, FXAA on a software renderer.")
+@click.option("--watchdog-ms", default=100.0, show_default=True,
+              help="Actuator servos: their Bus Watchdog period (0: not set).")
 @view_option
 def live(rig_path: str, port: str, baud: int, take_path: str | None, out: str | None,
          frames: str | None, seconds: float | None, fps: float, antialias: str,
-         force: bool, view_address: str | None) -> None:
+         force: bool, view_address: str | None, watchdog_ms: float) -> None:
     """Read the puppet, solve and render live until Ctrl-C.
+
+    Servos with role = "actuator" in the rig file are driven to the angle the solve gives
+    their joint (torque on while live runs, off on every way out).
 
     \b
     Example:
@@ -47,7 +69,11 @@ def live(rig_path: str, port: str, baud: int, take_path: str | None, out: str | 
     try:
         with Pipeline(rig, render=bool(sinks) or live_view is not None, overlay=True,
                       antialias=antialias) as pipeline:
-            source = start_reader(rig, port, baud)
+            plan = ActuationPlan.for_rig(rig, READ_RATE_HZ, watchdog_ms=watchdog_ms)
+            actuation = LiveActuation(rig) if plan is not None else None
+            source = start_reader(rig, port, baud, READ_RATE_HZ, actuation=plan)
+            if actuation is not None:
+                actuation.source = source
             try:
                 # On its own thread: a periodic fsync must not stall a frame.
                 recorder = (BackgroundTakeWriter(take_writer(take_path, rig, force=force))
@@ -56,7 +82,8 @@ def live(rig_path: str, port: str, baud: int, take_path: str | None, out: str | 
                     if live_view is not None:
                         live_view.attach(pipeline, source=source, recorder=recorder)
                     summary = run_live(pipeline, source, seconds=seconds, sinks=sinks, video_fps=fps,
-                                       recorder=recorder, should_stop=stop, view=live_view)
+                                       recorder=recorder, should_stop=stop, view=live_view,
+                                       after_solve=actuation and actuation.after_solve)
                 finally:
                     if live_view is not None:
                         live_view.close()
@@ -66,6 +93,8 @@ def live(rig_path: str, port: str, baud: int, take_path: str | None, out: str | 
                 for sink in sinks:
                     sink.close()
                 source.stop()
+                if plan is not None:
+                    report_actuators(source)
     finally:
         if live_view is not None:
             live_view.close()

@@ -111,6 +111,7 @@ class Rig:
         self.skeleton = self.skeleton.with_joints(self.servo_map.joints(self.skeleton))
         self.servo_map.calibrate(self.calibration)
         self._classify()
+        self._check_actuators()
         b = self.skeleton.bone_count
         self._rotations = np.empty((b, 3, 3))
         self._pose = np.empty((b, 3, 4))
@@ -170,6 +171,20 @@ class Rig:
         self.full_bones = np.flatnonzero(full)
         self.relative_bones = np.flatnonzero(sensed & ~full)
         self.free_bones = np.flatnonzero(~sensed)
+
+    def _check_actuators(self) -> None:
+        """RigError naming the servo, joint and line of an actuator on a sensed joint (an
+        actuator drives a joint the solve fills in: free or relative, never one a sensor or
+        ``fixed`` holds)."""
+        sk = self.skeleton
+        for s in self.servo_map.actuators:
+            bone = sk.index(s.joint)
+            if self.sensed[bone]:
+                why = "declared fixed" if s.joint in self.fixed else "read by a sensor servo"
+                raise RigError(f"actuator servo {s.id} sits on joint {s.joint!r}, which is sensed "
+                               f"({why}); an actuator drives a joint the solve fills in (free or "
+                               "relative)", path=self.path, line=s.line or None,
+                               field=f"servo {s.id} role")
 
     def bone_kinds(self) -> dict[str, list[str]]:
         """{'full': [...], 'relative': [...], 'free': [...]} bone names."""

@@ -48,12 +48,13 @@ import numpy as np
 from puppet.fast.energy_names import ENERGIES
 from puppet.rig.errors import RigError
 from puppet.rig.rig import SolverOptions
-from puppet.rig.servo_map import GEAR_RANGE, INT32, Servo, ServoMap
+from puppet.rig.servo_map import GEAR_RANGE, INT32, ROLES, Servo, ServoMap
 from puppet.rig.solve_options import SolveExtras, read_solve_extras
 from puppet.servo_models import MODELS, known_models
 
 NAMED_AXES = {"x": (1.0, 0, 0), "y": (0, 1.0, 0), "z": (0, 0, 1.0)}
-SERVO_KEYS = {"id", "model", "joint", "axis", "order", "sign", "gear", "zero_ticks", "limits_deg"}
+SERVO_KEYS = {"id", "model", "joint", "axis", "order", "sign", "gear", "zero_ticks", "limits_deg",
+              "role"}
 PIN_KEYS = {"vertex", "point"}
 SOLVER_KEYS = {"clusters", "extra_weights", "energy"}
 TOP_KEYS = {"name", "mesh", "skin", "skeleton", "weights", "calibration", "fixed", "solver", "servo", "pin"}
@@ -344,5 +345,8 @@ def _read_servo(index: int, table: dict, lines: _Lines, fail) -> Servo:
     if not limits[0] < limits[1]:
         fail(f"limits reversed or empty: low {limits[0]} >= high {limits[1]}", f"{label} limits_deg",
              line("limits_deg"))
+    role = table.get("role", "sensor")
+    if role not in ROLES:
+        fail(f"role must be one of {', '.join(ROLES)}, got {show(role)}", f"{label} role", line("role"))
     return Servo(servo_id, model, joint, axis / norm, order, sign, float(gear), zero,
-                 (float(np.radians(limits[0])), float(np.radians(limits[1]))), header or 0)
+                 (float(np.radians(limits[0])), float(np.radians(limits[1]))), header or 0, role)

@@ -21,6 +21,9 @@ GEAR_RANGE = (0.01, 100.0)
 """Servo turns per joint turn: a gear ratio outside this is a typo, not a mechanism."""
 LIMIT_RANGE = (-2 * np.pi, 2 * np.pi)
 """Joint limits (radians) lie within one turn either side of the rest pose."""
+ROLES = ("sensor", "actuator")
+"""A sensor reads its joint (the puppeteer moves it); an actuator drives a joint the solve fills
+in (free or relative) to the solved angle, in ``live``."""
 
 
 @dataclass(frozen=True)
@@ -37,6 +40,8 @@ class Servo:
     zero_ticks: ticks at the rest pose (a Calibration overrides it).
     limits:     (lo, hi) joint angle limits, radians, lo < hi.
     line:       line of the servo's table in the map file (0 when built in code).
+    role:       "sensor" (reads its joint) or "actuator" (driven to the solved angle of a
+                joint the solve fills in; it does not make its joint sensed).
     """
 
     id: int
@@ -49,6 +54,7 @@ class Servo:
     zero_ticks: int = 2048
     limits: tuple[float, float] = (-np.pi, np.pi)
     line: int = 0
+    role: str = "sensor"
 
 
 class ServoMap:
@@ -71,6 +77,9 @@ class ServoMap:
             seen[s.id] = s
         self.ids = np.array([s.id for s in self.servos], np.int64)
         self.models = {s.id: s.model for s in self.servos}
+        self.actuator_index = np.array([i for i, s in enumerate(self.servos)
+                                        if s.role == "actuator"], np.int64)
+        """(a,) indices of the actuator servos, map order (empty: a pure sensor rig)."""
         k = len(self.servos)
         self.zero = np.array([s.zero_ticks for s in self.servos], np.int64)
         self._scale = np.array([s.sign * 2 * np.pi / TICKS_PER_TURN / s.gear for s in self.servos])
@@ -116,8 +125,14 @@ class ServoMap:
         """Inverse of :meth:`angles` (no clamping): (k,) radians -> (k,) int32 ticks."""
         return np.rint(np.asarray(angles) / self._scale + self.zero).astype(np.int32)
 
+    @property
+    def actuators(self) -> tuple[Servo, ...]:
+        """The servos with ``role = "actuator"``, map order."""
+        return tuple(self.servos[i] for i in self.actuator_index)
+
     def joints(self, skeleton: Skeleton) -> tuple[Joint, ...]:
-        """Group servos by joint into skeleton joints; dof i is servo i.
+        """Group sensor servos by joint into skeleton joints; dof i is servo i (actuators
+        sense nothing: their joints are left to the solve).
 
         Raises RigError naming the line for an unknown joint, more than three servos on one
         joint, or two servos with the same order on one joint.
@@ -127,7 +142,8 @@ class ServoMap:
             if s.joint not in skeleton.names:
                 raise RigError(f"unknown joint {s.joint!r}; bones are {list(skeleton.names)}",
                                path=self.path, line=s.line or None, field=f"servo {s.id} joint")
-            by_bone.setdefault(skeleton.index(s.joint), []).append(i)
+            if s.role != "actuator":
+                by_bone.setdefault(skeleton.index(s.joint), []).append(i)
         joints = []
         for bone, members in sorted(by_bone.items()):
             name = skeleton.names[bone]
@@ -161,6 +177,8 @@ def _check_servo(s: Servo, path) -> None:
     axis = np.asarray(s.axis, dtype=float)
     if axis.shape != (3,) or not np.isfinite(axis).all() or not abs(np.linalg.norm(axis) - 1) < 1e-6:
         fail(f"axis must be a finite (3,) unit vector, got {axis.tolist()}", "axis")
+    if s.role not in ROLES:
+        fail(f"role must be one of {', '.join(ROLES)}, got {s.role!r}", "role")
     if s.sign not in (1, -1):
         fail(f"sign must be 1 or -1, got {s.sign!r}", "sign")
     if not GEAR_RANGE[0] <= s.gear <= GEAR_RANGE[1]:  # also false for nan

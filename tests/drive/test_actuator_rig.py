@@ -1,0 +1,84 @@
+"""``role = "actuator"`` in the rig file: an actuator drives a joint the solve fills in; one on a
+sensed joint is refused naming the servo, the joint and the line."""
+
+from __future__ import annotations
+
+import subprocess
+from pathlib import Path
+
+import pytest
+
+import puppet.rig.builtin as builtin_dir
+from puppet.rig import load_rig
+from puppet.rig.errors import RigError
+
+BUILTIN = Path(builtin_dir.__file__).parent
+TAIL_RIG = BUILTIN / "critter_tail.toml"
+
+
+def _tail_rig_text(**replace: str) -> str:
+    """critter_tail.toml with its mesh made absolute and ``old=new`` text replacements."""
+    text = TAIL_RIG.read_text().replace('mesh = "critter.npz"',
+                                        f'mesh = "{(BUILTIN / "critter.npz").as_posix()}"')
+    for old, new in replace.items():
+        assert old in text
+        text = text.replace(old, new)
+    return text
+
+
+def _servo_line(text: str, servo_id: int) -> int:
+    lines = text.splitlines()
+    at = lines.index(f"id = {servo_id}")
+    return at  # the [[servo]] header is the line before "id = N" (1-based: at)
+
+
+def test_tail_rig_actuator_leaves_its_joint_to_the_solve():
+    rig = load_rig(TAIL_RIG)
+    kinds = rig.bone_kinds()
+    assert "tail1" in kinds["free"]
+    tail = rig.servo_map.actuators
+    assert [(s.id, s.joint, s.role) for s in tail] == [(16, "tail1", "actuator")]
+    sensed_dofs = {int(d) for j in rig.skeleton.joints for d in j.dofs}
+    assert 15 not in sensed_dofs  # servo 16 is index 15: no joint reads it
+    assert len(sensed_dofs) == 15
+    # The sensors classify the bones exactly as the plain critter does.
+    assert kinds == load_rig(BUILTIN / "critter.toml").bone_kinds()
+
+
+@pytest.mark.parametrize("joint, why", [("neck", "read by a sensor servo"),
+                                        ("hips", "declared fixed")])
+def test_actuator_on_a_sensed_joint_is_refused(tmp_path, joint, why):
+    text = _tail_rig_text(**{'joint = "tail1"': f'joint = "{joint}"'})
+    path = tmp_path / "bad.toml"
+    path.write_text(text)
+    with pytest.raises(RigError) as caught:
+        load_rig(path)
+    err = caught.value
+    assert err.line == _servo_line(text, 16)
+    assert err.field == "servo 16 role"
+    assert f"actuator servo 16 sits on joint {joint!r}" in str(err)
+    assert why in str(err)
+    assert str(path) in str(err)
+
+
+def test_unknown_role_is_refused(tmp_path):
+    text = _tail_rig_text(**{'role = "actuator"': 'role = "motor"'})
+    path = tmp_path / "bad.toml"
+    path.write_text(text)
+    with pytest.raises(RigError) as caught:
+        load_rig(path)
+    assert caught.value.field == "servo 16 role"
+    assert caught.value.line == text.splitlines().index('role = "motor"') + 1
+    assert "role must be one of sensor, actuator" in str(caught.value)
+
+
+def test_live_refuses_an_actuator_on_a_sensed_joint(tmp_path):
+    text = _tail_rig_text(**{'joint = "tail1"': 'joint = "neck"'})
+    path = tmp_path / "bad.toml"
+    path.write_text(text)
+    done = subprocess.run(["puppet", "live", "--rig", str(path), "--port", "/dev/null",
+                           "--seconds", "1"], capture_output=True, text=True, timeout=300)
+    assert done.returncode == 1
+    assert "Traceback" not in done.stderr
+    assert f"Error: {path}:{_servo_line(text, 16)}" in done.stderr
+    assert "actuator servo 16 sits on joint 'neck'" in done.stderr

@@ -1,0 +1,153 @@
+"""An actuated tail in ``puppet live`` on hw_sim with the real SDK: the tail servo follows the
+angle the solve gives the tail; torque is off after the command ends, after SIGTERM, and after
+the reader process dies."""
+
+from __future__ import annotations
+
+import os
+import queue
+import signal
+import subprocess
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import hw_sim
+import puppet.rig.builtin as builtin_dir
+from puppet.bus.reading import Reading
+from puppet.drive.actuate import ActuatorGoals
+from puppet.pipeline import Pipeline
+from puppet.rig import load_rig
+
+TAIL_RIG = Path(builtin_dir.__file__).parent / "critter_tail.toml"
+TAIL = 16
+POSE_DEG = {10: 63.0, 11: -32.0, 12: -63.0, 13: 63.0, 14: 32.0, 15: -63.0}
+"""Sensor angles (degrees, by servo id) of a pose that swings the legs: it moves the tail."""
+BOUND_DEG = 3.0
+"""How near the tail servo comes to the solved tail angle (solve tolerance + servo deadband)."""
+WAIT_S = 120.0  # generous: a loaded 2-core machine
+
+
+@pytest.fixture(scope="module")
+def tail_rig():
+    return load_rig(TAIL_RIG)
+
+
+def _pose_ticks(rig) -> dict[int, int]:
+    angles = np.array([np.radians(POSE_DEG.get(int(s.id), 0.0)) for s in rig.servo_map.servos])
+    ticks = rig.servo_map.ticks_for(angles)
+    return {int(i): int(t) for i, t in zip(rig.servo_map.ids, ticks) if int(i) != TAIL}
+
+
+@pytest.fixture(scope="module")
+def expected_tail(tail_rig):
+    """(angle rad, goal ticks) the solve gives the tail in the pose (solved to convergence)."""
+    sm = tail_rig.servo_map
+    pose = _pose_ticks(tail_rig)
+    ticks = np.array([pose.get(int(i), 2048) for i in sm.ids], np.int32)
+    goals = ActuatorGoals(sm.actuators, tail_rig.skeleton, sm.zero[sm.actuator_index])
+    with Pipeline(tail_rig, render=False) as pipeline:
+        for _ in range(30):
+            pipeline.solve(Reading(time.monotonic_ns(), sm.ids, ticks, np.ones(len(sm.ids), bool)))
+        ticks_goal = float(goals.goals(pipeline.T)[0])
+        return float(goals.angles[0]), ticks_goal
+
+
+class Live:
+    """A ``puppet live`` subprocess whose stderr lines are collected as they come."""
+
+    def __init__(self, port, *extra):
+        self.proc = subprocess.Popen(["puppet", "live", "--rig", str(TAIL_RIG), "--port", str(port),
+                                      "--watchdog-ms", "2000", *extra],
+                                     stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        self.err: list[str] = []
+        self._lines: queue.Queue = queue.Queue()
+        threading.Thread(target=self._pump, daemon=True).start()
+
+    def _pump(self):
+        for line in self.proc.stderr:
+            self._lines.put(line)
+        self._lines.put(None)
+
+    def finish(self, timeout_s: float = WAIT_S) -> tuple[int, str, str]:
+        out = self.proc.stdout.read()
+        code = self.proc.wait(timeout=timeout_s)
+        while (line := self._lines.get(timeout=timeout_s)) is not None:
+            self.err.append(line)
+        return code, out, "".join(self.err)
+
+
+def _wait_for(condition, what: str, proc, timeout_s: float = WAIT_S):
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        value = condition()
+        if value:
+            return value
+        assert proc.poll() is None, f"live exited ({proc.returncode}) before {what}"
+        time.sleep(0.05)
+    raise AssertionError(f"timed out waiting for {what}")
+
+
+def test_expected_tail_angle_is_a_real_motion(expected_tail):
+    angle, _ = expected_tail
+    assert abs(np.degrees(angle)) > 4 * BOUND_DEG  # the check below could not pass at rest
+
+
+def test_tail_follows_the_solve_and_sigterm_leaves_torque_off(tail_rig, expected_tail):
+    _, goal_ticks = expected_tail
+    bound_ticks = BOUND_DEG * 4096 / 360.0
+    with hw_sim.serve(dict(tail_rig.servo_map.models)) as bus:
+        bus.set_positions(_pose_ticks(tail_rig))
+        tail = bus.servo(TAIL)
+        live = Live(bus.port, "--seconds", "600")
+        _wait_for(lambda: tail.get("Torque Enable") == 1, "torque on", live.proc)
+        assert tail.get("Bus Watchdog") == 100  # 2000 ms in 20 ms units, set after torque on
+        _wait_for(lambda: abs(tail.get("Present Position") - goal_ticks) <= bound_ticks,
+                  f"the tail near {goal_ticks:.0f} ticks", live.proc)
+        live.proc.send_signal(signal.SIGTERM)
+        code, _, err = live.finish()
+        assert code == 0, err
+        assert "Traceback" not in err
+        assert f"actuators [{TAIL}]: torque off (read back)" in err
+        assert tail.get("Torque Enable") == 0
+        assert tail.get("Bus Watchdog") == 0
+
+
+def test_tail_torque_is_off_after_a_normal_end(tail_rig):
+    with hw_sim.serve(dict(tail_rig.servo_map.models)) as bus:
+        bus.set_positions(_pose_ticks(tail_rig))
+        live = Live(bus.port, "--seconds", "2")
+        code, _, err = live.finish()
+        assert code == 0, err
+        assert f"actuators [{TAIL}]: torque off (read back)" in err
+        assert bus.servo(TAIL).get("Torque Enable") == 0
+        assert bus.servo(TAIL).get("Bus Watchdog") == 0
+
+
+def _reader_child(pid: int) -> int:
+    """The reader process among ``pid``'s children (the multiprocessing spawn child)."""
+    for task in Path(f"/proc/{pid}/task").iterdir():
+        for child in (task / "children").read_text().split():
+            cmdline = Path(f"/proc/{child}/cmdline").read_bytes().replace(b"\0", b" ")
+            if b"spawn_main" in cmdline and b"resource_tracker" not in cmdline:
+                return int(child)
+    return 0
+
+
+def test_reader_death_leaves_torque_off(tail_rig):
+    with hw_sim.serve(dict(tail_rig.servo_map.models)) as bus:
+        bus.set_positions(_pose_ticks(tail_rig))
+        tail = bus.servo(TAIL)
+        live = Live(bus.port, "--seconds", "600")
+        _wait_for(lambda: tail.get("Torque Enable") == 1, "torque on", live.proc)
+        child = _wait_for(lambda: _reader_child(live.proc.pid), "the reader process", live.proc)
+        os.kill(child, signal.SIGKILL)
+        code, _, err = live.finish()
+        assert code == 1, err
+        assert "Traceback" not in err
+        assert "Error:" in err
+        assert f"actuators [{TAIL}]: torque off (read back)" in err
+        assert tail.get("Torque Enable") == 0
