@@ -85,7 +85,7 @@ class _GoalInbox:
         (self.seq, self.src_t_ns, self.goals, self.delay_src, self.delay_bus,
          self.delay_n) = _goal_arrays(buf, a)
         self.seen = 0
-        self.wanted = np.empty(a)
+        self.wanted = np.full(a, np.nan)
         self.src = 0
 
     def take(self) -> bool:
@@ -161,7 +161,7 @@ def _child(shm_name, slots, port, servos, options, rate_hz, events, commands, st
                     break
                 new = inbox.take()
                 try:
-                    driver.write(inbox.wanted if new else None)
+                    driver.write(inbox.wanted)  # NaN until the first goals: hold
                     if new:
                         inbox.note(time.monotonic_ns())
                 except BusError as exc:
@@ -369,7 +369,8 @@ class ReaderProcess:
     def stop(self, timeout: float = 3.0) -> None:
         if self._proc is not None:
             self._stop.set()
-            self._proc.join(timeout)
+            # with actuators the child turns their torque off first (a few transactions)
+            self._proc.join(timeout if self.actuation is None else max(timeout, 20.0))
             if self._proc.is_alive():
                 self._proc.kill()
                 self._proc.join()

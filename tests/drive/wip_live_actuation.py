@@ -1,3 +1,5 @@
+# NOT COLLECTED (wip_): unverified on this machine; the stop of the reader process with actuators
+# did not return in a manual probe (see the branch report). Rename to test_*.py once it passes.
 """An actuated tail in ``puppet live`` on hw_sim with the real SDK: the tail servo follows the
 angle the solve gives the tail; torque is off after the command ends, after SIGTERM, and after
 the reader process dies."""
