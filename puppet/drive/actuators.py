@@ -24,7 +24,7 @@ from puppet.drive import items as it
 from puppet.drive.goals import GoalShaper
 from puppet.drive.servos import DriveBus
 
-TICKS_PER_TURN = 4096
+from puppet.servo_models import TICKS_PER_TURN  # noqa: E402
 
 
 @dataclass(frozen=True)

@@ -15,7 +15,7 @@ import numpy as np
 
 from puppet.drive.errors import DriveError
 
-TICKS_PER_TURN = 4096
+from puppet.servo_models import TICKS_PER_TURN  # noqa: E402
 
 
 def take_zero_ticks(metadata, path) -> dict[int, int]:

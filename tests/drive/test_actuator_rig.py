@@ -8,11 +8,11 @@ from pathlib import Path
 
 import pytest
 
-import puppet.rig.builtin as builtin_dir
+from puppet.rig.load import BUILTIN_RIG
 from puppet.rig import load_rig
 from puppet.rig.errors import RigError
 
-BUILTIN = Path(builtin_dir.__file__).parent
+BUILTIN = BUILTIN_RIG.parent
 TAIL_RIG = BUILTIN / "critter_tail.toml"
 
 

@@ -18,13 +18,13 @@ import numpy as np
 import pytest
 
 import hw_sim
-import puppet.rig.builtin as builtin_dir
+from puppet.rig.load import BUILTIN_RIG
 from puppet.bus.reading import Reading
 from puppet.drive.actuate import ActuatorGoals
 from puppet.pipeline import Pipeline
 from puppet.rig import load_rig
 
-TAIL_RIG = Path(builtin_dir.__file__).parent / "critter_tail.toml"
+TAIL_RIG = BUILTIN_RIG.parent / "critter_tail.toml"
 TAIL = 16
 POSE_DEG = {10: 63.0, 11: -32.0, 12: -63.0, 13: 63.0, 14: 32.0, 15: -63.0}
 """Sensor angles (degrees, by servo id) of a pose that swings the legs: it moves the tail."""
