@@ -377,10 +377,14 @@ class ReaderProcess:
             self._proc = None
             if self.actuation is not None and self.report is not None:
                 while self._events.poll():  # its torque-off report, if it got that far
-                    try:
-                        self._take_message()
-                    except ReaderProcessError:
+                    try:  # (a closed pipe polls readable forever: stop at its end)
+                        kind, payload = self._events.recv()
+                    except EOFError:
                         break
+                    if kind == "torque_off":
+                        self.torque_after = payload
+                    elif kind == "note":
+                        self.notes.append(payload)
                 if self.torque_after is None:
                     self._torque_off_from_here()
         if self._shm is not None:
