@@ -37,7 +37,7 @@ print(json.dumps({"simd": _native.simd, "T": T.tolist(), "E": stats.energy, "R":
 def run(env_extra):
     env = dict(os.environ, **env_extra)
     # Run outside the checkout so that the installed package (with its built module) is imported.
-    out = subprocess.run([sys.executable, "-c", SCRIPT], env=env, capture_output=True, text=True,
+    out = subprocess.run([sys.executable, "-P", "-c", SCRIPT], env=env, capture_output=True, text=True,
                          check=True, cwd=os.path.dirname(os.path.abspath(__file__)))
     return json.loads(out.stdout)
 

@@ -42,5 +42,5 @@ def test_hw_sim_bad_option_exits_2():
 
 def test_hw_sim_does_not_import_puppet():
     code = "import sys, hw_sim, hw_sim.cli; print(any(m.split('.')[0] == 'puppet' for m in sys.modules))"
-    result = run(sys.executable, "-c", code)
+    result = run(sys.executable, "-P", "-c", code)
     assert result.stdout.strip() == "False"
