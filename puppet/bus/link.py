@@ -29,6 +29,10 @@ PROTOCOL = 2.0
 PORT_ERRORS = (serial.SerialException, OSError, termios.error)
 """What pyserial raises when the adapter vanishes: SerialException ('device reports readiness to
 read but returned no data'), OSError (EIO on write), termios.error (EIO from tcflush)."""
+LATE = "late"
+SILENT = "silent"
+STALLED = "stalled"
+"""Verdicts of ``BusLink.witness`` on a transaction that missed its deadline."""
 DEFAULT_LATENCY_MS = 1
 """The adapter latency the SDK's timeouts assume, ms. FTDI adapters (U2D2) need their
 latency_timer set to 1 (udev rule) for this to hold; hw_sim's pty answers at once."""
@@ -56,13 +60,33 @@ def set_latency_assumption(ms: int) -> None:
     sdk_port_handler.LATENCY_TIMER = int(ms)
 
 
-def _failure(code: int, ids: Iterable[int], instruction: str, detail: str = "") -> ServoError:
-    """An SDK result code -> the matching typed error."""
+def _failure(code: int, ids: Iterable[int], instruction: str, detail: str = "",
+             deadline: bool = False) -> ServoError:
+    """An SDK result code -> the matching typed error. ``deadline``: the SDK gave up because
+    its deadline passed (no reply, or a reply cut short), as opposed to a bad CRC."""
     text = dynamixel_sdk.PacketHandler(PROTOCOL).getTxRxResult(code)
     detail = f"{text}{'; ' + detail if detail else ''}"
     if code == rd.COMM_RX_TIMEOUT:
-        return ServoTimeout(ids, instruction, detail)
-    return ServoCorrupt(ids, instruction, detail)
+        error: ServoError = ServoTimeout(ids, instruction, detail)
+    else:
+        error = ServoCorrupt(ids, instruction, detail)
+    error.deadline = deadline or code == rd.COMM_RX_TIMEOUT
+    return error
+
+
+def _ping_packet(dxl_id: int) -> bytes:
+    """The Protocol 2.0 Ping instruction packet for one id (10 bytes, CRC included)."""
+    packet = [0xFF, 0xFF, 0xFD, 0x00, dxl_id, 3, 0, rd.INST_PING]
+    crc = dynamixel_sdk.PacketHandler(PROTOCOL).updateCRC(0, packet, len(packet))
+    return bytes(packet + [crc & 0xFF, crc >> 8])
+
+
+def _ping_reply_start(dxl_id: int) -> bytes:
+    """How a ping's status packet from ``dxl_id`` begins: header, id, length 7, STATUS."""
+    return bytes((0xFF, 0xFF, 0xFD, 0x00, dxl_id, 7, 0, 0x55))
+
+
+PING_REPLY_SIZE = 14
 
 
 @dataclass
@@ -151,9 +175,47 @@ class BusLink:
 
     def _fail(self, code: int, ids: Iterable[int], instruction: str, detail: str = "") -> ServoError:
         """The typed error for an SDK result code; a late reply may still be on its way, so the
-        next instruction first lets the line settle (``_transaction``)."""
+        next instruction first lets the line settle (``_transaction``). The SDK zeroes the
+        port's ``packet_timeout`` when its deadline fires: that tells a reply cut short by the
+        deadline (which may still be arriving) from one with a bad CRC."""
         self._unsettled = True
-        return _failure(code, ids, instruction, detail)
+        return _failure(code, ids, instruction, detail, deadline=self.port.packet_timeout == 0)
+
+    def witness(self, witness_id: int, timeout_s: float | None = None) -> str:
+        """Judge the transaction that just missed its deadline by the line's order.
+
+        On a loaded machine the kernel can hold a reply (or the request) for hundreds of ms
+        before either end sees it (the pseudo-terminal's and the USB serial driver's buffers
+        are pushed by a kernel worker that competes for the CPU), so a deadline alone cannot
+        tell a silent servo from a starved bus. The line is first-in first-out: ping
+        ``witness_id`` (a servo that answered recently) and read up to its reply. Bytes before
+        it -> LATE (the failed transaction's reply was on its way); the witness's reply first
+        -> SILENT (the failed servo really did not answer); nothing within ``timeout_s``
+        (default: the SDK's own deadline for a ping) -> STALLED (no proof either way).
+        Everything read is consumed; after STALLED the next instruction lets the line settle.
+        """
+        if timeout_s is None:
+            timeout_s = (2.0 * sdk_port_handler.LATENCY_TIMER + 2.0 + 0.01 * PING_REPLY_SIZE) / 1e3
+        tx = _ping_packet(witness_id)
+        start = _ping_reply_start(witness_id)
+        got = bytearray()
+        with self._transaction([witness_id], "ping (witness)", tx=False):
+            got += self.port.ser.read(self.port.ser.in_waiting or 0)
+            self.port.ser.write(tx)
+            deadline = time.monotonic() + timeout_s
+            while True:
+                at = got.find(start)
+                if at >= 0 and len(got) >= at + PING_REPLY_SIZE:
+                    break
+                if time.monotonic() > deadline:
+                    self._unsettled = True
+                    return STALLED
+                got += self.port.ser.read(max(1, self.port.ser.in_waiting))
+        before = bytes(got[:at])
+        if before.endswith(tx):  # a half-duplex adapter echoes the host's own bytes
+            before = before[: -len(tx)]
+        self._unsettled = len(got) > at + PING_REPLY_SIZE
+        return LATE if before else SILENT
 
     @contextlib.contextmanager
     def _transaction(self, ids: Iterable[int], instruction: str, tx: bool = True) -> Iterator[None]:
@@ -341,4 +403,4 @@ class BusLink:
 
 
 __all__ = ["BusLink", "GroupRead", "set_latency_assumption", "adapter_latency_ms", "DEFAULT_LATENCY_MS",
-           "PORT_ERRORS"]
+           "PORT_ERRORS", "LATE", "SILENT", "STALLED"]

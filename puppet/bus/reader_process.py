@@ -164,6 +164,11 @@ class ReaderProcess:
             self._take_message()
 
     @property
+    def produced(self) -> int:
+        """Readings the child has written so far (consumed or not)."""
+        return int(self._written[0]) if self._shm is not None else self._read
+
+    @property
     def alive(self) -> bool:
         return self._proc is not None and self._proc.is_alive()
 
