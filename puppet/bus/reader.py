@@ -124,7 +124,7 @@ class ServoReader:
         self.stall_limit_ns = int(stall_limit_s * 1e9)
         self.stalls = 0
         self._stalled = False           # this read() met a stalled line: spare further timeouts
-        self._opened_ns = 0
+        self._unproven_since: dict[int, int] = {}  # id -> first unproven timeout in a row (ns)
 
         self.ids = np.array(list(self.servos), dtype=np.int64)
         self.ids.setflags(write=False)
@@ -161,7 +161,6 @@ class ServoReader:
         """
         self.link.open()
         self._port_up = True
-        self._opened_ns = time.monotonic_ns()
         report = SetupReport()
         if broadcast_ping:
             found = self.link.broadcast_ping()
@@ -204,7 +203,7 @@ class ServoReader:
                 if tries < 3:
                     continue
                 if isinstance(exc, ServoTimeout) and not self._silence_proven(
-                        dxl_id, exc, time.monotonic_ns(), report.found):
+                        dxl_id, time.monotonic_ns(), report.found):
                     continue
                 self._mark_missing(dxl_id, exc)
                 report.missing.append(dxl_id)
@@ -215,8 +214,7 @@ class ServoReader:
         (or ``stall_limit_s`` passes): a starved machine must not make a servo missing."""
         for dxl_id in list(report.missing):
             while True:
-                silence = ServoTimeout([dxl_id], "ping", "no answer at setup")
-                if self._silence_proven(dxl_id, silence, time.monotonic_ns(), report.found):
+                if self._silence_proven(dxl_id, time.monotonic_ns(), report.found):
                     break
                 again = SetupReport()
                 identify(self.link, {dxl_id: self.servos[dxl_id]}, again)
@@ -322,7 +320,7 @@ class ServoReader:
         try:
             raw, error = self.link.read_with_status(dxl_id, ct.PRESENT_POSITION)
         except ServoError as exc:
-            if isinstance(exc, ServoTimeout) and not self._silence_proven(dxl_id, exc, now):
+            if isinstance(exc, ServoTimeout) and not self._silence_proven(dxl_id, now):
                 return
             self._failed(dxl_id, exc, now)
             return
@@ -333,22 +331,26 @@ class ServoReader:
             return
         self._accept(dxl_id, raw, now)
 
-    def _silence_proven(self, dxl_id: int, exc: ServoError, now: int, heard=None) -> bool:
-        """Whether the timeout ``exc`` of ``dxl_id`` is a proven silence (see the module doc):
-        a witness (a servo that answered, in ``heard`` or this reading, else the one heard
-        last) is pinged. False (counted in ``stalls``) when the line shows the reply was late
-        or cannot judge, unless the servo has been unheard for ``stall_limit_s``."""
+    def _silence_proven(self, dxl_id: int, now: int, heard=None) -> bool:
+        """Whether a timeout of ``dxl_id`` is a proven silence (see the module doc): a witness
+        (a servo that answered: in ``heard`` at setup, else ok in this reading or heard last)
+        is pinged. False (counted in ``stalls``) when the line shows the reply was late or
+        cannot judge, unless ``dxl_id``'s timeouts have gone unproven for ``stall_limit_s``."""
         witness = self._witness_for(dxl_id, heard)
         if witness is None or heard is None and self._stalled:
             verdict = STALLED
         else:
             verdict = self.link.witness(witness)
         if verdict == SILENT:
+            self._unproven_since.pop(dxl_id, None)
             return True
         self.stalls += 1
         self._stalled = verdict == STALLED
-        heard_ns = max(self.health[dxl_id].last_ok_ns, self._opened_ns)
-        return now - heard_ns > self.stall_limit_ns
+        since = self._unproven_since.setdefault(dxl_id, now)
+        if now - since > self.stall_limit_ns:
+            del self._unproven_since[dxl_id]
+            return True
+        return False
 
     def _witness_for(self, dxl_id: int, heard=None) -> int | None:
         """A servo other than ``dxl_id`` that answered: one in ``heard`` (setup) or ok in this
@@ -435,6 +437,7 @@ class ServoReader:
         h.consecutive_failures = 0
         h.corrupt_in_a_row = 0
         h.last_ok_ns = now
+        self._unproven_since.pop(dxl_id, None)
 
     def _track_jitter(self, h: hs.ServoHealth, k: int, value: int, t_ns: int) -> None:
         """Running mean of the error of a linear prediction from the last two good readings

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import click
 
-from puppet.cli.common import Null, make_sinks, print_summary, progress
+from puppet.cli.common import Null, fail, make_sinks, print_summary, progress
 
 
 @click.command()
@@ -26,8 +26,16 @@ def demo(out: str, seconds: float, faults: str | None, size: tuple[int, int], fp
     Example:
       puppet demo --seconds 5 --out demo.mp4
     """
+    from hw_sim.errors import FaultFileError
+    from hw_sim.faults import FaultSchedule
+
     from puppet.demo import run_demo
 
+    if faults is not None:  # checked before anything starts: a bad file is the user's to fix
+        try:
+            faults = FaultSchedule.from_file(faults)
+        except FaultFileError as err:
+            fail(str(err))
     bar, on_frame = progress(seconds, "demo")
     with bar if bar is not None else Null():
         summary, report = run_demo(seconds=seconds, faults=faults, width=size[0], height=size[1],

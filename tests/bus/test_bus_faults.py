@@ -208,7 +208,7 @@ def test_implausible_jump_is_held_then_taken_after_a_gap(sim, open_reader, read_
     # Kept failing, the servo is probed alone; after a gap its value is taken.
     reading = read_until(reader, lambda r: r.ok.all(), what="taken after the gap", seen=seen)
     assert reading.ticks[3] == 6500
-    assert all(r.ticks[3] == 4000 and not r.ok[3] for r in seen[:-1])
+    assert all(r.ticks[3] == 4000 for r in seen[:-1])   # held, never a wrong value
 
 
 def test_ticks_out_of_limits_are_flagged_not_taken(sim, open_reader, read_until):
