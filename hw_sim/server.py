@@ -266,7 +266,7 @@ class Server:
             t = line_free + ins.raw_len * self.byte_s
             for pkt, delay in replies:
                 t += delay + len(pkt) * self.byte_s
-                if not self._quiet_until(t):
+                if not self._quiet_until(t, t_rx):
                     # The host talks again before this reply's turn: the servos still waiting
                     # hear the new header and drop their replies (no late stale bytes).
                     self.counts["replies_abandoned"] += 1
@@ -275,16 +275,21 @@ class Server:
                 self.traffic.append((t - self.t0, "tx", pkt))
             line_free = t
 
-    def _quiet_until(self, t: float) -> bool:
+    def _quiet_until(self, t: float, t_rx: float) -> bool:
         """Wait until monotonic time ``t`` (select for most of it, spin the last 0.2 ms);
-        False as soon as the host sends new bytes."""
+        False as soon as the host sends new bytes before the reply's turn, unless they come
+        within INTER_BYTE_GAP_S of the instruction received at ``t_rx``: no host talks again
+        that soon (its own deadline is longer), so such bytes were queued behind it by a
+        starved kernel. Bytes seen only after the turn (this process was itself starved) may
+        have come at any time: the reply goes out. Either way the line stays in order."""
         master = self.master
         while True:
             rem = t - time.monotonic()
             if rem <= 0:
                 return True
             ready, _, _ = select.select([master], [], [], rem - 2e-4 if rem > 3e-4 else 0)
-            if ready:
+            now = time.monotonic()
+            if ready and t_rx + INTER_BYTE_GAP_S < now < t:
                 return False
 
     def _send(self, data: bytes) -> None:

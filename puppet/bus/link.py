@@ -89,6 +89,19 @@ def _ping_reply_start(dxl_id: int) -> bytes:
 PING_REPLY_SIZE = 14
 
 
+def _stale(rx: list, size: int) -> bool:
+    """A clean status packet whose data count is not ``size``: a late reply to another
+    instruction (a reply carrying an error number may have no data: it is not stale)."""
+    return not rx[p2.PKT_ERROR] & 0x7F and len(_status_data(rx)) != size
+
+
+def _status_data(rx: list) -> list:
+    """The data bytes of a status packet (all of them: the SDK would slice the asked-for count
+    and take the CRC for data when a shorter reply, e.g. a late one to another read, comes)."""
+    length = rx[p2.PKT_LENGTH_L] | (rx[p2.PKT_LENGTH_H] << 8)  # instruction, error, data, CRC
+    return rx[p2.PKT_PARAMETER0 + 1: p2.PKT_PARAMETER0 + 1 + max(0, length - 4)]
+
+
 @dataclass
 class GroupRead:
     """Result of one group read of one item.
@@ -136,6 +149,7 @@ class BusLink:
         set_latency_assumption(self.latency_ms)
         self.settle_s = (self.latency_ms + 1) / 1000.0
         self._unsettled = False
+        self._answered: dict[int, None] = {}  # servos that answered, oldest first: flush witnesses
         self.baud = int(baud)
         self.poll_block_s = float(poll_block_s)
         self.ph = dynamixel_sdk.PacketHandler(PROTOCOL)
@@ -179,6 +193,8 @@ class BusLink:
         port's ``packet_timeout`` when its deadline fires: that tells a reply cut short by the
         deadline (which may still be arriving) from one with a bad CRC."""
         self._unsettled = True
+        for dxl_id in ids:
+            self._answered.pop(dxl_id, None)
         return _failure(code, ids, instruction, detail, deadline=self.port.packet_timeout == 0)
 
     def witness(self, witness_id: int, timeout_s: float | None = None) -> str:
@@ -194,28 +210,54 @@ class BusLink:
         (default: the SDK's own deadline for a ping) -> STALLED (no proof either way).
         Everything read is consumed; after STALLED the next instruction lets the line settle.
         """
+        with self._transaction([witness_id], "ping (witness)", tx=False):
+            return self._witness(witness_id, timeout_s)
+
+    def _witness(self, witness_id: int, timeout_s: float | None = None) -> str:
         if timeout_s is None:
             timeout_s = (2.0 * sdk_port_handler.LATENCY_TIMER + 2.0 + 0.01 * PING_REPLY_SIZE) / 1e3
         tx = _ping_packet(witness_id)
         start = _ping_reply_start(witness_id)
         got = bytearray()
-        with self._transaction([witness_id], "ping (witness)", tx=False):
-            got += self.port.ser.read(self.port.ser.in_waiting or 0)
-            self.port.ser.write(tx)
-            deadline = time.monotonic() + timeout_s
-            while True:
-                at = got.find(start)
-                if at >= 0 and len(got) >= at + PING_REPLY_SIZE:
-                    break
-                if time.monotonic() > deadline:
-                    self._unsettled = True
-                    return STALLED
-                got += self.port.ser.read(max(1, self.port.ser.in_waiting))
+        got += self.port.ser.read(self.port.ser.in_waiting or 0)
+        self.port.ser.write(tx)
+        deadline = time.monotonic() + timeout_s
+        while True:
+            at = got.find(start)
+            if at >= 0 and len(got) >= at + PING_REPLY_SIZE:
+                break
+            if time.monotonic() > deadline:
+                self._unsettled = True
+                return STALLED
+            got += self.port.ser.read(max(1, self.port.ser.in_waiting))
         before = bytes(got[:at])
         if before.endswith(tx):  # a half-duplex adapter echoes the host's own bytes
             before = before[: -len(tx)]
         self._unsettled = len(got) > at + PING_REPLY_SIZE
         return LATE if before else SILENT
+
+    def _heard(self, dxl_id: int) -> None:
+        """``dxl_id`` answered cleanly: the newest flush witness."""
+        self._answered.pop(dxl_id, None)
+        self._answered[dxl_id] = None
+
+    def _settle(self, ids: Iterable[int], instruction: str) -> None:
+        """Before an instruction that follows a failed one: make sure no late reply is still on
+        its way (it would be taken for this instruction's answer: Protocol 2.0 has no sequence
+        numbers). With a servo that answered before, ``witness`` it (everything up to its reply
+        is read and dropped); if the line stays stalled, fail this instruction unsent
+        (ServoTimeout with ``line_stalled``). With none yet, wait ``settle_s`` and drop."""
+        if not self._answered:
+            self._unsettled = False
+            time.sleep(self.settle_s)
+            self.port.ser.reset_input_buffer()
+            return
+        witness = next(reversed(self._answered))
+        if self._witness(witness) == STALLED:
+            del self._answered[witness]  # it may have died since: the next flush asks another
+            error = ServoTimeout(ids, instruction, "not sent: the line is stalled (replies still pending)")
+            error.deadline = error.line_stalled = True
+            raise error
 
     @contextlib.contextmanager
     def _transaction(self, ids: Iterable[int], instruction: str, tx: bool = True) -> Iterator[None]:
@@ -229,9 +271,7 @@ class BusLink:
         self.port.is_using = False
         try:
             if tx and self._unsettled:
-                self._unsettled = False
-                time.sleep(self.settle_s)
-                self.port.ser.reset_input_buffer()
+                self._settle(ids, instruction)
             yield
         except PORT_ERRORS as exc:
             self.port.is_using = False
@@ -240,6 +280,15 @@ class BusLink:
             # The SDK indexes into replies without checking their length.
             self.port.is_using = False
             raise ServoCorrupt(ids, instruction, f"malformed reply ({type(exc).__name__} in the SDK)") from exc
+
+    def _receive(self, dxl_id: int, size: int) -> tuple[list, int]:
+        """Status packets until one from ``dxl_id`` that can answer a read of ``size`` bytes
+        (or the deadline already set): packets from others and late replies of another
+        size (e.g. to a ping) are skipped. -> (packet, SDK result code)."""
+        while True:
+            rx, code = self.ph.rxPacket(self.port, False)
+            if code != rd.COMM_SUCCESS or rx[p2.PKT_ID] == dxl_id and not _stale(rx, size):
+                return rx, code
 
     # ---- single-servo instructions -------------------------------------------------------
     def ping(self, dxl_id: int) -> tuple[int, int]:
@@ -259,6 +308,7 @@ class BusLink:
         if error & 0x7F or len(rx) != 14:
             raise ServoStatusError([dxl_id], "ping", describe_status_error(error)
                                    + f", {len(rx)}-byte reply (a ping reply has 14)", error=error)
+        self._heard(dxl_id)
         return rx[9] | (rx[10] << 8), rx[11]
 
     def broadcast_ping(self) -> dict[int, tuple[int, int]]:
@@ -276,13 +326,24 @@ class BusLink:
     def read_with_status(self, dxl_id: int, item: Item) -> tuple[int, int]:
         """Read one item -> (value, status error byte with its alert bit)."""
         instruction = f"read {item.name}"
+        tx = [0] * 14
+        tx[p2.PKT_ID] = dxl_id
+        tx[p2.PKT_LENGTH_L] = 7
+        tx[p2.PKT_INSTRUCTION] = rd.INST_READ
+        tx[p2.PKT_PARAMETER0: p2.PKT_PARAMETER0 + 4] = [
+            item.address & 0xFF, item.address >> 8, item.size & 0xFF, item.size >> 8]
         with self._transaction([dxl_id], instruction):
-            data, code, error = self.ph.readTxRx(self.port, dxl_id, item.address, item.size)
+            rx, code, error = self.ph.txRxPacket(self.port, tx)
+            if code == rd.COMM_SUCCESS and _stale(rx, item.size):
+                rx, code = self._receive(dxl_id, item.size)
+                error = rx[p2.PKT_ERROR] if code == rd.COMM_SUCCESS else 0
         if code != rd.COMM_SUCCESS:
             raise self._fail(code, [dxl_id], instruction)
+        data = _status_data(rx)
         if error & 0x7F or len(data) != item.size:
             raise ServoStatusError([dxl_id], instruction, describe_status_error(error)
                                    + f", {len(data)} of {item.size} data bytes", error=error)
+        self._heard(dxl_id)
         return item.decode(data), int(error)
 
     def write(self, dxl_id: int, item: Item, value: int) -> None:
@@ -322,8 +383,14 @@ class BusLink:
         """
         out = GroupRead()
         instruction = "sync_read"
-        with self._transaction(ids, instruction):
-            code = self.ph.syncReadTx(self.port, item.address, item.size, ids, len(ids), False)
+        try:
+            with self._transaction(ids, instruction):
+                code = self.ph.syncReadTx(self.port, item.address, item.size, ids, len(ids), False)
+        except ServoTimeout as exc:
+            if not exc.line_stalled:
+                raise
+            out.failed = dict.fromkeys(ids, exc)
+            return out
         if code != rd.COMM_SUCCESS:
             out.failed = dict.fromkeys(ids, self._fail(code, ids, instruction))
             return out
@@ -331,10 +398,11 @@ class BusLink:
             # The deadline is shared by all replies; after it expires, each readRx returns at
             # once with whatever is already buffered.
             with self._transaction([dxl_id], instruction, tx=False):
-                data, code, error = self.ph.readRx(self.port, dxl_id, item.size)
+                rx, code = self._receive(dxl_id, item.size)
             if code != rd.COMM_SUCCESS:
                 out.failed[dxl_id] = self._fail(code, [dxl_id], instruction)
                 continue
+            data, error = _status_data(rx), rx[p2.PKT_ERROR]
             out.errors[dxl_id] = int(error)
             if error & 0x7F or len(data) != item.size:
                 out.failed[dxl_id] = ServoStatusError(
@@ -342,6 +410,7 @@ class BusLink:
                     describe_status_error(error) + f", {len(data)} of {item.size} data bytes", error=error)
                 continue
             out.values[dxl_id] = item.decode(data)
+            self._heard(dxl_id)
         return out
 
     def fast_sync_read(self, ids: list[int], item: Item) -> GroupRead:
@@ -352,10 +421,16 @@ class BusLink:
         """
         out = GroupRead()
         instruction = "fast_sync_read"
-        with self._transaction(ids, instruction):
-            code = self.ph.syncReadTx(self.port, item.address, item.size, ids, len(ids), True)
-            if code == rd.COMM_SUCCESS:
-                rx, code = self.ph.rxPacket(self.port, True)
+        try:
+            with self._transaction(ids, instruction):
+                code = self.ph.syncReadTx(self.port, item.address, item.size, ids, len(ids), True)
+                if code == rd.COMM_SUCCESS:
+                    rx, code = self.ph.rxPacket(self.port, True)
+        except ServoTimeout as exc:
+            if not exc.line_stalled:
+                raise
+            out.failed = dict.fromkeys(ids, exc)
+            return out
         if code != rd.COMM_SUCCESS:
             err = self._fail(code, ids, instruction)
             out.failed = dict.fromkeys(ids, err)
@@ -385,6 +460,7 @@ class BusLink:
                         [dxl_id], instruction, describe_status_error(error), error=error)
                 else:
                     out.values[dxl_id] = item.decode(rx[pos + 2: pos + 2 + item.size])
+                    self._heard(dxl_id)
             crc = self.ph.updateCRC(crc, rx[pos + seg - 2: pos + seg], 2)
             pos += seg
         return out

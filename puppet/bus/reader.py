@@ -89,7 +89,7 @@ class ServoReader:
         max_speed_ticks_s: float = 20000.0,
         jump_window_s: float = 0.1,
         reboot_holdoff_s: float = 2.0,
-        stall_limit_s: float = 2.0,
+        stall_limit_s: float = 5.0,
     ):
         if not servos:
             raise ValueError("ServoReader: the servo map is empty")
@@ -202,8 +202,8 @@ class ServoReader:
                 tries += 1
                 if tries < 3:
                     continue
-                if isinstance(exc, ServoTimeout) and not self._silence_proven(
-                        dxl_id, time.monotonic_ns(), report.found):
+                if exc.deadline and not self._silence_proven(
+                        dxl_id, time.monotonic_ns(), report.found, stalled=exc.line_stalled):
                     continue
                 self._mark_missing(dxl_id, exc)
                 report.missing.append(dxl_id)
@@ -211,11 +211,17 @@ class ServoReader:
 
     def _identify_again(self, report: SetupReport) -> None:
         """Ping again each servo that did not answer at setup until the line proves it silent
-        (or ``stall_limit_s`` passes): a starved machine must not make a servo missing."""
+        (or its timeouts stay unproven for ``stall_limit_s``): a starved machine must not make
+        a servo missing. Only a ping that was sent and timed out can be proven silent."""
         for dxl_id in list(report.missing):
             while True:
-                if self._silence_proven(dxl_id, time.monotonic_ns(), report.found):
-                    break
+                try:
+                    self.link.ping(dxl_id)
+                except ServoError as exc:
+                    if not exc.deadline or self._silence_proven(
+                            dxl_id, time.monotonic_ns(), report.found, stalled=exc.line_stalled):
+                        break  # silent, or answering but not cleanly: missing, as identify found
+                    continue
                 again = SetupReport()
                 identify(self.link, {dxl_id: self.servos[dxl_id]}, again)
                 if dxl_id in again.found:
@@ -320,7 +326,7 @@ class ServoReader:
         try:
             raw, error = self.link.read_with_status(dxl_id, ct.PRESENT_POSITION)
         except ServoError as exc:
-            if isinstance(exc, ServoTimeout) and not self._silence_proven(dxl_id, now):
+            if exc.deadline and not self._silence_proven(dxl_id, now, stalled=exc.line_stalled):
                 return
             self._failed(dxl_id, exc, now)
             return
@@ -331,13 +337,13 @@ class ServoReader:
             return
         self._accept(dxl_id, raw, now)
 
-    def _silence_proven(self, dxl_id: int, now: int, heard=None) -> bool:
+    def _silence_proven(self, dxl_id: int, now: int, heard=None, stalled: bool = False) -> bool:
         """Whether a timeout of ``dxl_id`` is a proven silence (see the module doc): a witness
         (a servo that answered: in ``heard`` at setup, else ok in this reading or heard last)
         is pinged. False (counted in ``stalls``) when the line shows the reply was late or
         cannot judge, unless ``dxl_id``'s timeouts have gone unproven for ``stall_limit_s``."""
         witness = self._witness_for(dxl_id, heard)
-        if witness is None or heard is None and self._stalled:
+        if stalled or witness is None or heard is None and self._stalled:
             verdict = STALLED
         else:
             verdict = self.link.witness(witness)
@@ -543,8 +549,9 @@ class ServoReader:
             self._on_hardware_error(dxl_id, bits)
         t0 = time.monotonic_ns()
         ticks = self.link.sync_read(ids, ct.REALTIME_TICK)
+        t1 = time.monotonic_ns()
         for dxl_id, tick in ticks.values.items():
-            self._check_tick(dxl_id, tick, t0)
+            self._check_tick(dxl_id, tick, t0, t1)
 
     def _on_hardware_error(self, dxl_id: int, bits: int) -> None:
         """Book Hardware Error Status ``bits``; reboot a sensor with a latched error when
@@ -566,10 +573,14 @@ class ServoReader:
             self._last_reboot_ns[dxl_id] = now
             self.reboot(dxl_id)
 
-    def _check_tick(self, dxl_id: int, tick: int, t_ns: int) -> None:
-        """A Realtime Tick (ms, wraps at 32768) behind its expected value means a reboot."""
+    def _check_tick(self, dxl_id: int, tick: int, t_ns: int, t_reply_ns: int) -> None:
+        """A Realtime Tick (ms, wraps at 32768) behind its expected value means a reboot.
+
+        The servo sampled ``tick`` between the request (``t_ns``) and the reply (``t_reply_ns``);
+        a loaded machine can hold a reply long, so the tick is expected to have advanced at
+        least from the previous reply's time to this request's, never more."""
         seen = self._tick_seen.get(dxl_id)
-        self._tick_seen[dxl_id] = (tick, t_ns)
+        self._tick_seen[dxl_id] = (tick, t_reply_ns)
         if seen is None:
             return
         elapsed_ms = (t_ns - seen[1]) / 1e6
