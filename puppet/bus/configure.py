@@ -96,7 +96,7 @@ def ensure_status_return(link: BusLink, dxl_id: int, changes: list[Change]) -> N
     except ServoTimeout:
         # A pinged servo that ignores reads is at level 0, or its reply is only late (a loaded
         # machine): it answers pings, so a ping tells, by what arrives before its reply.
-        if link.witness(dxl_id) != SILENT:
+        if link.witness(dxl_id, ping=True) != SILENT:
             raise
         level = 0
     if level >= 2:

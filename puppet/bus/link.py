@@ -74,19 +74,33 @@ def _failure(code: int, ids: Iterable[int], instruction: str, detail: str = "",
     return error
 
 
+WITNESS_SIZES = range(5, 21)
+"""Data sizes of witness reads (of the control table from address 0, present on every model):
+each outstanding witness of a servo reads a size of its own, so a late reply to an earlier
+witness is never taken for this one's. Sizes below 5 are left to the reader's own reads and to
+ping replies (3 data bytes)."""
+
+
 def _ping_packet(dxl_id: int) -> bytes:
-    """The Protocol 2.0 Ping instruction packet for one id (10 bytes, CRC included)."""
+    """The Protocol 2.0 Ping instruction packet for one id (10 bytes, CRC included); its status
+    carries 3 data bytes (model number, firmware)."""
     packet = [0xFF, 0xFF, 0xFD, 0x00, dxl_id, 3, 0, rd.INST_PING]
     crc = dynamixel_sdk.PacketHandler(PROTOCOL).updateCRC(0, packet, len(packet))
     return bytes(packet + [crc & 0xFF, crc >> 8])
 
 
-def _ping_reply_start(dxl_id: int) -> bytes:
-    """How a ping's status packet from ``dxl_id`` begins: header, id, length 7, STATUS."""
-    return bytes((0xFF, 0xFF, 0xFD, 0x00, dxl_id, 7, 0, 0x55))
+def _read_packet(dxl_id: int, address: int, size: int) -> bytes:
+    """The Protocol 2.0 Read instruction packet (14 bytes, CRC included)."""
+    packet = [0xFF, 0xFF, 0xFD, 0x00, dxl_id, 7, 0, rd.INST_READ,
+              address & 0xFF, address >> 8, size & 0xFF, size >> 8]
+    crc = dynamixel_sdk.PacketHandler(PROTOCOL).updateCRC(0, packet, len(packet))
+    return bytes(packet + [crc & 0xFF, crc >> 8])
 
 
-PING_REPLY_SIZE = 14
+def _status_start(dxl_id: int, size: int) -> bytes:
+    """How a status packet from ``dxl_id`` carrying ``size`` data bytes begins."""
+    length = size + 4
+    return bytes((0xFF, 0xFF, 0xFD, 0x00, dxl_id, length & 0xFF, length >> 8, 0x55))
 
 
 def _stale(rx: list, size: int) -> bool:
@@ -150,6 +164,7 @@ class BusLink:
         self.settle_s = (self.latency_ms + 1) / 1000.0
         self._unsettled = False
         self._answered: dict[int, None] = {}  # servos that answered, oldest first: flush witnesses
+        self._witness_pending: dict[int, set[int]] = {}  # id -> sizes of unanswered witness reads
         self.baud = int(baud)
         self.poll_block_s = float(poll_block_s)
         self.ph = dynamixel_sdk.PacketHandler(PROTOCOL)
@@ -197,43 +212,55 @@ class BusLink:
             self._answered.pop(dxl_id, None)
         return _failure(code, ids, instruction, detail, deadline=self.port.packet_timeout == 0)
 
-    def witness(self, witness_id: int, timeout_s: float | None = None) -> str:
+    def witness(self, witness_id: int, timeout_s: float | None = None, ping: bool = False) -> str:
         """Judge the transaction that just missed its deadline by the line's order.
 
         On a loaded machine the kernel can hold a reply (or the request) for hundreds of ms
         before either end sees it (the pseudo-terminal's and the USB serial driver's buffers
         are pushed by a kernel worker that competes for the CPU), so a deadline alone cannot
-        tell a silent servo from a starved bus. The line is first-in first-out: ping
-        ``witness_id`` (a servo that answered recently) and read up to its reply. Bytes before
+        tell a silent servo from a starved bus. The line is first-in first-out: ask
+        ``witness_id`` (a servo that answered recently) for a read of a size no earlier,
+        unanswered witness asked (``WITNESS_SIZES``) and read up to its reply. Bytes before
         it -> LATE (the failed transaction's reply was on its way); the witness's reply first
         -> SILENT (the failed servo really did not answer); nothing within ``timeout_s``
         (default: the SDK's own deadline for a ping) -> STALLED (no proof either way).
         Everything read is consumed; after STALLED the next instruction lets the line settle.
+        ``ping``: ask with a ping instead (for a servo that answers nothing else; a late
+        reply to an earlier ping would pass for its answer).
         """
-        with self._transaction([witness_id], "ping (witness)", tx=False):
-            return self._witness(witness_id, timeout_s)
+        with self._transaction([witness_id], "witness", tx=False):
+            return self._witness(witness_id, timeout_s, ping)
 
-    def _witness(self, witness_id: int, timeout_s: float | None = None) -> str:
+    def _witness(self, witness_id: int, timeout_s: float | None = None, ping: bool = False) -> str:
+        pending = self._witness_pending.setdefault(witness_id, set())
+        size = 3 if ping else next((n for n in WITNESS_SIZES if n not in pending), None)
+        if size is None:  # every size still awaits its reply: the line is stalled
+            self._unsettled = True
+            return STALLED
+        reply_size = size + 11
         if timeout_s is None:
-            timeout_s = (2.0 * sdk_port_handler.LATENCY_TIMER + 2.0 + 0.01 * PING_REPLY_SIZE) / 1e3
-        tx = _ping_packet(witness_id)
-        start = _ping_reply_start(witness_id)
+            timeout_s = (2.0 * sdk_port_handler.LATENCY_TIMER + 2.0 + 0.01 * reply_size) / 1e3
+        tx = _ping_packet(witness_id) if ping else _read_packet(witness_id, 0, size)
+        start = _status_start(witness_id, size)
         got = bytearray()
         got += self.port.ser.read(self.port.ser.in_waiting or 0)
         self.port.ser.write(tx)
         deadline = time.monotonic() + timeout_s
         while True:
             at = got.find(start)
-            if at >= 0 and len(got) >= at + PING_REPLY_SIZE:
+            if at >= 0 and len(got) >= at + reply_size:
                 break
             if time.monotonic() > deadline:
                 self._unsettled = True
+                if not ping:
+                    pending.add(size)
                 return STALLED
             got += self.port.ser.read(max(1, self.port.ser.in_waiting))
         before = bytes(got[:at])
         if before.endswith(tx):  # a half-duplex adapter echoes the host's own bytes
             before = before[: -len(tx)]
-        self._unsettled = len(got) > at + PING_REPLY_SIZE
+        pending.clear()  # the line is in order: every earlier witness reply came before this one
+        self._unsettled = len(got) > at + reply_size
         return LATE if before else SILENT
 
     def _heard(self, dxl_id: int) -> None:
