@@ -128,6 +128,7 @@ class ReaderProcess:
         self._t_ns, self._ticks, self._ok, self._written = _ring_arrays(self._shm.buf, self.slots, k)
         self._written[0] = 0
         self._events, child_events = self._ctx.Pipe(duplex=False)
+        self._events_closed = False
         child_commands, self._commands = self._ctx.Pipe(duplex=False)
         self._stop = self._ctx.Event()
         self._proc = self._ctx.Process(
@@ -138,7 +139,7 @@ class ReaderProcess:
         deadline = time.monotonic() + timeout_s
         while self.report is None:
             remaining = deadline - time.monotonic()
-            if remaining <= 0 or not self._proc.is_alive() and not self._events.poll():
+            if remaining <= 0 or self._events_closed or not self._proc.is_alive() and not self._events.poll():
                 self.stop()
                 raise ReaderProcessError(f"{self.port}: the reader process did not start")
             if self._events.poll(min(remaining, 0.1)):
@@ -148,7 +149,8 @@ class ReaderProcess:
     def _take_message(self) -> None:
         try:
             kind, payload = self._events.recv()
-        except EOFError:
+        except (EOFError, OSError):
+            self._events_closed = True  # the child is gone: its end of the pipe closed
             return
         if kind == "report":
             self.report = payload
@@ -160,7 +162,7 @@ class ReaderProcess:
             raise ReaderProcessError(f"{self.port}: {payload}")
 
     def _poll_events(self) -> None:
-        while self._events.poll():
+        while not self._events_closed and self._events.poll():
             self._take_message()
 
     @property

@@ -193,3 +193,87 @@ def _synthetic_take(path):
             ticks += rng.integers(-3, 3, k).astype(np.int32)
             writer.write(Reading(i * 25_000_000, rig.servo_map.ids, ticks, np.ones(k, bool)))
     return path
+
+
+def _children(pid):
+    """Pids of the direct children of ``pid`` (Linux /proc)."""
+    try:
+        with open(f"/proc/{pid}/task/{pid}/children") as f:
+            return [int(x) for x in f.read().split()]
+    except OSError:
+        return []
+
+
+def _cmdline(pid):
+    try:
+        with open(f"/proc/{pid}/cmdline", "rb") as f:
+            return f.read().replace(b"\0", b" ").decode()
+    except OSError:
+        return ""
+
+
+def test_reader_process_dying_mid_run_is_a_clean_error(tmp_path, wait_until):
+    take, video = tmp_path / "live.mcap", tmp_path / "live.mp4"
+    with hw_sim.serve(_models(), motion="wave") as bus:
+        proc = subprocess.Popen(["puppet", "live", "--rig", str(BUILTIN_RIG), "--port", bus.link,
+                                 "--record", str(take), "--out", str(video)],
+                                stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        try:
+            def reader():  # the bus reader: a spawned child that is not the resource tracker
+                return next((c for c in _children(proc.pid) if "spawn_main" in _cmdline(c)
+                             and "resource_tracker" not in _cmdline(c)), None)
+
+            def recording():
+                try:
+                    return len(TakeReader(take)) > 0
+                except (OSError, TakeError):
+                    return False
+
+            pid = wait_until(reader, timeout=120, what="the reader process")
+            wait_until(recording, timeout=120, what="readings in the take")
+            os.kill(pid, signal.SIGKILL)
+            _, stderr = proc.communicate(timeout=120)
+        finally:
+            if proc.poll() is None:
+                proc.kill()
+                proc.wait()
+    result = subprocess.CompletedProcess(proc.args, proc.returncode, "", stderr)
+    assert_clean_error(result, "reader process stopped")
+    assert len(TakeReader(take)) > 0                     # the take was closed, readable
+    assert imageio_ffmpeg.count_frames_and_secs(str(video))[0] >= 1   # the video was finished
+
+
+def test_calibrate_names_the_servo_the_bus_cannot_read(tmp_path):
+    models = _models()
+    gone = sorted(models)[3]
+    cal = tmp_path / "cal.toml"
+    with hw_sim.serve({i: m for i, m in models.items() if i != gone}) as bus:
+        port = bus.port
+        result = run("calibrate", "--rig", BUILTIN_RIG, "--port", port, "--out", cal)
+    line = assert_clean_error(result, f"servo {gone} ", port)
+    assert "did not answer" in line
+    assert not cal.exists()
+
+
+def test_no_egl_is_a_clean_error_naming_the_packages(tmp_path):
+    # glvnd finds no EGL vendor library: as on a machine without Mesa's EGL.
+    env = dict(os.environ, __EGL_VENDOR_LIBRARY_FILENAMES=str(tmp_path / "none.json"))
+    result = subprocess.run(["puppet", "demo", "--seconds", "1", "--out", str(tmp_path / "d.mp4")],
+                            capture_output=True, text=True, timeout=300, env=env)
+    assert_clean_error(result, "EGL", "libegl1", "libgl1-mesa-dri")
+    assert not (tmp_path / "d.mp4").exists()
+
+
+def test_a_frames_folder_that_cannot_be_written_is_a_clean_error(tmp_path):
+    blocker = tmp_path / "a-file"
+    blocker.write_text("not a folder")
+    cases = [blocker / "frames"]
+    if os.geteuid() != 0:  # root writes into read-only folders: that case only for a user
+        read_only = tmp_path / "read-only"
+        read_only.mkdir()
+        read_only.chmod(0o555)
+        cases.append(read_only / "frames")
+    with hw_sim.serve(_models(), motion="wave") as bus:
+        for frames in cases:
+            result = run("live", "--rig", BUILTIN_RIG, "--port", bus.link, "--seconds", 1, "--frames", frames)
+            assert_clean_error(result, frames)
