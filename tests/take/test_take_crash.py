@@ -27,10 +27,17 @@ def test_sigkill_mid_recording_keeps_everything_written(tmp_path, background):
     child = subprocess.Popen(args, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
     buf = b""
     try:
-        # Wait (generously, CI is loaded) until the child has reported 60 readings, then kill:
-        # a count, not a duration (a loaded machine records fewer per second).
+        # Wait (generously, CI is loaded) until the child has reported 60 readings, the first
+        # one 300 ms old or more, then kill: a count, not a duration (a loaded machine records
+        # fewer per second).
         deadline = time.monotonic() + 120.0
-        while buf.count(b"\n") < 60:
+
+        def enough():
+            lines = buf.split(b"\n")
+            return (len(lines) > 60 and
+                    int(lines[0].split()[1]) <= time.monotonic_ns() - 300_000_000)
+
+        while not enough():
             now = time.monotonic()
             assert now < deadline, f"child wrote too little: {child.stderr.read1(4096)!r}"
             ready, _, _ = select.select([child.stdout], [], [], 0.01)
