@@ -133,3 +133,39 @@ def test_valid_lines_still_parse(tmp_path, line):
     path = tmp_path / "ok.txt"
     path.write_text(line + "\n")
     assert len(FaultSchedule.from_file(path)) == 1
+
+
+def test_seeded_mutations_parse_or_fail_cleanly(tmp_path):
+    """Numbers and words of valid lines replaced at random: every file either parses into
+    faults whose numbers are all finite, or fails with a FaultFileError naming file and line."""
+    import math
+
+    from hw_sim.errors import FaultFileError
+
+    rng = random.Random(SEED)
+    valid = ["0.5 drop ids=3 for=0.2 p=0.5", "1.0 power_cycle ids=2 for=0.3", "2 unplug for=0.5",
+             "3.0 hardware_error ids=4 bits=0x20", "4.0 noise ids=1-4,7 amplitude=3",
+             "0.1 truncate ids=2 keep=4", "0.2 duplicate_id ids=2 offset=100", "0.3 error_status error=7"]
+    junk = ["nan", "inf", "-inf", "-1", "1e999", "0x", "", "=", "9" * 40, "1-", "ids", "0.5s", "\t"]
+    failed = 0
+    for n in range(200):
+        words = rng.choice(valid).split()
+        k = rng.randrange(len(words))
+        key, eq, _ = words[k].partition("=")
+        words[k] = f"{key}={rng.choice(junk)}" if eq else rng.choice(junk)
+        lines = rng.sample(valid, 2)
+        at = rng.randint(0, 2)
+        lines.insert(at, " ".join(words))
+        path = tmp_path / f"m{n:03d}.txt"
+        path.write_text("\n".join(lines) + "\n")
+        try:
+            schedule = FaultSchedule.from_file(path)
+        except FaultFileError as err:
+            failed += 1
+            assert str(err).startswith(f"{path}:{at + 1}: "), str(err)
+            continue
+        for fault in schedule.faults:
+            numbers = [fault.start_s, fault.duration_s or 0.0]
+            numbers += [v for v in fault.params.values() if isinstance(v, (int, float))]
+            assert all(math.isfinite(v) for v in numbers), fault
+    assert failed >= 100   # most mutations break the line
