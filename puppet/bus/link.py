@@ -223,7 +223,7 @@ class BusLink:
         unanswered witness asked (``WITNESS_SIZES``) and read up to its reply. Bytes before
         it -> LATE (the failed transaction's reply was on its way); the witness's reply first
         -> SILENT (the failed servo really did not answer); nothing within ``timeout_s``
-        (default: the SDK's own deadline for a ping) -> STALLED (no proof either way).
+        (default: the SDK's own deadline for that reply) -> STALLED (no proof either way).
         Everything read is consumed; after STALLED the next instruction lets the line settle.
         ``ping``: ask with a ping instead (for a servo that answers nothing else; a late
         reply to an earlier ping would pass for its answer).

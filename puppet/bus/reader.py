@@ -9,7 +9,7 @@ Per ``read()``:
    in a row leaves the group read: it is then probed alone every ``probe_period_s``, so a dead
    servo costs the others one timeout per probe, not one per frame. A timeout is booked as a
    failure only once the line proves the servo silent (``BusLink.witness``: a servo that
-   answered is pinged; its reply arriving with nothing before it proves the silence). On a
+   answered is asked for a read; its reply arriving with nothing before it proves the silence). On a
    starved machine the kernel can hold replies for hundreds of ms: a late or unproven
    timeout leaves the reading flagged for that servo (its last good value held) but books
    nothing, unless the servo has been unheard for ``stall_limit_s`` (a whole bus gone quiet
@@ -340,7 +340,7 @@ class ServoReader:
     def _silence_proven(self, dxl_id: int, now: int, heard=None, stalled: bool = False) -> bool:
         """Whether a timeout of ``dxl_id`` is a proven silence (see the module doc): a witness
         (a servo that answered: in ``heard`` at setup, else ok in this reading or heard last)
-        is pinged. False (counted in ``stalls``) when the line shows the reply was late or
+        is asked for a read. False (counted in ``stalls``) when the line shows the reply was late or
         cannot judge, unless ``dxl_id``'s timeouts have gone unproven for ``stall_limit_s``."""
         witness = self._witness_for(dxl_id, heard)
         if stalled or witness is None or heard is None and self._stalled:
