@@ -74,8 +74,14 @@ def calibrate(rig_path: str, port: str, baud: int, out: str | None, guided: bool
         fail(f"{rig_path}: the rig names no calibration file; pass --out FILE")
     reader = ServoReader(port, rig.servo_map.models, baud=baud)
     try:
-        print_setup(reader.open(), port)
-        reading = reader.read_clean(samples=9, timeout_s=3.0)
+        report = reader.open()
+        if report.missing:
+            names = ", ".join(f"{i} ({rig.servo_map.models[i]})" for i in report.missing)
+            fail(f"port {port}: servo{'s' if len(report.missing) > 1 else ''} {names} of {rig_path} "
+                 "did not answer: check its power, cable and id; nothing was written")
+        print_setup(report, port)
+        # generous: a loaded machine may hold replies; a servo that never reads is named
+        reading = reader.read_clean(samples=9, timeout_s=15.0)
     except BusError as err:
         fail(f"port {port}: {err}")
     finally:
