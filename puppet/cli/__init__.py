@@ -58,7 +58,7 @@ def main() -> None:
       puppet calibrate --rig my.toml --port /dev/ttyUSB0
       puppet live --rig my.toml --port /dev/ttyUSB0 --record take.mcap --out live.mp4
       puppet play take.mcap --out take.mp4 --speed 0.5
-      puppet export take.mcap --pc2 mesh.pc2 --bvh skeleton.bvh
+      puppet export take.mcap --gltf anim.glb --pc2 mesh.pc2 --up z --fps 24
     """
 
 

@@ -160,10 +160,12 @@ def open_take(take: str, rig_path: str | None):
     if rig_path is None:
         rig = load_rig(None)
         if meta.rig_name != rig.name:
-            fail(f"{take}: recorded with rig {meta.rig_name!r}; pass --rig with that rig's file")
+            fail(f"{take}: take from another rig: recorded with rig {meta.rig_name!r}, not the "
+                 f"built-in rig {rig.name!r}; pass --rig with that rig's file")
     else:
         rig = load_rig(rig_path)
-    reader.check_rig([int(i) for i in rig.servo_map.ids], dict(rig.servo_map.models))
+    reader.check_rig([int(i) for i in rig.servo_map.ids], dict(rig.servo_map.models),
+                     rig_name=rig.name)
     try:  # replay with the calibration the take was recorded with
         zero = json.loads(meta.calibration_text).get("zero_ticks", {}) if meta.calibration_text else {}
         if zero:

@@ -1,67 +1,62 @@
-"""``puppet export``: a take into files for other tools (PC2 point cache, BVH skeleton)."""
+"""``puppet export``: a take into files for other tools (glTF, USD, PC2, BVH)."""
 
 from __future__ import annotations
 
+import json
 import sys
 
 import click
-import numpy as np
 
-from puppet.cli.common import fail, open_take
+from puppet.cli.common import open_take
 
 
 @click.command()
 @click.argument("take")
 @click.option("--rig", "rig_path", default=None, help="Rig to solve on (default: the take's).")
-@click.option("--pc2", default=None, help="Point cache of the deformed mesh (Blender Mesh Cache).")
-@click.option("--bvh", default=None, help="Sensed joint rotations as BVH.")
-@click.option("--fps", default=30.0, show_default=True, help="Samples per second.")
-def export(take: str, rig_path: str | None, pc2: str | None, bvh: str | None, fps: float) -> None:
-    """Export a take as a mesh point cache (PC2) and a BVH skeleton.
+@click.option("--gltf", default=None, help="glTF binary (.glb): the character, its skin and every "
+                                           "joint animated.")
+@click.option("--usd", default=None, help="USD (.usdc/.usda): exact mesh points per frame and the "
+                                          "skeleton (UsdSkel).")
+@click.option("--pc2", default=None, help="Point cache of the deformed mesh in the character "
+                                          "file's vertex order (Blender Mesh Cache).")
+@click.option("--bvh", default=None, help="Every joint as BVH (names made BVH-safe).")
+@click.option("--fps", default="30", show_default=True,
+              help="Frames per second, resampled from the reading times (any number > 0).")
+@click.option("--up", type=click.Choice(["y", "z"]), default="y", show_default=True,
+              help="Up axis of the PC2 points: z for Blender's Mesh Cache.")
+@click.option("--json", "as_json", is_flag=True, help="Print the report as one JSON line.")
+def export(take: str, rig_path: str | None, gltf: str | None, usd: str | None, pc2: str | None,
+           bvh: str | None, fps: str, up: str, as_json: bool) -> None:
+    """Export a take; frame 1 is the take's first reading in every format.
 
     \b
-    Example:
-      puppet export take.mcap --pc2 mesh.pc2 --bvh skeleton.bvh
+    Examples:
+      puppet export take.mcap --gltf anim.glb --fps 24
+      puppet export take.mcap --usd anim.usdc --pc2 mesh.pc2 --up z --bvh skeleton.bvh
     """
-    from puppet.export import BvhWriter, Pc2Writer
-    from puppet.pipeline import Pipeline, run_frames
-    from puppet.take import PlaybackClock
+    from puppet.export import ExportError, Outputs, export_take
+    from puppet.export.resample import check_fps
 
-    if not pc2 and not bvh:
-        fail("nothing to write: give --pc2 FILE and/or --bvh FILE")
+    fps_value = check_fps(fps)
+    outputs = Outputs(gltf=gltf, usd=usd, pc2=pc2, bvh=bvh)
+    if not outputs.items():
+        raise ExportError("export", "nothing to write: give --gltf, --usd, --pc2 and/or --bvh FILE")
     rig, reader = open_take(take, rig_path)
-    sk = rig.skeleton
-    ids = [int(i) for i in rig.servo_map.ids]
-    writers = []
+    bar = None
+
+    def progress(done: int, total: int) -> None:
+        nonlocal bar
+        if bar is None:
+            bar = click.progressbar(length=total, label="export", file=sys.stderr)
+            bar.__enter__()
+        bar.update(1)
+
     try:
-        with Pipeline(rig, render=False) as pipeline:
-            if pc2:
-                cache = Pc2Writer(pc2, len(rig.V), sample_rate=1.0)
-                writers.append(cache)
-            if bvh:
-                offsets = sk.heads - np.where(sk.parents[:, None] >= 0, sk.heads[sk.parents], 0.0)
-                motion = BvhWriter(bvh, names=list(sk.names), parents=sk.parents, offsets=offsets,
-                                   frame_time=1.0 / fps)
-                writers.append(motion)
-                rotations = np.empty((sk.bone_count, 3, 3))
-
-            clock = PlaybackClock(reader.readings(ids=ids), fps=fps)
-            bar = click.progressbar(length=clock.frame_count(reader.t_last_ns - reader.t_first_ns),
-                                    label="export", file=sys.stderr)
-
-            def write(p: Pipeline) -> None:
-                bar.update(1)
-                if pc2:
-                    cache.write(p.deformed().astype(np.float32))
-                if bvh:
-                    motion.write(sk.joint_rotations(p.angles, rotations))
-
-            with bar:
-                summary = run_frames(pipeline, (f.reading for f in clock), on_frame=write)
+        report = export_take(rig, reader, outputs, fps=fps_value, up=up, progress=progress)
     finally:
-        for w in writers:
-            w.close()
-    click.echo(f"frames: {summary.frames}" + (f"\npc2: {pc2}" if pc2 else "") + (f"\nbvh: {bvh}" if bvh else ""))
+        if bar is not None:
+            bar.__exit__(None, None, None)
+    click.echo(json.dumps(report.as_dict()) if as_json else report.text())
 
 
 COMMANDS = (export,)

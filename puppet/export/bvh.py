@@ -33,6 +33,10 @@ class BvhWriter:
     end_sites: (b, 3) float or None: End Site offset of each leaf joint (rows of other joints
                are unused); None: a leaf's End Site continues its own offset direction.
     precision: decimals written for every value.
+    positions: "root": only the root has X/Y/Zposition channels (the classic layout); "all": every
+               joint has them, holding its translation from its parent joint in the parent's
+               frame (it replaces the OFFSET while the motion plays, as Blender's importer
+               reads it), so joints whose distance to their parent changes stay exact.
     Joints are written depth first from the root, children in index order; motion channels
     follow that order.
     """
@@ -48,8 +52,12 @@ class BvhWriter:
         order: str = "ZXY",
         end_sites=None,
         precision: int = 6,
+        positions: str = "root",
     ):
         self.path = Path(path)
+        if positions not in ("root", "all"):
+            raise ExportError(self.path, f"positions must be 'root' or 'all', got {positions!r}")
+        self.positions = positions
         self.names = [str(n) for n in names]
         self.parents = np.asarray(parents, dtype=np.int64).ravel()
         self.offsets = np.asarray(offsets, dtype=np.float64)
@@ -138,7 +146,8 @@ class BvhWriter:
                 channels = f"CHANNELS 6 Xposition Yposition Zposition {rot}"
             else:
                 lines.append(f"{pad}JOINT {self.names[j]}")
-                channels = f"CHANNELS 3 {rot}"
+                channels = (f"CHANNELS 6 Xposition Yposition Zposition {rot}"
+                            if self.positions == "all" else f"CHANNELS 3 {rot}")
             lines.append(pad + "{")
             lines.append(f"{pad}\tOFFSET {vec(self.offsets[j])}")
             lines.append(f"{pad}\t{channels}")
@@ -159,13 +168,16 @@ class BvhWriter:
         return "\n".join(lines) + "\n"
 
     # ---- motion ----
-    def write(self, rotations: np.ndarray, root_position=None) -> None:
+    def write(self, rotations: np.ndarray, root_position=None, positions=None) -> None:
         """Append one frame.
 
         rotations:     (b, 3, 3) rotation matrices, each joint's rotation relative to its
                        parent (identity = rest pose), or (b, 3) Euler angles in degrees in the
                        writer's order.
         root_position: (3,) root position in the world; None: the root's rest offset.
+        positions:     with positions="all": (b, 3) each joint's translation from its parent
+                       joint in the parent's frame (the root's: its world position; it then
+                       replaces root_position); None: the rest offsets.
         """
         if self._closed:
             raise ExportError(self.path, "write() after close()")
@@ -192,12 +204,23 @@ class BvhWriter:
             raise ExportError(self.path, f"frame {n}: rotations have shape {rotations.shape}, "
                                          f"expected ({self.b}, 3, 3) or ({self.b}, 3)")
         root = self.dfs[0]
-        pos = self.offsets[root] if root_position is None else np.asarray(root_position, float)
+        if positions is not None:
+            if self.positions != "all":
+                raise ExportError(self.path, "per-joint positions need positions='all'")
+            positions = np.asarray(positions, dtype=np.float64)
+            if positions.shape != (self.b, 3) or not np.isfinite(positions).all():
+                raise ExportError(self.path, f"frame {n}: positions must be finite ({self.b}, 3)")
+            pos = positions[root]
+        else:
+            pos = self.offsets[root] if root_position is None else np.asarray(root_position, float)
         if pos.shape != (3,) or not np.isfinite(pos).all():
             raise ExportError(self.path, f"frame {n}: root_position must be finite (3,)")
         f = self._fmt
         values = [f.format(float(x)) for x in pos]
-        for j in self.dfs:
+        for k, j in enumerate(self.dfs):
+            if k and self.positions == "all":
+                moved = self.offsets[j] if positions is None else positions[j]
+                values.extend(f.format(float(x)) for x in moved)
             values.extend(f.format(float(x)) for x in degrees[j])
         self._file.write(" ".join(values) + "\n")
         self.num_frames += 1
@@ -212,6 +235,13 @@ class BvhWriter:
             self._file.write(f"Frames: {str(self.num_frames).ljust(_FRAMES_FIELD)}")
         finally:
             self._file.close()
+
+    def abort(self) -> None:
+        """Close the file as it is, without patching the header (a failed export removes it)."""
+        if self._closed:
+            return
+        self._closed = True
+        self._file.close()
 
     def __enter__(self) -> "BvhWriter":
         return self

@@ -85,6 +85,13 @@ class Pc2Writer:
         finally:
             self._file.close()
 
+    def abort(self) -> None:
+        """Close the file as it is, without patching the header (a failed export removes it)."""
+        if self._closed:
+            return
+        self._closed = True
+        self._file.close()
+
     def __enter__(self) -> "Pc2Writer":
         return self
 
