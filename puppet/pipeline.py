@@ -12,6 +12,7 @@ Everything the per-frame path touches is allocated once in ``Pipeline.__init__``
 
 from __future__ import annotations
 
+import pickle
 import time
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
@@ -20,11 +21,40 @@ import numpy as np
 
 from puppet.bus import Reading
 from puppet.fast import FastModel
+from puppet.fast.factor import Factor
 from puppet.rig import Rig
 
 BONE_KIND_STATES = {"full": "sensed", "relative": "relative", "free": "free"}
 ANTIALIAS = ("auto", "msaa", "fxaa", "none")
 SOFTWARE_GL = ("llvmpipe", "softpipe", "swrast", "lavapipe")
+
+
+@dataclass
+class RigPrecompute:
+    """A rig's solve precompute, made once and shared (batch workers, Ray's object store).
+
+    model:  the FastModel (LBS matrix inputs, weights, clusters, reduced matrices Q, K).
+    factor: the global step's factorization for ``rig.pattern()`` (G, P2, H).
+    seconds: wall time it took to build (a cache hit in the FastModel makes it short).
+    """
+
+    model: FastModel
+    factor: Factor
+    seconds: float = 0.0
+
+    @classmethod
+    def for_rig(cls, rig: Rig) -> RigPrecompute:
+        """Build the model and factor the rig's pattern (what every Pipeline on ``rig`` needs)."""
+        start = time.perf_counter()
+        options = rig.solver_options
+        model = FastModel(rig.V, rig.F, rig.W, clusters=options.clusters,
+                          extra_weights=options.extra_weights, energy=options.energy)
+        factor = model.solver(rig.pattern()).factor
+        return cls(model, factor, time.perf_counter() - start)
+
+    def nbytes(self) -> int:
+        """Size of the pickled precompute in bytes: what is sent once to each worker."""
+        return len(pickle.dumps(self, protocol=pickle.HIGHEST_PROTOCOL))
 
 
 class Pipeline:
@@ -38,22 +68,33 @@ class Pipeline:
                 hardware GL, none on a software rasterizer (Mesa llvmpipe), where MSAA triples
                 the mesh pass and FXAA adds ~3 ms: live loops keep their frame rate and latency.
     overlay:    draw the skeleton with bones coloured by state.
+    precompute: a RigPrecompute of this rig made earlier (shared by many pipelines); None builds
+                the model (its disk cache may make that quick) and factors the pattern here.
 
     Fields: model (FastModel), solver, values (the pattern's per-frame Values), T (4m, 3)
     float32 handle transforms, angles (k,) float64 radians in servo-map order, renderer.
     """
 
     def __init__(self, rig: Rig, *, iterations: int = 8, render: bool = True, width: int = 640,
-                 height: int = 480, antialias: str = "auto", overlay: bool = False):
+                 height: int = 480, antialias: str = "auto", overlay: bool = False,
+                 precompute: RigPrecompute | None = None):
         if antialias not in ANTIALIAS:
             raise ValueError(f"antialias: {antialias!r} is not one of {ANTIALIAS}")
         options = rig.solver_options
         self.rig = rig
         self.iterations = int(iterations)
-        self.model = FastModel(rig.V, rig.F, rig.W, clusters=options.clusters,
-                               extra_weights=options.extra_weights, energy=options.energy)
         self.pattern = rig.pattern()
-        self.solver = self.model.solver(self.pattern)
+        if precompute is None:
+            self.model = FastModel(rig.V, rig.F, rig.W, clusters=options.clusters,
+                                   extra_weights=options.extra_weights, energy=options.energy)
+            self.solver = self.model.solver(self.pattern)
+        else:
+            if precompute.model.n != len(rig.V) or precompute.model.m_bones != rig.skeleton.bone_count:
+                raise ValueError(f"precompute: made for {precompute.model.n} vertices and "
+                                 f"{precompute.model.m_bones} bones, the rig has {len(rig.V)} and "
+                                 f"{rig.skeleton.bone_count}")
+            self.model = precompute.model
+            self.solver = self.model.solver(self.pattern, factor=precompute.factor)
         self.values = self.pattern.values()
         self.T = self.model.rest_T()
         self.angles = np.zeros(len(rig.servo_map), np.float64)

@@ -59,13 +59,14 @@ def main() -> None:
       puppet live --rig my.toml --port /dev/ttyUSB0 --record take.mcap --out live.mp4
       puppet play take.mcap --out take.mp4 --speed 0.5
       puppet export take.mcap --gltf anim.glb --pc2 mesh.pc2 --up z --fps 24
+      puppet batch session/*.mcap --out exports/ --formats gltf,usd
     """
 
 
 def _register() -> None:
-    from puppet.cli import bus, demo, export, live, play, record, rig
+    from puppet.cli import batch, bus, demo, export, live, play, record, rig
 
-    for module in (demo, live, record, play, export, bus, rig):
+    for module in (demo, live, record, play, export, batch, bus, rig):
         for command in module.COMMANDS:
             main.add_command(command)
 

@@ -150,28 +150,9 @@ def take_writer(take_path: str, rig, *, force: bool = False):
 
 def open_take(take: str, rig_path: str | None):
     """(rig, TakeReader) for a take; the rig is the take's own when --rig is not given."""
-    from puppet.rig import Calibration
-    from puppet.take import TakeReader
+    from puppet.replay import open_take as open_on_rig
 
-    reader = TakeReader(take)
-    if len(reader) == 0:
-        fail(f"{take}: the take holds no readings")
-    meta = reader.metadata
-    if rig_path is None:
-        rig = load_rig(None)
-        if meta.rig_name != rig.name:
-            fail(f"{take}: take from another rig: recorded with rig {meta.rig_name!r}, not the "
-                 f"built-in rig {rig.name!r}; pass --rig with that rig's file")
-    else:
-        rig = load_rig(rig_path)
-    reader.check_rig([int(i) for i in rig.servo_map.ids], dict(rig.servo_map.models),
-                     rig_name=rig.name)
-    try:  # replay with the calibration the take was recorded with
-        zero = json.loads(meta.calibration_text).get("zero_ticks", {}) if meta.calibration_text else {}
-        if zero:
-            rig.servo_map.calibrate(Calibration({int(k): int(v) for k, v in zero.items()}))
-    except (ValueError, AttributeError) as err:
-        fail(f"{take}: unreadable calibration in the take: {err}")
+    rig, reader = open_on_rig(take, rig_path)
     if reader.recovery is not None:
         click.echo(f"warning: {take}: {reader.recovery}", err=True)
     return rig, reader

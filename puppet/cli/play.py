@@ -27,22 +27,27 @@ def play(take: str, rig_path: str | None, out: str | None, frames: str | None, s
     Example:
       puppet play take.mcap --out take.mp4 --speed 0.5
     """
-    from puppet.pipeline import Pipeline, run_frames
-    from puppet.take import PlaybackClock
+    from puppet.replay import play_take
 
     if not out and not frames:
         fail("nothing to write: give --out VIDEO and/or --frames FOLDER")
     rig, reader = open_take(take, rig_path)
     sinks = make_sinks(out, frames, fps)
-    ids = [int(i) for i in rig.servo_map.ids]
+    bar = None
+
+    def progress(done: int, total: int) -> None:
+        nonlocal bar
+        if bar is None:
+            bar = click.progressbar(length=total, label="play", file=sys.stderr)
+            bar.__enter__()
+        bar.update(1)
+
     try:
-        with Pipeline(rig, overlay=True, antialias=antialias) as pipeline:
-            clock = PlaybackClock(reader.readings(ids=ids), fps=fps, speed=speed)
-            total = clock.frame_count(reader.t_last_ns - reader.t_first_ns)
-            with click.progressbar(length=total, label="play", file=sys.stderr) as bar:
-                summary = run_frames(pipeline, (f.reading for f in clock), sinks=sinks,
-                                     on_frame=lambda _p: bar.update(1))
+        summary = play_take(rig, reader, sinks, fps=fps, speed=speed, antialias=antialias,
+                            progress=progress)
     finally:
+        if bar is not None:
+            bar.__exit__(None, None, None)
         for sink in sinks:
             sink.close()
     print_summary(summary, False, extra={"take": take, "video": out} if out else {"take": take})
