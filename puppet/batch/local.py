@@ -1,10 +1,11 @@
-"""The local engine: a pool of worker processes on this machine, one take per task.
+"""The local engine: worker processes on this machine, one take per task.
 
 The shared rig and precompute are pickled once by the driver and handed to each worker process
-once, when it starts (never per take). Workers write into staging folders inside the output
-folder (the same file system), and the driver renames finished files into place. A worker that
-dies (killed, out of memory, a crash in native code) breaks the pool: the driver starts a new
-one and submits again every take that had not finished, up to MAX_ATTEMPTS tries each.
+once, when it starts (never per take). Each worker has its own pipe: the driver sends it one
+take, it answers with that take's result, so the driver always knows which take a worker holds.
+Workers write into staging folders inside the output folder (the same file system) and the
+driver renames finished files into place. A worker that dies (killed, out of memory, a crash in
+native code) is replaced and the one take it held is run again, up to MAX_ATTEMPTS tries.
 """
 
 from __future__ import annotations
@@ -13,16 +14,13 @@ import multiprocessing
 import os
 import pickle
 from collections.abc import Callable
-from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
-from concurrent.futures.process import BrokenProcessPool
+from multiprocessing.connection import Connection, wait
 from pathlib import Path
 
 from puppet.batch.plan import Job
-from puppet.batch.task import Shared, TakeResult, run_take, staging_folder
+from puppet.batch.task import TakeResult, run_take, staging_folder
 
-MAX_ATTEMPTS = 3  # tries per take when workers die under it (a take that kills every worker fails)
-
-_shared: Shared | None = None  # in each worker: the unpickled shared state
+MAX_ATTEMPTS = 3  # tries per take whose worker dies under it
 
 
 def available_cores() -> int:
@@ -33,18 +31,55 @@ def available_cores() -> int:
         return os.cpu_count() or 1
 
 
-def _start_worker(blob: bytes) -> None:
-    global _shared
+def _worker_main(connection: Connection, blob: bytes, staging_root: str) -> None:
+    """A worker process: unpickle the shared state once, then run takes until told to stop."""
     os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
-    _shared = pickle.loads(blob)
+    shared = pickle.loads(blob)
+    root = Path(staging_root)
+    while True:
+        job = connection.recv()
+        if job is None:
+            return
+        try:
+            result = run_take(job, shared, staging_folder(root, job))
+        except Exception as err:  # noqa: BLE001 - a bug in one take must not stop the others
+            result = TakeResult(take=str(job.take),
+                                error=f"internal error: {type(err).__name__}: {err}")
+        connection.send(result)
 
 
-def _work(job: Job, staging_root: str) -> TakeResult:
-    return run_take(job, _shared, staging_folder(Path(staging_root), job))
+class _Worker:
+    """One worker process, its end of the pipe, and the take it holds (None: idle)."""
+
+    def __init__(self, context, blob: bytes, staging_root: Path):
+        self.connection, child = context.Pipe()
+        self.process = context.Process(target=_worker_main, args=(child, blob, str(staging_root)),
+                                       daemon=True)
+        self.process.start()
+        child.close()
+        self.job: Job | None = None
+
+    def give(self, job: Job) -> None:
+        self.job = job
+        try:
+            self.connection.send(job)
+        except OSError:  # it died already: its sentinel says so and the take is given again
+            pass
+
+    def stop(self) -> None:
+        try:
+            self.connection.send(None)
+        except OSError:  # already gone
+            pass
+        self.process.join(timeout=30)
+        if self.process.is_alive():
+            self.process.kill()
+            self.process.join()
+        self.connection.close()
 
 
 class LocalEngine:
-    """A process pool of ``workers`` processes (default: the machine's cores)."""
+    """``workers`` processes (default: the machine's cores), each running one take at a time."""
 
     name = "local"
 
@@ -52,46 +87,60 @@ class LocalEngine:
         self.workers = int(workers) if workers else available_cores()
 
     def check(self) -> None:
-        """Nothing to check before work starts: a process pool always runs here."""
+        """Nothing to check before work starts: processes always start here."""
 
     def close(self) -> None:
-        """Nothing outlives run(): each pool is shut down when its takes are done."""
+        """Nothing outlives run()."""
 
     def run(self, jobs: list[Job], shared_blob: bytes, staging_root: Path,
             on_result: Callable[[Job, TakeResult], None]) -> None:
         """Run every job; call ``on_result(job, result)`` in the driver as each take ends."""
-        attempts = {job.take: 0 for job in jobs}
-        todo = list(jobs)
         context = multiprocessing.get_context("spawn")  # fresh interpreters: no inherited locks
-        while todo:
-            broken: list[Job] = []
-            workers = min(self.workers, len(todo))
-            with ProcessPoolExecutor(workers, mp_context=context, initializer=_start_worker,
-                                     initargs=(shared_blob,)) as pool:
-                futures: dict[Future, Job] = {}
-                for job in todo:
-                    attempts[job.take] += 1
-                    futures[pool.submit(_work, job, str(staging_root))] = job
-                pending = set(futures)
-                while pending:
-                    done, pending = wait(pending, return_when=FIRST_COMPLETED)
-                    for future in done:
-                        job = futures[future]
+        attempts = {job.take: 0 for job in jobs}
+        todo = list(reversed(jobs))  # popped from the end: the given order
+        workers = [_Worker(context, shared_blob, staging_root)
+                   for _ in range(min(self.workers, len(jobs)))]
+        try:
+            for worker in workers:
+                self._give_next(worker, todo, attempts)
+            while any(w.job is not None for w in workers):
+                busy = [w for w in workers if w.job is not None]
+                ready = wait([w.connection for w in busy] + [w.process.sentinel for w in busy])
+                for i, worker in enumerate(workers):
+                    if worker.job is None:
+                        continue
+                    job = worker.job
+                    if worker.connection in ready:
                         try:
-                            result = future.result()
-                        except BrokenProcessPool:
-                            broken.append(job)
+                            result = worker.connection.recv()
+                        except (EOFError, OSError):  # died while answering
+                            result = None
+                        if result is not None:
+                            worker.job = None
+                            result.attempts = attempts[job.take]
+                            on_result(job, result)
+                            self._give_next(worker, todo, attempts)
                             continue
-                        except Exception as err:  # noqa: BLE001 - a bug in one take must not stop the others
-                            result = TakeResult(take=str(job.take),
-                                                error=f"internal error: {type(err).__name__}: {err}")
-                        result.attempts = attempts[job.take]
-                        on_result(job, result)
-            todo = []
-            for job in broken:
-                if attempts[job.take] < MAX_ATTEMPTS:
-                    todo.append(job)
-                else:
-                    on_result(job, TakeResult(take=str(job.take), attempts=attempts[job.take],
-                                              error=f"a worker process died under this take "
-                                                    f"{attempts[job.take]} times"))
+                    if worker.process.sentinel in ready or not worker.process.is_alive():
+                        worker.process.join()
+                        worker.connection.close()
+                        if attempts[job.take] < MAX_ATTEMPTS:
+                            todo.append(job)  # next in line again
+                        else:
+                            on_result(job, TakeResult(
+                                take=str(job.take), attempts=attempts[job.take],
+                                error=f"a worker process died under this take "
+                                      f"{attempts[job.take]} times (exit status "
+                                      f"{worker.process.exitcode})"))
+                        workers[i] = _Worker(context, shared_blob, staging_root)
+                        self._give_next(workers[i], todo, attempts)
+        finally:
+            for worker in workers:
+                worker.stop()
+
+    @staticmethod
+    def _give_next(worker: _Worker, todo: list[Job], attempts: dict) -> None:
+        if todo:
+            job = todo.pop()
+            attempts[job.take] += 1
+            worker.give(job)
