@@ -4,7 +4,8 @@ Ray is an optional dependency (``pip install 'puppet[ray]'``). The shared rig an
 are put once in Ray's object store (each node fetches them once; tasks on a node map the same
 copy). Where outputs go: every task writes into a temporary folder on its own node and returns
 the finished files' bytes; the driver writes them into ``--out`` (atomically, through
-``puppet.atomic``). So nodes need no shared file system, ``--resume`` and the summary only look
+``puppet.atomic``). The take's bytes travel with its task (a take is small: about 6 kB per second
+of a 15-servo puppet at 30 Hz). So nodes need no shared file system, ``--resume`` and the summary only look
 at the driver's folder, and a task that dies (its node or worker lost) leaves nothing behind:
 Ray runs it again (``max_retries``) and only a complete result is ever written.
 """
@@ -49,12 +50,19 @@ def _host_port(address: str) -> tuple[str, int] | None:
                          "ray://host:10001") from None
 
 
-def _ray_task(job: Job, shared: Shared) -> TakeResult:
-    """Run in a Ray worker: solve and write into a node-local folder, return the files' bytes."""
+def _ray_task(job: Job, take_bytes: bytes, shared: Shared) -> TakeResult:
+    """Run in a Ray worker: the take's bytes arrive with the task (no shared file system needed);
+    solve and write into a node-local folder, return the files' bytes."""
     root = Path(tempfile.mkdtemp(prefix="puppet-batch-"))
     try:
-        staging = staging_folder(root, job)
-        result = run_take(job, shared, staging)
+        local_take = root / job.take.name
+        local_take.write_bytes(take_bytes)
+        local_job = Job(local_take, job.outputs)
+        result = run_take(local_job, shared, staging_folder(root, local_job))
+        result.take = str(job.take)
+        for name in ("error", "warning"):  # name the user's take, not this node's copy
+            if getattr(result, name) is not None:
+                setattr(result, name, getattr(result, name).replace(str(local_take), str(job.take)))
         if result.error is None:
             result.data = {fmt: Path(path).read_bytes() for fmt, path in result.files.items()}
         return result
@@ -112,7 +120,15 @@ class RayEngine:
         shared_ref = ray.put(shared)  # once; every task gets this reference
         put_s = time.perf_counter() - start
         task = ray.remote(num_cpus=1, max_retries=MAX_RETRIES)(_ray_task)
-        futures = {task.remote(job, shared_ref): job for job in jobs}
+        futures = {}
+        for job in jobs:
+            try:
+                take_bytes = job.take.read_bytes()
+            except OSError as err:
+                on_result(job, TakeResult(take=str(job.take), error=f"{job.take}: cannot read the "
+                                                                    f"take: {err.strerror or err}"))
+                continue
+            futures[task.remote(job, take_bytes, shared_ref)] = job
         pending = list(futures)
         while pending:
             done, pending = ray.wait(pending, num_returns=1)
