@@ -37,7 +37,10 @@ def _worker_main(connection: Connection, blob: bytes, staging_root: str) -> None
     shared = pickle.loads(blob)
     root = Path(staging_root)
     while True:
-        job = connection.recv()
+        try:
+            job = connection.recv()
+        except EOFError:  # the driver is gone
+            return
         if job is None:
             return
         try:
