@@ -19,7 +19,8 @@ worker(s) is printed per engine and format set (on a 2-core machine it approache
 solve-heavy formats when nothing else runs; a shared machine lowers it).
 
 JSON: {"cases": [{"engine", "workers", "takes", "formats", "takes_per_min",
-"overhead_ms_per_task", "precompute_s", "precompute_per_take_s", "seconds"}], "ratios": [...],
+"overhead_ms_per_task", "precompute_s", "precompute_per_take_s", "seconds", "task_seconds_sum",
+"task_cpu_seconds_sum"}], "ratios": [...],
 "cost": {per-take CPU seconds and bytes}, "ray_start_s", "shared_bytes", "precompute_bytes"}.
 """
 
@@ -122,6 +123,8 @@ def run_case(engine: str, workers: int, takes: list[Path], out: Path, rig, forma
             "precompute_s": round(report.precompute_s, 4),
             "precompute_per_take_s": round(precompute_cold_s * len(takes), 4),
             "seconds": round(report.seconds, 3), "shared_bytes": report.shared_bytes,
+            "task_seconds_sum": round(sum(r.seconds for r in report.rows), 3),
+            "task_cpu_seconds_sum": round(sum(r.cpu_seconds for r in report.rows), 3),
             "precompute_bytes": report.precompute_bytes}
 
 
