@@ -224,8 +224,11 @@ class FastModel:
             self._mass = (M.T @ (mass[:, None] * M), M.T @ mass)
         return self._mass
 
-    def solver(self, pattern: Pattern, *, anderson_window: int = 5, dynamics: Dynamics | None = None) -> Solver:
+    def solver(self, pattern: Pattern, *, anderson_window: int = 5, dynamics: Dynamics | None = None,
+               factor=None) -> Solver:
         """Factor the global step for ``pattern`` (PatternError if undetermined) and return a Solver.
 
-        dynamics: optional :class:`Dynamics` (inertia and gravity) for secondary motion."""
-        return Solver(self, pattern, anderson_window=anderson_window, dynamics=dynamics)
+        dynamics: optional :class:`Dynamics` (inertia and gravity) for secondary motion.
+        factor: the pattern's Factor computed once elsewhere (shared precompute), or None."""
+        return Solver(self, pattern, anderson_window=anderson_window, dynamics=dynamics,
+                      factor=factor)
