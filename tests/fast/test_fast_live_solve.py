@@ -39,13 +39,13 @@ def readings(rig, frames, *, still_after=None, silent=(), silent_servo=0, jitter
 
 
 def solve_all(rig, extras, reads):
-    rig.extras = extras
+    shipped, rig.extras = rig.extras, extras
     out = []
     with Pipeline(rig, render=False) as pipeline:
         M = pipeline.model.lbs_matrix()
         run_frames(pipeline, reads, on_frame=lambda p: out.append(M @ p.T))
         live = pipeline.live
-    rig.extras = SolveExtras()
+    rig.extras = shipped
     return np.array(out), live
 
 
@@ -110,6 +110,26 @@ def test_dynamics_lag_then_settle_after_the_puppet_stops(rig):
     assert moves[-20:].max() < 0.05 * moves[:10].max()
     assert lag[-1] < 0.05 * lag[:81].max()
     assert live.stats.steps == 1
+
+
+def test_the_builtin_rig_ships_dynamics_that_lag_and_decay(rig):
+    """``puppet demo``'s rig as shipped (critter.toml's [solver.dynamics]): the ears lag while the
+    puppet moves; after it stops the motion decays and the pose settles on the static solve."""
+    shipped = rig.extras
+    assert shipped.dynamics is not None
+    names = list(rig.skeleton.names)
+    ear = int(np.argmax(rig.W[:, names.index("ear_L")] * rig.V[:, 1]))
+    reads = readings(rig, 200, still_after=80)
+    static, _ = solve_all(rig, SolveExtras(), reads)
+    dyn, live = solve_all(rig, shipped, reads)
+    assert rig.extras is shipped
+    assert live.dynamics is not None
+    lag = np.linalg.norm(dyn[:, ear] - static[:, ear], axis=1)
+    diag = float(np.linalg.norm(rig.V.max(0) - rig.V.min(0)))
+    assert lag[:81].max() > 0.01 * diag
+    moves = jumps(dyn)[80:]
+    assert moves[-20:].max() < 0.05 * moves[:10].max()
+    assert lag[-1] < 0.05 * lag[:81].max()
 
 
 def test_play_twice_gives_identical_vertices(rig):

@@ -114,11 +114,12 @@ def test_tolerance_stop_reaches_the_converged_solve(bar_model, accelerate):
         stats = solver.solve(values, T, iterations=300, tol=1e-6, accelerate=accelerate)
         assert 1 < stats.iterations < 300
         assert np.abs(model.deform(T) - converged(values, start)).max() <= 2e-4 * diag
-    # Targets unchanged at a converged pose: the change in T is below tol at once.
+    # Targets unchanged at a converged pose: the steps are tiny at once (a rate needs two of them,
+    # with acceleration one secant pair more).
     T = model.rest_T()
     values = bend_values(model, pattern, 0.5)
     reference.solve(values, T, iterations=3000, accelerate=False)
-    assert solver.solve(values, T, iterations=300, tol=1e-5, accelerate=accelerate).iterations <= 2
+    assert solver.solve(values, T, iterations=300, tol=1e-5, accelerate=accelerate).iterations <= 3
 
 
 def residuals(model, pattern, values, T):

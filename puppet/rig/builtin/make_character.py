@@ -2,6 +2,7 @@
 bounded biharmonic weights. Writes ``critter.npz`` and ``critter.toml`` next to this file.
 
     python -m puppet.rig.builtin.make_character [--voxel 0.0105] [--out DIR]
+    python -m puppet.rig.builtin.make_character --toml-only   # rewrite critter.toml only
 
 Needs scikit-image (marching cubes) and libigl with tetgen (weights). Deterministic: the same
 inputs give the same files. Model units: the critter stands about 1.3 units tall, +Y up,
@@ -62,6 +63,9 @@ SERVOS = [
 ]
 
 SOLVER = {"clusters": 100, "extra_weights": 8, "energy": "spokes_and_rims"}
+# Secondary motion ([solver.dynamics]): the ears and tail lag behind the sensed bones and settle.
+# One solver step per 60 Hz frame; a slower frame takes up to max_steps steps.
+DYNAMICS = {"density": 0.002, "damping": 0.9, "dt": 0.016667, "max_steps": 4}
 PIN_POINT = (0.0, 0.53, -0.66)  # tail tip rests on the stand's post
 
 
@@ -155,7 +159,9 @@ def rig_toml(pin_vertex: int) -> str:
            'name = "critter"', 'mesh = "critter.npz"',
            f"fixed = [{', '.join(repr(f).replace(chr(39), chr(34)) for f in FIXED)}]", "",
            "[solver]", f"clusters = {SOLVER['clusters']}", f"extra_weights = {SOLVER['extra_weights']}",
-           f'energy = "{SOLVER["energy"]}"', ""]
+           f'energy = "{SOLVER["energy"]}"', "",
+           "[solver.dynamics]  # secondary motion: the ears and tail lag and settle",
+           *(f"{k} = {v}" for k, v in DYNAMICS.items()), ""]
     for sid, model, joint, axis, order, sign, zero, (lo, hi) in SERVOS:
         out += ["[[servo]]", f"id = {sid}", f'model = "{model}"', f'joint = "{joint}"', f'axis = "{axis}"',
                 f"order = {order}", f"sign = {sign}", "gear = 1.0", f"zero_ticks = {zero}",
@@ -164,13 +170,32 @@ def rig_toml(pin_vertex: int) -> str:
     return "\n".join(out)
 
 
+def write_toml(out: Path, pin_vertex: int) -> None:
+    """Write critter.toml (the rig file) for the tail-tip pin vertex."""
+    (out / "critter.toml").write_text(rig_toml(pin_vertex))
+
+
+def toml_only(out: Path = HERE) -> None:
+    """Rewrite critter.toml from this script's tables, keeping critter.npz and its pin vertex."""
+    import tomllib
+
+    pin = tomllib.loads((out / "critter.toml").read_text())["pin"][0]["vertex"]
+    write_toml(out, int(pin))
+
+
 def main(argv=None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--voxel", type=float, default=0.0105, help="marching-cubes voxel size")
     parser.add_argument("--weight-voxel", type=float, default=0.02,
                         help="voxel size of the coarser volume the weights are solved on")
     parser.add_argument("--out", type=Path, default=HERE, help="output folder")
+    parser.add_argument("--toml-only", action="store_true",
+                        help="rewrite critter.toml only (keep critter.npz and its pin vertex)")
     args = parser.parse_args(argv)
+    if args.toml_only:
+        toml_only(args.out)
+        print(f"wrote {args.out / 'critter.toml'}")
+        return
     from puppet.rig.bbw import bbw_tet, interpolate_in_tets
     from puppet.rig.weight_check import normalize_weights
     from puppet.rig.skeleton import Skeleton
@@ -197,7 +222,7 @@ def main(argv=None) -> None:
         W=W.astype(np.float32), names=np.array(names), parents=parents, heads=heads, tails=tails,
         frames=frames)
     pin = int(np.argmin(np.linalg.norm(V - np.array(PIN_POINT), axis=1)))
-    (args.out / "critter.toml").write_text(rig_toml(pin))
+    write_toml(args.out, pin)
     print(f"wrote {args.out / 'critter.npz'} and {args.out / 'critter.toml'}")
 
 
