@@ -254,6 +254,7 @@ def tol_case(tols=(1e-3, 1e-4, 1e-5), budgets=(10, 20, 30, 50), frames=30):
         out["runs"][name] = {"iters_mean": float(np.mean(iters)), "iters_max": int(max(iters)),
                              "err_max_pct_of_diag": 100 * max(errs), "err_mean_pct_of_diag": 100 * float(np.mean(errs))}
     out["fixed_budget_for_1e-4"] = int(max(needed)) if needed else None
+    out["per_frame_need_for_1e-4_mean"] = float(np.mean(needed)) if needed else None
     return out
 
 
