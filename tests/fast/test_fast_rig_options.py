@@ -13,12 +13,8 @@ TAIL_TIP = 12279  # the built-in rig's pin
 
 def write_rig(tmp_path, extra: str, *, drop_pin: bool = False, top: str = ""):
     """The built-in rig file with ``top`` inserted before its tables and ``extra`` appended; the
-    mesh path is made absolute; an ``extra`` with its own [solver.dynamics] replaces the shipped
-    one. Returns the new file's path."""
+    mesh path is made absolute. Returns the new file's path."""
     text = BUILTIN_RIG.read_text()
-    if "[solver.dynamics]" in extra:
-        start = text.index("[solver.dynamics]")
-        text = text[:start] + text[text.index("\n\n", start) + 2 :]
     text = text.replace('mesh = "critter.npz"', f'mesh = "{BUILTIN_RIG.parent / "critter.npz"}"')
     if drop_pin:
         text = text[: text.index("[[pin]]")]
