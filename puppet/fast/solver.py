@@ -141,10 +141,13 @@ class Solver:
         values: per-frame targets for this solver's pattern (float32, C-contiguous arrays).
         T:      (4m, 3) float32 C-contiguous; rows 4j..4j+3 hold handle j's transform
                 transposed (a rest point p goes to [p 1] @ T[4j:4j+4]).
-        tol:    stop early once an iteration lowers the energy by a small non-negative amount
-                (at most tol relative to the energy) or changes T by at most tol (max |dT|
-                relative to max |T|). A rise never stops it (the first iteration after the
-                targets move raises the energy); ``iterations`` stays the upper bound.
+        tol:    stop early once the estimated distance to the converged T is within tol of
+                max |T|: the last plain step r = max |G(T) - T| times q / (1 - q), with q the
+                observed contraction rate (ratio of successive steps; accelerated: |dG| / |dX| of
+                the newest secant pair; the larger of the last two). A rate >= 1 (a rise after the
+                targets move) never stops it; ``iterations`` stays the upper bound. Measured on the
+                built-in character (bench/solver.py): the vertices land within about 1-3 tol of
+                the bounding-box diagonal of the converged solve.
         accelerate: Anderson acceleration; a step that would raise the energy is rejected.
         history: record the energy after every iteration (see :attr:`history`).
         Returns the reused ``stats`` object. Wrong dtype/layout raises TypeError, NaN/inf or
