@@ -12,6 +12,7 @@ Ray runs it again (``max_retries``) and only a complete result is ever written.
 
 from __future__ import annotations
 
+import os
 import shutil
 import socket
 import tempfile
@@ -95,6 +96,10 @@ class RayEngine:
                 except OSError as err:
                     raise BatchError(f"--address {self.address}: no Ray cluster answers there "
                                      f"({err.strerror or err})") from None
+        if not self.address:
+            # A local instance of our own, on loopback, for this batch only: no token needed
+            # between its processes (a stale token file of another session must not fail tasks).
+            os.environ.setdefault("RAY_AUTH_MODE", "disabled")
         try:
             ray.init(address=self.address, num_cpus=None if self.address else self.workers,
                      include_dashboard=False, log_to_driver=False,

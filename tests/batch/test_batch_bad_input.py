@@ -9,7 +9,7 @@ import pytest
 
 def run(*args, python_prefix=None):
     command = (["puppet"] if python_prefix is None
-               else [sys.executable, "-c", python_prefix + "from puppet.cli import main; main()"])
+               else [sys.executable, "-P", "-c", python_prefix + "from puppet.cli import main; main()"])
     return subprocess.run([*command, "batch", *map(str, args)], capture_output=True, text=True,
                           timeout=300)
 
