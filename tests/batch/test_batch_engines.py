@@ -3,6 +3,7 @@ take, nothing left in staging."""
 
 import json
 import subprocess
+import tempfile
 
 import pytest
 
@@ -12,8 +13,10 @@ ALL = ("mp4", "gltf", "usd", "pc2", "bvh")
 
 
 def run_batch(*args, timeout=600):
+    # Run from a neutral folder, as a user does: Ray puts the driver's working folder on its
+    # workers' import path, and the repository root holds the source tree (no built _native).
     return subprocess.run(["puppet", "batch", *map(str, args), "--json"], capture_output=True,
-                          text=True, timeout=timeout)
+                          text=True, timeout=timeout, cwd=tempfile.gettempdir())
 
 
 def assert_outputs_equal(out, serial_outputs, formats):
