@@ -36,6 +36,7 @@ Fault file (one fault per line, ``#`` comments)::
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -59,6 +60,17 @@ KINDS: dict[str, dict[str, tuple[type, object]]] = {
     "echo": {},
     "load": {"current": (float, 800.0), "heat": (float, 1.0)},
 }
+# param -> (lowest, highest) accepted value (both included); every number must also be finite.
+RANGES: dict[str, tuple[float, float]] = {
+    "p": (0.0, 1.0),
+    "keep": (0, 1024),
+    "error": (0, 0x7F),        # error_status: the status packet's error number (7 bits)
+    "bits": (0, 0xFF),         # hardware_error: Hardware Error Status is one byte
+    "offset": (-(1 << 20), 1 << 20),
+    "amplitude": (0, 4096),
+}
+MAX_TIME_S = 1e6
+"""Start times and durations in a fault file: finite, 0..MAX_TIME_S seconds."""
 REPLY_KINDS = ("drop", "bad_crc", "truncate", "error_status")
 BUS_KINDS = ("unplug", "replug", "echo")
 
@@ -97,8 +109,12 @@ class Fault:
                 raise FaultError(f"fault {kind!r}: parameter {name}={value!r} is not {typ.__name__}") from None
         for name, (_, default) in spec.items():
             full.setdefault(name, default)
-        if "p" in full and not 0.0 <= full["p"] <= 1.0:
-            raise FaultError(f"fault {kind!r}: p={full['p']} is not a probability in 0..1")
+        for name, value in full.items():
+            if name in RANGES and isinstance(value, (int, float)):
+                lo, hi = RANGES[name]
+                if not (math.isfinite(value) and lo <= value <= hi):
+                    what = "a probability in 0..1" if name == "p" else f"in {lo}..{hi}"
+                    raise FaultError(f"fault {kind!r}: {name}={value} is not {what}")
         if kind == "hardware_error" and full["bits"] is None:
             if full["error"] not in HW_ERROR_BITS:
                 raise FaultError(f"fault 'hardware_error': error={full['error']!r}; known: "
@@ -106,10 +122,14 @@ class Fault:
             full["bits"] = HW_ERROR_BITS[full["error"]]
         if kind == "power_cycle" and duration_s is None:
             duration_s = 0.2
-        if duration_s is not None and duration_s < 0:
-            raise FaultError(f"fault {kind!r}: negative duration {duration_s}")
+        for what, value in (("start time", start_s), ("duration", duration_s)):
+            if value is not None and not (math.isfinite(value) and 0 <= value <= MAX_TIME_S):
+                raise FaultError(f"fault {kind!r}: {what} {value} s is not in 0..{MAX_TIME_S:g} s")
         if ids is not None:
             ids = (int(ids),) if isinstance(ids, int) else tuple(int(i) for i in ids)
+            bad = [i for i in ids if not 0 <= i <= 252]
+            if bad:
+                raise FaultError(f"fault {kind!r}: servo ids {bad} outside 0..252")
         return cls(kind, ids, float(start_s), duration_s, full)
 
     def hits(self, dxl_id: int) -> bool:
@@ -141,9 +161,11 @@ class FaultSchedule:
         """Parse a fault file; FaultFileError names the file and line of the first problem."""
         path = Path(path)
         try:
-            text = path.read_text()
+            text = path.read_text(encoding="utf-8")
         except OSError as exc:
             raise FaultFileError(path, None, f"cannot read: {exc.strerror}") from exc
+        except UnicodeDecodeError as exc:
+            raise FaultFileError(path, text_line(path, exc.start), "not UTF-8 text") from None
         faults = []
         for lineno, raw in enumerate(text.splitlines(), 1):
             line = raw.split("#", 1)[0].split()
@@ -155,6 +177,8 @@ class FaultSchedule:
                 at = float(line[0])
             except ValueError:
                 raise FaultFileError(path, lineno, f"start time {line[0]!r} is not a number") from None
+            if "\0" in raw:
+                raise FaultFileError(path, lineno, "a NUL byte: not a text file")
             kind, ids, duration, params = line[1], None, None, {}
             for item in line[2:]:
                 key, eq, value = item.partition("=")
@@ -176,22 +200,25 @@ class FaultSchedule:
         return cls(faults)
 
 
+def text_line(path: Path, offset: int) -> int:
+    """The 1-based line of byte ``offset`` in the file at ``path``."""
+    with open(path, "rb") as f:
+        return f.read(offset).count(b"\n") + 1
+
+
 def parse_ids(text: str) -> list[int]:
     """'1-3,7' -> [1, 2, 3, 7]; ValueError on anything else."""
     ids: list[int] = []
     for part in text.split(","):
         part = part.strip()
         lo, dash, hi = part.partition("-")
-        if dash:
-            a, b = int(lo), int(hi)
-            if b < a:
-                raise ValueError(f"range {part!r} is backwards")
-            ids.extend(range(a, b + 1))
-        else:
-            ids.append(int(part))
-    for i in ids:
-        if not 0 <= i <= 252:
-            raise ValueError(f"servo id {i} is outside 0..252")
+        ends = (int(lo), int(hi)) if dash else (int(part),)
+        for i in ends:
+            if not 0 <= i <= 252:
+                raise ValueError(f"servo id {i} is outside 0..252")
+        if ends[-1] < ends[0]:
+            raise ValueError(f"range {part!r} is backwards")
+        ids.extend(range(ends[0], ends[-1] + 1))
     return ids
 
 

@@ -277,26 +277,23 @@ class Server:
             t = line_free + ins.raw_len * self.byte_s
             for pkt, delay in replies:
                 t += delay + len(pkt) * self.byte_s
-                if not self._quiet_until(t):
-                    # The host talks again before this reply's turn: the servos still waiting
-                    # hear the new header and drop their replies (no late stale bytes).
-                    self.counts["replies_abandoned"] += 1
-                    return
+                self._wait_turn(t)
                 self._send(pkt)
                 self.traffic.append((t - self.t0, "tx", pkt))
             line_free = t
 
-    def _quiet_until(self, t: float) -> bool:
-        """Wait until monotonic time ``t`` (select for most of it, spin the last 0.2 ms);
-        False as soon as the host sends new bytes."""
-        master = self.master
+    def _wait_turn(self, t: float) -> None:
+        """Wait until monotonic time ``t``, a reply's turn on the line (sleep for most of it,
+        spin the last 0.2 ms). Bytes the host sends meanwhile wait their turn: replies go out
+        in the order of the instructions, as the pseudo-terminal delivers them in order (a
+        starved kernel can deliver instructions long after they were sent, back to back: a
+        reply dropped because the next instruction showed up would look like a silent servo)."""
         while True:
             rem = t - time.monotonic()
             if rem <= 0:
-                return True
-            ready, _, _ = select.select([master], [], [], rem - 2e-4 if rem > 3e-4 else 0)
-            if ready:
-                return False
+                return
+            if rem > 3e-4:
+                time.sleep(rem - 2e-4)
 
     def _send(self, data: bytes) -> None:
         """Write all of ``data`` to the host; if nobody drains the pty for 50 ms, drop the rest

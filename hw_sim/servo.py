@@ -44,6 +44,8 @@ IDLE_CURRENT_MA = 60.0
 CURRENT_PER_ACCEL = 0.0002     # mA per tick/s^2
 CURRENT_PER_SPEED = 0.02       # mA per tick/s
 OVERLOAD_S = 1.0               # seconds of demand above the motor's current before it latches
+CURRENT_TAU_S = 0.05           # the winding and shaft smooth the current (first order): a velocity
+                               # step seen over a tiny refresh interval is not a sustained current
 HEATING_C_PER_S_A2 = 0.4       # deg C per second per A^2
 COOLING_TAU_S = 120.0          # first-order cooling time constant
 WATCHDOG_UNIT_S = 0.020        # Bus Watchdog unit
@@ -271,7 +273,8 @@ class Servo:
                 self.overload_s += dt
             else:
                 self.overload_s = max(0.0, self.overload_s - dt)
-            self.current_ma = min(demand, limit)
+            settle = 1.0 - math.exp(-dt / CURRENT_TAU_S)
+            self.current_ma += (min(demand, limit) - self.current_ma) * settle
             if self.overload_s > OVERLOAD_S:
                 self.latch_hardware_error(0x20)
         else:

@@ -13,6 +13,7 @@ Everything the per-frame path touches is allocated once in ``Pipeline.__init__``
 from __future__ import annotations
 
 import os
+import pickle
 import time
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
@@ -23,6 +24,7 @@ from puppet.bus import Reading
 from puppet.fast import FastModel, Pattern
 from puppet.fast.errors import PatternError
 from puppet.fast.live_solve import LiveSolve
+from puppet.fast.factor import Factor
 from puppet.rig import Rig
 
 BONE_KIND_STATES = {"full": "sensed", "relative": "relative", "free": "free"}
@@ -46,6 +48,34 @@ def resolve_antialias(antialias: str, gl_renderer: str, max_samples: int) -> str
     return antialias
 
 
+@dataclass
+class RigPrecompute:
+    """A rig's solve precompute, made once and shared (batch workers, Ray's object store).
+
+    model:  the FastModel (LBS matrix inputs, weights, clusters, reduced matrices Q, K).
+    factor: the global step's factorization for ``rig.pattern()`` (G, P2, H).
+    seconds: wall time it took to build (a cache hit in the FastModel makes it short).
+    """
+
+    model: FastModel
+    factor: Factor
+    seconds: float = 0.0
+
+    @classmethod
+    def for_rig(cls, rig: Rig) -> RigPrecompute:
+        """Build the model and factor the rig's pattern (what every Pipeline on ``rig`` needs)."""
+        start = time.perf_counter()
+        options = rig.solver_options
+        model = FastModel(rig.V, rig.F, rig.W, clusters=options.clusters,
+                          extra_weights=options.extra_weights, energy=options.energy)
+        factor = model.solver(rig.pattern()).factor
+        return cls(model, factor, time.perf_counter() - start)
+
+    def nbytes(self) -> int:
+        """Size of the pickled precompute in bytes: what is sent once to each worker."""
+        return len(pickle.dumps(self, protocol=pickle.HIGHEST_PROTOCOL))
+
+
 class Pipeline:
     """Per-rig state that turns readings into solved transforms and rendered frames.
 
@@ -60,6 +90,8 @@ class Pipeline:
                 this GL cannot do raises RenderError naming those it can.
     overlay:    draw the skeleton with bones coloured by state.
     render_options: more Renderer keywords (weight_layout, fxaa_region, ...), for benchmarks.
+    precompute: a RigPrecompute of this rig made earlier (shared by many pipelines); None builds
+                the model (its disk cache may make that quick) and factors the pattern here.
 
     Fields: model (FastModel), solver, values (the pattern's per-frame Values), T (4m, 3)
     float32 handle transforms, angles (k,) float64 radians in servo-map order, renderer.
@@ -67,18 +99,29 @@ class Pipeline:
 
     def __init__(self, rig: Rig, *, iterations: int = 8, render: bool = True, width: int = 640,
                  height: int = 480, antialias: str = "auto", overlay: bool = False,
-                 render_options: dict | None = None):
+                 render_options: dict | None = None, precompute: RigPrecompute | None = None):
         if antialias not in ANTIALIAS:
             raise ValueError(f"antialias: {antialias!r} is not one of {ANTIALIAS}")
         options = rig.solver_options
         self.rig = rig
         self.iterations = int(iterations)
-        self.model = FastModel(rig.V, rig.F, rig.W, clusters=options.clusters,
-                               extra_weights=options.extra_weights, energy=options.energy)
         self.pattern = self._rig_pattern = rig.pattern()
+        if precompute is None:
+            self.model = FastModel(rig.V, rig.F, rig.W, clusters=options.clusters,
+                                   extra_weights=options.extra_weights, energy=options.energy)
+        else:
+            if precompute.model.n != len(rig.V) or precompute.model.m_bones != rig.skeleton.bone_count:
+                raise ValueError(f"precompute: made for {precompute.model.n} vertices and "
+                                 f"{precompute.model.m_bones} bones, the rig has {len(rig.V)} and "
+                                 f"{rig.skeleton.bone_count}")
+            self.model = precompute.model
         # Dropout switching and dynamics (rig options), else the plain per-frame solve.
         self.live = LiveSolve(rig, self.model) if LiveSolve.wanted(rig) else None
-        self.solver = self.live.solver if self.live else self.model.solver(self.pattern)
+        if self.live is not None:
+            self.solver = self.live.solver
+        else:
+            self.solver = self.model.solver(self.pattern,
+                                            factor=precompute.factor if precompute else None)
         self.values = self.pattern.values()
         self.handle_targets = self.values.positional[len(self._rig_pattern.positional):]
         self.T = self.model.rest_T()

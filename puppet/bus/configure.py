@@ -7,7 +7,7 @@ from dataclasses import dataclass, field
 
 from puppet.bus import control_table as ct
 from puppet.bus.errors import ServoError, ServoModelMismatch, ServoStatusError, ServoTimeout
-from puppet.bus.link import BusLink
+from puppet.bus.link import SILENT, BusLink
 
 
 @dataclass(frozen=True)
@@ -94,13 +94,17 @@ def ensure_status_return(link: BusLink, dxl_id: int, changes: list[Change]) -> N
     try:
         level = link.read(dxl_id, ct.STATUS_RETURN_LEVEL)
     except ServoTimeout:
-        level = 0  # a pinged servo that ignores reads: level 0
+        # A pinged servo that ignores reads is at level 0, or its reply is only late (a loaded
+        # machine): it answers pings, so a ping tells, by what arrives before its reply.
+        if link.witness(dxl_id, ping=True) != SILENT:
+            raise
+        level = 0
     if level >= 2:
         return
     link.write_no_reply(dxl_id, ct.STATUS_RETURN_LEVEL, 2)
+    changes.append(Change(dxl_id, ct.STATUS_RETURN_LEVEL.name, level, 2))
     if link.read(dxl_id, ct.STATUS_RETURN_LEVEL) != 2:
         raise ServoStatusError([dxl_id], "write Status Return Level", "the level did not change")
-    changes.append(Change(dxl_id, ct.STATUS_RETURN_LEVEL.name, level, 2))
 
 
 def configure_servo(link: BusLink, dxl_id: int, actuator: bool, changes: list[Change]) -> None:

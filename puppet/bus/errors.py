@@ -46,6 +46,11 @@ class ServoError(BusError):
     """
 
     kind = "servo error"
+    line_stalled = False
+    """True when the instruction was not even sent: replies to earlier ones were still pending."""
+    deadline = False
+    """True when the SDK gave up at its deadline (no reply, or one cut short): on a loaded
+    machine such a reply may only be late (see ``BusLink.witness``)."""
 
     def __init__(self, ids: Iterable[int], instruction: str, detail: str = ""):
         self.ids = sorted(int(i) for i in ids)

@@ -29,6 +29,10 @@ PROTOCOL = 2.0
 PORT_ERRORS = (serial.SerialException, OSError, termios.error)
 """What pyserial raises when the adapter vanishes: SerialException ('device reports readiness to
 read but returned no data'), OSError (EIO on write), termios.error (EIO from tcflush)."""
+LATE = "late"
+SILENT = "silent"
+STALLED = "stalled"
+"""Verdicts of ``BusLink.witness`` on a transaction that missed its deadline."""
 DEFAULT_LATENCY_MS = 1
 """The adapter latency the SDK's timeouts assume, ms. FTDI adapters (U2D2) need their
 latency_timer set to 1 (udev rule) for this to hold; hw_sim's pty answers at once."""
@@ -56,13 +60,60 @@ def set_latency_assumption(ms: int) -> None:
     sdk_port_handler.LATENCY_TIMER = int(ms)
 
 
-def _failure(code: int, ids: Iterable[int], instruction: str, detail: str = "") -> ServoError:
-    """An SDK result code -> the matching typed error."""
+def _failure(code: int, ids: Iterable[int], instruction: str, detail: str = "",
+             deadline: bool = False) -> ServoError:
+    """An SDK result code -> the matching typed error. ``deadline``: the SDK gave up because
+    its deadline passed (no reply, or a reply cut short), as opposed to a bad CRC."""
     text = dynamixel_sdk.PacketHandler(PROTOCOL).getTxRxResult(code)
     detail = f"{text}{'; ' + detail if detail else ''}"
     if code == rd.COMM_RX_TIMEOUT:
-        return ServoTimeout(ids, instruction, detail)
-    return ServoCorrupt(ids, instruction, detail)
+        error: ServoError = ServoTimeout(ids, instruction, detail)
+    else:
+        error = ServoCorrupt(ids, instruction, detail)
+    error.deadline = deadline or code == rd.COMM_RX_TIMEOUT
+    return error
+
+
+WITNESS_SIZES = range(5, 21)
+"""Data sizes of witness reads (of the control table from address 0, present on every model):
+each outstanding witness of a servo reads a size of its own, so a late reply to an earlier
+witness is never taken for this one's. Sizes below 5 are left to the reader's own reads and to
+ping replies (3 data bytes)."""
+
+
+def _ping_packet(dxl_id: int) -> bytes:
+    """The Protocol 2.0 Ping instruction packet for one id (10 bytes, CRC included); its status
+    carries 3 data bytes (model number, firmware)."""
+    packet = [0xFF, 0xFF, 0xFD, 0x00, dxl_id, 3, 0, rd.INST_PING]
+    crc = dynamixel_sdk.PacketHandler(PROTOCOL).updateCRC(0, packet, len(packet))
+    return bytes(packet + [crc & 0xFF, crc >> 8])
+
+
+def _read_packet(dxl_id: int, address: int, size: int) -> bytes:
+    """The Protocol 2.0 Read instruction packet (14 bytes, CRC included)."""
+    packet = [0xFF, 0xFF, 0xFD, 0x00, dxl_id, 7, 0, rd.INST_READ,
+              address & 0xFF, address >> 8, size & 0xFF, size >> 8]
+    crc = dynamixel_sdk.PacketHandler(PROTOCOL).updateCRC(0, packet, len(packet))
+    return bytes(packet + [crc & 0xFF, crc >> 8])
+
+
+def _status_start(dxl_id: int, size: int) -> bytes:
+    """How a status packet from ``dxl_id`` carrying ``size`` data bytes begins."""
+    length = size + 4
+    return bytes((0xFF, 0xFF, 0xFD, 0x00, dxl_id, length & 0xFF, length >> 8, 0x55))
+
+
+def _stale(rx: list, size: int) -> bool:
+    """A clean status packet whose data count is not ``size``: a late reply to another
+    instruction (a reply carrying an error number may have no data: it is not stale)."""
+    return not rx[p2.PKT_ERROR] & 0x7F and len(_status_data(rx)) != size
+
+
+def _status_data(rx: list) -> list:
+    """The data bytes of a status packet (all of them: the SDK would slice the asked-for count
+    and take the CRC for data when a shorter reply, e.g. a late one to another read, comes)."""
+    length = rx[p2.PKT_LENGTH_L] | (rx[p2.PKT_LENGTH_H] << 8)  # instruction, error, data, CRC
+    return rx[p2.PKT_PARAMETER0 + 1: p2.PKT_PARAMETER0 + 1 + max(0, length - 4)]
 
 
 @dataclass
@@ -112,6 +163,8 @@ class BusLink:
         set_latency_assumption(self.latency_ms)
         self.settle_s = (self.latency_ms + 1) / 1000.0
         self._unsettled = False
+        self._answered: dict[int, None] = {}  # servos that answered, oldest first: flush witnesses
+        self._witness_pending: dict[int, set[int]] = {}  # id -> sizes of unanswered witness reads
         self.baud = int(baud)
         self.poll_block_s = float(poll_block_s)
         self.ph = dynamixel_sdk.PacketHandler(PROTOCOL)
@@ -151,9 +204,87 @@ class BusLink:
 
     def _fail(self, code: int, ids: Iterable[int], instruction: str, detail: str = "") -> ServoError:
         """The typed error for an SDK result code; a late reply may still be on its way, so the
-        next instruction first lets the line settle (``_transaction``)."""
+        next instruction first lets the line settle (``_transaction``). The SDK zeroes the
+        port's ``packet_timeout`` when its deadline fires: that tells a reply cut short by the
+        deadline (which may still be arriving) from one with a bad CRC."""
         self._unsettled = True
-        return _failure(code, ids, instruction, detail)
+        for dxl_id in ids:
+            self._answered.pop(dxl_id, None)
+        return _failure(code, ids, instruction, detail, deadline=self.port.packet_timeout == 0)
+
+    def witness(self, witness_id: int, timeout_s: float | None = None, ping: bool = False) -> str:
+        """Judge the transaction that just missed its deadline by the line's order.
+
+        On a loaded machine the kernel can hold a reply (or the request) for hundreds of ms
+        before either end sees it (the pseudo-terminal's and the USB serial driver's buffers
+        are pushed by a kernel worker that competes for the CPU), so a deadline alone cannot
+        tell a silent servo from a starved bus. The line is first-in first-out: ask
+        ``witness_id`` (a servo that answered recently) for a read of a size no earlier,
+        unanswered witness asked (``WITNESS_SIZES``) and read up to its reply. Bytes before
+        it -> LATE (the failed transaction's reply was on its way); the witness's reply first
+        -> SILENT (the failed servo really did not answer); nothing within ``timeout_s``
+        (default: the SDK's own deadline for that reply) -> STALLED (no proof either way).
+        Everything read is consumed; after STALLED the next instruction lets the line settle.
+        ``ping``: ask with a ping instead (for a servo that answers nothing else; a late
+        reply to an earlier ping would pass for its answer).
+        """
+        with self._transaction([witness_id], "witness", tx=False):
+            return self._witness(witness_id, timeout_s, ping)
+
+    def _witness(self, witness_id: int, timeout_s: float | None = None, ping: bool = False) -> str:
+        pending = self._witness_pending.setdefault(witness_id, set())
+        size = 3 if ping else next((n for n in WITNESS_SIZES if n not in pending), None)
+        if size is None:  # every size still awaits its reply: the line is stalled
+            self._unsettled = True
+            return STALLED
+        reply_size = size + 11
+        if timeout_s is None:
+            timeout_s = (2.0 * sdk_port_handler.LATENCY_TIMER + 2.0 + 0.01 * reply_size) / 1e3
+        tx = _ping_packet(witness_id) if ping else _read_packet(witness_id, 0, size)
+        start = _status_start(witness_id, size)
+        got = bytearray()
+        got += self.port.ser.read(self.port.ser.in_waiting or 0)
+        self.port.ser.write(tx)
+        deadline = time.monotonic() + timeout_s
+        while True:
+            at = got.find(start)
+            if at >= 0 and len(got) >= at + reply_size:
+                break
+            if time.monotonic() > deadline:
+                self._unsettled = True
+                if not ping:
+                    pending.add(size)
+                return STALLED
+            got += self.port.ser.read(max(1, self.port.ser.in_waiting))
+        before = bytes(got[:at])
+        if before.endswith(tx):  # a half-duplex adapter echoes the host's own bytes
+            before = before[: -len(tx)]
+        pending.clear()  # the line is in order: every earlier witness reply came before this one
+        self._unsettled = len(got) > at + reply_size
+        return LATE if before else SILENT
+
+    def _heard(self, dxl_id: int) -> None:
+        """``dxl_id`` answered cleanly: the newest flush witness."""
+        self._answered.pop(dxl_id, None)
+        self._answered[dxl_id] = None
+
+    def _settle(self, ids: Iterable[int], instruction: str) -> None:
+        """Before an instruction that follows a failed one: make sure no late reply is still on
+        its way (it would be taken for this instruction's answer: Protocol 2.0 has no sequence
+        numbers). With a servo that answered before, ``witness`` it (everything up to its reply
+        is read and dropped); if the line stays stalled, fail this instruction unsent
+        (ServoTimeout with ``line_stalled``). With none yet, wait ``settle_s`` and drop."""
+        if not self._answered:
+            self._unsettled = False
+            time.sleep(self.settle_s)
+            self.port.ser.reset_input_buffer()
+            return
+        witness = next(reversed(self._answered))
+        if self._witness(witness) == STALLED:
+            del self._answered[witness]  # it may have died since: the next flush asks another
+            error = ServoTimeout(ids, instruction, "not sent: the line is stalled (replies still pending)")
+            error.deadline = error.line_stalled = True
+            raise error
 
     @contextlib.contextmanager
     def _transaction(self, ids: Iterable[int], instruction: str, tx: bool = True) -> Iterator[None]:
@@ -167,9 +298,7 @@ class BusLink:
         self.port.is_using = False
         try:
             if tx and self._unsettled:
-                self._unsettled = False
-                time.sleep(self.settle_s)
-                self.port.ser.reset_input_buffer()
+                self._settle(ids, instruction)
             yield
         except PORT_ERRORS as exc:
             self.port.is_using = False
@@ -178,6 +307,15 @@ class BusLink:
             # The SDK indexes into replies without checking their length.
             self.port.is_using = False
             raise ServoCorrupt(ids, instruction, f"malformed reply ({type(exc).__name__} in the SDK)") from exc
+
+    def _receive(self, dxl_id: int, size: int) -> tuple[list, int]:
+        """Status packets until one from ``dxl_id`` that can answer a read of ``size`` bytes
+        (or the deadline already set): packets from others and late replies of another
+        size (e.g. to a ping) are skipped. -> (packet, SDK result code)."""
+        while True:
+            rx, code = self.ph.rxPacket(self.port, False)
+            if code != rd.COMM_SUCCESS or rx[p2.PKT_ID] == dxl_id and not _stale(rx, size):
+                return rx, code
 
     # ---- single-servo instructions -------------------------------------------------------
     def ping(self, dxl_id: int) -> tuple[int, int]:
@@ -197,6 +335,7 @@ class BusLink:
         if error & 0x7F or len(rx) != 14:
             raise ServoStatusError([dxl_id], "ping", describe_status_error(error)
                                    + f", {len(rx)}-byte reply (a ping reply has 14)", error=error)
+        self._heard(dxl_id)
         return rx[9] | (rx[10] << 8), rx[11]
 
     def broadcast_ping(self) -> dict[int, tuple[int, int]]:
@@ -214,13 +353,24 @@ class BusLink:
     def read_with_status(self, dxl_id: int, item: Item) -> tuple[int, int]:
         """Read one item -> (value, status error byte with its alert bit)."""
         instruction = f"read {item.name}"
+        tx = [0] * 14
+        tx[p2.PKT_ID] = dxl_id
+        tx[p2.PKT_LENGTH_L] = 7
+        tx[p2.PKT_INSTRUCTION] = rd.INST_READ
+        tx[p2.PKT_PARAMETER0: p2.PKT_PARAMETER0 + 4] = [
+            item.address & 0xFF, item.address >> 8, item.size & 0xFF, item.size >> 8]
         with self._transaction([dxl_id], instruction):
-            data, code, error = self.ph.readTxRx(self.port, dxl_id, item.address, item.size)
+            rx, code, error = self.ph.txRxPacket(self.port, tx)
+            if code == rd.COMM_SUCCESS and _stale(rx, item.size):
+                rx, code = self._receive(dxl_id, item.size)
+                error = rx[p2.PKT_ERROR] if code == rd.COMM_SUCCESS else 0
         if code != rd.COMM_SUCCESS:
             raise self._fail(code, [dxl_id], instruction)
+        data = _status_data(rx)
         if error & 0x7F or len(data) != item.size:
             raise ServoStatusError([dxl_id], instruction, describe_status_error(error)
                                    + f", {len(data)} of {item.size} data bytes", error=error)
+        self._heard(dxl_id)
         return item.decode(data), int(error)
 
     def write(self, dxl_id: int, item: Item, value: int) -> None:
@@ -260,8 +410,14 @@ class BusLink:
         """
         out = GroupRead()
         instruction = "sync_read"
-        with self._transaction(ids, instruction):
-            code = self.ph.syncReadTx(self.port, item.address, item.size, ids, len(ids), False)
+        try:
+            with self._transaction(ids, instruction):
+                code = self.ph.syncReadTx(self.port, item.address, item.size, ids, len(ids), False)
+        except ServoTimeout as exc:
+            if not exc.line_stalled:
+                raise
+            out.failed = dict.fromkeys(ids, exc)
+            return out
         if code != rd.COMM_SUCCESS:
             out.failed = dict.fromkeys(ids, self._fail(code, ids, instruction))
             return out
@@ -269,10 +425,11 @@ class BusLink:
             # The deadline is shared by all replies; after it expires, each readRx returns at
             # once with whatever is already buffered.
             with self._transaction([dxl_id], instruction, tx=False):
-                data, code, error = self.ph.readRx(self.port, dxl_id, item.size)
+                rx, code = self._receive(dxl_id, item.size)
             if code != rd.COMM_SUCCESS:
                 out.failed[dxl_id] = self._fail(code, [dxl_id], instruction)
                 continue
+            data, error = _status_data(rx), rx[p2.PKT_ERROR]
             out.errors[dxl_id] = int(error)
             if error & 0x7F or len(data) != item.size:
                 out.failed[dxl_id] = ServoStatusError(
@@ -280,6 +437,7 @@ class BusLink:
                     describe_status_error(error) + f", {len(data)} of {item.size} data bytes", error=error)
                 continue
             out.values[dxl_id] = item.decode(data)
+            self._heard(dxl_id)
         return out
 
     def fast_sync_read(self, ids: list[int], item: Item) -> GroupRead:
@@ -290,10 +448,16 @@ class BusLink:
         """
         out = GroupRead()
         instruction = "fast_sync_read"
-        with self._transaction(ids, instruction):
-            code = self.ph.syncReadTx(self.port, item.address, item.size, ids, len(ids), True)
-            if code == rd.COMM_SUCCESS:
-                rx, code = self.ph.rxPacket(self.port, True)
+        try:
+            with self._transaction(ids, instruction):
+                code = self.ph.syncReadTx(self.port, item.address, item.size, ids, len(ids), True)
+                if code == rd.COMM_SUCCESS:
+                    rx, code = self.ph.rxPacket(self.port, True)
+        except ServoTimeout as exc:
+            if not exc.line_stalled:
+                raise
+            out.failed = dict.fromkeys(ids, exc)
+            return out
         if code != rd.COMM_SUCCESS:
             err = self._fail(code, ids, instruction)
             out.failed = dict.fromkeys(ids, err)
@@ -323,6 +487,7 @@ class BusLink:
                         [dxl_id], instruction, describe_status_error(error), error=error)
                 else:
                     out.values[dxl_id] = item.decode(rx[pos + 2: pos + 2 + item.size])
+                    self._heard(dxl_id)
             crc = self.ph.updateCRC(crc, rx[pos + seg - 2: pos + seg], 2)
             pos += seg
         return out
@@ -341,4 +506,4 @@ class BusLink:
 
 
 __all__ = ["BusLink", "GroupRead", "set_latency_assumption", "adapter_latency_ms", "DEFAULT_LATENCY_MS",
-           "PORT_ERRORS"]
+           "PORT_ERRORS", "LATE", "SILENT", "STALLED"]

@@ -7,7 +7,13 @@ Per ``read()``:
 3. Each servo the group read failed for gets one individual read; a servo that still fails
    holds its last good value, is flagged (``ok`` False), and after ``missing_after`` failures
    in a row leaves the group read: it is then probed alone every ``probe_period_s``, so a dead
-   servo costs the others one timeout per probe, not one per frame.
+   servo costs the others one timeout per probe, not one per frame. A timeout is booked as a
+   failure only once the line proves the servo silent (``BusLink.witness``: a servo that
+   answered is asked for a read; its reply arriving with nothing before it proves the silence). On a
+   starved machine the kernel can hold replies for hundreds of ms: a late or unproven
+   timeout leaves the reading flagged for that servo (its last good value held) but books
+   nothing, unless the servo has been unheard for ``stall_limit_s`` (a whole bus gone quiet
+   has no witness).
 4. Every ``health_period_s`` (and at once when a status packet carries the alert bit): Hardware
    Error Status and Realtime Tick of every servo. A latched hardware error is reported (and the
    servo rebooted when ``auto_reboot`` allows); a Realtime Tick behind its expected value means
@@ -28,7 +34,7 @@ from puppet.bus import control_table as ct
 from puppet.bus import health as hs
 from puppet.bus.configure import SetupReport, configure_servo, identify, supports_fast_sync_read
 from puppet.bus.errors import BusError, PortError, ServoCorrupt, ServoError, ServoMissing, ServoTimeout
-from puppet.bus.link import BusLink, GroupRead
+from puppet.bus.link import SILENT, STALLED, BusLink, GroupRead
 from puppet.bus.reading import Reading
 from puppet.bus.unwrap import TurnUnwrapper
 
@@ -50,8 +56,14 @@ class ServoReader:
     auto_reboot: reboot a sensor (never an actuator) whose hardware error is latched (at most
                once per ``reboot_holdoff_s``).
     noise_threshold: jitter (ticks) above which a servo is flagged noisy.
+    exact_within_s: a group read that took longer than this has an uncertain sampling time
+               (a starved machine delays replies): its values are not used for the jitter.
     max_jump_ticks, max_speed_ticks_s: a change larger than max_jump + max_speed·dt between two
                consecutive readings is taken as a corrupt reply (held, flagged, re-read).
+    jump_window_s: only a good reading younger than this is a reference for that check.
+    stall_limit_s: a servo unheard this long is booked failed even without a witness's proof.
+
+    ``stalls``: timeouts not booked because the line showed them late or could not judge them.
     """
 
     def __init__(
@@ -72,9 +84,12 @@ class ServoReader:
         reconnect_period_s: float = 0.2,
         poll_block_s: float = 0.0002,
         noise_threshold: float = 6.0,
+        exact_within_s: float = 0.004,
         max_jump_ticks: int = 1024,
         max_speed_ticks_s: float = 20000.0,
+        jump_window_s: float = 0.1,
         reboot_holdoff_s: float = 2.0,
+        stall_limit_s: float = 5.0,
     ):
         if not servos:
             raise ValueError("ServoReader: the servo map is empty")
@@ -95,8 +110,10 @@ class ServoReader:
         self.read_mode = "sync_read"
         self.auto_reboot = auto_reboot
         self.noise_threshold = float(noise_threshold)
+        self.exact_within_ns = int(exact_within_s * 1e9)
         self.max_jump_ticks = int(max_jump_ticks)
         self.max_speed_ticks_s = float(max_speed_ticks_s)
+        self.jump_window_s = float(jump_window_s)
         self.reboot_holdoff_ns = int(reboot_holdoff_s * 1e9)
         self._last_reboot_ns: dict[int, int] = {}
         self.missing_after = missing_after
@@ -104,6 +121,10 @@ class ServoReader:
         self.probe_period_ns = int(probe_period_s * 1e9)
         self.health_period_ns = int(health_period_s * 1e9)
         self.reconnect_period_ns = int(reconnect_period_s * 1e9)
+        self.stall_limit_ns = int(stall_limit_s * 1e9)
+        self.stalls = 0
+        self._stalled = False           # this read() met a stalled line: spare further timeouts
+        self._unproven_since: dict[int, int] = {}  # id -> first unproven timeout in a row (ns)
 
         self.ids = np.array(list(self.servos), dtype=np.int64)
         self.ids.setflags(write=False)
@@ -145,6 +166,7 @@ class ServoReader:
             found = self.link.broadcast_ping()
             report.unexpected = {i: m for i, (m, _) in found.items() if i not in self.servos}
         identify(self.link, self.servos, report)
+        self._identify_again(report)
         if report.missing and strict:
             raise ServoMissing(report.missing, "ping", f"on {self.link.port_name}")
         fast_ok = supports_fast_sync_read(self.servos, report.found)
@@ -157,16 +179,8 @@ class ServoReader:
             if dxl_id in report.missing:
                 self._mark_missing(dxl_id, ServoTimeout([dxl_id], "ping", "no answer at setup"))
                 continue
-            for attempt in range(3):
-                try:
-                    configure_servo(self.link, dxl_id, dxl_id in self.actuators, report.changes)
-                    bits = self.link.read(dxl_id, ct.HARDWARE_ERROR_STATUS)
-                    break
-                except ServoError as exc:
-                    error = exc
-            else:
-                self._mark_missing(dxl_id, error)
-                report.missing.append(dxl_id)
+            bits = self._configure_at_setup(dxl_id, report)
+            if bits is None:
                 continue
             if bits:
                 report.hardware_errors[dxl_id] = bits
@@ -175,6 +189,46 @@ class ServoReader:
         self._next_health_ns = 0
         self.read()
         return report
+
+    def _configure_at_setup(self, dxl_id: int, report: SetupReport) -> int | None:
+        """Configure one servo (three tries; timeouts go on until the line proves the servo
+        silent) -> its Hardware Error Status bits, or None when it failed (marked missing)."""
+        tries = 0
+        while True:
+            try:
+                configure_servo(self.link, dxl_id, dxl_id in self.actuators, report.changes)
+                return self.link.read(dxl_id, ct.HARDWARE_ERROR_STATUS)
+            except ServoError as exc:
+                tries += 1
+                if tries < 3:
+                    continue
+                if exc.deadline and not self._silence_proven(
+                        dxl_id, time.monotonic_ns(), report.found, stalled=exc.line_stalled):
+                    continue
+                self._mark_missing(dxl_id, exc)
+                report.missing.append(dxl_id)
+                return None
+
+    def _identify_again(self, report: SetupReport) -> None:
+        """Ping again each servo that did not answer at setup until the line proves it silent
+        (or its timeouts stay unproven for ``stall_limit_s``): a starved machine must not make
+        a servo missing. Only a ping that was sent and timed out can be proven silent."""
+        for dxl_id in list(report.missing):
+            while True:
+                try:
+                    self.link.ping(dxl_id)
+                except ServoError as exc:
+                    if not exc.deadline or self._silence_proven(
+                            dxl_id, time.monotonic_ns(), report.found, stalled=exc.line_stalled):
+                        break  # silent, or answering but not cleanly: missing, as identify found
+                    continue
+                again = SetupReport()
+                identify(self.link, {dxl_id: self.servos[dxl_id]}, again)
+                if dxl_id in again.found:
+                    report.missing.remove(dxl_id)
+                    report.found[dxl_id] = again.found[dxl_id]
+                    break
+        report.found = {i: report.found[i] for i in self.servos if i in report.found}
 
     def close(self) -> None:
         """Close the port (torque is left as configured)."""
@@ -194,6 +248,7 @@ class ServoReader:
         self.reads += 1
         now = time.monotonic_ns()
         self._ok[:] = False
+        self._stalled = False
         if not self._port_up and not self._reconnect(now):
             return self._reading(now)
         try:
@@ -210,18 +265,20 @@ class ServoReader:
     def read_clean(self, samples: int = 1, timeout_s: float = 2.0) -> Reading:
         """A reading where every servo is ok; with ``samples`` > 1 the per-servo median of that
         many clean readings (for zero-pose capture). ServoTimeout naming the servos that never
-        read cleanly when ``timeout_s`` runs out."""
+        read cleanly (else those of the last reading) when ``timeout_s`` runs out."""
         deadline = time.monotonic() + timeout_s
         clean: list[Reading] = []
         bad: set[int] = set()
+        never = set(self.servos)
         while len(clean) < samples:
             reading = self.read()
+            never -= {int(i) for i in reading.ids[reading.ok]}
             if reading.ok.all():
                 clean.append(reading)
             else:
                 bad = {int(i) for i in reading.ids[~reading.ok]}
             if time.monotonic() > deadline:
-                raise ServoTimeout(bad or set(self.servos), "read_clean",
+                raise ServoTimeout(never or bad or set(self.servos), "read_clean",
                                    f"{len(clean)} of {samples} clean readings in {timeout_s} s")
         ticks = np.median(np.stack([r.ticks for r in clean]), axis=0).round().astype(np.int32)
         return Reading(clean[-1].t_ns, self.ids, ticks, np.ones(len(self.ids), dtype=bool))
@@ -249,22 +306,28 @@ class ServoReader:
         if not self._group:
             return
         result = self._group_read(self._group, ct.PRESENT_POSITION)
+        exact = time.monotonic_ns() - now <= self.exact_within_ns
         for dxl_id, error in result.errors.items():
             self._note_alert(dxl_id, error)
         for dxl_id, raw in result.values.items():
             implausible = self._implausible(dxl_id, raw, now)
             if implausible is None:
-                self._accept(dxl_id, raw, now)
+                self._accept(dxl_id, raw, now, exact)
             else:
                 self._read_alone(dxl_id, implausible, now)
         for dxl_id, exc in result.failed.items():
             self._read_alone(dxl_id, exc, now)
 
     def _read_alone(self, dxl_id: int, group_exc: ServoError, now: int) -> None:
-        """Individual read of a servo the group read failed for."""
+        """Individual read of a servo the group read failed for (skipped, nothing booked, when
+        this read already met a stalled line)."""
+        if self._stalled:
+            return
         try:
             raw, error = self.link.read_with_status(dxl_id, ct.PRESENT_POSITION)
         except ServoError as exc:
+            if exc.deadline and not self._silence_proven(dxl_id, now, stalled=exc.line_stalled):
+                return
             self._failed(dxl_id, exc, now)
             return
         self._note_alert(dxl_id, error)
@@ -274,17 +337,55 @@ class ServoReader:
             return
         self._accept(dxl_id, raw, now)
 
+    def _silence_proven(self, dxl_id: int, now: int, heard=None, stalled: bool = False) -> bool:
+        """Whether a timeout of ``dxl_id`` is a proven silence (see the module doc): a witness
+        (a servo that answered: in ``heard`` at setup, else ok in this reading or heard last)
+        is asked for a read. False (counted in ``stalls``) when the line shows the reply was late or
+        cannot judge, unless ``dxl_id``'s timeouts have gone unproven for ``stall_limit_s``."""
+        witness = self._witness_for(dxl_id, heard)
+        if stalled or witness is None or heard is None and self._stalled:
+            verdict = STALLED
+        else:
+            verdict = self.link.witness(witness)
+        if verdict == SILENT:
+            self._unproven_since.pop(dxl_id, None)
+            return True
+        self.stalls += 1
+        self._stalled = verdict == STALLED
+        since = self._unproven_since.setdefault(dxl_id, now)
+        if now - since > self.stall_limit_ns:
+            del self._unproven_since[dxl_id]
+            return True
+        return False
+
+    def _witness_for(self, dxl_id: int, heard=None) -> int | None:
+        """A servo other than ``dxl_id`` that answered: one in ``heard`` (setup) or ok in this
+        reading, else the one heard most recently; None when no other servo ever answered."""
+        if heard is not None:
+            return next((i for i in heard if i != dxl_id), None)
+        best, best_ns = None, 0
+        for k, other in enumerate(self.ids):
+            other = int(other)
+            if other == dxl_id:
+                continue
+            if self._ok[k]:
+                return other
+            h = self.health[other]
+            if h.state == hs.OK and h.last_ok_ns > best_ns:
+                best, best_ns = other, h.last_ok_ns
+        return best
+
     def _implausible(self, dxl_id: int, raw: int, now: int) -> ServoCorrupt | None:
         """A jump no shaft can make between two readings (a reply with a valid CRC but wrong
         data, e.g. two servos' segments colliding) -> ServoCorrupt; None when plausible.
-        Only checked against a good reading less than 0.1 s old."""
+        Only checked against a good reading less than ``jump_window_s`` old."""
         h = self.health[dxl_id]
         value, _ = self.unwrap[dxl_id].peek(raw)  # a re-base must land near the last value too
         last = self.unwrap[dxl_id].last
         if last is None:
             return None
         dt_s = max(0.0, (now - h.last_ok_ns) / 1e9)
-        if dt_s > 0.1:
+        if dt_s > self.jump_window_s:
             return None
         bound = self.max_jump_ticks + self.max_speed_ticks_s * dt_s
         if abs(value - last) <= bound:
@@ -310,7 +411,9 @@ class ServoReader:
         self._accept(dxl_id, raw, now)
 
     # ---- per-servo bookkeeping -----------------------------------------------------------
-    def _accept(self, dxl_id: int, raw: int, now: int) -> None:
+    def _accept(self, dxl_id: int, raw: int, now: int, exact: bool = False) -> None:
+        """Take ``raw`` as the servo's value at ``now``; ``exact``: that time is known to within
+        ``exact_within_s`` (only such values feed the jitter estimate)."""
         h = self.health[dxl_id]
         unwrapper = self.unwrap[dxl_id]
         value, offset = unwrapper.peek(raw)
@@ -328,7 +431,10 @@ class ServoReader:
             h.rebases += 1
             self.log.add("rebased", [dxl_id], f"raw {raw}: turn offset now {unwrapper.offset} ticks")
         k = self._index[dxl_id]
-        self._track_jitter(h, k, value, now)
+        if exact:
+            self._track_jitter(h, k, value, now)
+        else:
+            self._run[k] = 0
         self._ticks[k] = value
         self._ok[k] = True
         if h.state != hs.OK:
@@ -337,6 +443,7 @@ class ServoReader:
         h.consecutive_failures = 0
         h.corrupt_in_a_row = 0
         h.last_ok_ns = now
+        self._unproven_since.pop(dxl_id, None)
 
     def _track_jitter(self, h: hs.ServoHealth, k: int, value: int, t_ns: int) -> None:
         """Running mean of the error of a linear prediction from the last two good readings
@@ -442,8 +549,9 @@ class ServoReader:
             self._on_hardware_error(dxl_id, bits)
         t0 = time.monotonic_ns()
         ticks = self.link.sync_read(ids, ct.REALTIME_TICK)
+        t1 = time.monotonic_ns()
         for dxl_id, tick in ticks.values.items():
-            self._check_tick(dxl_id, tick, t0)
+            self._check_tick(dxl_id, tick, t0, t1)
 
     def _on_hardware_error(self, dxl_id: int, bits: int) -> None:
         """Book Hardware Error Status ``bits``; reboot a sensor with a latched error when
@@ -465,10 +573,14 @@ class ServoReader:
             self._last_reboot_ns[dxl_id] = now
             self.reboot(dxl_id)
 
-    def _check_tick(self, dxl_id: int, tick: int, t_ns: int) -> None:
-        """A Realtime Tick (ms, wraps at 32768) behind its expected value means a reboot."""
+    def _check_tick(self, dxl_id: int, tick: int, t_ns: int, t_reply_ns: int) -> None:
+        """A Realtime Tick (ms, wraps at 32768) behind its expected value means a reboot.
+
+        The servo sampled ``tick`` between the request (``t_ns``) and the reply (``t_reply_ns``);
+        a loaded machine can hold a reply long, so the tick is expected to have advanced at
+        least from the previous reply's time to this request's, never more."""
         seen = self._tick_seen.get(dxl_id)
-        self._tick_seen[dxl_id] = (tick, t_ns)
+        self._tick_seen[dxl_id] = (tick, t_reply_ns)
         if seen is None:
             return
         elapsed_ms = (t_ns - seen[1]) / 1e6

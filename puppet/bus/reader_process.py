@@ -51,12 +51,13 @@ def _ring_arrays(buf, slots: int, k: int):
     offset += slots * k
     offset += (-offset) % 8
     written = np.ndarray((1,), np.int64, buf, offset)
-    return t_ns, ticks, ok, written
+    stop = np.ndarray((1,), np.int64, buf, offset + 8)
+    return t_ns, ticks, ok, written, stop
 
 
 def _ring_size(slots: int, k: int) -> int:
     size = 8 * slots + 4 * slots * k + slots * k
-    return size + (-size) % 8 + 8
+    return size + (-size) % 8 + 16
 
 
 DELAY_SLOTS = 4096
@@ -118,10 +119,12 @@ def _torque_off(driver, events) -> None:
         return
 
 
-def _child(shm_name, slots, port, servos, options, rate_hz, events, commands, stop,
+def _child(shm_name, slots, port, servos, options, rate_hz, events, commands,
            actuation=None, goal_shm_name=None):
-    """The reader process: open the bus, then read at rate_hz into the ring until stop (with
-    ``actuation``: drive its actuators from the goal channel, torque off on the way out)."""
+    """The reader process: open the bus, then read at rate_hz into the ring until the ring's
+    stop word is set (a plain shared word, no lock: a child killed at any moment cannot leave
+    the parent blocked on a lock it held). With ``actuation``: drive its actuators from the
+    goal channel, torque off on the way out."""
     from puppet.bus.errors import BusError
     from puppet.bus.reader import ServoReader
 
@@ -130,9 +133,10 @@ def _child(shm_name, slots, port, servos, options, rate_hz, events, commands, st
     parent = os.getppid()
     if actuation is not None:  # the parent stops us (Ctrl-C reaches the whole group)
         signal.signal(signal.SIGINT, signal.SIG_IGN)
-        signal.signal(signal.SIGTERM, lambda *_: stop.set())
+    t_ns, ticks, ok, written, stop = _ring_arrays(shm.buf, slots, len(servos))
+    if actuation is not None:
+        signal.signal(signal.SIGTERM, lambda *_: stop.__setitem__(0, 1))
     try:
-        t_ns, ticks, ok, written = _ring_arrays(shm.buf, slots, len(servos))
         reader = ServoReader(port, servos, **options)
         try:
             report = reader.open()
@@ -155,7 +159,7 @@ def _child(shm_name, slots, port, servos, options, rate_hz, events, commands, st
         events.send(("report", report))
         period_ns = int(1e9 / rate_hz) if rate_hz else 0
         next_ns = time.monotonic_ns()
-        while not stop.is_set():
+        while not stop[0]:
             if driver is not None:
                 if os.getppid() != parent:  # the host process is gone
                     break
@@ -167,7 +171,12 @@ def _child(shm_name, slots, port, servos, options, rate_hz, events, commands, st
                 except BusError as exc:
                     reader.log.add("write_failed", list(actuation.ids), str(exc))
             while commands.poll():
-                name, arg = commands.recv()
+                try:
+                    name, arg = commands.recv()
+                except (EOFError, OSError):  # the parent is gone: nobody to read for
+                    name, arg = "stop", None
+                    stop[0] = 1
+                    break
                 if name == "goals":
                     reader.write_goals(arg)
                 elif name == "reboot":
@@ -186,7 +195,7 @@ def _child(shm_name, slots, port, servos, options, rate_hz, events, commands, st
                 if now > next_ns:
                     next_ns = now  # an overrun: do not burst to catch up
                 else:
-                    stop.wait((next_ns - now) / 1e9)
+                    commands.poll((next_ns - now) / 1e9)  # a command (stop) ends the wait
     finally:
         _torque_off(driver, events)
         if reader is not None:
@@ -195,7 +204,7 @@ def _child(shm_name, slots, port, servos, options, rate_hz, events, commands, st
             del inbox
         if goal_shm is not None:
             goal_shm.close()
-        del t_ns, ticks, ok, written
+        del t_ns, ticks, ok, written, stop
         shm.close()
 
 
@@ -240,11 +249,13 @@ class ReaderProcess:
     def start(self, timeout_s: float = 30.0):
         k = len(self.servos)
         self._shm = shared_memory.SharedMemory(create=True, size=_ring_size(self.slots, k))
-        self._t_ns, self._ticks, self._ok, self._written = _ring_arrays(self._shm.buf, self.slots, k)
+        self._t_ns, self._ticks, self._ok, self._written, self._stop_word = _ring_arrays(
+            self._shm.buf, self.slots, k)
         self._written[0] = 0
+        self._stop_word[0] = 0
         self._events, child_events = self._ctx.Pipe(duplex=False)
+        self._events_closed = False
         child_commands, self._commands = self._ctx.Pipe(duplex=False)
-        self._stop = self._ctx.Event()
         goal_name = None
         if self.actuation is not None:
             a = len(self.actuation.ids)
@@ -256,12 +267,16 @@ class ReaderProcess:
         self._proc = self._ctx.Process(
             target=_child, name="puppet-bus-reader", daemon=True,
             args=(self._shm.name, self.slots, self.port, self.servos, self.options, self.rate_hz,
-                  child_events, child_commands, self._stop, self.actuation, goal_name))
+                  child_events, child_commands, self.actuation, goal_name))
         self._proc.start()
+        # The child has its own copies now: with ours closed, its death is an end of file here
+        # (a message cut by it raises instead of blocking a read forever).
+        child_events.close()
+        child_commands.close()
         deadline = time.monotonic() + timeout_s
         while self.report is None:
             remaining = deadline - time.monotonic()
-            if remaining <= 0 or not self._proc.is_alive() and not self._events.poll():
+            if remaining <= 0 or self._events_closed or not self._proc.is_alive() and not self._events.poll():
                 self.stop()
                 raise ReaderProcessError(f"{self.port}: the reader process did not start")
             if self._events.poll(min(remaining, 0.1)):
@@ -271,7 +286,8 @@ class ReaderProcess:
     def _take_message(self) -> None:
         try:
             kind, payload = self._events.recv()
-        except EOFError:
+        except (EOFError, OSError):
+            self._events_closed = True  # the child is gone: its end of the pipe closed
             return
         if kind == "report":
             self.report = payload
@@ -287,8 +303,13 @@ class ReaderProcess:
             raise ReaderProcessError(f"{self.port}: {payload}")
 
     def _poll_events(self) -> None:
-        while self._events.poll():
+        while not self._events_closed and self._events.poll():
             self._take_message()
+
+    @property
+    def produced(self) -> int:
+        """Readings the child has written so far (consumed or not)."""
+        return int(self._written[0]) if self._shm is not None else self._read
 
     @property
     def alive(self) -> bool:
@@ -368,7 +389,11 @@ class ReaderProcess:
 
     def stop(self, timeout: float = 3.0) -> None:
         if self._proc is not None:
-            self._stop.set()
+            self._stop_word[0] = 1
+            try:
+                self._commands.send(("stop", None))   # wakes a child pacing its reads
+            except (OSError, ValueError):
+                pass  # the child is gone already: its end of the pipe is closed
             # with actuators the child turns their torque off first (a few transactions)
             self._proc.join(timeout if self.actuation is None else max(timeout, 20.0))
             if self._proc.is_alive():
@@ -376,19 +401,12 @@ class ReaderProcess:
                 self._proc.join()
             self._proc = None
             if self.actuation is not None and self.report is not None:
-                while self._events.poll():  # its torque-off report, if it got that far
-                    try:  # (a closed pipe polls readable forever: stop at its end)
-                        kind, payload = self._events.recv()
-                    except EOFError:
-                        break
-                    if kind == "torque_off":
-                        self.torque_after = payload
-                    elif kind == "note":
-                        self.notes.append(payload)
+                while not self._events_closed and self._events.poll():
+                    self._take_message()  # its torque-off report, if it got that far
                 if self.torque_after is None:
                     self._torque_off_from_here()
         if self._shm is not None:
-            del self._t_ns, self._ticks, self._ok, self._written
+            del self._t_ns, self._ticks, self._ok, self._written, self._stop_word
             self._shm.close()
             self._shm.unlink()
             self._shm = None

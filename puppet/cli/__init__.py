@@ -64,13 +64,14 @@ def main() -> None:
       puppet rig init creature.glb --out creature.toml    a starting rig for your character
       puppet rig axes creature.toml --out sheet.png       each joint turned: pick axes
       puppet calibrate --rig creature.toml --port /dev/ttyUSB0 --guided
+      puppet batch session/*.mcap --out exports/ --formats gltf,usd
     """
 
 
 def _register() -> None:
-    from puppet.cli import bus, demo, export, live, perform, play, record, rig, view
+    from puppet.cli import batch, bus, demo, export, live, perform, play, record, rig, view
 
-    for module in (demo, live, record, play, export, bus, rig, view, perform):
+    for module in (demo, live, record, play, export, batch, bus, rig, view, perform):
         for command in module.COMMANDS:
             main.add_command(command)
 

@@ -7,6 +7,21 @@ import click
 from puppet.cli.common import fail, load_rig, print_setup
 
 
+
+def _ping_all(port: str, baud: int) -> dict:
+    """Broadcast ping on ``port``: {id: (model number, firmware)}; a bus error is an Error line."""
+    from puppet.bus import BusError, BusLink
+
+    link = BusLink(port, baud=baud)
+    try:
+        link.open()
+        return link.broadcast_ping()
+    except BusError as err:
+        fail(f"port {port}: {err}")
+    finally:
+        link.close()
+
+
 @click.command()
 @click.option("--port", required=True, help="Serial port.")
 @click.option("--baud", default=1_000_000, show_default=True, help="Bus baud rate.")
@@ -17,17 +32,9 @@ def scan(port: str, baud: int) -> None:
     Example:
       puppet scan --port /dev/ttyUSB0
     """
-    from puppet.bus import BusError, BusLink
     from puppet.bus.control_table import MODELS_BY_NUMBER
 
-    link = BusLink(port, baud=baud)
-    try:
-        link.open()
-        found = link.broadcast_ping()
-    except BusError as err:
-        fail(f"port {port}: {err}")
-    finally:
-        link.close()
+    found = _ping_all(port, baud)
     if not found:
         fail(f"port {port}: no servo answered a broadcast ping at {baud} bps")
     click.echo(f"{'id':>4}  {'model':<12} {'number':>6}  firmware")
@@ -74,8 +81,14 @@ def calibrate(rig_path: str, port: str, baud: int, out: str | None, guided: bool
         fail(f"{rig_path}: the rig names no calibration file; pass --out FILE")
     reader = ServoReader(port, rig.servo_map.models, baud=baud)
     try:
-        print_setup(reader.open(), port)
-        reading = reader.read_clean(samples=9, timeout_s=3.0)
+        report = reader.open()
+        if report.missing:
+            names = ", ".join(f"{i} ({rig.servo_map.models[i]})" for i in report.missing)
+            fail(f"port {port}: servo{'s' if len(report.missing) > 1 else ''} {names} of {rig_path} "
+                 "did not answer: check its power, cable and id; nothing was written")
+        print_setup(report, port)
+        # generous: a loaded machine may hold replies; a servo that never reads is named
+        reading = reader.read_clean(samples=9, timeout_s=15.0)
     except BusError as err:
         fail(f"port {port}: {err}")
     finally:
@@ -89,19 +102,12 @@ def calibrate(rig_path: str, port: str, baud: int, out: str | None, guided: bool
 def _calibrate_guided(rig_path: str, port: str, baud: int, out: str | None, yes: bool,
                       timeout_s: float, threshold: int) -> None:
     """``calibrate --guided``: prompts on stderr, results written into the rig file."""
-    from puppet.bus import BusError, BusLink, ServoReader
+    from puppet.bus import BusError, ServoReader
     from puppet.bus.control_table import MODELS_BY_NUMBER
     from puppet.rig.guided_calibration import GuidedCalibration
 
     session = GuidedCalibration(rig_path)
-    link = BusLink(port, baud=baud)
-    try:
-        link.open()
-        found = link.broadcast_ping()
-    except BusError as err:
-        fail(f"port {port}: {err}")
-    finally:
-        link.close()
+    found = _ping_all(port, baud)
     unknown = sorted(i for i, (number, _) in found.items() if number not in MODELS_BY_NUMBER)
     if unknown:
         click.echo(f"warning: servos {unknown} are of a model puppet cannot read; left out", err=True)

@@ -140,11 +140,6 @@ def print_summary(summary, as_json: bool, extra: dict | None = None) -> None:
     click.echo(summary.text())
 
 
-RIG_SOURCE_MARK = "# puppet: recorded from rig file "
-"""Last line added to the rig map text a take stores: where that rig file was when recording
-began, so ``play``/``export`` without ``--rig`` find its character files (relative paths are
-relative to it). A TOML comment: the stored text parses as the rig file did, same line numbers;
-takes without it (older ones) still play."""
 
 
 def rig_files(rig) -> list[Path]:
@@ -172,6 +167,7 @@ def take_writer(take_path: str, rig, *, force: bool = False):
 
     An existing file at take_path is replaced only with force (--force); a rig file never.
     """
+    from puppet.replay import RIG_SOURCE_MARK
     from puppet.take import TakeWriter
 
     check_take_path(take_path, rig, force=force)
@@ -188,48 +184,11 @@ def take_writer(take_path: str, rig, *, force: bool = False):
 
 
 def open_take(take: str, rig_path: str | None):
-    """(rig, TakeReader) for a take; the rig is the one stored in the take when --rig is not given."""
-    from puppet.rig import Calibration
-    from puppet.take import TakeReader
+    """(rig, TakeReader) for a take; the rig is the take's own when --rig is not given."""
+    from puppet.replay import open_take as open_on_rig
 
-    reader = TakeReader(take)
-    if len(reader) == 0:
-        fail(f"{take}: the take holds no readings")
-    meta = reader.metadata
-    rig = load_rig(rig_path) if rig_path is not None else take_rig(take, meta)
-    reader.check_rig([int(i) for i in rig.servo_map.ids], dict(rig.servo_map.models),
-                     rig_name=rig.name)
-    try:  # replay with the calibration the take was recorded with
-        zero = json.loads(meta.calibration_text).get("zero_ticks", {}) if meta.calibration_text else {}
-        if zero:
-            rig.servo_map.calibrate(Calibration({int(k): int(v) for k, v in zero.items()}))
-    except (ValueError, AttributeError) as err:
-        fail(f"{take}: unreadable calibration in the take: {err}")
+    rig, reader = open_on_rig(take, rig_path)
     if reader.recovery is not None:
         click.echo(f"warning: {take}: {reader.recovery}", err=True)
     return rig, reader
 
-
-def take_rig(take: str, meta):
-    """The rig a take was recorded with, from the rig map text it stores.
-
-    Its character files are looked for relative to where the rig file was when recording began
-    (RIG_SOURCE_MARK), then next to the take, then (for a take of the built-in rig) in the
-    built-in rig's folder; the error names the missing file and the --rig option.
-    """
-    from puppet.rig import builtin
-    from puppet.rig.load import BUILTIN_RIG, builtin_name, load_rig_text
-
-    text = meta.rig_map_text
-    if not text.strip():
-        if meta.rig_name == builtin_name():
-            return builtin()
-        fail(f"{take}: the take stores no rig map (recorded with rig {meta.rig_name!r} loaded "
-             "from a character file); pass --rig with that rig's file")
-    bases = [Path(line[len(RIG_SOURCE_MARK):].strip()).parent
-             for line in text.splitlines()[-1:] if line.startswith(RIG_SOURCE_MARK)]
-    bases.append(Path(take).resolve().parent)
-    if meta.rig_name == builtin_name():
-        bases.append(BUILTIN_RIG.parent)
-    return load_rig_text(text, label=f"{take} (rig map)", bases=bases,
-                         hint="pass --rig with the rig file")

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import click
 
-from puppet.cli.common import Null, StopFlag, make_sinks, print_summary, progress
+from puppet.cli.common import Null, StopFlag, fail, make_sinks, print_summary, progress
 from puppet.cli.view import open_view, take_factory_for, view_option
 
 
@@ -29,9 +29,17 @@ def demo(out: str, seconds: float | None, faults: str | None, size: tuple[int, i
       puppet demo --seconds 5 --out demo.mp4
       puppet demo --view                 watch it at http://127.0.0.1:8765/ (Ctrl-C stops)
     """
+    from hw_sim.errors import FaultFileError
+    from hw_sim.faults import FaultSchedule
+
     from puppet.demo import run_demo
     from puppet.rig import builtin
 
+    if faults is not None:  # checked before anything starts: a bad file is the user's to fix
+        try:
+            faults = FaultSchedule.from_file(faults)
+        except FaultFileError as err:
+            fail(str(err))
     live_view = None
     if view_address is not None:  # bound before the simulated bus starts
         live_view = open_view(view_address, mode="live", take_factory=take_factory_for(builtin()))

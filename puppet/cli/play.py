@@ -30,8 +30,7 @@ def play(take: str, rig_path: str | None, out: str | None, frames: str | None, s
       puppet play take.mcap --out take.mp4 --speed 0.5
       puppet play take.mcap --view       pause, scrub and change speed in the browser
     """
-    from puppet.pipeline import Pipeline, run_frames
-    from puppet.take import PlaybackClock
+    from puppet.replay import play_take
 
     if view_address is not None:
         from puppet.cli.view import play_in_view
@@ -42,18 +41,27 @@ def play(take: str, rig_path: str | None, out: str | None, frames: str | None, s
         fail("nothing to write: give --out VIDEO and/or --frames FOLDER (or watch it: --view)")
     rig, reader = open_take(take, rig_path)
     sinks = make_sinks(out, frames, fps, inputs=[take])
-    ids = [int(i) for i in rig.servo_map.ids]
     stop = StopFlag()  # Ctrl-C or SIGTERM: stop after this frame, finish the video (playable)
+    bar = None
+    total = 0
+
+    def progress(done: int, frames_in_all: int) -> None:
+        nonlocal bar, total
+        if bar is None:
+            total = frames_in_all
+            bar = click.progressbar(length=total, label="play", file=sys.stderr)
+            bar.__enter__()
+        bar.update(1)
+
     try:
-        with Pipeline(rig, overlay=True, antialias=antialias) as pipeline:
-            clock = PlaybackClock(reader.readings(ids=ids), fps=fps, speed=speed)
-            total = clock.frame_count(reader.t_last_ns - reader.t_first_ns)
-            with click.progressbar(length=total, label="play", file=sys.stderr) as bar:
-                summary = run_frames(pipeline, (f.reading for f in clock), sinks=sinks,
-                                     on_frame=lambda _p: bar.update(1), should_stop=stop)
+        summary = play_take(rig, reader, sinks, fps=fps, speed=speed, antialias=antialias,
+                            progress=progress, should_stop=stop)
     except BaseException:
         close_sinks(sinks, failed=True)
         raise
+    finally:
+        if bar is not None:
+            bar.__exit__(None, None, None)
     close_sinks(sinks)
     if stop():
         click.echo(f"stopped by {stop.signal_name} after {summary.frames} of {total} frames; "

@@ -88,6 +88,7 @@ def play_in_view(take: str, rig_path: str | None, out: str | None, frames: str |
     from puppet.view import TakeSource
 
     live_view = open_view(view_address, mode="play")
+    stop = StopFlag()  # before the page is served: a Ctrl-C from then on ends the run cleanly
     try:
         rig, reader = open_take(take, rig_path)
         t_ns, ticks, ok = reader.arrays(ids=[int(i) for i in rig.servo_map.ids])
@@ -98,7 +99,7 @@ def play_in_view(take: str, rig_path: str | None, out: str | None, frames: str |
             with Pipeline(rig, overlay=True) as pipeline:
                 live_view.attach(pipeline, source=source)
                 summary = run_live(pipeline, source, sinks=sinks, video_fps=fps,
-                                   should_stop=StopFlag(), view=live_view)
+                                   should_stop=stop, view=live_view)
         finally:
             for sink in sinks:
                 sink.close()

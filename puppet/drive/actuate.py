@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from puppet.servo_models import TICKS_PER_TURN  # noqa: E402
+from puppet.servo_models import TICKS_PER_TURN
 
 
 def rotation_part(linear: np.ndarray) -> np.ndarray:

@@ -14,8 +14,7 @@ import json
 import numpy as np
 
 from puppet.drive.errors import DriveError
-
-from puppet.servo_models import TICKS_PER_TURN  # noqa: E402
+from puppet.servo_models import TICKS_PER_TURN
 
 
 def take_zero_ticks(metadata, path) -> dict[int, int]:

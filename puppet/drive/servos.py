@@ -259,14 +259,34 @@ class DriveBus:
         after: dict[int, int | None] = {}
         for i in self.ids:
             try:
-                after[i] = self.read(i, it.TORQUE_ENABLE)
+                after[i] = _retried(lambda i=i: self.read(i, it.TORQUE_ENABLE))
             except BusError:
                 after[i] = None
         for i, value in after.items():
             if value == 0 and self.setup.get(i, ServoSetup(i, "", 0)).watchdog:
                 try:
-                    if self.read(i, it.BUS_WATCHDOG) != 0:
-                        self.write(i, it.BUS_WATCHDOG, 0)
+                    _retried(lambda i=i: self._clear_watchdog(i))
                 except BusError as err:
                     self.log(f"servo {i}: clearing the Bus Watchdog failed: {err}")
         return after
+
+    def _clear_watchdog(self, dxl_id: int) -> None:
+        if self.read(dxl_id, it.BUS_WATCHDOG) != 0:
+            self.write(dxl_id, it.BUS_WATCHDOG, 0)
+
+
+STOP_ATTEMPTS = 3
+"""Tries of each read-back and watchdog clear on the way out: a reply lost once (a busy host or
+a noisy line) must not leave a servo reported unknown or its watchdog armed."""
+
+
+def _retried(call, attempts: int = STOP_ATTEMPTS):
+    """call() until it returns without a timeout or corrupt reply (a PortError ends it at once)."""
+    for attempt in range(attempts):
+        try:
+            return call()
+        except PortError:
+            raise
+        except BusError:
+            if attempt == attempts - 1:
+                raise

@@ -128,7 +128,8 @@ def _bvh_skeleton(rig):
 
 def export_take(rig, reader, outputs: Outputs, *, fps: float = 30.0, up: str = "y",
                 iterations: int = 8, influences: int = 4, meters_per_unit: float = 1.0,
-                progress: Callable[[int, int], None] | None = None) -> ExportReport:
+                progress: Callable[[int, int], None] | None = None,
+                precompute=None) -> ExportReport:
     """Export a take (TakeReader) solved on ``rig`` into every file named in ``outputs``.
 
     fps:        output frames per second (> 0); frames are resampled from the reading times.
@@ -136,6 +137,7 @@ def export_take(rig, reader, outputs: Outputs, *, fps: float = 30.0, up: str = "
                 glTF is Y-up by its spec, USD says its upAxis, BVH importers convert Y-up.
     iterations: FAST iterations per frame. influences: glTF weights per vertex (multiple of 4).
     progress:   called with (frames done, frames in all) after each frame.
+    precompute: a shared ``puppet.pipeline.RigPrecompute`` of ``rig`` (batch), None: built here.
     Raises ExportError (or the take's TakeRigMismatch) naming the file at fault.
     """
     start = time.monotonic()
@@ -174,7 +176,8 @@ def export_take(rig, reader, outputs: Outputs, *, fps: float = 30.0, up: str = "
     report = ExportReport(frames=len(frames), fps=fps,
                           take_seconds=(frames.t_ns[-1] - frames.t_ns[0]) * 1e-9)
     with contextlib.ExitStack() as stack:
-        pipeline = stack.enter_context(Pipeline(rig, render=False, iterations=iterations))
+        pipeline = stack.enter_context(Pipeline(rig, render=False, iterations=iterations,
+                                                precompute=precompute))
         writers: dict[str, object] = {}
         targets = dict(items)
         try:

@@ -17,6 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
+from puppet.cache import cache_dir, code_digest, read_failed, write_failed
 from puppet.fast.clusters import kmeans_weight_space
 from puppet.fast.energy import ENERGIES, lbs_matrix, reduced_matrices
 from puppet.fast.errors import FastError, MeshError
@@ -28,9 +29,16 @@ CACHE_VERSION = "fast-precompute-2"
 
 
 def default_cache_dir() -> Path:
-    """$PUPPET_CACHE_DIR/fast, else ~/.cache/puppet/fast."""
-    root = os.environ.get("PUPPET_CACHE_DIR")
-    return Path(root) / "fast" if root else Path.home() / ".cache" / "puppet" / "fast"
+    """The precompute cache: ``fast`` under the cache root (``puppet.cache``: $PUPPET_CACHE)."""
+    return cache_dir("fast")
+
+
+def code_version() -> str:
+    """A digest of the code that produces a precompute: the sources of ``puppet.fast`` and the
+    native module. Part of every cache key: an edited solver never reuses stale matrices."""
+    from puppet import _native
+
+    return code_digest(str(Path(__file__).parent), _native.__file__)
 
 
 def _validate_mesh(V, F, tets):
@@ -135,7 +143,7 @@ class FastModel:
 
         key = None
         if cache_dir is not False:
-            h = hashlib.sha256(CACHE_VERSION.encode())
+            h = hashlib.sha256(f"{CACHE_VERSION}|{code_version()}".encode())
             for a in (V, elems, Wb, labels_in if labels_in is not None else np.array([int(clusters)])):
                 h.update(np.ascontiguousarray(a).tobytes())
                 h.update(str(a.shape).encode())
@@ -149,8 +157,8 @@ class FastModel:
                         self._set(z["weights"], z["labels"], z["Q"], z["K"], float(z["c0"]), int(z["dropped"]))
                     self.cache_hit = True
                     return
-                except (OSError, KeyError, ValueError):
-                    pass  # unreadable cache entry: recompute and overwrite it
+                except (OSError, KeyError, ValueError, EOFError) as err:
+                    read_failed(path, err)  # recomputed and overwritten below
         Wf = full_weights(Wb, extra) if extra else Wb
         if labels_in is None:
             labels = kmeans_weight_space(Wf, int(clusters))
@@ -165,11 +173,11 @@ class FastModel:
         if key is not None:
             try:
                 cdir.mkdir(parents=True, exist_ok=True)
-                tmp = cdir / f"{key}.tmp.npz"
+                tmp = cdir / f"{key}.{os.getpid()}.tmp.npz"
                 np.savez(tmp, weights=Wf, labels=labels, Q=Q, K=K, c0=c0, dropped=dropped)
                 os.replace(tmp, path)
-            except OSError:
-                pass  # a read-only cache dir only costs the next run its precompute
+            except OSError as err:
+                write_failed(path, err)  # a read-only cache dir only costs the next run its precompute
 
     def _set(self, Wf, labels, Q, K, c0, dropped):
         self.weights64 = np.asarray(Wf, np.float64)
@@ -216,8 +224,11 @@ class FastModel:
             self._mass = (M.T @ (mass[:, None] * M), M.T @ mass)
         return self._mass
 
-    def solver(self, pattern: Pattern, *, anderson_window: int = 5, dynamics: Dynamics | None = None) -> Solver:
+    def solver(self, pattern: Pattern, *, anderson_window: int = 5, dynamics: Dynamics | None = None,
+               factor=None) -> Solver:
         """Factor the global step for ``pattern`` (PatternError if undetermined) and return a Solver.
 
-        dynamics: optional :class:`Dynamics` (inertia and gravity) for secondary motion."""
-        return Solver(self, pattern, anderson_window=anderson_window, dynamics=dynamics)
+        dynamics: optional :class:`Dynamics` (inertia and gravity) for secondary motion.
+        factor: the pattern's Factor computed once elsewhere (shared precompute), or None."""
+        return Solver(self, pattern, anderson_window=anderson_window, dynamics=dynamics,
+                      factor=factor)

@@ -14,6 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
+from puppet.cache import cache_root, read_failed, write_failed
 from puppet.rig.errors import RigError
 from puppet.rig.skeleton import Skeleton
 from puppet.rig.weight_check import normalize_weights
@@ -31,11 +32,9 @@ class WeightInputError(RigError):
 
 
 def default_cache_dir() -> Path:
-    """$PUPPET_CACHE, else $XDG_CACHE_HOME/puppet, else ~/.cache/puppet."""
-    if os.environ.get("PUPPET_CACHE"):
-        return Path(os.environ["PUPPET_CACHE"])
-    base = os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache"
-    return Path(base) / "puppet"
+    """The cache root (``puppet.cache``: $PUPPET_CACHE, else $XDG_CACHE_HOME/puppet, else
+    ~/.cache/puppet)."""
+    return cache_root()
 
 
 def check_bbw_input(V: np.ndarray, F: np.ndarray, skeleton: Skeleton) -> list[str]:
@@ -148,16 +147,25 @@ def bbw_weights(V: np.ndarray, F: np.ndarray, skeleton: Skeleton, *, cache_dir=N
     if use_cache:
         cache_file = Path(cache_dir or default_cache_dir()) / f"bbw-{_cache_key(V, F, skeleton)}.npy"
         if cache_file.exists():
-            W = np.load(cache_file)
-            if W.shape == (len(V), skeleton.bone_count):
-                return W
+            try:
+                W = np.load(cache_file)
+            except (OSError, ValueError, EOFError) as err:
+                read_failed(cache_file, err)  # recomputed and overwritten below
+            else:
+                if W.shape == (len(V), skeleton.bone_count):
+                    return W
+                read_failed(cache_file, ValueError(f"shape {W.shape}, expected "
+                                                   f"{(len(V), skeleton.bone_count)}"))
     TV, _, W_tet = bbw_tet(V, F, skeleton, samples_per_bone=samples_per_bone, path=path)
     W = normalize_weights(W_tet[: len(V)], path=path)
     if cache_file is not None:
-        cache_file.parent.mkdir(parents=True, exist_ok=True)
-        tmp = cache_file.with_name(cache_file.name + f".{os.getpid()}.tmp.npy")
-        np.save(tmp, W)
-        os.replace(tmp, cache_file)
+        try:
+            cache_file.parent.mkdir(parents=True, exist_ok=True)
+            tmp = cache_file.with_name(cache_file.name + f".{os.getpid()}.tmp.npy")
+            np.save(tmp, W)
+            os.replace(tmp, cache_file)
+        except OSError as err:
+            write_failed(cache_file, err)  # the next run computes them again
     return W
 
 

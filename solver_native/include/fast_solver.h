@@ -103,7 +103,7 @@ class FastSolver {
   void base_global_step(float* out);  // G R + Tb with the fixed, relative and contact rows
   void project_limits(float* out);    // joint limits (see above)
   double quad_energy(const float* x);
-  bool converged(double E_old, double E, double tol, bool use_energy, bool accelerated) const;  // tolerance stop after an iteration
+  bool converged(double tol);  // tolerance stop after an iteration (updates the observed rate)
 
   int m_, r_, kf_, kp_, kr_, mp_, rp_, window_;
   std::vector<float> csm_, g_, p2_, q_;
@@ -133,6 +133,8 @@ class FastSolver {
   // Anderson
   std::vector<float> x_, gx_, f_, gprev_, fprev_, xacc_, dG_, dF_;
   std::vector<float> xold_;  // T before the iteration (tolerance stop on the change in T)
+  double rprev_ = 0.0, qprev_ = 0.0, rate_ = 2.0;  // last plain step size and ratio of successive steps (tol stop)
+  bool step_from_accel_ = false;      // the last iteration's plain step is in gx_ (accelerated)
   std::vector<double> gram_, gram_full_, rhs_, gamma_;  // gram_full_: by buffer slot
   std::vector<double> history_;
   SolveStats stats_;

@@ -13,7 +13,8 @@ namespace puppet {
 namespace {
 
 constexpr int kPad = 8;
-constexpr double kEnergyResolution = 4e-6;  // relative to c0: rounding of E in float32 data
+constexpr double kStepFloor = 4e-7;  // relative to max |T|: a step at float32 rounding of T
+constexpr double kMaxRate = 0.995;   // observed rates above this are not a contraction (yet)
 inline int round_up(int x) { return (x + kPad - 1) / kPad * kPad; }
 
 bool all_finite(const float* p, std::ptrdiff_t n) {
@@ -309,23 +310,33 @@ void FastSolver::set_dynamics(const float* mass_h2, const float* hm, const float
   cache_valid_ = false;
 }
 
-// Tolerance stop: a small non-negative energy decrease (relative to E_old) on a plain step, or a
-// change in T below tol: the plain step max |G(T) - T| relative to max |T| (with acceleration,
-// the plain residual at the previous iterate). A rise is never convergence: the first iteration
-// after the targets move raises the energy (the start point violated the new constraints).
-// The energy test is skipped where tol * E is below the energy's float32 resolution (~4e-6 c0):
-// there a "small non-negative decrease" is rounding noise, not convergence.
-bool FastSolver::converged(double E_old, double E, double tol, bool use_energy, bool accelerated) const {
-  const double drop = E_old - E, band = tol * std::fabs(E_old);
-  if (use_energy && band > kEnergyResolution * std::fabs(c0_) && drop >= 0.0 && drop <= band) return true;
+// Tolerance stop on the estimated distance to the converged T. r = max |G(T) - T|, the plain
+// step (with acceleration, the plain residual at the previous iterate), shrinks geometrically near
+// the fixed point at an observed rate q (the larger of the last two ratios of successive r); the
+// remaining way is then at most r q / (1 - q). Stop once that is within tol of max |T|. A rate
+// q >= 1 (a rise, the first iterations after the targets move) never stops it, and it needs two
+// steps to see a rate; a step at the float32 rounding floor of T stops at once (already there).
+bool FastSolver::converged(double tol) {
   float rmax = 0.0f, xmax = 0.0f;
   const size_t D = 3 * static_cast<size_t>(mp_);
-  const float* stepped = accelerated ? gx_.data() : x_.data();
+  const float* stepped = step_from_accel_ ? gx_.data() : x_.data();
   for (size_t i = 0; i < D; ++i) {
     rmax = std::max(rmax, std::fabs(stepped[i] - xold_[i]));
     xmax = std::max(xmax, std::fabs(x_[i]));
   }
-  return rmax <= tol * std::max(xmax, 1e-30f);
+  const double r = rmax, scale = std::max(static_cast<double>(xmax), 1e-30);
+  if (r <= kStepFloor * scale) return true;
+  if (rprev_ <= 0.0) {  // the first step: no rate yet
+    rprev_ = r;
+    return false;
+  }
+  // Plain steps: the ratio of successive steps is the map's rate. Accelerated: the steps shrink
+  // faster than the map contracts, so the rate comes from the newest secant pair, |dG| / |dX|.
+  const double ratio = step_from_accel_ ? rate_ : r / rprev_, q = std::max(ratio, qprev_);
+  qprev_ = ratio;
+  rprev_ = r;
+  if (q >= kMaxRate) return false;
+  return r * q / (1.0 - q) <= tol * scale;
 }
 
 double FastSolver::local_step(const float* x, bool energy) {
@@ -635,9 +646,11 @@ void FastSolver::solve(const float* full, const float* rel, const float* pos, co
   }
 
   const bool use_tol = tol > 0.0;
-  const bool need_energy = accelerate || use_tol || record_history;
+  const bool need_energy = accelerate || record_history;
   const int cap = static_cast<int>(history_.size());
   stats_ = SolveStats{};
+  rprev_ = qprev_ = 0.0;
+  rate_ = 2.0;
   // Warm start from the T this solver returned last: its covariances, rotations and energy are
   // still valid (they do not depend on the constraint values), so the first local step is free.
   double E;
@@ -656,7 +669,6 @@ void FastSolver::solve(const float* full, const float* rel, const float* pos, co
     const double E_old = E;
     const bool last = it + 1 == iterations;
     if (use_tol) std::memcpy(xold_.data(), x_.data(), D * sizeof(float));
-    bool accepted = false;  // an accelerated point was taken (its energy drop says nothing)
     if (!accelerate || (nl_ > 0 && last)) {  // with limits the returned T comes from a plain step
       global_step(x_.data());
       E = local_step(x_.data(), need_energy || last);
@@ -666,10 +678,15 @@ void FastSolver::solve(const float* full, const float* rel, const float* pos, co
       if (have_prev) {
         float* dg = dG_.data() + head * D;
         float* df = dF_.data() + head * D;
+        double gg = 0.0, xx = 0.0;  // |dG|^2 and |dX|^2 (dX = dG - dF): the plain map's rate
         for (size_t i = 0; i < D; ++i) {
           dg[i] = gx_[i] - gprev_[i];
           df[i] = f_[i] - fprev_[i];
+          const double dx = static_cast<double>(dg[i]) - df[i];
+          gg += static_cast<double>(dg[i]) * dg[i];
+          xx += dx * dx;
         }
+        rate_ = xx > 0.0 ? std::sqrt(gg / xx) : 2.0;
         head = (head + 1) % window_;
         nh = std::min(nh + 1, window_);
       }
@@ -710,7 +727,6 @@ void FastSolver::solve(const float* full, const float* rel, const float* pos, co
         if (Ea <= E_old) {
           std::swap(x_, xacc_);
           E = Ea;
-          accepted = true;
         } else {
           ++stats_.rejected;
           nh = 0;
@@ -724,7 +740,8 @@ void FastSolver::solve(const float* full, const float* rel, const float* pos, co
       }
     }
     if (record_history && stats_.history_size < cap) history_[stats_.history_size++] = E;
-    if (use_tol && converged(E_old, E, tol, !accepted, accelerate)) {
+    step_from_accel_ = accelerate && !(nl_ > 0 && last);
+    if (use_tol && converged(tol)) {
       ++it;
       break;
     }

@@ -56,12 +56,15 @@ def open_reader():
         reader.close()
 
 
-def read_until(reader: ServoReader, cond: Callable[[Reading], bool], timeout_s: float = 5.0,
-               what: str = "condition") -> Reading:
-    """Read until ``cond(reading)`` holds; AssertionError naming ``what`` on timeout."""
+def read_until(reader: ServoReader, cond: Callable[[Reading], bool], timeout_s: float = 60.0,
+               what: str = "condition", seen: list | None = None) -> Reading:
+    """Read until ``cond(reading)`` holds; AssertionError naming ``what`` on timeout (generous:
+    a loaded machine is slow, never wrong). ``seen``: a list that gets every reading taken."""
     deadline = time.monotonic() + timeout_s
     while True:
         reading = reader.read()
+        if seen is not None:
+            seen.append(reading)
         if cond(reading):
             return reading
         if time.monotonic() > deadline:
@@ -69,13 +72,9 @@ def read_until(reader: ServoReader, cond: Callable[[Reading], bool], timeout_s: 
                                  f"health: {reader.health}")
 
 
-def read_for(reader: ServoReader, seconds: float) -> list[Reading]:
-    """Every reading taken during ``seconds``."""
-    out = []
-    end = time.monotonic() + seconds
-    while time.monotonic() < end:
-        out.append(reader.read())
-    return out
+def read_n(reader: ServoReader, n: int) -> list[Reading]:
+    """``n`` readings in a row (a count, not a duration: a slow machine takes longer)."""
+    return [reader.read() for _ in range(n)]
 
 
 def kinds(reader: ServoReader) -> set[str]:
@@ -87,9 +86,9 @@ def _read_until_fixture():
     return read_until
 
 
-@pytest.fixture(name="read_for")
-def _read_for_fixture():
-    return read_for
+@pytest.fixture(name="read_n")
+def _read_n_fixture():
+    return read_n
 
 
 @pytest.fixture(name="kinds")

@@ -12,6 +12,8 @@ from puppet.bus import BusLink, PortError, ServoCorrupt, ServoReader, ServoStatu
 from puppet.bus import control_table as ct
 from puppet.bus.link import set_latency_assumption
 
+PATIENT_MS = 255  # SDK latency assumption (its maximum) for calls that must succeed: ~0.5 s deadline
+
 
 def test_latency_assumption_is_set_on_the_submodule():
     set_latency_assumption(3)
@@ -22,7 +24,7 @@ def test_latency_assumption_is_set_on_the_submodule():
 
 def test_error_status_without_data_is_a_typed_error_not_an_index_error(sim):
     bus = sim(ids=(1, 2))
-    link = BusLink(bus.link, latency_ms=6)
+    link = BusLink(bus.link, latency_ms=PATIENT_MS)
     link.open()
     bus.inject("error_status", ids=[2], error=0x07)
     # The bare SDK crashes on this reply ...
@@ -45,7 +47,7 @@ def test_error_status_without_data_is_a_typed_error_not_an_index_error(sim):
 
 def test_one_dead_servo_does_not_hide_the_others(sim):
     bus = sim(ids=(1, 2, 3))
-    link = BusLink(bus.link, latency_ms=6)
+    link = BusLink(bus.link, latency_ms=PATIENT_MS)
     link.open()
     bus.inject("drop", ids=[2])
     group = link.sync_read([1, 2, 3], ct.PRESENT_POSITION)
@@ -63,7 +65,7 @@ def test_one_dead_servo_does_not_hide_the_others(sim):
 
 def test_unplug_leaves_the_raw_sdk_busy_and_the_link_rebuilds(sim):
     bus = sim(ids=(1,))
-    link = BusLink(bus.link, latency_ms=6)
+    link = BusLink(bus.link, latency_ms=PATIENT_MS)
     link.open()
     raw = dynamixel_sdk.PortHandler(bus.link)
     raw.openPort()
@@ -83,21 +85,21 @@ def test_unplug_leaves_the_raw_sdk_busy_and_the_link_rebuilds(sim):
     link.close()
 
 
-def test_reader_accepts_an_open_port_handler(sim):
+def test_reader_accepts_an_open_port_handler(sim, read_until):
     bus = sim(ids=(1, 2))
     port = dynamixel_sdk.PortHandler(bus.port)
     assert port.openPort()
     reader = ServoReader(port, {1: "XL330-M288", 2: "XL330-M288"}, latency_ms=6)
     reader.open()
     assert reader.link.port is port
-    assert reader.read().ok.all()
+    read_until(reader, lambda r: r.ok.all(), what="a full reading")
     reader.close()
 
 
-def test_old_firmware_falls_back_to_sync_read(sim):
+def test_old_firmware_falls_back_to_sync_read(sim, read_until):
     bus = sim(ids=(1, 2))
     bus.servo(2).set("Firmware Version", 40)   # X330 needs 46 for Fast Sync Read
     reader = ServoReader(bus.link, {1: "XL330-M288", 2: "XL330-M288"}, latency_ms=6)
     assert reader.open().read_mode == "sync_read"
-    assert reader.read().ok.all()
+    read_until(reader, lambda r: r.ok.all(), what="a full reading")
     reader.close()

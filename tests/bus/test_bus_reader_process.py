@@ -11,13 +11,14 @@ from puppet.bus.reader_process import ReaderProcess, ReaderProcessError
 MODELS = {1: "XL330-M288", 2: "XL430-W250", 3: "XM430-W350"}
 
 
-def test_readings_arrive_in_order_with_the_simulated_positions():
+def test_readings_arrive_in_order_with_the_simulated_positions(wait_until):
     with hw_sim.serve(MODELS) as bus:
         bus.set_positions({1: 100, 2: 5000, 3: -300})
         with ReaderProcess(bus.port, MODELS, rate_hz=300.0) as source:
             assert set(source.report.found) == set(MODELS)
-            time.sleep(0.3)
-            batch = source.drain()
+            batch = []
+            wait_until(lambda: batch.extend(source.drain()) or (len(batch) > 20 and batch[-1].ok.all()),
+                       what="20 readings, the last one full")
     assert len(batch) > 20
     t = np.array([r.t_ns for r in batch])
     assert (np.diff(t) > 0).all()
@@ -26,10 +27,10 @@ def test_readings_arrive_in_order_with_the_simulated_positions():
     assert batch[-1].ids.tolist() == [1, 2, 3]
 
 
-def test_a_consumer_that_falls_behind_loses_only_the_oldest():
+def test_a_consumer_that_falls_behind_loses_only_the_oldest(wait_until):
     with hw_sim.serve(MODELS, motion="wave") as bus:
         with ReaderProcess(bus.port, MODELS, rate_hz=400.0, slots=16) as source:
-            time.sleep(0.3)
+            wait_until(lambda: source.produced > 40, what="more readings than the ring holds")
             batch = source.drain()
             assert source.dropped > 0
             assert 1 <= len(batch) <= 16
@@ -38,12 +39,16 @@ def test_a_consumer_that_falls_behind_loses_only_the_oldest():
     assert newest.t_ns > batch[-1].t_ns
 
 
-def test_bus_events_come_back_from_the_child():
+def test_bus_events_come_back_from_the_child(wait_until):
     with hw_sim.serve(MODELS) as bus:
         with ReaderProcess(bus.port, MODELS, rate_hz=300.0) as source:
-            bus.inject("drop", ids=[2], duration_s=0.3)
-            time.sleep(0.8)
-            batch = source.drain()
+            bus.inject("drop", ids=[2])
+            batch = []
+            wait_until(lambda: batch.extend(source.drain()) or source.log.counts.get("servo_failed"),
+                       what="servo_failed from the child")
+            bus.clear_faults()
+            wait_until(lambda: batch.extend(source.drain()) or (batch and batch[-1].ok.all()),
+                       what="a full reading after the fault")
     assert any(not r.ok[1] for r in batch)
     assert batch[-1].ok.all()
     assert source.log.counts.get("servo_failed", 0) >= 1

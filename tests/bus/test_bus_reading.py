@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import time
+
 import numpy as np
 import pytest
 
@@ -59,6 +61,8 @@ def test_missing_servo_is_flagged_and_others_flow(sim, open_reader):
     reader = open_reader(bus, ids=(1, 2, 9, 3))
     assert reader.report.missing == [9]
     reading = reader.read()
+    while not reading.ok[[0, 1, 3]].all():     # a loaded machine may hold a reply: read again
+        reading = reader.read()
     assert reading.ok.tolist() == [True, True, False, True]
     assert reader.health[9].state == hs.MISSING
     assert reader.group == (1, 2, 3)
@@ -78,42 +82,49 @@ def test_broadcast_ping_lists_servos_the_map_lacks(sim):
 
 
 @pytest.mark.parametrize("mode", ["fast_sync_read", "sync_read"])
-def test_reading_at_rest_is_exact_signed_and_continuous(sim, open_reader, read_for, mode):
+def test_reading_at_rest_is_exact_signed_and_continuous(sim, open_reader, read_n, read_until, mode):
     bus = sim()
     # -5: negative count; 5000: past one turn; 0x00FDFFFF: data bytes FF FF FD 00 need stuffing.
     positions = {1: 100, 2: -5, 3: 5000, 4: 0x00FDFFFF}
     bus.set_positions(positions)
     reader = open_reader(bus, read_mode=mode)
     assert reader.read_mode == mode
-    readings = read_for(reader, 0.3)
+    readings = read_n(reader, 30)
+    read_until(reader, lambda r: r.ok.all(), what="a full reading", seen=readings)
     for r in readings:
         assert r.ticks.dtype == np.int32 and r.ok.dtype == bool
         assert r.ids.tolist() == [1, 2, 3, 4]
         # a servo whose read failed (a loaded machine) holds its value: never a wrong one
         assert r.ticks[r.ok].tolist() == [p for p, ok in zip(positions.values(), r.ok) if ok]
-    assert np.mean([r.ok.all() for r in readings]) > 0.5
+    assert all(h.state == hs.OK for h in reader.health.values())  # nothing booked failed
     stamps = [r.t_ns for r in readings]
     assert stamps == sorted(stamps) and len(set(stamps)) == len(stamps)
 
 
-def test_reading_in_motion_follows_the_simulated_shafts(sim, open_reader, read_for):
+def test_reading_in_motion_follows_the_simulated_shafts(sim, open_reader, read_until):
     bus = sim(motion="wave")
     reader = open_reader(bus)
-    readings = [r for r in read_for(reader, 0.4) if r.ok.all()]
-    assert len(readings) >= 20
-    ticks = np.stack([r.ticks for r in readings])
-    span = ticks.max(axis=0) - ticks.min(axis=0)
-    assert (span > 50).all()                      # every joint moved
-    # wave amplitude 600 counts, period 2 s: at most ~1.9 counts per ms between readings
-    # (plus up to 20 ms of skew between host stamps and the simulator's clock on a loaded machine)
-    dt_ms = np.diff([r.t_ns for r in readings]) / 1e6
-    step = np.abs(np.diff(ticks, axis=0)).max(axis=1)
-    bad = np.flatnonzero(step > 2.0 * (dt_ms + 20))
-    assert bad.size == 0, [(dt_ms[b], ticks[b:b + 2].tolist()) for b in bad[:3]] + list(reader.log.events)[:6]
+    seen = []
+
+    def moved(_):
+        full = [r.ticks for r in seen if r.ok.all()]
+        return len(full) >= 20 and (np.ptp(np.stack(full), axis=0) > 50).all()
+
+    read_until(reader, moved, what="every joint moved, in 20 full readings or more", seen=seen)
+    # wave amplitude 600 counts, period 2 s: at most ~1.9 counts per ms. A reading stamped t[i]
+    # (its request) samples the shafts somewhere before t[i+1] (the next request); a starved
+    # machine can hold a reply long, so bound each step by the readings around it, not by 20 ms.
+    t_ms = np.array([r.t_ns for r in seen]) / 1e6
+    for i in range(1, len(seen) - 2):
+        a, b = seen[i], seen[i + 1]
+        if a.ok.all() and b.ok.all():
+            step = np.abs(b.ticks.astype(np.int64) - a.ticks).max()
+            assert step <= 2.0 * (t_ms[i + 2] - t_ms[i - 1]) + 2, (i, step, t_ms[i - 1:i + 3])
     now = reader.read()
     sim_now = [bus.servo(i).get("Present Position") for i in (1, 2, 3, 4)]
-    if now.ok.all():
-        assert np.abs(now.ticks - np.array(sim_now)).max() < 200
+    if now.ok.all():  # sampled between the last reading's request and now
+        elapsed_ms = (time.monotonic_ns() - seen[-1].t_ns) / 1e6
+        assert np.abs(now.ticks - np.array(sim_now)).max() <= 2.0 * elapsed_ms + 2
 
 
 def test_read_clean_takes_the_median(sim, open_reader):
@@ -130,7 +141,7 @@ def test_read_clean_names_the_servo_that_never_reads(sim, open_reader):
     bus = sim(ids=(1, 2))
     reader = open_reader(bus, ids=(1, 2, 7))
     with pytest.raises(ServoTimeout) as info:
-        reader.read_clean(timeout_s=0.2)
+        reader.read_clean(timeout_s=0.5)
     assert info.value.ids == [7]
     assert info.value.instruction == "read_clean"
 

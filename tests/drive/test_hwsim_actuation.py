@@ -86,9 +86,9 @@ def test_current_rises_with_load_and_overload_latches(open_sdk, wait_for):
         servo = bus.servo(1)
         assert sdk.write(1, 64, 1, 1) == 0
         idle = servo.get("Present Current")
-        bus.inject("load", 1, current=900)
-        loaded = servo.get("Present Current")
-        assert idle < 200 < 900 <= loaded
+        assert idle < 200
+        bus.inject("load", 1, current=900)        # the current settles over CURRENT_TAU_S
+        wait_for(lambda: servo.get("Present Current") >= 900, what="the load's current")
         bus.inject("load", 1, current=5000)       # beyond the motor: overload, torque off
         wait_for(lambda: servo.get("Hardware Error Status") & 0x20, what="overload")
         assert servo.get("Torque Enable") == 0

@@ -8,6 +8,7 @@ from puppet.bus import Reading
 from puppet.demo import Performance
 from puppet.pipeline import Pipeline, run_frames
 from puppet.rig import builtin
+from puppet.rig.load import BUILTIN_RIG, load_rig
 from puppet.rig.solve_options import DynamicsOptions, SolveExtras
 
 FPS = 60
@@ -39,13 +40,13 @@ def readings(rig, frames, *, still_after=None, silent=(), silent_servo=0, jitter
 
 
 def solve_all(rig, extras, reads):
-    rig.extras = extras
+    shipped, rig.extras = rig.extras, extras
     out = []
     with Pipeline(rig, render=False) as pipeline:
         M = pipeline.model.lbs_matrix()
         run_frames(pipeline, reads, on_frame=lambda p: out.append(M @ p.T))
         live = pipeline.live
-    rig.extras = SolveExtras()
+    rig.extras = shipped
     return np.array(out), live
 
 
@@ -110,6 +111,27 @@ def test_dynamics_lag_then_settle_after_the_puppet_stops(rig):
     assert moves[-20:].max() < 0.05 * moves[:10].max()
     assert lag[-1] < 0.05 * lag[:81].max()
     assert live.stats.steps == 1
+
+
+def test_the_builtin_dynamics_variant_lags_and_decays(rig):
+    """The built-in variant with secondary motion as shipped (critter_dynamics.toml, its
+    [solver.dynamics]): the ears lag while the puppet moves; after it stops the motion decays
+    and the pose settles on the static solve of the demo's rig (critter.toml, no dynamics)."""
+    variant = load_rig(BUILTIN_RIG.with_name("critter_dynamics.toml"))
+    assert variant.extras.dynamics is not None and rig.extras.dynamics is None
+    assert np.array_equal(variant.V, rig.V) and np.array_equal(variant.W, rig.W)
+    names = list(rig.skeleton.names)
+    ear = int(np.argmax(rig.W[:, names.index("ear_L")] * rig.V[:, 1]))
+    reads = readings(rig, 200, still_after=80)
+    static, _ = solve_all(rig, rig.extras, reads)
+    dyn, live = solve_all(variant, variant.extras, reads)
+    assert live.dynamics is not None
+    lag = np.linalg.norm(dyn[:, ear] - static[:, ear], axis=1)
+    diag = float(np.linalg.norm(rig.V.max(0) - rig.V.min(0)))
+    assert lag[:81].max() > 0.01 * diag  # the ear lags behind the moving head
+    moves = jumps(dyn)[80:]
+    assert moves[-20:].max() < 0.05 * moves[:10].max()
+    assert lag[-1] < 0.05 * lag[:81].max()
 
 
 def test_play_twice_gives_identical_vertices(rig):

@@ -11,10 +11,12 @@ Substitutions a reader makes too:
 - the manual step the README describes below the block: once ``rig init`` has written
   ``creature.toml``, before the first line that serves or calibrates it, the test fills in three
   of its commented ``[[servo]]`` blocks (``model``, ``joint``, ``axis``) as a user would;
-- Enter is pressed when a command asks (``calibrate --guided``: "hold the rest pose").
+- Enter is pressed when a command asks (``calibrate --guided``: "hold the rest pose");
+- ``session/`` (a day of takes, for ``batch``) holds copies of the takes recorded so far.
 
 ``hw-sim`` lines keep serving until the end; ``live`` and ``record`` (which run until Ctrl-C) get
-Ctrl-C once their take holds readings. Every command must exit 0 and write the files it names
+Ctrl-C once their take holds readings; ``--view`` commands and ``puppet view`` get Ctrl-C once
+their page answers (and their take, if any, holds readings). Every command must exit 0 and write the files it names
 (--out, --record, --pc2, --bvh, --frames). A README line the test has no input file or port for
 fails with the line quoted.
 """
@@ -67,6 +69,14 @@ def character_module():
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)
     return module
+
+
+def fill_session(folder: Path) -> None:
+    """session/: the takes recorded so far, as a day of takes a user batches (journey 4)."""
+    session = folder / "session"
+    session.mkdir(exist_ok=True)
+    for number, take in enumerate(sorted(folder.glob("*.mcap")), start=1):
+        (session / f"take{number:02d}.mcap").write_bytes(take.read_bytes())
 
 
 def write_inputs(folder: Path) -> None:
@@ -200,6 +210,8 @@ def test_every_using_it_command_runs_as_written(tmp_path):
                 assert (tmp_path / rig).exists(), f"{line!r}: no 'rig init' line before it writes {rig}"
                 fill_in_servos(tmp_path / rig)
                 servos_filled = True
+            if any(a.startswith("session/") for a in argv):
+                fill_session(tmp_path)
             if argv[0] == "hw-sim":
                 server = Background(argv, tmp_path)
                 servers.append(server)

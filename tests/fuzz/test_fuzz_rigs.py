@@ -313,7 +313,7 @@ def test_a_few_broken_rigs_as_a_real_command(cases, name):
     folder, found = cases
     case = next(c for c in found if c.name == name)
     path = write_case(case, folder)
-    result = subprocess.run([sys.executable, "-c", "from puppet.cli import main; main()",
+    result = subprocess.run([sys.executable, "-P", "-c", "from puppet.cli import main; main()",
                              "rig", "info", str(path)], capture_output=True, text=True, timeout=120)
     check_clean(case, path, result.returncode, result.stderr)
 
@@ -342,7 +342,7 @@ if __name__ == "__main__":
     import collections
     import tempfile
 
-    command = sys.argv[1:] or [sys.executable, "-c", "from puppet.cli import main; main()"]
+    command = sys.argv[1:] or [sys.executable, "-P", "-c", "from puppet.cli import main; main()"]
     folder = Path(tempfile.mkdtemp(prefix="fuzz_rigs_"))
     outcomes = collections.Counter()
     for case in variants(folder):

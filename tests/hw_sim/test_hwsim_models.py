@@ -34,7 +34,7 @@ def test_the_device_side_table_agrees_with_puppets():
 def test_hw_sim_imports_nothing_of_puppet():
     code = ("import sys, hw_sim, hw_sim.cli, hw_sim.rig_servos, hw_sim.control_table\n"
             "print(sorted(m for m in sys.modules if m == 'puppet' or m.startswith('puppet.')))\n")
-    result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
+    result = subprocess.run([sys.executable, "-P", "-c", code], capture_output=True, text=True, timeout=60)
     assert result.stdout.strip() == "[]", result.stderr
 
 

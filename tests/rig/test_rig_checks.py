@@ -32,7 +32,7 @@ def test_reading_a_rig_imports_neither_the_native_solver_nor_the_sdk():
         "print(sorted(m for m in ('puppet._native', 'dynamixel_sdk', 'puppet.bus', 'puppet.fast.solver',"
         " 'puppet.fast.model', 'scipy.sparse') if m in sys.modules))\n"
     )
-    result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    result = subprocess.run([sys.executable, "-P", "-c", code], capture_output=True, text=True, timeout=120)
     assert result.returncode == 0, result.stderr
     assert result.stdout.strip() == "[]"
 
@@ -41,7 +41,7 @@ def test_the_fast_package_still_offers_its_solver_on_first_use():
     code = ("import sys, puppet.fast as f\n"
             "before = 'puppet._native' in sys.modules\n"
             "print(before, f.FastModel.__name__, f.Solver.__name__, 'puppet._native' in sys.modules)\n")
-    result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    result = subprocess.run([sys.executable, "-P", "-c", code], capture_output=True, text=True, timeout=120)
     assert result.stdout.split() == ["False", "FastModel", "Solver", "True"], result.stderr
 
 

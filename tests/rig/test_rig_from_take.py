@@ -13,7 +13,8 @@ from click.testing import CliRunner
 
 from puppet.bus.reading import Reading
 from puppet.cli import main
-from puppet.cli.common import RIG_SOURCE_MARK, take_writer
+from puppet.cli.common import take_writer
+from puppet.replay import RIG_SOURCE_MARK
 from puppet.rig import load_rig
 from puppet.rig.load import BUILTIN_RIG
 from puppet.take import TakeReader, TakeWriter

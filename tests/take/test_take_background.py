@@ -33,7 +33,7 @@ def test_writer_thread_error_reaches_the_caller(tmp_path, kit):
     w = BackgroundTakeWriter(kit.open_writer(path))
     w.write(kit.reading_at(0, 5_000))
     w.write(kit.reading_at(1, 4_000))  # goes backwards: the thread's TakeWriter refuses it
-    deadline = time.monotonic() + 10
+    deadline = time.monotonic() + 60
     with pytest.raises(TakeError, match="writer thread failed: reading t_ns 4000 is earlier"):
         while time.monotonic() < deadline:
             w.write(kit.reading_at(2, 6_000))
@@ -59,7 +59,7 @@ def test_full_queue_refuses_instead_of_blocking(tmp_path, kit):
     inner.write = slow_write  # a disk that stalls
     w = BackgroundTakeWriter(inner, max_queue=2)
     w.write(kit.reading_at(0, 0))
-    deadline = time.monotonic() + 10
+    deadline = time.monotonic() + 60
     while not w._queue.empty() and time.monotonic() < deadline:
         time.sleep(0.001)  # the thread has taken reading 0 and waits in write()
     w.write(kit.reading_at(1, 1))

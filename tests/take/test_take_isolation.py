@@ -15,7 +15,7 @@ print(json.dumps({"readings": len(r), "frames": len(frames),
 
 
 def test_reading_a_take_loads_neither_the_bus_nor_native_code(take_path):
-    out = subprocess.run([sys.executable, "-c", SCRIPT, str(take_path)], capture_output=True,
+    out = subprocess.run([sys.executable, "-P", "-c", SCRIPT, str(take_path)], capture_output=True,
                          text=True, timeout=120)
     assert out.returncode == 0, out.stderr
     result = json.loads(out.stdout)

@@ -22,7 +22,7 @@ import pytest
 
 CHROMIUM_ARGS = ["--disable-gpu", "--no-sandbox", "--disable-dev-shm-usage"]
 WAIT_S = 90.0
-PUPPET = [sys.executable, "-c", "from puppet.cli import main; main()"]
+PUPPET = [sys.executable, "-P", "-c", "from puppet.cli import main; main()"]
 
 
 def chromium_path() -> str:

@@ -1,7 +1,9 @@
 """Build the built-in character "critter" reproducibly: signed distance fields, marching cubes,
-bounded biharmonic weights. Writes ``critter.npz`` and ``critter.toml`` next to this file.
+bounded biharmonic weights. Writes ``critter.npz``, ``critter.toml`` (the demo's rig) and
+``critter_dynamics.toml`` (the same with secondary motion, ``[solver.dynamics]``) next to this file.
 
     python -m puppet.rig.builtin.make_character [--voxel 0.0105] [--out DIR]
+    python -m puppet.rig.builtin.make_character --toml-only   # rewrite the .toml files only
 
 Needs scikit-image (marching cubes) and libigl with tetgen (weights). Deterministic: the same
 inputs give the same files. Model units: the critter stands about 1.3 units tall, +Y up,
@@ -62,6 +64,10 @@ SERVOS = [
 ]
 
 SOLVER = {"clusters": 100, "extra_weights": 8, "energy": "spokes_and_rims"}
+# Secondary motion ([solver.dynamics]) of the optional variant critter_dynamics.toml (same mesh and
+# servos): the ears and tail lag behind the sensed bones and settle. One solver step per 60 Hz
+# frame; a slower frame takes up to max_steps steps. critter.toml (the demo's rig) stays without.
+DYNAMICS = {"density": 0.002, "damping": 0.9, "dt": 0.016667, "max_steps": 4}
 PIN_POINT = (0.0, 0.53, -0.66)  # tail tip rests on the stand's post
 
 
@@ -150,12 +156,19 @@ def skeleton_arrays():
     return names, parents, heads, tails, frames
 
 
-def rig_toml(pin_vertex: int) -> str:
-    out = ['# The built-in character "critter": written by make_character.py, do not edit by hand.',
+def rig_toml(pin_vertex: int, dynamics: bool = False) -> str:
+    """The rig file's text; dynamics: the variant with secondary motion ([solver.dynamics])."""
+    title = ('# The built-in character "critter": written by make_character.py, do not edit by hand.' if not dynamics
+             else '# The built-in character "critter" with secondary motion (ears and tail lag and settle):\n'
+             '# written by make_character.py, do not edit by hand. Same mesh and servos as critter.toml.')
+    out = [title,
            'name = "critter"', 'mesh = "critter.npz"',
            f"fixed = [{', '.join(repr(f).replace(chr(39), chr(34)) for f in FIXED)}]", "",
            "[solver]", f"clusters = {SOLVER['clusters']}", f"extra_weights = {SOLVER['extra_weights']}",
            f'energy = "{SOLVER["energy"]}"', ""]
+    if dynamics:
+        out += ["[solver.dynamics]  # secondary motion: the ears and tail lag and settle",
+                *(f"{k} = {v}" for k, v in DYNAMICS.items()), ""]
     for sid, model, joint, axis, order, sign, zero, (lo, hi) in SERVOS:
         out += ["[[servo]]", f"id = {sid}", f'model = "{model}"', f'joint = "{joint}"', f'axis = "{axis}"',
                 f"order = {order}", f"sign = {sign}", "gear = 1.0", f"zero_ticks = {zero}",
@@ -164,13 +177,34 @@ def rig_toml(pin_vertex: int) -> str:
     return "\n".join(out)
 
 
+def write_toml(out: Path, pin_vertex: int) -> None:
+    """Write critter.toml (the demo's rig) and critter_dynamics.toml (the variant with secondary
+    motion) for the tail-tip pin vertex."""
+    (out / "critter.toml").write_text(rig_toml(pin_vertex))
+    (out / "critter_dynamics.toml").write_text(rig_toml(pin_vertex, dynamics=True))
+
+
+def toml_only(out: Path = HERE) -> None:
+    """Rewrite the rig files from this script's tables, keeping critter.npz and its pin vertex."""
+    import tomllib
+
+    pin = tomllib.loads((out / "critter.toml").read_text())["pin"][0]["vertex"]
+    write_toml(out, int(pin))
+
+
 def main(argv=None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--voxel", type=float, default=0.0105, help="marching-cubes voxel size")
     parser.add_argument("--weight-voxel", type=float, default=0.02,
                         help="voxel size of the coarser volume the weights are solved on")
     parser.add_argument("--out", type=Path, default=HERE, help="output folder")
+    parser.add_argument("--toml-only", action="store_true",
+                        help="rewrite the .toml files only (keep critter.npz and its pin vertex)")
     args = parser.parse_args(argv)
+    if args.toml_only:
+        toml_only(args.out)
+        print(f"wrote {args.out / 'critter.toml'} and {args.out / 'critter_dynamics.toml'}")
+        return
     from puppet.rig.bbw import bbw_tet, interpolate_in_tets
     from puppet.rig.weight_check import normalize_weights
     from puppet.rig.skeleton import Skeleton
@@ -197,8 +231,8 @@ def main(argv=None) -> None:
         W=W.astype(np.float32), names=np.array(names), parents=parents, heads=heads, tails=tails,
         frames=frames)
     pin = int(np.argmin(np.linalg.norm(V - np.array(PIN_POINT), axis=1)))
-    (args.out / "critter.toml").write_text(rig_toml(pin))
-    print(f"wrote {args.out / 'critter.npz'} and {args.out / 'critter.toml'}")
+    write_toml(args.out, pin)
+    print(f"wrote {args.out / 'critter.npz'}, {args.out / 'critter.toml'} and {args.out / 'critter_dynamics.toml'}")
 
 
 if __name__ == "__main__":

@@ -1,0 +1,19 @@
+"""Many takes at once: re-solve and re-export whole sessions, on this machine or on Ray.
+
+    report = run_batch(["session/*.mcap"], "exports", rig=builtin(), default_rig=True,
+                       formats=("gltf", "usd"), engine="local")
+
+One take is one task (``task.run_take``: the same ``export_take`` / ``play_take`` as ``puppet
+export`` and ``puppet play``, so outputs are byte-identical). The rig's precompute is built once
+by the driver and sent once to each worker (``local``: a process pool; ``ray``: the object
+store). Modules: plan (takes, outputs, resume), task (the worker's work), local and ray_engine
+(the engines), run (the driver and its report).
+"""
+
+from puppet.batch.errors import BatchError
+from puppet.batch.plan import DEFAULT_FORMATS, FORMATS, SUFFIXES
+from puppet.batch.run import ENGINES, BatchReport, run_batch
+from puppet.batch.task import TakeResult
+
+__all__ = ["BatchError", "BatchReport", "DEFAULT_FORMATS", "ENGINES", "FORMATS", "SUFFIXES",
+           "TakeResult", "run_batch"]

@@ -1,0 +1,129 @@
+"""One take, solved and written in a worker: the task every engine runs.
+
+The worker writes the take's outputs into a private staging folder, each through
+``puppet.atomic`` (a temporary name, renamed when whole), with the very functions ``puppet
+export`` (``export_take``) and ``puppet play`` (``play_take``) call, so the bytes are the same as
+running those commands on the take alone. The driver then moves them into the output folder
+(local engine) or receives their bytes and writes them (Ray). A worker killed mid-take leaves
+only its staging folder, which the driver removes.
+"""
+
+from __future__ import annotations
+
+import os
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from puppet.atomic import atomic_output
+from puppet.batch.plan import Job
+from puppet.errors import PuppetError
+from puppet.pipeline import RigPrecompute
+from puppet.rig import Rig
+
+EXPORT_FORMATS = ("gltf", "usd", "pc2", "bvh")
+
+
+@dataclass(frozen=True)
+class Settings:
+    """What every take is made with. formats: of plan.FORMATS; fps: frames per second of every
+    output; up: PC2 up axis ('y' or 'z'); size: (width, height) pixels of the mp4; antialias:
+    as ``puppet play --antialias`` (msaa by default, offline quality)."""
+
+    formats: tuple[str, ...]
+    fps: float = 30.0
+    up: str = "y"
+    size: tuple[int, int] = (640, 480)
+    antialias: str = "msaa"
+
+
+@dataclass
+class Shared:
+    """Sent once to every worker (pickled; on Ray put once in the object store).
+
+    rig: the loaded rig (uncalibrated: each take applies its own recorded calibration to a copy);
+    default_rig: no --rig was given (a take must name the built-in rig); precompute: the rig's
+    FastModel and factorization, never recomputed per take; settings: see Settings.
+    """
+
+    rig: Rig
+    default_rig: bool
+    precompute: RigPrecompute
+    settings: Settings
+
+
+@dataclass
+class TakeResult:
+    """What one task did.
+
+    take: the take file; frames: frames written per file (exports; else the video's);
+    seconds: wall time of the task in the worker; cpu_seconds: its process CPU time;
+    files: {format: path of the finished file in the staging folder}; data: {format: bytes} when the worker sends
+    the files back (Ray); error: why the take failed (None when it did), its outputs untouched;
+    warning: e.g. a damaged take's recovery report; attempts: tries it took (a dead worker's
+    take is retried); worker: "host:pid" that ran it.
+    """
+
+    take: str
+    frames: int = 0
+    seconds: float = 0.0
+    cpu_seconds: float = 0.0
+    files: dict[str, str] = field(default_factory=dict)
+    data: dict[str, bytes] | None = None
+    error: str | None = None
+    warning: str | None = None
+    attempts: int = 1
+    worker: str = ""
+    skipped: bool = False
+
+
+def staging_folder(root: Path, job: Job) -> Path:
+    """The worker's private folder for a take: ``root/<take name>.<pid>`` (a retry gets its own)."""
+    folder = root / f"{job.name}.{os.getpid()}"
+    folder.mkdir(parents=True, exist_ok=True)
+    return folder
+
+
+def run_take(job: Job, shared: Shared, staging: Path) -> TakeResult:
+    """Solve ``job``'s take on the shared rig and write its outputs into ``staging``.
+
+    A bad take (corrupt, foreign, empty) is a result with ``error`` set, never an exception.
+    """
+    from puppet.export import Outputs, export_take
+    from puppet.render import VideoSink
+    from puppet.replay import open_take, play_take
+
+    start, cpu = time.perf_counter(), time.process_time()
+    result = TakeResult(take=str(job.take), worker=f"{os.uname().nodename}:{os.getpid()}")
+    settings = shared.settings
+    names = {fmt: target.name for fmt, target in job.outputs.items()}
+    try:
+        rig, reader = open_take(job.take, shared.rig, default_rig=shared.default_rig)
+        if reader.recovery is not None:
+            result.warning = str(reader.recovery)
+        exports = {fmt: staging / names[fmt] for fmt in EXPORT_FORMATS if fmt in names}
+        if exports:
+            report = export_take(rig, reader, Outputs(**exports), fps=settings.fps, up=settings.up,
+                                 precompute=shared.precompute)
+            result.frames = report.frames
+        if "mp4" in names:
+            with atomic_output(staging / names["mp4"]) as temporary:
+                sink = VideoSink(temporary, settings.fps)
+                try:
+                    summary = play_take(rig, reader, [sink], fps=settings.fps,
+                                        antialias=settings.antialias, size=settings.size,
+                                        precompute=shared.precompute)
+                finally:
+                    sink.close()
+            result.frames = result.frames or summary.frames
+        result.files = {fmt: str(staging / name) for fmt, name in names.items()}
+    except (PuppetError, OSError) as err:
+        result.error = str(err) if isinstance(err, PuppetError) else _os_message(err)
+    result.seconds = time.perf_counter() - start
+    result.cpu_seconds = time.process_time() - cpu
+    return result
+
+
+def _os_message(err: OSError) -> str:
+    where = f"{err.filename}: " if err.filename else ""
+    return f"{where}{err.strerror or err}"

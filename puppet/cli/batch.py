@@ -1,0 +1,76 @@
+"""``puppet batch``: re-solve and re-export many takes, on this machine or on a Ray cluster."""
+
+from __future__ import annotations
+
+import json
+import sys
+
+import click
+
+from puppet.cli.common import load_rig, rig_files
+
+
+@click.command()
+@click.argument("takes", nargs=-1)
+@click.option("--out", "out", required=True, help="Output folder (created): OUT/<take>.<ext>.")
+@click.option("--rig", "rig_path", default=None, help="Rig to solve on (default: the built-in).")
+@click.option("--formats", default="gltf,usd,pc2,bvh", show_default=True,
+              help="Comma-separated, of mp4 (as puppet play), gltf, usd, pc2, bvh (as puppet "
+                   "export).")
+@click.option("--fps", default="30", show_default=True, help="Frames per second of every output.")
+@click.option("--size", nargs=2, type=int, default=(640, 480), show_default=True,
+              metavar="W H", help="Video size in pixels (mp4).")
+@click.option("--up", type=click.Choice(["y", "z"]), default="y", show_default=True,
+              help="Up axis of the PC2 points: z for Blender's Mesh Cache.")
+@click.option("--engine", type=click.Choice(["local", "ray"]), default="local", show_default=True,
+              help="local: a process pool on this machine; ray: Ray tasks (pip install "
+                   "'puppet[ray]').")
+@click.option("--address", default=None,
+              help="Ray cluster to run on (host:6379, ray://host:10001 or auto); default: a "
+                   "Ray started here.")
+@click.option("--workers", type=click.IntRange(min=1), default=None,
+              help="Worker processes (local) or CPUs of a Ray started here [default: cores].")
+@click.option("--resume", is_flag=True,
+              help="Skip takes whose outputs all exist and are newer than the take and the rig.")
+@click.option("--json", "as_json", is_flag=True, help="Print the report as one JSON line.")
+def batch(takes: tuple[str, ...], out: str, rig_path: str | None, formats: str, fps: str,
+          size: tuple[int, int], up: str, engine: str, address: str | None, workers: int | None,
+          resume: bool, as_json: bool) -> None:
+    """Solve and write every take; a failed take is reported and the others go on.
+
+    \b
+    Examples:
+      puppet batch session/*.mcap --out exports/ --formats gltf,usd
+      puppet batch session/ --out videos/ --formats mp4 --size 1280 720 --resume
+      puppet batch session/*.mcap --out exports/ --engine ray --address 10.0.0.5:6379
+    """
+    from puppet.batch import BatchError, run_batch
+
+    if not takes:
+        raise BatchError("no takes given: name take files, folders or patterns (session/*.mcap)")
+    rig = load_rig(rig_path)
+    bar = None
+
+    def on_start(count: int) -> None:
+        nonlocal bar
+        bar = click.progressbar(length=count, label="takes", file=sys.stderr)
+        bar.__enter__()
+
+    def on_result(_result) -> None:
+        bar.update(1)
+
+    try:
+        report = run_batch(list(takes), out, rig=rig, rig_inputs=rig_files(rig),
+                           default_rig=rig_path is None, formats=formats, fps=fps, up=up,
+                           size=size, engine=engine, workers=workers, address=address,
+                           resume=resume, on_start=on_start, on_result=on_result)
+    finally:
+        if bar is not None:
+            bar.__exit__(None, None, None)
+    click.echo(json.dumps(report.as_dict()) if as_json else report.table())
+    if report.failed:
+        raise click.ClickException(f"{len(report.failed)} of {len(report.rows)} takes failed "
+                                   "(see the table); the others are written")
+
+
+COMMANDS = (batch,)

@@ -1,0 +1,118 @@
+"""Replaying a take: the rig it replays on (calibrated as it was recorded), and its video.
+
+    rig, reader = open_take("take.mcap", None)          # the take's own rig; or a rig file / Rig
+    summary = play_take(rig, reader, [VideoSink("take.mp4", 30)], fps=30)
+
+``puppet play`` and ``puppet batch`` both call these, so a take replayed alone or in a batch
+gives the same frames (the solve is deterministic: fixed iterations, warm start from rest).
+"""
+
+from __future__ import annotations
+
+import copy
+import json
+from collections.abc import Callable, Iterable
+from pathlib import Path
+
+from puppet.rig import Rig
+from puppet.take import TakeError, TakeReader
+
+RIG_SOURCE_MARK = "# puppet: recorded from rig file "
+"""Last line added to the rig map text a take stores: where that rig file was when recording
+began, so ``play``/``export`` without ``--rig`` find its character files (relative paths are
+relative to it). A TOML comment: the stored text parses as the rig file did, same line numbers;
+takes without it (older ones) still play."""
+
+
+def rig_from_take(take, meta) -> Rig:
+    """The rig a take was recorded with, from the rig map text it stores.
+
+    Its character files are looked for relative to where the rig file was when recording began
+    (RIG_SOURCE_MARK), then next to the take, then (for a take of the built-in rig) in the
+    built-in rig's folder; the error names the missing file and the --rig option.
+    """
+    from puppet.rig import builtin
+    from puppet.rig.load import BUILTIN_RIG, builtin_name, load_rig_text
+
+    text = meta.rig_map_text
+    if not text.strip():
+        if meta.rig_name == builtin_name():
+            return builtin()
+        raise TakeError(take, f"the take stores no rig map (recorded with rig {meta.rig_name!r} "
+                              "loaded from a character file); pass --rig with that rig's file")
+    bases = [Path(line[len(RIG_SOURCE_MARK):].strip()).parent
+             for line in text.splitlines()[-1:] if line.startswith(RIG_SOURCE_MARK)]
+    bases.append(Path(take).resolve().parent)
+    if meta.rig_name == builtin_name():
+        bases.append(BUILTIN_RIG.parent)
+    return load_rig_text(text, label=f"{take} (rig map)", bases=bases,
+                         hint="pass --rig with the rig file")
+
+
+def open_take(take, rig: Rig | str | Path | None, *,
+              default_rig: bool = False) -> tuple[Rig, TakeReader]:
+    """(rig, TakeReader) for a take, the rig's servos checked against the take's.
+
+    rig: None for the rig the take stores (``rig_from_take``), a rig file to load, or a loaded
+         Rig (a copy is calibrated and returned; the argument is left untouched).
+    default_rig: the given Rig is the built-in one chosen because no rig was named: the take must
+         have been recorded on it, as with None.
+    The returned rig carries the calibration the take was recorded with (its zero ticks).
+    Raises TakeError (empty take, take from another rig, unreadable calibration) or the rig's
+    RigError, each naming the file.
+    """
+    from puppet.rig import Calibration, load_rig
+
+    reader = TakeReader(take)
+    if len(reader) == 0:
+        raise TakeError(take, "the take holds no readings")
+    meta = reader.metadata
+    if rig is None:
+        rig = rig_from_take(take, meta)
+    elif isinstance(rig, Rig):
+        rig = copy.deepcopy(rig)  # the calibration below is this take's own
+    else:
+        rig = load_rig(rig)
+    if default_rig and meta.rig_name != rig.name:
+        raise TakeError(take, f"take from another rig: recorded with rig {meta.rig_name!r}, not "
+                              f"the built-in rig {rig.name!r}; pass --rig with that rig's file")
+    reader.check_rig([int(i) for i in rig.servo_map.ids], dict(rig.servo_map.models),
+                     rig_name=rig.name)
+    try:  # replay with the calibration the take was recorded with
+        zero = json.loads(meta.calibration_text).get("zero_ticks", {}) if meta.calibration_text else {}
+        if zero:
+            rig.servo_map.calibrate(Calibration({int(k): int(v) for k, v in zero.items()}))
+    except (ValueError, AttributeError) as err:
+        raise TakeError(take, f"unreadable calibration in the take: {err}") from None
+    return rig, reader
+
+
+def play_take(rig: Rig, reader: TakeReader, sinks: Iterable, *, fps: float = 30.0,
+              speed: float = 1.0, antialias: str = "msaa", size: tuple[int, int] = (640, 480),
+              precompute=None, progress: Callable[[int, int], None] | None = None,
+              should_stop: Callable[[], bool] = lambda: False):
+    """Solve and render every frame of a take into ``sinks`` (objects with ``write(image)``).
+
+    fps: frames per second of the output; speed: playback speed factor (frames at fps of the
+    take's time scaled by it); size: (width, height) pixels; precompute: a shared
+    ``RigPrecompute`` of ``rig`` (None: built here). progress: called with (frames done,
+    frames in all) after each frame. should_stop() (Ctrl-C, SIGTERM) ends it after a whole
+    frame. Returns the pipeline's Summary. The caller closes the sinks.
+    """
+    from puppet.pipeline import Pipeline, run_frames
+    from puppet.take import PlaybackClock
+
+    ids = [int(i) for i in rig.servo_map.ids]
+    with Pipeline(rig, overlay=True, antialias=antialias, width=size[0], height=size[1],
+                  precompute=precompute) as pipeline:
+        clock = PlaybackClock(reader.readings(ids=ids), fps=fps, speed=speed)
+        total = clock.frame_count(reader.t_last_ns - reader.t_first_ns)
+        done = [0]
+
+        def on_frame(_pipeline) -> None:
+            done[0] += 1
+            if progress is not None:
+                progress(done[0], total)
+
+        return run_frames(pipeline, (f.reading for f in clock), sinks=sinks, on_frame=on_frame,
+                          should_stop=should_stop)
