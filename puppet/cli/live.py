@@ -18,7 +18,12 @@ def report_actuators(source) -> None:
     """Say on stderr what the actuators' setup changed and their torque read back at the end."""
     for note in source.notes:
         click.echo(note, err=True)
-    after = source.torque_after or {}
+    after = source.torque_after
+    if not after:
+        ids = [int(i) for i in source.actuation.ids]
+        click.echo(f"warning: actuator servos {ids}: torque not confirmed off (no read back)",
+                   err=True)
+        return
     on = sorted(i for i, v in after.items() if v != 0)
     if on:
         click.echo(f"warning: actuator servos {on}: torque not confirmed off (read back {after})",

@@ -8,10 +8,12 @@ parent is the identity), the angle is the twist of ``R_rel`` about the servo's a
 space (``frames[bone] @ axis``), and ``goal = angle / (sign · 2π / 4096 / gear) + zero``.
 
 This is the building block for ``role = "actuator"`` servos in ``live``; it holds no state
-beyond preallocated work arrays.
+beyond preallocated work arrays, and its per-frame ``goals`` allocates no arrays.
 """
 
 from __future__ import annotations
+
+import math
 
 import numpy as np
 
@@ -30,19 +32,24 @@ def rotation_part(linear: np.ndarray) -> np.ndarray:
 
 def twist_angle(rotation: np.ndarray, axis: np.ndarray) -> float:
     """Radians (-π, π] that ``rotation`` (3, 3) turns about unit ``axis`` (3,) (swing-twist:
-    the rotation's quaternion projected on the axis)."""
+    the rotation's quaternion projected on the axis). Scalar arithmetic only (no arrays)."""
     r = rotation
-    w = 0.5 * np.sqrt(max(0.0, 1.0 + r[0, 0] + r[1, 1] + r[2, 2]))
+    trace = float(r[0, 0] + r[1, 1] + r[2, 2])
+    w = 0.5 * math.sqrt(max(0.0, 1.0 + trace))
     if w > 1e-6:
-        v = np.array([r[2, 1] - r[1, 2], r[0, 2] - r[2, 0], r[1, 0] - r[0, 1]]) / (4.0 * w)
-    else:  # a half turn: the vector part from the diagonal
-        v = np.sqrt(np.maximum(0.0, (np.diag(r) + 1.0) / 2.0))
-        k = int(np.argmax(v))
+        vx = float(r[2, 1] - r[1, 2]) / (4.0 * w)
+        vy = float(r[0, 2] - r[2, 0]) / (4.0 * w)
+        vz = float(r[1, 0] - r[0, 1]) / (4.0 * w)
+    else:  # a half turn: the vector part from the diagonal, signs from the symmetric part
+        v = [math.sqrt(max(0.0, (float(r[i, i]) + 1.0) / 2.0)) for i in range(3)]
+        big = max(range(3), key=v.__getitem__)
         for j in range(3):
-            if j != k:
-                v[j] = np.copysign(v[j], r[k, j] + r[j, k])
-    angle = 2.0 * np.arctan2(float(v @ axis), w)
-    return float((angle + np.pi) % (2.0 * np.pi) - np.pi) if angle > np.pi else float(angle)
+            if j != big:
+                v[j] = math.copysign(v[j], float(r[big, j] + r[j, big]))
+        vx, vy, vz = v
+    along = vx * float(axis[0]) + vy * float(axis[1]) + vz * float(axis[2])
+    angle = 2.0 * math.atan2(along, w)
+    return (angle + math.pi) % (2.0 * math.pi) - math.pi if angle > math.pi else angle
 
 
 class ActuatorGoals:
@@ -68,15 +75,38 @@ class ActuatorGoals:
         self.hi = np.array([s.limits[1] for s in servos])
         self.angles = np.zeros(len(servos))
         self._goals = np.zeros(len(servos))
+        # Work arrays of the per-frame path: the (3, 3) row blocks of T for each servo's bone
+        # and parent (a root's parent block is the identity), their polar factors, the relative
+        # rotation, all allocated once.
+        k = len(servos)
+        rows = [np.arange(4 * b, 4 * b + 3) if b >= 0 else np.full(3, -1) for b in
+                np.concatenate([self.bones, self.parents])]
+        self._rows = np.concatenate(rows).astype(np.int64)
+        self._root = np.repeat(np.concatenate([self.bones, self.parents]) < 0, 3)
+        self._blocks = np.zeros((2 * k, 3, 3), np.float32)
+        self._polar = np.zeros((2 * k, 3, 3), np.float32)
+        self._rel = np.zeros((3, 3))
 
     def goals(self, T: np.ndarray) -> np.ndarray:
-        """(k,) goal ticks from the solver's (4m, 3) ``T`` (reused array: copy to keep)."""
-        for n, (bone, parent) in enumerate(zip(self.bones, self.parents)):
-            child = rotation_part(np.asarray(T[4 * bone:4 * bone + 3], float).T)
-            if parent >= 0:
-                child = rotation_part(np.asarray(T[4 * parent:4 * parent + 3], float).T).T @ child
-            self.angles[n] = twist_angle(child, self.axes[n])
+        """(k,) goal ticks from the solver's (4m, 3) ``T`` (reused array: copy to keep).
+
+        Allocates no arrays: the blocks of T are gathered into a work array and their polar
+        factors come from the native ``fit_rotations`` (GIL released)."""
+        from puppet._native import fit_rotations
+
+        k = len(self.bones)
+        flat = self._blocks.reshape(6 * k, 3)
+        np.take(T, np.maximum(self._rows, 0), axis=0, out=flat)
+        flat[self._root] = _IDENTITY_ROWS[np.arange(6 * k)[self._root] % 3]
+        fit_rotations(self._blocks, self._polar)  # Q = polar(T block) = R^T of the linear part
+        for n in range(k):
+            # R_rel = R_parent^T R_child = Q_parent Q_child^T
+            np.matmul(self._polar[k + n], self._polar[n].T, out=self._rel)
+            self.angles[n] = twist_angle(self._rel, self.axes[n])
         np.clip(self.angles, self.lo, self.hi, out=self._goals)
         self._goals /= self.scale
         self._goals += self.zero
         return self._goals
+
+
+_IDENTITY_ROWS = np.eye(3, dtype=np.float32)

@@ -54,4 +54,4 @@ def test_actuator_goals_invert_the_calibration(rig):
     got = goals.goals(T)
     want = rig.servo_map.ticks_for(np.r_[angle, np.zeros(len(rig.servo_map.ids) - 1)])[0]
     assert abs(got[0] - want) < 0.5
-    assert abs(goals.angles[0] - angle) < 1e-9
+    assert abs(goals.angles[0] - angle) < 1e-6  # float32 polar factors, as the solver's T

@@ -108,7 +108,7 @@ def test_tail_follows_the_solve_and_sigterm_leaves_torque_off(tail_rig, expected
         code, _, err = live.finish()
         assert code == 0, err
         assert "Traceback" not in err
-        assert f"actuators [{TAIL}]: torque off (read back)" in err
+        assert f"actuators [{TAIL}]: torque off (read back)" in err, err
         assert tail.get("Torque Enable") == 0
         assert tail.get("Bus Watchdog") == 0
 
@@ -119,6 +119,6 @@ def test_tail_torque_is_off_after_a_normal_end(tail_rig):
         live = Live(bus.port, "--seconds", "2")
         code, _, err = live.finish()
         assert code == 0, err
-        assert f"actuators [{TAIL}]: torque off (read back)" in err
+        assert f"actuators [{TAIL}]: torque off (read back)" in err, err
         assert bus.servo(TAIL).get("Torque Enable") == 0
         assert bus.servo(TAIL).get("Bus Watchdog") == 0
