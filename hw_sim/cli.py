@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import faulthandler
 import signal
 import sys
 
@@ -122,6 +123,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"hw-sim: {exc}", file=sys.stderr)
         return 2
     signal.signal(signal.SIGTERM, lambda *_: server.stop())
+    faulthandler.register(signal.SIGUSR1, all_threads=True)  # kill -USR1: where it is, on stderr
     print(server.path, flush=True)
     print(f"hw-sim: {len(servos)} servos ({describe(servos)}) at {args.baud} baud, "
           f"motion {motion_name}; stable link {server.link}; Ctrl-C to stop", file=sys.stderr,

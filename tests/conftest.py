@@ -10,6 +10,8 @@ and then asserting a state, they wait for the state with ``wait_until`` and a ge
 from __future__ import annotations
 
 import os
+import signal
+import subprocess
 import time
 from collections.abc import Callable
 from typing import TypeVar
@@ -34,6 +36,49 @@ def wait_until(predicate: Callable[[], T], timeout: float = PATIENCE_S, interval
         if time.monotonic() > deadline:
             raise AssertionError(f"{what}: not reached within {timeout} s")
         time.sleep(interval)
+
+
+def _interrupt_and_wait(proc: subprocess.Popen, timeout: float = PATIENCE_S,
+                        read_stderr: bool = True) -> int:
+    """Ctrl-C ``proc`` and wait for its exit code. If it has not exited within ``timeout`` s,
+    AssertionError with what it was doing: its kernel state and wait channel, and (hw-sim
+    dumps its threads' stacks on SIGUSR1) its Python stacks on stderr; it is killed after.
+    ``read_stderr``: add the end of its stderr pipe to the message (False when a thread of the
+    caller reads that pipe)."""
+    if proc.poll() is None:
+        proc.send_signal(signal.SIGINT)
+    try:
+        return proc.wait(timeout=timeout)
+    except subprocess.TimeoutExpired:
+        report = stuck_report(proc.pid)
+        proc.send_signal(signal.SIGUSR1)
+        time.sleep(1.0)  # a diagnostic pause, not a wait for a state
+        proc.kill()
+        proc.wait()
+        err = proc.stderr.read()[-3000:] if read_stderr and proc.stderr is not None else ""
+        raise AssertionError(f"pid {proc.pid} still running {timeout} s after Ctrl-C: {report}"
+                             f"\n{err}")
+
+
+def stuck_report(pid: int) -> str:
+    """One line on where process ``pid`` is: State and wchan from /proc (what is readable)."""
+    parts = []
+    for name in ("status", "wchan", "stack"):
+        try:
+            with open(f"/proc/{pid}/{name}") as fh:
+                text = fh.read()
+        except OSError as exc:
+            parts.append(f"{name}: {exc.strerror}")
+            continue
+        if name == "status":
+            text = next((line for line in text.splitlines() if line.startswith("State")), "")
+        parts.append(f"{name}: {text.strip()}")
+    return "; ".join(parts)
+
+
+@pytest.fixture(name="interrupt_and_wait")
+def _interrupt_and_wait_fixture():
+    return _interrupt_and_wait
 
 
 @pytest.fixture(name="wait_until")

@@ -146,8 +146,9 @@ def readings_in(take: Path) -> int:
 class Background:
     """A command started like `cmd &`, its output read on a thread (so it never blocks)."""
 
-    def __init__(self, argv: list[str], cwd: Path) -> None:
+    def __init__(self, argv: list[str], cwd: Path, interrupt_and_wait) -> None:
         self.argv = argv
+        self.interrupt_and_wait = interrupt_and_wait
         self.proc = subprocess.Popen(argv, cwd=cwd, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                                      text=True)
         self.lines: list[str] = []
@@ -174,13 +175,10 @@ class Background:
 
     def interrupt(self, timeout: float = 120) -> tuple[int, str]:
         """Ctrl-C; (exit code, stderr)."""
-        if self.proc.poll() is None:
-            self.proc.send_signal(signal.SIGINT)
         try:
-            self.proc.wait(timeout=timeout)
-        except subprocess.TimeoutExpired:
-            self.proc.kill()
-            self.proc.wait()
+            self.interrupt_and_wait(self.proc, timeout, read_stderr=False)
+        except AssertionError as stuck:
+            self.errors.append(f"\n{stuck}\n")
         for reader in self._readers:
             reader.join(timeout=30)
         return self.proc.returncode, "".join(self.errors)
@@ -195,7 +193,7 @@ def test_readme_lists_the_commands_a_user_needs():
     assert any(c.startswith("puppet calibrate") and "--guided" in c for c in commands)
 
 
-def test_every_using_it_command_runs_as_written(tmp_path):
+def test_every_using_it_command_runs_as_written(tmp_path, interrupt_and_wait):
     write_inputs(tmp_path)
     servers: list[Background] = []
     ports: dict[str, str] = {}   # rig file -> port of the latest hw-sim serving it
@@ -213,7 +211,7 @@ def test_every_using_it_command_runs_as_written(tmp_path):
             if any(a.startswith("session/") for a in argv):
                 fill_session(tmp_path)
             if argv[0] == "hw-sim":
-                server = Background(argv, tmp_path)
+                server = Background(argv, tmp_path, interrupt_and_wait)
                 servers.append(server)
                 assert server.first_line().startswith("/dev/"), (line, server.proc.poll(),
                                                                  "".join(server.errors))
@@ -226,7 +224,7 @@ def test_every_using_it_command_runs_as_written(tmp_path):
             outputs = [argv[k + 1] for k, a in enumerate(argv[:-1]) if a in OUTPUT_OPTIONS]
             if "--view" in argv or argv[:2] == ["puppet", "view"]:  # serves until Ctrl-C
                 take = option(argv, "--record")
-                run = Background(argv, tmp_path)
+                run = Background(argv, tmp_path, interrupt_and_wait)
                 url = view_url(run, line)
                 status, html = open_page(run, url, line)  # the page a user opens
                 assert status == 200, (line, status)
@@ -238,7 +236,7 @@ def test_every_using_it_command_runs_as_written(tmp_path):
                 code, stderr = run.interrupt()
             elif argv[:2] in (["puppet", c] for c in UNTIL_CTRL_C) and "--seconds" not in argv:
                 take = argv[argv.index("--record" if argv[1] == "live" else "--out") + 1]
-                run = Background(argv, tmp_path)
+                run = Background(argv, tmp_path, interrupt_and_wait)
                 deadline = time.monotonic() + 180
                 while readings_in(tmp_path / take) < 20 and run.proc.poll() is None:
                     assert time.monotonic() < deadline, f"{line!r}: no readings recorded"

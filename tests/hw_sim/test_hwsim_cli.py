@@ -30,7 +30,7 @@ def test_bad_arguments_are_named(tmp_path, capsys):
     assert f"{bad}:1" in capsys.readouterr().err
 
 
-def test_serves_until_interrupted():
+def test_serves_until_interrupted(interrupt_and_wait):
     proc = subprocess.Popen([sys.executable, "-m", "hw_sim.cli", "--servos", "1-14",
                              "--motion", "wave"], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                             text=True)
@@ -43,5 +43,4 @@ def test_serves_until_interrupted():
         assert [packet.ping(port, i)[:2] for i in (1, 14)] == [(1200, 0), (1200, 0)]
         port.closePort()
     finally:
-        proc.send_signal(signal.SIGINT)
-        assert proc.wait(timeout=10) == 0
+        assert interrupt_and_wait(proc) == 0, proc.stderr.read()
