@@ -18,6 +18,12 @@ from typing import TypeVar
 
 import pytest
 
+# Tests stop subprocesses with Ctrl-C (SIGINT). A shell that starts a command with `cmd &` and no
+# job control starts it with SIGINT ignored, Python then installs no KeyboardInterrupt handler,
+# and every subprocess inherits the ignore: the test would wait on a process deaf to Ctrl-C.
+# A handled SIGINT here resets to the default in every child at exec.
+signal.signal(signal.SIGINT, signal.default_int_handler)
+
 PATIENCE_S = 60.0
 """How long a test waits for a condition that a quiet machine meets in milliseconds."""
 
