@@ -82,8 +82,12 @@ def run_demo(*, seconds: float | None, sinks_for: Callable[[Pipeline], list], fa
              latency_ms: int = 3, render_options: dict | None = None,
              should_stop: Callable[[], bool] = lambda: False,
              on_frame: Callable[[Summary], None] | None = None,
-             started_s: float | None = None, latch_fps: float | None = 60.0, view=None) -> tuple[Summary, object]:
+             started_s: float | None = None, latch_fps: float | None = 60.0, view=None,
+             rig=None) -> tuple[Summary, object]:
     """Run the built-in character on hw_sim for ``seconds``; returns (summary, setup report).
+
+    rig: the built-in character as loaded (default ``builtin()``; e.g. its secondary-motion
+        variant ``load_rig(BUILTIN_DYNAMICS_RIG)``): the simulated servos play its performance.
 
     sinks_for: called with the ready Pipeline, returns the sinks to feed (e.g. a VideoSink).
     seconds: length of the run (None: until ``should_stop()``).
@@ -100,7 +104,7 @@ def run_demo(*, seconds: float | None, sinks_for: Callable[[Pipeline], list], fa
     spawned (fork and exec at once, safe with threads) and opens the bus while the pipeline
     (precompute, GL context, shaders) is built here.
     """
-    rig = builtin()
+    rig = builtin() if rig is None else rig
     models = rig.servo_map.models
     with hw_sim.serve(models, motion=Performance(rig), faults=faults, timing=timing, baud=baud) as bus:
         source = ReaderProcess(bus.link, models, rate_hz=rate_hz, baud=baud, latency_ms=latency_ms)

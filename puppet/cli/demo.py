@@ -18,31 +18,36 @@ from puppet.cli.view import open_view, take_factory_for, view_option
 @click.option("--fps", default=30.0, show_default=True, help="Video frame rate.")
 @click.option("--antialias", type=click.Choice(["auto", "msaa", "fxaa", "none"]), default="auto",
               show_default=True, help="auto: MSAA on a GPU, FXAA on a software renderer.")
+@click.option("--dynamics", is_flag=True,
+              help="Secondary motion on: the ears and tail lag and settle (the built-in "
+                   "critter_dynamics.toml; point handles need the plain rig).")
 @click.option("--json", "as_json", is_flag=True, help="Print the summary as JSON.")
 @view_option
 def demo(out: str, seconds: float | None, faults: str | None, size: tuple[int, int], fps: float,
-         antialias: str, as_json: bool, view_address: str | None) -> None:
+         antialias: str, dynamics: bool, as_json: bool, view_address: str | None) -> None:
     """Run the live loop on the built-in character and a simulated bus, into a video.
 
     \b
     Example:
       puppet demo --seconds 5 --out demo.mp4
       puppet demo --view                 watch it at http://127.0.0.1:8765/ (Ctrl-C stops)
+      puppet demo --dynamics             ears and tail lag and settle
     """
     from hw_sim.errors import FaultFileError
     from hw_sim.faults import FaultSchedule
 
     from puppet.demo import run_demo
-    from puppet.rig import builtin
+    from puppet.rig.load import BUILTIN_DYNAMICS_RIG, builtin, load_rig
 
     if faults is not None:  # checked before anything starts: a bad file is the user's to fix
         try:
             faults = FaultSchedule.from_file(faults)
         except FaultFileError as err:
             fail(str(err))
+    rig = load_rig(BUILTIN_DYNAMICS_RIG) if dynamics else builtin()
     live_view = None
     if view_address is not None:  # bound before the simulated bus starts
-        live_view = open_view(view_address, mode="live", take_factory=take_factory_for(builtin()))
+        live_view = open_view(view_address, mode="live", take_factory=take_factory_for(rig))
     elif seconds is None:
         seconds = 10.0
     bar, on_frame = progress(seconds, "demo")
@@ -51,11 +56,12 @@ def demo(out: str, seconds: float | None, faults: str | None, size: tuple[int, i
             summary, report = run_demo(seconds=seconds, faults=faults, width=size[0], height=size[1],
                                        video_fps=fps, on_frame=on_frame, antialias=antialias,
                                        sinks_for=lambda _p: make_sinks(out, None, fps),
-                                       view=live_view, should_stop=StopFlag())
+                                       view=live_view, should_stop=StopFlag(), rig=rig)
     finally:
         if live_view is not None:
             live_view.close()
-    print_summary(summary, as_json, extra={"video": out, "read_mode": report.read_mode})
+    print_summary(summary, as_json, extra={"video": out, "read_mode": report.read_mode,
+                                           "dynamics": rig.extras.dynamics is not None})
 
 
 COMMANDS = (demo,)

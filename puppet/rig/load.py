@@ -17,6 +17,8 @@ from puppet.rig.skeleton import Skeleton
 from puppet.rig.weight_check import normalize_weights
 
 BUILTIN_RIG = Path(__file__).resolve().parent / "builtin" / "critter.toml"
+BUILTIN_DYNAMICS_RIG = BUILTIN_RIG.with_name("critter_dynamics.toml")
+"""The built-in character with secondary motion ([solver.dynamics]: ears and tail lag, settle)."""
 CHARACTER_KEYS = ("V", "F", "W", "names", "parents", "heads", "tails", "frames")
 
 

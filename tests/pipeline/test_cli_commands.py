@@ -47,11 +47,22 @@ def test_demo_writes_a_video_and_a_summary(tmp_path):
     assert summary["fps"] > 0
     assert summary["latency_median_ms"] > 0
     assert summary["solver_us_per_iter"] > 0
+    assert summary["dynamics"] is False
     frames, _ = imageio_ffmpeg.count_frames_and_secs(str(out))
     assert 1 <= frames <= 30 * summary["seconds"] + 1
     reader = imageio_ffmpeg.read_frames(str(out))
     meta = next(reader)
     assert tuple(meta["size"]) == (320, 240)
+
+
+def test_demo_dynamics_runs_the_secondary_motion_variant(tmp_path):
+    out = tmp_path / "dynamics.mp4"
+    result = run("demo", "--dynamics", "--seconds", 1, "--out", out, "--json", "--size", 160, 120)
+    assert result.returncode == 0, result.stderr
+    summary = json.loads(result.stdout.strip().splitlines()[-1])
+    assert summary["dynamics"] is True
+    assert summary["frames"] >= 1
+    assert out.stat().st_size > 0
 
 
 def test_record_killed_then_played_and_exported(tmp_path):
