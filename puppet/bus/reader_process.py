@@ -232,7 +232,6 @@ class ReaderProcess:
         self.torque_after: dict | None = None
         self.notes: list[str] = []
         self._goal_shm = None
-        self._goal_seq = 0
         self.servos = {int(i): str(m) for i, m in servos.items()}
         self.ids = np.array(list(self.servos), np.int64)
         self.rate_hz = rate_hz
@@ -402,7 +401,10 @@ class ReaderProcess:
             self._proc = None
             if self.actuation is not None and self.report is not None:
                 while not self._events_closed and self._events.poll():
-                    self._take_message()  # its torque-off report, if it got that far
+                    try:
+                        self._take_message()  # its torque-off report, if it got that far
+                    except ReaderProcessError as err:  # its last words were an error
+                        self.notes.append(str(err))
                 if self.torque_after is None:
                     self._torque_off_from_here()
         if self._shm is not None:
