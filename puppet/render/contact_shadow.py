@@ -32,8 +32,7 @@ def _kmeans(points: np.ndarray, k: int, iterations: int) -> np.ndarray:
     for _ in range(iterations):
         d2 = (points**2).sum(1)[:, None] - 2 * points @ centers.T + (centers**2).sum(1)[None, :]
         labels = np.argmin(d2, axis=1)
-        sums = np.zeros_like(centers)
-        np.add.at(sums, labels, points)
+        sums = np.stack([np.bincount(labels, weights=points[:, j], minlength=k) for j in range(3)], 1)
         counts = np.bincount(labels, minlength=k)
         filled = counts > 0
         centers[filled] = sums[filled] / counts[filled, None]
