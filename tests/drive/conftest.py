@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-import time
-
 import dynamixel_sdk.port_handler as sdk_port_handler
 import numpy as np
 import pytest
@@ -17,24 +15,6 @@ def patient_timeouts():
     sdk_port_handler.LATENCY_TIMER = PATIENT_LATENCY_TIMER
     yield
     sdk_port_handler.LATENCY_TIMER = saved
-
-
-def _wait_for(condition, timeout_s: float = 60.0, poll_s: float = 0.02, what: str = "condition"):
-    """Poll ``condition()`` until it returns a truthy value; that value, or AssertionError."""
-    deadline = time.monotonic() + timeout_s
-    while True:
-        value = condition()
-        if value:
-            return value
-        if time.monotonic() > deadline:
-            raise AssertionError(f"timed out after {timeout_s} s waiting for {what}")
-        time.sleep(poll_s)
-
-
-@pytest.fixture
-def wait_for():
-    """``wait_for(condition, timeout_s=60, poll_s=0.02, what=...)``: poll until truthy."""
-    return _wait_for
 
 
 @pytest.fixture
