@@ -211,6 +211,16 @@ class ViewServer:
         self.demand = frozenset(v.camera for v in self.viewers.values()
                                 if v.frames is not None and v.credit > 0)
 
+    async def _accept(self, request: web.Request) -> tuple[Viewer | None, web.StreamResponse]:
+        """The requesting viewer and its WebSocket, prepared (upgraded); (None, a 400 response)
+        when the request names no valid client id."""
+        viewer = self._viewer(request)
+        if viewer is None:
+            return None, web.Response(status=400, text="missing client id\n")
+        ws = web.WebSocketResponse(max_msg_size=MAX_CLIENT_MESSAGE, compress=False)
+        await ws.prepare(request)
+        return viewer, ws
+
     async def _receive(self, viewer: Viewer, ws: web.WebSocketResponse, socket: str,
                        on_text) -> None:
         """Hand each text message of ws to on_text(viewer, text) until the socket closes.
@@ -227,11 +237,9 @@ class ViewServer:
                 self.warn(f"viewer {viewer.number}: {socket} socket closed: {ws.exception()}")
 
     async def _frames_socket(self, request: web.Request) -> web.StreamResponse:
-        viewer = self._viewer(request)
+        viewer, ws = await self._accept(request)
         if viewer is None:
-            return web.Response(status=400, text="missing client id\n")
-        ws = web.WebSocketResponse(max_msg_size=MAX_CLIENT_MESSAGE, compress=False)
-        await ws.prepare(request)
+            return ws  # 400: no client id
         if viewer.frames is not None and not viewer.frames.closed:
             await viewer.frames.close()
         viewer.frames, viewer.credit, viewer.slot = ws, CREDIT, None
@@ -267,11 +275,9 @@ class ViewServer:
         self._update_demand()
 
     async def _control_socket(self, request: web.Request) -> web.StreamResponse:
-        viewer = self._viewer(request)
+        viewer, ws = await self._accept(request)
         if viewer is None:
-            return web.Response(status=400, text="missing client id\n")
-        ws = web.WebSocketResponse(max_msg_size=MAX_CLIENT_MESSAGE, compress=False)
-        await ws.prepare(request)
+            return ws  # 400: no client id
         viewer.control = ws
         snapshot = self.view.snapshot()
         snapshot["viewer"] = viewer.number
