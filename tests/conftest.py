@@ -124,6 +124,15 @@ class Sdk:
         assert self.port.setBaudRate(SDK_BAUD) is True
         self.packet = dynamixel_sdk.PacketHandler(2.0)
 
+    def _answered(self, call, what: str) -> tuple:
+        """call() -> an SDK result tuple (..., result code, status error byte), tried up to
+        SDK_RETRIES times until its code is COMM_SUCCESS; AssertionError naming ``what``."""
+        for _ in range(SDK_RETRIES):
+            result = call()
+            if result[-2] == dynamixel_sdk.COMM_SUCCESS:
+                return result
+        raise AssertionError(f"{what}: no reply in {SDK_RETRIES} tries")
+
     def write(self, dxl_id: int, addr: int, size: int, value: int) -> int:
         """Write ``size`` (1, 2 or 4) bytes and return the status error number. A reply lost to
         a stalled machine is retried (every write in the tests sets an absolute value, so a
@@ -131,27 +140,21 @@ class Sdk:
         fn = {1: self.packet.write1ByteTxRx, 2: self.packet.write2ByteTxRx,
               4: self.packet.write4ByteTxRx}[size]
         data = value & ((1 << (8 * size)) - 1)
-        for _ in range(SDK_RETRIES):
-            code, error = fn(self.port, dxl_id, addr, data)
-            if code == dynamixel_sdk.COMM_SUCCESS:
-                return error & 0x7F
-        raise AssertionError(f"write to servo {dxl_id} address {addr}: no reply in {SDK_RETRIES} tries")
+        _, error = self._answered(lambda: fn(self.port, dxl_id, addr, data),
+                                  f"write to servo {dxl_id} address {addr}")
+        return error & 0x7F
 
     def read_status(self, dxl_id: int, addr: int) -> int:
         """The status error byte (alert bit included) of a 1-byte read, retried like write."""
-        for _ in range(SDK_RETRIES):
-            _, code, error = self.packet.read1ByteTxRx(self.port, dxl_id, addr)
-            if code == dynamixel_sdk.COMM_SUCCESS:
-                return error
-        raise AssertionError(f"read of servo {dxl_id} address {addr}: no reply in {SDK_RETRIES} tries")
+        _, _, error = self._answered(lambda: self.packet.read1ByteTxRx(self.port, dxl_id, addr),
+                                     f"read of servo {dxl_id} address {addr}")
+        return error
 
     def read4(self, dxl_id: int, addr: int) -> int:
         """A 4-byte value, retried like write."""
-        for _ in range(SDK_RETRIES):
-            value, code, _ = self.packet.read4ByteTxRx(self.port, dxl_id, addr)
-            if code == dynamixel_sdk.COMM_SUCCESS:
-                return value
-        raise AssertionError(f"read of servo {dxl_id} address {addr}: no reply in {SDK_RETRIES} tries")
+        value, _, _ = self._answered(lambda: self.packet.read4ByteTxRx(self.port, dxl_id, addr),
+                                     f"read of servo {dxl_id} address {addr}")
+        return value
 
     def close(self) -> None:
         if self.port.is_open:
