@@ -368,6 +368,16 @@ class Summary:
         return "\n".join(lines)
 
 
+def _draw(pipeline: Pipeline, stages: StageClock) -> np.ndarray:
+    """Render the current pose and read it back: (height, width, 3) uint8; the time goes to
+    the "draw" and "readback" stages."""
+    pipeline.render()
+    stages.lap("draw")
+    image = pipeline.read()
+    stages.lap("readback")
+    return image
+
+
 def _finish(summary: Summary, pipeline: Pipeline) -> Summary:
     if pipeline.solver_iterations:
         summary.solver_us_per_iter = pipeline.solve_ns / 1e3 / pipeline.solver_iterations
@@ -488,10 +498,7 @@ def run_live(pipeline: Pipeline, source, *, seconds: float | None = None,
             after_solve(pipeline, reading)
         stages.lap("solve")
         if render:
-            pipeline.render()
-            stages.lap("draw")
-            image = pipeline.read()
-            stages.lap("readback")
+            image = _draw(pipeline, stages)
         summary.latency_ms.append((time.monotonic_ns() - reading.t_ns) / 1e6)
         if summary.frames == 0:
             summary.first_frame_s = process_age_s() if started_s is None else time.monotonic() - started_s
@@ -539,10 +546,7 @@ def run_frames(pipeline: Pipeline, readings: Iterable[Reading], *, sinks: Iterab
         pipeline.solve(reading)
         stages.lap("solve")
         if render:
-            pipeline.render()
-            stages.lap("draw")
-            image = pipeline.read()
-            stages.lap("readback")
+            image = _draw(pipeline, stages)
             for sink in sinks:
                 sink.write(image)
             stages.lap("sinks")

@@ -1,4 +1,5 @@
-"""Session-wide test setup: a private cache folder, and waiting for a condition.
+"""Session-wide test setup: a private cache folder, waiting for a condition, and the real
+dynamixel_sdk opened on a simulated bus's port (``open_sdk``, for tests/hw_sim and tests/drive).
 
 Tests never write to the user's cache: ``PUPPET_CACHE`` points into a temporary folder for
 the whole session (subprocesses started by tests inherit it).
@@ -16,6 +17,7 @@ import time
 from collections.abc import Callable
 from typing import TypeVar
 
+import dynamixel_sdk
 import pytest
 
 # Tests stop subprocesses with Ctrl-C (SIGINT). A shell that starts a command with `cmd &` and no
@@ -103,3 +105,72 @@ def private_cache(tmp_path_factory):
         os.environ.pop("PUPPET_CACHE", None)
     else:
         os.environ["PUPPET_CACHE"] = saved
+
+
+SDK_BAUD = 1_000_000
+SDK_RETRIES = 5
+"""Tries of an Sdk transaction whose reply a stalled machine delayed past the SDK's deadline."""
+
+
+class Sdk:
+    """The unmodified SDK on a simulated bus: ``port`` (PortHandler), ``packet`` (Protocol 2.0).
+
+    write/read_status/read4 retry a transaction whose reply was lost SDK_RETRIES times (the
+    deadline is the SDK's LATENCY_TIMER, which each folder's conftest sets)."""
+
+    def __init__(self, path: str) -> None:
+        self.port = dynamixel_sdk.PortHandler(path)
+        assert self.port.openPort() is True
+        assert self.port.setBaudRate(SDK_BAUD) is True
+        self.packet = dynamixel_sdk.PacketHandler(2.0)
+
+    def _answered(self, call, what: str) -> tuple:
+        """call() -> an SDK result tuple (..., result code, status error byte), tried up to
+        SDK_RETRIES times until its code is COMM_SUCCESS; AssertionError naming ``what``."""
+        for _ in range(SDK_RETRIES):
+            result = call()
+            if result[-2] == dynamixel_sdk.COMM_SUCCESS:
+                return result
+        raise AssertionError(f"{what}: no reply in {SDK_RETRIES} tries")
+
+    def write(self, dxl_id: int, addr: int, size: int, value: int) -> int:
+        """Write ``size`` (1, 2 or 4) bytes and return the status error number. A reply lost to
+        a stalled machine is retried (every write in the tests sets an absolute value, so a
+        repeat is harmless)."""
+        fn = {1: self.packet.write1ByteTxRx, 2: self.packet.write2ByteTxRx,
+              4: self.packet.write4ByteTxRx}[size]
+        data = value & ((1 << (8 * size)) - 1)
+        _, error = self._answered(lambda: fn(self.port, dxl_id, addr, data),
+                                  f"write to servo {dxl_id} address {addr}")
+        return error & 0x7F
+
+    def read_status(self, dxl_id: int, addr: int) -> int:
+        """The status error byte (alert bit included) of a 1-byte read, retried like write."""
+        _, _, error = self._answered(lambda: self.packet.read1ByteTxRx(self.port, dxl_id, addr),
+                                     f"read of servo {dxl_id} address {addr}")
+        return error
+
+    def read4(self, dxl_id: int, addr: int) -> int:
+        """A 4-byte value, retried like write."""
+        value, _, _ = self._answered(lambda: self.packet.read4ByteTxRx(self.port, dxl_id, addr),
+                                     f"read of servo {dxl_id} address {addr}")
+        return value
+
+    def close(self) -> None:
+        if self.port.is_open:
+            self.port.closePort()
+
+
+@pytest.fixture
+def open_sdk():
+    """Factory: ``open_sdk(path)`` -> Sdk opened on that port; all closed after the test."""
+    opened = []
+
+    def make(path: str) -> Sdk:
+        sdk = Sdk(path)
+        opened.append(sdk)
+        return sdk
+
+    yield make
+    for sdk in opened:
+        sdk.close()

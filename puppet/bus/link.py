@@ -402,25 +402,41 @@ class BusLink:
             raise ServoStatusError([dxl_id], "reboot", describe_status_error(error), error=error)
 
     # ---- group instructions --------------------------------------------------------------
+    def _sync_read_request(self, ids: list[int], item: Item, *, fast: bool
+                           ) -> tuple[list | None, ServoError | None]:
+        """Send a Sync Read (``fast``: Fast Sync Read) request of ``item`` to ``ids`` as one
+        transaction; a Fast Sync Read also takes its one reply packet.
+
+        -> (rx, None): rx the Fast Sync Read reply (None for Sync Read, whose replies are read
+        one by one after); or (None, error): the error every servo of ``ids`` gets when the line
+        stayed stalled (ServoTimeout with ``line_stalled``) or the SDK call failed.
+        """
+        instruction = "fast_sync_read" if fast else "sync_read"
+        rx = None
+        try:
+            with self._transaction(ids, instruction):
+                code = self.ph.syncReadTx(self.port, item.address, item.size, ids, len(ids), fast)
+                if fast and code == rd.COMM_SUCCESS:
+                    rx, code = self.ph.rxPacket(self.port, True)
+        except ServoTimeout as exc:
+            if not exc.line_stalled:
+                raise
+            return None, exc
+        if code != rd.COMM_SUCCESS:
+            return None, self._fail(code, ids, instruction)
+        return rx, None
+
     def sync_read(self, ids: list[int], item: Item) -> GroupRead:
         """Sync Read (0x82) of one item -> GroupRead with per-servo values, errors and failures.
 
         Unlike ``GroupSyncRead``, every servo that answered keeps its value when another one
         fails, and each status error byte (alert bit) is kept.
         """
-        out = GroupRead()
         instruction = "sync_read"
-        try:
-            with self._transaction(ids, instruction):
-                code = self.ph.syncReadTx(self.port, item.address, item.size, ids, len(ids), False)
-        except ServoTimeout as exc:
-            if not exc.line_stalled:
-                raise
-            out.failed = dict.fromkeys(ids, exc)
-            return out
-        if code != rd.COMM_SUCCESS:
-            out.failed = dict.fromkeys(ids, self._fail(code, ids, instruction))
-            return out
+        _, failure = self._sync_read_request(ids, item, fast=False)
+        if failure is not None:
+            return GroupRead(failed=dict.fromkeys(ids, failure))
+        out = GroupRead()
         for dxl_id in ids:
             # The deadline is shared by all replies; after it expires, each readRx returns at
             # once with whatever is already buffered.
@@ -446,22 +462,11 @@ class BusLink:
         Each segment ``[ERR ID data CRC]`` is checked here (the SDK checks neither the segment
         CRCs nor their count). A failed packet fails every servo (there is no partial answer).
         """
-        out = GroupRead()
         instruction = "fast_sync_read"
-        try:
-            with self._transaction(ids, instruction):
-                code = self.ph.syncReadTx(self.port, item.address, item.size, ids, len(ids), True)
-                if code == rd.COMM_SUCCESS:
-                    rx, code = self.ph.rxPacket(self.port, True)
-        except ServoTimeout as exc:
-            if not exc.line_stalled:
-                raise
-            out.failed = dict.fromkeys(ids, exc)
-            return out
-        if code != rd.COMM_SUCCESS:
-            err = self._fail(code, ids, instruction)
-            out.failed = dict.fromkeys(ids, err)
-            return out
+        rx, failure = self._sync_read_request(ids, item, fast=True)
+        if failure is not None:
+            return GroupRead(failed=dict.fromkeys(ids, failure))
+        out = GroupRead()
         seg = item.size + 4
         if rx[4] != rd.BROADCAST_ID or len(rx) != 8 + seg * len(ids):
             # A normal status (e.g. Instruction Error from old firmware) or a short packet.

@@ -16,11 +16,12 @@ import numpy as np
 
 from puppet.export.errors import ExportError
 from puppet.export.euler import ORDERS, matrix_to_euler
+from puppet.export.writer import CountPatchedWriter
 
 _FRAMES_FIELD = 12  # "Frames:" is padded to this width so close() can patch the count in place
 
 
-class BvhWriter:
+class BvhWriter(CountPatchedWriter):
     """Writes a skeleton's hierarchy, then one frame of joint rotations at a time.
 
     path:      output .bvh file.
@@ -179,8 +180,7 @@ class BvhWriter:
                        joint in the parent's frame (the root's: its world position; it then
                        replaces root_position); None: the rest offsets.
         """
-        if self._closed:
-            raise ExportError(self.path, "write() after close()")
+        self._check_open()
         n = self.num_frames
         rotations = np.asarray(rotations, dtype=np.float64)
         if rotations.shape == (self.b, 3, 3):
@@ -225,29 +225,9 @@ class BvhWriter:
         self._file.write(" ".join(values) + "\n")
         self.num_frames += 1
 
-    def close(self) -> None:
-        """Patch the frame count in and close. Safe to call twice."""
-        if self._closed:
-            return
-        self._closed = True
-        try:
-            self._file.seek(self._frames_at)
-            self._file.write(f"Frames: {str(self.num_frames).ljust(_FRAMES_FIELD)}")
-        finally:
-            self._file.close()
-
-    def abort(self) -> None:
-        """Close the file as it is, without patching the header (a failed export removes it)."""
-        if self._closed:
-            return
-        self._closed = True
-        self._file.close()
-
-    def __enter__(self) -> "BvhWriter":
-        return self
-
-    def __exit__(self, *exc) -> None:
-        self.close()
+    def _count_field(self) -> tuple[int, str]:
+        """The "Frames:" line's place and its text with the frame count (patched by close())."""
+        return self._frames_at, f"Frames: {str(self.num_frames).ljust(_FRAMES_FIELD)}"
 
 
 def write_bvh(

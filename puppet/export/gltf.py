@@ -25,6 +25,7 @@ import pygltflib
 from puppet.export.errors import ExportError
 from puppet.export.joint_transforms import (compose, local_transforms, matrix_to_quaternion,
                                             rest_globals, rigid_inverse)
+from puppet.export.writer import ExportWriter
 
 FLOAT, UINT8, UINT16, UINT32 = 5126, 5121, 5123, 5125
 ARRAY_BUFFER, ELEMENT_ARRAY_BUFFER = 34962, 34963
@@ -106,7 +107,7 @@ class _Blob:
         return b"".join(self.parts)
 
 
-class GltfWriter:
+class GltfWriter(ExportWriter):
     """Collects one animation key per frame; ``close()`` writes the .glb in one piece.
 
     path:       output .glb file (written only by close()).
@@ -119,6 +120,8 @@ class GltfWriter:
     name:       name of the mesh, its node and the animation.
     Fields: joints (n, influences) int64 and weights (n, influences) float32: the skin as written.
     """
+
+    close_on_error = False  # the .glb is written in one piece: an error inside `with` writes none
 
     def __init__(self, path, *, names, parents, heads, frames, V, F, W, fps: float,
                  influences: int = 4, name: str = "character"):
@@ -148,8 +151,7 @@ class GltfWriter:
 
     def write(self, world: np.ndarray) -> None:
         """Append one frame. world: (b, 3, 4) rigid maps of rest points to posed points."""
-        if self._closed:
-            raise ExportError(self.path, "write() after close()")
+        self._check_open()
         posed = compose(np.asarray(world, np.float64), self.rest)
         local = local_transforms(posed, self.parents)
         q = matrix_to_quaternion(local[:, :, :3])
@@ -199,14 +201,6 @@ class GltfWriter:
         self._translations.clear()
         self._rotations.clear()
 
-    def __enter__(self) -> "GltfWriter":
-        return self
-
-    def __exit__(self, exc_type, *exc) -> None:
-        if exc_type is None:
-            self.close()
-        else:
-            self.abort()
 
     # ---- the document ----
     def _document(self) -> pygltflib.GLTF2:

@@ -16,13 +16,14 @@ from typing import Iterable
 import numpy as np
 
 from puppet.export.errors import ExportError
+from puppet.export.writer import CountPatchedWriter
 
 PC2_SIGNATURE = b"POINTCACHE2\0"
 PC2_HEADER = struct.Struct("<12siiffi")
 _NUM_SAMPLES_OFFSET = PC2_HEADER.size - 4
 
 
-class Pc2Writer:
+class Pc2Writer(CountPatchedWriter):
     """Writes one sample (all points) at a time; numSamples is patched in at close().
 
     Memory stays at one sample whatever the take's length. A writer closed by an exception
@@ -58,8 +59,7 @@ class Pc2Writer:
 
     def write(self, points: np.ndarray) -> None:
         """Append one sample. points: (num_points, 3) float, the deformed vertex positions."""
-        if self._closed:
-            raise ExportError(self.path, "write() after close()")
+        self._check_open()
         if points.shape != (self.num_points, 3):
             raise ExportError(
                 self.path,
@@ -74,29 +74,9 @@ class Pc2Writer:
         self._file.write(memoryview(points).cast("B"))
         self.num_samples += 1
 
-    def close(self) -> None:
-        """Patch numSamples into the header and close. Safe to call twice."""
-        if self._closed:
-            return
-        self._closed = True
-        try:
-            self._file.seek(_NUM_SAMPLES_OFFSET)
-            self._file.write(struct.pack("<i", self.num_samples))
-        finally:
-            self._file.close()
-
-    def abort(self) -> None:
-        """Close the file as it is, without patching the header (a failed export removes it)."""
-        if self._closed:
-            return
-        self._closed = True
-        self._file.close()
-
-    def __enter__(self) -> "Pc2Writer":
-        return self
-
-    def __exit__(self, *exc) -> None:
-        self.close()
+    def _count_field(self) -> tuple[int, bytes]:
+        """numSamples' byte offset in the header and its int32 value (patched by close())."""
+        return _NUM_SAMPLES_OFFSET, struct.pack("<i", self.num_samples)
 
 
 def write_pc2(

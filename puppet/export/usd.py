@@ -25,6 +25,7 @@ from puppet.export.errors import ExportError
 from puppet.export.joint_transforms import (compose, local_transforms, matrix_to_quaternion,
                                             rest_globals)
 from puppet.export.names import safe_names
+from puppet.export.writer import ExportWriter
 
 UP_AXES = ("Y", "Z")
 
@@ -52,7 +53,7 @@ def _usd_matrices(M: np.ndarray) -> np.ndarray:
     return np.ascontiguousarray(np.swapaxes(out, 1, 2))
 
 
-class UsdWriter:
+class UsdWriter(ExportWriter):
     """Writes one time sample of points and joint transforms per frame.
 
     path:     output file (.usdc binary, .usda text or .usd).
@@ -63,6 +64,8 @@ class UsdWriter:
     meters_per_unit: the stage's metersPerUnit (model units in metres).
     Fields: joint_paths (b,) the Skeleton's joint tokens; renamed {name: safe name}.
     """
+
+    close_on_error = False  # an error inside `with` releases the stage without saving more
 
     def __init__(self, path, *, names, parents, heads, frames, V, F, fps: float, up: str = "Y",
                  meters_per_unit: float = 1.0, name: str = "character", save_every: int = 64):
@@ -127,8 +130,7 @@ class UsdWriter:
 
     def write(self, points: np.ndarray, world: np.ndarray) -> None:
         """Append one frame: points (n, 3) deformed vertices; world (b, 3, 4) joint rigid maps."""
-        if self._closed:
-            raise ExportError(self.path, "write() after close()")
+        self._check_open()
         Vt, Usd = self._Vt, self._Usd
         self.num_frames += 1
         time = Usd.TimeCode(self.num_frames)
@@ -175,11 +177,3 @@ class UsdWriter:
         self.stage = self._points = self._extent = None
         self._translations = self._rotations = None
 
-    def __enter__(self) -> "UsdWriter":
-        return self
-
-    def __exit__(self, exc_type, *exc) -> None:
-        if exc_type is None:
-            self.close()
-        else:
-            self.abort()

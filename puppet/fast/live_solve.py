@@ -24,7 +24,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from puppet.fast.pattern import Pattern, Values
+from puppet.fast.pattern import Pattern, Values, full_and_relative
 from puppet.fast.solver import Dynamics, Solver
 
 
@@ -49,12 +49,8 @@ class _PatternState:
         sk = rig.skeleton
         sensed = rig.sensed.copy()
         sensed[list(free)] = False
-        full = np.zeros_like(sensed)
-        for i, p in enumerate(sk.parents):
-            full[i] = sensed[i] and (p < 0 or full[p])
         self.free = free
-        self.full_bones = np.flatnonzero(full)
-        self.relative_bones = np.flatnonzero(sensed & ~full)
+        self.full_bones, self.relative_bones = full_and_relative(sk.parents, sensed)
         self.pattern = Pattern(
             full=tuple(int(j) for j in self.full_bones),
             relative=tuple((int(c), int(sk.parents[c]), tuple(float(x) for x in sk.heads[c]))

@@ -17,6 +17,21 @@ import numpy as np
 from puppet.fast.errors import PatternError
 
 
+def full_and_relative(parents: np.ndarray, sensed: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Split the sensed handles of a skeleton into full and relative ones.
+
+    parents: (m,) int, each handle's parent, -1 for roots, parents before children.
+    sensed:  (m,) bool, handles whose joint rotation is known each frame.
+    -> (full, relative), int64 handle indices, ascending: full are sensed with every ancestor
+    full (forward kinematics gives their whole transform); relative are sensed below a handle
+    that is not (only their rotation relative to the parent is known).
+    """
+    full = np.zeros_like(sensed)
+    for i, p in enumerate(parents):
+        full[i] = sensed[i] and (p < 0 or full[p])
+    return np.flatnonzero(full), np.flatnonzero(sensed & ~full)
+
+
 @dataclass(frozen=True)
 class Pattern:
     """Which handles are constrained, and how. Handles not named anywhere are free.

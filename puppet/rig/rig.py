@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from puppet.fast.energy_names import ENERGIES
-from puppet.fast.pattern import Pattern, Values
+from puppet.fast.pattern import Pattern, Values, full_and_relative
 from puppet.rig.calibration import Calibration
 from puppet.rig.errors import RigError
 from puppet.rig.servo_map import ServoMap
@@ -164,12 +164,8 @@ class Rig:
             sensed[j.bone] = True
         for name in self.fixed:
             sensed[sk.index(name)] = True
-        full = np.zeros_like(sensed)
-        for i, p in enumerate(sk.parents):
-            full[i] = sensed[i] and (p < 0 or full[p])
         self.sensed = sensed
-        self.full_bones = np.flatnonzero(full)
-        self.relative_bones = np.flatnonzero(sensed & ~full)
+        self.full_bones, self.relative_bones = full_and_relative(sk.parents, sensed)
         self.free_bones = np.flatnonzero(~sensed)
 
     def _check_actuators(self) -> None:

@@ -211,12 +211,35 @@ class ViewServer:
         self.demand = frozenset(v.camera for v in self.viewers.values()
                                 if v.frames is not None and v.credit > 0)
 
-    async def _frames_socket(self, request: web.Request) -> web.StreamResponse:
+    async def _accept(self, request: web.Request) -> tuple[Viewer | None, web.StreamResponse]:
+        """The requesting viewer and its WebSocket, prepared (upgraded); (None, a 400 response)
+        when the request names no valid client id."""
         viewer = self._viewer(request)
         if viewer is None:
-            return web.Response(status=400, text="missing client id\n")
+            return None, web.Response(status=400, text="missing client id\n")
         ws = web.WebSocketResponse(max_msg_size=MAX_CLIENT_MESSAGE, compress=False)
         await ws.prepare(request)
+        return viewer, ws
+
+    async def _receive(self, viewer: Viewer, ws: web.WebSocketResponse, socket: str,
+                       on_text) -> None:
+        """Hand each text message of ws to on_text(viewer, text) until the socket closes.
+
+        socket: its name in warnings ("frame", "control"); a binary message is ignored and a
+        socket error reported, each with a warning naming the viewer.
+        """
+        async for msg in ws:
+            if msg.type == WSMsgType.TEXT:
+                on_text(viewer, msg.data)
+            elif msg.type == WSMsgType.BINARY:
+                self.warn(f"viewer {viewer.number}: unexpected binary message on the {socket} socket ignored")
+            elif msg.type == WSMsgType.ERROR:
+                self.warn(f"viewer {viewer.number}: {socket} socket closed: {ws.exception()}")
+
+    async def _frames_socket(self, request: web.Request) -> web.StreamResponse:
+        viewer, ws = await self._accept(request)
+        if viewer is None:
+            return ws  # 400: no client id
         if viewer.frames is not None and not viewer.frames.closed:
             await viewer.frames.close()
         viewer.frames, viewer.credit, viewer.slot = ws, CREDIT, None
@@ -224,13 +247,7 @@ class ViewServer:
         self.force.add(viewer.camera)
         self._update_demand()
         try:
-            async for msg in ws:
-                if msg.type == WSMsgType.TEXT:
-                    self._frames_message(viewer, msg.data)
-                elif msg.type == WSMsgType.BINARY:
-                    self.warn(f"viewer {viewer.number}: unexpected binary message on the frame socket ignored")
-                elif msg.type == WSMsgType.ERROR:
-                    self.warn(f"viewer {viewer.number}: frame socket closed: {ws.exception()}")
+            await self._receive(viewer, ws, "frame", self._frames_message)
         finally:
             if viewer.frames is ws:
                 viewer.frames = None
@@ -258,23 +275,15 @@ class ViewServer:
         self._update_demand()
 
     async def _control_socket(self, request: web.Request) -> web.StreamResponse:
-        viewer = self._viewer(request)
+        viewer, ws = await self._accept(request)
         if viewer is None:
-            return web.Response(status=400, text="missing client id\n")
-        ws = web.WebSocketResponse(max_msg_size=MAX_CLIENT_MESSAGE, compress=False)
-        await ws.prepare(request)
+            return ws  # 400: no client id
         viewer.control = ws
         snapshot = self.view.snapshot()
         snapshot["viewer"] = viewer.number
         await ws.send_str(json.dumps(snapshot))
         try:
-            async for msg in ws:
-                if msg.type == WSMsgType.TEXT:
-                    self._control_message(viewer, msg.data)
-                elif msg.type == WSMsgType.BINARY:
-                    self.warn(f"viewer {viewer.number}: unexpected binary message on the control socket ignored")
-                elif msg.type == WSMsgType.ERROR:
-                    self.warn(f"viewer {viewer.number}: control socket closed: {ws.exception()}")
+            await self._receive(viewer, ws, "control", self._control_message)
         finally:
             if viewer.control is ws:
                 viewer.control = None

@@ -18,21 +18,29 @@ from puppet.bus.health import EventLog
 from puppet.bus.reading import Reading
 
 
-class RestSource:
-    """The rig's rest pose (zero ticks, every servo ok) at ``rate_hz`` readings per second."""
+class _PacedSource:
+    """A source that makes its own readings, one every ``period_s`` seconds (monotonic clock).
 
-    def __init__(self, ids: np.ndarray, zero_ticks: np.ndarray, rate_hz: float = 60.0):
+    ids: (k,) servo ids of every reading; rate_hz: readings per second. A subclass defines
+    _reading() -> Reading, the reading to hand out now. drain() has nothing queued; log is
+    an empty EventLog (no bus, no bus events).
+    """
+
+    def __init__(self, ids, rate_hz: float):
         self.ids = np.asarray(ids)
-        self._ticks = np.asarray(np.round(zero_ticks), np.int32)
-        self._ok = np.ones(len(self.ids), bool)
         self.period_s = 1.0 / rate_hz
         self.log = EventLog()
         self._next = time.monotonic()
+
+    def _reading(self) -> Reading:
+        raise NotImplementedError
 
     def drain(self) -> list[Reading]:
         return []
 
     def latest(self, timeout: float | None = 1.0) -> Reading | None:
+        """The next reading, once its time has come; None (after waiting timeout seconds,
+        None = 0) when it is due later than that. A late reading is not made up for."""
         now = time.monotonic()
         wait = self._next - now
         if wait > (timeout or 0.0):
@@ -41,10 +49,22 @@ class RestSource:
         if wait > 0:
             time.sleep(wait)
         self._next = max(self._next + self.period_s, time.monotonic())
+        return self._reading()
+
+
+class RestSource(_PacedSource):
+    """The rig's rest pose (zero ticks, every servo ok) at ``rate_hz`` readings per second."""
+
+    def __init__(self, ids: np.ndarray, zero_ticks: np.ndarray, rate_hz: float = 60.0):
+        super().__init__(ids, rate_hz)
+        self._ticks = np.asarray(np.round(zero_ticks), np.int32)
+        self._ok = np.ones(len(self.ids), bool)
+
+    def _reading(self) -> Reading:
         return Reading(time.monotonic_ns(), self.ids, self._ticks, self._ok)
 
 
-class TakeSource:
+class TakeSource(_PacedSource):
     """A take's readings played on the wall clock at ``rate_hz`` frames per second.
 
     t_ns, ticks, ok: the take's arrays (TakeReader.arrays). Controls (any thread): pause(),
@@ -54,19 +74,16 @@ class TakeSource:
 
     def __init__(self, ids, t_ns: np.ndarray, ticks: np.ndarray, ok: np.ndarray, *,
                  speed: float = 1.0, rate_hz: float = 60.0, markers=()):
-        self.ids = np.asarray(ids)
+        super().__init__(ids, rate_hz)
         self._t = np.asarray(t_ns, np.int64) - int(t_ns[0])
         self._ticks, self._ok = ticks, ok
         self.duration_s = float(self._t[-1]) / 1e9
         self.speed = float(speed)
         self.paused = False
         self.markers = list(markers)
-        self.period_s = 1.0 / rate_hz
-        self.log = EventLog()
         self._lock = threading.Lock()
         self._position_s = 0.0
-        self._last = time.monotonic()
-        self._next = self._last
+        self._last = self._next  # play time starts now, with the first reading
 
     @property
     def position_s(self) -> float:
@@ -103,18 +120,8 @@ class TakeSource:
                 self.paused = True
         self._last = now
 
-    def drain(self) -> list[Reading]:
-        return []
-
-    def latest(self, timeout: float | None = 1.0) -> Reading | None:
-        now = time.monotonic()
-        wait = self._next - now
-        if wait > (timeout or 0.0):
-            time.sleep(timeout or 0.0)
-            return None
-        if wait > 0:
-            time.sleep(wait)
-        self._next = max(self._next + self.period_s, time.monotonic())
+    def _reading(self) -> Reading:
+        """The reading at the play position (advanced to now), stamped now."""
         with self._lock:
             self._advance()
             index = int(np.searchsorted(self._t, int(self._position_s * 1e9), side="right")) - 1

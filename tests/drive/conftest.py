@@ -2,16 +2,11 @@
 
 from __future__ import annotations
 
-import time
-
-import dynamixel_sdk
 import dynamixel_sdk.port_handler as sdk_port_handler
 import numpy as np
 import pytest
 
-BAUD = 1_000_000
 PATIENT_LATENCY_TIMER = 50  # ms; SDK deadline ~ 2 x this: rides out a loaded machine's stalls
-RETRIES = 5  # a transaction whose reply a stall still delayed past that is tried again
 
 
 @pytest.fixture(autouse=True)
@@ -20,80 +15,6 @@ def patient_timeouts():
     sdk_port_handler.LATENCY_TIMER = PATIENT_LATENCY_TIMER
     yield
     sdk_port_handler.LATENCY_TIMER = saved
-
-
-class Sdk:
-    """The unmodified SDK on a simulated bus: ``port`` (PortHandler), ``packet`` (Protocol 2.0)."""
-
-    def __init__(self, path: str) -> None:
-        self.port = dynamixel_sdk.PortHandler(path)
-        assert self.port.openPort() is True
-        assert self.port.setBaudRate(BAUD) is True
-        self.packet = dynamixel_sdk.PacketHandler(2.0)
-
-    def write(self, dxl_id: int, addr: int, size: int, value: int) -> int:
-        """Write and return the status error number. A reply lost to a stalled machine is
-        retried (every write here sets an absolute value, so a repeat is harmless)."""
-        fn = {1: self.packet.write1ByteTxRx, 2: self.packet.write2ByteTxRx,
-              4: self.packet.write4ByteTxRx}[size]
-        data = value & ((1 << (8 * size)) - 1)
-        for _ in range(RETRIES):
-            code, error = fn(self.port, dxl_id, addr, data)
-            if code == dynamixel_sdk.COMM_SUCCESS:
-                return error & 0x7F
-        raise AssertionError(f"write to servo {dxl_id} address {addr}: no reply in {RETRIES} tries")
-
-    def read_status(self, dxl_id: int, addr: int) -> int:
-        """The status error byte (alert bit included) of a 1-byte read, retried like write."""
-        for _ in range(RETRIES):
-            _, code, error = self.packet.read1ByteTxRx(self.port, dxl_id, addr)
-            if code == dynamixel_sdk.COMM_SUCCESS:
-                return error
-        raise AssertionError(f"read of servo {dxl_id} address {addr}: no reply in {RETRIES} tries")
-
-    def read4(self, dxl_id: int, addr: int) -> int:
-        """A 4-byte value, retried like write."""
-        for _ in range(RETRIES):
-            value, code, _ = self.packet.read4ByteTxRx(self.port, dxl_id, addr)
-            if code == dynamixel_sdk.COMM_SUCCESS:
-                return value
-        raise AssertionError(f"read of servo {dxl_id} address {addr}: no reply in {RETRIES} tries")
-
-    def close(self) -> None:
-        if self.port.is_open:
-            self.port.closePort()
-
-
-@pytest.fixture
-def open_sdk():
-    opened = []
-
-    def make(path: str) -> Sdk:
-        sdk = Sdk(path)
-        opened.append(sdk)
-        return sdk
-
-    yield make
-    for sdk in opened:
-        sdk.close()
-
-
-def _wait_for(condition, timeout_s: float = 60.0, poll_s: float = 0.02, what: str = "condition"):
-    """Poll ``condition()`` until it returns a truthy value; that value, or AssertionError."""
-    deadline = time.monotonic() + timeout_s
-    while True:
-        value = condition()
-        if value:
-            return value
-        if time.monotonic() > deadline:
-            raise AssertionError(f"timed out after {timeout_s} s waiting for {what}")
-        time.sleep(poll_s)
-
-
-@pytest.fixture
-def wait_for():
-    """``wait_for(condition, timeout_s=60, poll_s=0.02, what=...)``: poll until truthy."""
-    return _wait_for
 
 
 @pytest.fixture

@@ -10,7 +10,7 @@ DATA_RANGE = 0x04
 ACCESS = 0x07
 
 
-def test_bus_watchdog_trips_refuses_goals_until_cleared(open_sdk, wait_for):
+def test_bus_watchdog_trips_refuses_goals_until_cleared(open_sdk, wait_until):
     with hw_sim.serve([1]) as bus:
         sdk = open_sdk(bus.port)
         assert sdk.write(1, 64, 1, 1) == 0
@@ -19,7 +19,7 @@ def test_bus_watchdog_trips_refuses_goals_until_cleared(open_sdk, wait_for):
         assert sdk.write(1, 98, 1, 5) == 0          # 100 ms, then the host falls silent
         servo = bus.servo(1)
         # The host stays silent: the servo stops by itself, holding where it is.
-        wait_for(lambda: servo.get("Bus Watchdog") == -1, what="watchdog trip")
+        wait_until(lambda: servo.get("Bus Watchdog") == -1, what="watchdog trip")
         stopped = servo.get("Present Position")
         assert 2048 < stopped < 3000
         assert servo.get("Goal Position") == stopped
@@ -30,7 +30,7 @@ def test_bus_watchdog_trips_refuses_goals_until_cleared(open_sdk, wait_for):
         assert servo.get("Goal Position") == 2500
 
 
-def test_bus_watchdog_stays_quiet_while_the_host_talks(open_sdk, wait_for):
+def test_bus_watchdog_stays_quiet_while_the_host_talks(open_sdk, wait_until):
     with hw_sim.serve([1]) as bus:
         sdk = open_sdk(bus.port)
         assert sdk.write(1, 64, 1, 1) == 0
@@ -40,14 +40,14 @@ def test_bus_watchdog_stays_quiet_while_the_host_talks(open_sdk, wait_for):
         assert bus.servo(1).get("Bus Watchdog") == 100
 
 
-def test_firmware_without_bus_watchdog_refuses_the_item(open_sdk, wait_for):
+def test_firmware_without_bus_watchdog_refuses_the_item(open_sdk, wait_until):
     with hw_sim.serve([1]) as bus:
         bus.servo(1).set("Firmware Version", 30)
         sdk = open_sdk(bus.port)
         assert sdk.write(1, 98, 1, 5) == ACCESS
 
 
-def test_time_based_profile_takes_profile_velocity_ms(open_sdk, wait_for):
+def test_time_based_profile_takes_profile_velocity_ms(open_sdk, wait_until):
     with hw_sim.serve([1]) as bus:
         sdk = open_sdk(bus.port)
         servo = bus.servo(1)
@@ -65,13 +65,13 @@ def test_time_based_profile_takes_profile_velocity_ms(open_sdk, wait_for):
         def arrived():
             speeds.append(abs(servo.get("Present Velocity")))
             return servo.get("Moving Status") & 0x01
-        wait_for(arrived, what="arrival")
+        wait_until(arrived, what="arrival")
         assert servo.get("Present Position") == 3048
         assert max(speeds) <= peak_units + 1
         assert servo.get("Moving") == 0
 
 
-def test_torque_on_by_goal_update(open_sdk, wait_for):
+def test_torque_on_by_goal_update(open_sdk, wait_until):
     with hw_sim.serve([1]) as bus:
         sdk = open_sdk(bus.port)
         assert sdk.write(1, 10, 1, 0x08) == 0
@@ -80,7 +80,7 @@ def test_torque_on_by_goal_update(open_sdk, wait_for):
         assert bus.servo(1).get("Torque Enable") == 1
 
 
-def test_current_rises_with_load_and_overload_latches(open_sdk, wait_for):
+def test_current_rises_with_load_and_overload_latches(open_sdk, wait_until):
     with hw_sim.serve([1]) as bus:
         sdk = open_sdk(bus.port)
         servo = bus.servo(1)
@@ -88,14 +88,14 @@ def test_current_rises_with_load_and_overload_latches(open_sdk, wait_for):
         idle = servo.get("Present Current")
         assert idle < 200
         bus.inject("load", 1, current=900)        # the current settles over CURRENT_TAU_S
-        wait_for(lambda: servo.get("Present Current") >= 900, what="the load's current")
+        wait_until(lambda: servo.get("Present Current") >= 900, what="the load's current")
         bus.inject("load", 1, current=5000)       # beyond the motor: overload, torque off
-        wait_for(lambda: servo.get("Hardware Error Status") & 0x20, what="overload")
+        wait_until(lambda: servo.get("Hardware Error Status") & 0x20, what="overload")
         assert servo.get("Torque Enable") == 0
         assert sdk.read_status(1, 64) & 0x80
 
 
-def test_current_rises_with_acceleration(open_sdk, wait_for):
+def test_current_rises_with_acceleration(open_sdk, wait_until):
     with hw_sim.serve([1, 2]) as bus:
         sdk = open_sdk(bus.port)
         for i in (1, 2):
@@ -111,18 +111,18 @@ def test_current_rises_with_acceleration(open_sdk, wait_for):
             for i in (1, 2):
                 peaks[i] = max(peaks[i], bus.servo(i).get("Present Current"))
             return all(bus.servo(i).get("Moving Status") & 0x01 for i in (1, 2))
-        wait_for(done, what="both arrive", poll_s=0.001)
+        wait_until(done, what="both arrive", interval=0.001)
         assert peaks[2] > peaks[1]
 
 
-def test_temperature_rises_with_sustained_current(open_sdk, wait_for):
+def test_temperature_rises_with_sustained_current(open_sdk, wait_until):
     with hw_sim.serve([1]) as bus:
         sdk = open_sdk(bus.port)
         servo = bus.servo(1)
         assert sdk.write(1, 64, 1, 1) == 0
         start = servo.get("Present Temperature")
         bus.inject("load", 1, current=1500, heat=50)
-        wait_for(lambda: servo.get("Present Temperature") >= start + 10, what="heating")
+        wait_until(lambda: servo.get("Present Temperature") >= start + 10, what="heating")
         # Past its own limit the servo latches overheating and lets go.
-        wait_for(lambda: servo.get("Hardware Error Status") & 0x04, what="overheating")
+        wait_until(lambda: servo.get("Hardware Error Status") & 0x04, what="overheating")
         assert servo.get("Torque Enable") == 0

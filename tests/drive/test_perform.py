@@ -52,7 +52,7 @@ def test_performed_take_tracks_and_ends_with_torque_off(rig, wave_take):
 
 
 def test_start_goes_from_present_no_faster_than_the_start_profile(rig, make_take, tmp_path,
-                                                                  wait_for):
+                                                                  wait_until):
     k = len(rig.servo_map.ids)
     take = make_take(tmp_path / "still.mcap", rig, np.full((20, k), 10.0))
     with hw_sim.serve(dict(rig.servo_map.models)) as bus:
@@ -62,8 +62,8 @@ def test_start_goes_from_present_no_faster_than_the_start_profile(rig, make_take
         # Watched from the simulator's side too, from setup until playback begins, once the
         # hand that put them there has let go.
         ids = [int(i) for i in rig.servo_map.ids]
-        wait_for(lambda: all(bus.servo(i).get("Present Velocity") == 0 for i in ids),
-                 what="the joints at rest")
+        wait_until(lambda: all(bus.servo(i).get("Present Velocity") == 0 for i in ids),
+                   what="the joints at rest")
         seen = dict.fromkeys(ids, 0)
         watching = threading.Event()
 
@@ -141,7 +141,7 @@ def test_over_temperature_stops_the_performance_naming_the_servo(rig, wave_take)
         assert _all_off(bus, rig)
 
 
-def test_vanished_port_stops_by_watchdog_and_next_perform_recovers(rig, wave_take, wait_for):
+def test_vanished_port_stops_by_watchdog_and_next_perform_recovers(rig, wave_take, wait_until):
     ids = [int(i) for i in rig.servo_map.ids]
     with hw_sim.serve(dict(rig.servo_map.models)) as bus:
         with pytest.raises(DriveError) as info:
@@ -149,8 +149,8 @@ def test_vanished_port_stops_by_watchdog_and_next_perform_recovers(rig, wave_tak
                      on_phase=_during_playback(lambda: bus.inject("unplug")))
         assert "lost" in str(info.value)
         # Nobody can talk to them: each servo's Bus Watchdog stops it (torque still on).
-        wait_for(lambda: all(bus.servo(i).get("Bus Watchdog") == -1 for i in ids),
-                 what="every watchdog trips")
+        wait_until(lambda: all(bus.servo(i).get("Bus Watchdog") == -1 for i in ids),
+                   what="every watchdog trips")
         assert set(_torque(bus, rig).values()) == {1}
         assert all(bus.servo(i).get("Present Velocity") == 0 for i in ids)
         bus.clear_faults()  # plugged back in: the same link path works again
@@ -254,12 +254,12 @@ def test_countdown_is_announced_and_keeps_the_watchdog_fed(rig, wave_take):
         assert _all_off(bus, rig)
 
 
-def test_multi_turn_servo_out_of_range_is_refused_before_torque(rig, wave_take, wait_for):
+def test_multi_turn_servo_out_of_range_is_refused_before_torque(rig, wave_take, wait_until):
     with hw_sim.serve(dict(rig.servo_map.models)) as bus:
         bus.servo(1).set("Operating Mode", 4)           # extended position: counts turns
         bus.set_positions({1: 2048 + 2 * 4096})          # turned twice by hand since power-up
-        wait_for(lambda: bus.servo(1).get("Present Position") == 2048 + 2 * 4096,
-                 what="the turned joint")
+        wait_until(lambda: bus.servo(1).get("Present Position") == 2048 + 2 * 4096,
+                   what="the turned joint")
         with pytest.raises(DriveError) as info:
             _perform(rig, wave_take, bus.port)
         assert str(info.value).startswith("servo 1: present position 10240 is outside")

@@ -71,15 +71,15 @@ def test_signal_stops_with_torque_off(rig, wave_take, sig):
         assert {bus.servo(i).get("Bus Watchdog") for i in ids} == {0}
 
 
-def test_sigkill_leaves_servos_to_their_watchdog_and_next_perform_recovers(rig, wave_take, wait_for):
+def test_sigkill_leaves_servos_to_their_watchdog_and_next_perform_recovers(rig, wave_take, wait_until):
     ids = [int(i) for i in rig.servo_map.ids]
     with hw_sim.serve(dict(rig.servo_map.models)) as bus:
         run = Perform(wave_take, bus.port, "--loop")
         run.wait_line("phase: playback")
         run.proc.kill()
         run.finish()
-        wait_for(lambda: all(bus.servo(i).get("Bus Watchdog") == -1 for i in ids),
-                 what="every servo's Bus Watchdog to trip")
+        wait_until(lambda: all(bus.servo(i).get("Bus Watchdog") == -1 for i in ids),
+                   what="every servo's Bus Watchdog to trip")
         assert all(bus.servo(i).get("Present Velocity") == 0 for i in ids)
         again = Perform(wave_take, bus.port, "--json")
         code, out, err = again.finish()

@@ -4,28 +4,10 @@ from __future__ import annotations
 
 from contextlib import contextmanager
 
-import dynamixel_sdk
 import dynamixel_sdk.port_handler as sdk_port_handler
 import pytest
 
 import hw_sim
-
-BAUD = 1_000_000
-
-
-class Sdk:
-    """The unmodified SDK on a simulated bus: ``port`` (PortHandler), ``packet`` (Protocol 2.0)."""
-
-    def __init__(self, path: str) -> None:
-        self.port = dynamixel_sdk.PortHandler(path)
-        assert self.port.openPort() is True
-        assert self.port.setBaudRate(BAUD) is True
-        self.packet = dynamixel_sdk.PacketHandler(2.0)
-
-    def close(self) -> None:
-        if self.port.is_open:
-            self.port.closePort()
-
 
 PATIENT_LATENCY_TIMER = 1000  # ms: a ~2 s deadline rides out kernel stalls (seen past 0.5 s under load)
 
@@ -68,21 +50,6 @@ def bus():
 
 
 @pytest.fixture
-def sdk(bus):
-    s = Sdk(bus.port)
-    yield s
-    s.close()
-
-
-@pytest.fixture
-def open_sdk():
-    """Factory: open_sdk(path) -> Sdk on that port; all closed after the test."""
-    opened = []
-
-    def _open(path: str) -> Sdk:
-        s = Sdk(path)
-        opened.append(s)
-        return s
-    yield _open
-    for s in opened:
-        s.close()
+def sdk(bus, open_sdk):
+    """The SDK opened on ``bus``'s pty (closed after the test, before the bus stops)."""
+    return open_sdk(bus.port)
