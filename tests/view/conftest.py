@@ -130,9 +130,13 @@ def page(new_page):
 
 
 def wait_js(page, expression: str, timeout: float = WAIT_S):
-    """Wait until a JavaScript expression on the page is truthy; returns its value."""
-    page.wait_for_function(expression, timeout=timeout * 1000, polling=100)
-    return page.evaluate(expression)
+    """Wait until a JavaScript expression on the page is truthy; returns that truthy value (the
+    one the wait saw: evaluating again could see a later state, e.g. a panel update)."""
+    handle = page.wait_for_function(expression, timeout=timeout * 1000, polling=100)
+    try:
+        return handle.json_value()
+    finally:
+        handle.dispose()
 
 
 @pytest.fixture(scope="session")
