@@ -4,6 +4,7 @@ paths (torque read back from the simulated servos), the health watchdog, bad inp
 from __future__ import annotations
 
 import threading
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -11,6 +12,8 @@ import pytest
 import hw_sim
 from puppet.drive import DriveError, HealthStop, PerformOptions, perform
 from puppet.drive import items as it
+from puppet.drive.perform import _Health
+from puppet.drive.servos import ServoSetup, State
 from puppet.take import TakeReader
 from puppet.take.errors import TakeRigMismatch
 
@@ -120,25 +123,72 @@ def test_overload_stops_the_performance_naming_the_servo(rig, wave_take):
 
 
 def test_sustained_current_above_the_host_cap_stops_it(rig, wave_take):
-    # Servo 2 is an XL330 (Current Limit 1750 mA): the host cap (80 %) trips first.
+    # Servo 2 is an XL330 (Current Limit 1750 mA): the host cap (80 % for 0.3 s) trips first,
+    # unless the host stalls past the servo's own 1 s overload (a loaded machine): then the
+    # servo's overload error stops it, also naming it. The cap itself: the test below.
     with hw_sim.serve(dict(rig.servo_map.models)) as bus:
         with pytest.raises(HealthStop) as info:
             _perform(rig, wave_take, bus.port, loop=True,
                      on_phase=_during_playback(lambda: bus.inject("load", 2, current=9000)))
         assert info.value.dxl_id == 2
-        assert "Present Current" in str(info.value)
+        message = str(info.value)
+        assert "Present Current" in message or "hardware error: overload" in message, message
         assert _all_off(bus, rig)
+
+
+def test_current_above_the_host_cap_stops_once_sustained():
+    health = _Health(_two_servos(), PerformOptions(**OPTIONS))
+    unit = it.CURRENT_UNIT_MA["XL330-M288"]
+    over = round(1500 / unit)  # 1500 mA: above the cap, 80 % of the 1750 mA Current Limit
+    for _ in range(2):  # 0.2 s over the cap: not sustained yet
+        health.check(_state([31, 31], current=[0, over]), dt=0.1)
+    health.check(_state([31, 31], current=[0, 0]), dt=0.1)  # back under: the time restarts
+    for _ in range(2):
+        health.check(_state([31, 31], current=[0, over]), dt=0.1)
+    with pytest.raises(HealthStop) as info:  # 0.35 s over the cap
+        health.check(_state([31, 31], current=[0, over]), dt=0.15)
+    assert info.value.dxl_id == 2
+    assert "Present Current" in str(info.value) and "host cap 1400 mA" in str(info.value)
 
 
 def test_over_temperature_stops_the_performance_naming_the_servo(rig, wave_take):
+    # heat 20: about 9 C/s, so the 10 C between the host limit (60) and the servo's own (70)
+    # take about a second. A host stalled longer than that (a loaded machine) first reads the
+    # servo past its own limit, with its overheating shutdown latched: also a stop naming it.
+    # The host limit itself is checked without timing in the test below.
     with hw_sim.serve(dict(rig.servo_map.models)) as bus:
         with pytest.raises(HealthStop) as info:
             _perform(rig, wave_take, bus.port, loop=True,
-                     on_phase=_during_playback(lambda: bus.inject("load", 3, current=1000, heat=200)))
+                     on_phase=_during_playback(lambda: bus.inject("load", 3, current=1000, heat=20)))
         assert info.value.dxl_id == 3
-        assert "Present Temperature" in str(info.value)
-        assert "host limit 60 C" in str(info.value)
+        message = str(info.value)
+        assert ("Present Temperature" in message and "host limit 60 C" in message
+                or "hardware error: overheating" in message), message
         assert _all_off(bus, rig)
+
+
+def _two_servos():
+    """A bus as the health watchdog sees it after setup: XL330s 1 and 2, limits 70 C, 1750 mA."""
+    setup = {i: ServoSetup(id=i, model="XL330-M288", firmware=52, temperature_limit=70,
+                           current_limit_ma=1750.0) for i in (1, 2)}
+    return SimpleNamespace(ids=[1, 2], setup=setup, models={1: "XL330-M288", 2: "XL330-M288"})
+
+
+def _state(temperatures, current=(0, 0)):
+    k = len(temperatures)
+    return State(ok=np.ones(k, bool), alert=np.zeros(k, bool), moving=np.zeros(k),
+                 moving_status=np.zeros(k), current=np.array(current), velocity=np.zeros(k),
+                 position=np.zeros(k), temperature=np.array(temperatures))
+
+
+def test_temperature_above_the_host_limit_stops_before_the_servos_own():
+    health = _Health(_two_servos(), PerformOptions(**OPTIONS))
+    health.check(_state([45, 60]), dt=0.01)  # at the limit: goes on
+    with pytest.raises(HealthStop) as info:
+        health.check(_state([45, 61]), dt=0.01)
+    assert info.value.dxl_id == 2
+    assert str(info.value) == ("servo 2: Present Temperature 61 C above the host limit 60 C "
+                               "(servo limit 70 C); performance stopped, torque off")
 
 
 def test_vanished_port_stops_by_watchdog_and_next_perform_recovers(rig, wave_take, wait_until):
