@@ -270,6 +270,24 @@ def tol_case(tols=(1e-3, 1e-4, 1e-5), budgets=(10, 20, 30, 50), frames=30, targe
         out["runs"][f"tol {t:g}"] = summary(*chain(1000, t, need if t == target else None))
     for k in budgets:
         out["runs"][f"fixed {k}"] = summary(*chain(k, None))
+    # The stop test's cost: 10 iterations per frame with a tol too small to stop (the test runs
+    # every iteration) against no tol, interleaved frame by frame, accelerated and plain.
+    timed, timed_tol = model.solver(pattern), model.solver(pattern)  # the chains' solvers stay as they were
+    for accelerate in (True, False):
+        T0, T1 = model.rest_T(), model.rest_T()
+        plain_us, tol_us = [], []
+        for f in range(max(frames, 30)):
+            rig.fill_values(rig.servo_map.angles(ticks[f % frames]), values)
+            t0 = time.perf_counter_ns()
+            n = timed.solve(values, T0, iterations=10, accelerate=accelerate).iterations
+            t1 = time.perf_counter_ns()
+            k = timed_tol.solve(values, T1, iterations=10, tol=1e-12, accelerate=accelerate).iterations
+            t2 = time.perf_counter_ns()
+            plain_us.append((t1 - t0) / n / 1e3)
+            tol_us.append((t2 - t1) / k / 1e3)
+        key = "accel" if accelerate else "plain"
+        out[f"us_per_iter_{key}"] = statistics.median(plain_us)
+        out[f"us_per_iter_{key}_tol"] = statistics.median(tol_us)
     if need:
         budget = max(need)
         while True:  # the per-frame need from another chain's starts: check it on its own chain
@@ -516,6 +534,8 @@ def main(argv=None):
     for key, t in tol["runs"].items():
         print(f"  {key:<10} iterations/frame mean {t['iters_mean']:6.1f} max {t['iters_max']:4d}   "
               f"error max {t['err_max_pct_of_diag']:.4f} % mean {t['err_mean_pct_of_diag']:.4f} %")
+    print(f"  the stop test's cost, us/iteration without / with tol: accelerated {tol['us_per_iter_accel']:.2f} / "
+          f"{tol['us_per_iter_accel_tol']:.2f}, plain {tol['us_per_iter_plain']:.2f} / {tol['us_per_iter_plain_tol']:.2f}")
     if "fixed_budget" in tol:
         target = tol["target"]
         print(f"  at tol={target:g} (meant: every vertex within {target:g} of the diagonal): tol path mean "
