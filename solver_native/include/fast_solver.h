@@ -38,8 +38,8 @@
 // plain step and the history restarts. (Rejecting on any rise, the tail of every solve rejected
 // about half its steps on rounding noise alone and crawled at the plain rate.)
 // Tolerance stop (tol > 0): tol is a distance in vertex space, a fraction of the rest mesh's
-// bounding-box diagonal. Before each accelerated mix, the plain step d = G(T) - T is measured at a
-// few probe vertices (rows M_v of the LBS matrix, V' = M T, chosen by set_probes):
+// bounding-box diagonal. Each iteration (before the accelerated mix), the plain step d = G(T) - T
+// is measured at a few probe vertices (rows M_v of the LBS matrix, V' = M T, chosen by set_probes):
 // r = max_v |M_v d|. With q the observed contraction rate (the largest of the last 5: secant
 // |dG| / |dX| of the Anderson pairs, or the ratio of successive plain steps; at least the previous
 // solve's), the plain step's point G(T) is within r q / (1 - q) of the fixed point (a contraction's
