@@ -22,6 +22,7 @@ from puppet.fast.clusters import kmeans_weight_space
 from puppet.fast.energy import ENERGIES, lbs_matrix, reduced_matrices
 from puppet.fast.errors import FastError, MeshError
 from puppet.fast.pattern import Pattern
+from puppet.fast.probes import probe_rows, tolerance_scales
 from puppet.fast.solver import Dynamics, Solver
 from puppet.fast.weights import full_weights, validate_weights
 
@@ -223,6 +224,13 @@ class FastModel:
             M = self.lbs_matrix()
             self._mass = (M.T @ (mass[:, None] * M), M.T @ mass)
         return self._mass
+
+    def tolerance_probes(self) -> tuple[np.ndarray, float, float]:
+        """The tolerance stop's probe rows (p, 4m) float64, bounding-box diagonal and reach (cached;
+        see puppet.fast.probes)."""
+        if getattr(self, "_probes", None) is None:
+            self._probes = (probe_rows(self.V, self.weights64), *tolerance_scales(self.V))
+        return self._probes
 
     def solver(self, pattern: Pattern, *, anderson_window: int = 5, dynamics: Dynamics | None = None,
                factor=None) -> Solver:

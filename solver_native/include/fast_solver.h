@@ -34,7 +34,18 @@
 // Inside the limits nothing is added (the solve is unchanged). The last iteration is always a
 // plain step, so the returned T is within the limits. Not combined with contacts.
 // Anderson acceleration (window 5 by default) on T -> G(T); an accelerated point whose energy is above
-// the last accepted one is rejected for the plain step and the history restarts.
+// the last accepted one by more than the energy's float32 resolution (1e-6 c0) is rejected for the
+// plain step and the history restarts. (Rejecting on any rise, the tail of every solve rejected
+// about half its steps on rounding noise alone and crawled at the plain rate.)
+// Tolerance stop (tol > 0): tol is a distance in vertex space, a fraction of the rest mesh's
+// bounding-box diagonal. Each iteration (before the accelerated mix), the plain step d = G(T) - T
+// is measured at a few probe vertices (rows M_v of the LBS matrix, V' = M T, chosen by set_probes):
+// r = max_v |M_v d|. With q the observed contraction rate (the largest of the last 5: secant
+// |dG| / |dX| of the Anderson pairs, or the ratio of successive plain steps; at least the previous
+// solve's), the plain step's point G(T) is within r q / (1 - q) of the fixed point (a contraction's
+// a-posteriori bound). The solve stops when 1.75 times that (the margin for probe and rate noise,
+// measured on the built-in character) is within tol * diagonal, and returns G(T) itself (a plain
+// step, so also inside the joint limits).
 //
 // Everything is preallocated by the constructor; solve() allocates nothing and copies only T in
 // and out of its padded layout.
@@ -65,7 +76,8 @@ class FastSolver {
              const int32_t* rel_parent, int anderson_window, int history_capacity);
 
   // full (kf,4,3), rel (kr,3,3), pos (kp,3), T (4m,3) in/out. Throws std::invalid_argument
-  // on non-finite input. iterations >= 0; tol <= 0 means a fixed count.
+  // on non-finite input. iterations >= 0 (the cap); tol <= 0 means a fixed count, tol > 0 stops once
+  // the vertices are estimated within tol * diagonal of the converged result (needs set_probes).
   void solve(const float* full, const float* rel, const float* pos, const float* contact, float* T,
              int iterations, double tol, bool accelerate, bool record_history);
 
@@ -83,6 +95,10 @@ class FastSolver {
   // bounds (nl, 3): swing max, twist min, twist max (radians).
   void set_limits(int nl, const int32_t* child, const int32_t* parent, const double* axis, const double* bounds);
   int active_limits() const { return active_; }  // limits projected in the last global step
+  // Tolerance stop: rows (p, 4m) double, the LBS rows M_v of the probe vertices; diag: the rest
+  // mesh's bounding-box diagonal (tol's unit); reach: the largest |v| of the rest mesh (a step
+  // below float32 rounding of the vertices, kStepFloor * reach, stops at once).
+  void set_probes(int p, const double* rows, double diag, double reach);
   void reset_history() { have_prev_ = false; }
 
   const SolveStats& stats() const { return stats_; }
@@ -98,12 +114,15 @@ class FastSolver {
  private:
   void set_values(const float* full, const float* rel, const float* pos);
   double local_step(const float* x, bool energy);  // S = K~^T x, R = polar; E(x) if energy
+  double local_energy(const float* x);             // E(x), the local step just made at x
   void global_step(float* out);       // out = G R + Tb, then relative correction
   void column_schur();                // per-column Z_c with contacts (see above)
   void base_global_step(float* out);  // G R + Tb with the fixed, relative and contact rows
   void project_limits(float* out);    // joint limits (see above)
   double quad_energy(const float* x);
-  bool converged(double tol);  // tolerance stop after an iteration (updates the observed rate)
+  bool converged(const float* step, double tol);  // tolerance stop for the plain step `step`
+  void note_rate(double q);                       // one more observed contraction rate
+  double window_rate() const;                     // the largest of the last kRateWindow rates
 
   int m_, r_, kf_, kp_, kr_, mp_, rp_, window_;
   std::vector<float> csm_, g_, p2_, q_;
@@ -132,9 +151,18 @@ class FastSolver {
   double lin_ = 0.0;                    // sum_g tr(R_g^T C_g) from the last local step
   // Anderson
   std::vector<float> x_, gx_, f_, gprev_, fprev_, xacc_, dG_, dF_;
-  std::vector<float> xold_;  // T before the iteration (tolerance stop on the change in T)
-  double rprev_ = 0.0, qprev_ = 0.0, rate_ = 2.0;  // last plain step size and ratio of successive steps (tol stop)
-  bool step_from_accel_ = false;      // the last iteration's plain step is in gx_ (accelerated)
+  double energy_noise_ = 0.0;         // float32 resolution of E (1e-6 c0): the safeguard's slack
+  // Tolerance stop: probe rows (4m x pp column-major, pp = roundup(p, 8)), their displacements
+  // for one step (3 x pp), the last kRateWindow rates observed in this solve (a ring).
+  static constexpr int kRateWindow = 5;
+  int np_ = 0, pp_ = 0;
+  double diag_ = 0.0, reach_ = 0.0;
+  std::vector<float> probe_, pv_;
+  std::vector<float> xold_;            // T before a plain iteration (its step, tol stop)
+  double rates_[kRateWindow] = {};
+  int nrates_ = 0, rhead_ = 0;
+  double rate_floor_ = 0.0;            // the previous tol solve's window rate (below kMaxRate)
+  double step2_prev_ = 0.0;            // plain path: |previous step|^2 (ratio of successive steps)
   std::vector<double> gram_, gram_full_, rhs_, gamma_;  // gram_full_: by buffer slot
   std::vector<double> history_;
   SolveStats stats_;

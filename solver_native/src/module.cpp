@@ -6,6 +6,7 @@
 #include <nanobind/ndarray.h>
 #include <nanobind/stl/string.h>
 
+#include <cmath>
 #include <stdexcept>
 #include <string>
 
@@ -148,6 +149,17 @@ NB_MODULE(_native, m) {
            nb::arg("child"), nb::arg("parent"), nb::arg("axis"), nb::arg("bounds"),
            "Joint limits on free handles: axis (nl, 3) unit bone directions, bounds (nl, 3) radians "
            "(swing max, twist min, twist max).")
+      .def("set_probes",
+           [](FastSolver& s, ConstMatrixD rows, double diag, double reach) {
+             if (rows.shape(1) != 4 * static_cast<size_t>(s.m()) || rows.shape(0) == 0)
+               throw std::invalid_argument("set_probes: expected rows (p, 4m) with p >= 1");
+             if (!(diag > 0.0) || !std::isfinite(diag) || !(reach > 0.0) || !std::isfinite(reach))
+               throw std::invalid_argument("set_probes: diag and reach must be positive and finite");
+             s.set_probes(static_cast<int>(rows.shape(0)), rows.data(), diag, reach);
+           },
+           nb::arg("rows"), nb::arg("diag"), nb::arg("reach"),
+           "Tolerance stop: rows (p, 4m) float64, the LBS rows M_v of the probe vertices (V' = M T); "
+           "diag: the rest mesh's bounding-box diagonal (tol's unit); reach: the largest |v| of the rest mesh.")
       .def_prop_ro("active_limits", &FastSolver::active_limits, "limits projected in the last global step")
       .def("reset_history", &FastSolver::reset_history,
            "Forget the inertia history: the next solve starts at rest (no velocity).")

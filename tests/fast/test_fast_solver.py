@@ -4,7 +4,7 @@ every constraint kind is met."""
 import numpy as np
 import pytest
 
-from puppet.fast import FastModel, Pattern
+from puppet.fast import FastError, FastModel, Pattern
 
 
 def rigid_T(m, R, t):
@@ -122,10 +122,12 @@ def test_tolerance_stop_reaches_the_converged_solve(bar_model, accelerate):
     assert solver.solve(values, T, iterations=300, tol=1e-5, accelerate=accelerate).iterations <= 3
 
 
-def test_tolerance_bounds_the_distance_to_the_converged_solve_on_the_builtin_character():
-    """The demo performance on the built-in character, warm-started frame to frame at 30 fps: the
-    tol path's vertices stay within 3 tol of the bounding-box diagonal of a converged solve from
-    the same start (the bound the solver's docstring promises), and a looser tol stops sooner."""
+def test_tolerance_is_a_fraction_of_the_diagonal_on_the_builtin_character():
+    """tol means: every vertex within tol x the rest bounding-box diagonal of the converged result.
+    The demo performance on the built-in character, warm-started frame to frame at 30 fps: at
+    tol=1e-4 every vertex lands within 2 tol (the documented allowance for the estimate; measured
+    within 0.75 tol, bench/solver.py) of a converged solve from the same start, each frame runs more
+    than one iteration and stops well before a generous cap, and a looser tol stops sooner."""
     from puppet.demo import Performance
     from puppet.rig import builtin
 
@@ -139,20 +141,32 @@ def test_tolerance_bounds_the_distance_to_the_converged_solve_on_the_builtin_cha
     diag = float(np.linalg.norm(rig.V.max(0) - rig.V.min(0)))
     perf = Performance(rig)
     ids = [s.id for s in rig.servo_map.servos]
+    cap = 400
+    total = {}
     for tol in (1e-3, 1e-4):
         T = model.rest_T()
         iterations = []
-        for f in range(6):
+        for f in range(8):
             ticks = np.array([perf.position(i, f / 30) for i in ids]).round().astype(np.int32)
             rig.fill_values(rig.servo_map.angles(ticks), values)
             Tc = T.copy()
             reference.solve(values, Tc, iterations=3000)
-            iterations.append(solver.solve(values, T, iterations=1000, tol=tol).iterations)
-            assert 1 < iterations[-1] < 1000
-            assert np.abs(M @ T - M @ Tc).max() <= 3 * tol * diag
-        if tol == 1e-3:
-            loose = sum(iterations)
-    assert loose < sum(iterations)
+            iterations.append(solver.solve(values, T, iterations=cap, tol=tol).iterations)
+            assert 1 < iterations[-1] < cap
+            assert np.linalg.norm(M @ T - M @ Tc, axis=1).max() <= 2 * tol * diag
+        total[tol] = sum(iterations)
+    assert total[1e-3] < total[1e-4]
+
+
+@pytest.mark.parametrize("tol", [0.0, -1e-4, float("nan"), float("inf")])
+def test_tolerance_must_be_a_positive_number(bar_model, tol):
+    pattern = Pattern(full=(0, 2))
+    solver = bar_model.solver(pattern)
+    T = bar_model.rest_T()
+    with pytest.raises(FastError) as err:
+        solver.solve(bend_values(bar_model, pattern, 0.3), T, iterations=10, tol=tol)
+    assert "tol must be a positive number" in str(err.value)
+    np.testing.assert_array_equal(T, bar_model.rest_T())
 
 
 def residuals(model, pattern, values, T):
