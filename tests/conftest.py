@@ -58,7 +58,7 @@ def _interrupt_and_wait(proc: subprocess.Popen, timeout: float = PATIENCE_S,
     try:
         return proc.wait(timeout=timeout)
     except subprocess.TimeoutExpired:
-        report = stuck_report(proc.pid)
+        report = _stuck_report(proc.pid)
         proc.send_signal(signal.SIGUSR1)
         time.sleep(1.0)  # a diagnostic pause, not a wait for a state
         proc.kill()
@@ -68,7 +68,7 @@ def _interrupt_and_wait(proc: subprocess.Popen, timeout: float = PATIENCE_S,
                              f"\n{err}")
 
 
-def stuck_report(pid: int) -> str:
+def _stuck_report(pid: int) -> str:
     """One line on where process ``pid`` is: State and wchan from /proc (what is readable)."""
     parts = []
     for name in ("status", "wchan", "stack"):
