@@ -191,9 +191,11 @@ class Pipeline:
         next call; set them before each solve. A PatternError (e.g. a vertex held only by sensed
         bones: redundant) leaves the current pattern in place.
         """
-        if self.live is not None:
-            raise PatternError("point handles are not combined with the rig's live solve options "
-                               "(on_dropout = \"free\", [solver.dynamics]) yet")
+        if self.live is not None:  # the live solve's patterns all gain the handles
+            start = time.perf_counter()
+            self.live.set_handles(vertices, self.T)
+            self.handle_targets = self.live.handle_targets
+            return time.perf_counter() - start
         rig_pattern = self._rig_pattern
         pattern = Pattern(full=rig_pattern.full, relative=rig_pattern.relative,
                           positional=rig_pattern.positional + tuple(int(v) for v in vertices))

@@ -20,7 +20,7 @@ from puppet.cli.view import open_view, take_factory_for, view_option
               show_default=True, help="auto: MSAA on a GPU, FXAA on a software renderer.")
 @click.option("--dynamics", is_flag=True,
               help="Secondary motion on: the ears and tail lag and settle (the built-in "
-                   "critter_dynamics.toml; point handles need the plain rig).")
+                   "critter_dynamics.toml).")
 @click.option("--json", "as_json", is_flag=True, help="Print the summary as JSON.")
 @view_option
 def demo(out: str, seconds: float | None, faults: str | None, size: tuple[int, int], fps: float,

@@ -15,6 +15,11 @@ a servo that flaps never refactors again.
 Dynamics: with ``[solver.dynamics]`` every solver is built with inertia and gravity at the
 fixed step dt, and a frame takes round(elapsed / dt) steps (1..max_steps), elapsed being the
 difference of the readings' timestamps: the same readings (a take) give the same vertices.
+
+Point handles (the live view's dragged vertices): ``set_handles(vertices, T)`` adds them as
+positional constraints to every pattern (a switch, blended like the others; each set of handles
+has its own pattern cache), their targets are ``handle_targets`` ((h, 3) float32, set before
+each solve).
 """
 
 from __future__ import annotations
@@ -45,7 +50,8 @@ class _PatternState:
     """One constraint pattern of the rig (bones in ``free`` made free) with its solver, values
     and warm-start T."""
 
-    def __init__(self, rig, model, free: frozenset, dynamics: Dynamics | None):
+    def __init__(self, rig, model, free: frozenset, dynamics: Dynamics | None,
+                 handles: tuple[int, ...] = ()):
         sk = rig.skeleton
         sensed = rig.sensed.copy()
         sensed[list(free)] = False
@@ -55,7 +61,7 @@ class _PatternState:
             full=tuple(int(j) for j in self.full_bones),
             relative=tuple((int(c), int(sk.parents[c]), tuple(float(x) for x in sk.heads[c]))
                            for c in self.relative_bones),
-            positional=tuple(int(v) for v in rig.pins),
+            positional=tuple(int(v) for v in rig.pins) + handles,
             contacts=tuple((v, axes) for v, axes, _ in rig.contacts),
             limits=rig.limits_for(~sensed),
         )
@@ -65,6 +71,8 @@ class _PatternState:
         self.values: Values = self.pattern.values()
         for i, v in enumerate(rig.pins):
             self.values.positional[i] = rig.V[v]
+        self.handles = handles
+        self.handle_values = self.values.positional[len(rig.pins):]  # (h, 3) view
         for i, (_, _, target) in enumerate(rig.contacts):
             self.values.contact[i] = target
         self.T = model.rest_T()
@@ -87,10 +95,13 @@ class LiveSolve:
     """Per-frame solve of a rig's readings with dropout switching and dynamics (see module doc).
 
     Attributes:
-        solver:      the base pattern's Solver (every servo sensed).
+        solver:      the base pattern's Solver (every servo sensed, no handles).
         free_bones:  bones made free right now (frozenset of bone indices).
-        switches:    pattern switches so far; refactors: patterns factored (first use only).
-        factor_ms:   {frozenset of free bones: ms} time to factor each pattern (the refactor).
+        switches:    pattern switches so far; refactors: patterns factored with the current
+                     handles (first use only).
+        states:      {frozenset of free bones: pattern} factored with the current handles.
+        factor_ms:   {frozenset of free bones: ms} time to factor each of those (the refactor).
+        handles:     vertex indices held by point handles; handle_targets: (h, 3) float32.
     """
 
     def __init__(self, rig, model):
@@ -115,8 +126,10 @@ class LiveSolve:
         self._rot = np.empty((b, 3, 3))
         self._pose = np.empty((b, 3, 4))
         self._blend = model.rest_T()
-        self.states: dict[frozenset, _PatternState] = {}
-        self.factor_ms: dict[frozenset, float] = {}
+        self.handles: tuple[int, ...] = ()
+        self.handle_targets = np.zeros((0, 3), np.float32)
+        self._caches: dict[tuple[int, ...], tuple[dict, dict]] = {(): ({}, {})}
+        self.states, self.factor_ms = self._caches[()]
         self.current = self._state(NOTHING_FREE)
         self.solver = self.current.solver
         self.free_bones: frozenset = NOTHING_FREE
@@ -131,13 +144,33 @@ class LiveSolve:
         extras = getattr(rig, "extras", None)
         return extras is not None and (extras.frees_on_dropout or extras.dynamics is not None)
 
-    def _state(self, free: frozenset) -> _PatternState:
-        state = self.states.get(free)
+    def _state(self, free: frozenset, handles: tuple[int, ...] | None = None) -> _PatternState:
+        """The pattern with bones ``free`` made free and ``handles`` (default: the current ones),
+        factored on first use (PatternError if the solve would be undetermined or redundant)."""
+        handles = self.handles if handles is None else handles
+        states, factor_ms = self._caches.get(handles, ({}, {}))
+        state = states.get(free)
         if state is None:
-            state = _PatternState(self.rig, self.model, free, self.dynamics)
-            self.states[free] = state
-            self.factor_ms[free] = state.factor_ms
+            state = _PatternState(self.rig, self.model, free, self.dynamics, handles)
+            states[free] = state
+            factor_ms[free] = state.factor_ms
+            self._caches[handles] = (states, factor_ms)
         return state
+
+    def set_handles(self, vertices, T: np.ndarray) -> None:
+        """Hold these vertices (no repeats, none of the rig's pins) at ``handle_targets``, which
+        start where the vertices are in ``T`` (4m, 3); a switch blended from what is shown. A
+        PatternError (e.g. a vertex held only by sensed bones) leaves everything as it was."""
+        handles = tuple(int(v) for v in vertices)
+        new = self._state(self.free_bones, handles)  # factored here: may raise
+        model = self.model
+        rows = np.hstack([model.V[list(handles)], np.ones((len(handles), 1))])
+        blocks = np.asarray(T, np.float64).reshape(model.m, 4, 3)
+        self.handle_targets = np.einsum("ij,ic,jcd->id", model.weights64[list(handles)], rows,
+                                        blocks).astype(np.float32).reshape(-1, 3)
+        self.handles = handles
+        self.states, self.factor_ms = self._caches[handles]
+        self._switch_to(new, self.free_bones, T)
 
     @property
     def refactors(self) -> int:
@@ -172,6 +205,8 @@ class LiveSolve:
         rot = sk.joint_rotations(angles, self._rot)
         pose = sk.pose_from_rotations(rot, self._pose)
         self.current.fill(rot, pose)
+        if self.current.handles:
+            np.copyto(self.current.handle_values, self.handle_targets)
         self.current.solve(iterations, steps, stats)
         if self._from is None:
             T[...] = self.current.T
@@ -189,8 +224,12 @@ class LiveSolve:
 
     def _switch(self, free: frozenset, T: np.ndarray) -> None:
         """Make ``free`` the current pattern; blend from the old one (started from the shown T)."""
+        self._switch_to(self._state(free), free, T)
+
+    def _switch_to(self, new: _PatternState, free: frozenset, T: np.ndarray) -> None:
         old = self.current
-        new = self._state(free)
+        if new is old:
+            return
         new.T[...] = T  # warm start from what is on screen
         new.solver.reset_dynamics()
         if self._from is not None and self._from is not new:

@@ -8,7 +8,7 @@ from puppet.bus import Reading
 from puppet.demo import Performance
 from puppet.pipeline import Pipeline, run_frames
 from puppet.rig import builtin
-from puppet.rig.load import BUILTIN_RIG, load_rig
+from puppet.rig.load import BUILTIN_DYNAMICS_RIG, BUILTIN_RIG, load_rig
 from puppet.rig.solve_options import DynamicsOptions, SolveExtras
 
 FPS = 60
@@ -142,3 +142,31 @@ def test_play_twice_gives_identical_vertices(rig):
     assert np.array_equal(first, second)
     assert live.stats.steps in (1, 2, 3)  # steps come from the reading times (dt = half a frame)
     assert live.switches == 2
+
+
+def test_point_handles_join_the_live_solve():
+    # The live view's dragged handles on a rig with dynamics: every pattern gains them.
+    rig = load_rig(BUILTIN_DYNAMICS_RIG)
+    tail = rig.skeleton.names.index("tail3")
+    vertex = int(np.argmax(rig.W[:, tail] * np.linalg.norm(rig.V - rig.skeleton.heads[tail], axis=1)))
+    reads = readings(rig, 120, still_after=0)
+    with Pipeline(rig, render=False) as pipeline:
+        live = pipeline.live
+        for reading in reads[:10]:
+            pipeline.solve(reading)
+        assert pipeline.set_handles([vertex]) > 0
+        # The handle starts where the vertex is: nothing jumps when it is added.
+        assert np.linalg.norm(pipeline.handle_targets[0] - pipeline.deformed()[vertex]) < 1e-5
+        target = pipeline.handle_targets[0] + np.array([0.0, 0.3, 0.1], np.float32)
+        pipeline.handle_targets[0] = target
+        for reading in reads[10:60]:
+            pipeline.solve(reading)
+        assert np.linalg.norm(pipeline.deformed()[vertex] - target) < 1e-4
+        blocks = pipeline.T.reshape(-1, 4, 3)
+        state = live.current
+        for q, bone in enumerate(state.full_bones):  # the sensed bones stay where the servos put them
+            assert np.abs(blocks[bone] - state.values.full[q]).max() < 1e-5
+        pipeline.set_handles([])
+        assert live.current.pattern.positional == tuple(int(v) for v in rig.pins)
+        pipeline.set_handles([vertex])  # cached: the same factored pattern, not a new one
+        assert live.current is state
