@@ -236,8 +236,13 @@ def test_indirect_address_mirrors_present_position(bus, sdk):
 
 def test_partial_instruction_is_dropped_after_the_inter_byte_gap(bus, sdk):
     ping = bytes.fromhex("FF FF FD 00 01 03 00 01 19 4E")
+    bus.traffic()
     sdk.port.writePort(ping[:6])  # a half packet, then silence longer than 1.5 ms
-    time.sleep(0.02)
+    # The gap is timed by the simulator from when it reads the bytes: wait until it has read the
+    # half packet (a starved simulator could otherwise read it together with the ping).
+    seen = []
+    assert _wait(lambda: seen.extend(bus.traffic()) or any(k == "rx" for _, k, _ in seen))
+    time.sleep(0.02)  # the silence itself (the inter-byte gap is 1.5 ms)
     assert sdk.packet.ping(sdk.port, 1)[:2] == (1200, dxl.COMM_SUCCESS)
 
 
