@@ -17,6 +17,7 @@ import math
 
 import numpy as np
 
+from puppet._native import fit_rotations
 from puppet.servo_models import TICKS_PER_TURN
 
 
@@ -81,8 +82,10 @@ class ActuatorGoals:
         k = len(servos)
         rows = [np.arange(4 * b, 4 * b + 3) if b >= 0 else np.full(3, -1) for b in
                 np.concatenate([self.bones, self.parents])]
-        self._rows = np.concatenate(rows).astype(np.int64)
-        self._root = np.repeat(np.concatenate([self.bones, self.parents]) < 0, 3)
+        rows = np.concatenate(rows).astype(np.int64)
+        self._rows = np.maximum(rows, 0)  # a root's parent rows are overwritten below
+        self._root_rows = np.flatnonzero(rows < 0)
+        self._root_fill = _IDENTITY_ROWS[self._root_rows % 3]
         self._blocks = np.zeros((2 * k, 3, 3), np.float32)
         self._polar = np.zeros((2 * k, 3, 3), np.float32)
         self._rel = np.zeros((3, 3))
@@ -92,12 +95,11 @@ class ActuatorGoals:
 
         Allocates no arrays: the blocks of T are gathered into a work array and their polar
         factors come from the native ``fit_rotations`` (GIL released)."""
-        from puppet._native import fit_rotations
-
         k = len(self.bones)
         flat = self._blocks.reshape(6 * k, 3)
-        np.take(T, np.maximum(self._rows, 0), axis=0, out=flat)
-        flat[self._root] = _IDENTITY_ROWS[np.arange(6 * k)[self._root] % 3]
+        np.take(T, self._rows, axis=0, out=flat)
+        if len(self._root_rows):
+            flat[self._root_rows] = self._root_fill
         fit_rotations(self._blocks, self._polar)  # Q = polar(T block) = R^T of the linear part
         for n in range(k):
             # R_rel = R_parent^T R_child = Q_parent Q_child^T
