@@ -9,8 +9,8 @@ Shared ring (multiprocessing shared memory, ``slots`` entries, written only by t
     t_ns (slots,) int64, ticks (slots, k) int32, ok (slots, k) bool, written (1,) int64.
 The child fills slot ``written % slots`` and then increments ``written``; the consumer copies
 the slots it has not seen and re-checks ``written`` to drop any slot overwritten meanwhile.
-Setup report, bus events and errors come back over a pipe; commands (goals, reboot, stop) go
-down another.
+Setup report, bus events and errors come back over a pipe; commands (goals, reboot, read
+now, stop) go down another.
 
 Goal channel (only with ``actuation``: a rig's actuator servos, see puppet.drive.actuators), a
 second shared block written only by the consumer: seq (1,) int64, src_t_ns (1,) int64, goals
@@ -181,6 +181,7 @@ def _child(shm_name, slots, port, servos, options, rate_hz, events, commands,
                     reader.write_goals(arg)
                 elif name == "reboot":
                     reader.reboot(arg)
+                # "read": the consumer wants a fresh reading now (the wait below ended early)
             reading = reader.read()
             slot = int(written[0]) % slots
             t_ns[slot] = reading.t_ns
@@ -194,8 +195,8 @@ def _child(shm_name, slots, port, servos, options, rate_hz, events, commands,
                 now = time.monotonic_ns()
                 if now > next_ns:
                     next_ns = now  # an overrun: do not burst to catch up
-                else:
-                    commands.poll((next_ns - now) / 1e9)  # a command (stop) ends the wait
+                elif commands.poll((next_ns - now) / 1e9):  # a command (read, stop) ends the wait
+                    next_ns = time.monotonic_ns()  # read now; the schedule goes on from here
     finally:
         _torque_off(driver, events)
         if reader is not None:
@@ -344,6 +345,16 @@ class ReaderProcess:
             if time.monotonic() >= deadline:
                 return None
             time.sleep(0.0005)
+
+    def request_reading(self) -> None:
+        """Ask for a reading now: the child, if waiting for its next scheduled read, reads at
+        once and goes on at rate_hz from there (a consumer that knows when it will want the
+        next reading asks one bus transaction ahead, and gets a younger one). A child that is
+        gone is not an error here: the next ``drain()`` reports it."""
+        try:
+            self._commands.send(("read", None))
+        except (OSError, ValueError):
+            pass
 
     def set_goals(self, goals: Mapping[int, int]) -> None:
         """Goal positions (continuous ticks) for the reader's actuators."""

@@ -60,3 +60,32 @@ def test_a_missing_port_is_a_clear_error():
     with pytest.raises(ReaderProcessError, match="/dev/puppet-no-such-port"):
         source.start(timeout_s=20.0)
     assert not source.alive
+
+
+def test_a_requested_reading_comes_before_the_next_scheduled_one(wait_until):
+    # One scheduled reading per 1000 s: only the requests can bring the readings after the first.
+    with hw_sim.serve(MODELS) as bus:
+        with ReaderProcess(bus.port, MODELS, rate_hz=0.001) as source:
+            first = source.latest(timeout=30.0)
+            assert first is not None
+            for _ in range(3):
+                asked_ns = time.monotonic_ns()
+                source.request_reading()
+                fresh = wait_until(lambda: next((r for r in source.drain() if r.t_ns >= asked_ns), None),
+                                   timeout=30, what="the requested reading")
+                assert fresh.ok.all()
+
+
+def test_a_request_to_a_dead_reader_is_reported_by_drain():
+    with hw_sim.serve(MODELS) as bus:
+        source = ReaderProcess(bus.port, MODELS, rate_hz=300.0)
+        source.start()
+        try:
+            source._proc.kill()
+            source._proc.join()
+            source.request_reading()  # the pipe is broken: no error here
+            with pytest.raises(ReaderProcessError, match="stopped"):
+                while True:
+                    source.drain()
+        finally:
+            source.stop()

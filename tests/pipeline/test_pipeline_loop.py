@@ -1,5 +1,7 @@
 """The live loop against hw_sim: readings flow, faults are flagged and survived."""
 
+import time
+
 import numpy as np
 import pytest
 
@@ -7,7 +9,7 @@ import hw_sim
 from puppet.bus import Reading
 from puppet.bus.reader_process import ReaderProcess
 from puppet.demo import Performance
-from puppet.pipeline import Pipeline, run_frames, run_live
+from puppet.pipeline import LateLatch, Pipeline, run_frames, run_live
 
 
 def test_solve_follows_the_reading_and_keeps_full_constraints(critter):
@@ -118,3 +120,42 @@ def test_antialias_a_gl_cannot_do_names_what_it_can():
 def test_antialias_must_be_known(critter):
     with pytest.raises(ValueError, match="antialias"):
         Pipeline(critter, render=False, antialias="smooth")
+
+
+class _RequestedSource:
+    """A source that reads on request: the reading comes a few drains after the request."""
+
+    def __init__(self):
+        self.asked = 0
+        self._due = None
+
+    def request_reading(self):
+        self.asked += 1
+        self._due = 3
+
+    def drain(self):
+        if self._due is None:
+            return []
+        self._due -= 1
+        if self._due:
+            return []
+        self._due = None
+        return [Reading(time.monotonic_ns(), np.array([1]), np.zeros(1, np.int32), np.ones(1, bool))]
+
+
+def test_late_latch_waits_for_the_reading_it_asked_for():
+    source = _RequestedSource()
+    latch = LateLatch(min_fps=60.0, period_s=1e3)  # a period far longer than the test
+    old = Reading(time.monotonic_ns(), np.array([1]), np.zeros(1, np.int32), np.ones(1, bool))
+    latch.request(source)
+    asked_ns = latch.requested_ns
+    batch = latch.top_up(source, [old])
+    assert source.asked == 1
+    assert batch[0] is old and batch[-1].t_ns >= asked_ns
+    assert latch.top_up(source, [old]) == [old]  # no request pending, no spare time: no wait
+
+
+def test_late_latch_asks_only_sources_that_read_on_request():
+    latch = LateLatch(min_fps=60.0, period_s=0.004)
+    latch.request(object())
+    assert latch.requested_ns == 0
