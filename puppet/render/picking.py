@@ -16,6 +16,7 @@ import moderngl
 import numpy as np
 
 from puppet.render.camera import Camera
+from puppet.render.renderer import SKINNED_FLOATS
 
 PICK_VERTEX = """
 #version 330
@@ -71,8 +72,8 @@ class Picker:
         self._ctx = ctx
         self._prog = ctx.program(vertex_shader=PICK_VERTEX, geometry_shader=PICK_GEOMETRY,
                                  fragment_shader=PICK_FRAGMENT)
-        self._vao = ctx.vertex_array(self._prog, [(renderer._skinned, "3f 12x", "in_position")],
-                                     index_buffer=renderer._ibo, index_element_size=4)
+        positions = (renderer._skinned, f"3f {4 * (SKINNED_FLOATS - 3)}x", "in_position")
+        self._vao = ctx.vertex_array(self._prog, [positions], index_buffer=renderer._ibo, index_element_size=4)
         size = (renderer.width, renderer.height)
         self._color = ctx.texture(size, 4, dtype="f4")
         self._depth = ctx.depth_renderbuffer(size)

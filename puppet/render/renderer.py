@@ -27,6 +27,13 @@ from puppet.render.skin_weights import (TEXTURE_WIDTH, attribute_slots, check_we
                                         pack_weights)
 
 SKINNING_MODES = ("gpu", "cpu")
+#: Where the character is lit: "vertex" (in the skinning pass, each vertex once; the colours are
+#: interpolated: on the critter's ~1.5 px triangles the same look for a third less raster work
+#: on llvmpipe), "pixel" (normals interpolated, lit per fragment; open surfaces seen from both
+#: sides need it), or "auto" (vertex with GPU skinning and back faces culled, else pixel).
+SHADING_MODES = ("auto", "vertex", "pixel")
+#: Floats per vertex in the skinning pass's output: position, normal, colour.
+SKINNED_FLOATS = 9
 WEIGHT_LAYOUTS = ("auto", "dense", "pairs")
 #: Rows per block in the bounding box reduction of the skinned positions.
 BOX_BLOCK = 64
@@ -86,7 +93,7 @@ class Renderer:
     so the shader computes M @ T exactly); shadow_sphere_count, shadow_resolution: contact
     shadow detail; bone_width_px: skeleton overlay width [px]; fxaa_region: "character" (filter
     only the rectangle on screen around the skinned mesh and its bones) or "frame";
-    fxaa_passes: "mark_edges" or "one_pass" (see FXAA_PASSES).
+    fxaa_passes: "mark_edges" or "one_pass" (see FXAA_PASSES); shading: see SHADING_MODES.
 
     Per-frame state lives in preallocated arrays: `image` (height, width, 3) uint8 is the frame
     buffer draw() returns; skinned_positions() returns a view of the skinning pass's output.
@@ -117,11 +124,20 @@ class Renderer:
         bone_width_px: float = 5.0,
         fxaa_region: str = "character",
         fxaa_passes: str = "mark_edges",
+        shading: str = "auto",
     ):
         if skinning not in SKINNING_MODES:
             raise RenderInputError(f"skinning: expected one of {SKINNING_MODES}, got {skinning!r}")
         if int(width) < 1 or int(height) < 1:
             raise RenderInputError(f"width, height: must be positive, got {width} x {height}")
+        if shading not in SHADING_MODES:
+            raise RenderInputError(f"shading: expected one of {SHADING_MODES}, got {shading!r}")
+        if shading == "vertex" and (skinning != "gpu" or not cull_back_faces):
+            raise RenderInputError("shading: 'vertex' needs skinning='gpu' and cull_back_faces=True "
+                                   "(back faces lit per vertex would show the front's light)")
+        if shading == "auto":
+            shading = "vertex" if skinning == "gpu" and cull_back_faces else "pixel"
+        self.shading = shading
         V, F, W = _check_mesh(V, F, W)
         self.width, self.height = int(width), int(height)
         self.skinning = skinning
@@ -211,34 +227,41 @@ class Renderer:
         self._weights = ctx.texture((TEXTURE_WIDTH, entries.shape[0]), 2, entries, dtype="f4")
         self._weights.filter = (moderngl.NEAREST, moderngl.NEAREST)
         self._ubo = ctx.buffer(reserve=self._rows.nbytes)
-        defines = dict(HANDLES=self.m, WEIGHTS_WIDTH=TEXTURE_WIDTH, WEIGHTS_SHIFT=TEXTURE_WIDTH.bit_length() - 1)
+        defines = dict(HANDLES=self.m, WEIGHTS_WIDTH=TEXTURE_WIDTH, WEIGHTS_SHIFT=TEXTURE_WIDTH.bit_length() - 1,
+                       VERTEX_LIGHTING=int(shading == "vertex"))
 
         self._skin_prog = ctx.program(
-            vertex_shader=shaders.source(skin, shaders.SKIN_VERTEX, **defines),
-            varyings=["out_position", "out_normal"],
+            vertex_shader=shaders.source(shaders.LIGHTING, skin, shaders.SKIN_VERTEX, **defines),
+            varyings=["out_position", "out_normal", "out_color"],
         )
         self._bind_skin(self._skin_prog)
         self._skin_vao = ctx.vertex_array(
             self._skin_prog,
             [(self._vbo_rest, "3f", "in_position"), (self._vbo_normal, "3f", "in_normal"), *skin_content],
         )
-        self._skinned = ctx.buffer(reserve=self.n * 24)  # (position, normal) per vertex
+        self._skinned = ctx.buffer(reserve=self.n * 4 * SKINNED_FLOATS)  # (position, normal, colour)
         # Read-back of the skinning pass, padded to whole blocks of BOX_BLOCK rows (copies of row
         # 0) so that the bounding box reduces along long contiguous rows (numpy reduces (n, 3)
         # along axis 0 about 50x slower than along rows).
         padded_rows = -(-self.n // BOX_BLOCK) * BOX_BLOCK
-        self._captured_padded = np.zeros((padded_rows, 6), dtype=np.float32)
+        self._captured_padded = np.zeros((padded_rows, SKINNED_FLOATS), dtype=np.float32)
         self._captured = self._captured_padded[: self.n]
-        self._box_lanes = np.zeros((2, BOX_BLOCK * 6), dtype=np.float32)
+        self._box_lanes = np.zeros((2, BOX_BLOCK * SKINNED_FLOATS), dtype=np.float32)
         self._captured_positions = np.zeros((self.n, 3), dtype=np.float32)
         self._captured_normals = np.zeros((self.n, 3), dtype=np.float32)
 
-        if skinning == "gpu":
+        if shading == "vertex":
+            self._mesh_prog = ctx.program(
+                vertex_shader=shaders.source(shaders.MESH_LIT_VERTEX),
+                fragment_shader=shaders.source(shaders.LIGHTING, shaders.MESH_LIT_FRAGMENT),
+            )
+            content = [(self._skinned, "3f 12x 3f", "in_position", "in_color")]
+        elif skinning == "gpu":
             self._mesh_prog = ctx.program(
                 vertex_shader=shaders.source(shaders.MESH_VERTEX),
                 fragment_shader=shaders.source(shaders.LIGHTING, shaders.MESH_FRAGMENT, FACE_NORMALS=0),
             )
-            content = [(self._skinned, "3f 3f", "in_position", "in_normal")]
+            content = [(self._skinned, "3f 3f 12x", "in_position", "in_normal")]
         else:
             self._M = lbs_matrix(V, W)
             self._positions = np.zeros((self.n, 3), dtype=np.float32)
@@ -249,7 +272,8 @@ class Renderer:
             )
             content = [(self._vbo_positions, "3f", "in_position")]
         self._mesh_vao = ctx.vertex_array(self._mesh_prog, content, index_buffer=self._ibo, index_element_size=4)
-        self._mesh_prog["u_albedo"].value = tuple(float(c) for c in albedo)
+        self._lit_prog = self._skin_prog if shading == "vertex" else self._mesh_prog  # has the lights
+        self._lit_prog["u_albedo"].value = tuple(float(c) for c in albedo)
         self._background = tuple(float(c) for c in background)
 
         # Ground plane with contact shadow spheres, their occlusion drawn into a small texture.
@@ -400,6 +424,7 @@ class Renderer:
         }
         for prog in (self._mesh_prog, self._ground_prog):
             prog["u_view_proj"].write(self._view_proj_gl)
+        for prog in (self._lit_prog, self._ground_prog):
             for name, value in lights.items():
                 uniform = prog.get(name, None)  # None where the shader does not use it
                 if uniform is not None:
@@ -447,7 +472,7 @@ class Renderer:
         self._upload(T)
         self._skin()
         self._skinned.read_into(self._captured)
-        np.copyto(self._captured_normals, self._captured[:, 3:])
+        np.copyto(self._captured_normals, self._captured[:, 3:6])
         return self._captured_normals
 
     def draw(self, T: np.ndarray, *, bones=None, bone_states=None, out: np.ndarray | None = None) -> np.ndarray:
@@ -542,10 +567,10 @@ class Renderer:
         bounding box's corners, projected) and the drawn bones, plus a margin for the filter."""
         self._skinned.read_into(self._captured)
         self._captured_padded[self.n:] = self._captured[0]
-        rows = self._captured_padded.reshape(-1, BOX_BLOCK * 6)
+        rows = self._captured_padded.reshape(-1, BOX_BLOCK * SKINNED_FLOATS)
         np.min(rows, axis=0, out=self._box_lanes[0])
         np.max(rows, axis=0, out=self._box_lanes[1])
-        lanes = self._box_lanes.reshape(2, BOX_BLOCK, 6)
+        lanes = self._box_lanes.reshape(2, BOX_BLOCK, SKINNED_FLOATS)
         np.min(lanes[0, :, :3], axis=0, out=self._box[0])
         np.max(lanes[1, :, :3], axis=0, out=self._box[1])
         if with_bones and self._bone_instances is not None:

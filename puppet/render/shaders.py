@@ -82,24 +82,30 @@ def skin_chunk(slots: int, spill: bool) -> str:
 
 
 # Skinning pass: every vertex once, captured by transform feedback into one buffer of
-# (position, normal) pairs that the mesh pass then draws. Shading each vertex once matters on
-# llvmpipe, whose indexed draws may shade a vertex several times (about 3x slower here).
+# (position, normal, colour) triples that the mesh pass then draws. Shading each vertex once
+# matters on llvmpipe, whose indexed draws may shade a vertex several times (about 3x slower
+# here). With VERTEX_LIGHTING the pass also lights the vertex (linear RGB; else the colour is 0).
 SKIN_VERTEX = """
 in vec3 in_position;
 in vec3 in_normal;
 out vec3 out_position;
 out vec3 out_normal;
+out vec3 out_color;
 void main() {
     vec4 r0, r1, r2;
     blend_transform(r0, r1, r2);
     out_position = apply_affine(r0, r1, r2, in_position);
     out_normal = transform_normal(r0, r1, r2, in_normal);
+#if VERTEX_LIGHTING
+    out_color = shade(normalize(out_normal));
+#else
+    out_color = vec3(0.0);
+#endif
 }
 """
 
-# Mesh pass: skinned positions and normals (from the skinning pass). Only the normal is
-# interpolated (llvmpipe's triangle setup cost grows with every interpolated float); the view
-# direction is the camera's, constant over the image.
+# Mesh pass, lit per pixel: skinned positions and normals (from the skinning pass). Only the
+# normal is interpolated (llvmpipe's triangle setup cost grows with every interpolated float).
 MESH_VERTEX = """
 uniform mat4 u_view_proj;
 in vec3 in_position;
@@ -109,6 +115,25 @@ void main() {
     v_normal = in_normal;
     gl_Position = u_view_proj * vec4(in_position, 1.0);
 }
+"""
+
+# Mesh pass, lit per vertex (closed meshes, back faces culled): the skinning pass's colours,
+# interpolated; the fragment only encodes them for display.
+MESH_LIT_VERTEX = """
+uniform mat4 u_view_proj;
+in vec3 in_position;
+in vec3 in_color;
+out vec3 v_color;
+void main() {
+    v_color = in_color;
+    gl_Position = u_view_proj * vec4(in_position, 1.0);
+}
+"""
+
+MESH_LIT_FRAGMENT = """
+in vec3 v_color;
+out vec4 f_color;
+void main() { f_color = vec4(to_display(v_color), 1.0); }
 """
 
 # Mesh pass for CPU skinning (positions only): face normals from screen derivatives.
@@ -128,29 +153,16 @@ uniform vec3 u_key_dir;     // toward the light, world space
 uniform vec3 u_fill_dir;
 uniform vec3 u_sky;
 uniform vec3 u_ground_bounce;
+uniform vec3 u_albedo;
+uniform vec3 u_view_dir;    // from the scene toward the camera (the camera's, constant)
 
 // Display encoding with gamma 2 (sqrt): close to sRGB and much cheaper than pow on llvmpipe.
 vec3 to_display(vec3 linear) { return sqrt(clamp(linear, 0.0, 1.0)); }
-"""
 
-MESH_FRAGMENT = """
-uniform vec3 u_albedo;
-uniform vec3 u_view_dir;        // from the scene toward the camera
-#if FACE_NORMALS
-in vec3 v_world;
-#else
-in vec3 v_normal;
-#endif
-out vec4 f_color;
-void main() {
+// Linear RGB of the character's surface with unit normal n: sky/ground ambient, key and fill
+// lights, a key highlight and a cool rim.
+vec3 shade(vec3 n) {
     vec3 v = u_view_dir;
-#if FACE_NORMALS
-    vec3 n = normalize(cross(dFdx(v_world), dFdy(v_world)));
-    if (dot(n, v) < 0.0) n = -n;
-#else
-    vec3 n = normalize(v_normal);
-    if (!gl_FrontFacing) n = -n;
-#endif
     float up = dot(n, u_up);
     vec3 ambient = mix(u_ground_bounce, u_sky, 0.5 + 0.5 * up);
     float key = max(dot(n, u_key_dir), 0.0);
@@ -160,8 +172,26 @@ void main() {
     float rim = 1.0 - max(dot(n, v), 0.0);
     rim = rim * rim * rim;
     vec3 light = ambient * 0.55 + key * vec3(1.0, 0.94, 0.86) * 0.95 + fill * vec3(0.55, 0.65, 0.85) * 0.35;
-    vec3 color = u_albedo * light + spec * 0.18 + rim * vec3(0.6, 0.7, 0.9) * 0.35;
-    f_color = vec4(to_display(color), 1.0);
+    return u_albedo * light + spec * 0.18 + rim * vec3(0.6, 0.7, 0.9) * 0.35;
+}
+"""
+
+MESH_FRAGMENT = """
+#if FACE_NORMALS
+in vec3 v_world;
+#else
+in vec3 v_normal;
+#endif
+out vec4 f_color;
+void main() {
+#if FACE_NORMALS
+    vec3 n = normalize(cross(dFdx(v_world), dFdy(v_world)));
+    if (dot(n, u_view_dir) < 0.0) n = -n;
+#else
+    vec3 n = normalize(v_normal);
+    if (!gl_FrontFacing) n = -n;
+#endif
+    f_color = vec4(to_display(shade(n)), 1.0);
 }
 """
 

@@ -232,3 +232,34 @@ def test_fxaa_over_the_character_rectangle_equals_fxaa_over_the_frame(gl_context
     assert difference.max() <= 2
     smoothed = np.abs(images["character"].astype(int) - images["none"].astype(int)).max(axis=2) > 8
     assert smoothed.sum() > 100  # silhouette pixels blended by the filter
+
+
+def test_vertex_lighting_looks_like_pixel_lighting_on_the_critter(gl_context, posed_critter):
+    """Lit per vertex in the skinning pass (the default for closed meshes): on the critter's
+    pixel-sized triangles the same image as lighting every fragment, within a few levels."""
+    rig, W, T, bones = posed_critter
+    images = {}
+    for shading in ("pixel", "vertex"):
+        with Renderer(rig.V, rig.F, W, samples=0, fxaa=True, context=gl_context, shading=shading) as renderer:
+            assert renderer.shading == shading
+            images[shading] = renderer.draw(T, bones=bones).copy()
+            positions = renderer.skinned_positions(T).copy()
+        images[shading + " positions"] = positions
+    difference = np.abs(images["vertex"].astype(int) - images["pixel"].astype(int)).max(axis=2)
+    assert difference.max() <= 48
+    assert (difference > 8).mean() < 1e-3, (difference > 8).mean()
+    assert (difference > 2).mean() < 1e-2, (difference > 2).mean()
+    assert (difference > 0).any()  # the two paths did run: some pixels differ slightly
+    np.testing.assert_array_equal(images["vertex positions"], images["pixel positions"])
+    with Renderer(rig.V, rig.F, W, samples=0, context=gl_context) as renderer:
+        assert renderer.shading == "vertex"  # auto, closed mesh with back faces culled
+    with Renderer(rig.V, rig.F, W, samples=0, context=gl_context, cull_back_faces=False) as renderer:
+        assert renderer.shading == "pixel"  # auto, both sides seen
+
+
+def test_vertex_lighting_of_open_surfaces_is_refused(gl_context, bar):
+    V, F, W = bar
+    with pytest.raises(RenderInputError, match="shading: 'vertex' needs skinning='gpu' and cull_back_faces=True"):
+        Renderer(V, F, W, context=gl_context, shading="vertex", cull_back_faces=False)
+    with pytest.raises(RenderInputError, match="shading: expected one of"):
+        Renderer(V, F, W, context=gl_context, shading="gouraud")
