@@ -91,8 +91,10 @@ class Renderer:
     context: a moderngl.Context to share (else an EGL context is created, owned and released
     with the renderer); weight_tolerance: drop weights with |w| <= this (0: only exact zeros,
     so the shader computes M @ T exactly); shadow_sphere_count, shadow_resolution: contact
-    shadow detail; bone_width_px: skeleton overlay width [px]; fxaa_region: "character" (filter
-    only the rectangle on screen around the skinned mesh and its bones) or "frame";
+    shadow detail (the shadow is soft: 64 texels, filtered, differ from 128 by at most 5
+    levels in the critter's frames, at a quarter of the pass's cost); bone_width_px: skeleton
+    overlay width [px]; fxaa_region: "character" (filter only the rectangle on screen around
+    the skinned mesh and its bones) or "frame";
     fxaa_passes: "mark_edges" or "one_pass" (see FXAA_PASSES); shading: see SHADING_MODES.
 
     Per-frame state lives in preallocated arrays: `image` (height, width, 3) uint8 is the frame
@@ -120,7 +122,7 @@ class Renderer:
         weight_tolerance: float = 0.0,
         weight_layout: str = "auto",
         shadow_sphere_count: int = 24,
-        shadow_resolution: int = 128,
+        shadow_resolution: int = 64,
         bone_width_px: float = 5.0,
         fxaa_region: str = "character",
         fxaa_passes: str = "mark_edges",
