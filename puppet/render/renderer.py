@@ -2,13 +2,15 @@
 
 Per frame (draw):
 1. T (4m, 3) is copied into one uniform buffer of handle transforms (the only upload);
-2. skinning pass: a vertex shader blends each vertex's handles (M @ T) and skins its normal,
-   every vertex exactly once, into a transform-feedback buffer (also what skinned_positions()
-   reads back);
+2. skinning pass: a vertex shader blends each vertex's handles (M @ T), skins its normal and
+   (shading "vertex") lights it, every vertex exactly once, into a transform-feedback buffer
+   (also what skinned_positions() reads back);
 3. contact shadow: the shadow spheres move (Q @ T, k x 4m, tiny) and their ground occlusion is
    drawn into a small texture;
-4. the ground and the mesh (lit by key, fill, rim and a sky/ground ambient) are drawn into the
-   target framebuffer (multisampled with MSAA), then the optional skeleton overlay;
+4. the backdrop (background and unshadowed ground, drawn once per camera) is copied into the
+   target framebuffer (multisampled with MSAA: drawn there), then the mesh (lit by key, fill,
+   rim and a sky/ground ambient), the shadow square on the ground under the character, and the
+   optional skeleton overlay;
 5. MSAA resolve or FXAA filter, and read back as RGB into a preallocated array.
 The projection is flipped vertically so that the read-back rows are already in image order
 (top row first): no copy, no flip.
@@ -43,6 +45,8 @@ FXAA_REGIONS = ("character", "frame")
 #: How FXAA runs: "mark_edges" (edge pixels marked in the depth buffer, then the blur only
 #: there: on llvmpipe half the cost of one pass) or "one_pass" (every pixel tests and blurs).
 FXAA_PASSES = ("mark_edges", "one_pass")
+#: Backdrops (background and unshadowed ground) kept, one per camera: the loop's and a viewer's.
+BACKDROPS = 2
 #: Up to this many handles the weights go to the shader densely (13 vec4 attributes at most).
 DENSE_MAX_HANDLES = 52
 
@@ -311,18 +315,26 @@ class Renderer:
         self._occlusion_texture = ctx.texture((shadow_resolution, shadow_resolution), 1, dtype="f1")
         self._occlusion_texture.repeat_x = self._occlusion_texture.repeat_y = False
         self._occlusion_fbo = ctx.framebuffer(self._occlusion_texture)
+        # The ground without its shadow is the backdrop of every frame (drawn once per camera and
+        # copied in, when not multisampled); each frame draws only the shadow square over it.
         self._ground_prog = ctx.program(
             vertex_shader=shaders.source(shaders.GROUND_VERTEX),
-            fragment_shader=shaders.source(shaders.LIGHTING, shaders.GROUND_FRAGMENT),
+            fragment_shader=shaders.source(shaders.LIGHTING, shaders.GROUND_FRAGMENT, SHADOWED=0),
         )
         self._ground_vbo = ctx.buffer(self._ground_quad(axis_a, axis_b))
         self._ground_vao = ctx.vertex_array(self._ground_prog, [(self._ground_vbo, "3f", "in_position")])
-        for prog in (self._occlusion_prog, self._ground_prog):
+        self._shadow_prog = ctx.program(
+            vertex_shader=shaders.source(shaders.SHADOW_SQUARE_VERTEX),
+            fragment_shader=shaders.source(shaders.LIGHTING, shaders.GROUND_FRAGMENT, SHADOWED=1),
+        )
+        self._shadow_vao = ctx.vertex_array(self._shadow_prog, [(self._occlusion_quad, "2f", "in_corner")])
+        for prog in (self._occlusion_prog, self._ground_prog, self._shadow_prog):
             for name, value in ground_uniforms.items():
                 uniform = prog.get(name, None)
                 if uniform is not None:
                     uniform.value = value
-        self._ground_prog["u_visibility"].value = 1
+        self._shadow_prog["u_visibility"].value = 1
+        self._backdrops: dict[bytes, moderngl.Framebuffer] = {}  # camera key -> backdrop
 
         # Skeleton overlay (instance data grows on demand).
         self._bone_prog = ctx.program(
@@ -424,9 +436,10 @@ class Renderer:
             "u_sky": np.array([0.62, 0.68, 0.8]),
             "u_ground_bounce": np.array([0.32, 0.28, 0.25]),
         }
-        for prog in (self._mesh_prog, self._ground_prog):
+        for prog in (self._mesh_prog, self._ground_prog, self._shadow_prog):
             prog["u_view_proj"].write(self._view_proj_gl)
-        for prog in (self._lit_prog, self._ground_prog):
+        self._camera_key = self._view_proj_gl.tobytes()  # the backdrop drawn for this camera
+        for prog in (self._lit_prog, self._ground_prog, self._shadow_prog):
             for name, value in lights.items():
                 uniform = prog.get(name, None)  # None where the shader does not use it
                 if uniform is not None:
@@ -510,20 +523,22 @@ class Renderer:
             self._shadow_center += self._floor_offset
             self._occlusion_prog["u_spheres"].write(self._spheres)
             self._occlusion_prog["u_shadow_center"].write(self._shadow_center)
-            self._ground_prog["u_shadow_center"].write(self._shadow_center)
+            self._shadow_prog["u_shadow_center"].write(self._shadow_center)
             self._occlusion_fbo.use()
             self._occlusion_vao.render(moderngl.TRIANGLE_STRIP)
-        self._target.use()
-        self._target.clear(*self._background, 1.0)
+            self._lay_backdrop()
+        else:
+            self._target.use()
+            self._target.clear(*self._background, 1.0)
         ctx.enable(moderngl.DEPTH_TEST)
         ctx.front_face = "cw"  # the vertical flip in the projection mirrors the winding
         if self.cull_back_faces:
             ctx.enable(moderngl.CULL_FACE)
         self._mesh_vao.render(moderngl.TRIANGLES)
         ctx.disable(moderngl.CULL_FACE)
-        if self.ground:  # after the mesh: the early depth test skips the ground it hides
+        if self.ground:  # after the mesh: the early depth test skips the shadow it hides
             self._occlusion_texture.use(location=1)
-            self._ground_vao.render(moderngl.TRIANGLES)
+            self._shadow_vao.render(moderngl.TRIANGLE_STRIP)
         if bones is not None:
             ctx.disable(moderngl.DEPTH_TEST)
             self._draw_bones(bones, bone_states, blocks)
@@ -533,6 +548,30 @@ class Renderer:
             ctx.copy_framebuffer(self._resolved, self._target)
         elif self.fxaa:
             self._antialias_fxaa(bones is not None)
+
+    def _lay_backdrop(self) -> None:
+        """Bind the target with the background and the unshadowed ground in it, depth cleared:
+        a copy of this camera's backdrop (drawn on its first use; the last BACKDROPS cameras
+        are kept), or, multisampled, drawn in place."""
+        ctx = self.ctx
+        if self.samples:  # a single-sampled backdrop cannot be copied into a multisampled target
+            self._target.use()
+            self._target.clear(*self._background, 1.0)
+            self._ground_vao.render(moderngl.TRIANGLES)
+            return
+        backdrop = self._backdrops.get(self._camera_key)
+        if backdrop is None:
+            if len(self._backdrops) < BACKDROPS:
+                size = (self.width, self.height)
+                backdrop = ctx.framebuffer(ctx.renderbuffer(size, 4), ctx.depth_renderbuffer(size))
+            else:  # reuse the oldest camera's
+                backdrop = self._backdrops.pop(next(iter(self._backdrops)))
+            backdrop.use()
+            backdrop.clear(*self._background, 1.0)
+            self._ground_vao.render(moderngl.TRIANGLES)  # depth test off: depth stays cleared
+            self._backdrops[self._camera_key] = backdrop
+        ctx.copy_framebuffer(self._target, backdrop)
+        self._target.use()
 
     def _antialias_fxaa(self, with_bones: bool) -> None:
         """FXAA from the aliased texture into _resolved. With fxaa_region "character", only the
@@ -653,7 +692,8 @@ class Renderer:
         self._released = True
         objects = [
             self._skin_vao, self._skin_prog, self._skinned, self._mesh_vao, self._mesh_prog,
-            self._ground_vao, self._ground_prog, self._ground_vbo, self._bone_prog, self._bone_corners,
+            self._ground_vao, self._ground_prog, self._ground_vbo, self._shadow_vao, self._shadow_prog,
+            self._bone_prog, self._bone_corners,
             self._occlusion_vao, self._occlusion_prog, self._occlusion_quad, self._occlusion_fbo,
             self._occlusion_texture,
             self._vbo_rest, self._vbo_normal, self._ibo, self._weights, self._ubo, *self._weight_buffers,
@@ -663,6 +703,8 @@ class Renderer:
         if self._bone_vao is not None:
             objects += [self._bone_vao, self._bone_vbo]
         objects += self._fxaa_vaos + self._fxaa_progs
+        for backdrop in self._backdrops.values():
+            objects += list(backdrop.color_attachments) + [backdrop.depth_attachment, backdrop]
         for fbo in {id(self._target): self._target, id(self._resolved): self._resolved}.values():
             objects += list(fbo.color_attachments) + [fbo.depth_attachment, fbo]
         # Bind framebuffer 0 first: moderngl rebinds the current framebuffer after creating one, and

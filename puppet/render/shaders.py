@@ -239,12 +239,16 @@ void main() {
 }
 """
 
+# The ground disc, fading into the background, darkened by the occlusion texture (SHADOWED 1)
+# or without it (SHADOWED 0: the backdrop drawn once per camera).
 GROUND_FRAGMENT = """
+#if SHADOWED
 uniform sampler2D u_visibility;
 uniform vec3 u_shadow_center;
 uniform vec3 u_shadow_a;          // ground axes scaled by the shadow square's half size
 uniform vec3 u_shadow_b;
 uniform float u_shadow_half;      // half size of the shadow square (outside: no occlusion)
+#endif
 uniform vec3 u_center;            // middle of the ground disc
 uniform float u_extent;           // radius of the ground disc
 uniform vec3 u_ground_color;
@@ -253,13 +257,33 @@ in vec3 v_world;
 out vec4 f_color;
 void main() {
     vec3 rel = v_world - u_center;
+#if SHADOWED
     vec3 shadow_rel = v_world - u_shadow_center;
     vec2 uv = 0.5 + 0.5 * vec2(dot(shadow_rel, u_shadow_a), dot(shadow_rel, u_shadow_b))
                     / (u_shadow_half * u_shadow_half);
-    float occlusion = 1.0 - texture(u_visibility, uv).r;
+    // Faded out towards the square's border, where the shadow meets the backdrop's bare ground.
+    vec2 border = abs(2.0 * uv - 1.0);
+    float occlusion = (1.0 - texture(u_visibility, uv).r) * (1.0 - smoothstep(0.6, 1.0, max(border.x, border.y)));
+#else
+    float occlusion = 0.0;
+#endif
     vec3 lit = u_ground_color * mix(u_ground_bounce, u_sky, 0.85) * (1.0 - 0.85 * occlusion);
     float fade = 1.0 - smoothstep(0.45 * u_extent, u_extent, length(rel));
     f_color = vec4(mix(u_background, to_display(lit), fade), 1.0);
+}
+"""
+
+# The shadow square on the ground (where the occlusion texture lies), following the character.
+SHADOW_SQUARE_VERTEX = """
+uniform mat4 u_view_proj;
+uniform vec3 u_shadow_center;
+uniform vec3 u_shadow_a;
+uniform vec3 u_shadow_b;
+in vec2 in_corner;                // -1..1
+out vec3 v_world;
+void main() {
+    v_world = u_shadow_center + in_corner.x * u_shadow_a + in_corner.y * u_shadow_b;
+    gl_Position = u_view_proj * vec4(v_world, 1.0);
 }
 """
 
