@@ -14,8 +14,9 @@ its own process. Two cases, run in turns (a shared machine's load falls on both 
     python bench/e2e.py --compare --rounds 3      # each case also with the baseline settings
 
 ``--compare`` runs every case again with the settings before the issue-15 work (BASELINE:
-FXAA in one pass over the whole frame, the video encoder fed on the loop's thread with
-libx264's default preset, no late latching), interleaved with the current ones, and reports
+FXAA in one pass over the whole frame, the character lit per pixel, the contact shadow at
+128x128, the video encoder fed on the loop's thread with libx264's default preset, no late
+latching and so no reading requested ahead; the ground's backdrop has no switch), interleaved with the current ones, and reports
 current / baseline ratios. (Dense skinning stays: the sparse "pairs" layout measured 2x slower
 on llvmpipe, see puppet/render/renderer.py.) ``first_frame_s`` here runs from the call of run_demo (setup: rig, hw_sim,
 reader, pipeline) to the first frame; ``puppet demo --json`` reports it from the command's start.
@@ -49,8 +50,9 @@ from puppet.render.sinks import DEFAULT_PRESET  # noqa: E402
 #: Case name -> (video, antialias, overlay).
 CASES = {"plain": (False, "auto", False), "video-fxaa": (True, "fxaa", True)}
 #: Settings of run_demo / VideoSink before the issue-15 work, for --compare.
-BASELINE = {"render": {"weight_layout": "dense", "fxaa_region": "frame", "fxaa_passes": "one_pass"}, "encoder": "inline", "preset": None,
-            "latch_fps": None}
+BASELINE = {"render": {"weight_layout": "dense", "fxaa_region": "frame", "fxaa_passes": "one_pass",
+                       "shading": "pixel", "shadow_resolution": 128},
+            "encoder": "inline", "preset": None, "latch_fps": None}
 CURRENT = {"render": {}, "encoder": "thread", "preset": DEFAULT_PRESET, "latch_fps": 60.0}
 
 
