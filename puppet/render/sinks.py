@@ -6,6 +6,7 @@ and close on `with` exit.
 """
 
 import queue
+import shutil
 import subprocess
 import tempfile
 import threading
@@ -77,6 +78,8 @@ class PngSink:
 #: for the same size (bench/e2e.py), which a live loop on two cores needs.
 DEFAULT_PRESET = "veryfast"
 ENCODER_MODES = ("thread", "inline")
+#: ffmpeg runs at this niceness (through `nice`): the live loop's frames come first.
+ENCODER_NICE = 10
 
 
 class VideoSink:
@@ -89,7 +92,9 @@ class VideoSink:
     preallocated buffers and a thread of its own feeds ffmpeg's pipe, so a full pipe never stalls
     the caller (until every buffer waits: 8 frames, a quarter second at 30 fps, absorb an
     encoder's hiccup; an encoder slower than the frames on average slows the caller down, no
-    frame is dropped); 'inline': write() feeds the pipe itself.
+    frame is dropped); 'inline': write() feeds the pipe itself. nice: the encoder's niceness
+    (0: as this process): on a machine whose cores the live loop needs, ffmpeg yields to it
+    and catches up from its queue.
 
     The video is written to a temporary file next to ``path`` and renamed to ``path`` when
     ffmpeg has finished it (``close``): a failed encoder (killed, disk full) never leaves a
@@ -98,7 +103,7 @@ class VideoSink:
 
     def __init__(self, path, fps: float = 30.0, *, size: tuple[int, int] | None = None, quality: float = 7.0,
                  codec: str = "libx264", preset: str | None = DEFAULT_PRESET, encoder: str = "thread",
-                 queue_frames: int = 8):
+                 queue_frames: int = 8, nice: int = ENCODER_NICE):
         self.path = Path(path)
         if not fps > 0:
             raise SinkError(f"{self.path}: fps must be positive, got {fps}")
@@ -111,6 +116,7 @@ class VideoSink:
         self.codec = codec
         self.preset = "medium" if preset in (None, "default") else preset
         self.encoder = encoder
+        self.nice = int(nice)
         self.count = 0
         self._queue_frames = max(1, int(queue_frames))
         self._temporary = temporary_sibling(self.path)
@@ -127,7 +133,8 @@ class VideoSink:
     def _command(self, size: tuple[int, int]) -> list[str]:
         crf = int((1 - self.quality / 10.0) * 51)
         quality = ["-crf", str(crf), "-preset", self.preset] if self.codec == "libx264" else []
-        return [imageio_ffmpeg.get_ffmpeg_exe(), "-y", "-f", "rawvideo", "-pix_fmt", "rgb24",
+        nice = ["nice", "-n", str(self.nice)] if self.nice and shutil.which("nice") else []
+        return [*nice, imageio_ffmpeg.get_ffmpeg_exe(), "-y", "-f", "rawvideo", "-pix_fmt", "rgb24",
                 "-s", f"{size[0]}x{size[1]}", "-r", str(Fraction(self.fps).limit_denominator()),
                 "-i", "-", "-an", "-vcodec", self.codec, "-pix_fmt", "yuv420p", *quality,
                 "-v", "error", str(self._temporary)]

@@ -101,3 +101,18 @@ def test_both_encoder_modes_write_the_same_frames(tmp_path, encoder):
     assert len(decoded) == 5
     for original, back in zip(frames, decoded):
         assert np.abs(original.astype(float) - back.astype(float)).mean() < 6.0
+
+
+def test_the_encoder_yields_the_cpu_to_the_loop(tmp_path, wait_until):
+    """ffmpeg runs niced (the live loop's frames come first), or as this process with nice=0."""
+    import os
+
+    own = os.getpriority(os.PRIO_PROCESS, 0)
+    for nice, expected in ((10, min(19, own + 10)), (0, own)):
+        with VideoSink(tmp_path / f"nice{nice}.mp4", fps=24, size=(32, 32), nice=nice) as video:
+            video.write(np.zeros((32, 32, 3), np.uint8))
+            pid = video._process.pid  # `nice` sets its niceness, then becomes ffmpeg
+            wait_until(lambda: os.getpriority(os.PRIO_PROCESS, pid) == expected
+                       and "ffmpeg" in open(f"/proc/{pid}/cmdline").read().split("\0")[0],
+                       what=f"ffmpeg at niceness {expected}")
+        assert (tmp_path / f"nice{nice}.mp4").exists()
