@@ -551,25 +551,25 @@ class Renderer:
 
     def _lay_backdrop(self) -> None:
         """Bind the target with the background and the unshadowed ground in it, depth cleared:
-        a copy of this camera's backdrop (drawn on its first use; the last BACKDROPS cameras
-        are kept), or, multisampled, drawn in place."""
+        a copy of this camera's backdrop (drawn on its first use; the BACKDROPS cameras used
+        last are kept: the loop's stays while a viewer orbits), or, multisampled, drawn in place."""
         ctx = self.ctx
         if self.samples:  # a single-sampled backdrop cannot be copied into a multisampled target
             self._target.use()
             self._target.clear(*self._background, 1.0)
             self._ground_vao.render(moderngl.TRIANGLES)
             return
-        backdrop = self._backdrops.get(self._camera_key)
+        backdrop = self._backdrops.pop(self._camera_key, None)  # put back last: the newest used
         if backdrop is None:
             if len(self._backdrops) < BACKDROPS:
                 size = (self.width, self.height)
                 backdrop = ctx.framebuffer(ctx.renderbuffer(size, 4), ctx.depth_renderbuffer(size))
-            else:  # reuse the oldest camera's
+            else:  # reuse the least recently used camera's
                 backdrop = self._backdrops.pop(next(iter(self._backdrops)))
             backdrop.use()
             backdrop.clear(*self._background, 1.0)
             self._ground_vao.render(moderngl.TRIANGLES)  # depth test off: depth stays cleared
-            self._backdrops[self._camera_key] = backdrop
+        self._backdrops[self._camera_key] = backdrop
         ctx.copy_framebuffer(self._target, backdrop)
         self._target.use()
 

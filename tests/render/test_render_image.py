@@ -263,3 +263,21 @@ def test_vertex_lighting_of_open_surfaces_is_refused(gl_context, bar):
         Renderer(V, F, W, context=gl_context, shading="vertex", cull_back_faces=False)
     with pytest.raises(RenderInputError, match="shading: expected one of"):
         Renderer(V, F, W, context=gl_context, shading="gouraud")
+
+
+def test_each_camera_gets_its_own_backdrop_and_shadow(gl_context, bar, helpers):
+    """The ground without its shadow is drawn once per camera and copied into each frame; a
+    frame after camera switches (more cameras than backdrops kept) equals a fresh renderer's."""
+    V, F, W = bar
+    T = helpers.handle_T([helpers.IDENTITY, helpers.IDENTITY])
+    cameras = [front_camera(), Camera(eye=[4.0, 3.0, 5.0], target=[1.0, 0.0, 0.0]),
+               Camera(eye=[-3.0, 2.0, 4.0], target=[1.0, 0.0, 0.0])]
+    fresh = []
+    for camera in cameras:
+        with Renderer(V, F, W, width=160, height=120, samples=0, camera=camera, context=gl_context) as r:
+            fresh.append(r.draw(T).copy())
+    with Renderer(V, F, W, width=160, height=120, samples=0, camera=cameras[0], context=gl_context) as r:
+        for k in (0, 1, 0, 2, 1, 0, 2):
+            r.camera = cameras[k]
+            np.testing.assert_array_equal(r.draw(T), fresh[k], err_msg=f"camera {k}")
+        assert len(r._backdrops) == 2
