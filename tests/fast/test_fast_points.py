@@ -145,3 +145,32 @@ def test_a_bad_handle_leaves_the_pipeline_as_it_was():
         with pytest.raises(PatternError, match=r"handles: 'tail' is neither a vertex index nor a surface point"):
             pipeline.set_handles([(corners, bary), "tail"])
         assert pipeline.pattern is pattern and pipeline.solver is solver and pipeline.handle_targets is targets
+
+
+def test_handles_keep_the_rigs_contacts(tmp_path):
+    # A rig with a contact (the tail tip's height) and no live solve: adding a point handle keeps
+    # the contact in the pattern and both hold.
+    text = BUILTIN_RIG.read_text().replace('mesh = "critter.npz"', f'mesh = "{BUILTIN_RIG.parent / "critter.npz"}"')
+    text = text[: text.index("[[pin]]")]
+    tip = 12279
+    path = tmp_path / "critter.toml"
+    path.write_text(text + f'\n[[contact]]\nvertex = {tip}\naxes = "y"\nvalue = 0.02\n')
+    rig = load_rig(path)
+    ear = rig.skeleton.names.index("ear_L")
+    vertex = int(np.argmax(rig.W[:, ear] * rig.V[:, 1]))
+    F = np.asarray(rig.F, np.int64)
+    corners = tuple(int(v) for v in F[np.flatnonzero((F == vertex).any(axis=1))[0]])
+    bary = (0.3, 0.3, 0.4)
+    diag = float(np.linalg.norm(rig.V.max(0) - rig.V.min(0)))
+    reads = performance(rig, 40)
+    with Pipeline(rig, render=False) as pipeline:
+        assert pipeline.live is None
+        pipeline.set_handles([(corners, bary)])
+        assert pipeline.pattern.contacts == ((tip, "y"),)
+        target = pipeline.handle_targets[0] + np.float32(0.1 * diag)
+        pipeline.handle_targets[0] = target
+        for reading in reads:
+            pipeline.solve(reading)
+        deformed = pipeline.deformed()
+        assert np.linalg.norm(np.array(bary) @ deformed[list(corners)] - target) < 1e-4 * diag
+        assert abs(deformed[tip, 1] - 0.02) < 1e-4 * diag
