@@ -7,6 +7,7 @@ acknowledgement of the frame that shows it, on the server's clock. Cases: no vie
 baseline: the loop renders nothing for the view), 1 viewer, 3 viewers.
 
     python bench/view.py --seconds 10 --json view.json
+    python bench/view.py --refactor-only          # only the pattern switch of a handle add
 
 JSON: {"cases": [{"viewers", "page_fps", "loop_fps", "latency_median_ms", "latency_p99_ms",
        "bytes_per_frame", "loop_fps_vs_no_viewer", ...}], ...}.
@@ -116,8 +117,11 @@ def run_case(viewers: int, seconds: float, warmup: float, size) -> dict:
 
 
 def refactor_times(repeats: int = 15) -> dict:
-    """Median ms of Pipeline.set_handles (a pattern switch: refactor) with 1, 2 and 3 handles on
-    the critter's tail, ears and chest, and of a per-frame solve with them (rhs only)."""
+    """Median ms of Pipeline.set_handles (a pattern switch: refactor) with 1, 2 and 3 point
+    handles on the critter's tail, ears and chest (exact surface points: a triangle and
+    barycentric weights, as the view holds them), and of a per-frame solve with them (rhs only).
+    The same handles pinned at a vertex of their triangle (the old way) are timed alternately
+    in the same run: ``point_vs_vertex`` is the ratio of the two refactor medians."""
     from puppet.bus import Reading
     from puppet.pipeline import Pipeline
     from puppet.rig import builtin
@@ -126,18 +130,27 @@ def refactor_times(repeats: int = 15) -> dict:
     names = ("tail3", "ear_L", "chest")
     bones = [rig.skeleton.names.index(n) for n in names]
     vertices = [int(np.argmax(rig.W[:, b])) for b in bones]
+    F = np.asarray(rig.F, np.int64)
+    points = [(tuple(int(v) for v in F[np.flatnonzero((F == vertex).any(axis=1))[0]]), (0.5, 0.3, 0.2))
+              for vertex in vertices]
     ids = rig.servo_map.ids
     reading = Reading(0, ids, np.round(rig.servo_map.zero).astype(np.int32), np.ones(len(ids), bool))
     out = {}
     with Pipeline(rig, render=False) as pipeline:
         for count in (1, 2, 3):
-            times = [pipeline.set_handles(vertices[:count]) * 1e3 for _ in range(repeats)]
+            times, vertex_times = [], []
+            for _ in range(repeats):
+                vertex_times.append(pipeline.set_handles(vertices[:count]) * 1e3)
+                times.append(pipeline.set_handles(points[:count]) * 1e3)
             solve = []
             for _ in range(repeats):
                 start = time.perf_counter()
                 pipeline.solve(reading)
                 solve.append((time.perf_counter() - start) * 1e3)
-            out[f"handles_{count}"] = {"refactor_ms": round(float(np.median(times)), 3),
+            refactor, vertex = float(np.median(times)), float(np.median(vertex_times))
+            out[f"handles_{count}"] = {"refactor_ms": round(refactor, 3),
+                                       "vertex_refactor_ms": round(vertex, 3),
+                                       "point_vs_vertex": round(refactor / vertex, 3),
                                        "solve_ms": round(float(np.median(solve)), 3)}
         out["m"] = pipeline.model.m
     return out
@@ -150,13 +163,21 @@ def main() -> None:
     parser.add_argument("--size", type=int, nargs=2, default=(640, 480))
     parser.add_argument("--viewers", type=int, nargs="+", default=[0, 1, 3])
     parser.add_argument("--json", default=None, help="write the result here")
+    parser.add_argument("--refactor-only", action="store_true",
+                        help="time only the pattern switch of a handle add (no browser)")
     args = parser.parse_args()
 
     refactor = refactor_times()
     print("pattern switch (refactor) with point handles, m =", refactor["m"])
     for count in (1, 2, 3):
         r = refactor[f"handles_{count}"]
-        print(f"  {count} handle(s): refactor {r['refactor_ms']} ms, then solve {r['solve_ms']} ms per frame")
+        print(f"  {count} handle(s): refactor {r['refactor_ms']} ms (at a vertex: {r['vertex_refactor_ms']} ms, "
+              f"ratio {r['point_vs_vertex']}), then solve {r['solve_ms']} ms per frame")
+    if args.refactor_only:
+        if args.json:
+            with open(args.json, "w") as f:
+                json.dump({"refactor": refactor, "machine": "shared; figures are noisy"}, f, indent=2)
+        return
     cases = [run_case(n, args.seconds, args.warmup, args.size) for n in args.viewers]
     base = next((c["loop_fps"] for c in cases if c["viewers"] == 0), None)
     for case in cases:

@@ -25,7 +25,8 @@ from puppet.bus import Reading
 from puppet.fast import FastModel, Pattern
 from puppet.fast.errors import PatternError
 from puppet.fast.live_solve import LiveSolve
-from puppet.fast.factor import Factor
+from puppet.fast.factor import Factor, positional_rows
+from puppet.fast.pattern import positional_entry
 from puppet.rig import Rig
 
 BONE_KIND_STATES = {"full": "sensed", "relative": "relative", "free": "free"}
@@ -183,33 +184,41 @@ class Pipeline:
             self.bone_states[:] = self._base_states
         return self.T
 
-    def set_handles(self, vertices) -> float:
-        """Pin these vertices (the live view's dragged point handles) on top of the rig's own
+    def set_handles(self, points) -> float:
+        """Hold these points (the live view's dragged point handles) on top of the rig's own
         constraints: a new pattern, so the solver is refactored. Returns the refactor seconds.
 
-        vertices: vertex indices (no repeats, none of the rig's pins). Their targets are the rows
-        of ``self.handle_targets`` ((h, 3) float32, model units), kept across solves until the
-        next call; set them before each solve. A PatternError (e.g. a vertex held only by sensed
-        bones: redundant) leaves the current pattern in place.
+        points: ``Pattern.positional`` entries, each a surface point ((v0, v1, v2), (b0, b1, b2))
+        (a triangle's corners and barycentric weights) or a vertex index; no repeats, none of the
+        rig's pins. Their targets are the rows of ``self.handle_targets`` ((h, 3) float32, model
+        units), which start where the points are in the current T (nothing jumps) and are kept
+        across solves until the next call; set them before each solve. A PatternError (e.g. a
+        point held only by sensed bones: redundant; a malformed point) leaves the current
+        pattern in place.
         """
         if self.live is not None:  # the live solve's patterns all gain the handles
             start = time.perf_counter()
-            self.live.set_handles(vertices, self.T)
+            self.live.set_handles(points, self.T)
             self.handle_targets = self.live.handle_targets
             return time.perf_counter() - start
         rig_pattern = self._rig_pattern
+        handles = tuple(positional_entry(p, "handles") for p in points)
         pattern = Pattern(full=rig_pattern.full, relative=rig_pattern.relative,
-                          positional=rig_pattern.positional + tuple(int(v) for v in vertices))
+                          positional=rig_pattern.positional + handles,
+                          contacts=rig_pattern.contacts, limits=rig_pattern.limits)
         start = time.perf_counter()
         solver = self.model.solver(pattern)
         seconds = time.perf_counter() - start
         values = pattern.values()
         values.full[:] = self.values.full
         values.relative[:] = self.values.relative
-        kept = min(len(self.values.positional), len(values.positional))
-        values.positional[:kept] = self.values.positional[:kept]
+        values.contact[:] = self.values.contact
+        pins = len(rig_pattern.positional)
+        values.positional[:pins] = self.values.positional[:pins]
+        model = self.model
+        values.positional[pins:] = positional_rows(handles, model.V, model.weights64) @ self.T.astype(np.float64)
         self.pattern, self.solver, self.values = pattern, solver, values
-        self.handle_targets = values.positional[len(rig_pattern.positional):]
+        self.handle_targets = values.positional[pins:]
         return seconds
 
     def _mark_faulted(self, ok: np.ndarray) -> None:

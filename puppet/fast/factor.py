@@ -1,7 +1,7 @@
 """Per-pattern factorisation of the FAST global step (the "refactor" cost).
 
 Fixed rows A0 T = b (c0 x 4m, the same for x, y, z): 4 unit rows per full handle, the row
-M_v per positional vertex, and the pivot row [p 1](T_child - T_parent) = 0 per relative joint.
+M_v per positional vertex (sum_k b_k M_{v_k} per positional surface point), and the pivot row [p 1](T_child - T_parent) = 0 per relative joint.
 With N a basis of null(A0) and H = N (N^T Q N)^{-1} N^T, the minimiser of
 tr(T^T Q T) - 2 tr(T^T K Rt) subject to A0 T = b is
     T = H K Rt + (I - H Q) A0^+ b = G Rt + P2 b.
@@ -18,7 +18,7 @@ import numpy as np
 import scipy.linalg
 
 from puppet.fast.errors import PatternError
-from puppet.fast.pattern import Pattern
+from puppet.fast.pattern import Pattern, positional_corners
 
 CONDITION_LIMIT = 1e8
 """Largest accepted condition number of the reduced Hessian N^T Q N (and of the relative Schur).
@@ -42,13 +42,23 @@ def constraint_rows(pattern: Pattern, V: np.ndarray, weights: np.ndarray) -> np.
     A = np.zeros((4 * kf + kp + kr, 4 * m))
     for q, j in enumerate(pattern.full):
         A[4 * q : 4 * q + 4, 4 * j : 4 * j + 4] = np.eye(4)
-    for q, v in enumerate(pattern.positional):
-        A[4 * kf + q] = (weights[v][:, None] * np.append(V[v], 1.0)[None, :]).ravel()
+    A[4 * kf : 4 * kf + kp] = positional_rows(pattern.positional, V, weights)
     for q, (c, p, pivot) in enumerate(pattern.relative):
         ph = np.append(np.asarray(pivot, np.float64), 1.0)
         A[4 * kf + kp + q, 4 * c : 4 * c + 4] += ph
         A[4 * kf + kp + q, 4 * p : 4 * p + 4] -= ph
     return A
+
+
+def positional_rows(entries, V: np.ndarray, weights: np.ndarray) -> np.ndarray:
+    """(k, 4m) float64: the LBS row of each ``Pattern.positional`` entry, row @ T being its deformed
+    position: M_v = weights[v] (x) [V_v 1] (entry 4j + i: weights[v, j] [V_v 1]_i) for a vertex v,
+    sum_c b_c M_{v_c} for a surface point ((v0, v1, v2), (b0, b1, b2)).
+    V: (n, 3) rest positions; weights: (n, m) float64."""
+    corners, bary = positional_corners(entries)
+    Vh = np.concatenate([V[corners], np.ones(corners.shape + (1,))], axis=2)  # (k, 3, 4)
+    rows = np.einsum("kc,kcj,kci->kji", bary, weights[corners], Vh)
+    return rows.reshape(len(corners), 4 * weights.shape[1])
 
 
 def contact_rows(pattern: Pattern, V: np.ndarray, weights: np.ndarray) -> np.ndarray:

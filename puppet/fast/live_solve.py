@@ -16,10 +16,11 @@ Dynamics: with ``[solver.dynamics]`` every solver is built with inertia and grav
 fixed step dt, and a frame takes round(elapsed / dt) steps (1..max_steps), elapsed being the
 difference of the readings' timestamps: the same readings (a take) give the same vertices.
 
-Point handles (the live view's dragged vertices): ``set_handles(vertices, T)`` adds them as
+Point handles (the live view's dragged surface points): ``set_handles(points, T)`` adds them as
 positional constraints to every pattern (a switch, blended like the others; each set of handles
 has its own pattern cache), their targets are ``handle_targets`` ((h, 3) float32, set before
-each solve).
+each solve). A point is a ``Pattern.positional`` entry: a vertex index or a surface point
+((v0, v1, v2), (b0, b1, b2)).
 """
 
 from __future__ import annotations
@@ -29,7 +30,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from puppet.fast.pattern import Pattern, Values, full_and_relative
+from puppet.fast.factor import positional_rows
+from puppet.fast.pattern import Pattern, Values, full_and_relative, positional_entry
 from puppet.fast.solver import Dynamics, Solver
 
 
@@ -51,7 +53,7 @@ class _PatternState:
     and warm-start T."""
 
     def __init__(self, rig, model, free: frozenset, dynamics: Dynamics | None,
-                 handles: tuple[int, ...] = ()):
+                 handles: tuple = ()):
         sk = rig.skeleton
         sensed = rig.sensed.copy()
         sensed[list(free)] = False
@@ -101,7 +103,8 @@ class LiveSolve:
                      handles (first use only).
         states:      {frozenset of free bones: pattern} factored with the current handles.
         factor_ms:   {frozenset of free bones: ms} time to factor each of those (the refactor).
-        handles:     vertex indices held by point handles; handle_targets: (h, 3) float32.
+        handles:     the points held by point handles (``Pattern.positional`` entries: vertex
+                     indices or surface points); handle_targets: (h, 3) float32, model units.
     """
 
     def __init__(self, rig, model):
@@ -126,9 +129,9 @@ class LiveSolve:
         self._rot = np.empty((b, 3, 3))
         self._pose = np.empty((b, 3, 4))
         self._blend = model.rest_T()
-        self.handles: tuple[int, ...] = ()
+        self.handles: tuple = ()
         self.handle_targets = np.zeros((0, 3), np.float32)
-        self._caches: dict[tuple[int, ...], tuple[dict, dict]] = {(): ({}, {})}
+        self._caches: dict[tuple, tuple[dict, dict]] = {(): ({}, {})}
         self.states, self.factor_ms = self._caches[()]
         self.current = self._state(NOTHING_FREE)
         self.solver = self.current.solver
@@ -144,7 +147,7 @@ class LiveSolve:
         extras = getattr(rig, "extras", None)
         return extras is not None and (extras.frees_on_dropout or extras.dynamics is not None)
 
-    def _state(self, free: frozenset, handles: tuple[int, ...] | None = None) -> _PatternState:
+    def _state(self, free: frozenset, handles: tuple | None = None) -> _PatternState:
         """The pattern with bones ``free`` made free and ``handles`` (default: the current ones),
         factored on first use (PatternError if the solve would be undetermined or redundant)."""
         handles = self.handles if handles is None else handles
@@ -157,17 +160,17 @@ class LiveSolve:
             self._caches[handles] = (states, factor_ms)
         return state
 
-    def set_handles(self, vertices, T: np.ndarray) -> None:
-        """Hold these vertices (no repeats, none of the rig's pins) at ``handle_targets``, which
-        start where the vertices are in ``T`` (4m, 3); a switch blended from what is shown. A
-        PatternError (e.g. a vertex held only by sensed bones) leaves everything as it was."""
-        handles = tuple(int(v) for v in vertices)
+    def set_handles(self, points, T: np.ndarray) -> None:
+        """Hold these points (``Pattern.positional`` entries: vertex indices or surface points
+        ((v0, v1, v2), (b0, b1, b2)); no repeats, none of the rig's pins) at ``handle_targets``,
+        which start where the points are in ``T`` (4m, 3); a switch blended from what is shown. A
+        PatternError (e.g. a point held only by sensed bones, a malformed point) leaves
+        everything as it was."""
+        handles = tuple(positional_entry(p, "handles") for p in points)
         new = self._state(self.free_bones, handles)  # factored here: may raise
         model = self.model
-        rows = np.hstack([model.V[list(handles)], np.ones((len(handles), 1))])
-        blocks = np.asarray(T, np.float64).reshape(model.m, 4, 3)
-        self.handle_targets = np.einsum("ij,ic,jcd->id", model.weights64[list(handles)], rows,
-                                        blocks).astype(np.float32).reshape(-1, 3)
+        rows = positional_rows(handles, model.V, model.weights64)
+        self.handle_targets = (rows @ np.asarray(T, np.float64)).astype(np.float32).reshape(-1, 3)
         self.handles = handles
         self.states, self.factor_ms = self._caches[handles]
         self._switch_to(new, self.free_bones, T)

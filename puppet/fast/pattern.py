@@ -16,6 +16,52 @@ import numpy as np
 
 from puppet.fast.errors import PatternError
 
+POINT_SUM_TOLERANCE = 1e-6
+"""How far a surface point's barycentric weights may sum from 1."""
+
+
+def positional_entry(entry, where: str = "pattern.positional"):
+    """One ``Pattern.positional`` entry in its hashable form: a vertex index as ``int``, a surface
+    point as ``((v0, v1, v2), (b0, b1, b2))`` of ints and floats (numpy scalars and arrays are
+    turned into these). A shape that is neither raises PatternError naming ``where``; ranges and
+    weights are checked by :meth:`Pattern.validate`."""
+    if isinstance(entry, (int, np.integer)) and not isinstance(entry, bool):
+        return int(entry)
+    try:
+        corners, bary = entry
+        corners, bary = np.asarray(corners), np.asarray(bary, np.float64)
+    except (TypeError, ValueError):
+        corners = bary = None
+    if corners is None or corners.shape != (3,) or corners.dtype.kind not in "iu" or bary.shape != (3,):
+        raise PatternError(f"{where}: {entry!r} is neither a vertex index nor a surface point "
+                           "((v0, v1, v2), (b0, b1, b2))")
+    return tuple(int(v) for v in corners), tuple(float(b) for b in bary)
+
+
+def positional_corners(entries) -> tuple[np.ndarray, np.ndarray]:
+    """(corners (k, 3) int64, bary (k, 3) float64) of positional entries: a surface point's
+    triangle corners and barycentric weights; a vertex v is the point ((v, v, v), (1, 0, 0)).
+    The entry's deformed position is ``sum_c bary[c] V'[corners[c]]``."""
+    k = len(entries)
+    corners = np.zeros((k, 3), np.int64)
+    bary = np.zeros((k, 3), np.float64)
+    for q, entry in enumerate(entries):
+        if isinstance(entry, (int, np.integer)):
+            corners[q] = int(entry)
+            bary[q, 0] = 1.0
+        else:
+            corners[q], bary[q] = entry
+    return corners, bary
+
+
+def _point_key(corners, bary) -> tuple:
+    """The point an entry names, whatever the corners' order: its (vertex, weight) pairs with
+    repeated corners merged and zero weights dropped (a vertex v is ((v, 1.0),))."""
+    weights: dict[int, float] = {}
+    for v, b in zip(corners, bary):
+        weights[v] = weights.get(v, 0.0) + b
+    return tuple(sorted((v, round(b, 9)) for v, b in weights.items() if round(b, 9) != 0.0))
+
 
 def full_and_relative(parents: np.ndarray, sensed: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Split the sensed handles of a skeleton into full and relative ones.
@@ -40,7 +86,10 @@ class Pattern:
     relative:   (child, parent, pivot) triples: child's linear part = parent's linear part
                 times a per-frame rotation R, and both handles map the rest point ``pivot``
                 ((3,) model units) to the same place.
-    positional: vertex indices whose deformed position is given each frame.
+    positional: points whose deformed position is given each frame, each a vertex index (int)
+                or a surface point ((v0, v1, v2), (b0, b1, b2)): the barycentric combination
+                sum_k b_k V'[v_k] of a triangle's corners (weights finite, summing to 1; see
+                :func:`positional_entry`, :func:`positional_corners`).
     contacts:   (vertex, axes) pairs: the vertex's deformed position is given in the named axes
                 only (axes a non-empty string of distinct 'x', 'y', 'z', e.g. "y": a foot at a
                 floor height, free to slide in x and z). Each column then gets its own solve.
@@ -53,14 +102,15 @@ class Pattern:
 
     full: tuple[int, ...] = ()
     relative: tuple[tuple[int, int, tuple[float, float, float]], ...] = ()
-    positional: tuple[int, ...] = field(default=())
+    positional: tuple[int | tuple[tuple[int, int, int], tuple[float, float, float]], ...] = field(default=())
     contacts: tuple[tuple[int, str], ...] = ()
     limits: tuple[tuple[int, int, tuple[float, float, float], float, float, float], ...] = ()
 
     def validate(self, m: int, n: int) -> None:
         """Raise PatternError unless the pattern fits m handles and n vertices and is consistent:
         indices in range, no handle both full and a relative child, no child constrained twice,
-        no handle its own parent, finite pivots, no vertex pinned twice."""
+        no handle its own parent, finite pivots, no vertex or point pinned twice, points' corners
+        in range and their weights finite and summing to 1."""
         def handle(j, what):
             if not isinstance(j, (int, np.integer)) or not 0 <= int(j) < m:
                 raise PatternError(f"pattern.{what}: handle {j!r} is not in 0..{m - 1}")
@@ -85,13 +135,28 @@ class Pattern:
             children.append(c)
         if len(set(children)) != len(children):
             raise PatternError("pattern.relative: a child handle appears in two relative constraints")
-        pos = []
-        for v in self.positional:
-            if not isinstance(v, (int, np.integer)) or not 0 <= int(v) < n:
-                raise PatternError(f"pattern.positional: vertex {v!r} is not in 0..{n - 1}")
-            pos.append(int(v))
-        if len(set(pos)) != len(pos):
-            raise PatternError("pattern.positional: a vertex is pinned twice")
+        pinned: dict[tuple, int] = {}
+        for q, entry in enumerate(self.positional):
+            if isinstance(entry, (int, np.integer)) and not isinstance(entry, bool):
+                if not 0 <= int(entry) < n:
+                    raise PatternError(f"pattern.positional[{q}]: vertex {entry!r} is not in 0..{n - 1}")
+                key = ((int(entry), 1.0),)
+            else:
+                corners, bary = positional_entry(entry, f"pattern.positional[{q}]")
+                what = f"pattern.positional[{q}] (point {corners}, {bary})"
+                bad = [v for v in corners if not 0 <= v < n]
+                if bad:
+                    raise PatternError(f"{what}: corner vertex {bad[0]} is not in 0..{n - 1}")
+                if not np.isfinite(bary).all():
+                    raise PatternError(f"{what}: barycentric weights must be finite")
+                if abs(sum(bary) - 1.0) > POINT_SUM_TOLERANCE:
+                    raise PatternError(f"{what}: barycentric weights sum to {sum(bary)!r}, not 1 "
+                                       f"(within {POINT_SUM_TOLERANCE:g})")
+                key = _point_key(corners, bary)
+            if key in pinned:
+                raise PatternError(f"pattern.positional[{q}]: {entry!r} is pinned twice "
+                                   f"(also pattern.positional[{pinned[key]}])")
+            pinned[key] = q
         seen = set()
         for q, item in enumerate(self.contacts):
             if len(item) != 2:
@@ -149,7 +214,8 @@ class Values:
     full:       (len(pattern.full), 4, 3) float32: the target T_j block (transform transposed).
     relative:   (len(pattern.relative), 3, 3) float32: the rotation R of each relative joint
                 (child linear part = parent linear part @ R).
-    positional: (len(pattern.positional), 3) float32: target positions, model units.
+    positional: (len(pattern.positional), 3) float32: target positions of the pattern's vertices
+                and surface points, model units.
     contact:    (len(pattern.contacts), 3) float32: target coordinates, model units; only the
                 contact's axes are read.
     """

@@ -1,9 +1,10 @@
 """Point handles: surface points picked on a frame and dragged; the geometry of a drag.
 
-A handle is stored as (triangle, barycentric) so it follows the deformation; the solver pins the
-triangle's corner nearest to the picked point (its vertex), offset so that the picked point
-itself goes where the cursor puts it. Positions are model units; image positions are continuous
-coordinates of the view's frames: x right, y down, pixel (i, j) covers [i, i+1) x [j, j+1).
+A handle is stored as (triangle, barycentric) so it follows the deformation, and the solver holds
+exactly that surface point (a ``Pattern.positional`` point: sum_k b_k V'[v_k] over the
+triangle's corners) where the cursor puts it. Positions are model units; image positions are
+continuous coordinates of the view's frames: x right, y down, pixel (i, j) covers
+[i, i+1) x [j, j+1).
 """
 
 from __future__ import annotations
@@ -12,22 +13,39 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from puppet.view.errors import ViewError
+
+
+def surface_bary(bary) -> tuple[float, float, float]:
+    """Barycentric weights (3,) as read from a pick (float32, may stray a rounding outside the
+    triangle) made exact: clipped to >= 0 and divided by their sum (float64)."""
+    b = np.clip(np.asarray(bary, np.float64).reshape(3), 0.0, None)
+    total = b.sum()
+    if not np.isfinite(total) or total <= 0.0:
+        raise ViewError(f"pick: barycentric weights {bary!r} have no positive part")
+    b = b / total
+    return float(b[0]), float(b[1]), float(b[2])
+
 
 @dataclass
 class Handle:
-    """id: the view's handle number. triangle, bary: the picked surface point.
-    vertex: the pinned vertex. offset: (3,) vertex minus picked point when picked.
-    target: (3,) where the picked point is held (model units)."""
+    """id: the view's handle number. triangle, bary: the picked surface point (bary (3,) float64,
+    summing to 1); corners: the triangle's vertex indices. target: (3,) where that point is held
+    (model units)."""
 
     id: int
     triangle: int
-    bary: np.ndarray
-    vertex: int
-    offset: np.ndarray
+    bary: tuple[float, float, float]
+    corners: tuple[int, int, int]
     target: np.ndarray
 
+    @property
+    def point(self) -> tuple[tuple[int, int, int], tuple[float, float, float]]:
+        """The solver's positional point ((v0, v1, v2), (b0, b1, b2)) this handle holds."""
+        return self.corners, self.bary
+
     def as_dict(self) -> dict:
-        return {"id": self.id, "triangle": self.triangle, "vertex": self.vertex,
+        return {"id": self.id, "triangle": self.triangle,
                 "bary": [round(float(b), 4) for b in self.bary]}
 
 

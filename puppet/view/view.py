@@ -29,7 +29,7 @@ import numpy as np
 from puppet.errors import PuppetError
 from puppet.view.address import Access, bind, parse_address
 from puppet.view.encoder import FrameEncoder
-from puppet.view.handles import Handle, drag_target, project, surface_point
+from puppet.view.handles import Handle, drag_target, project, surface_bary, surface_point
 from puppet.view.orbit import OrbitCamera
 from puppet.view.protocol import PANEL_HZ
 from puppet.view.server import ViewServer
@@ -97,7 +97,6 @@ class View:
         self._cameras: dict[int, OrbitCamera] = {0: OrbitCamera(renderer.camera)}
         self._picker = Picker(renderer)
         self._F = np.asarray(rig.F, np.int64)
-        self._pins = {int(v) for v in rig.pins}
         self._servo_ids = [int(i) for i in rig.servo_map.ids]
         self._servo_joints = [s.joint for s in rig.servo_map.servos]
         self._bone_names = list(rig.skeleton.names)
@@ -268,19 +267,17 @@ class View:
                 self._warn(f"a drag that started on the background (at {x}, {y}) moves no handle; "
                            "such drags turn the camera")
             return
-        model = pipeline.model
-        point, corners = surface_point(model, self._F, pipeline.T, hit.triangle, hit.bary)
-        corner = int(np.argmax(hit.bary))
-        vertex = int(self._F[hit.triangle, corner])
-        existing = next((h for h in self._handles if h.vertex == vertex), None)
+        triangle = int(hit.triangle)
+        bary = surface_bary(hit.bary)
+        existing = next((h for h in self._handles if h.triangle == triangle and h.bary == bary), None)
         if existing is not None:
             self._keys[(client, msg["key"])] = existing.id
             self.server.send_to(client, {"type": "handle", "key": msg["key"], "handle": existing.id})
             return
-        if vertex in self._pins:
-            raise PuppetError(f"vertex {vertex} is one of the rig's pins; it cannot be dragged")
-        handle = Handle(self._next_handle, hit.triangle, np.asarray(hit.bary), vertex,
-                        corners[corner] - point, point)
+        # The handle starts where its point is now (nothing jumps), then goes where it is dragged.
+        point, _ = surface_point(pipeline.model, self._F, pipeline.T, triangle, bary)
+        corners = tuple(int(v) for v in self._F[triangle])
+        handle = Handle(self._next_handle, triangle, bary, corners, point)
         refactor_ms = self._set_handles(pipeline, self._handles + [handle])
         self._next_handle += 1
         self._keys[(client, msg["key"])] = handle.id
@@ -292,10 +289,10 @@ class View:
 
     def _set_handles(self, pipeline, handles: list[Handle]) -> float:
         """Refactor for these handles; returns ms. On a PatternError nothing changes."""
-        seconds = pipeline.set_handles([h.vertex for h in handles])
+        seconds = pipeline.set_handles([h.point for h in handles])
         self._handles = handles
         for i, h in enumerate(handles):
-            pipeline.handle_targets[i] = h.target + h.offset
+            pipeline.handle_targets[i] = h.target
         ms = seconds * 1e3
         self.refactor_ms.append(ms)
         log.info("view: %d handles, refactor %.2f ms", len(handles), ms)
@@ -324,7 +321,7 @@ class View:
         if target is None or not np.isfinite(target).all():
             return
         handle.target = target
-        pipeline.handle_targets[index] = target + handle.offset
+        pipeline.handle_targets[index] = target
         self._touch()
 
     def _broadcast_handles(self) -> None:

@@ -145,28 +145,38 @@ def test_play_twice_gives_identical_vertices(rig):
 
 
 def test_point_handles_join_the_live_solve():
-    # The live view's dragged handles on a rig with dynamics: every pattern gains them.
+    # The live view's dragged handles (exact surface points) on a rig with dynamics: every
+    # pattern gains them.
     rig = load_rig(BUILTIN_DYNAMICS_RIG)
     tail = rig.skeleton.names.index("tail3")
     vertex = int(np.argmax(rig.W[:, tail] * np.linalg.norm(rig.V - rig.skeleton.heads[tail], axis=1)))
+    F = np.asarray(rig.F, np.int64)
+    corners = tuple(int(v) for v in F[np.flatnonzero((F == vertex).any(axis=1))[0]])
+    bary = (0.5, 0.3, 0.2)
+    point = (corners, bary)
     reads = readings(rig, 120, still_after=0)
     with Pipeline(rig, render=False) as pipeline:
         live = pipeline.live
         for reading in reads[:10]:
             pipeline.solve(reading)
-        assert pipeline.set_handles([vertex]) > 0
-        # The handle starts where the vertex is: nothing jumps when it is added.
-        assert np.linalg.norm(pipeline.handle_targets[0] - pipeline.deformed()[vertex]) < 1e-5
+        assert pipeline.set_handles([point]) > 0
+        # The handle starts where the point is: nothing jumps when it is added.
+        def where():
+            return np.array(bary) @ pipeline.deformed()[list(corners)]
+        assert np.linalg.norm(pipeline.handle_targets[0] - where()) < 1e-5
         target = pipeline.handle_targets[0] + np.array([0.0, 0.3, 0.1], np.float32)
         pipeline.handle_targets[0] = target
         for reading in reads[10:60]:
             pipeline.solve(reading)
-        assert np.linalg.norm(pipeline.deformed()[vertex] - target) < 1e-4
+        assert np.linalg.norm(where() - target) < 1e-4
         blocks = pipeline.T.reshape(-1, 4, 3)
         state = live.current
+        assert state.pattern.positional == tuple(int(v) for v in rig.pins) + (point,)
         for q, bone in enumerate(state.full_bones):  # the sensed bones stay where the servos put them
             assert np.abs(blocks[bone] - state.values.full[q]).max() < 1e-5
         pipeline.set_handles([])
         assert live.current.pattern.positional == tuple(int(v) for v in rig.pins)
-        pipeline.set_handles([vertex])  # cached: the same factored pattern, not a new one
+        # Cached: the same factored pattern, not a new one (numpy corners and weights are the
+        # same point as Python ones).
+        pipeline.set_handles([(np.array(corners), np.array(bary))])
         assert live.current is state

@@ -150,26 +150,58 @@ def test_picking_is_exact(critter_pipeline):
         assert picker.pick(pipeline.T, renderer.camera, -1, 10) is None  # off the image
 
 
-def test_handles_join_the_servo_constraints(critter_pipeline):
+def test_a_picked_handle_holds_its_exact_surface_point(critter_pipeline):
+    # The page's pick and drag through the View: the handle is the picked (triangle, barycentric)
+    # point itself (not a nearby vertex), it starts where that point is, and the solve puts it
+    # where it is dragged while the sensed legs stay where the servos put them.
+    from puppet.view import View
+
     pipeline = critter_pipeline
     rig = pipeline.rig
+    F = np.asarray(rig.F, np.int64)
     reading = rest_reading(rig)
     reading.ticks[:] += 200  # a pose away from rest
+    pipeline.solve(reading)
     tail = rig.skeleton.names.index("tail3")
-    vertex = int(np.argmax(rig.W[:, tail] * np.linalg.norm(rig.V - rig.skeleton.heads[tail], axis=1)))
+    tip = int(np.argmax(rig.W[:, tail] * np.linalg.norm(rig.V - rig.skeleton.heads[tail], axis=1)))
+    diag = float(np.linalg.norm(rig.V.max(0) - rig.V.min(0)))
+    view = View("127.0.0.1:0")
     try:
-        seconds = pipeline.set_handles([vertex])
-        assert seconds > 0
-        target = rig.V[vertex] + np.array([0.0, 0.3, 0.1])
-        pipeline.handle_targets[0] = target
+        view.attach(pipeline)
+        view_proj = view._picker.view_proj(view._cameras[0].camera())
+        (x, y), = project(view_proj, view.width, view.height, pipeline.deformed()[tip][None])
+        view.command("page", {"type": "pick", "key": 1, "seq": 10**6, "x": x, "y": y, "camera": 0})
+        view.apply(pipeline)
+        assert len(view._handles) == 1
+        handle = view._handles[0]
+        assert handle.corners == tuple(int(v) for v in F[handle.triangle])
+        assert abs(sum(handle.bary) - 1.0) < 1e-12 and min(handle.bary) >= 0.0
+        assert pipeline.pattern.positional == tuple(int(v) for v in rig.pins) + (handle.point,)
+        assert set(handle.as_dict()) == {"id", "triangle", "bary"}
+        # The handle starts exactly where its point is (nothing jumps) and projects onto the click.
+        b = np.array(handle.bary)
+        start = b @ pipeline.deformed()[list(handle.corners)]
+        assert np.linalg.norm(pipeline.handle_targets[0] - start) < 1e-6 * diag
+        np.testing.assert_allclose(project(view_proj, view.width, view.height, start[None])[0],
+                                   [np.floor(x) + 0.5, np.floor(y) + 0.5], atol=0.05)
+        view.command("page", {"type": "drag", "key": 1, "x": x + 40.0, "y": y - 30.0, "camera": 0})
+        view.apply(pipeline)
+        target = pipeline.handle_targets[0].astype(np.float64)
+        np.testing.assert_allclose(target, handle.target, atol=1e-6 * diag)
+        np.testing.assert_allclose(project(view_proj, view.width, view.height, target[None])[0],
+                                   [x + 40.0, y - 30.0], atol=0.05)
         for _ in range(20):
             pipeline.solve(reading)
-        deformed = pipeline.deformed()
-        assert np.linalg.norm(deformed[vertex] - target) < 1e-4  # the dragged point is where it was put
+        point = b @ pipeline.deformed()[list(handle.corners)]
+        assert np.linalg.norm(point - target) < 1e-4 * diag  # the dragged point is where it was put
         blocks = pipeline.T.reshape(-1, 4, 3)
         for q, bone in enumerate(rig.full_bones):  # sensed legs stay where the servos put them
             assert np.abs(blocks[bone] - pipeline.values.full[q]).max() < 1e-5
+        view.command("page", {"type": "remove", "handle": handle.id})
+        view.apply(pipeline)
+        assert view._handles == []
     finally:
+        view.close()
         pipeline.set_handles([])
     assert pipeline.pattern.positional == tuple(int(v) for v in rig.pins)
 
