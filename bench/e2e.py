@@ -1,6 +1,7 @@
 """End-to-end benchmark: the live loop on the built-in character with hw_sim.
 
-Servo reading (hw_sim, timing model on, 1 Mbps, fast sync read) -> calibration -> FAST solve ->
+Servo reading (hw_sim, timing model on, 1 Mbps, fast sync read, 120 readings/s plus one asked
+for by each frame) -> calibration -> FAST solve ->
 render (this machine's GL renderer: Mesa llvmpipe on CPU machines) -> frame, with the bus read in
 its own process. Two cases, run in turns (a shared machine's load falls on both alike):
 
@@ -15,8 +16,9 @@ its own process. Two cases, run in turns (a shared machine's load falls on both 
 
 ``--compare`` runs every case again with the settings before the issue-15 work (BASELINE:
 FXAA in one pass over the whole frame, the character lit per pixel, the contact shadow at
-128x128, the video encoder fed on the loop's thread with libx264's default preset, no late
-latching and so no reading requested ahead; the ground's backdrop has no switch), interleaved with the current ones, and reports
+128x128, every triangle drawn, the video encoder fed on the loop's thread with libx264's
+default preset and this process's priority, the bus read at 250 Hz, no late latching and so no
+reading requested ahead; the ground's backdrop has no switch), interleaved with the current ones, and reports
 current / baseline ratios. (Dense skinning stays: the sparse "pairs" layout measured 2x slower
 on llvmpipe, see puppet/render/renderer.py.) ``first_frame_s`` here runs from the call of run_demo (setup: rig, hw_sim,
 reader, pipeline) to the first frame; ``puppet demo --json`` reports it from the command's start.
@@ -45,15 +47,17 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")  # as the puppet command does
 from puppet.demo import run_demo  # noqa: E402
 from puppet.pipeline import STAGES  # noqa: E402
 from puppet.render import VideoSink  # noqa: E402
-from puppet.render.sinks import DEFAULT_PRESET  # noqa: E402
+from puppet.render.sinks import DEFAULT_PRESET, ENCODER_NICE  # noqa: E402
+from puppet.demo import DEMO_READ_RATE_HZ  # noqa: E402
 
 #: Case name -> (video, antialias, overlay).
 CASES = {"plain": (False, "auto", False), "video-fxaa": (True, "fxaa", True)}
 #: Settings of run_demo / VideoSink before the issue-15 work, for --compare.
 BASELINE = {"render": {"weight_layout": "dense", "fxaa_region": "frame", "fxaa_passes": "one_pass",
-                       "shading": "pixel", "shadow_resolution": 128},
-            "encoder": "inline", "preset": None, "latch_fps": None}
-CURRENT = {"render": {}, "encoder": "thread", "preset": DEFAULT_PRESET, "latch_fps": 60.0}
+                       "shading": "pixel", "shadow_resolution": 128, "triangle_budget": None},
+            "encoder": "inline", "preset": None, "latch_fps": None, "nice": 0, "rate_hz": 250.0}
+CURRENT = {"render": {}, "encoder": "thread", "preset": DEFAULT_PRESET, "latch_fps": 60.0,
+           "nice": ENCODER_NICE, "rate_hz": None}  # None: --rate
 
 
 class CountingSink:
@@ -80,7 +84,7 @@ def run_case(case: str, variant: str, args, folder: Path) -> dict:
         info["skin"] = pipeline.renderer.weight_layout
         if video:
             return [VideoSink(folder / f"{case}-{variant}.mp4", args.fps, encoder=settings["encoder"],
-                              preset=settings["preset"])]
+                              preset=settings["preset"], nice=settings["nice"])]
         return [CountingSink()]
 
     loop_cpu = {}
@@ -95,7 +99,8 @@ def run_case(case: str, variant: str, args, folder: Path) -> dict:
     summary, report = run_demo(seconds=args.seconds, sinks_for=sinks_for, width=args.size[0],
                                height=args.size[1], iterations=args.iterations, overlay=overlay,
                                antialias=antialias, video_fps=args.fps, timing=True,
-                               baud=1_000_000, rate_hz=args.rate, render_options=settings["render"],
+                               baud=1_000_000, rate_hz=settings["rate_hz"] or args.rate,
+                               render_options=settings["render"],
                                started_s=time.monotonic(), on_frame=on_frame, latch_fps=settings["latch_fps"])
     d = summary.as_dict()
     frames = max(1, d["frames"])
@@ -112,7 +117,7 @@ def run_case(case: str, variant: str, args, folder: Path) -> dict:
         "latency_median_ms": d["latency_median_ms"], "latency_p99_ms": d["latency_p99_ms"],
         "stages_ms": d["stages_ms"], "first_frame_s": d["first_frame_s"], "cpu_ms_per_frame": cpu,
         "solver_us_per_iter": d["solver_us_per_iter"], "iterations_per_frame": d["iterations_per_frame"],
-        "readings": d["readings"], "read_mode": report.read_mode, "bus_rate_hz": args.rate,
+        "readings": d["readings"], "read_mode": report.read_mode, "bus_rate_hz": settings["rate_hz"] or args.rate,
         "renderer": info.get("gl", ""), "antialias": info.get("antialias", ""),
         "skinning": info.get("skin", ""), "encoder": settings["encoder"] if video else None,
         "size": list(args.size), "faults": d["faults"], "load_1min": round(os.getloadavg()[0], 2),
@@ -132,7 +137,8 @@ def main() -> None:
     parser.add_argument("--rounds", type=int, default=1, help="runs of each case, in turns")
     parser.add_argument("--iterations", type=int, default=8, help="FAST iterations per frame")
     parser.add_argument("--size", type=int, nargs=2, default=(640, 480))
-    parser.add_argument("--rate", type=float, default=250.0, help="bus readings per second")
+    parser.add_argument("--rate", type=float, default=DEMO_READ_RATE_HZ,
+                        help="bus readings per second (the reader's steady rate; the baseline: 250)")
     parser.add_argument("--fps", type=float, default=30.0, help="video frame rate")
     parser.add_argument("--video", action="store_true", help="only the case that writes a video")
     parser.add_argument("--antialias", default=None, help="with --video: fxaa (the demo's case)")

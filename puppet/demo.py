@@ -21,6 +21,12 @@ if TYPE_CHECKING:
 
 from puppet.servo_models import TICKS_PER_TURN
 
+#: The demo's steady bus rate, readings per second: twice the loop's frames. Each frame also asks
+#: for a reading of its own just before it needs one (late latching), so a faster steady rate
+#: would only add readings nobody draws, and their CPU (reader and simulator) to a 2-core
+#: machine the renderer needs.
+DEMO_READ_RATE_HZ = 120.0
+
 
 class Performance:
     """A rig-aware motion source for hw_sim: ``position(servo_id, t) -> ticks``.
@@ -78,7 +84,7 @@ class _Starting:
 def run_demo(*, seconds: float | None, sinks_for: Callable[[Pipeline], list], faults=None, width: int = 640,
              height: int = 480, iterations: int = 8, video_fps: float = 30.0, overlay: bool = True,
              antialias: str = "auto",
-             timing: bool = True, baud: int = 1_000_000, rate_hz: float = 250.0,
+             timing: bool = True, baud: int = 1_000_000, rate_hz: float = DEMO_READ_RATE_HZ,
              latency_ms: int = 3, render_options: dict | None = None,
              should_stop: Callable[[], bool] = lambda: False,
              on_frame: Callable[[Summary], None] | None = None,
@@ -93,7 +99,8 @@ def run_demo(*, seconds: float | None, sinks_for: Callable[[Pipeline], list], fa
     seconds: length of the run (None: until ``should_stop()``).
     faults: a hw_sim fault file (or schedule) to play during the run.
     view: a puppet.view.View (bound, not attached) to watch the run in a browser.
-    rate_hz: bus readings per second (the reader process's steady rate).
+    rate_hz: bus readings per second (the reader process's steady rate; each frame also asks
+        for a reading of its own, see puppet.pipeline.LateLatch).
     latency_ms: the SDK's latency assumption; 3 ms leaves the simulator (a process competing
         for the same cores as the renderer and the video encoder) room to answer late.
     render_options: more Renderer keywords (see Pipeline), for benchmarks.
@@ -115,7 +122,7 @@ def run_demo(*, seconds: float | None, sinks_for: Callable[[Pipeline], list], fa
 
         try:
             with Pipeline(rig, iterations=iterations, width=width, height=height, overlay=overlay,
-                          antialias=antialias, render_options=render_options) as pipeline:
+                          antialias=antialias, render_options=render_options, live=True) as pipeline:
                 if pipeline.renderer is not None:
                     pipeline.draw()  # compiles the shaders (llvmpipe: at first use) while the reader starts
                 report = starting.wait()

@@ -32,6 +32,14 @@ from puppet.rig import Rig
 BONE_KIND_STATES = {"full": "sensed", "relative": "relative", "free": "free"}
 ANTIALIAS = ("auto", "msaa", "fxaa", "none")
 SOFTWARE_GL = ("llvmpipe", "softpipe", "swrast", "lavapipe")
+#: A live loop on a software rasterizer draws at most one triangle per this many pixels of its
+#: frame (25 600 at 640x480; the critter has 49 816): see puppet.render.lod.
+LIVE_PIXELS_PER_TRIANGLE = 12
+
+
+def is_software_gl(gl_renderer: str) -> bool:
+    """True for a CPU rasterizer (Mesa llvmpipe and its kin)."""
+    return any(name in gl_renderer.lower() for name in SOFTWARE_GL)
 
 
 def resolve_antialias(antialias: str, gl_renderer: str, max_samples: int) -> str:
@@ -40,7 +48,7 @@ def resolve_antialias(antialias: str, gl_renderer: str, max_samples: int) -> str
     RenderError naming the modes this GL can do."""
     from puppet.render import RenderError
 
-    software = any(name in gl_renderer.lower() for name in SOFTWARE_GL)
+    software = is_software_gl(gl_renderer)
     available = ("msaa", "fxaa", "none") if max_samples >= 2 else ("fxaa", "none")
     if antialias == "auto":
         return "fxaa" if software or "msaa" not in available else "msaa"
@@ -91,6 +99,9 @@ class Pipeline:
                 costs about 2.5 ms of CPU at 640x480, spread over the rasterizer's threads. A mode
                 this GL cannot do raises RenderError naming those it can.
     overlay:    draw the skeleton with bones coloured by state.
+    live:       frames for a live loop (demo, live, a view): on a software rasterizer a dense
+                character is drawn simplified, one triangle per LIVE_PIXELS_PER_TRIANGLE pixels
+                (Renderer's triangle_budget); False: every triangle (playback into files).
     render_options: more Renderer keywords (weight_layout, fxaa_region, ...), for benchmarks.
     precompute: a RigPrecompute of this rig made earlier (shared by many pipelines); None builds
                 the model (its disk cache may make that quick) and factors the pattern here.
@@ -101,7 +112,8 @@ class Pipeline:
 
     def __init__(self, rig: Rig, *, iterations: int = 8, render: bool = True, width: int = 640,
                  height: int = 480, antialias: str = "auto", overlay: bool = False,
-                 render_options: dict | None = None, precompute: RigPrecompute | None = None):
+                 render_options: dict | None = None, precompute: RigPrecompute | None = None,
+                 live: bool = False):
         if antialias not in ANTIALIAS:
             raise ValueError(f"antialias: {antialias!r} is not one of {ANTIALIAS}")
         options = rig.solver_options
@@ -156,10 +168,13 @@ class Pipeline:
                 self._context.release()
                 raise
             self.antialias = antialias
+            drawing = {}
+            if live and is_software_gl(gl_renderer_name(self._context)):
+                drawing["triangle_budget"] = width * height // LIVE_PIXELS_PER_TRIANGLE
+            drawing.update(render_options or {})
             self.renderer = Renderer(rig.V, rig.F, self.model.weights, width=width, height=height,
                                      samples=4 if antialias == "msaa" else 0,
-                                     fxaa=antialias == "fxaa", context=self._context,
-                                     **(render_options or {}))
+                                     fxaa=antialias == "fxaa", context=self._context, **drawing)
 
     def solve(self, reading: Reading) -> np.ndarray:
         """Solve this reading's pose into ``self.T`` (in place) and return it.

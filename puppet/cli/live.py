@@ -73,7 +73,7 @@ def live(rig_path: str, port: str, baud: int, take_path: str | None, out: str | 
     stop = StopFlag()
     try:
         with Pipeline(rig, render=bool(sinks) or live_view is not None, overlay=True,
-                      antialias=antialias) as pipeline:
+                      antialias=antialias, live=True) as pipeline:
             plan = ActuationPlan.for_rig(rig, READ_RATE_HZ, watchdog_ms=watchdog_ms)
             actuation = LiveActuation(rig) if plan is not None else None
             source = start_reader(rig, port, baud, READ_RATE_HZ, actuation=plan)

@@ -66,7 +66,7 @@ def view(rig_path: str | None, address: str, seconds: float | None, size: tuple[
     try:
         rig = load_rig(rig_path)
         stop = StopFlag()
-        with Pipeline(rig, overlay=True, width=size[0], height=size[1]) as pipeline:
+        with Pipeline(rig, overlay=True, width=size[0], height=size[1], live=True) as pipeline:
             source = RestSource(rig.servo_map.ids, rig.servo_map.zero)
             live_view.attach(pipeline, source=source)
             summary = run_live(pipeline, source, seconds=seconds, should_stop=stop, view=live_view)
@@ -96,7 +96,7 @@ def play_in_view(take: str, rig_path: str | None, out: str | None, frames: str |
         source = TakeSource(rig.servo_map.ids, t_ns, ticks, ok, speed=speed, markers=marks)
         sinks = make_sinks(out, frames, fps)
         try:
-            with Pipeline(rig, overlay=True) as pipeline:
+            with Pipeline(rig, overlay=True, live=True) as pipeline:
                 live_view.attach(pipeline, source=source)
                 summary = run_live(pipeline, source, sinks=sinks, video_fps=fps,
                                    should_stop=stop, view=live_view)

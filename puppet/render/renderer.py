@@ -24,6 +24,7 @@ from puppet.render.camera import Camera
 from puppet.render.contact_shadow import shadow_spheres
 from puppet.render.context import create_context
 from puppet.render.errors import RenderError, RenderInputError
+from puppet.render.lod import simplified_triangles
 from puppet.render.overlay import BONE_CORNERS, rest_segments, state_color
 from puppet.render.skin_weights import (TEXTURE_WIDTH, attribute_slots, check_weights, lbs_matrix,
                                         pack_weights)
@@ -100,6 +101,9 @@ class Renderer:
     overlay width [px]; fxaa_region: "character" (filter only the rectangle on screen around
     the skinned mesh and its bones) or "frame";
     fxaa_passes: "mark_edges" or "one_pass" (see FXAA_PASSES); shading: see SHADING_MODES.
+    triangle_budget: draw at most about this many triangles: a mesh with more (closed) is drawn
+    as its simplified copy (puppet.render.lod: same vertices, skinned as usual; picking still
+    uses every triangle); None: the mesh itself.
 
     Per-frame state lives in preallocated arrays: `image` (height, width, 3) uint8 is the frame
     buffer draw() returns; skinned_positions() returns a view of the skinning pass's output.
@@ -131,6 +135,7 @@ class Renderer:
         fxaa_region: str = "character",
         fxaa_passes: str = "mark_edges",
         shading: str = "auto",
+        triangle_budget: int | None = None,
     ):
         if skinning not in SKINNING_MODES:
             raise RenderInputError(f"skinning: expected one of {SKINNING_MODES}, got {skinning!r}")
@@ -228,7 +233,12 @@ class Renderer:
                 self._weight_buffers.append(ctx.buffer(packed.spans))
                 skin_content.append((self._weight_buffers[-1], "2u", "in_span"))
             skin = shaders.skin_chunk(packed.slots, self._spill)
-        self._ibo = ctx.buffer(F)
+        self._ibo = ctx.buffer(F)  # every triangle: picking
+        drawn = F
+        if triangle_budget is not None and len(F) > int(triangle_budget):
+            drawn = simplified_triangles(V, F, int(triangle_budget))
+        self.drawn_triangles = len(drawn)
+        self._draw_ibo = self._ibo if len(drawn) == len(F) else ctx.buffer(drawn.astype(np.uint32))
         entries = np.zeros((1, TEXTURE_WIDTH, 2), np.float32) if packed is None else packed.entries
         self._weights = ctx.texture((TEXTURE_WIDTH, entries.shape[0]), 2, entries, dtype="f4")
         self._weights.filter = (moderngl.NEAREST, moderngl.NEAREST)
@@ -277,7 +287,7 @@ class Renderer:
                 fragment_shader=shaders.source(shaders.LIGHTING, shaders.MESH_FRAGMENT, FACE_NORMALS=1),
             )
             content = [(self._vbo_positions, "3f", "in_position")]
-        self._mesh_vao = ctx.vertex_array(self._mesh_prog, content, index_buffer=self._ibo, index_element_size=4)
+        self._mesh_vao = ctx.vertex_array(self._mesh_prog, content, index_buffer=self._draw_ibo, index_element_size=4)
         self._lit_prog = self._skin_prog if shading == "vertex" else self._mesh_prog  # has the lights
         self._lit_prog["u_albedo"].value = tuple(float(c) for c in albedo)
         self._background = tuple(float(c) for c in background)
@@ -698,6 +708,8 @@ class Renderer:
             self._occlusion_texture,
             self._vbo_rest, self._vbo_normal, self._ibo, self._weights, self._ubo, *self._weight_buffers,
         ]
+        if self._draw_ibo is not self._ibo:
+            objects.append(self._draw_ibo)
         if self.skinning == "cpu":
             objects.append(self._vbo_positions)
         if self._bone_vao is not None:

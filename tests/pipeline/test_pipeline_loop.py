@@ -9,7 +9,7 @@ import hw_sim
 from puppet.bus import Reading
 from puppet.bus.reader_process import ReaderProcess
 from puppet.demo import Performance
-from puppet.pipeline import LateLatch, Pipeline, run_frames, run_live
+from puppet.pipeline import LIVE_PIXELS_PER_TRIANGLE, LateLatch, Pipeline, is_software_gl, run_frames, run_live
 
 
 def test_solve_follows_the_reading_and_keeps_full_constraints(critter):
@@ -159,3 +159,14 @@ def test_late_latch_asks_only_sources_that_read_on_request():
     latch = LateLatch(min_fps=60.0, period_s=0.004)
     latch.request(object())
     assert latch.requested_ns == 0
+
+
+def test_a_live_pipeline_draws_the_simplified_character_on_a_software_renderer(critter):
+    """Live loops draw one triangle per LIVE_PIXELS_PER_TRIANGLE pixels on llvmpipe (every
+    triangle on a GPU); playback into files draws every triangle."""
+    with Pipeline(critter, live=True) as live, Pipeline(critter) as files:
+        assert files.renderer.drawn_triangles == len(critter.F)
+        software = is_software_gl(live.renderer.gl_renderer)
+        budget = 640 * 480 // LIVE_PIXELS_PER_TRIANGLE
+        assert budget < len(critter.F)
+        assert live.renderer.drawn_triangles == (budget if software else len(critter.F))
