@@ -174,16 +174,20 @@ function buildServoTable(servos) {
   }
 }
 
+// Only what changed is written: every write restyles and repaints the table.
+function setText(cell, text) { if (cell.textContent !== text) cell.textContent = text; }
+
 function updateServos(servos) {
   const body = $("servos").tBodies[0];
   servos.forEach((s, i) => {
     const row = body.rows[i];
     if (!row) return;
-    row.cells[2].textContent = s.deg.toFixed(1);
-    row.cells[3].textContent = s.ok ? "ok" : "flagged";
-    row.cells[3].className = s.ok ? "state-ok" : "";
-    row.cells[4].textContent = s.fault;
-    row.classList.toggle("flagged", !s.ok);
+    setText(row.cells[2], s.deg.toFixed(1));
+    setText(row.cells[3], s.ok ? "ok" : "flagged");
+    const state = s.ok ? "state-ok" : "";
+    if (row.cells[3].className !== state) row.cells[3].className = state;
+    setText(row.cells[4], s.fault);
+    if (row.classList.contains("flagged") === s.ok) row.classList.toggle("flagged", !s.ok);
   });
 }
 
@@ -215,13 +219,18 @@ function updatePlayback(p) {
 }
 
 // ---- marks drawn by the page (handles, the drag in progress) --------------------------------
+let marksShown = false;  // anything on the marks canvas (clearing an empty one still repaints it)
 function drawMarks() {
+  const dragging = drag && !drag.orbit && !drag.pan;
+  if (!marksShown && !state.handleSpots.length && !dragging) return;
+  marksShown = state.handleSpots.length > 0 || dragging;
+  marks.style.opacity = marksShown ? "1" : "0";  // an empty layer is left out of compositing
   marksCtx.clearRect(0, 0, marks.width, marks.height);
   for (const spot of state.handleSpots) {
     if (drag && drag.handle === spot.id && !drag.orbit) continue;
     circle(spot.x, spot.y, "#ffd54a");
   }
-  if (drag && !drag.orbit && !drag.pan) circle(drag.x, drag.y, drag.pending ? "#aaa" : "#ffd54a");
+  if (dragging) circle(drag.x, drag.y, drag.pending ? "#aaa" : "#ffd54a");
 }
 
 function circle(x, y, color) {
