@@ -22,7 +22,7 @@ const state = {
 window.puppetView = state;
 
 const frameCanvas = document.getElementById("frame");
-const frameCtx = frameCanvas.getContext("2d");
+const frameCtx = frameCanvas.getContext("2d", { alpha: false });  // opaque: no blending when composited
 const marks = document.getElementById("marks");
 const marksCtx = marks.getContext("2d");
 const $ = id => document.getElementById(id);
