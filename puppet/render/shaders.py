@@ -261,9 +261,9 @@ void main() {
     vec3 shadow_rel = v_world - u_shadow_center;
     vec2 uv = 0.5 + 0.5 * vec2(dot(shadow_rel, u_shadow_a), dot(shadow_rel, u_shadow_b))
                     / (u_shadow_half * u_shadow_half);
-    // Faded out towards the square's border, where the shadow meets the backdrop's bare ground.
-    vec2 border = abs(2.0 * uv - 1.0);
-    float occlusion = (1.0 - texture(u_visibility, uv).r) * (1.0 - smoothstep(0.6, 1.0, max(border.x, border.y)));
+    // Faded out towards the square's border (a round fade: no corner shows), where the shadow
+    // meets the backdrop's bare ground.
+    float occlusion = (1.0 - texture(u_visibility, uv).r) * (1.0 - smoothstep(0.5, 1.0, length(2.0 * uv - 1.0)));
 #else
     float occlusion = 0.0;
 #endif
