@@ -95,7 +95,7 @@ class Picker:
             return None
         ctx = self._ctx
         r._upload(T)
-        r._skin()
+        r._skin(every_vertex=True)
         self._prog["u_view_proj"].write(np.ascontiguousarray(self.view_proj(camera).T, np.float32))
         self._fbo.use()
         ctx.scissor = (int(x), int(y), 1, 1)

@@ -150,6 +150,28 @@ class Renderer:
             shading = "vertex" if skinning == "gpu" and cull_back_faces else "pixel"
         self.shading = shading
         V, F, W = _check_mesh(V, F, W)
+        W = check_weights(W)
+        spheres = shadow_spheres(V, W, count=shadow_sphere_count)  # in the caller's vertex order
+        normals = _vertex_normals(V, F.astype(np.int64))
+        # The triangles drawn (all, or a simplified copy on the caller's vertices), and the
+        # vertices in the renderer's own order: those drawn first, so that a frame skins only
+        # them (``_skin_count``); picking and skinned_positions() skin them all.
+        drawn = F
+        if triangle_budget is not None and len(F) > int(triangle_budget):
+            simplified = simplified_triangles(V, F, int(triangle_budget))
+            drawn = F if len(simplified) == len(F) else simplified.astype(np.uint32)  # open: all
+        self.drawn_triangles = len(drawn)
+        self._rank = None  # caller's vertex -> renderer's (None: the same order)
+        self._skin_count = len(V)
+        if len(drawn) < len(F):
+            used = np.zeros(len(V), bool)
+            used[drawn.ravel()] = True
+            order = np.concatenate([np.flatnonzero(used), np.flatnonzero(~used)])
+            self._rank = np.empty(len(V), np.int64)
+            self._rank[order] = np.arange(len(V))
+            V, W, normals = V[order], W[order], normals[order]
+            F, drawn = self._rank[F].astype(np.uint32), self._rank[drawn].astype(np.uint32)
+            self._skin_count = int(used.sum())
         self.width, self.height = int(width), int(height)
         self.skinning = skinning
         self.n, self.m = W.shape
@@ -189,12 +211,11 @@ class Renderer:
         # dense 1.5 ms of the loop thread's CPU per frame, pairs above 1e-6 3.0 ms; a per-vec4
         # "skip zero weights" branch is 4x slower (llvmpipe runs both sides); splitting the
         # vertices into ranges with few handles each needs 70+ draws for 0.6x the work.
-        W = check_weights(W)
         keep = np.abs(W) > weight_tolerance
         self.max_weights_per_vertex = int(keep.sum(axis=1).max())
         self.dropped_weight_abs_max = float(np.abs(W[~keep]).max()) if not keep.all() else 0.0
         self._vbo_rest = ctx.buffer(V.astype(np.float32))
-        self._vbo_normal = ctx.buffer(_vertex_normals(V, F.astype(np.int64)))
+        self._vbo_normal = ctx.buffer(normals)
         if weight_layout not in WEIGHT_LAYOUTS:
             raise RenderInputError(f"weight_layout: expected one of {WEIGHT_LAYOUTS}, got {weight_layout!r}")
         if weight_layout == "dense" and self.m > DENSE_MAX_HANDLES:
@@ -234,11 +255,7 @@ class Renderer:
                 skin_content.append((self._weight_buffers[-1], "2u", "in_span"))
             skin = shaders.skin_chunk(packed.slots, self._spill)
         self._ibo = ctx.buffer(F)  # every triangle: picking
-        drawn = F
-        if triangle_budget is not None and len(F) > int(triangle_budget):
-            drawn = simplified_triangles(V, F, int(triangle_budget))
-        self.drawn_triangles = len(drawn)
-        self._draw_ibo = self._ibo if len(drawn) == len(F) else ctx.buffer(drawn.astype(np.uint32))
+        self._draw_ibo = self._ibo if drawn is F else ctx.buffer(drawn)
         entries = np.zeros((1, TEXTURE_WIDTH, 2), np.float32) if packed is None else packed.entries
         self._weights = ctx.texture((TEXTURE_WIDTH, entries.shape[0]), 2, entries, dtype="f4")
         self._weights.filter = (moderngl.NEAREST, moderngl.NEAREST)
@@ -262,6 +279,8 @@ class Renderer:
         padded_rows = -(-self.n // BOX_BLOCK) * BOX_BLOCK
         self._captured_padded = np.zeros((padded_rows, SKINNED_FLOATS), dtype=np.float32)
         self._captured = self._captured_padded[: self.n]
+        self._drawn_rows = -(-self._skin_count // BOX_BLOCK) * BOX_BLOCK  # the drawn vertices, padded
+        self._in_caller_order = None if self._rank is None else np.zeros((self.n, SKINNED_FLOATS), np.float32)
         self._box_lanes = np.zeros((2, BOX_BLOCK * SKINNED_FLOATS), dtype=np.float32)
         self._captured_positions = np.zeros((self.n, 3), dtype=np.float32)
         self._captured_normals = np.zeros((self.n, 3), dtype=np.float32)
@@ -293,7 +312,6 @@ class Renderer:
         self._background = tuple(float(c) for c in background)
 
         # Ground plane with contact shadow spheres, their occlusion drawn into a small texture.
-        spheres = shadow_spheres(V, W, count=shadow_sphere_count)
         self._shadow_Q = spheres.Q
         self._spheres = np.zeros((len(spheres.radii), 4), dtype=np.float32)
         self._spheres[:, 3] = spheres.radii * 1.5  # a wider, softer shadow than the bare clusters
@@ -473,11 +491,21 @@ class Renderer:
         self._ubo.bind_to_uniform_block(0)
         self._weights.use(location=0)
 
-    def _skin(self) -> None:
-        """Skinning pass: the vertex shader writes (position, normal) of every vertex once."""
+    def _skin(self, every_vertex: bool = False) -> None:
+        """Skinning pass: the vertex shader writes (position, normal, colour) of each vertex drawn
+        (every vertex: ``every_vertex``, as picking and skinned_positions() need) once."""
         self._bind_frame_resources()
         self._resolved.use()  # EGL without a surface has no default framebuffer to fall back to
-        self._skin_vao.transform(self._skinned, mode=moderngl.POINTS, vertices=self.n)
+        count = self.n if every_vertex else self._skin_count
+        self._skin_vao.transform(self._skinned, mode=moderngl.POINTS, vertices=count)
+
+    def _captured_in_caller_order(self) -> np.ndarray:
+        """(n, SKINNED_FLOATS) of every vertex skinned (``_skin(True)``), in the caller's order."""
+        self._skinned.read_into(self._captured)
+        if self._rank is None:
+            return self._captured
+        np.take(self._captured, self._rank, axis=0, out=self._in_caller_order)
+        return self._in_caller_order
 
     def skinned_positions(self, T: np.ndarray) -> np.ndarray:
         """Positions (n, 3) float32 that the skinning vertex shader writes and draw() renders
@@ -486,18 +514,16 @@ class Renderer:
         Returns a C-contiguous array that the next call overwrites; copy it to keep it.
         """
         self._upload(T)
-        self._skin()
-        self._skinned.read_into(self._captured)
-        np.copyto(self._captured_positions, self._captured[:, :3])
+        self._skin(every_vertex=True)
+        np.copyto(self._captured_positions, self._captured_in_caller_order()[:, :3])
         return self._captured_positions
 
     def skinned_normals(self, T: np.ndarray) -> np.ndarray:
         """Unnormalized normals (n, 3) float32 of the skinning pass (cofactor of the blended
         linear part times the rest normal), reused like skinned_positions()'s."""
         self._upload(T)
-        self._skin()
-        self._skinned.read_into(self._captured)
-        np.copyto(self._captured_normals, self._captured[:, 3:6])
+        self._skin(every_vertex=True)
+        np.copyto(self._captured_normals, self._captured_in_caller_order()[:, 3:6])
         return self._captured_normals
 
     def draw(self, T: np.ndarray, *, bones=None, bone_states=None, out: np.ndarray | None = None) -> np.ndarray:
@@ -616,9 +642,10 @@ class Renderer:
     def _character_rect(self, with_bones: bool) -> tuple[int, int, int, int]:
         """(x, y, width, height) [px] of the framebuffer that holds every skinned vertex (their
         bounding box's corners, projected) and the drawn bones, plus a margin for the filter."""
-        self._skinned.read_into(self._captured)
-        self._captured_padded[self.n:] = self._captured[0]
-        rows = self._captured_padded.reshape(-1, BOX_BLOCK * SKINNED_FLOATS)
+        drawn = self._skin_count
+        self._skinned.read_into(self._captured_padded, size=drawn * 4 * SKINNED_FLOATS)
+        self._captured_padded[drawn:self._drawn_rows] = self._captured_padded[0]
+        rows = self._captured_padded[: self._drawn_rows].reshape(-1, BOX_BLOCK * SKINNED_FLOATS)
         np.min(rows, axis=0, out=self._box_lanes[0])
         np.max(rows, axis=0, out=self._box_lanes[1])
         lanes = self._box_lanes.reshape(2, BOX_BLOCK, SKINNED_FLOATS)

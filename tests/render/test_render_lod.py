@@ -61,3 +61,17 @@ def test_the_simplified_critter_looks_the_same_and_picks_every_triangle(gl_conte
     assert (difference > 0).any()
     assert sum(p is not None for p in picks[None]) >= 20  # on the character
     assert picks[25_600] == picks[None]  # the same triangle of the full mesh, the same point
+
+
+def test_skinned_vertices_come_back_in_the_callers_order(gl_context, posed_critter):
+    """The simplified draw skins only its own vertices each frame (they come first inside the
+    renderer); skinned_positions() and skinned_normals() still give every vertex, in V's order."""
+    rig, W, T, bones = posed_critter
+    results = {}
+    for budget in (None, 25_600):
+        with Renderer(rig.V, rig.F, W, samples=0, fxaa=True, context=gl_context, triangle_budget=budget) as r:
+            r.draw(T, bones=bones)
+            results[budget] = (r.skinned_positions(T).copy(), r.skinned_normals(T).copy(), r._skin_count)
+    np.testing.assert_array_equal(results[25_600][0], results[None][0])
+    np.testing.assert_array_equal(results[25_600][1], results[None][1])
+    assert results[None][2] == len(rig.V) and results[25_600][2] < 0.6 * len(rig.V)
