@@ -3,8 +3,8 @@
 Per frame (draw):
 1. T (4m, 3) is copied into one uniform buffer of handle transforms (the only upload);
 2. skinning pass: a vertex shader blends each vertex's handles (M @ T), skins its normal and
-   (shading "vertex") lights it, every vertex exactly once, into a transform-feedback buffer
-   (also what skinned_positions() reads back);
+   (shading "vertex") lights it, each vertex drawn exactly once, into a transform-feedback
+   buffer (also what skinned_positions() reads back, of every vertex);
 3. contact shadow: the shadow spheres move (Q @ T, k x 4m, tiny) and their ground occlusion is
    drawn into a small texture;
 4. the backdrop (background and unshadowed ground, drawn once per camera) is copied into the
@@ -106,7 +106,8 @@ class Renderer:
     uses every triangle); None: the mesh itself.
 
     Per-frame state lives in preallocated arrays: `image` (height, width, 3) uint8 is the frame
-    buffer draw() returns; skinned_positions() returns a view of the skinning pass's output.
+    buffer draw() returns; skinned_positions() returns an array of the skinning pass's output
+    (in V's vertex order) that its next call overwrites.
     """
 
     def __init__(
@@ -640,7 +641,7 @@ class Renderer:
         self._resolved.scissor = None
 
     def _character_rect(self, with_bones: bool) -> tuple[int, int, int, int]:
-        """(x, y, width, height) [px] of the framebuffer that holds every skinned vertex (their
+        """(x, y, width, height) [px] of the framebuffer that holds every vertex drawn (their
         bounding box's corners, projected) and the drawn bones, plus a margin for the filter."""
         drawn = self._skin_count
         self._skinned.read_into(self._captured_padded, size=drawn * 4 * SKINNED_FLOATS)
