@@ -1,7 +1,8 @@
 """Per-pattern factorisation of the FAST global step (the "refactor" cost).
 
 Fixed rows A0 T = b (c0 x 4m, the same for x, y, z): 4 unit rows per full handle, the row
-M_v per positional vertex (sum_k b_k M_{v_k} per positional surface point), and the pivot row [p 1](T_child - T_parent) = 0 per relative joint.
+M_v per positional vertex (sum_k b_k M_{v_k} per positional surface point), and the pivot
+row [p 1](T_child - T_parent) = 0 per relative joint.
 With N a basis of null(A0) and H = N (N^T Q N)^{-1} N^T, the minimiser of
 tr(T^T Q T) - 2 tr(T^T K Rt) subject to A0 T = b is
     T = H K Rt + (I - H Q) A0^+ b = G Rt + P2 b.
