@@ -39,7 +39,11 @@ def _simplify(V: np.ndarray, F: np.ndarray, target: int) -> np.ndarray | None:
 
     if not _closed_manifold(F):
         return None
-    _, G, _, birth = igl.decimate(np.asarray(V, np.float64), np.asarray(F, np.int32), int(target))
+    try:
+        _, G, _, birth = igl.decimate(np.asarray(V, np.float64), np.asarray(F, np.int32), int(target))
+    except (RuntimeError, ValueError) as err:  # a mesh libigl cannot collapse: draw it whole
+        log.info("mesh not simplified for drawing (%s)", err)
+        return None
     corners = birth[G]
     keep = (corners[:, 0] != corners[:, 1]) & (corners[:, 1] != corners[:, 2]) & (corners[:, 2] != corners[:, 0])
     return np.ascontiguousarray(corners[keep], np.int32)
@@ -68,7 +72,7 @@ def simplified_triangles(V: np.ndarray, F: np.ndarray, target: int, *, cache: bo
             read_failed(path, err)
     simplified = _simplify(V, F, target)
     if simplified is None or len(simplified) == 0:
-        log.info("mesh not simplified for drawing (not a closed manifold): %d triangles drawn", len(F))
+        log.info("mesh drawn whole (not a closed manifold, or not simplified): %d triangles", len(F))
         simplified = np.ascontiguousarray(F, np.int32)
     if cache:
         _store(path, simplified)

@@ -75,3 +75,14 @@ def test_skinned_vertices_come_back_in_the_callers_order(gl_context, posed_critt
     np.testing.assert_array_equal(results[25_600][0], results[None][0])
     np.testing.assert_array_equal(results[25_600][1], results[None][1])
     assert results[None][2] == len(rig.V) and results[25_600][2] < 0.6 * len(rig.V)
+
+
+def test_a_mesh_libigl_cannot_simplify_is_drawn_whole(bar, monkeypatch):
+    import igl
+
+    def refuse(*args, **kwargs):
+        raise RuntimeError("decimate refused")
+
+    monkeypatch.setattr(igl, "decimate", refuse)
+    V, F, _ = bar
+    np.testing.assert_array_equal(lod.simplified_triangles(V, F, len(F) // 2, cache=False), F)
