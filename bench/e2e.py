@@ -18,8 +18,8 @@ its own process. Two cases, run in turns (a shared machine's load falls on both 
 FXAA in one pass over the whole frame, the character lit per pixel, the contact shadow at
 128x128, every triangle drawn, the video encoder fed on the loop's thread with libx264's
 default preset and this process's priority, the bus read at 250 Hz, no late latching and so no
-reading requested ahead; the ground's backdrop has no switch), interleaved with the current ones, and reports
-current / baseline ratios. (Dense skinning stays: the sparse "pairs" layout measured 2x slower
+reading requested ahead; the ground's backdrop has no switch), interleaved with the current
+ones, and reports current / baseline ratios. (Dense skinning stays: the sparse "pairs" layout measured 2x slower
 on llvmpipe, see puppet/render/renderer.py.) ``first_frame_s`` here runs from the call of run_demo (setup: rig, hw_sim,
 reader, pipeline) to the first frame; ``puppet demo --json`` reports it from the command's start.
 ``cpu_ms_per_frame``: CPU time per frame of the loop's thread (the critical path), of this
@@ -44,11 +44,10 @@ from pathlib import Path
 
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")  # as the puppet command does
 
-from puppet.demo import run_demo  # noqa: E402
+from puppet.demo import DEMO_READ_RATE_HZ, run_demo  # noqa: E402
 from puppet.pipeline import STAGES  # noqa: E402
 from puppet.render import VideoSink  # noqa: E402
 from puppet.render.sinks import DEFAULT_PRESET, ENCODER_NICE  # noqa: E402
-from puppet.demo import DEMO_READ_RATE_HZ  # noqa: E402
 
 #: Case name -> (video, antialias, overlay).
 CASES = {"plain": (False, "auto", False), "video-fxaa": (True, "fxaa", True)}
