@@ -11,10 +11,12 @@ edited package never reuses stale results.
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import hashlib
 import logging
 import os
+from collections.abc import Callable
 from pathlib import Path
 
 ENV = "PUPPET_CACHE"
@@ -57,3 +59,18 @@ def read_failed(path: Path, err: Exception) -> None:
 def write_failed(path: Path, err: Exception) -> None:
     """Log a cache entry that could not be written (the next run recomputes it)."""
     log.warning("cache entry %s not written (%s: %s)", path, type(err).__name__, err)
+
+
+def store(path: Path, write: Callable[[Path], None]) -> None:
+    """Write a cache entry: ``write(temporary)`` fills a sibling of ``path`` (same suffix), which
+    is then renamed to ``path``, so a reader never sees half an entry. A folder or disk that
+    refuses is logged (``write_failed``) and the entry skipped."""
+    temporary = path.with_name(f"{path.stem}.{os.getpid()}.tmp{path.suffix}")
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        write(temporary)
+        os.replace(temporary, path)
+    except OSError as err:
+        write_failed(path, err)
+        with contextlib.suppress(OSError):
+            temporary.unlink(missing_ok=True)

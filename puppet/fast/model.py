@@ -12,12 +12,11 @@ bone weights (non-negative, rows summing to one). m = m_bones + extra_weights ha
 from __future__ import annotations
 
 import hashlib
-import os
 from pathlib import Path
 
 import numpy as np
 
-from puppet.cache import cache_dir, code_digest, read_failed, write_failed
+from puppet.cache import cache_dir, code_digest, read_failed, store
 from puppet.fast.clusters import kmeans_weight_space
 from puppet.fast.energy import ENERGIES, lbs_matrix, reduced_matrices
 from puppet.fast.errors import FastError, MeshError
@@ -171,14 +170,8 @@ class FastModel:
         labels, K = _order_clusters_by_support(labels, K)
         self._set(Wf, labels, Q, K, c0, dropped)
         self.cache_hit = False
-        if key is not None:
-            try:
-                cdir.mkdir(parents=True, exist_ok=True)
-                tmp = cdir / f"{key}.{os.getpid()}.tmp.npz"
-                np.savez(tmp, weights=Wf, labels=labels, Q=Q, K=K, c0=c0, dropped=dropped)
-                os.replace(tmp, path)
-            except OSError as err:
-                write_failed(path, err)  # a read-only cache dir only costs the next run its precompute
+        if key is not None:  # a read-only cache dir only costs the next run its precompute
+            store(path, lambda tmp: np.savez(tmp, weights=Wf, labels=labels, Q=Q, K=K, c0=c0, dropped=dropped))
 
     def _set(self, Wf, labels, Q, K, c0, dropped):
         self.weights64 = np.asarray(Wf, np.float64)

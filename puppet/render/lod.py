@@ -17,12 +17,10 @@ from __future__ import annotations
 
 import hashlib
 import logging
-import os
-from pathlib import Path
 
 import numpy as np
 
-from puppet.cache import cache_dir, code_digest, read_failed, write_failed
+from puppet.cache import cache_dir, code_digest, read_failed, store
 
 log = logging.getLogger(__name__)
 
@@ -75,16 +73,5 @@ def simplified_triangles(V: np.ndarray, F: np.ndarray, target: int, *, cache: bo
         log.info("mesh drawn whole (not a closed manifold, or not simplified): %d triangles", len(F))
         simplified = np.ascontiguousarray(F, np.int32)
     if cache:
-        _store(path, simplified)
+        store(path, lambda tmp: np.save(tmp, simplified))
     return simplified
-
-
-def _store(path: Path, triangles: np.ndarray) -> None:
-    tmp = path.with_name(f"{path.stem}.{os.getpid()}.tmp.npy")
-    try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        np.save(tmp, triangles)
-        os.replace(tmp, path)
-    except OSError as err:
-        write_failed(path, err)
-        tmp.unlink(missing_ok=True)
