@@ -1,169 +1,215 @@
-"""PlaybackClock: turns a take's timestamped readings into frames at a fixed output rate."""
+"""Playback: the one rule that turns a take into timed frames (``play``, ``export``, ``batch``,
+``play --view`` and ``perform`` all ask it).
+
+Time line. Readings keep their recorded spacing, except that a gap between two readings longer
+than ``MAX_GAP_S`` is cut to ``MAX_GAP_S`` (a stalled bus, a wrong timestamp: never hours of a
+held pose, never billions of frames); every cut is listed in ``cuts`` and ``gap_note`` says it
+in words, the same in every command and output. Play time is ns on that time line from the
+first reading.
+
+Frames. Frame f (f = 0, 1, ...; an export's frame k is f = k − 1) shows play time
+``round(f · speed · 1e9 / fps)`` ns, for every f whose time is at or before the last reading:
+frame 0 is the first reading. At speed 0.5 a take gives twice the frames.
+
+Ticks. Each servo's ticks are interpolated linearly between the two readings around the time,
+along the shorter way round the encoder (a step of more than half a turn between two readings
+is a wrap, never a fast spin; ``puppet.servo_models.TICKS_PER_TURN``), and rounded to whole
+ticks. ``ok`` is both neighbours' ok (a flagged servo's ticks are what the reader recorded: its
+last good value); a time on a reading is that reading. Nothing here reads a clock: the frames
+are a pure function of the take's timestamps and ticks.
+"""
 
 from __future__ import annotations
 
-import time
-from typing import Callable, Iterable, Iterator, NamedTuple
+import math
+from typing import Iterator, NamedTuple
 
 import numpy as np
 
 from puppet.reading import Reading
+from puppet.servo_models import TICKS_PER_TURN
+from puppet.take.errors import TakeError
 
-MAX_GAP_S = 1.0  # a longer gap between two readings plays as this long (a stalled bus, damage)
+MAX_GAP_S = 1.0
+"""Longest gap between two readings played as recorded, seconds; a longer one plays as this."""
+MAX_GAP_NS = int(MAX_GAP_S * 1e9)
 
 
-class PlaybackFrame(NamedTuple):
-    """One output frame of a playback.
+class Cut(NamedTuple):
+    """A gap between readings that playback cut to MAX_GAP_S.
 
-    index:     output frame number, from 0.
-    t_s:       output time of the frame, seconds since the first frame (index / fps).
-    take_t_ns: take time the frame shows, monotonic ns of the take's clock.
-    reading:   the reading shown (shared between frames that hold the same reading).
+    at_ns:  where it starts, ns after the first reading (recorded time).
+    gap_ns: its recorded length, ns.
     """
 
-    index: int
-    t_s: float
-    take_t_ns: int
-    reading: Reading
+    at_ns: int
+    gap_ns: int
 
 
-class PlaybackClock:
-    """Frames at a fixed output fps from a take's readings; a pure function of the timestamps.
+def play_times_ns(t_ns: np.ndarray, max_gap_ns: int = MAX_GAP_NS) -> tuple[np.ndarray, list[Cut]]:
+    """Play time of each reading and the gaps cut.
 
-    Output frame i shows take time t_first + start_s + i * speed / fps: at speed 0.5 a take
-    plays twice as long. No wall clock is read (see pace() for real-time display).
-    A gap between two readings longer than max_gap_s is cut to max_gap_s (and listed in cuts),
-    so no timestamp, however wrong, makes a playback run on for hours.
+    t_ns: (R,) int64 reading times, non-decreasing. Returns ((R,) int64 ns after the first
+    reading, every gap cut to max_gap_ns; [Cut] in time order).
+    """
+    t = np.asarray(t_ns, np.int64)
+    gaps = np.diff(t)
+    long = np.flatnonzero(gaps > max_gap_ns)
+    play = np.zeros(len(t), np.int64)
+    np.cumsum(np.minimum(gaps, max_gap_ns), out=play[1:])
+    cuts = [Cut(int(t[i] - t[0]), int(gaps[i])) for i in long]
+    return play, cuts
 
-    readings: iterable of Reading in time order (a TakeReader, or its readings()).
-    fps:      output frames per second.
-    speed:    take seconds per output second (> 0).
-    mode:     "hold": the latest reading at or before the frame's take time (sample and hold);
-              "nearest": the reading nearest in time (ties go to the earlier one).
-    start_s, end_s: take time span to play, seconds from the first reading (end_s None: to
-              the last reading), on the take's time line after gaps are cut.
-    max_gap_s: longest gap between readings played as it is, seconds (> 0).
-    cuts:     (take t_ns where the gap starts, gap ns) of every gap cut so far by iteration.
+
+def gap_note(t_ns: np.ndarray) -> str | None:
+    """The warning for a take whose readings at t_ns ((R,) int64) have gaps that playback cuts,
+    naming the longest gap and the bound; None when there are none."""
+    _, cuts = play_times_ns(t_ns)
+    if not cuts:
+        return None
+    worst = max(cuts, key=lambda c: c.gap_ns)
+    return (f"{len(cuts)} gap(s) between readings longer than {MAX_GAP_S:g} s (the longest "
+            f"{_seconds(worst.gap_ns * 1e-9)}, {worst.at_ns * 1e-9:.3f} s into the take); "
+            f"playback cuts them to {MAX_GAP_S:g} s in every output")
+
+
+def _seconds(s: float) -> str:
+    text = f"{s:.3f} s"
+    return text if s < 600 else f"{text} ({s / 3600:.1f} h)"
+
+
+def check_rate(value, what: str, source) -> float:
+    """value as a float, or TakeError (naming source) unless it is a finite number > 0."""
+    try:
+        number = float(value)
+    except (TypeError, ValueError):
+        raise TakeError(source, f"{what} must be a number, got {value!r}") from None
+    if not (math.isfinite(number) and number > 0):
+        raise TakeError(source, f"{what} must be > 0, got {value!r}")
+    return number
+
+
+class Playback:
+    """A take's readings as frames at ``fps`` (see the module docstring for the rule).
+
+    t_ns:  (R,) int64 reading times, non-decreasing, R >= 1.
+    ticks: (R, k) int32 continuous encoder counts, one column per servo.
+    ok:    (R, k) bool, False where a servo's read failed (its ticks hold the last good value).
+    ids:   (k,) servo ids, shared by every Reading made.
+    fps:   frames per second (> 0); speed: take seconds per output second (> 0).
+    source: the take file, named in errors.
+
+    Fields: cuts [Cut]; t_ns (R,) recorded times; play_ns (R,) int64 play time of each reading; duration_ns / duration_s
+    play time of the last reading; t_first_ns. len() is the frame count, known up front.
+    Iterating yields one Reading per frame, stamped t_first_ns + its play time (fresh arrays);
+    reading(f) is frame f; at(seconds) the take at any play time (seeking, perform's cycles);
+    sample() the same into caller arrays (no allocation); play_s() maps a recorded time.
     """
 
-    def __init__(
-        self,
-        readings: Iterable[Reading],
-        *,
-        fps: float = 60.0,
-        speed: float = 1.0,
-        mode: str = "hold",
-        start_s: float = 0.0,
-        end_s: float | None = None,
-        max_gap_s: float = MAX_GAP_S,
-    ):
-        if not fps > 0:
-            raise ValueError(f"PlaybackClock: fps must be > 0, got {fps}")
-        if not speed > 0:
-            raise ValueError(f"PlaybackClock: speed must be > 0, got {speed}")
-        if mode not in ("hold", "nearest"):
-            raise ValueError(f"PlaybackClock: mode must be 'hold' or 'nearest', got {mode!r}")
-        if not max_gap_s > 0:
-            raise ValueError(f"PlaybackClock: max_gap_s must be > 0, got {max_gap_s}")
-        if start_s < 0 or (end_s is not None and end_s < start_s):
-            raise ValueError(f"PlaybackClock: bad span start_s={start_s}, end_s={end_s}")
-        self.readings = readings
-        self.fps = float(fps)
-        self.speed = float(speed)
-        self.mode = mode
-        self.start_s = float(start_s)
-        self.end_s = end_s
-        self.max_gap_ns = int(round(max_gap_s * 1e9))
-        self.cuts: list[tuple[int, int]] = []
+    def __init__(self, t_ns, ticks, ok, ids, *, fps: float = 30.0, speed: float = 1.0,
+                 source="take"):
+        self.fps = check_rate(fps, "frames per second", source)
+        self.speed = check_rate(speed, "speed", source)
+        t = np.asarray(t_ns, np.int64)
+        if t.ndim != 1 or len(t) == 0:
+            raise TakeError(source, "the take holds no readings")
+        back = np.flatnonzero(np.diff(t) < 0)
+        if back.size:
+            i = int(back[0]) + 1
+            raise TakeError(source, f"reading {i} is timed before reading {i - 1} "
+                                    f"({t[i]} < {t[i - 1]} ns): readings must be in time order")
+        self.ticks = np.asarray(ticks, np.int64)
+        self.ok = np.asarray(ok, bool)
+        if self.ticks.shape != (len(t), len(ids)) or self.ok.shape != self.ticks.shape:
+            raise TakeError(source, f"ticks {self.ticks.shape} / ok {self.ok.shape} do not fit "
+                                    f"{len(t)} readings of {len(ids)} servos")
+        self.ids = np.asarray(ids)
+        self.t_ns = t
+        self.t_first_ns = int(t[0])
+        self.play_ns, self.cuts = play_times_ns(t)
+        self.duration_ns = int(self.play_ns[-1])
+        self.duration_s = self.duration_ns * 1e-9
         self._step_ns = self.speed * 1e9 / self.fps
+        count = int(self.duration_ns // self._step_ns) + 1
+        while round(count * self._step_ns) <= self.duration_ns:  # guard the float division
+            count += 1
+        while count > 1 and round((count - 1) * self._step_ns) > self.duration_ns:
+            count -= 1
+        self._count = count
+        k = self.ticks.shape[1]
+        self._step = np.empty(k, np.int64)  # scratch of sample()
+        self._part = np.empty(k, np.float64)
 
-    def _offset_ns(self, i: int) -> int:
-        return int(round(self.start_s * 1e9 + i * self._step_ns))
-
-    def frame_count(self, duration_ns: int) -> int:
-        """Frames produced for a take whose readings span duration_ns (last minus first)."""
-        end_ns = duration_ns if self.end_s is None else min(duration_ns, int(round(self.end_s * 1e9)))
-        start_ns = int(round(self.start_s * 1e9))
-        if end_ns < start_ns:
-            return 0
-        n = int((end_ns - start_ns) // self._step_ns) + 1
-        while self._offset_ns(n) <= end_ns:  # guard the float division at the boundary
-            n += 1
-        while n > 0 and self._offset_ns(n - 1) > end_ns:
-            n -= 1
-        return n
+    @classmethod
+    def of_take(cls, reader, ids, *, fps: float = 30.0, speed: float = 1.0) -> "Playback":
+        """The frames of an open TakeReader for the rig servos ``ids`` (its bus order)."""
+        ids = [int(i) for i in ids]
+        if len(reader) == 0:
+            raise TakeError(reader.path, "the take holds no readings")
+        return cls(*reader.arrays(ids=ids), np.asarray(ids), fps=fps, speed=speed,
+                   source=reader.path)
 
     def __len__(self) -> int:
-        times = getattr(self.readings, "timestamps", None)
-        if times is not None:
-            t = times()
-            return 0 if len(t) == 0 else self.frame_count(capped_duration_ns(t, self.max_gap_ns))
-        first = getattr(self.readings, "t_first_ns", None)
-        last = getattr(self.readings, "t_last_ns", None)
-        if first is None or last is None:
-            if hasattr(self.readings, "t_first_ns"):
-                return 0
-            raise TypeError("PlaybackClock: len() needs a TakeReader (with t_first_ns, t_last_ns)")
-        return self.frame_count(last - first)
+        return self._count
 
-    def _advance(self, cur: Reading, cur_p: int, nxt: Reading | None) -> int:
-        """Play time (ns from the first reading) of nxt, which follows cur at play time cur_p."""
-        if nxt is None:
-            return cur_p
-        gap = nxt.t_ns - cur.t_ns
-        if gap > self.max_gap_ns:
-            self.cuts.append((cur.t_ns, gap))
-            gap = self.max_gap_ns
-        return cur_p + gap
+    def frame_ns(self, f: int) -> int:
+        """Play time of frame f, ns after the first reading."""
+        return int(round(f * self._step_ns))
 
-    def __iter__(self) -> Iterator[PlaybackFrame]:
-        it = iter(self.readings)
-        cur = next(it, None)
-        if cur is None:
+    def frame_times_ns(self) -> np.ndarray:
+        """(N,) int64 play time of every frame (what the Readings are stamped, less t_first_ns)."""
+        return np.rint(np.arange(self._count) * self._step_ns).astype(np.int64)
+
+    def play_s(self, take_t_ns: int) -> float:
+        """Play time (seconds) of a recorded take time (a marker), clamped to the take."""
+        t, play = self.t_ns, self.play_ns
+        i = int(np.searchsorted(t, take_t_ns, side="right")) - 1
+        if i < 0:
+            return 0.0
+        if i >= len(t) - 1:
+            return self.duration_s
+        return float(play[i] + min(take_t_ns - t[i], play[i + 1] - play[i])) * 1e-9
+
+    def sample(self, play_ns: float, ticks: np.ndarray, ok: np.ndarray) -> None:
+        """The take at play time play_ns (ns after the first reading, clamped to the take)
+        into ticks ((k,) int32) and ok ((k,) bool); allocates nothing."""
+        play = self.play_ns
+        i = int(np.searchsorted(play, play_ns, side="right")) - 1
+        if i < 0:
+            i = 0
+        if i >= len(play) - 1 or play_ns <= play[i]:
+            ticks[...] = self.ticks[i]
+            ok[...] = self.ok[i]
             return
-        cur_p = 0
-        nxt = next(it, None)
-        nxt_p = self._advance(cur, cur_p, nxt)
-        end_ns = None if self.end_s is None else int(round(self.end_s * 1e9))
-        i = 0
-        while True:
-            pt = self._offset_ns(i)
-            if end_ns is not None and pt > end_ns:
-                return
-            while nxt is not None and nxt_p <= pt:
-                cur, cur_p = nxt, nxt_p
-                nxt = next(it, None)
-                nxt_p = self._advance(cur, cur_p, nxt)
-            if nxt is None and pt > cur_p:
-                return
-            shown = cur
-            if self.mode == "nearest" and nxt is not None and nxt_p - pt < pt - cur_p:
-                shown = nxt
-            yield PlaybackFrame(i, i / self.fps, cur.t_ns + (pt - cur_p), shown)
-            i += 1
+        a = float(play_ns - play[i]) / float(play[i + 1] - play[i])
+        step, part = self._step, self._part
+        np.subtract(self.ticks[i + 1], self.ticks[i], out=step)  # the short way round
+        step += TICKS_PER_TURN // 2
+        np.remainder(step, TICKS_PER_TURN, out=step)
+        step -= TICKS_PER_TURN // 2
+        np.multiply(step, a, out=part)
+        part += 0.5
+        np.floor(part, out=part)
+        np.add(self.ticks[i], part, out=ticks, casting="unsafe")
+        np.logical_and(self.ok[i], self.ok[i + 1], out=ok)
 
+    def at(self, seconds: float) -> Reading:
+        """The take at play time ``seconds`` as a Reading (fresh arrays), stamped t_first_ns +
+        that play time."""
+        return self._reading(int(round(seconds * 1e9)))
 
-def capped_duration_ns(t_ns: np.ndarray, max_gap_ns: int) -> int:
-    """Play time of readings at t_ns ((N,) int64, in order) with every gap cut to max_gap_ns."""
-    return int(np.minimum(np.diff(np.asarray(t_ns, dtype=np.int64)), max_gap_ns).sum())
+    def reading(self, f: int) -> Reading:
+        """Frame f (0-based) as a Reading."""
+        if not 0 <= f < self._count:
+            raise IndexError(f"frame {f} of {self._count}")
+        return self._reading(self.frame_ns(f))
 
+    def _reading(self, play_ns: int) -> Reading:
+        k = len(self.ids)
+        ticks, ok = np.empty(k, np.int32), np.empty(k, bool)
+        self.sample(play_ns, ticks, ok)
+        return Reading(t_ns=self.t_first_ns + play_ns, ids=self.ids, ticks=ticks, ok=ok)
 
-def pace(
-    frames: Iterable[PlaybackFrame],
-    *,
-    clock: Callable[[], float] = time.monotonic,
-    sleep: Callable[[float], None] = time.sleep,
-) -> Iterator[PlaybackFrame]:
-    """Yield frames no earlier than their t_s after the first one, for real-time display.
-
-    Frames are never dropped here; a consumer that falls behind sees them late.
-    clock: seconds, monotonic; sleep: seconds. Both injectable for tests.
-    """
-    start = None
-    for frame in frames:
-        if start is None:
-            start = clock()
-        wait = start + frame.t_s - clock()
-        if wait > 0:
-            sleep(wait)
-        yield frame
+    def __iter__(self) -> Iterator[Reading]:
+        for f in range(self._count):
+            yield self.reading(f)

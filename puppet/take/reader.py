@@ -23,7 +23,7 @@ from mcap.stream_reader import breakup_chunk
 from puppet.reading import Reading
 from puppet.take import format as fmt
 from puppet.take.errors import TakeError, TakeRigMismatch
-from puppet.take.playback import MAX_GAP_S
+from puppet.take.playback import gap_note
 
 MCAP_MAGIC = b"\x89MCAP0\r\n"
 _RECORD_HEAD = struct.Struct("<BQ")
@@ -344,18 +344,12 @@ class TakeReader:
             self.t_first_ns, self.t_last_ns = s.t_first, s.last_t
 
     def _note_gaps(self) -> None:
-        """Report gaps between readings that playback cuts (see PlaybackClock.max_gap_s)."""
+        """Report gaps between readings that playback cuts (puppet.take.playback.gap_note)."""
         if len(self._times) < 2:
             return
-        gaps = np.diff(np.frombuffer(self._times, dtype=np.int64))
-        long = np.flatnonzero(gaps > MAX_GAP_S * 1e9)
-        if long.size:
-            worst = int(long[np.argmax(gaps[long])])
-            at = (self._times[worst] - self._times[0]) * 1e-9
-            self.report.notes.append(
-                f"{long.size} gap(s) between readings longer than {MAX_GAP_S:g} s (the longest "
-                f"{gaps[worst] * 1e-9:.3g} s, {at:.3f} s into the take); playback cuts them "
-                f"to {MAX_GAP_S:g} s")
+        note = gap_note(np.frombuffer(self._times, dtype=np.int64))
+        if note is not None:
+            self.report.notes.append(note)
 
     def _bulk(self, mm: mmap.mmap, s: "_ScanState", pos: int) -> int:
         """Take in the run of back-to-back good readings starting at pos, checked all at once;

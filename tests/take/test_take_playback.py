@@ -1,10 +1,14 @@
-"""PlaybackClock: fixed-rate frames from a take's timestamps, deterministic, at any speed."""
+"""Playback, the one take-to-frames rule: frame counts and times, interpolation (wrap-safe),
+flags, long gaps cut and reported, speed, random access, determinism, bad input."""
 
 import numpy as np
 import pytest
 
 from puppet.reading import Reading
-from puppet.take import PlaybackClock, TakeReader, pace
+from puppet.take import MAX_GAP_S, Cut, Playback, TakeError, TakeReader
+from puppet.take.playback import check_rate, gap_note
+
+IDS = np.array([1, 2])
 
 
 def jittered_readings(n=300, seed=0):
@@ -13,50 +17,106 @@ def jittered_readings(n=300, seed=0):
     gaps = rng.integers(1_000_000, 3_000_000, size=n)
     gaps[n // 2] = 50_000_000
     t = 7_000_000_000 + np.concatenate([[0], np.cumsum(gaps[:-1])])
-    ids = np.array([1, 2])
-    return [Reading(int(ti), ids, np.array([i, -i], np.int32), np.ones(2, bool))
-            for i, ti in enumerate(t)]
+    ticks = np.stack([np.arange(n), -7 * np.arange(n)], axis=1).astype(np.int32)
+    return t.astype(np.int64), ticks, np.ones((n, 2), bool)
 
 
-def brute_force(readings, take_t, mode):
-    t = np.array([r.t_ns for r in readings])
+def brute_force(t, ticks, ok, take_t):
+    """Ticks and ok at take time take_t by the rule's definition, one servo at a time."""
     j = int(np.searchsorted(t, take_t, side="right")) - 1
-    if mode == "nearest" and j + 1 < len(t) and t[j + 1] - take_t < take_t - t[j]:
-        j += 1
-    return j
+    if j == len(t) - 1 or t[j] == take_t:
+        return ticks[j].tolist(), ok[j].tolist()
+    a = (take_t - t[j]) / (t[j + 1] - t[j])
+    out = []
+    for s in range(ticks.shape[1]):
+        step = (int(ticks[j + 1, s]) - int(ticks[j, s]) + 2048) % 4096 - 2048
+        out.append(int(ticks[j, s]) + int(np.floor(a * step + 0.5)))
+    return out, (ok[j] & ok[j + 1]).tolist()
 
 
-@pytest.mark.parametrize("mode", ["hold", "nearest"])
 @pytest.mark.parametrize("fps,speed", [(60, 1.0), (30, 0.5), (24, 2.0), (1000, 1.0)])
-def test_frames_show_the_right_reading(mode, fps, speed):
-    rs = jittered_readings()
-    frames = list(PlaybackClock(rs, fps=fps, speed=speed, mode=mode))
-    t0, t_last = rs[0].t_ns, rs[-1].t_ns
+def test_frames_show_the_take_at_their_time(fps, speed):
+    t, ticks, ok = jittered_readings()
+    frames = Playback(t, ticks, ok, IDS, fps=fps, speed=speed)
+    got = list(frames)
+    t0, t_last = int(t[0]), int(t[-1])
     n = int(np.floor((t_last - t0) * 1e-9 * fps / speed + 1e-9)) + 1
-    assert len(frames) == n
-    for i, f in enumerate(frames):
-        assert f.index == i
-        assert f.t_s == pytest.approx(i / fps, abs=1e-12)
-        assert abs(f.take_t_ns - (t0 + i * speed * 1e9 / fps)) <= 1
-        assert f.reading is rs[brute_force(rs, f.take_t_ns, mode)]
-    assert frames[-1].take_t_ns <= t_last < frames[-1].take_t_ns + speed * 1e9 / fps
+    assert len(got) == len(frames) == n  # the count is known up front
+    for i, r in enumerate(got):
+        assert abs(r.t_ns - (t0 + i * speed * 1e9 / fps)) <= 1
+        assert (r.ticks.tolist(), r.ok.tolist()) == brute_force(t, ticks, ok, r.t_ns)
+        assert r.ticks.dtype == np.int32 and r.ids is frames.ids
+    assert got[-1].t_ns <= t_last < got[-1].t_ns + speed * 1e9 / fps
+    assert frames.cuts == []
+
+
+def test_frame_counts_for_the_usual_rates():
+    for fps, count in ((24, 73), (25, 76), (30, 91), (50, 151), (60, 181), (7.5, 23)):
+        t = np.arange(7, dtype=np.int64) * 500_000_000  # 3 s, a reading every 0.5 s
+        frames = Playback(t, np.zeros((7, 2), np.int32), np.ones((7, 2), bool), IDS, fps=fps)
+        assert len(frames) == count
+        np.testing.assert_array_equal(frames.frame_times_ns(), np.rint(np.arange(count) * 1e9 / fps))
+    one = np.zeros((2, 2), np.int32), np.ones((2, 2), bool)
+    assert len(Playback(np.array([0, 999_999_999]), *one, IDS, fps=24)) == 24  # 23/24 s < 0.999.. s
+    assert len(Playback(np.array([5]), one[0][:1], one[1][:1], IDS, fps=24)) == 1
+
+
+def test_ticks_are_interpolated_between_irregular_readings():
+    t = np.array([0, 10_000_000, 40_000_000, 50_000_000], np.int64)  # 0, 10, 40, 50 ms
+    ticks = np.array([[100, 0], [200, 10], [500, 40], [600, 50]], np.int32)
+    frames = Playback(t, ticks, np.ones((4, 2), bool), IDS, fps=50)  # every 20 ms: 0, 20, 40 ms
+    assert len(frames) == 3
+    assert [r.ticks.tolist() for r in frames] == [[100, 0], [300, 20], [500, 40]]
+    assert [r.t_ns for r in frames] == [0, 20_000_000, 40_000_000]
+
+
+def test_interpolation_takes_the_short_way_round_a_wrap():
+    t = np.array([0, 10_000_000], np.int64)
+    ticks = np.array([[4090, 10], [4, 4090]], np.int32)  # servo 1 wraps up, servo 2 down
+    frames = Playback(t, ticks, np.ones((2, 2), bool), IDS, fps=200)  # 0, 5, 10 ms
+    assert frames.reading(1).ticks.tolist() == [4090 + 5, 10 - 8]  # +10, -16 halved; never half a turn
+
+
+def test_a_failed_servo_flags_the_frames_it_touches():
+    t = np.array([0, 10_000_000, 20_000_000], np.int64)
+    ok = np.array([[True, True], [True, False], [True, True]])
+    frames = list(Playback(t, np.zeros((3, 2), np.int32), ok, IDS, fps=400))  # every 2.5 ms
+    flagged = [not r.ok[1] for r in frames]
+    assert flagged[0] is False and flagged[4] is True and flagged[8] is False
+    assert all(flagged[1:8])
+    assert all(r.ok[0] for r in frames)
 
 
 def test_half_speed_plays_twice_as_long():
-    rs = jittered_readings()
-    a = list(PlaybackClock(rs, fps=50, speed=1.0))
-    b = list(PlaybackClock(rs, fps=50, speed=0.5))
+    take = jittered_readings()
+    a = list(Playback(*take, IDS, fps=50, speed=1.0))
+    b = list(Playback(*take, IDS, fps=50, speed=0.5))
     assert len(b) == 2 * len(a) - 1
-    assert [f.reading for f in b[::2]] == [f.reading for f in a]
-    assert b[-1].t_s == pytest.approx(2 * a[-1].t_s)
+    assert [r.ticks.tolist() for r in b[::2]] == [r.ticks.tolist() for r in a]
+    assert [r.t_ns for r in b[::2]] == [r.t_ns for r in a]
+
+
+def test_random_access_agrees_with_iteration():
+    take = jittered_readings()
+    frames = Playback(*take, IDS, fps=60)
+    got = list(frames)
+    for f in (0, 1, 17, len(frames) // 2, len(frames) - 1):
+        by_frame, by_time = frames.reading(f), frames.at(frames.frame_ns(f) * 1e-9)
+        assert by_frame.t_ns == by_time.t_ns == got[f].t_ns
+        assert by_frame.ticks.tolist() == by_time.ticks.tolist() == got[f].ticks.tolist()
+    ticks, ok = np.empty(2, np.int32), np.empty(2, bool)
+    frames.sample(frames.frame_ns(5), ticks, ok)
+    assert ticks.tolist() == got[5].ticks.tolist()
+    assert frames.at(-1.0).ticks.tolist() == take[1][0].tolist()   # before the start: the first
+    assert frames.at(1e6).ticks.tolist() == take[1][-1].tolist()   # after the end: the last
+    with pytest.raises(IndexError):
+        frames.reading(len(frames))
 
 
 def test_playback_of_a_take_is_deterministic(take_path):
     def run():
-        r = TakeReader(take_path)
-        clock = PlaybackClock(r, fps=60, speed=0.5)
-        return len(clock), [(f.index, f.take_t_ns, f.reading.t_ns, f.reading.ticks.tolist())
-                            for f in clock]
+        frames = Playback.of_take(TakeReader(take_path), [3, 7, 11, 12], fps=60, speed=0.5)
+        return len(frames), [(r.t_ns, r.ticks.tolist(), r.ok.tolist()) for r in frames]
     n1, a = run()
     n2, b = run()
     assert a == b
@@ -64,66 +124,26 @@ def test_playback_of_a_take_is_deterministic(take_path):
     assert len(a) == int((199 * 2_000_000 + (199 * 37) % 100) * 1e-9 * 60 / 0.5) + 1
 
 
-def test_span_and_frame_count():
-    rs = jittered_readings()
-    t0 = rs[0].t_ns
-    clock = PlaybackClock(rs, fps=100, start_s=0.1, end_s=0.3)
-    frames = list(clock)
-    assert frames[0].take_t_ns == t0 + 100_000_000
-    assert frames[-1].take_t_ns == t0 + 300_000_000
-    assert len(frames) == 21 == clock.frame_count(rs[-1].t_ns - t0)
-    assert list(PlaybackClock([], fps=30)) == []
-    single = list(PlaybackClock(rs[:1], fps=30))
-    assert len(single) == 1 and single[0].reading is rs[0]
-
-
-def test_bad_arguments():
-    with pytest.raises(ValueError, match="fps must be > 0"):
-        PlaybackClock([], fps=0)
-    with pytest.raises(ValueError, match="speed must be > 0"):
-        PlaybackClock([], speed=-1)
-    with pytest.raises(ValueError, match="mode must be"):
-        PlaybackClock([], mode="linear")
-    with pytest.raises(ValueError, match="bad span"):
-        PlaybackClock([], start_s=2.0, end_s=1.0)
-    with pytest.raises(TypeError, match="needs a TakeReader"):
-        len(PlaybackClock([], fps=30))
-
-
-def test_pace_waits_for_each_frame_on_the_injected_clock():
-    now = [100.0]
-    slept = []
-
-    def sleep(s):
-        slept.append(s)
-        now[0] += s
-
-    frames = list(PlaybackClock(jittered_readings(50), fps=10))
-    out = []
-    for f in pace(frames, clock=lambda: now[0], sleep=sleep):
-        out.append((f.index, now[0]))
-        now[0] += 0.03  # work per frame
-    assert [i for i, _ in out] == list(range(len(frames)))
-    for i, t in out:
-        assert t == pytest.approx(100.0 + i / 10)
-    assert all(s == pytest.approx(0.07) for s in slept)
-
-
 def test_long_gaps_are_cut_and_reported(tmp_path, kit):
-    """A stall (or a wrong timestamp that passed every check) plays as max_gap_s, not hours."""
+    """A stall (or a wrong timestamp that passed every check) plays as MAX_GAP_S, not hours."""
     hour = 3600 * 10**9
     times = [i * 10_000_000 for i in range(10)] + [hour + i * 10_000_000 for i in range(10)]
     rs = [kit.reading_at(i, t) for i, t in enumerate(times)]
-    clock = PlaybackClock(rs, fps=100, max_gap_s=0.5)
-    frames = list(clock)
-    assert clock.cuts == [(90_000_000, hour - 90_000_000)]
-    # 0.09 s, the gap cut to 0.5 s, then 0.09 s: 0.68 s at 100 fps.
-    assert len(frames) == 69
-    assert [f.reading.t_ns for f in frames[:10]] == times[:10]
-    assert all(f.reading is rs[9] for f in frames[9:59])  # held through the cut gap
-    assert [f.reading.t_ns for f in frames[59:]] == times[10:]
-    assert frames[59].take_t_ns == hour
-    assert np.all(np.diff([f.take_t_ns for f in frames]) > 0)
+    t = np.array(times, np.int64)
+    ticks = np.array([r.ticks for r in rs])
+    ok = np.array([r.ok for r in rs])
+    frames = Playback(t, ticks, ok, kit.IDS, fps=100)
+    got = list(frames)
+    assert frames.cuts == [Cut(90_000_000, hour - 90_000_000)]
+    # 0.09 s, the gap cut to 1 s, then 0.09 s: 1.18 s at 100 fps.
+    assert len(got) == len(frames) == 119
+    assert frames.duration_s == pytest.approx(1.18)
+    assert [r.ticks.tolist() for r in got[:10]] == [r.ticks.tolist() for r in rs[:10]]
+    assert [r.ticks.tolist() for r in got[109:]] == [r.ticks.tolist() for r in rs[10:]]
+    middle = got[59]  # half way through the cut gap: half way between readings 9 and 10
+    assert middle.ticks.tolist() == brute_force(np.array([0, 2]), ticks[9:11], ok[9:11], 1)[0]
+    assert np.all(np.diff([r.t_ns for r in got]) > 0)
+    assert frames.play_s(hour) == pytest.approx(1.09)  # a marker after the gap moves with it
 
     path = tmp_path / "gap.mcap"
     with kit.open_writer(path) as w:
@@ -131,11 +151,22 @@ def test_long_gaps_are_cut_and_reported(tmp_path, kit):
             w.write(r)
     reader = TakeReader(path)
     assert reader.report.skipped_count == 0
-    assert "1 gap(s) between readings longer than 1 s" in reader.recovery
-    clock = PlaybackClock(reader, fps=100)  # the default cut, 1 s
-    assert len(clock) == len(list(clock)) == 119
+    note = gap_note(t)
+    assert note in reader.recovery
+    assert note.startswith(f"1 gap(s) between readings longer than {MAX_GAP_S:g} s (the longest "
+                           "3599.910 s (1.0 h), 0.090 s into the take)")
+    assert len(Playback.of_take(reader, kit.IDS, fps=100)) == 119
+    assert gap_note(t[:10]) is None
 
 
-def test_bad_max_gap():
-    with pytest.raises(ValueError, match="max_gap_s must be > 0"):
-        PlaybackClock([], max_gap_s=0)
+def test_bad_rates_and_times_are_refused(tmp_path):
+    for bad in (0, -24, float("nan"), float("inf"), "abc"):
+        with pytest.raises(TakeError, match="frames per second must be"):
+            check_rate(bad, "frames per second", "--fps")
+        with pytest.raises(TakeError, match="speed must be"):
+            Playback(np.array([0]), np.zeros((1, 2)), np.ones((1, 2), bool), IDS, speed=bad)
+    t = np.array([0, 20, 10], np.int64)
+    with pytest.raises(TakeError, match="reading 2 is timed before reading 1"):
+        Playback(t, np.zeros((3, 2), np.int32), np.ones((3, 2), bool), IDS, fps=30)
+    with pytest.raises(TakeError, match="the take holds no readings"):
+        Playback(np.zeros(0, np.int64), np.zeros((0, 2), np.int32), np.zeros((0, 2), bool), IDS)
