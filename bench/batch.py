@@ -69,15 +69,15 @@ def cpu_now() -> tuple[float, float]:
 
 def cost_model(rig, take: Path, folder: Path, fps: float, size: tuple[int, int]) -> dict:
     """Per-take CPU seconds of solve, render and encode, and the bytes a take moves."""
-    from puppet.export import Outputs, Resampler, export_take
+    from puppet.export import Outputs, export_take
     from puppet.render import VideoSink
     from puppet.replay import open_take
-    from puppet.take import TakeReader
+    from puppet.take import Playback, TakeReader
 
     precompute = RigPrecompute.for_rig(rig)
     replay_rig, reader = open_take(take, rig, default_rig=True)
     ids = replay_rig.servo_map.ids
-    frames = list(Resampler(*TakeReader(take).arrays(ids=ids), ids, fps))
+    frames = list(Playback.of_take(TakeReader(take), ids, fps=fps))
     with Pipeline(replay_rig, render=True, width=size[0], height=size[1], antialias="msaa",
                   overlay=True, precompute=precompute) as pipeline:
         c0 = cpu_now()[0]

@@ -4,7 +4,7 @@ A synthetic take of the built-in critter (every servo moving, readings at about 
 jittered times, 60 s by default) is exported at 30 fps to each format on its own, with
 ``puppet.export.export_take`` (resampling, solve, deformation, joint transforms, writing,
 atomic rename: everything a user waits for). The baseline, measured in the same run, is the
-shared part alone: resample + FAST solve + deformation (V' = M T) + joint transforms, writing
+shared part alone: take frames + FAST solve + deformation (V' = M T) + joint transforms, writing
 nothing (measured before and after the formats; the quieter run counts); each format's ratio
 to it says what writing that format costs on top (BVH skips the deformation, so it can be < 1).
 
@@ -28,7 +28,8 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")  # as the puppet command does
 import numpy as np  # noqa: E402
 
 from puppet.bus import Reading  # noqa: E402
-from puppet.export import JointTransforms, Outputs, Resampler, export_take  # noqa: E402
+from puppet.export import JointTransforms, Outputs, export_take  # noqa: E402
+from puppet.take import Playback  # noqa: E402
 from puppet.loop import Pipeline  # noqa: E402
 from puppet.rig import builtin  # noqa: E402
 from puppet.take import TakeReader, TakeWriter  # noqa: E402
@@ -57,7 +58,7 @@ def baseline(rig, take: Path, fps: float) -> dict:
     """The per-frame work every format shares, writing nothing."""
     start = time.perf_counter()
     ids = rig.servo_map.ids
-    frames = Resampler(*TakeReader(take).arrays(ids=ids), ids, fps)
+    frames = Playback.of_take(TakeReader(take), ids, fps=fps)
     with Pipeline(rig, render=False) as pipeline:
         M = pipeline.model.lbs_matrix()
         T = np.empty(pipeline.T.shape)
@@ -69,7 +70,7 @@ def baseline(rig, take: Path, fps: float) -> dict:
             np.matmul(M, T, out=deformed)
             joints.update(pipeline.T)
     seconds = time.perf_counter() - start
-    return {"what": "resample + solve + deform + joint transforms", "frames": len(frames),
+    return {"what": "frames + solve + deform + joint transforms", "frames": len(frames),
             "ms_per_frame": 1e3 * seconds / len(frames)}
 
 

@@ -4,7 +4,8 @@
     summary = play_take(rig, reader, [VideoSink("take.mp4", 30)], fps=30)
 
 ``puppet play`` and ``puppet batch`` both call these, so a take replayed alone or in a batch
-gives the same frames (the solve is deterministic: fixed iterations, warm start from rest).
+gives the same frames (the solve is deterministic: fixed iterations, warm start from rest); the
+frames are ``puppet.take.Playback``'s, as every export's.
 """
 
 from __future__ import annotations
@@ -90,29 +91,35 @@ def open_take(take, rig: Rig | str | Path | None, *,
 def play_take(rig: Rig, reader: TakeReader, sinks: Iterable, *, fps: float = 30.0,
               speed: float = 1.0, antialias: str = "msaa", size: tuple[int, int] = (640, 480),
               precompute=None, progress: Callable[[int, int], None] | None = None,
-              should_stop: Callable[[], bool] = lambda: False):
+              should_stop: Callable[[], bool] = lambda: False, frames=None, solved: Iterable = ()):
     """Solve and render every frame of a take into ``sinks`` (objects with ``write(image)``).
 
-    fps: frames per second of the output; speed: playback speed factor (frames at fps of the
-    take's time scaled by it); size: (width, height) pixels; precompute: a shared
-    ``RigPrecompute`` of ``rig`` (None: built here). progress: called with (frames done,
-    frames in all) after each frame. should_stop() (Ctrl-C, SIGTERM) ends it after a whole
-    frame. Returns the pipeline's Summary. The caller closes the sinks.
+    fps: frames per second of the output; speed: playback speed factor; the frames are
+    ``puppet.take.Playback``'s (``frames``: one made earlier, e.g. shared with exports; None:
+    made here from fps and speed). size: (width, height) pixels; precompute: a shared
+    ``RigPrecompute`` of ``rig`` (None: built here). solved: more per-frame sinks of the solve,
+    objects with ``write(pipeline)`` called after each frame's solve (batch's
+    ``puppet.export.ExportWriters``: one solve for the video and every export). progress:
+    called with (frames done, frames in all) after each frame. should_stop() (Ctrl-C, SIGTERM)
+    ends it after a whole frame. Returns the pipeline's Summary. The caller closes the sinks.
     """
     from puppet.loop import Pipeline, run_frames
-    from puppet.take import PlaybackClock
+    from puppet.take import Playback
 
-    ids = [int(i) for i in rig.servo_map.ids]
+    if frames is None:
+        frames = Playback.of_take(reader, rig.servo_map.ids, fps=fps, speed=speed)
+    solved = list(solved)
     with Pipeline(rig, overlay=True, antialias=antialias, width=size[0], height=size[1],
                   precompute=precompute) as pipeline:
-        clock = PlaybackClock(reader.readings(ids=ids), fps=fps, speed=speed)
-        total = clock.frame_count(reader.t_last_ns - reader.t_first_ns)
+        total = len(frames)
         done = [0]
 
-        def on_frame(_pipeline) -> None:
+        def on_frame(solved_pipeline) -> None:
+            for sink in solved:
+                sink.write(solved_pipeline)
             done[0] += 1
             if progress is not None:
                 progress(done[0], total)
 
-        return run_frames(pipeline, (f.reading for f in clock), sinks=sinks, on_frame=on_frame,
+        return run_frames(pipeline, frames, sinks=sinks, on_frame=on_frame,
                           should_stop=should_stop)

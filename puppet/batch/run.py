@@ -88,7 +88,7 @@ class BatchReport:
 
 
 def _check_settings(fps, up: str, size) -> tuple[float, tuple[int, int]]:
-    from puppet.export.resample import check_fps
+    from puppet.export.run import check_fps
 
     fps_value = check_fps(fps)
     if up not in ("y", "z"):

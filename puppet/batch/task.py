@@ -2,14 +2,16 @@
 
 The worker writes the take's outputs into a private staging folder, each through
 ``puppet.atomic`` (a temporary name, renamed when whole), with the very functions ``puppet
-export`` (``export_take``) and ``puppet play`` (``play_take``) call, so the bytes are the same as
-running those commands on the take alone. The driver then moves them into the output folder
+export`` (``export_take``, ``ExportWriters``) and ``puppet play`` (``play_take``) call, so the
+bytes are the same as running those commands on the take alone. A take is solved once for all
+its formats: with a video, the exports are written from the same solved frames as it. The driver then moves them into the output folder
 (local engine) or receives their bytes and writes them (Ray). A worker killed mid-take leaves
 only its staging folder, which the driver removes.
 """
 
 from __future__ import annotations
 
+import contextlib
 import os
 import time
 from dataclasses import dataclass, field
@@ -89,7 +91,8 @@ def run_take(job: Job, shared: Shared, staging: Path) -> TakeResult:
 
     A bad take (corrupt, foreign, empty) is a result with ``error`` set, never an exception.
     """
-    from puppet.export import Outputs, export_take
+    from puppet.export import ExportWriters, Outputs, export_take
+    from puppet.export.run import take_frames
     from puppet.render import VideoSink
     from puppet.replay import open_take, play_take
 
@@ -101,21 +104,26 @@ def run_take(job: Job, shared: Shared, staging: Path) -> TakeResult:
         rig, reader = open_take(job.take, shared.rig, default_rig=shared.default_rig)
         if reader.recovery is not None:
             result.warning = str(reader.recovery)
-        exports = {fmt: staging / names[fmt] for fmt in EXPORT_FORMATS if fmt in names}
-        if exports:
-            report = export_take(rig, reader, Outputs(**exports), fps=settings.fps, up=settings.up,
+        exports = Outputs(**{fmt: staging / names[fmt] for fmt in EXPORT_FORMATS if fmt in names})
+        if "mp4" not in names:
+            report = export_take(rig, reader, exports, fps=settings.fps, up=settings.up,
                                  precompute=shared.precompute)
             result.frames = report.frames
-        if "mp4" in names:
-            with atomic_output(staging / names["mp4"]) as temporary:
-                sink = VideoSink(temporary, settings.fps)
-                try:
-                    summary = play_take(rig, reader, [sink], fps=settings.fps,
-                                        antialias=settings.antialias, size=settings.size,
-                                        precompute=shared.precompute)
-                finally:
-                    sink.close()
-            result.frames = result.frames or summary.frames
+        else:  # one solve of every frame: the video and every export from the same T
+            frames = take_frames(rig, reader, settings.fps)
+            with contextlib.ExitStack() as stack:
+                writers = [stack.enter_context(ExportWriters(rig, reader, exports, frames,
+                                                             up=settings.up))
+                           ] if exports.items() else []
+                with atomic_output(staging / names["mp4"]) as temporary:
+                    sink = VideoSink(temporary, settings.fps)
+                    try:
+                        summary = play_take(rig, reader, [sink], frames=frames, solved=writers,
+                                            antialias=settings.antialias, size=settings.size,
+                                            precompute=shared.precompute)
+                    finally:
+                        sink.close()
+            result.frames = summary.frames
         result.files = {fmt: str(staging / name) for fmt, name in names.items()}
     except (PuppetError, OSError) as err:
         result.error = str(err) if isinstance(err, PuppetError) else _os_message(err)

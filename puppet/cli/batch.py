@@ -56,8 +56,10 @@ def batch(takes: tuple[str, ...], out: str, rig_path: str | None, formats: str, 
         bar = click.progressbar(length=count, label="takes", file=sys.stderr)
         bar.__enter__()
 
-    def on_result(_result) -> None:
+    def on_result(result) -> None:
         bar.update(1)
+        if result.warning:  # e.g. a damaged take, or gaps cut: said where a user looks
+            click.echo(f"\nwarning: {result.take}: {result.warning}", err=True)
 
     try:
         report = run_batch(list(takes), out, rig=rig, rig_inputs=rig_files(rig),

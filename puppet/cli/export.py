@@ -35,7 +35,7 @@ def export(take: str, rig_path: str | None, gltf: str | None, usd: str | None, p
       puppet export take.mcap --usd anim.usdc --pc2 mesh.pc2 --up z --bvh skeleton.bvh
     """
     from puppet.export import ExportError, Outputs, export_take
-    from puppet.export.resample import check_fps
+    from puppet.export.run import check_fps
 
     fps_value = check_fps(fps)
     outputs = Outputs(gltf=gltf, usd=usd, pc2=pc2, bvh=bvh)

@@ -84,6 +84,7 @@ def play_in_view(take: str, rig_path: str | None, out: str | None, frames: str |
     the page, until Ctrl-C; --out / --frames get the frames as shown."""
     from puppet.cli.common import make_sinks, open_take, print_summary
     from puppet.loop import Pipeline, run_live
+    from puppet.take import Playback
     from puppet.take.markers import read_markers
     from puppet.view import TakeSource
 
@@ -91,9 +92,9 @@ def play_in_view(take: str, rig_path: str | None, out: str | None, frames: str |
     stop = StopFlag()  # before the page is served: a Ctrl-C from then on ends the run cleanly
     try:
         rig, reader = open_take(take, rig_path)
-        t_ns, ticks, ok = reader.arrays(ids=[int(i) for i in rig.servo_map.ids])
-        marks = [((t - int(t_ns[0])) / 1e9, name) for t, name in read_markers(take)]
-        source = TakeSource(rig.servo_map.ids, t_ns, ticks, ok, speed=speed, markers=marks)
+        frames = Playback.of_take(reader, rig.servo_map.ids)
+        marks = [(frames.play_s(t), name) for t, name in read_markers(take)]
+        source = TakeSource(frames, speed=speed, markers=marks)
         sinks = make_sinks(out, frames, fps)
         try:
             with Pipeline(rig, overlay=True, live=True) as pipeline:

@@ -1,5 +1,6 @@
-"""Goal positions from a take: recorded ticks -> joint angles (the take's calibration) -> goal
-ticks (the performing rig's calibration), interpolated in time, clamped, rate-limited.
+"""Goal positions from a take: recorded ticks at a time (the take's one time rule,
+``puppet.take.Playback``: interpolated, long gaps cut) -> joint angles (the take's calibration)
+-> goal ticks (the performing rig's calibration), clamped, rate-limited.
 
 A take recorded on one puppet plays on another with its own calibration: the joint angle is
 what carries over, ``angle = sign · (ticks − zero_take) · 2π / 4096 / gear`` (wrapped into one
@@ -15,6 +16,7 @@ import numpy as np
 
 from puppet.drive.errors import DriveError
 from puppet.servo_models import TICKS_PER_TURN
+from puppet.take import Playback
 
 
 def take_zero_ticks(metadata, path) -> dict[int, int]:
@@ -33,48 +35,52 @@ class TakeGoals:
     """A take's motion as goal ticks for one rig's servos.
 
     servos: the rig's servo definitions (rig.servo_map.servos), k of them, in bus order.
-    t_s: (N,) seconds from the first reading. ticks: (N, k) int32; ok: (N, k) bool.
+    t_ns: (N,) int64 reading times. ticks: (N, k) int32; ok: (N, k) bool.
     take_zero: {id: zero ticks of the recording}; rig_zero: (k,) zero ticks of this rig.
 
-    Attributes: ``duration_s``; ``flagged`` {id: readings flagged not-ok (held)};
+    Attributes: ``duration_s`` (play time: gaps over MAX_GAP_S cut); ``goals`` (N, k) goal ticks
+    of each reading; ``flagged`` {id: readings flagged not-ok (held)};
     ``never_ok`` ids with no good reading at all (they hold where they are);
     ``lo``/``hi`` (k,) float goal-tick limits from the rig's joint limits.
     """
 
-    def __init__(self, servos, t_s: np.ndarray, ticks: np.ndarray, ok: np.ndarray,
+    def __init__(self, servos, t_ns: np.ndarray, ticks: np.ndarray, ok: np.ndarray,
                  take_zero: dict[int, int], rig_zero: np.ndarray) -> None:
         self.ids = np.array([s.id for s in servos], np.int64)
         k = len(self.ids)
-        if ticks.shape != (len(t_s), k) or len(t_s) == 0:
+        if ticks.shape != (len(t_ns), k) or len(t_ns) == 0:
             raise DriveError(f"take readings shape {ticks.shape} does not fit {k} servos")
-        self.t_s = np.asarray(t_s, float)
-        self.duration_s = float(self.t_s[-1] - self.t_s[0]) if len(self.t_s) > 1 else 0.0
-        self.t_s = self.t_s - self.t_s[0]
-        scale = np.array([s.sign * 2 * np.pi / TICKS_PER_TURN / s.gear for s in servos])
-        wrap = np.array([s.gear == 1.0 for s in servos], bool)
-        zero_take = np.array([take_zero.get(int(s.id), s.zero_ticks) for s in servos], np.int64)
-        diff = ticks.astype(np.int64) - zero_take
-        wrapped = (diff + TICKS_PER_TURN // 2) % TICKS_PER_TURN - TICKS_PER_TURN // 2
-        diff = np.where(wrap, wrapped, diff)
-        angles = diff * scale
+        self._scale = np.array([s.sign * 2 * np.pi / TICKS_PER_TURN / s.gear for s in servos])
+        self._wrap = np.array([s.gear == 1.0 for s in servos], bool)
+        self._zero_take = np.array([take_zero.get(int(s.id), s.zero_ticks) for s in servos], np.int64)
+        self._zero = np.asarray(rig_zero, float)
         ok = np.asarray(ok, bool)
         self.flagged = {int(i): int(n) for i, n in zip(self.ids, (~ok).sum(axis=0)) if n}
         self.never_ok = [int(i) for i, any_ok in zip(self.ids, ok.any(axis=0)) if not any_ok]
+        held = np.array(ticks, np.int32)  # (N, k) the ticks the take's time rule interpolates
         for j in range(k):  # hold the last good value; before the first good one, that one
             good = np.flatnonzero(ok[:, j])
             if len(good) == 0:
-                angles[:, j] = np.nan
                 continue
             last = np.maximum.accumulate(np.where(ok[:, j], np.arange(len(ok)), -1))
             last[last < 0] = good[0]
-            angles[:, j] = angles[last, j]
-        self._scale = scale
-        self._zero = np.asarray(rig_zero, float)
-        self.goals = angles / scale + self._zero  # (N, k) float ticks; NaN: hold
-        lo = np.array([s.limits[0] for s in servos]) / scale + self._zero
-        hi = np.array([s.limits[1] for s in servos]) / scale + self._zero
+            held[:, j] = held[last, j]
+        self._never = ~ok.any(axis=0)
+        self.goals = self._goal_ticks(held)  # (N, k) float ticks; NaN: hold
+        self.goals[:, self._never] = np.nan
+        lo = np.array([s.limits[0] for s in servos]) / self._scale + self._zero
+        hi = np.array([s.limits[1] for s in servos]) / self._scale + self._zero
         self.lo, self.hi = np.minimum(lo, hi), np.maximum(lo, hi)
-        self._out = np.empty(k)
+        self._frames = Playback(t_ns, held, ok, self.ids)
+        self.duration_s = self._frames.duration_s
+        self._ticks, self._ok = np.empty(k, np.int32), np.empty(k, bool)
+
+    def _goal_ticks(self, ticks: np.ndarray) -> np.ndarray:
+        """(..., k) recorded ticks -> this rig's goal ticks (float): the joint angle carries over."""
+        diff = np.asarray(ticks, np.int64) - self._zero_take
+        wrapped = (diff + TICKS_PER_TURN // 2) % TICKS_PER_TURN - TICKS_PER_TURN // 2
+        angles = np.where(self._wrap, wrapped, diff) * self._scale
+        return angles / self._scale + self._zero
 
     @classmethod
     def from_take(cls, reader, servo_map) -> "TakeGoals":
@@ -85,7 +91,7 @@ class TakeGoals:
         t_ns, ticks, ok = reader.arrays(ids=ids)
         if len(t_ns) == 0:
             raise DriveError(f"{reader.path}: the take holds no readings")
-        return cls(servo_map.servos, (t_ns - t_ns[0]) * 1e-9, ticks, ok,
+        return cls(servo_map.servos, t_ns, ticks, ok,
                    take_zero_ticks(reader.metadata, reader.path), servo_map.zero)
 
     def degrees(self, ticks) -> np.ndarray:
@@ -93,21 +99,12 @@ class TakeGoals:
         return np.abs(np.asarray(ticks, float) * self._scale) * 180.0 / np.pi
 
     def at(self, t: float) -> np.ndarray:
-        """(k,) goal ticks (float; NaN = hold) at ``t`` seconds into the take, linearly
-        interpolated; before the start the first row, after the end the last. Reuses one
-        output array: copy it to keep it."""
-        times, goals, out = self.t_s, self.goals, self._out
-        n = len(times)
-        i = int(np.searchsorted(times, t, side="right"))
-        if i <= 0:
-            out[:] = goals[0]
-        elif i >= n:
-            out[:] = goals[n - 1]
-        else:
-            t0, t1 = times[i - 1], times[i]
-            a = (t - t0) / (t1 - t0) if t1 > t0 else 1.0
-            np.multiply(goals[i - 1], 1.0 - a, out=out)
-            out += a * goals[i]
+        """(k,) goal ticks (float; NaN = hold) at ``t`` seconds of play time into the take: the
+        take's ticks there by its time rule (Playback.sample), converted as ``goals``; before
+        the start the first reading, after the end the last."""
+        self._frames.sample(t * 1e9, self._ticks, self._ok)
+        out = self._goal_ticks(self._ticks)
+        out[self._never] = np.nan
         return out
 
 

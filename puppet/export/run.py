@@ -1,17 +1,21 @@
-"""Exporting one take: resample, solve every frame, write every asked format in one pass.
+"""Exporting one take: its frames, solved once each, written into every asked format.
 
     report = export_take(rig, reader, Outputs(gltf="anim.glb", pc2="mesh.pc2"), fps=24, up="z")
 
-Frame k (k = 1..N) is the take at ``(k − 1) / fps`` seconds after its first reading (see
-``puppet.export.resample``): frame 1 is the first reading in every format (glTF key time k/fps,
-USD time code k, PC2 start frame 1, BVH's first frame, which Blender's importer puts on frame 1).
-Every output is written to a temporary file next to it and renamed when all are complete
-(``puppet.atomic``): a failed export leaves no half file and keeps an existing good one.
+Frame k (k = 1..N) is frame k − 1 of ``puppet.take.Playback`` at fps, the one take-to-frames
+rule (``play`` and ``batch``'s video show the same frames; gaps over MAX_GAP_S cut the same):
+frame 1 is the first reading in every format (glTF key time k/fps, USD time code k, PC2 start
+frame 1, BVH's first frame, which Blender's importer puts on frame 1). ``ExportWriters`` is the
+per-frame sink of the solved pipeline (``run_frames``' on_frame): ``export_take`` runs it on a
+solve-only pipeline, ``puppet.replay.play_take`` beside a video (batch: one solve for every
+format). Every output is written to a temporary file next to it and renamed when all are
+complete (``puppet.atomic``): a failed export leaves no half file and keeps an existing good one.
 """
 
 from __future__ import annotations
 
 import contextlib
+import sys
 import time
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
@@ -26,8 +30,8 @@ from puppet.export.gltf import GltfWriter
 from puppet.export.joint_transforms import JointTransforms
 from puppet.export.names import safe_names
 from puppet.export.pc2 import Pc2Writer
-from puppet.export.resample import Resampler, check_fps
 from puppet.export.source_order import SourceOrder
+from puppet.take.playback import MAX_GAP_S, Playback, check_rate
 
 FORMATS = ("gltf", "usd", "pc2", "bvh")
 UP_AXES = ("y", "z")
@@ -52,7 +56,8 @@ class Outputs:
 class ExportReport:
     """What an export wrote.
 
-    frames: frames per file; fps: their rate; take_seconds: first to last reading.
+    frames: frames per file; fps: their rate; take_seconds: first to last reading, as recorded;
+    cuts: the gaps between readings cut to MAX_GAP_S (puppet.take.Cut), the same in every output.
     files: {format: (path, bytes)}. renamed: {joint name: safe name} for BVH/USD joints.
     lbs_rms_pct, lbs_max_pct: linear blend skinning of the glTF's skeleton with the file's own
         weights against the FAST mesh, over every vertex of every frame, % of the rest bounding
@@ -67,6 +72,7 @@ class ExportReport:
     frames: int
     fps: float
     take_seconds: float
+    cuts: list = field(default_factory=list)
     files: dict[str, tuple[Path, int]] = field(default_factory=dict)
     renamed: dict[str, str] = field(default_factory=dict)
     lbs_rms_pct: float | None = None
@@ -77,6 +83,7 @@ class ExportReport:
     def as_dict(self) -> dict:
         return {"frames": self.frames, "fps": self.fps, "first_frame": FIRST_FRAME,
                 "take_seconds": round(self.take_seconds, 6),
+                "gaps_cut": [{"at_s": c.at_ns * 1e-9, "gap_s": c.gap_ns * 1e-9} for c in self.cuts],
                 "files": {f: {"path": str(p), "bytes": b} for f, (p, b) in self.files.items()},
                 "renamed_joints": dict(self.renamed), "lbs_rms_pct": self.lbs_rms_pct,
                 "lbs_max_pct": self.lbs_max_pct, "bvh_stretch_max_pct": self.bvh_stretch_max_pct,
@@ -85,6 +92,9 @@ class ExportReport:
     def text(self) -> str:
         lines = [f"frames: {self.frames} at {self.fps:g} fps (frame {FIRST_FRAME} = the first "
                  f"reading; take {self.take_seconds:.3f} s)"]
+        if self.cuts:
+            lines.append(f"gaps cut to {MAX_GAP_S:g} s: {len(self.cuts)} (the longest "
+                         f"{max(c.gap_ns for c in self.cuts) * 1e-9:.3f} s)")
         for fmt, (path, size) in self.files.items():
             lines.append(f"{fmt}: {path} ({size} bytes)")
         if self.lbs_rms_pct is not None:
@@ -126,13 +136,18 @@ def _bvh_skeleton(rig):
     return offsets, sk.tails - sk.heads
 
 
+def check_fps(fps, where: str = "--fps") -> float:
+    """fps as a float, or an error naming ``where`` unless it is a finite number > 0."""
+    return check_rate(fps, "frames per second", where)
+
+
 def export_take(rig, reader, outputs: Outputs, *, fps: float = 30.0, up: str = "y",
                 iterations: int = 8, influences: int = 4, meters_per_unit: float = 1.0,
                 progress: Callable[[int, int], None] | None = None,
                 precompute=None) -> ExportReport:
     """Export a take (TakeReader) solved on ``rig`` into every file named in ``outputs``.
 
-    fps:        output frames per second (> 0); frames are resampled from the reading times.
+    fps:        output frames per second (> 0); frames by ``puppet.take.Playback``.
     up:         'y' (the model's frame) or 'z' (Blender: (x, y, z) -> (x, −z, y)), PC2 only:
                 glTF is Y-up by its spec, USD says its upAxis, BVH importers convert Y-up.
     iterations: FAST iterations per frame. influences: glTF weights per vertex (multiple of 4).
@@ -141,114 +156,181 @@ def export_take(rig, reader, outputs: Outputs, *, fps: float = 30.0, up: str = "
     Raises ExportError (or the take's TakeRigMismatch) naming the file at fault.
     """
     start = time.monotonic()
+    frames = take_frames(rig, reader, fps)
+    with ExportWriters(rig, reader, outputs, frames, up=up, influences=influences,
+                       meters_per_unit=meters_per_unit) as exports:
+        from puppet.loop import Pipeline, run_frames  # the solver's native module: only here
+
+        with Pipeline(rig, render=False, iterations=iterations, precompute=precompute) as pipeline:
+            def on_frame(solved) -> None:
+                exports.write(solved)
+                if progress is not None:
+                    progress(exports.frames, len(frames))
+
+            run_frames(pipeline, frames, on_frame=on_frame)
+    exports.report.seconds = time.monotonic() - start
+    return exports.report
+
+
+def take_frames(rig, reader, fps: float, speed: float = 1.0) -> Playback:
+    """The frames of a take for ``rig``'s servos (the take checked against the rig first)."""
     fps = check_fps(fps)
-    if up not in UP_AXES:
-        raise ExportError("--up", f"up axis must be one of {UP_AXES}, got {up!r}")
-    items = outputs.items()
-    if not items:
-        raise ExportError("export", "nothing to write: give --gltf, --usd, --pc2 and/or --bvh FILE")
-    take_path = Path(reader.path)
-    inputs = [take_path] + ([Path(rig.path)] if getattr(rig, "path", None) else [])
-    seen: dict[Path, str] = {}
-    for fmt, target in items:
-        key = target.resolve()
-        if key in seen:
-            raise ExportError(target, f"given for both --{seen[key]} and --{fmt}")
-        seen[key] = fmt
-        if fmt in SUFFIXES and target.suffix.lower() not in SUFFIXES[fmt]:
-            raise ExportError(target, f"--{fmt} files are named *{' or *'.join(SUFFIXES[fmt])}")
-        check_output(target, inputs=inputs)
     ids = [int(i) for i in rig.servo_map.ids]
     if len(reader) == 0:
-        raise ExportError(take_path, "the take holds no readings")
+        raise ExportError(reader.path, "the take holds no readings")
     reader.check_rig(ids, dict(rig.servo_map.models), rig_name=rig.name)
-    frames = Resampler(*reader.arrays(ids=ids), np.asarray(ids), fps, source=take_path)
-    sk = rig.skeleton
-    if "bvh" in dict(items):
-        offsets, end_sites = _bvh_skeleton(rig)
+    return Playback.of_take(reader, ids, fps=fps, speed=speed)
 
-    from puppet.loop import Pipeline  # the solver's native module: only when exporting
 
-    order = SourceOrder(rig)
-    V_out = order.take(rig.V)
-    diagonal = float(np.linalg.norm(rig.V.max(0) - rig.V.min(0))) or 1.0
-    safe, renamed = safe_names(sk.names)
-    report = ExportReport(frames=len(frames), fps=fps,
-                          take_seconds=(frames.t_ns[-1] - frames.t_ns[0]) * 1e-9)
-    with contextlib.ExitStack() as stack:
-        pipeline = stack.enter_context(Pipeline(rig, render=False, iterations=iterations,
-                                                precompute=precompute))
-        writers: dict[str, object] = {}
-        targets = dict(items)
+class ExportWriters:
+    """Every format asked in ``outputs``, written one solved frame at a time.
+
+    A context manager: entering checks the outputs and opens a temporary file per format;
+    ``write(pipeline)`` after each solve adds that frame (deformed mesh V' = M T, joint
+    transforms) to every file; a clean exit closes the files and renames them into place and
+    fills ``report``; an exception removes them (an existing good file is kept).
+
+    rig, reader: the rig solved on and the take (TakeReader, its path: the take is an input no
+    output may overwrite). frames: the Playback the frames come from (its fps, count, cuts).
+    up, influences, meters_per_unit: as export_take. Fields: report (ExportReport), frames
+    (written so far).
+    """
+
+    def __init__(self, rig, reader, outputs: Outputs, frames: Playback, *, up: str = "y",
+                 influences: int = 4, meters_per_unit: float = 1.0):
+        if up not in UP_AXES:
+            raise ExportError("--up", f"up axis must be one of {UP_AXES}, got {up!r}")
+        items = outputs.items()
+        if not items:
+            raise ExportError("export", "nothing to write: give --gltf, --usd, --pc2 and/or --bvh FILE")
+        self.inputs = [Path(reader.path)] + ([Path(rig.path)] if getattr(rig, "path", None) else [])
+        seen: dict[Path, str] = {}
+        for fmt, target in items:
+            key = target.resolve()
+            if key in seen:
+                raise ExportError(target, f"given for both --{seen[key]} and --{fmt}")
+            seen[key] = fmt
+            if fmt in SUFFIXES and target.suffix.lower() not in SUFFIXES[fmt]:
+                raise ExportError(target, f"--{fmt} files are named *{' or *'.join(SUFFIXES[fmt])}")
+            check_output(target, inputs=self.inputs)
+        if "bvh" in dict(items):
+            self._bvh_offsets, self._end_sites = _bvh_skeleton(rig)
+        self.rig, self.items, self.targets = rig, items, dict(items)
+        self.up, self.influences, self.meters_per_unit = up, influences, meters_per_unit
+        self.fps = frames.fps
+        self.order = SourceOrder(rig)
+        self.report = ExportReport(frames=len(frames), fps=frames.fps, cuts=list(frames.cuts),
+                                   take_seconds=(frames.t_ns[-1] - frames.t_ns[0]) * 1e-9)
+        self.writers: dict[str, object] = {}
+        self.frames = 0
+        self._stack = contextlib.ExitStack()
+        self._buffers = None
+
+    def __enter__(self) -> "ExportWriters":
+        rig, sk, order, fps = self.rig, self.rig.skeleton, self.order, self.fps
+        V_out = order.take(rig.V)
+        self._safe, self.renamed = safe_names(sk.names)
+        stack = self._stack.__enter__()
         try:
-            for fmt, target in items:
-                temporary = stack.enter_context(atomic_output(target, inputs=inputs))
+            for fmt, target in self.items:
+                temporary = stack.enter_context(atomic_output(target, inputs=self.inputs))
                 with _blame(target, fmt):
                     if fmt == "gltf":
-                        writers[fmt] = GltfWriter(temporary, names=sk.names, parents=sk.parents,
-                                                  heads=sk.heads, frames=sk.frames, V=V_out,
-                                                  F=order.F, W=order.take(rig.W), fps=fps,
-                                                  influences=influences, name=rig.name)
+                        self.writers[fmt] = GltfWriter(temporary, names=sk.names, parents=sk.parents,
+                                                       heads=sk.heads, frames=sk.frames, V=V_out,
+                                                       F=order.F, W=order.take(rig.W), fps=fps,
+                                                       influences=self.influences, name=rig.name)
                     elif fmt == "usd":
                         from puppet.export.usd import UsdWriter
 
-                        writers[fmt] = UsdWriter(temporary, names=sk.names, parents=sk.parents,
-                                                 heads=sk.heads, frames=sk.frames, V=V_out,
-                                                 F=order.F, fps=fps, name=rig.name,
-                                                 meters_per_unit=meters_per_unit)
-                        renamed.update(writers[fmt].renamed)
+                        self.writers[fmt] = UsdWriter(temporary, names=sk.names, parents=sk.parents,
+                                                      heads=sk.heads, frames=sk.frames, V=V_out,
+                                                      F=order.F, fps=fps, name=rig.name,
+                                                      meters_per_unit=self.meters_per_unit)
+                        self.renamed.update(self.writers[fmt].renamed)
                     elif fmt == "pc2":
-                        writers[fmt] = Pc2Writer(temporary, order.n_out,
-                                                 start_frame=float(FIRST_FRAME), sample_rate=1.0)
+                        self.writers[fmt] = Pc2Writer(temporary, order.n_out,
+                                                      start_frame=float(FIRST_FRAME), sample_rate=1.0)
                     else:
-                        writers[fmt] = BvhWriter(temporary, names=safe, parents=sk.parents,
-                                                 offsets=offsets, end_sites=end_sites,
-                                                 frame_time=1.0 / fps, positions="all")
-            _solve_and_write(pipeline, frames, writers, targets, order, up, diagonal, report,
-                             progress)
+                        self.writers[fmt] = BvhWriter(temporary, names=self._safe, parents=sk.parents,
+                                                      offsets=self._bvh_offsets,
+                                                      end_sites=self._end_sites,
+                                                      frame_time=1.0 / fps, positions="all")
         except BaseException:
-            for writer in writers.values():
-                _abort(writer)
+            self.__exit__(*sys.exc_info())
             raise
-        for fmt, writer in writers.items():  # complete files; the renames follow as the stack unwinds
-            with _blame(targets[fmt], fmt):
-                writer.close()
-    for fmt, target in items:
-        report.files[fmt] = (target, target.stat().st_size)
-    if "bvh" in targets or "usd" in targets:
-        report.renamed = renamed
-    report.seconds = time.monotonic() - start
-    return report
+        return self
 
+    def __exit__(self, exc_type, exc, tb) -> bool:
+        if exc_type is None:
+            try:
+                for fmt, writer in self.writers.items():  # complete files, then the renames
+                    with _blame(self.targets[fmt], fmt):
+                        writer.close()
+            except BaseException:
+                self._stack.__exit__(*sys.exc_info())
+                raise
+            self._stack.__exit__(None, None, None)
+            self._finish()
+            return False
+        for writer in self.writers.values():
+            _abort(writer)
+        return bool(self._stack.__exit__(exc_type, exc, tb))
 
-def _solve_and_write(pipeline, frames: Resampler, writers: dict, targets: dict, order: SourceOrder,
-                     up: str, diagonal: float, report: ExportReport, progress) -> None:
-    """The per-frame loop: solve, deform (V' = M T), joint transforms, one record per writer."""
-    rig = pipeline.rig
-    sk = rig.skeleton
-    T = np.empty(pipeline.T.shape, np.float64)
-    deformed = np.empty((len(rig.V), 3))
-    points = np.empty((order.n_out, 3))
-    pc2_points = np.empty((order.n_out, 3), np.float32)
-    joints = JointTransforms(sk.heads)
-    rotations = np.empty((sk.bone_count, 3, 3))
-    parents = sk.parents
-    offsets = sk.heads - np.where(parents[:, None] >= 0, sk.heads[parents], 0.0)
-    chain = np.empty((sk.bone_count, 3))
-    local = np.empty((sk.bone_count, 3))
-    gltf, usd, pc2, bvh = (writers.get(f) for f in FORMATS)
-    need_mesh = gltf is not None or usd is not None or pc2 is not None
-    M = pipeline.model.lbs_matrix() if need_mesh else None  # (n, 4m) float64: V' = M T
-    skinned = np.empty((order.n_out, 3))
-    squares, count, worst, drift = 0.0, 0, 0.0, 0.0
-    for f, reading in enumerate(frames):
-        pipeline.solve(reading)
+    def _finish(self) -> None:
+        report = self.report
+        report.frames = self.frames
+        for fmt, target in self.items:
+            report.files[fmt] = (target, target.stat().st_size)
+        if "bvh" in self.targets or "usd" in self.targets:
+            report.renamed = self.renamed
+        rig = self.rig
+        diagonal = float(np.linalg.norm(rig.V.max(0) - rig.V.min(0))) or 1.0
+        if "gltf" in self.writers:
+            b = self._buffers
+            count = max(b["count"], 1) if b else 1
+            report.lbs_rms_pct = 100.0 * float(np.sqrt((b["squares"] if b else 0.0) / count)) / diagonal
+            report.lbs_max_pct = 100.0 * (b["worst"] if b else 0.0) / diagonal
+        if "bvh" in self.writers:
+            report.bvh_stretch_max_pct = 100.0 * (self._buffers["drift"] if self._buffers else 0.0) / diagonal
+
+    def _allocate(self, pipeline) -> dict:
+        """The per-frame arrays, made once on the first frame (their shapes need the model)."""
+        rig, order = self.rig, self.order
+        sk = rig.skeleton
+        parents = sk.parents
+        need_mesh = any(f in self.writers for f in ("gltf", "usd", "pc2"))
+        return {
+            "T": np.empty(pipeline.T.shape, np.float64),
+            "deformed": np.empty((len(rig.V), 3)),
+            "points": np.empty((order.n_out, 3)),
+            "pc2_points": np.empty((order.n_out, 3), np.float32),
+            "joints": JointTransforms(sk.heads),
+            "rotations": np.empty((sk.bone_count, 3, 3)),
+            "offsets": sk.heads - np.where(parents[:, None] >= 0, sk.heads[parents], 0.0),
+            "chain": np.empty((sk.bone_count, 3)),
+            "local": np.empty((sk.bone_count, 3)),
+            "M": pipeline.model.lbs_matrix() if need_mesh else None,  # (n, 4m) float64: V' = M T
+            "skinned": np.empty((order.n_out, 3)),
+            "squares": 0.0, "count": 0, "worst": 0.0, "drift": 0.0,
+        }
+
+    def write(self, pipeline) -> None:
+        """Add the frame just solved in ``pipeline`` (its T) to every file."""
+        if self._buffers is None:
+            self._buffers = self._allocate(pipeline)
+        b = self._buffers
+        targets, order, up = self.targets, self.order, self.up
+        parents = self.rig.skeleton.parents
+        gltf, usd, pc2, bvh = (self.writers.get(f) for f in FORMATS)
+        joints, points = b["joints"], b["points"]
         joints.update(pipeline.T)
-        if need_mesh:
-            T[...] = pipeline.T
-            np.matmul(M, T, out=deformed)
-            order.take(deformed, out=points)
+        if b["M"] is not None:
+            b["T"][...] = pipeline.T
+            np.matmul(b["M"], b["T"], out=b["deformed"])
+            order.take(b["deformed"], out=points)
         if pc2 is not None:
+            pc2_points = b["pc2_points"]
             if up == "z":
                 pc2_points[:, 0] = points[:, 0]
                 pc2_points[:, 1] = -points[:, 2]
@@ -261,14 +343,16 @@ def _solve_and_write(pipeline, frames: Resampler, writers: dict, targets: dict, 
             with _blame(targets["usd"], "usd"):
                 usd.write(points, joints.world)
         if gltf is not None:
+            skinned = b["skinned"]
             gltf.write(joints.world)
             gltf.skin(joints.world, out=skinned)
             skinned -= points
             error = np.sqrt(np.einsum("ij,ij->i", skinned, skinned))
-            squares += float(np.dot(error, error))
-            count += len(error)
-            worst = max(worst, float(error.max()))
+            b["squares"] += float(np.dot(error, error))
+            b["count"] += len(error)
+            b["worst"] = max(b["worst"], float(error.max()))
         if bvh is not None:
+            rotations, local, chain, offsets = b["rotations"], b["local"], b["chain"], b["offsets"]
             R, c = joints.rotation, joints.pivot
             rotations[...] = R
             local[...] = c
@@ -278,13 +362,7 @@ def _solve_and_write(pipeline, frames: Resampler, writers: dict, targets: dict, 
             local[has] = np.einsum("bij,bj->bi", Rp, c[has] - c[parents[has]])  # in parent frame
             for j, p in enumerate(parents):  # what a BVH reader rebuilds: rest offsets, no stretch
                 chain[j] = c[j] if p < 0 else chain[p] + R[p] @ offsets[j]
-            drift = max(drift, float(np.linalg.norm(chain - c, axis=1).max()))
+            b["drift"] = max(b["drift"], float(np.linalg.norm(chain - c, axis=1).max()))
             with _blame(targets["bvh"], "bvh"):
                 bvh.write(rotations, positions=local)
-        if progress is not None:
-            progress(f + 1, len(frames))
-    if gltf is not None:
-        report.lbs_rms_pct = 100.0 * float(np.sqrt(squares / max(count, 1))) / diagonal
-        report.lbs_max_pct = 100.0 * worst / diagonal
-    if bvh is not None:
-        report.bvh_stretch_max_pct = 100.0 * drift / diagonal
+        self.frames += 1

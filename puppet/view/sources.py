@@ -4,7 +4,8 @@
 RestSource: no bus at all: the rig's zero ticks (its rest pose) at a steady rate; the pose then
 comes only from the view's dragged handles (``puppet view``).
 TakeSource: a take played on the wall clock with pause, seek and speed from the page
-(``puppet play TAKE --view``); each reading is stamped with the time it is shown.
+(``puppet play TAKE --view``); the reading at its play position is the take's one rule's
+(``puppet.take.Playback.at``: ticks interpolated, long gaps cut), stamped with the time it is shown.
 """
 
 from __future__ import annotations
@@ -65,19 +66,17 @@ class RestSource(_PacedSource):
 
 
 class TakeSource(_PacedSource):
-    """A take's readings played on the wall clock at ``rate_hz`` frames per second.
+    """A take played on the wall clock at ``rate_hz`` frames per second.
 
-    t_ns, ticks, ok: the take's arrays (TakeReader.arrays). Controls (any thread): pause(),
-    play(), seek(seconds from the first reading), set_speed(factor). At the end it holds the
-    last reading (paused).
+    frames: the take's Playback (puppet.take); positions are its play time (seconds from the
+    first reading, long gaps cut), markers (seconds, name) too. Controls (any thread): pause(),
+    play(), seek(seconds), set_speed(factor). At the end it holds the last reading (paused).
     """
 
-    def __init__(self, ids, t_ns: np.ndarray, ticks: np.ndarray, ok: np.ndarray, *,
-                 speed: float = 1.0, rate_hz: float = 60.0, markers=()):
-        super().__init__(ids, rate_hz)
-        self._t = np.asarray(t_ns, np.int64) - int(t_ns[0])
-        self._ticks, self._ok = ticks, ok
-        self.duration_s = float(self._t[-1]) / 1e9
+    def __init__(self, frames, *, speed: float = 1.0, rate_hz: float = 60.0, markers=()):
+        super().__init__(frames.ids, rate_hz)
+        self._frames = frames
+        self.duration_s = frames.duration_s
         self.speed = float(speed)
         self.paused = False
         self.markers = list(markers)
@@ -121,12 +120,12 @@ class TakeSource(_PacedSource):
         self._last = now
 
     def _reading(self) -> Reading:
-        """The reading at the play position (advanced to now), stamped now."""
+        """The take at the play position (advanced to now), stamped now."""
         with self._lock:
             self._advance()
-            index = int(np.searchsorted(self._t, int(self._position_s * 1e9), side="right")) - 1
-        index = max(index, 0)
-        return Reading(time.monotonic_ns(), self.ids, self._ticks[index], self._ok[index])
+            position = self._position_s
+        shown = self._frames.at(position)
+        return Reading(time.monotonic_ns(), self.ids, shown.ticks, shown.ok)
 
     def state(self) -> dict:
         return {"position_s": round(self._position_s, 3), "duration_s": round(self.duration_s, 3),

@@ -41,12 +41,11 @@ class Reference:
 
 
 def reference_solve(rig, take_path, fps=FPS) -> Reference:
-    from puppet.export import Resampler
     from puppet.loop import Pipeline
-    from puppet.take import TakeReader
+    from puppet.take import Playback, TakeReader
 
     ids = rig.servo_map.ids
-    frames = Resampler(*TakeReader(take_path).arrays(ids=ids), ids, fps)
+    frames = Playback.of_take(TakeReader(take_path), ids, fps=fps)
     deformed, Ts, angles = [], [], []
     with Pipeline(rig, render=False) as pipeline:
         for reading in frames:
@@ -54,7 +53,7 @@ def reference_solve(rig, take_path, fps=FPS) -> Reference:
             deformed.append(pipeline.deformed())
             Ts.append(pipeline.T.copy())
             angles.append(pipeline.angles.copy())
-    return Reference(frames.times_ns, np.array(deformed), np.array(Ts), np.array(angles))
+    return Reference(frames.t_first_ns + frames.frame_times_ns(), np.array(deformed), np.array(Ts), np.array(angles))
 
 
 @pytest.fixture(scope="session")

@@ -57,7 +57,7 @@ def test_fps_24_from_a_30_fps_take_is_resampled_and_byte_identical(tmp_path, tak
 
 
 def test_bad_rates_are_refused(tmp_path, take30):
-    for fps in ("0", "-24"):  # the others (nan, inf, words) in test_export_resample.py
+    for fps in ("0", "-24"):  # the others (nan, inf, words) in tests/take/test_take_playback.py
         result = run(take30, "--pc2", tmp_path / "m.pc2", "--fps", fps)
         assert_clean_error(result, "frames per second must be")
     assert not (tmp_path / "m.pc2").exists()

@@ -24,7 +24,7 @@ import numpy as np
 import pytest
 
 from puppet.reading import Reading
-from puppet.take import PlaybackClock, TakeError, TakeReader, TakeWriter
+from puppet.take import Playback, TakeError, TakeReader, TakeWriter
 
 SEED = 18
 IDS = np.array([3, 7, 11, 12], dtype=np.int64)
@@ -101,7 +101,7 @@ def flip(data: bytes, offsets, rng) -> bytes:
 
 
 def library_cases(take: Take) -> list[Case]:
-    """The seeded cases against the library (TakeReader + PlaybackClock)."""
+    """The seeded cases against the library (TakeReader + Playback)."""
     rng = np.random.default_rng(SEED)
     n = len(take.readings)
     cases = []
@@ -155,7 +155,7 @@ def classify_library(case: Case, take: Take, path: Path) -> tuple[str, str]:
         got = list(reader.readings())
         arrays = reader.arrays()
         frames = 0
-        for _ in PlaybackClock(reader, fps=60):
+        for _ in (Playback.of_take(reader, reader.metadata.ids, fps=60) if len(reader) else ()):
             frames += 1
             if frames > FRAME_CAP:
                 return "hang", f"playback passed {FRAME_CAP} frames"

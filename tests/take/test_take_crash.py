@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from puppet.take import PlaybackClock, TakeReader
+from puppet.take import Playback, TakeReader
 
 CHILD = Path(__file__).with_name("take_crash_child.py")
 KILL_AFTER = np.random.default_rng(18).integers(20, 400, size=2).tolist()  # readings reported
@@ -56,9 +56,10 @@ def check_readings(r, reported):
     for i, reading in enumerate(got):  # exactly the child's sequence, in order, with its values
         assert reading.ticks.tolist() == expected_ticks(i)
         assert reading.ok.all()
-    frames = list(PlaybackClock(r, fps=60))  # and the take plays back
-    assert len(frames) == len(PlaybackClock(r, fps=60))
-    assert all(f.reading.t_ns <= f.take_t_ns for f in frames)
+    playback = Playback.of_take(r, r.metadata.ids, fps=60)  # and the take plays back
+    frames = list(playback)
+    assert len(frames) == len(playback)
+    assert all(got[0].t_ns <= f.t_ns <= got[-1].t_ns for f in frames)
     return [reading.t_ns for reading in got]
 
 

@@ -8,7 +8,7 @@ SCRIPT = """
 import json, sys
 import puppet.take
 r = puppet.take.TakeReader(sys.argv[1])
-frames = list(puppet.take.PlaybackClock(r, fps=60))
+frames = list(puppet.take.Playback.of_take(r, r.metadata.ids, fps=60))
 print(json.dumps({"readings": len(r), "frames": len(frames),
                   "modules": sorted(m for m in sys.modules if m.startswith(("puppet", "dynamixel")))}))
 """
