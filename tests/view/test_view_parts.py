@@ -259,3 +259,25 @@ def test_camera_moves_are_merged_into_one_change_per_frame(critter_pipeline):
         assert camera.version == version + 2
     finally:
         view.close()
+
+
+def test_take_source_shows_the_take_by_its_one_rule():
+    """``play --view``'s source asks the take's Playback for the reading at its play position:
+    interpolated ticks, the gap cut (its duration and seeks are on the cut time line)."""
+    from puppet.take import Playback
+    from puppet.view import TakeSource
+
+    t = np.array([0, 100_000_000, 5_100_000_000], np.int64)  # a 5 s gap, cut to 1 s
+    ticks = np.array([[0, 4000], [100, 4090], [300, 10]], np.int32)
+    frames = Playback(t, ticks, np.ones((3, 2), bool), np.array([1, 2]), fps=30)
+    source = TakeSource(frames, rate_hz=1000.0, markers=[(frames.play_s(5_100_000_000), "end")])
+    assert source.duration_s == pytest.approx(1.1)
+    assert source.state()["markers"] == [{"t_s": 1.1, "name": "end"}]
+    source.pause()
+    for position in (0.05, 0.6, 1.1):
+        source.seek(position)
+        got = source.latest(timeout=1.0)
+        assert got is not None and source.position_s == position
+        assert got.ticks.tolist() == frames.at(position).ticks.tolist()
+    source.seek(0.6)  # half way through the cut gap: half way from 100 to 300, 4090 to 10 (wrap)
+    assert source.latest(timeout=1.0).ticks.tolist() == [200, 4096 + 2]
