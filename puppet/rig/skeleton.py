@@ -78,20 +78,6 @@ def frame_from_direction(direction: np.ndarray, up_hint: np.ndarray | None = Non
     return np.column_stack([x, y, z])
 
 
-def constraint_values(rotations: np.ndarray, pose: np.ndarray, full_bones: np.ndarray, full: np.ndarray,
-                      relative_bones: np.ndarray, relative: np.ndarray) -> None:
-    """A pattern's per-frame values of sensed bones from forward kinematics, in one native pass.
-
-    rotations: (b, 3, 3) float64 model-space joint rotations; pose: (b, 3, 4) float64 bone poses
-    (:meth:`Skeleton.joint_rotations`, :meth:`Skeleton.pose_from_rotations`).
-    full_bones: (nf,) int32; full: (nf, 4, 3) float32 (``Values.full``) gets ``pose[full_bones[q]].T``.
-    relative_bones: (nr,) int32; relative: (nr, 3, 3) float32 (``Values.relative``) gets
-    ``rotations[relative_bones[q]]``. Every array C-contiguous of exactly these dtypes (TypeError
-    otherwise, never a copy); an index outside the bones is a ValueError.
-    """
-    _kinematics.constraint_values(rotations, pose, full_bones, full, relative_bones, relative)
-
-
 @dataclass(frozen=True)
 class Skeleton:
     """Bones in a tree (parents before children) with rest frames and sensed joints.

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from puppet.rig import RigError, Skeleton
-from puppet.rig.skeleton import Joint, axis_angle_matrices, constraint_values, frame_from_direction
+from puppet.rig.skeleton import Joint, axis_angle_matrices, frame_from_direction
 
 
 def chain(joints=()):
@@ -161,32 +161,6 @@ def test_native_forward_kinematics_matches_a_numpy_reference(seed):
         assert sk.pose_from_rotations(rot_ref, pose) is pose
         np.testing.assert_allclose(pose, pose_ref, rtol=0, atol=1e-12)
         np.testing.assert_allclose(sk.pose(angles), pose_ref, rtol=0, atol=1e-12)
-
-
-def test_constraint_values_gather_the_patterns_blocks():
-    rng = np.random.default_rng(7)
-    sk = random_skeleton(rng)
-    rot = sk.joint_rotations(rng.uniform(-1, 1, sk.dof_count))
-    pose = sk.pose_from_rotations(rot)
-    full_bones, relative_bones = np.array([0, 3, 5], np.int32), np.array([7, 2], np.int32)
-    full, relative = np.zeros((3, 4, 3), np.float32), np.zeros((2, 3, 3), np.float32)
-    constraint_values(rot, pose, full_bones, full, relative_bones, relative)
-    np.testing.assert_array_equal(full, pose[full_bones].transpose(0, 2, 1).astype(np.float32))
-    np.testing.assert_array_equal(relative, rot[relative_bones].astype(np.float32))
-
-
-def test_constraint_values_refuse_bad_indices_and_dtypes():
-    sk = chain([Joint(1, np.array([[0, 0, 1.0]]), np.array([0]))])
-    rot = sk.joint_rotations(np.zeros(1))
-    pose = sk.pose_from_rotations(rot)
-    full, relative = np.zeros((1, 4, 3), np.float32), np.zeros((1, 3, 3), np.float32)
-    with pytest.raises(ValueError, match=r"constraint_values: full_bones\[0\] = 3 is not a bone"):
-        constraint_values(rot, pose, np.array([3], np.int32), full, np.array([1], np.int32), relative)
-    with pytest.raises(TypeError, match="incompatible function arguments"):
-        constraint_values(rot, pose, np.array([0], np.int64), full, np.array([1], np.int32), relative)
-    with pytest.raises(TypeError, match="incompatible function arguments"):
-        constraint_values(rot, pose, np.array([0], np.int32), full.astype(np.float64), np.array([1], np.int32),
-                          relative)
 
 
 def test_forward_kinematics_needs_every_angle_its_axes_read():
