@@ -43,7 +43,7 @@ from puppet.drive import items as it
 from puppet.drive.servos import DriveBus
 from puppet.bus.reader_process import ReaderProcess
 from puppet.drive.actuators import ActuationPlan, ActuatorHook, LiveActuation
-from puppet.pipeline import Pipeline, run_live
+from puppet.loop import Pipeline, run_live
 from puppet.rig import builtin, load_rig
 from puppet.rig.load import BUILTIN_RIG
 from puppet.take import TakeReader, TakeWriter

@@ -61,7 +61,7 @@ def live(rig_path: str, port: str, baud: int, take_path: str | None, out: str | 
       puppet live --rig my.toml --port /dev/ttyUSB0 --record take.mcap --out live.mp4
       puppet live --rig my.toml --port /dev/ttyUSB0 --view     watch at the printed URL
     """
-    from puppet.pipeline import Pipeline, run_live
+    from puppet.loop import Pipeline, run_live
     from puppet.take import BackgroundTakeWriter
 
     rig = load_rig(rig_path)

@@ -69,7 +69,7 @@ def test_thread_survives_unplug_and_runs_commands(sim, open_reader, wait_until):
 
 def test_reader_thread_feeds_the_live_loop(sim, open_reader):
     """run_live takes a ReaderThread as well as a ReaderProcess (drain, latest, log)."""
-    from puppet.pipeline import run_live
+    from puppet.loop import run_live
 
     class SolveCounter:
         iterations = 0

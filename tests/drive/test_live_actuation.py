@@ -17,7 +17,7 @@ import hw_sim
 from puppet.rig.load import BUILTIN_RIG
 from puppet.bus.reading import Reading
 from puppet.drive.actuate import ActuatorGoals
-from puppet.pipeline import Pipeline
+from puppet.loop import Pipeline
 from puppet.rig import load_rig
 
 TAIL_RIG = BUILTIN_RIG.parent / "critter_tail.toml"
