@@ -21,7 +21,7 @@ from functools import partial
 
 import numpy as np
 
-from puppet.bus import Reading
+from puppet.reading import Reading
 from puppet.fast import FastModel, Pattern
 from puppet.fast.errors import PatternError
 from puppet.fast.live_solve import LiveSolve
