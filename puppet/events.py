@@ -38,8 +38,11 @@ EVENT_KINDS: dict[str, str] = {
     "rebooted": "the servo's Realtime Tick fell behind: it rebooted (power cycle, brown-out)",
     "reconfigured": "the servo's settings were written again (after a reboot or a return)",
     "reconfigure_failed": "writing the servo's settings again failed",
-    # driving
+    # driving actuators
     "write_failed": "a goal write to actuator servos failed",
+    "watchdog_tripped": "an actuator's Bus Watchdog tripped (the host was silent): re-armed",
+    "actuator_stopped": "an actuator was stopped, torque off (hardware error, reboot)",
+    "port_gone": "the port stayed gone with actuators driven: their torque may still be on",
 }
 """Every kind of bus event, with its meaning. ``BusEvent.kind`` is always one of these keys."""
 

@@ -207,6 +207,39 @@ class Pattern:
         )
 
 
+def rest_positions(entries, V: np.ndarray) -> np.ndarray:
+    """(k, 3) float64 rest positions of ``Pattern.positional`` entries on the rest mesh V (n, 3)."""
+    corners, bary = positional_corners(entries)
+    return np.einsum("kc,kcd->kd", bary, np.asarray(V, np.float64)[corners]) if len(entries) \
+        else np.zeros((0, 3))
+
+
+class PoseFill:
+    """Writes a pattern's per-frame values from bone poses, for any pattern of a skeleton whose
+    bone j is handle j: full blocks ``pose[j].T`` (4, 3) and relative rotations ``rot[child]``.
+
+    pattern: the Pattern; index arrays and work buffers are made here, so ``fill`` allocates
+    nothing. Positional and contact values are not touched (they are constant per rig: set them
+    once, e.g. with :func:`rest_positions`).
+    """
+
+    def __init__(self, pattern: "Pattern"):
+        self.full = np.array(pattern.full, np.int64)
+        self.children = np.array([c for c, _, _ in pattern.relative], np.int64)
+        self._full = np.empty((len(self.full), 3, 4))
+        self._relative = np.empty((len(self.children), 3, 3))
+
+    def fill(self, values: "Values", rot: np.ndarray, pose: np.ndarray) -> None:
+        """values: this pattern's Values (written); rot: (b, 3, 3) model-space joint rotations;
+        pose: (b, 3, 4) bone affines [A_b | t_b] (see puppet.rig.skeleton), float64."""
+        if len(self.full):
+            np.take(pose, self.full, axis=0, out=self._full)
+            np.copyto(values.full, self._full.transpose(0, 2, 1), casting="same_kind")
+        if len(self.children):
+            np.take(rot, self.children, axis=0, out=self._relative)
+            np.copyto(values.relative, self._relative, casting="same_kind")
+
+
 @dataclass
 class Values:
     """Per-frame constraint values for a :class:`Pattern`; fill in place every frame.
