@@ -136,10 +136,8 @@ class ActuatorHook:
                 hi[n] = min(hi[n], info.hi + self.offsets[n])
         self.shaper = GoalShaper(lo, hi, np.array(plan.max_step))
         self.shaper.start(present)
-        self._step = np.array(plan.max_step)
-        self._slow = self._step * min(1.0, EASE_BACK_DEG_S / plan.max_speed_deg_s)
+        self._slow = np.array(plan.max_step) * min(1.0, EASE_BACK_DEG_S / plan.max_speed_deg_s)
         self._raw = dict.fromkeys(plan.ids, 0)
-        self._easing = np.zeros(len(plan.ids), bool)
         self.torque_on = True  # from here on, stop() turns it off
         self.active[:] = True
         bus.write_all(it.TORQUE_ENABLE, 1)
@@ -189,14 +187,8 @@ class ActuatorHook:
     # ---- the cycle ---------------------------------------------------------------------------
     def write(self, wanted: np.ndarray) -> np.ndarray:
         """One Sync Write of the active actuators' goals toward ``wanted`` (a,); -> the (a,)
-        goals (reused array). An easing actuator goes back to normal speed once there."""
-        shaper = self.shaper
-        goals = shaper.shape(wanted)
-        if self._easing.any():
-            for n in np.flatnonzero(self._easing):
-                if not abs(min(max(wanted[n], shaper.lo[n]), shaper.hi[n]) - goals[n]) > self._slow[n]:
-                    shaper.max_step[n] = self._step[n]  # there (or nothing wanted): full speed
-                    self._easing[n] = False
+        goals (reused array)."""
+        goals = self.shaper.shape(wanted)
         raw = self._raw
         for n, dxl_id in enumerate(self.plan.ids):
             if self.active[n]:
@@ -229,13 +221,8 @@ class ActuatorHook:
                        "Bus Watchdog tripped (the host was silent longer than "
                        f"{self.plan.watchdog_units * it.WATCHDOG_UNIT_S * 1000:.0f} ms): re-armed, "
                        f"easing back to the solve at {EASE_BACK_DEG_S:.0f} deg/s")
-        bus.write(dxl_id, it.BUS_WATCHDOG, 0)  # goals are refused until it is cleared
-        raw = bus.read(dxl_id, it.PRESENT_POSITION)
-        bus.write(dxl_id, it.GOAL_POSITION, raw)
-        self.shaper.last[n] = raw + self.offsets[n]
-        self.shaper.max_step[n] = self._slow[n]
-        self._easing[n] = True
-        bus.write(dxl_id, it.BUS_WATCHDOG, self.plan.watchdog_units)
+        raw = bus.rearm(dxl_id, self.plan.watchdog_units)
+        self.shaper.ease(n, raw + self.offsets[n], self._slow[n])
 
     def _stop_one(self, n: int, reader, why: str) -> None:
         dxl_id = self.plan.ids[n]
