@@ -32,7 +32,7 @@ def _make_take(path, rig, angles_deg, *, rate_hz: float = 100.0, zero=None, ok=N
     ids/models/rig_name: record it as another rig would."""
     import json
 
-    from puppet.bus.reading import Reading
+    from puppet.reading import Reading
     from puppet.rig.calibration import Calibration
     from puppet.rig.servo_map import ServoMap
     from puppet.take import TakeWriter

@@ -15,7 +15,7 @@ import pytest
 
 import hw_sim
 from puppet.rig.load import BUILTIN_RIG
-from puppet.bus.reading import Reading
+from puppet.reading import Reading
 from puppet.drive.actuate import ActuatorGoals
 from puppet.loop import Pipeline
 from puppet.rig import load_rig
