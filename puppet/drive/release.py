@@ -44,14 +44,8 @@ def release(port: str, models: dict[int, str] | None = None, *, baud: int = 1_00
             models = {i: getattr(MODELS_BY_NUMBER.get(number), "name", "?")
                       for i, (number, _) in sorted(found.items())}
         out = Released()
-        for dxl_id in models:
-            try:
-                link.ping(dxl_id)
-            except BusError:
-                try:
-                    link.ping(dxl_id)  # a reply lost once
-                except BusError:
-                    out.missing.append(dxl_id)
+        # a read of its own (late replies on a busy host retried) tells who is there
+        out.missing = sorted(DriveBus(link, list(models), models, log).unanswered(list(models)))
         ids = [i for i in models if i not in out.missing]
         if not ids:
             raise DriveError(f"port {port}: servos {out.missing} did not answer: nothing to release")
