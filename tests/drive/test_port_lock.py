@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 
 import hw_sim
-from puppet.bus.reading import Reading
+from puppet.reading import Reading
 from puppet.rig import builtin
 from puppet.rig.load import BUILTIN_RIG
 from puppet.take import TakeWriter
