@@ -530,8 +530,10 @@ def stage_case(frames):
     project's path (native FK, PoseFill); "before" the same with NumpyStage's per-bone loops.
     Each path warm-starts its own T (and solver) frame to frame over the demo's motion; the cases
     take turns in blocks of 20 frames (shared machine noise); figures are medians over the frames.
-    Also: a solve call of 0 and of 8 iterations alone (the fixed cost per call) and the loop's
-    own Pipeline.solve (render=False: adds dropout bookkeeping and stage statistics)."""
+    Also: a solve call of 0 and of 8 iterations alone, each on its own solver with this frame's
+    values (the fixed cost per call; and 0 iterations at a held pose, which keeps the relative
+    rows' factor), and the loop's own Pipeline.solve (render=False: adds dropout bookkeeping and
+    stage statistics)."""
     from puppet.demo import Performance
     from puppet.fast.pattern import PoseFill
     from puppet.loop import Pipeline
@@ -556,13 +558,13 @@ def stage_case(frames):
             paths[name] = {"values": values, "T": model.rest_T(), "angles": np.empty(len(ids)),
                            "rot": np.empty((b, 3, 3)), "pose": np.empty((b, 3, 4))}
         fill, old = PoseFill(pattern), NumpyStage(sk, pattern)
-        T100, Tfix = model.rest_T(), model.rest_T()
+        T100, Tfix, T0 = model.rest_T(), model.rest_T(), model.rest_T()
         # One solver per chain, as in the loop: a solver's first local step is free when it is
         # handed back the T it returned last (fast_solver.h), which alternating chains would spoil.
-        solvers = {k: model.solver(pattern) for k in ("after", "before", "fixed", "long")}
+        solvers = {k: model.solver(pattern) for k in ("after", "before", "fixed", "zero", "long")}
         rig.fill_values(smap.angles(ticks[0]), paths["after"]["values"])
         for key, T in (("after", paths["after"]["T"]), ("before", paths["before"]["T"]), ("fixed", Tfix),
-                       ("long", T100)):
+                       ("zero", T0), ("long", T100)):
             solvers[key].solve(paths["after"]["values"], T, iterations=200)  # every chain starts converged
 
         def after(f):
@@ -588,15 +590,25 @@ def stage_case(frames):
             old.fill(paths["before"]["values"], old.joint_rotations(paths["before"]["angles"]),
                      old.pose_from_rotations(old.rot, paths["before"]["pose"]))
 
-        values = paths["after"]["values"]
-        timed = {
-            "stage_after": after, "stage_before": before,
-            "fk_values_after": fk_after, "fk_values_before": fk_before,
-            "angles": lambda f: smap.angles(ticks[f], out=paths["after"]["angles"]),
-            "call_8": lambda f: solvers["fixed"].solve(values, Tfix, iterations=8),
-            "call_0": lambda f: solvers["fixed"].solve(values, Tfix, iterations=0),
-            "call_100": lambda f: solvers["long"].solve(values, T100, iterations=100),
-            "pipeline": lambda f: pipeline.solve(Reading(int(f / 60 * 1e9), ids, ticks[f], ok)),
+        # The solve calls alone get this frame's values, filled before the clock starts.
+        frame_values = {k: pattern.values() for k in ("call_0", "call_8", "call_100")}
+        for v in frame_values.values():
+            v.positional[:], v.contact[:] = paths["after"]["values"].positional, paths["after"]["values"].contact
+        rot, pose = np.empty((b, 3, 3)), np.empty((b, 3, 4))
+
+        def prepare(key, f):
+            fill.fill(frame_values[key], rot, sk.pose(smap.angles(ticks[f]), pose, rotations=rot))
+
+        held = frame_values["call_0"]
+        timed = {  # name: (untimed preparation or None, the timed call)
+            "stage_after": (None, after), "stage_before": (None, before),
+            "fk_values_after": (None, fk_after), "fk_values_before": (None, fk_before),
+            "angles": (None, lambda f: smap.angles(ticks[f], out=paths["after"]["angles"])),
+            "call_8": (prepare, lambda f: solvers["fixed"].solve(frame_values["call_8"], Tfix, iterations=8)),
+            "call_0": (prepare, lambda f: solvers["zero"].solve(frame_values["call_0"], T0, iterations=0)),
+            "call_0_held": (None, lambda f: solvers["zero"].solve(held, T0, iterations=0)),
+            "call_100": (prepare, lambda f: solvers["long"].solve(frame_values["call_100"], T100, iterations=100)),
+            "pipeline": (None, lambda f: pipeline.solve(Reading(int(f / 60 * 1e9), ids, ticks[f], ok))),
         }
         times = {k: [] for k in timed}
         keys = list(timed)
@@ -604,9 +616,12 @@ def stage_case(frames):
         for b0 in range(0, n, block):  # in the loop), the cases' order rotating from block to block
             turn = b0 // block % len(keys)
             for k in keys[turn:] + keys[:turn]:
+                setup, run = timed[k]
                 for f in range(b0, min(b0 + block, n)):
+                    if setup is not None:
+                        setup(k, f)
                     t0 = time.perf_counter_ns()
-                    timed[k](f)
+                    run(f)
                     if f >= 20:
                         times[k].append((time.perf_counter_ns() - t0) / 1e3)
     med = {k: statistics.median(v) for k, v in times.items()}
@@ -635,8 +650,9 @@ def print_stage(st):
     print(f"  {'stage / iterations alone':<34}{st['ratio_before']:>9.2f}{st['ratio_after']:>9.2f}"
           f"   (target <= {st['target_ratio']})")
     print(f"  iterations alone 8 x {st['us_per_iter_100_call']:.2f} = {st['iterations_alone_us']:.1f}; one solve "
-          f"call of 8 iterations {st['call_8_us']:.1f}, of 0 (the fixed cost per call) {st['call_0_us']:.1f}; "
-          f"servo_map.angles {st['angles_us']:.1f}; the loop's Pipeline.solve {st['pipeline_us']:.1f} "
+          f"call of 8 iterations {st['call_8_us']:.1f}, of 0 (the fixed cost per call) {st['call_0_us']:.1f} "
+          f"(held pose {st['call_0_held_us']:.1f})")
+    print(f"  servo_map.angles {st['angles_us']:.1f}; the loop's Pipeline.solve {st['pipeline_us']:.1f} "
           f"({st['ratio_pipeline']:.2f} x)")
 
 
