@@ -38,6 +38,10 @@ taken the short way round."""
 NO_FAST_SYNC_READ = 256
 """Above any Firmware Version (one byte): no firmware of the model has Fast Sync Read."""
 
+PRESENT_LOAD_UNIT_PCT = 0.1
+"""Present Load (126) unit, % of the maximum torque, of the models that sense no current
+(``current_unit_ma`` None)."""
+
 VELOCITY_UNIT_RPM = 0.229
 """Profile Velocity / Present Velocity unit, rev/min, of every X-series model below."""
 

@@ -23,8 +23,7 @@ import numpy as np
 from puppet.drive import items as it
 from puppet.drive.goals import GoalShaper
 from puppet.drive.servos import DriveBus
-
-from puppet.servo_models import TICKS_PER_TURN  # noqa: E402
+from puppet.servo_models import ServoUnits
 
 
 @dataclass(frozen=True)
@@ -48,23 +47,25 @@ class ActuationPlan:
                 watchdog_ms: float = 100.0) -> "ActuationPlan | None":
         """The plan for ``rig``'s actuators read at ``rate_hz`` (None: the rig has none).
         max_speed_deg_s: joint speed limit of the goals (as ``perform``'s); watchdog_ms: the Bus
-        Watchdog period (at least three bus cycles; 0 = not set)."""
+        Watchdog period (at least three bus cycles; 0 = not set: --no-watchdog). With a
+        watchdog, an actuator whose model has none is refused (RigError naming servo, model and
+        line)."""
         servos = rig.servo_map.actuators
         if not servos:
             return None
-        zero = rig.servo_map.zero[rig.servo_map.actuator_index].astype(float)
-        scale = np.array([s.sign * 2 * np.pi / TICKS_PER_TURN / s.gear for s in servos])
-        a = np.array([s.limits[0] for s in servos]) / scale + zero
-        b = np.array([s.limits[1] for s in servos]) / scale + zero
-        step = np.array([max_speed_deg_s * TICKS_PER_TURN / 360.0 / rate_hz * s.gear
-                         for s in servos])
-        units = 0
+        if watchdog_ms > 0:
+            from puppet.rig.servo_map import check_bus_watchdogs  # the parent's side only
+
+            check_bus_watchdogs(servos, rig.servo_map.path)
+        units = ServoUnits.for_servos(servos, rig.servo_map.zero[rig.servo_map.actuator_index])
+        lo, hi = units.tick_limits()
+        step = units.ticks_per_joint_degree * (max_speed_deg_s / rate_hz)
+        watchdog_units = 0
         if watchdog_ms > 0:
             ms = max(watchdog_ms, 3 * 1000.0 / rate_hz)
-            units = max(1, min(127, math.ceil(ms / (it.WATCHDOG_UNIT_S * 1000.0))))
+            watchdog_units = max(1, min(127, math.ceil(ms / (it.WATCHDOG_UNIT_S * 1000.0))))
         return cls(tuple(int(s.id) for s in servos), {int(s.id): s.model for s in servos},
-                   tuple(np.minimum(a, b).tolist()), tuple(np.maximum(a, b).tolist()),
-                   tuple(step.tolist()), units)
+                   tuple(lo.tolist()), tuple(hi.tolist()), tuple(step.tolist()), watchdog_units)
 
 
 class ActuatorDriver:
