@@ -9,24 +9,10 @@ Readings flagged not-ok hold that servo's last good value (the first good one be
 
 from __future__ import annotations
 
-import json
-
 import numpy as np
 
 from puppet.drive.errors import DriveError
 from puppet.servo_models import ServoUnits
-
-
-def take_zero_ticks(metadata, path) -> dict[int, int]:
-    """The zero ticks a take was recorded with ({} when it has none); DriveError if unreadable."""
-    text = metadata.calibration_text
-    if not text:
-        return {}
-    try:
-        table = json.loads(text).get("zero_ticks", {})
-        return {int(k): int(v) for k, v in table.items()}
-    except (ValueError, AttributeError, TypeError) as err:
-        raise DriveError(f"{path}: unreadable calibration in the take: {err}") from None
 
 
 class TakeGoals:
@@ -72,14 +58,17 @@ class TakeGoals:
     @classmethod
     def from_take(cls, reader, servo_map) -> "TakeGoals":
         """Goals for ``servo_map``'s servos from an open TakeReader (refused, TakeRigMismatch,
-        when the take's servos or models are not the rig's)."""
+        when the take's servos or models are not the rig's; RigError naming the take when its
+        calibration record is unreadable)."""
+        from puppet.rig.calibration import Calibration  # the parent's side only
         ids = [int(i) for i in servo_map.ids]
         reader.check_rig(ids, dict(servo_map.models))
         t_ns, ticks, ok = reader.arrays(ids=ids)
         if len(t_ns) == 0:
             raise DriveError(f"{reader.path}: the take holds no readings")
         return cls(servo_map.servos, (t_ns - t_ns[0]) * 1e-9, ticks, ok,
-                   take_zero_ticks(reader.metadata, reader.path), servo_map.zero)
+                   Calibration.from_record(reader.metadata.calibration_text, reader.path).zero_ticks,
+                   servo_map.zero)
 
     def degrees(self, ticks) -> np.ndarray:
         """(k,) tick differences -> joint degrees (absolute value)."""
