@@ -11,19 +11,33 @@ Setup (``start``, torque off throughout until the end): the actuators are made s
 torque off, only when they differ, every change logged; a tripped Bus Watchdog is cleared),
 then Goal Position := Present Position, torque on, and the Bus Watchdog set. ``stop`` turns
 torque off (``DriveBus.torque_off``: group write, servo by servo, read back, watchdog cleared).
+
+Health: every ``HEALTH_CHECK_CYCLES`` goal writes the actuators' state is read (one Sync Read of
+Moving .. Present Temperature) and checked by ``health.CurrentTemperatureStop``, the same current
+(or load) and temperature stop as ``perform``, caps from each servo through the model table. A
+stop turns the actuators' torque off (read back), logs the reason and ends their driving
+(``stopped``); the sensors read on.
 """
 
 from __future__ import annotations
 
 import math
+import time
 from dataclasses import dataclass
 
 import numpy as np
 
 from puppet.drive import items as it
+from puppet.drive.errors import HealthStop
 from puppet.drive.goals import GoalShaper
+from puppet.drive.health import CurrentTemperatureStop
 from puppet.drive.servos import DriveBus
 from puppet.servo_models import ServoUnits
+
+
+HEALTH_CHECK_CYCLES = 10
+"""The actuators' current and temperature are read every this many goal writes (a few tens of ms
+at the reader's rates, well inside the 0.3 s a current must be sustained to stop)."""
 
 
 @dataclass(frozen=True)
@@ -72,7 +86,9 @@ class ActuatorDriver:
     """Drives ``plan``'s actuators on an open ServoReader's link (in the reader process).
 
     log: called with one line of text per change, recovery or failure.
-    ``present`` (a,) continuous ticks at start; ``shaper`` the clamps and rate limit in use.
+    ``present`` (a,) continuous ticks at start; ``shaper`` the clamps and rate limit in use;
+    ``stopped``: why the health check stopped the actuators (None while driving);
+    ``torque_after``: what the stop read back ({id: Torque Enable or None}).
     """
 
     def __init__(self, plan: ActuationPlan, reader, log) -> None:
@@ -84,6 +100,11 @@ class ActuatorDriver:
         self.torque_on = False
         self._raw: dict[int, int] = dict.fromkeys(plan.ids, 0)
         self._hold = np.full(len(plan.ids), np.nan)
+        self.health: CurrentTemperatureStop | None = None
+        self.stopped: str | None = None
+        self.torque_after: dict[int, int | None] = {}
+        self._writes = 0
+        self._checked_t = 0.0
 
     def start(self) -> None:
         """Setup with torque off, goal := present, torque on, Bus Watchdog set (DriveError or
@@ -103,6 +124,8 @@ class ActuatorDriver:
                 hi[n] = min(hi[n], info.hi + self.offsets[n])
         self.shaper = GoalShaper(lo, hi, np.array(plan.max_step))
         self.shaper.start(present)
+        self.health = CurrentTemperatureStop(plan.ids, [bus.setup[i] for i in plan.ids])
+        self._checked_t = time.monotonic()
         self.torque_on = True  # from here on, stop() turns it off
         bus.write_all(it.TORQUE_ENABLE, 1)
         if plan.watchdog_units:
@@ -110,13 +133,35 @@ class ActuatorDriver:
 
     def write(self, wanted: np.ndarray | None) -> np.ndarray:
         """One Sync Write of Goal Position toward ``wanted`` ((a,) continuous ticks; None or
-        NaN: hold), clamped and rate-limited; returns the (a,) goals written (reused array)."""
+        NaN: hold), clamped and rate-limited; returns the (a,) goals written (reused array).
+        Every HEALTH_CHECK_CYCLES calls the health check first; once it stopped the actuators
+        nothing is written."""
+        if self.stopped is not None:
+            return self.shaper.last
+        self._writes += 1
+        if self._writes % HEALTH_CHECK_CYCLES == 0 and self._healthy() is False:
+            return self.shaper.last
         goals = self.shaper.shape(self._hold if wanted is None else wanted)
         raw = self._raw
         for n, dxl_id in enumerate(self.plan.ids):
             raw[dxl_id] = int(round(goals[n] - self.offsets[n]))
         self.reader.link.sync_write(it.GOAL_POSITION, raw)
         return goals
+
+    def _healthy(self) -> bool:
+        """Read the actuators' state and check it; on a stop: torque off, logged, False."""
+        state = self.bus.read_state()
+        now = time.monotonic()
+        dt, self._checked_t = now - self._checked_t, now
+        try:
+            self.health.check(state, dt)
+        except HealthStop as stop:
+            self.stopped = str(stop)
+            # torque_on stays set: the stop at the end reads torque back again for the host
+            self.torque_after = self.bus.torque_off()
+            self.bus.log(f"{stop} (Torque Enable read back: {self.torque_after})")
+            return False
+        return True
 
     def stop(self) -> dict[int, int | None]:
         """Torque off (group write, then one by one, read back; watchdog cleared) -> {id:

@@ -111,11 +111,13 @@ def test_exception_during_playback_leaves_torque_off(rig, wave_take):
 
 
 def test_overload_stops_the_performance_naming_the_servo(rig, wave_take):
-    # Servo 4 is an XL430 (no current item): its own overload error (alert bit) stops it.
+    # The servo's own overload error (the alert bit of its status) stops it. (A load on an
+    # XL430 like servo 4 now meets the host's Present Load cap first: tests/drive/
+    # test_health_stops.py; here the servo latches its overload itself.)
     with hw_sim.serve(dict(rig.servo_map.models)) as bus:
         with pytest.raises(HealthStop) as info:
-            _perform(rig, wave_take, bus.port, loop=True,
-                     on_phase=_during_playback(lambda: bus.inject("load", 4, current=9000)))
+            _perform(rig, wave_take, bus.port, loop=True, on_phase=_during_playback(
+                lambda: bus.inject("hardware_error", 4, error="overload")))
         assert info.value.dxl_id == 4
         assert "overload" in str(info.value)
         assert str(info.value).startswith("servo 4:")
