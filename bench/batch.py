@@ -42,7 +42,7 @@ import numpy as np  # noqa: E402
 
 from puppet.batch import run_batch  # noqa: E402
 from puppet.bus import Reading  # noqa: E402
-from puppet.pipeline import Pipeline, RigPrecompute  # noqa: E402
+from puppet.loop import Pipeline, RigPrecompute  # noqa: E402
 from puppet.rig import builtin  # noqa: E402
 from puppet.take import TakeWriter  # noqa: E402
 

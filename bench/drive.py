@@ -42,8 +42,8 @@ from puppet.drive import PerformOptions, perform
 from puppet.drive import items as it
 from puppet.drive.servos import DriveBus
 from puppet.bus.reader_process import ReaderProcess
-from puppet.drive.actuators import ActuationPlan, LiveActuation
-from puppet.pipeline import Pipeline, run_live
+from puppet.drive.actuators import ActuationPlan, ActuatorHook, LiveActuation
+from puppet.loop import Pipeline, run_live
 from puppet.rig import builtin, load_rig
 from puppet.rig.calibration import Calibration
 from puppet.rig.load import BUILTIN_RIG
@@ -112,7 +112,7 @@ def _sense_to_goal(baud: int, seconds: float) -> tuple[float, float]:
     with hw_sim.serve(dict(rig.servo_map.models), motion="wave", timing=True, baud=baud,
                       return_delay_us=0) as sim:
         source = ReaderProcess(sim.port, rig.servo_map.models, rate_hz=500.0, baud=baud,
-                               latency_ms=1, actuation=plan)
+                               latency_ms=1, hook=ActuatorHook(plan))
         source.start()
         actuation.source = source
         try:

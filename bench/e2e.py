@@ -45,7 +45,7 @@ from pathlib import Path
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")  # as the puppet command does
 
 from puppet.demo import DEMO_READ_RATE_HZ, run_demo  # noqa: E402
-from puppet.pipeline import STAGES  # noqa: E402
+from puppet.loop import STAGES  # noqa: E402
 from puppet.render import VideoSink  # noqa: E402
 from puppet.render.sinks import DEFAULT_PRESET, ENCODER_NICE  # noqa: E402
 

@@ -29,7 +29,7 @@ import numpy as np  # noqa: E402
 
 from puppet.bus import Reading  # noqa: E402
 from puppet.export import JointTransforms, Outputs, Resampler, export_take  # noqa: E402
-from puppet.pipeline import Pipeline  # noqa: E402
+from puppet.loop import Pipeline  # noqa: E402
 from puppet.rig import builtin  # noqa: E402
 from puppet.take import TakeReader, TakeWriter  # noqa: E402
 

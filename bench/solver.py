@@ -389,8 +389,8 @@ def switch_case():
     cached switch, and the largest per-frame vertex jump at both switches (still puppet, neck
     servo silent 500 ms, answering 26 degrees away), blended (6 frames) and not."""
     from puppet.bus import Reading
-    from puppet.fast.live_solve import LiveSolve, _PatternState
-    from puppet.pipeline import Pipeline
+    from puppet.fast.live_solve import LiveSolve
+    from puppet.loop import Pipeline
     from puppet.rig import builtin
     from puppet.rig.solve_options import SolveExtras
 
@@ -400,19 +400,19 @@ def switch_case():
     with Pipeline(rig, render=False) as pipeline:
         model = pipeline.model
         refactor = []
-        for _ in range(7):
-            state = _PatternState(rig, model, frozenset({neck}), None)
-            refactor.append(state.factor_ms)
-        live = LiveSolve(rig, model)
-        ok_all = np.ones(len(rig.servo_map), bool)
+        for _ in range(7):  # a fresh LiveSolve each time: the neck's pattern factored anew
+            live = LiveSolve(model, rig.pattern, contact_targets=rig.contact_targets())
+            live._state(frozenset({neck}))
+            refactor.append(live.factor_ms[frozenset({neck})])
         T = model.rest_T()
-        angles = np.zeros(len(rig.servo_map))
+        rot = np.tile(np.eye(3), (rig.skeleton.bone_count, 1, 1))
+        pose = rig.skeleton.rest_pose()
         cached = []
-        live.solve(ok_all, 0, angles, T, 8)
-        live._state(frozenset({neck}))
+        live.solve(frozenset(), rot, pose, T, 8)
         for _ in range(50):  # a cached switch each way: the pattern lookup and the warm start
             t0 = time.perf_counter_ns()
-            live._switch(frozenset({neck}) if not live.free_bones else frozenset(), T)
+            live._switch_to(live._state(frozenset({neck}) if not live.free_bones else frozenset()),
+                            frozenset({neck}) if not live.free_bones else frozenset(), T)
             cached.append((time.perf_counter_ns() - t0) / 1e6)
     ids = np.array([s.id for s in rig.servo_map.servos])
     from puppet.demo import Performance

@@ -123,7 +123,7 @@ def refactor_times(repeats: int = 15) -> dict:
     The same handles pinned at a vertex of their triangle (the old way) are timed alternately
     in the same run: ``point_vs_vertex`` is the ratio of the two refactor medians."""
     from puppet.bus import Reading
-    from puppet.pipeline import Pipeline
+    from puppet.loop import Pipeline
     from puppet.rig import builtin
 
     rig = builtin()

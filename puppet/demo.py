@@ -17,7 +17,7 @@ from puppet.bus.reader_process import ReaderProcess
 from puppet.rig import Rig, builtin
 
 if TYPE_CHECKING:
-    from puppet.pipeline import Pipeline, Summary
+    from puppet.loop import Pipeline, Summary
 
 #: The demo's steady bus rate, readings per second: twice the loop's frames. Each frame also asks
 #: for a reading of its own just before it needs one (late latching), so a faster steady rate
@@ -99,7 +99,7 @@ def run_demo(*, seconds: float | None, sinks_for: Callable[[Pipeline], list], fa
     faults: a hw_sim fault file (or schedule) to play during the run.
     view: a puppet.view.View (bound, not attached) to watch the run in a browser.
     rate_hz: bus readings per second (the reader process's steady rate; each frame also asks
-        for a reading of its own, see puppet.pipeline.LateLatch).
+        for a reading of its own, see puppet.loop.LateLatch).
     latency_ms: the SDK's latency assumption; 3 ms leaves the simulator (a process competing
         for the same cores as the renderer and the video encoder) room to answer late.
     render_options: more Renderer keywords (see Pipeline), for benchmarks.
@@ -117,7 +117,7 @@ def run_demo(*, seconds: float | None, sinks_for: Callable[[Pipeline], list], fa
         starting = _Starting(source)
         # Imported only now: the solver and renderer imports (scipy, moderngl) then overlap with
         # the reader process's own start.
-        from puppet.pipeline import Pipeline, run_live
+        from puppet.loop import Pipeline, run_live
 
         try:
             with Pipeline(rig, iterations=iterations, width=width, height=height, overlay=overlay,

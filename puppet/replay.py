@@ -95,7 +95,7 @@ def play_take(rig: Rig, reader: TakeReader, sinks: Iterable, *, fps: float = 30.
     frames in all) after each frame. should_stop() (Ctrl-C, SIGTERM) ends it after a whole
     frame. Returns the pipeline's Summary. The caller closes the sinks.
     """
-    from puppet.pipeline import Pipeline, run_frames
+    from puppet.loop import Pipeline, run_frames
     from puppet.take import PlaybackClock
 
     ids = [int(i) for i in rig.servo_map.ids]

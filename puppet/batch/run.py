@@ -26,7 +26,7 @@ from puppet.batch.plan import (DEFAULT_FORMATS, Job, expand_takes, is_done, pars
                                plan_jobs, prepare_out)
 from puppet.batch.ray_engine import RayEngine
 from puppet.batch.task import Settings, Shared, TakeResult
-from puppet.pipeline import RigPrecompute
+from puppet.loop import RigPrecompute
 from puppet.rig import Rig
 
 ENGINES = ("local", "ray")

@@ -18,7 +18,7 @@ from pathlib import Path
 from puppet.atomic import atomic_output
 from puppet.batch.plan import Job
 from puppet.errors import PuppetError
-from puppet.pipeline import RigPrecompute
+from puppet.loop import RigPrecompute
 from puppet.rig import Rig
 
 EXPORT_FORMATS = ("gltf", "usd", "pc2", "bvh")

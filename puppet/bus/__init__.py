@@ -1,14 +1,17 @@
-"""Servo IO through dynamixel_sdk: scan, configure, group reads, recovery.
+"""Servo IO through dynamixel_sdk: scan, configure, group reads, recovery. Imports nothing of
+puppet.drive: servos that move plug into the reader process's cycle hook.
 
 Public API:
     ServoReader(port | PortHandler, {id: model}, baud=..., latency_ms=None, read_mode="auto",
-                actuators=(), limits=None, auto_reboot=True, ...)
+                driven=(), limits=None, auto_reboot=True, ...)
         .open(broadcast_ping=False, strict=False) -> SetupReport (found, missing, unexpected,
               changes, hardware_errors, read_mode)
         .read() -> Reading (never raises for bus faults);  .read_clean(samples, timeout_s) -> Reading
         .health {id: ServoHealth};  .log (EventLog of BusEvent: .events, .counts, .drain())
-        .reboot(id);  .write_goals({id: ticks});  .group;  .port_up;  .close()
-    ReaderThread(reader, rate_hz, queue_len): .start() .latest() .drain() .call(fn) .set_goals() .stop()
+        .reboot(id);  .group;  .port_up;  .close()
+    ReaderThread(reader, rate_hz, queue_len): .start() .latest() .drain() .call(fn) .stop()
+    ReaderProcess(port, {id: model}, rate_hz, hook=CycleHook) (puppet.bus.reader_process): the
+        reader in a child process; a hook (puppet.drive plugs in) writes goals each cycle
     BusLink(port, baud, latency_ms): the SDK with its crash paths absorbed (ping, read, write,
         sync_read, fast_sync_read, sync_write, reboot, broadcast_ping, rebuild)
     Reading(t_ns, ids, ticks int32, ok bool)

@@ -107,28 +107,25 @@ def ensure_status_return(link: BusLink, dxl_id: int, changes: list[Change]) -> N
         raise ServoStatusError([dxl_id], "write Status Return Level", "the level did not change")
 
 
-def configure_servo(link: BusLink, dxl_id: int, actuator: bool, changes: list[Change]) -> None:
-    """Sensor: torque off. Actuator: torque on at its present position. Both: return delay 0,
-    Status Return Level 2.
+def configure_servo(link: BusLink, dxl_id: int, driven: bool, changes: list[Change]) -> None:
+    """Status Return Level 2 and Return Delay Time 0 on one servo; a sensor's torque off.
 
+    driven: the servo is an actuator that a driver owns (``ServoReader(driven=...)``): its
+    torque is never changed here, and its return delay (an EEPROM item, writable only with
+    torque off) only while its torque is off; the driver's own setup makes it safe to drive.
     Appends every write to ``changes``. Raises ServoError/PortError on a failed transaction.
     """
     ensure_status_return(link, dxl_id, changes)
     torque = link.read(dxl_id, ct.TORQUE_ENABLE)
     delay = link.read(dxl_id, ct.RETURN_DELAY_TIME)
-    if delay != 0:
+    if delay != 0 and not (driven and torque):
         if torque:  # EEPROM is locked while torque is on
             link.write(dxl_id, ct.TORQUE_ENABLE, 0)
             changes.append(Change(dxl_id, ct.TORQUE_ENABLE.name, torque, 0))
             torque = 0
         link.write(dxl_id, ct.RETURN_DELAY_TIME, 0)
         changes.append(Change(dxl_id, ct.RETURN_DELAY_TIME.name, delay, 0))
-    if actuator and not torque:
-        present = link.read(dxl_id, ct.PRESENT_POSITION)
-        link.write(dxl_id, ct.GOAL_POSITION, present)
-        link.write(dxl_id, ct.TORQUE_ENABLE, 1)
-        changes.append(Change(dxl_id, ct.TORQUE_ENABLE.name, 0, 1))
-    elif not actuator and torque:
+    if not driven and torque:
         link.write(dxl_id, ct.TORQUE_ENABLE, 0)
         changes.append(Change(dxl_id, ct.TORQUE_ENABLE.name, torque, 0))
 

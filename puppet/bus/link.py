@@ -263,6 +263,11 @@ class BusLink:
         self._unsettled = len(got) > at + reply_size
         return LATE if before else SILENT
 
+    def heard_last(self, other_than: int) -> int | None:
+        """The servo other than ``other_than`` that answered cleanly most recently (a witness
+        for ``witness``), or None."""
+        return next((i for i in reversed(self._answered) if i != other_than), None)
+
     def _heard(self, dxl_id: int) -> None:
         """``dxl_id`` answered cleanly: the newest flush witness."""
         self._answered.pop(dxl_id, None)

@@ -20,6 +20,8 @@ Per ``read()``:
    the servo rebooted: it is reconfigured.
 A servo that comes back (from missing, a reboot, a rebuilt port) is reconfigured; its turn count
 is unwrapped to stay continuous (see ``unwrap``). Nothing the SDK raises escapes ``read()``.
+A driven servo (an actuator whose driver plugs into the ReaderProcess hook) is read and
+recovered like the others, but nothing here changes its torque or reboots it: its driver decides.
 """
 
 from __future__ import annotations
@@ -33,7 +35,7 @@ import numpy as np
 from puppet.bus import control_table as ct
 from puppet.bus import health as hs
 from puppet.bus.configure import SetupReport, configure_servo, identify, supports_fast_sync_read
-from puppet.bus.errors import BusError, PortError, ServoCorrupt, ServoError, ServoMissing, ServoTimeout
+from puppet.bus.errors import PortError, ServoCorrupt, ServoError, ServoMissing, ServoTimeout
 from puppet.bus.link import SILENT, STALLED, BusLink, GroupRead
 from puppet.bus.reading import Reading
 from puppet.bus.unwrap import TurnUnwrapper
@@ -51,9 +53,11 @@ class ServoReader:
     latency_ms: the SDK's latency assumption (module global ``LATENCY_TIMER``), ms; None: the
                adapter's FTDI latency timer from sysfs where there is one, else 1.
     read_mode: 'auto' (fast sync read if all firmware supports it), 'fast_sync_read', 'sync_read'.
-    actuators: ids that get torque on and accept goal positions (``write_goals``).
+    driven:    ids of actuators a driver owns (puppet.drive, through the ReaderProcess hook):
+               read like the others, but setup, reconfiguration, recovery and auto-reboot never
+               change their torque or reboot them (see ``configure_servo``).
     limits:    {id: (lo, hi)} continuous tick limits; a value outside is flagged, not taken.
-    auto_reboot: reboot a sensor (never an actuator) whose hardware error is latched (at most
+    auto_reboot: reboot a sensor (never a driven servo) whose hardware error is latched (at most
                once per ``reboot_holdoff_s``).
     noise_threshold: jitter (ticks) above which a servo is flagged noisy.
     exact_within_s: a group read that took longer than this has an uncertain sampling time
@@ -74,7 +78,7 @@ class ServoReader:
         baud: int = 1_000_000,
         latency_ms: int | None = None,
         read_mode: str = "auto",
-        actuators: Iterable[int] = (),
+        driven: Iterable[int] = (),
         limits: Mapping[int, tuple[int, int]] | None = None,
         auto_reboot: bool = True,
         missing_after: int = 3,
@@ -100,10 +104,10 @@ class ServoReader:
                 raise ValueError(f"ServoReader: servo id {dxl_id} outside 0..252")
             ct.model_named(name)
         self.servos = {int(i): str(m) for i, m in servos.items()}
-        self.actuators = frozenset(int(i) for i in actuators)
-        unknown = self.actuators - set(self.servos)
+        self.driven = frozenset(int(i) for i in driven)
+        unknown = self.driven - set(self.servos)
         if unknown:
-            raise ValueError(f"ServoReader: actuators {sorted(unknown)} are not in the servo map")
+            raise ValueError(f"ServoReader: driven servos {sorted(unknown)} are not in the servo map")
         self.limits = {int(i): (int(lo), int(hi)) for i, (lo, hi) in (limits or {}).items()}
         self.link = BusLink(port, baud=baud, latency_ms=latency_ms, poll_block_s=poll_block_s)
         self.read_mode_requested = read_mode
@@ -196,7 +200,7 @@ class ServoReader:
         tries = 0
         while True:
             try:
-                configure_servo(self.link, dxl_id, dxl_id in self.actuators, report.changes)
+                configure_servo(self.link, dxl_id, dxl_id in self.driven, report.changes)
                 return self.link.read(dxl_id, ct.HARDWARE_ERROR_STATUS)
             except ServoError as exc:
                 tries += 1
@@ -522,7 +526,7 @@ class ServoReader:
     def _reconfigure(self, dxl_id: int, why: str) -> None:
         changes: list = []
         try:
-            configure_servo(self.link, dxl_id, dxl_id in self.actuators, changes)
+            configure_servo(self.link, dxl_id, dxl_id in self.driven, changes)
         except ServoError as exc:
             self.health[dxl_id].last_error = exc
             self.log.add("reconfigure_failed", [dxl_id], f"{why}: {exc}")
@@ -565,7 +569,7 @@ class ServoReader:
                 self.log.add("hardware_error_cleared", [dxl_id],
                              f"was {ct.describe_hardware_error(h.hardware_error)}")
             h.hardware_error = bits
-        if not bits or not self.auto_reboot or dxl_id in self.actuators:
+        if not bits or not self.auto_reboot or dxl_id in self.driven:
             return
         now = time.monotonic_ns()
         last = self._last_reboot_ns.get(dxl_id)
@@ -597,8 +601,11 @@ class ServoReader:
             self._reconfigure(dxl_id, "rebooted")
 
     def reboot(self, dxl_id: int) -> None:
-        """Send Reboot to one servo (clears a latched hardware error). Its position re-bases;
-        the reader unwraps it. Failures are logged, never raised (PortError aside)."""
+        """Send Reboot to one sensor (clears a latched hardware error). Its position re-bases;
+        the reader unwraps it. Failures are logged, never raised (PortError aside). ValueError
+        for a driven servo: a reboot turns its torque off, which only its driver decides."""
+        if dxl_id in self.driven:
+            raise ValueError(f"ServoReader: servo {dxl_id} is driven: only its driver reboots it")
         try:
             self.link.reboot(dxl_id)
         except ServoError as exc:
@@ -638,25 +645,6 @@ class ServoReader:
         self._health_due = True
         self.log.add("port_restored", (), self.link.port_name)
         return True
-
-    # ---- drive-back ----------------------------------------------------------------------
-    def write_goals(self, goals: Mapping[int, int]) -> None:
-        """Sync-write Goal Position (continuous ticks, same frame as readings) to actuators.
-
-        ValueError for an id that is not an actuator; PortError/ServoError are logged.
-        """
-        bad = sorted(set(goals) - self.actuators)
-        if bad:
-            raise ValueError(f"write_goals: servos {bad} are not actuators")
-        if not self._port_up:
-            return
-        raw = {i: self.unwrap[i].to_raw(int(t)) for i, t in goals.items()}
-        try:
-            self.link.sync_write(ct.GOAL_POSITION, raw)
-        except PortError as exc:
-            self._port_lost(exc)
-        except BusError as exc:
-            self.log.add("write_failed", list(goals), str(exc))
 
     # ---- views ---------------------------------------------------------------------------
     @property

@@ -9,17 +9,23 @@ Shared ring (multiprocessing shared memory, ``slots`` entries, written only by t
     t_ns (slots,) int64, ticks (slots, k) int32, ok (slots, k) bool, written (1,) int64.
 The child fills slot ``written % slots`` and then increments ``written``; the consumer copies
 the slots it has not seen and re-checks ``written`` to drop any slot overwritten meanwhile.
-Setup report, bus events and errors come back over a pipe; commands (goals, reboot, read
-now, stop) go down another.
+Setup report, bus events and errors come back over a pipe; commands (read now, stop) go down
+another.
 
-Goal channel (only with ``actuation``: a rig's actuator servos, see puppet.drive.actuators), a
-second shared block written only by the consumer: seq (1,) int64, src_t_ns (1,) int64, goals
-(a,) float64 continuous ticks. The consumer makes seq odd, writes, makes it even (a seqlock); the
-child copies the goals when seq is even and new, then once per cycle writes the latest ones
-(clamped, rate-limited) with one Sync Write just before the cycle's read. For each new goal it
-notes (src_t_ns, bus_t_ns) in a small ring (``goal_delays_ms``): the sensor reading the goal was
-solved from, and when it went on the bus. The child turns the actuators' torque off on every
-way out of its loop (stop, SIGTERM, its parent gone, an exception) and reports the read-back.
+Cycle hook (``hook``: an object of the ``CycleHook`` shape, made by whoever drives servos; the
+bus only calls it; puppet.drive.actuators plugs the rig's actuators in here): the hook's ``ids``
+are the reader's ``driven`` servos (their torque is never changed nor are they rebooted by the
+reader). In the child ``start(reader, note)`` runs after the reader's setup, ``before_read(reader,
+goals)`` once per cycle just before the read, and ``stop()`` on every way out of the loop (stop,
+SIGTERM, its parent gone, an exception); its result (torque read back) comes back as
+``torque_after``. If the child dies without that, the parent calls ``stop_from_parent``.
+
+Goal channel (only with a hook), a second shared block written only by the consumer: seq (1,)
+int64, src_t_ns (1,) int64, goals (a,) float64. The consumer makes seq odd, writes, makes it even
+(a seqlock); the child copies the goals when seq is even and new and hands the newest to
+``before_read`` each cycle. For each new goal vector it notes (src_t_ns, bus_t_ns) in a small
+ring (``goal_delays_ms``): the sensor reading the goals were solved from, and when the hook had
+written them.
 """
 
 from __future__ import annotations
@@ -28,8 +34,9 @@ import multiprocessing as mp
 import os
 import signal
 import time
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from multiprocessing import shared_memory
+from typing import Protocol
 
 import numpy as np
 
@@ -40,6 +47,29 @@ from puppet.errors import PuppetError
 
 class ReaderProcessError(PuppetError, RuntimeError):
     """The reader process could not start or stopped on an error (message from the child)."""
+
+
+class CycleHook(Protocol):
+    """What a ReaderProcess calls in its child each bus cycle (picklable: it travels to the
+    child). ``ids``: (a,) the servos it drives, which the reader leaves alone (``driven``)."""
+
+    ids: tuple[int, ...]
+
+    def start(self, reader, note: Callable[[str], None]) -> list:
+        """After the reader's setup: take over ``ids`` on ``reader.link`` -> setup Changes.
+        A PuppetError or BusError refuses (the reader process then fails to start)."""
+
+    def before_read(self, reader, goals: np.ndarray) -> None:
+        """Once per cycle before the read; ``goals`` (a,) the consumer's newest (NaN until the
+        first). Bus faults are the hook's to handle (``reader.log`` takes its events)."""
+
+    def stop(self) -> dict | None:
+        """On every way out of the child's loop: {id: Torque Enable read back}, or None when
+        there was nothing to stop."""
+
+    def stop_from_parent(self, port: str, options: dict, note: Callable[[str], None]) -> dict | None:
+        """The child died without ``stop``: do it from the parent on ``port`` (``options``:
+        the reader's, baud and latency_ms among them)."""
 
 
 def _ring_arrays(buf, slots: int, k: int):
@@ -108,11 +138,13 @@ class _GoalInbox:
         self.delay_n[0] = n + 1
 
 
-def _torque_off(driver, events) -> None:
-    """Torque off the actuators (if on) and tell the parent what reads back."""
-    if driver is None or not driver.torque_on:
+def _stop_hook(hook, events) -> None:
+    """Stop the hook (if started) and tell the parent what reads back."""
+    if hook is None:
         return
-    after = driver.stop()
+    after = hook.stop()
+    if after is None:
+        return
     try:
         events.send(("torque_off", after))
     except OSError:  # the parent is gone: there is nobody to tell
@@ -120,67 +152,56 @@ def _torque_off(driver, events) -> None:
 
 
 def _child(shm_name, slots, port, servos, options, rate_hz, events, commands,
-           actuation=None, goal_shm_name=None):
+           hook=None, goal_shm_name=None):
     """The reader process: open the bus, then read at rate_hz into the ring until the ring's
     stop word is set (a plain shared word, no lock: a child killed at any moment cannot leave
-    the parent blocked on a lock it held). With ``actuation``: drive its actuators from the
-    goal channel, torque off on the way out."""
+    the parent blocked on a lock it held). With a ``hook``: call it each cycle, and stop it
+    on every way out."""
     from puppet.bus.errors import BusError
     from puppet.bus.reader import ServoReader
 
     shm = shared_memory.SharedMemory(name=shm_name)
-    goal_shm = driver = inbox = reader = None
+    goal_shm = inbox = reader = started = None
     parent = os.getppid()
-    if actuation is not None:  # the parent stops us (Ctrl-C reaches the whole group)
+    if hook is not None:  # the parent stops us (Ctrl-C reaches the whole group)
         signal.signal(signal.SIGINT, signal.SIG_IGN)
     t_ns, ticks, ok, written, stop = _ring_arrays(shm.buf, slots, len(servos))
-    if actuation is not None:
+    if hook is not None:
         signal.signal(signal.SIGTERM, lambda *_: stop.__setitem__(0, 1))
     try:
-        reader = ServoReader(port, servos, **options)
+        reader = ServoReader(port, servos, driven=hook.ids if hook is not None else (), **options)
         try:
             report = reader.open()
-            if actuation is not None:
-                from puppet.drive.actuators import ActuatorDriver
-                from puppet.drive.errors import DriveError
-
+            if hook is not None:
                 goal_shm = shared_memory.SharedMemory(name=goal_shm_name)
-                inbox = _GoalInbox(goal_shm.buf, len(actuation.ids))
-                driver = ActuatorDriver(actuation, reader, lambda text: events.send(("note", text)))
-                try:
-                    driver.start()
-                except DriveError as exc:
-                    raise ValueError(str(exc)) from None
-                report.changes.extend(driver.bus.changes)
-        except (BusError, ValueError) as exc:
-            _torque_off(driver, events)
-            events.send(("error", f"{type(exc).__name__}: {exc}"))
+                inbox = _GoalInbox(goal_shm.buf, len(hook.ids))
+                started = hook  # from here on it is stopped on every way out
+                report.changes.extend(hook.start(reader, lambda text: events.send(("note", text))))
+        except (BusError, PuppetError, ValueError) as exc:
+            _stop_hook(started, events)
+            started = None
+            events.send(("error", str(exc) if isinstance(exc, PuppetError) and not isinstance(
+                exc, BusError) else f"{type(exc).__name__}: {exc}"))
             return
         events.send(("report", report))
         period_ns = int(1e9 / rate_hz) if rate_hz else 0
         next_ns = time.monotonic_ns()
         while not stop[0]:
-            if driver is not None:
+            if hook is not None:
                 if os.getppid() != parent:  # the host process is gone
                     break
                 new = inbox.take()
-                try:
-                    driver.write(inbox.wanted)  # NaN until the first goals: hold
-                    if new:
-                        inbox.note(time.monotonic_ns())
-                except BusError as exc:
-                    reader.log.add("write_failed", list(actuation.ids), str(exc))
+                hook.before_read(reader, inbox.wanted)
+                if new:
+                    inbox.note(time.monotonic_ns())
             while commands.poll():
                 try:
-                    name, arg = commands.recv()
+                    name, _arg = commands.recv()
                 except (EOFError, OSError):  # the parent is gone: nobody to read for
-                    name, arg = "stop", None
+                    name = "stop"
+                if name == "stop":
                     stop[0] = 1
                     break
-                if name == "goals":
-                    reader.write_goals(arg)
-                elif name == "reboot":
-                    reader.reboot(arg)
                 # "read": the consumer wants a fresh reading now (the wait below ended early)
             reading = reader.read()
             slot = int(written[0]) % slots
@@ -198,7 +219,7 @@ def _child(shm_name, slots, port, servos, options, rate_hz, events, commands,
                 elif commands.poll((next_ns - now) / 1e9):  # a command (read, stop) ends the wait
                     next_ns = time.monotonic_ns()  # read now; the schedule goes on from here
     finally:
-        _torque_off(driver, events)
+        _stop_hook(started, events)
         if reader is not None:
             reader.close()
         if inbox is not None:
@@ -217,9 +238,9 @@ class ReaderProcess:
     slots:   readings the ring holds (a consumer that falls further behind loses the oldest).
     options: passed to ``ServoReader`` in the child (baud, latency_ms, read_mode, ...).
 
-    actuation: an ``ActuationPlan`` (puppet.drive.actuators) to drive a rig's actuators from
-             ``set_actuator_goals``; ``torque_after`` then holds their Torque Enable read back
-             at the end ({id: value or None}) and ``notes`` the setup's changes and recoveries.
+    hook:    a ``CycleHook`` (e.g. puppet.drive.actuators.ActuatorHook) called in the child each
+             cycle with the newest ``set_goals``; ``torque_after`` then holds what its stop read
+             back ({id: Torque Enable or None}) and ``notes`` its lines of text.
 
     ``start()`` waits for the child's setup and returns its SetupReport (``report``), or raises
     ReaderProcessError with the child's message. ``drain()`` gives every new reading, oldest
@@ -227,9 +248,9 @@ class ReaderProcess:
     """
 
     def __init__(self, port: str, servos: Mapping[int, str], *, rate_hz: float = 500.0,
-                 slots: int = 4096, actuation=None, **options):
+                 slots: int = 4096, hook: CycleHook | None = None, **options):
         self.port = str(port)
-        self.actuation = actuation
+        self.hook = hook
         self.torque_after: dict | None = None
         self.notes: list[str] = []
         self._goal_shm = None
@@ -257,8 +278,8 @@ class ReaderProcess:
         self._events_closed = False
         child_commands, self._commands = self._ctx.Pipe(duplex=False)
         goal_name = None
-        if self.actuation is not None:
-            a = len(self.actuation.ids)
+        if self.hook is not None:
+            a = len(self.hook.ids)
             self._goal_shm = shared_memory.SharedMemory(create=True, size=_goal_size(a))
             (self._goal_seq_arr, self._goal_src, self._goals, self._delay_src, self._delay_bus,
              self._delay_n) = _goal_arrays(self._goal_shm.buf, a)
@@ -267,7 +288,7 @@ class ReaderProcess:
         self._proc = self._ctx.Process(
             target=_child, name="puppet-bus-reader", daemon=True,
             args=(self._shm.name, self.slots, self.port, self.servos, self.options, self.rate_hz,
-                  child_events, child_commands, self.actuation, goal_name))
+                  child_events, child_commands, self.hook, goal_name))
         self._proc.start()
         # The child has its own copies now: with ours closed, its death is an end of file here
         # (a message cut by it raises instead of blocking a read forever).
@@ -356,13 +377,9 @@ class ReaderProcess:
         except (OSError, ValueError):
             pass
 
-    def set_goals(self, goals: Mapping[int, int]) -> None:
-        """Goal positions (continuous ticks) for the reader's actuators."""
-        self._commands.send(("goals", {int(i): int(t) for i, t in goals.items()}))
-
-    def set_actuator_goals(self, goals: np.ndarray, src_t_ns: int) -> None:
-        """The actuators' wanted goals, (a,) continuous ticks (NaN: hold), solved from the
-        reading taken at ``src_t_ns``; the child writes them from its next cycle on."""
+    def set_goals(self, goals: np.ndarray, src_t_ns: int) -> None:
+        """The hook's goals, (a,) (NaN: hold; for actuators continuous ticks), solved from the
+        reading taken at ``src_t_ns``; the child's hook gets them from its next cycle on."""
         seq = self._goal_seq_arr
         seq[0] += 1  # odd: being written
         self._goals[:] = goals
@@ -370,32 +387,12 @@ class ReaderProcess:
         seq[0] += 1
 
     def goal_delays_ms(self) -> np.ndarray:
-        """(n,) ms from each sensor reading to its actuator goal's Sync Write (the newest
-        DELAY_SLOTS goals written; empty without actuation)."""
+        """(n,) ms from each sensor reading to the end of the hook's cycle call that wrote the
+        goals solved from it (the newest DELAY_SLOTS; empty without a hook)."""
         if self._goal_shm is None:
             return np.zeros(0)
         n = min(int(self._delay_n[0]), DELAY_SLOTS)
         return (self._delay_bus[:n] - self._delay_src[:n]) / 1e6
-
-    def _torque_off_from_here(self) -> None:
-        """The child died without turning its actuators off: open the port and do it here."""
-        from puppet.bus.errors import BusError
-        from puppet.bus.link import BusLink
-        from puppet.drive.servos import DriveBus
-
-        link = BusLink(self.port, **{k: v for k, v in self.options.items()
-                                     if k in ("baud", "latency_ms")})
-        try:
-            link.open()
-            bus = DriveBus(link, self.actuation.ids, self.actuation.models, self.notes.append)
-            self.torque_after = bus.torque_off()
-        except BusError as err:
-            self.notes.append(f"torque off after the reader process died failed: {err}")
-        finally:
-            link.close()
-
-    def reboot(self, dxl_id: int) -> None:
-        self._commands.send(("reboot", int(dxl_id)))
 
     def stop(self, timeout: float = 3.0) -> None:
         if self._proc is not None:
@@ -404,20 +401,21 @@ class ReaderProcess:
                 self._commands.send(("stop", None))   # wakes a child pacing its reads
             except (OSError, ValueError):
                 pass  # the child is gone already: its end of the pipe is closed
-            # with actuators the child turns their torque off first (a few transactions)
-            self._proc.join(timeout if self.actuation is None else max(timeout, 20.0))
+            # with a hook the child stops it first (torque off: a few transactions)
+            self._proc.join(timeout if self.hook is None else max(timeout, 20.0))
             if self._proc.is_alive():
                 self._proc.kill()
                 self._proc.join()
             self._proc = None
-            if self.actuation is not None and self.report is not None:
+            if self.hook is not None and self.report is not None:
                 while not self._events_closed and self._events.poll():
                     try:
                         self._take_message()  # its torque-off report, if it got that far
                     except ReaderProcessError as err:  # its last words were an error
                         self.notes.append(str(err))
-                if self.torque_after is None:
-                    self._torque_off_from_here()
+                if self.torque_after is None:  # the child died before its hook's stop
+                    self.torque_after = self.hook.stop_from_parent(self.port, self.options,
+                                                                   self.notes.append)
         if self._shm is not None:
             del self._t_ns, self._ticks, self._ok, self._written, self._stop_word
             self._shm.close()

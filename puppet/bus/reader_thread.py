@@ -9,7 +9,7 @@ from __future__ import annotations
 import threading
 import time
 from collections import deque
-from collections.abc import Callable, Mapping
+from collections.abc import Callable
 from concurrent.futures import Future
 
 from puppet.bus.errors import BusError
@@ -71,8 +71,8 @@ class ReaderThread:
     """Runs ``reader.read()`` at ``rate_hz`` (None: back to back) on a daemon thread.
 
     Consumers call ``latest()`` (newest reading) or ``drain()``; other threads run bus
-    commands on the reader thread with ``call(fn, *args)`` (-> Future), and set actuator goals
-    with ``set_goals`` (newest wins, written once before the next read).
+    commands on the reader thread with ``call(fn, *args)`` (-> Future). It drives nothing:
+    servos that move are driven through ReaderProcess's cycle hook (puppet.drive).
 
     stats: reads, overruns (a period missed: the read took longer than 1/rate), dropped.
     """
@@ -85,7 +85,6 @@ class ReaderThread:
         self.queue = LatestQueue(queue_len)
         self._stop = threading.Event()
         self._calls: deque = deque()
-        self._goals: dict[int, int] | None = None
         self._thread: threading.Thread | None = None
         self.failure: BaseException | None = None
         self.reads = 0
@@ -137,10 +136,6 @@ class ReaderThread:
         self._calls.append((future, fn, args, kwargs))
         return future
 
-    def set_goals(self, goals: Mapping[int, int]) -> None:
-        """Goal positions for the actuators (continuous ticks); the newest set wins."""
-        self._goals = dict(goals)
-
     def _check(self) -> None:
         if self.failure is not None:
             raise ReaderDied("the bus reader thread stopped") from self.failure
@@ -151,9 +146,6 @@ class ReaderThread:
         try:
             while not self._stop.is_set():
                 self._run_calls()
-                goals, self._goals = self._goals, None
-                if goals:
-                    self.reader.write_goals(goals)
                 try:
                     reading = self.reader.read()
                 except BusError as exc:  # read() absorbs bus faults; this is a safety net

@@ -25,15 +25,15 @@ def load_rig(rig_path: str | None):
     return builtin() if rig_path is None else load(rig_path)
 
 
-def start_reader(rig, port: str, baud: int, rate_hz: float = 500.0, actuation=None):
+def start_reader(rig, port: str, baud: int, rate_hz: float = 500.0, hook=None):
     """A started ReaderProcess reading the rig's servos on ``port``; reports what setup did.
-    actuation: an ActuationPlan to drive the rig's actuator servos (puppet.drive.actuators)."""
+    hook: its cycle hook (puppet.drive.actuators.ActuatorHook drives the rig's actuators)."""
     from puppet.bus.reader_process import ReaderProcess, ReaderProcessError
 
     if not rig.servo_map.ids.size:
         fail(f"{rig.path or rig.name}: the rig has no servos to read")
     source = ReaderProcess(port, rig.servo_map.models, rate_hz=rate_hz, baud=baud,
-                           actuation=actuation)
+                           hook=hook)
     try:
         report = source.start()
     except ReaderProcessError as err:

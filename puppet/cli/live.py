@@ -8,7 +8,7 @@ import click
 
 from puppet.cli.common import StopFlag, load_rig, make_sinks, print_summary, start_reader, take_writer
 from puppet.cli.view import open_view, take_factory_for, view_option
-from puppet.drive.actuators import ActuationPlan, LiveActuation
+from puppet.drive.actuators import ActuationPlan, ActuatorHook, LiveActuation
 
 READ_RATE_HZ = 500.0
 """Bus cycles per second in live (a read of every servo, and the actuators' goal write)."""
@@ -19,15 +19,16 @@ def report_actuators(source) -> None:
     for note in source.notes:
         click.echo(note, err=True)
     after = source.torque_after
+    release = f"; `puppet release --port {source.port}` turns it off"
     if not after:
-        ids = [int(i) for i in source.actuation.ids]
-        click.echo(f"warning: actuator servos {ids}: torque not confirmed off (no read back)",
-                   err=True)
+        ids = [int(i) for i in source.hook.ids]
+        click.echo(f"warning: actuator servos {ids}: torque not confirmed off (no read back)"
+                   + release, err=True)
         return
     on = sorted(i for i, v in after.items() if v != 0)
     if on:
-        click.echo(f"warning: actuator servos {on}: torque not confirmed off (read back {after})",
-                   err=True)
+        click.echo(f"warning: actuator servos {on}: torque not confirmed off (read back {after})"
+                   + release, err=True)
     else:
         click.echo(f"actuators {sorted(after)}: torque off (read back)", err=True)
 
@@ -63,7 +64,7 @@ def live(rig_path: str, port: str, baud: int, take_path: str | None, out: str | 
       puppet live --rig my.toml --port /dev/ttyUSB0 --record take.mcap --out live.mp4
       puppet live --rig my.toml --port /dev/ttyUSB0 --view     watch at the printed URL
     """
-    from puppet.pipeline import Pipeline, run_live
+    from puppet.loop import Pipeline, run_live
     from puppet.take import BackgroundTakeWriter
 
     rig = load_rig(rig_path)
@@ -80,7 +81,8 @@ def live(rig_path: str, port: str, baud: int, take_path: str | None, out: str | 
             plan = ActuationPlan.for_rig(rig, READ_RATE_HZ,
                                          watchdog_ms=0.0 if no_watchdog else watchdog_ms)
             actuation = LiveActuation(rig) if plan is not None else None
-            source = start_reader(rig, port, baud, READ_RATE_HZ, actuation=plan)
+            source = start_reader(rig, port, baud, READ_RATE_HZ,
+                                  hook=ActuatorHook(plan) if plan is not None else None)
             if actuation is not None:
                 actuation.source = source
             try:

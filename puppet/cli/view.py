@@ -59,7 +59,7 @@ def view(rig_path: str | None, address: str, seconds: float | None, size: tuple[
     Example:
       puppet view --rig my.toml
     """
-    from puppet.pipeline import Pipeline, run_live
+    from puppet.loop import Pipeline, run_live
     from puppet.view import RestSource
 
     live_view = open_view(address, mode="rig")
@@ -83,7 +83,7 @@ def play_in_view(take: str, rig_path: str | None, out: str | None, frames: str |
     """``puppet play TAKE --view``: the take on the wall clock, paused, scrubbed and sped up from
     the page, until Ctrl-C; --out / --frames get the frames as shown."""
     from puppet.cli.common import make_sinks, open_take, print_summary
-    from puppet.pipeline import Pipeline, run_live
+    from puppet.loop import Pipeline, run_live
     from puppet.take.markers import read_markers
     from puppet.view import TakeSource
 

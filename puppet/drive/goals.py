@@ -98,20 +98,31 @@ class GoalShaper:
 
     lo/hi: (k,) goal-tick limits. max_step: (k,) most ticks a goal may move in one cycle.
     ``clamped`` / ``rate_limited``: (k,) int64 cycles in which a servo's goal was changed.
+    ``easing``: (k,) bool, servos moving at a slower step after ``ease`` until they get there.
     """
 
     def __init__(self, lo: np.ndarray, hi: np.ndarray, max_step: np.ndarray) -> None:
         self.lo, self.hi = np.asarray(lo, float), np.asarray(hi, float)
-        self.max_step = np.asarray(max_step, float)
+        self.max_step = np.array(max_step, float)
+        self._full_step = self.max_step.copy()
         k = len(self.lo)
         self.clamped = np.zeros(k, np.int64)
         self.rate_limited = np.zeros(k, np.int64)
+        self.easing = np.zeros(k, bool)
         self._tmp = np.empty(k)
         self.last = np.zeros(k)
 
     def start(self, present: np.ndarray) -> None:
         """Begin from the servos' present positions."""
         self.last[:] = present
+
+    def ease(self, n: int, present: float, step: float) -> None:
+        """Servo ``n`` begins again from ``present`` ticks (e.g. a servo its Bus Watchdog
+        stopped), its goal moving at most ``step`` ticks a cycle until it reaches the wanted
+        goal; from then on at its own max_step again."""
+        self.last[n] = present
+        self.max_step[n] = min(step, self._full_step[n])
+        self.easing[n] = True
 
     def shape(self, wanted: np.ndarray) -> np.ndarray:
         """(k,) goal ticks for this cycle from ``wanted`` (NaN = hold the last goal)."""
@@ -124,7 +135,11 @@ class GoalShaper:
         np.clip(tmp, self.lo, self.hi, out=tmp)
         tmp -= self.last
         fast = np.abs(tmp) > self.max_step
-        self.rate_limited += fast
+        self.rate_limited += fast & ~self.easing
         np.clip(tmp, -self.max_step, self.max_step, out=tmp)
         self.last += tmp
+        if self.easing.any():  # there (not rate-limited this cycle): full speed again
+            done = self.easing & ~fast
+            self.max_step[done] = self._full_step[done]
+            self.easing &= fast
         return self.last

@@ -10,9 +10,16 @@ Sync Write of goals then one Sync Read of Moving .. Present Temperature -> stop.
 Health watchdog while torque is on: every cycle (the state read) Present Temperature against
 a host limit below the servo's own, Present Current (Present Load on a model that senses no
 current) against a host cap on sustained current (``health.CurrentTemperatureStop``, caps from
-each servo's limits through the model table), the alert bit of each status (then Hardware Error Status is read to name the error), servos
-that stop answering; every ``WATCHDOG_CHECK_CYCLES`` cycles the Bus Watchdog items (-1 = it
-tripped). Any of these stops the performance naming the servo and the reading.
+each servo's limits through the model table), the alert bit of each status (then Hardware
+Error Status is read to name the error), servos that stop answering; every ``WATCHDOG_CHECK_CYCLES`` cycles the Bus Watchdog items (-1 = it
+tripped). Any of these stops the performance naming the servo and the reading, with two
+tolerances for a busy host, where one late reply must cost one cycle, not the performance:
+a servo stops it only after ``READ_FAILURES_TO_STOP`` cycles in a row without a usable reading
+and only if it then fails a read of its own too (a Fast Sync Read fails as a whole for one
+silent servo: the servos that do not answer alone are named); a tripped Bus Watchdog (the host
+or the line stalled past its period) is re-armed, goal := present and eased back at the start
+speed, and stops it only when ``WATCHDOG_TRIPS_TO_STOP`` checks in a row find it tripped. A
+goal write not sent because the line was stalled costs that cycle (its goals go with the next).
 
 Stop (end of take, SIGINT, SIGTERM, bus error, any exception): torque off by one Sync Write
 with no reply, then servo by servo, then read back; see ``DriveBus.torque_off``.
@@ -30,7 +37,7 @@ from dataclasses import asdict, dataclass, field
 import numpy as np
 
 from puppet.bus.control_table import describe_hardware_error
-from puppet.bus.errors import BusError, PortError
+from puppet.bus.errors import BusError, PortError, ServoTimeout
 from puppet.bus.link import BusLink
 from puppet.drive import items as it
 from puppet.drive.errors import DriveError, HealthStop
@@ -42,7 +49,14 @@ from puppet.drive.servos import DriveBus
 WATCHDOG_CHECK_CYCLES = 10
 """The Bus Watchdog items are read every this many cycles (the state read is every cycle)."""
 READ_FAILURES_TO_STOP = 10
-"""Consecutive cycles a servo may fail to answer before the performance stops."""
+"""Consecutive cycles a servo may go without a usable reading (or the goals stay unsent on a
+stalled line) before the performance stops, if the servo then fails a read of its own too."""
+RESCUES_TO_STOP = 3
+"""Times in a row the servos of a failing group read all answer alone (no full reading in
+between) before the performance stops anyway: the health checks need the group read."""
+WATCHDOG_TRIPS_TO_STOP = 3
+"""Watchdog checks in a row that find a servo's Bus Watchdog tripped before the performance
+stops (each earlier trip is re-armed)."""
 
 
 @dataclass
@@ -97,6 +111,8 @@ class PerformReport:
     flagged: dict = field(default_factory=dict)
     changes: list = field(default_factory=list)
     recovered: list = field(default_factory=list)
+    rearmed: dict = field(default_factory=dict)
+    unsent_cycles: int = 0
     torque_after: dict = field(default_factory=dict)
     log: list = field(default_factory=list)
 
@@ -109,6 +125,8 @@ class PerformReport:
         if self.tracking_median_deg is not None:
             lines.append(f"tracking: median {self.tracking_median_deg:.2f} deg, "
                          f"p99 {self.tracking_p99_deg:.2f} deg")
+        if self.rearmed:
+            lines.append(f"Bus Watchdog re-armed after a stall (times per servo): {self.rearmed}")
         for name in ("clamped", "rate_limited", "flagged"):
             table = getattr(self, name)
             if table:
@@ -277,7 +295,14 @@ def _start(bus: DriveBus, goals: TakeGoals, opts, report, say, check_signal, pha
     timeout = distance / max(report.start_profile_deg_s, 1e-3) * 3 + opts.arrive_timeout_s
     deadline = time.monotonic() + timeout
     speeds = np.zeros(len(bus.ids))
-    health = _Health(bus, opts)
+
+    def rearm(n: int) -> None:  # a stall tripped its watchdog: back to the slow move
+        dxl_id = bus.ids[n]
+        bus.rearm(dxl_id, _watchdog_units(opts))
+        bus.write(dxl_id, it.GOAL_POSITION, int(round(first[n])))
+        _rearmed(report, say, dxl_id)
+
+    health = _Health(bus, opts, on_trip=rearm)
     while True:
         check_signal()
         state = bus.read_state()
@@ -312,6 +337,12 @@ def _wait(seconds: float, bus: DriveBus, opts, check_signal, keepalive: bool = T
         time.sleep(min(step, left))
 
 
+def _rearmed(report: PerformReport, say, dxl_id: int) -> None:
+    report.rearmed[dxl_id] = report.rearmed.get(dxl_id, 0) + 1
+    say(f"servo {dxl_id}: Bus Watchdog tripped (the host or the line stalled past its period): "
+        "re-armed, easing back from its present position")
+
+
 def _read_positions(bus: DriveBus) -> np.ndarray:
     """Present Position of every servo (one read each, so that none is missing)."""
     return np.array([bus.read(i, it.PRESENT_POSITION) for i in bus.ids], float)
@@ -329,16 +360,22 @@ def _limits(bus: DriveBus, goals: TakeGoals) -> tuple[np.ndarray, np.ndarray]:
 
 
 class _Health:
-    """The host-side health watchdog over each cycle's state (see the module docstring)."""
+    """The host-side health watchdog over each cycle's state (see the module docstring).
 
-    def __init__(self, bus: DriveBus, opts: PerformOptions) -> None:
-        self.bus, self.opts = bus, opts
+    on_trip: called with a servo's index when its Bus Watchdog is found tripped (it re-arms
+    it); None: a trip stops the performance at once.
+    """
+
+    def __init__(self, bus: DriveBus, opts: PerformOptions, on_trip=None) -> None:
+        self.bus, self.opts, self.on_trip = bus, opts, on_trip
         k = len(bus.ids)
         self.stop = CurrentTemperatureStop(
             bus.ids, [bus.setup[i] for i in bus.ids], temperature_margin_c=opts.temperature_margin_c,
             temperature_cap_c=opts.temperature_cap_c, current_fraction=opts.current_fraction,
             current_sustain_s=opts.current_sustain_s)
         self.misses = np.zeros(k, np.int64)
+        self.trips = np.zeros(k, np.int64)
+        self.rescues = 0
         self.cycles = 0
 
     def check(self, state, dt: float) -> None:
@@ -352,18 +389,48 @@ class _Health:
             except BusError as err:
                 what = f"unreadable ({err})"
             raise HealthStop(dxl_id, f"hardware error: {what} (alert bit in its status)")
-        self.misses = np.where(state.ok, 0, self.misses + 1)
-        if (self.misses >= READ_FAILURES_TO_STOP).any():
-            n = int(np.argmax(self.misses))
-            dxl_id = bus.ids[n]
-            raise DriveError(f"servo {dxl_id}: no usable reading for {self.misses[n]} cycles "
-                             f"({state.failures.get(dxl_id)})")
+        self._check_misses(state)
         self.stop.check(state, dt)
         if self.opts.watchdog and self.cycles % WATCHDOG_CHECK_CYCLES == 0:
-            for dxl_id, value in bus.read_watchdogs().items():
-                if value == it.WATCHDOG_TRIPPED:
-                    raise HealthStop(dxl_id, "Bus Watchdog tripped (it heard nothing for longer "
-                                     "than its period): it stopped and refuses goals")
+            self._check_watchdogs()
+
+    def _check_misses(self, state) -> None:
+        """Servos without a usable reading for READ_FAILURES_TO_STOP cycles: read each alone;
+        those that fail stop the performance, named (see the module docstring)."""
+        if state.ok.all():
+            self.rescues = 0
+        self.misses = np.where(state.ok, 0, self.misses + 1)
+        late = np.flatnonzero(self.misses >= READ_FAILURES_TO_STOP)
+        if not late.size:
+            return
+        ids = [self.bus.ids[n] for n in late]
+        cycles = int(self.misses[late].max())
+        silent = self.bus.unanswered(ids)
+        if silent:
+            names = sorted(silent)
+            raise DriveError(f"servo{'s' if len(names) > 1 else ''} {', '.join(map(str, names))}: "
+                             f"no usable reading for {cycles} cycles, nor alone "
+                             f"({silent[names[0]]})")
+        self.rescues += 1
+        if self.rescues >= RESCUES_TO_STOP:
+            raise DriveError(f"servos {ids}: the state read failed {cycles} cycles in a row "
+                             f"{self.rescues} times though each answers alone "
+                             f"({state.failures.get(ids[0])})")
+        self.misses[late] = 0  # each answered alone: the replies were late, not missing
+
+    def _check_watchdogs(self) -> None:
+        values = self.bus.read_watchdogs()
+        for n, dxl_id in enumerate(self.bus.ids):
+            if values.get(dxl_id) != it.WATCHDOG_TRIPPED:
+                if dxl_id in values:
+                    self.trips[n] = 0
+                continue
+            self.trips[n] += 1
+            if self.on_trip is None or self.trips[n] >= WATCHDOG_TRIPS_TO_STOP:
+                raise HealthStop(dxl_id, "Bus Watchdog tripped (it heard nothing for longer "
+                                 f"than its period{', ' + str(self.trips[n]) + ' checks in a row' if self.trips[n] > 1 else ''}"
+                                 "): it stopped and refuses goals")
+            self.on_trip(n)
 
 
 def _playback(bus: DriveBus, goals: TakeGoals, servo_map, start_pose: np.ndarray, opts, report,
@@ -375,7 +442,15 @@ def _playback(bus: DriveBus, goals: TakeGoals, servo_map, start_pose: np.ndarray
     max_step = goals.units.ticks_per_joint_degree * (opts.max_speed_deg_s * period)
     shaper = GoalShaper(lo, hi, max_step)
     shaper.start(start_pose)
-    health = _Health(bus, opts)
+    ease_step = goals.units.ticks_per_joint_degree * (opts.start_speed_deg_s * period)
+
+    def rearm(n: int) -> None:  # a stall tripped its watchdog: ease back from where it stopped
+        dxl_id = bus.ids[n]
+        shaper.ease(n, bus.rearm(dxl_id, _watchdog_units(opts)), ease_step[n])
+        _rearmed(report, say, dxl_id)
+
+    health = _Health(bus, opts, on_trip=rearm)
+    unsent = 0
     errors: list[np.ndarray] = []
     t0 = time.monotonic()
     next_t = t0
@@ -395,8 +470,17 @@ def _playback(bus: DriveBus, goals: TakeGoals, servo_map, start_pose: np.ndarray
             say(f"warning: {now - last_write:.3f} s since the last goal frame (stalled host loop)")
         wanted = goals.at(t_take)
         command = shaper.shape(wanted)
-        bus.write_goals(command)
-        last_write = time.monotonic()
+        try:
+            bus.write_goals(command)
+            unsent = 0
+            last_write = time.monotonic()
+        except ServoTimeout as err:  # not sent: the line is stalled (replies still pending)
+            if not err.line_stalled:
+                raise
+            unsent += 1
+            report.unsent_cycles += 1
+            if unsent >= READ_FAILURES_TO_STOP:
+                raise DriveError(f"goals not sent for {unsent} cycles in a row: {err}") from err
         state = bus.read_state()
         health.check(state, period)
         target = np.clip(np.where(np.isnan(wanted), command, wanted), lo, hi)

@@ -137,7 +137,7 @@ def export_take(rig, reader, outputs: Outputs, *, fps: float = 30.0, up: str = "
                 glTF is Y-up by its spec, USD says its upAxis, BVH importers convert Y-up.
     iterations: FAST iterations per frame. influences: glTF weights per vertex (multiple of 4).
     progress:   called with (frames done, frames in all) after each frame.
-    precompute: a shared ``puppet.pipeline.RigPrecompute`` of ``rig`` (batch), None: built here.
+    precompute: a shared ``puppet.loop.RigPrecompute`` of ``rig`` (batch), None: built here.
     Raises ExportError (or the take's TakeRigMismatch) naming the file at fault.
     """
     start = time.monotonic()
@@ -167,7 +167,7 @@ def export_take(rig, reader, outputs: Outputs, *, fps: float = 30.0, up: str = "
     if "bvh" in dict(items):
         offsets, end_sites = _bvh_skeleton(rig)
 
-    from puppet.pipeline import Pipeline  # the solver's native module: only when exporting
+    from puppet.loop import Pipeline  # the solver's native module: only when exporting
 
     order = SourceOrder(rig)
     V_out = order.take(rig.V)

@@ -14,6 +14,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from puppet import _kinematics
 from puppet.fast.errors import PatternError
 
 POINT_SUM_TOLERANCE = 1e-6
@@ -205,6 +206,33 @@ class Pattern:
             positional=np.zeros((len(self.positional), 3), np.float32),
             contact=np.zeros((len(self.contacts), 3), np.float32),
         )
+
+
+def rest_positions(entries, V: np.ndarray) -> np.ndarray:
+    """(k, 3) float64 rest positions of ``Pattern.positional`` entries on the rest mesh V (n, 3)."""
+    corners, bary = positional_corners(entries)
+    return np.einsum("kc,kcd->kd", bary, np.asarray(V, np.float64)[corners]) if len(entries) \
+        else np.zeros((0, 3))
+
+
+class PoseFill:
+    """Writes a pattern's per-frame values from bone poses, for any pattern of a skeleton whose
+    bone j is handle j: full blocks ``pose[j].T`` (4, 3) and relative rotations ``rot[child]``,
+    in one native pass (puppet._kinematics.constraint_values: no per-bone loop, no allocation).
+
+    pattern: the Pattern; its index arrays (int32) are made here. Positional and contact values
+    are not touched (they are constant per rig: set them once, e.g. with :func:`rest_positions`).
+    """
+
+    def __init__(self, pattern: "Pattern"):
+        self.full = np.array(pattern.full, np.int32)
+        self.children = np.array([c for c, _, _ in pattern.relative], np.int32)
+
+    def fill(self, values: "Values", rot: np.ndarray, pose: np.ndarray) -> None:
+        """values: this pattern's Values (written); rot: (b, 3, 3) model-space joint rotations;
+        pose: (b, 3, 4) bone affines [A_b | t_b] (see puppet.rig.skeleton), float64 C-contiguous
+        (TypeError otherwise, never a copy); a bone index outside rot is a ValueError."""
+        _kinematics.constraint_values(rot, pose, self.full, values.full, self.children, values.relative)
 
 
 @dataclass

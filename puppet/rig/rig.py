@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from puppet.fast.energy_names import ENERGIES
-from puppet.fast.pattern import Pattern, Values, full_and_relative
+from puppet.fast.pattern import Pattern, PoseFill, Values, full_and_relative
 from puppet.rig.calibration import Calibration
 from puppet.rig.errors import RigError
 from puppet.rig.servo_map import ServoMap
@@ -115,6 +115,7 @@ class Rig:
         b = self.skeleton.bone_count
         self._rotations = np.empty((b, 3, 3))
         self._pose = np.empty((b, 3, 4))
+        self._fill: PoseFill | None = None
 
     def set_extras(self, extras: SolveExtras) -> None:
         """Adopt the rig file's live-solve options; contacts resolve to vertices here (a point
@@ -207,34 +208,41 @@ class Rig:
         return check_weights(self.W, len(self.V), self.skeleton.names)
 
     # ---- constraint pattern and per-frame values -------------------------------------------
-    def pattern(self) -> Pattern:
-        """The solver's constraint pattern: handle j = bone j (extra weights come after)."""
+    def pattern(self, free: frozenset = frozenset()) -> Pattern:
+        """The solver's constraint pattern (handle j = bone j; extra weights come after), with
+        the bones in ``free`` (indices) solved instead of sensed: bones below them that were
+        full become relative. The one place a rig's pattern is built (the loop's LiveSolve asks
+        for each pattern it needs through this)."""
         sk = self.skeleton
-        relative = tuple((int(c), int(sk.parents[c]), tuple(float(x) for x in sk.heads[c]))
-                         for c in self.relative_bones)
-        return Pattern(full=tuple(int(j) for j in self.full_bones), relative=relative,
+        sensed = self.sensed
+        if free:
+            sensed = sensed.copy()
+            sensed[sorted(free)] = False
+        full, relative = full_and_relative(sk.parents, sensed) if free else \
+            (self.full_bones, self.relative_bones)
+        return Pattern(full=tuple(int(j) for j in full),
+                       relative=tuple((int(c), int(sk.parents[c]), tuple(float(x) for x in sk.heads[c]))
+                                      for c in relative),
                        positional=tuple(int(v) for v in self.pins),
                        contacts=tuple((v, axes) for v, axes, _ in self.contacts),
-                       limits=self.limits_for(~self.sensed))
+                       limits=self.limits_for(~sensed))
+
+    def contact_targets(self) -> np.ndarray:
+        """(c, 3) float64 target coordinates of the rig's contacts, in ``pattern().contacts`` order."""
+        return np.array([target for _, _, target in self.contacts], np.float64).reshape(-1, 3)
 
     def fill_values(self, angles: np.ndarray, values: Values) -> None:
-        """Write this frame's constraint values in place.
-
-        angles: (k,) radians in servo-map order (``servo_map.angles(ticks)``).
-        values: ``self.pattern().values()``; full blocks get ``[A_jᵀ; t_jᵀ]`` (4, 3) from forward
-                kinematics, relative entries the joint rotation R (child linear = parent linear
-                @ R, model space), positional entries the pins' rest positions.
-        """
+        """Write ``self.pattern().values()`` for these angles ((k,) radians, servo-map order):
+        full blocks ``[A_jᵀ; t_jᵀ]`` from forward kinematics, relative entries the joint
+        rotation, pins their rest positions, contacts their targets. The same fill as the
+        loop's (``puppet.fast.pattern.PoseFill``), for one-off solves and tests."""
+        if self._fill is None:
+            self._fill = PoseFill(self.pattern())
         rot = self.skeleton.joint_rotations(angles, self._rotations)
         pose = self.skeleton.pose_from_rotations(rot, self._pose)
-        for i, j in enumerate(self.full_bones):
-            values.full[i] = pose[j].T
-        for i, j in enumerate(self.relative_bones):
-            values.relative[i] = rot[j]
-        for i, v in enumerate(self.pins):
-            values.positional[i] = self.V[v]
-        for i, (_, _, target) in enumerate(self.contacts):
-            values.contact[i] = target
+        self._fill.fill(values, rot, pose)
+        values.positional[:] = self.V[self.pins]
+        values.contact[:] = self.contact_targets()
 
     def pose(self, angles: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
         """Forward kinematics of every bone, (bones, 3, 4); see :meth:`Skeleton.pose`."""

@@ -134,11 +134,12 @@ class FastSolver {
   // per-frame
   std::vector<float> tb_, z_;           // Tb (3 x mp), Z (3kr x mp)
   std::vector<double> w_, schur_;       // W (4m x 3kr), S (3kr x 3kr)
+  std::vector<double> zd_;              // Z^T = S^{-1} W^T in double (3kr or more x 4m), scratch
   std::vector<float> relR_;             // (kr, 3, 3)
   // contacts
   int kc_ = 0, ncmax_ = 0;
   bool contacts_ready_ = false;
-  std::vector<double> crow64_, wc_, schurc_, cbuf_;  // rows (kc x 4m), W_c, S_c, scratch
+  std::vector<double> crow64_, wc_, schurc_;  // rows (kc x 4m), W_c, S_c
   std::vector<float> crow_, cval_, zc_, yc_;          // rows (kc x mp), values (kc x 3), Z_c, y
   std::vector<int32_t> cidx_[3];                      // contacts constraining column c
   // joint limits

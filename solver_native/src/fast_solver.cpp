@@ -42,6 +42,34 @@ bool cholesky(double* a, int n) {
   return true;
 }
 
+// Solve L L^T X = B in place for `len` right-hand sides at once, with the factor from
+// cholesky(): B is n x len row-major (entry i of every right-hand side is row i, contiguous), so
+// each substitution step is one vectorised axpy over the len columns instead of a serial dot
+// product per right-hand side. Per entry the operations are those of cholesky_solve, in the same
+// order (bitwise the same result).
+void cholesky_solve_rows(const double* l, int n, double* b, int len) {
+  for (int i = 0; i < n; ++i) {
+    double* bi = b + static_cast<size_t>(i) * len;
+    for (int k = 0; k < i; ++k) {
+      const double c = l[k * n + i];
+      const double* bk = b + static_cast<size_t>(k) * len;
+      for (int r = 0; r < len; ++r) bi[r] -= c * bk[r];
+    }
+    const double d = l[i * n + i];
+    for (int r = 0; r < len; ++r) bi[r] /= d;
+  }
+  for (int i = n - 1; i >= 0; --i) {
+    double* bi = b + static_cast<size_t>(i) * len;
+    for (int k = i + 1; k < n; ++k) {
+      const double c = l[i * n + k];
+      const double* bk = b + static_cast<size_t>(k) * len;
+      for (int r = 0; r < len; ++r) bi[r] -= c * bk[r];
+    }
+    const double d = l[i * n + i];
+    for (int r = 0; r < len; ++r) bi[r] /= d;
+  }
+}
+
 // Solve L L^T x = b in place with the factor from cholesky().
 void cholesky_solve(const double* l, int n, double* b) {
   for (int i = 0; i < n; ++i) {
@@ -97,6 +125,7 @@ FastSolver::FastSolver(int m, int r, int kf, int kp, int kr, const float* csm, c
   tb_.assign(3 * static_cast<size_t>(mp_), 0.0f);
   z_.assign(static_cast<size_t>(std::max(nR, 1)) * mp_, 0.0f);
   w_.assign(static_cast<size_t>(std::max(nR, 1)) * n4, 0.0);
+  zd_.assign(static_cast<size_t>(std::max(nR, 1)) * n4, 0.0);
   schur_.assign(static_cast<size_t>(std::max(nR * nR, 1)), 0.0);
   relR_.assign(static_cast<size_t>(std::max(kr, 1)) * 9, 0.0f);
   s_.assign(3 * static_cast<size_t>(rr), 0.0f);
@@ -148,8 +177,8 @@ void FastSolver::set_contacts(int kc, const double* rows, const int32_t* axes) {
   ncmax_ = 3 * kr_ + most;
   const size_t nm = static_cast<size_t>(std::max(ncmax_, 1));
   wc_.assign(nm * n4, 0.0);
+  zd_.assign(std::max(zd_.size(), nm * n4), 0.0);
   schurc_.assign(nm * nm, 0.0);
-  cbuf_.assign(nm, 0.0);
   zc_.assign(3 * nm * mp_, 0.0f);
   yc_.assign(nm, 0.0f);
   cval_.assign(static_cast<size_t>(std::max(kc, 1)) * 3, 0.0f);
@@ -207,11 +236,12 @@ void FastSolver::column_schur() {
     if (!cholesky(schurc_.data(), nc))
       throw std::invalid_argument(
           "solve: the contacts and the other constraints are dependent (Schur complement not positive definite)");
-    for (int row = 0; row < n4; ++row) {
-      for (int j = 0; j < nc; ++j) cbuf_[j] = wc_[static_cast<size_t>(j) * n4 + row];
-      cholesky_solve(schurc_.data(), nc, cbuf_.data());
-      for (int j = 0; j < nc; ++j) zc[static_cast<size_t>(j) * mp_ + row] = static_cast<float>(cbuf_[j]);
-    }
+    // Z_c = W_c S_c^{-1}: all rows of W_c at once (W_c^T's rows are W_c's columns, contiguous).
+    std::copy(wc_.begin(), wc_.begin() + static_cast<size_t>(nc) * n4, zd_.begin());
+    cholesky_solve_rows(schurc_.data(), nc, zd_.data(), n4);
+    for (int j = 0; j < nc; ++j)
+      for (int row = 0; row < n4; ++row)
+        zc[static_cast<size_t>(j) * mp_ + row] = static_cast<float>(zd_[static_cast<size_t>(j) * n4 + row]);
   }
   contacts_ready_ = true;
 }
@@ -260,21 +290,19 @@ void FastSolver::set_values(const float* full, const float* rel, const float* po
   if (!cholesky(schur_.data(), nR))
     throw std::invalid_argument(
         "solve: values.relative makes the relative constraints dependent (Schur complement not positive definite)");
-  // Z = W S^{-1}: solve S z_row = W_row for every row of W.
-  double buf[3 * 64];
-  std::vector<double> tmp;  // only for more than 64 relative joints (not per-frame in practice)
-  double* b = buf;
-  if (nR > 3 * 64) { tmp.resize(nR); b = tmp.data(); }
-  for (int row = 0; row < n4; ++row) {
-    for (int j = 0; j < nR; ++j) b[j] = w_[static_cast<size_t>(j) * n4 + row];
-    cholesky_solve(schur_.data(), nR, b);
-    for (int j = 0; j < nR; ++j) z_[static_cast<size_t>(j) * mp_ + row] = static_cast<float>(b[j]);
-    if (nl_ > 0) {  // H_1 = H - W S^{-1} W^T (symmetric; row `row` = column `row`)
+  // Z = W S^{-1}, all rows of W at once: Z^T = S^{-1} W^T (zd_: nR x n4, W^T's rows contiguous).
+  std::copy(w_.begin(), w_.begin() + static_cast<size_t>(nR) * n4, zd_.begin());
+  cholesky_solve_rows(schur_.data(), nR, zd_.data(), n4);
+  for (int j = 0; j < nR; ++j)
+    for (int row = 0; row < n4; ++row)
+      z_[static_cast<size_t>(j) * mp_ + row] = static_cast<float>(zd_[static_cast<size_t>(j) * n4 + row]);
+  if (nl_ > 0) {  // H_1 = H - Z W^T (symmetric; Z = W S^{-1} in double)
+    for (int row = 0; row < n4; ++row) {
       double* h1 = h1_.data() + static_cast<size_t>(row) * n4;
       const double* h = h_.data() + static_cast<size_t>(row) * n4;
       for (int col = 0; col < n4; ++col) h1[col] = h[col];
       for (int j = 0; j < nR; ++j) {
-        const double bj = b[j];
+        const double bj = zd_[static_cast<size_t>(j) * n4 + row];
         const double* wj = w_.data() + static_cast<size_t>(j) * n4;
         for (int col = 0; col < n4; ++col) h1[col] -= bj * wj[col];
       }

@@ -9,7 +9,7 @@ import pytest
 
 from puppet.bus import Reading
 from puppet.fast import FastError
-from puppet.pipeline import Pipeline, RigPrecompute
+from puppet.loop import Pipeline, RigPrecompute
 
 
 def test_a_pipeline_on_a_shared_precompute_solves_as_one_that_made_its_own(critter):

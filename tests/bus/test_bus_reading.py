@@ -146,14 +146,14 @@ def test_read_clean_names_the_servo_that_never_reads(sim, open_reader):
     assert info.value.instruction == "read_clean"
 
 
-def test_actuators_get_torque_and_follow_goals(sim, open_reader):
+def test_a_driven_servo_keeps_its_torque_and_is_never_rebooted(sim, open_reader):
+    """The reader turns a sensor's torque off, never a driven servo's (its driver owns it)."""
     bus = sim(ids=(1, 2))
-    bus.set_positions({1: 1000, 2: 1000})
-    reader = open_reader(bus, ids=(1, 2), actuators=[1])
+    bus.servo(1).set("Torque Enable", 1)
+    bus.servo(2).set("Torque Enable", 1)
+    reader = open_reader(bus, ids=(1, 2), driven=[1])
     assert bus.servo(1).get("Torque Enable") == 1
     assert bus.servo(2).get("Torque Enable") == 0
-    assert bus.servo(1).get("Goal Position") == 1000
-    reader.write_goals({1: 1500})
-    assert bus.servo(1).get("Goal Position") == 1500
-    with pytest.raises(ValueError, match=r"\[2\] are not actuators"):
-        reader.write_goals({2: 10})
+    with pytest.raises(ValueError, match="servo 1 is driven"):
+        reader.reboot(1)
+    assert bus.servo(1).get("Torque Enable") == 1

@@ -123,8 +123,8 @@ def test_reader_rejects_a_bad_map():
         ServoReader("/dev/null", {1: "XL999"})
     with pytest.raises(ValueError, match="300"):
         ServoReader("/dev/null", {300: "XL330-M288"})
-    with pytest.raises(ValueError, match=r"actuators \[9\]"):
-        ServoReader("/dev/null", {1: "XL330-M288"}, actuators=[9])
+    with pytest.raises(ValueError, match=r"driven servos \[9\] are not in the servo map"):
+        ServoReader("/dev/null", {1: "XL330-M288"}, driven=[9])
 
 
 class _ScriptedReader:
@@ -139,9 +139,6 @@ class _ScriptedReader:
         if isinstance(step, BaseException):
             raise step
         return Reading(0, np.array([1]), np.array([len(self.script)], np.int32), np.array([True]))
-
-    def write_goals(self, goals):
-        pass
 
 
 @pytest.mark.filterwarnings("ignore::pytest.PytestUnhandledThreadExceptionWarning")

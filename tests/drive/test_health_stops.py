@@ -1,5 +1,5 @@
 """The current (or load) and temperature stops on every model family, in ``perform`` and in
-``live``'s actuator driver, on hw_sim with a ``load`` fault: the host's cap comes from the model
+``live``'s actuator hook, on hw_sim with a ``load`` fault: the host's cap comes from the model
 table (no model that senses current goes uncapped), the stop names the servo, and torque ends
 off, read back from the simulated servos."""
 
@@ -18,7 +18,7 @@ from hw_sim.control_table import MODELS as SIM_MODELS
 from hw_sim.servo import IDLE_CURRENT_MA
 from puppet.bus.reader import ServoReader
 from puppet.drive import HealthStop, PerformOptions, perform
-from puppet.drive.actuators import HEALTH_CHECK_CYCLES, ActuationPlan, ActuatorDriver
+from puppet.drive.actuators import WATCHDOG_CHECK_CYCLES, ActuationPlan, ActuatorHook
 from puppet.drive.health import CURRENT_FRACTION, TEMPERATURE_CAP_C, TEMPERATURE_MARGIN_C
 from puppet.rig.servo_map import ServoMap
 from puppet.servo_models import MODELS
@@ -100,34 +100,37 @@ def test_perform_stops_on_current_and_temperature_for_every_family(model, kind, 
 
 
 @pytest.mark.parametrize("model", FAMILIES)
-def test_live_actuator_driver_stops_on_current_for_every_family(model, wait_until):
-    # As the reader process drives a rig's actuators: a goal write per cycle, then the read.
+def test_live_actuator_hook_stops_on_current_for_every_family(model):
+    # As the reader process drives a rig's actuators: the hook before each cycle's read.
     servos = {1: model, 2: model}
     plan = ActuationPlan(ids=(2,), models={2: model}, lo=(0.0,), hi=(4095.0,), max_step=(20.0,),
                          watchdog_units=100)
-    notes: list[str] = []
+    hook = ActuatorHook(plan)
     with hw_sim.serve(servos) as bus:
-        reader = ServoReader(bus.port, servos, latency_ms=20)
+        reader = ServoReader(bus.port, servos, driven=hook.ids, latency_ms=20)
         reader.open()
-        driver = ActuatorDriver(plan, reader, notes.append)
         try:
-            driver.start()
+            hook.start(reader, lambda _text: None)
             assert bus.servo(2).get("Torque Enable") == 1
             bus.inject("load", 2, current=_load_ma(model))
             wanted = np.array([2048.0])
+            stopped = []
             deadline = time.monotonic() + 60.0
-            while driver.stopped is None and time.monotonic() < deadline:
-                driver.write(wanted)
+            while not stopped and time.monotonic() < deadline:
+                hook.before_read(reader, wanted)
                 reader.read()
-            assert driver.stopped is not None
-            assert driver.stopped.startswith("servo 2: Present ")
-            assert _expected(model, "current") in driver.stopped, driver.stopped
-            assert driver.torque_after == {2: 0}
+                stopped = [e for e in reader.log.drain() if e.kind == "actuator_stopped"]
+            assert [e.ids for e in stopped] == [(2,)]
+            detail = stopped[0].detail
+            assert detail.startswith("Present "), detail
+            assert _expected(model, "current") in detail, detail
+            assert detail.endswith("stopped, Torque Enable reads 0"), detail
+            assert list(hook.active) == [False]
             assert bus.servo(2).get("Torque Enable") == 0
-            assert notes[-1].startswith(driver.stopped)
-            for _ in range(2 * HEALTH_CHECK_CYCLES):  # stopped: nothing more is written
-                driver.write(wanted)
+            for _ in range(2 * WATCHDOG_CHECK_CYCLES):  # stopped: nothing more is written
+                hook.before_read(reader, wanted)
+                reader.read()
             assert bus.servo(2).get("Torque Enable") == 0
         finally:
-            driver.stop()
+            hook.stop()
             reader.close()

@@ -3,6 +3,7 @@ angle the solve gives the tail; torque is off after the command ends and after S
 
 from __future__ import annotations
 
+import os
 import queue
 import signal
 import subprocess
@@ -16,7 +17,7 @@ import hw_sim
 from puppet.rig.load import BUILTIN_RIG
 from puppet.bus.reading import Reading
 from puppet.drive.actuate import ActuatorGoals
-from puppet.pipeline import Pipeline
+from puppet.loop import Pipeline
 from puppet.rig import load_rig
 
 TAIL_RIG = BUILTIN_RIG.parent / "critter_tail.toml"
@@ -39,27 +40,33 @@ def _pose_ticks(rig) -> dict[int, int]:
     return {int(i): int(t) for i, t in zip(rig.servo_map.ids, ticks) if int(i) != TAIL}
 
 
-@pytest.fixture(scope="module")
-def expected_tail(tail_rig):
-    """(angle rad, goal ticks) the solve gives the tail in the pose (solved to convergence)."""
-    sm = tail_rig.servo_map
-    pose = _pose_ticks(tail_rig)
+def _solved_tail(rig, pose: dict[int, int]) -> tuple[float, float]:
+    """(angle rad, goal ticks) the solve gives the tail with the sensors at ``pose`` ticks."""
+    sm = rig.servo_map
     ticks = np.array([pose.get(int(i), 2048) for i in sm.ids], np.int32)
-    goals = ActuatorGoals(sm.actuators, tail_rig.skeleton, sm.zero[sm.actuator_index])
-    with Pipeline(tail_rig, render=False) as pipeline:
+    goals = ActuatorGoals(sm.actuators, rig.skeleton, sm.zero[sm.actuator_index])
+    with Pipeline(rig, render=False) as pipeline:
         for _ in range(30):
             pipeline.solve(Reading(time.monotonic_ns(), sm.ids, ticks, np.ones(len(sm.ids), bool)))
         ticks_goal = float(goals.goals(pipeline.T)[0])
         return float(goals.angles[0]), ticks_goal
 
 
-class Live:
-    """A ``puppet live`` subprocess whose stderr lines are collected as they come."""
+@pytest.fixture(scope="module")
+def expected_tail(tail_rig):
+    """(angle rad, goal ticks) the solve gives the tail in the pose (solved to convergence)."""
+    return _solved_tail(tail_rig, _pose_ticks(tail_rig))
 
-    def __init__(self, port, *extra):
+
+class Live:
+    """A ``puppet live`` subprocess (in a process group of its own: the loop and its reader)
+    whose stderr lines are collected as they come."""
+
+    def __init__(self, port, *extra, watchdog_ms: str = "2000"):
         self.proc = subprocess.Popen(["puppet", "live", "--rig", str(TAIL_RIG), "--port", str(port),
-                                      "--watchdog-ms", "2000", *extra],
-                                     stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+                                      "--watchdog-ms", watchdog_ms, *extra],
+                                     stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                                     start_new_session=True)
         self.err: list[str] = []
         self._lines: queue.Queue = queue.Queue()
         threading.Thread(target=self._pump, daemon=True).start()
@@ -122,3 +129,41 @@ def test_tail_torque_is_off_after_a_normal_end(tail_rig):
         assert f"actuators [{TAIL}]: torque off (read back)" in err, err
         assert bus.servo(TAIL).get("Torque Enable") == 0
         assert bus.servo(TAIL).get("Bus Watchdog") == 0
+
+
+def test_a_host_stall_trips_the_watchdog_and_the_tail_follows_the_solve_again(tail_rig,
+                                                                            expected_tail):
+    """SIGSTOP of live's loop and reader past the Bus Watchdog (100 ms): the tail's watchdog
+    trips; after SIGCONT live reports it, re-arms it and the tail follows the solve again (the
+    pose changed during the stall: it must move), never frozen with torque on."""
+    _, goal_ticks = expected_tail
+    sm = tail_rig.servo_map
+    rest = {int(i): int(z) for i, z in zip(sm.ids, sm.zero) if int(i) != TAIL}
+    _, rest_goal = _solved_tail(tail_rig, rest)
+    bound_ticks = BOUND_DEG * 4096 / 360.0
+    assert abs(rest_goal - goal_ticks) > 4 * bound_ticks  # a move the check below can see
+    with hw_sim.serve(dict(sm.models)) as bus:
+        bus.set_positions(_pose_ticks(tail_rig))
+        tail = bus.servo(TAIL)
+        live = Live(bus.port, "--seconds", "600", watchdog_ms="100")
+        try:
+            _wait_for(lambda: abs(tail.get("Present Position") - goal_ticks) <= bound_ticks,
+                      f"the tail near {goal_ticks:.0f} ticks", live.proc)
+            os.killpg(live.proc.pid, signal.SIGSTOP)
+            try:
+                _wait_for(lambda: tail.get("Bus Watchdog") == -1, "the watchdog trip", live.proc)
+                assert tail.get("Torque Enable") == 1  # frozen: only live can bring it back
+                bus.set_positions(rest)
+            finally:
+                os.killpg(live.proc.pid, signal.SIGCONT)
+            _wait_for(lambda: abs(tail.get("Present Position") - rest_goal) <= bound_ticks,
+                      f"the tail following the solve again, near {rest_goal:.0f} ticks", live.proc)
+            assert tail.get("Bus Watchdog") == 5  # re-armed: 100 ms in 20 ms units
+            assert tail.get("Torque Enable") == 1
+        finally:
+            live.proc.send_signal(signal.SIGTERM)
+            code, out, err = live.finish()
+        assert code == 0, err
+        assert "watchdog_tripped" in out, out  # in the summary's faults seen
+        assert f"actuators [{TAIL}]: torque off (read back)" in err, err
+        assert tail.get("Torque Enable") == 0

@@ -317,3 +317,16 @@ def test_multi_turn_servo_out_of_range_is_refused_before_torque(rig, wave_take, 
         assert str(info.value).startswith("servo 1: present position 10240 is outside")
         assert "extended position" in str(info.value)
         assert _all_off(bus, rig)
+
+
+def test_a_silent_servo_is_named_not_the_first_of_the_group(rig, wave_take):
+    """A silent servo fails the whole Fast Sync Read; a read of each alone names it."""
+    with hw_sim.serve(dict(rig.servo_map.models)) as bus:
+        with pytest.raises(DriveError) as info:
+            _perform(rig, wave_take, bus.port, loop=True,
+                     on_phase=_during_playback(lambda: bus.inject("drop", ids=[4])))
+        assert str(info.value).startswith("servo 4: no usable reading for 10 cycles, nor alone")
+        torque = info.value.report.torque_after
+        assert torque[4] is None  # silent: not confirmed
+        assert {i: v for i, v in torque.items() if i != 4} == {
+            int(i): 0 for i in rig.servo_map.ids if int(i) != 4}

@@ -42,7 +42,7 @@ class Reference:
 
 def reference_solve(rig, take_path, fps=FPS) -> Reference:
     from puppet.export import Resampler
-    from puppet.pipeline import Pipeline
+    from puppet.loop import Pipeline
     from puppet.take import TakeReader
 
     ids = rig.servo_map.ids

@@ -6,7 +6,7 @@ import pytest
 
 from puppet.bus import Reading
 from puppet.demo import Performance
-from puppet.pipeline import Pipeline, run_frames
+from puppet.loop import Pipeline, run_frames
 from puppet.rig import builtin
 from puppet.rig.load import BUILTIN_DYNAMICS_RIG, BUILTIN_RIG, load_rig
 from puppet.rig.solve_options import DynamicsOptions, SolveExtras
@@ -172,7 +172,7 @@ def test_point_handles_join_the_live_solve():
         blocks = pipeline.T.reshape(-1, 4, 3)
         state = live.current
         assert state.pattern.positional == tuple(int(v) for v in rig.pins) + (point,)
-        for q, bone in enumerate(state.full_bones):  # the sensed bones stay where the servos put them
+        for q, bone in enumerate(state.pattern.full):  # the sensed bones stay where the servos put them
             assert np.abs(blocks[bone] - state.values.full[q]).max() < 1e-5
         pipeline.set_handles([])
         assert live.current.pattern.positional == tuple(int(v) for v in rig.pins)

@@ -8,7 +8,7 @@ from puppet.demo import Performance
 from puppet.fast import Pattern, PatternError
 from puppet.fast.factor import constraint_rows
 from puppet.bus import Reading
-from puppet.pipeline import Pipeline
+from puppet.loop import Pipeline
 from puppet.rig.load import BUILTIN_DYNAMICS_RIG, BUILTIN_RIG, load_rig
 
 FPS = 60
@@ -52,7 +52,7 @@ def test_a_point_handle_holds_the_exact_surface_point(rig_file):
     diag = float(np.linalg.norm(rig.V.max(0) - rig.V.min(0)))
     reads = performance(rig, 70)
     with Pipeline(rig, render=False) as pipeline:
-        assert (pipeline.live is not None) == (rig_file == BUILTIN_DYNAMICS_RIG)
+        assert (pipeline.live.dynamics is not None) == (rig_file == BUILTIN_DYNAMICS_RIG)
         for reading in reads[:10]:
             pipeline.solve(reading)
         assert pipeline.set_handles([(corners, bary)]) > 0
@@ -67,10 +67,7 @@ def test_a_point_handle_holds_the_exact_surface_point(rig_file):
         assert np.linalg.norm(point - target) < 1e-4 * diag
         # The sensed bones stay where the servos put them (forward kinematics).
         blocks = pipeline.T.reshape(-1, 4, 3)
-        if pipeline.live is None:
-            full_bones, full = rig.full_bones, pipeline.values.full
-        else:
-            full_bones, full = pipeline.live.current.full_bones, pipeline.live.current.values.full
+        full_bones, full = pipeline.pattern.full, pipeline.values.full
         pose = rig.pose(pipeline.angles)
         for q, bone in enumerate(full_bones):
             np.testing.assert_allclose(full[q], pose[bone].T, atol=1e-6)
@@ -148,7 +145,7 @@ def test_a_bad_handle_leaves_the_pipeline_as_it_was():
 
 
 def test_handles_keep_the_rigs_contacts(tmp_path):
-    # A rig with a contact (the tail tip's height) and no live solve: adding a point handle keeps
+    # A rig with a contact (the tail tip's height), no dropout and no dynamics: adding a point handle keeps
     # the contact in the pattern and both hold.
     text = BUILTIN_RIG.read_text().replace('mesh = "critter.npz"', f'mesh = "{BUILTIN_RIG.parent / "critter.npz"}"')
     text = text[: text.index("[[pin]]")]
@@ -164,7 +161,7 @@ def test_handles_keep_the_rigs_contacts(tmp_path):
     diag = float(np.linalg.norm(rig.V.max(0) - rig.V.min(0)))
     reads = performance(rig, 40)
     with Pipeline(rig, render=False) as pipeline:
-        assert pipeline.live is None
+        assert pipeline.live.dynamics is None and not pipeline.dropout.active
         pipeline.set_handles([(corners, bary)])
         assert pipeline.pattern.contacts == ((tip, "y"),)
         target = pipeline.handle_targets[0] + np.float32(0.1 * diag)

@@ -92,7 +92,7 @@ def helpers():
 def posed_critter():
     """The built-in critter (26 handles: 18 bones and 8 extra weights) and a T solved from a pose."""
     from puppet.bus import Reading
-    from puppet.pipeline import Pipeline
+    from puppet.loop import Pipeline
     from puppet.rig import builtin
 
     rig = builtin()

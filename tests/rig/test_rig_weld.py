@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from puppet.bus import Reading
-from puppet.pipeline import Pipeline
+from puppet.loop import Pipeline
 from puppet.rig import Rig, load_rig
 from puppet.rig.gltf import read_gltf
 from puppet.rig.weld import weld_index, weld_mesh
@@ -67,14 +67,15 @@ def test_welded_mesh_solves_like_the_never_split_mesh(tmp_path, character):
     # In the file's own order (what point caches write), each copy follows its welded vertex.
     np.testing.assert_allclose(solved[welded.source_index], reference[welded.source_index], atol=1e-9)
 
-    # The file's split mesh, solved as it is, is a different problem: the energy sees a cut.
+    # The file's split mesh, solved as it is, is a different problem: the energy sees a cut (its
+    # converged pose is a few 1e-6 off, float32 noise being about 1e-7).
     prims = character.mesh(split=True)
     offsets = np.cumsum([0] + [len(V) for V, _, _ in prims])
     F_file = np.concatenate([F + o for (_, F, _), o in zip(prims, offsets)])
     cut = Rig("cut", character.rest_vertices(split=True), F_file, welded.skeleton,
               welded.W[welded.source_index], welded.servo_map, welded.calibration, welded.solver_options,
               fixed=welded.fixed)
-    assert np.abs(_solve(cut) - reference[welded.source_index]).max() > 1e-5
+    assert np.abs(_solve(cut) - reference[welded.source_index]).max() > 1e-6
 
 
 @pytest.fixture

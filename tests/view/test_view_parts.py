@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from puppet.bus import Reading
-from puppet.pipeline import Pipeline
+from puppet.loop import Pipeline
 from puppet.render import Camera
 from puppet.rig import builtin
 from puppet.view import ViewError, parse_address
