@@ -37,7 +37,7 @@ def start_reader(rig, port: str, baud: int, rate_hz: float = 500.0, hook=None):
     try:
         report = source.start()
     except ReaderProcessError as err:
-        fail(f"port {port}: {err}")
+        fail(str(err))  # it names the port
     print_setup(report, port)
     return source
 

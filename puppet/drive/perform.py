@@ -39,6 +39,7 @@ import numpy as np
 from puppet.bus.control_table import describe_hardware_error
 from puppet.bus.errors import BusError, PortError, ServoTimeout
 from puppet.bus.link import BusLink
+from puppet.bus.port_lock import PortInUse
 from puppet.drive import items as it
 from puppet.drive.errors import DriveError, HealthStop
 from puppet.drive.goals import GoalShaper, TakeGoals
@@ -236,6 +237,8 @@ def perform(rig, reader, port: str, options: PerformOptions | None = None,
             link.close()
             phase("stop")
     if error is not None:
+        if isinstance(error, PortInUse):  # another program's port: nothing was touched
+            raise error
         if isinstance(error, DriveError):
             error.report = report
             raise error
