@@ -212,13 +212,14 @@ class ActuatorHook:
         return goals
 
     def _watch(self, reader) -> None:
-        """The watchdog check: trips re-armed, reboots, hardware errors and a current (or
-        load) or temperature over the host's limits stopped."""
-        self._check_health(reader)
+        """The watchdog check: hardware errors (the servo's own stop, named first), a current
+        (or load) or temperature over the host's limits and reboots stopped; trips re-armed."""
         for n, dxl_id in enumerate(self.plan.ids):
             if self.active[n] and reader.health[dxl_id].hardware_error:
                 self._stop_one(n, reader, "hardware error latched: "
                                f"{describe_hardware_error(reader.health[dxl_id].hardware_error)}")
+        if self.active.any():
+            self._check_health(reader)
         if not self.plan.watchdog_units:
             return
         for dxl_id, value in self.bus.read_watchdogs().items():
@@ -236,6 +237,13 @@ class ActuatorHook:
         state = self.bus.read_state()
         now = time.monotonic_ns()
         dt, self._checked_ns = (now - self._checked_ns) * 1e-9, now
+        for n in np.flatnonzero(state.alert & self.active):  # its own stop: named as such
+            try:
+                what = describe_hardware_error(self.bus.read(self.plan.ids[n],
+                                                             it.HARDWARE_ERROR_STATUS))
+            except BusError as err:
+                what = f"unreadable ({err})"
+            self._stop_one(int(n), reader, f"hardware error latched: {what}")
         state.ok &= self.active  # a stopped actuator is no longer watched
         while True:
             try:
