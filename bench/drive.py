@@ -37,7 +37,7 @@ import numpy as np
 
 import hw_sim
 from puppet.bus.link import BusLink
-from puppet.bus.reading import Reading
+from puppet.reading import Reading
 from puppet.drive import PerformOptions, perform
 from puppet.drive import items as it
 from puppet.drive.servos import DriveBus

@@ -30,15 +30,16 @@ from puppet.bus.errors import (
     ServoStatusError,
     ServoTimeout,
 )
-from puppet.bus.health import BusEvent, ServoHealth
+from puppet.bus.health import ServoHealth
 from puppet.bus.link import BusLink, set_latency_assumption
 from puppet.bus.reader import ServoReader
 from puppet.bus.reader_thread import LatestQueue, ReaderDied, ReaderThread
-from puppet.bus.reading import Reading
+from puppet.events import BusEvent, EventLog
+from puppet.reading import Reading
 
 __all__ = [
     "Reading", "ServoReader", "ReaderThread", "LatestQueue", "ReaderDied", "BusLink",
-    "set_latency_assumption", "SetupReport", "Change", "ServoHealth", "BusEvent",
+    "set_latency_assumption", "SetupReport", "Change", "ServoHealth", "BusEvent", "EventLog",
     "BusError", "PortError", "ServoError", "ServoTimeout", "ServoCorrupt", "ServoStatusError",
     "ServoModelMismatch", "ServoMissing",
 ]

@@ -40,9 +40,9 @@ from typing import Protocol
 
 import numpy as np
 
-from puppet.bus.health import EventLog
-from puppet.bus.reading import Reading
 from puppet.errors import PuppetError
+from puppet.events import EventLog
+from puppet.reading import Reading
 
 
 class ReaderProcessError(PuppetError, RuntimeError):
@@ -314,8 +314,7 @@ class ReaderProcess:
         if kind == "report":
             self.report = payload
         elif kind == "event":
-            self.log.events.append(payload)
-            self.log.counts[payload.kind] = self.log.counts.get(payload.kind, 0) + 1
+            self.log.append(payload)
         elif kind == "note":
             self.notes.append(payload)
         elif kind == "torque_off":

@@ -8,7 +8,6 @@ import click
 
 from puppet.cli.common import StopFlag, load_rig, make_sinks, print_summary, start_reader, take_writer
 from puppet.cli.view import open_view, take_factory_for, view_option
-from puppet.drive.actuators import ActuationPlan, ActuatorHook, LiveActuation
 
 READ_RATE_HZ = 500.0
 """Bus cycles per second in live (a read of every servo, and the actuators' goal write)."""
@@ -64,6 +63,7 @@ def live(rig_path: str, port: str, baud: int, take_path: str | None, out: str | 
       puppet live --rig my.toml --port /dev/ttyUSB0 --record take.mcap --out live.mp4
       puppet live --rig my.toml --port /dev/ttyUSB0 --view     watch at the printed URL
     """
+    from puppet.drive.actuators import ActuationPlan, ActuatorHook, LiveActuation
     from puppet.loop import Pipeline, run_live
     from puppet.take import BackgroundTakeWriter
 

@@ -22,7 +22,10 @@ speed, and stops it only when ``WATCHDOG_TRIPS_TO_STOP`` checks in a row find it
 goal write not sent because the line was stalled costs that cycle (its goals go with the next).
 
 Stop (end of take, SIGINT, SIGTERM, bus error, any exception): torque off by one Sync Write
-with no reply, then servo by servo, then read back; see ``DriveBus.torque_off``.
+with no reply, then servo by servo, then read back; see ``DriveBus.torque_off``. A port lost
+mid-performance (an adapter pulled) is tried again for ``PORT_RETRY_S``: if it comes back,
+torque goes off as above (the performance does not resume); if not, the error says torque may
+still be on (the Bus Watchdog stops the servos) and names ``puppet release``.
 """
 
 from __future__ import annotations
@@ -58,6 +61,10 @@ between) before the performance stops anyway: the health checks need the group r
 WATCHDOG_TRIPS_TO_STOP = 3
 """Watchdog checks in a row that find a servo's Bus Watchdog tripped before the performance
 stops (each earlier trip is re-armed)."""
+PORT_RETRY_S = 2.0
+"""How long a port lost mid-performance is tried again (every ``PORT_RETRY_PERIOD_S``) to turn
+torque off."""
+PORT_RETRY_PERIOD_S = 0.1
 
 
 @dataclass
@@ -229,6 +236,8 @@ def perform(rig, reader, port: str, options: PerformOptions | None = None,
             error = err
         finally:
             if torque_may_be_on:  # first, before anything that could fail
+                if isinstance(error, PortError) and _reopen(link):
+                    say(f"the port came back within {PORT_RETRY_S:.0f} s: turning torque off")
                 report.torque_after = bus.torque_off()
                 if isinstance(error, PortError) and any(v is None for v in report.torque_after.values()):
                     say(f"the port is gone: the servos' Bus Watchdog stops them "
@@ -247,11 +256,30 @@ def perform(rig, reader, port: str, options: PerformOptions | None = None,
                 done = "torque never went on"
             elif report.torque_after and set(report.torque_after.values()) == {0}:
                 done = "torque off"
+            elif isinstance(error, PortError):
+                done = (f"the port did not come back within {PORT_RETRY_S:.0f} s: torque may still be "
+                        "on" + (f" until the Bus Watchdog stops the servos ({opts.watchdog_ms:.0f} ms)"
+                                if opts.watchdog else "")
+                        + f"; when the adapter is back, `puppet release --port {port}` turns it off")
             else:
-                done = "torque off NOT confirmed on every servo"
+                done = (f"torque off NOT confirmed on every servo; `puppet release --port {port}` "
+                        "turns it off")
             raise DriveError(f"performance stopped ({done}): {error}", report) from error
         raise error
     return report
+
+
+def _reopen(link: BusLink) -> bool:
+    """Try the lost port again for PORT_RETRY_S -> whether it is open again."""
+    deadline = time.monotonic() + PORT_RETRY_S
+    while True:
+        try:
+            link.rebuild()
+            return True
+        except PortError:
+            if time.monotonic() > deadline:
+                return False
+            time.sleep(PORT_RETRY_PERIOD_S)
 
 
 def _watchdog_units(opts: PerformOptions) -> int:

@@ -14,8 +14,8 @@ import math
 
 import numpy as np
 
-from puppet.bus.reading import Reading
 from puppet.export.errors import ExportError
+from puppet.reading import Reading
 from puppet.servo_models import HALF_TURN, TICKS_PER_TURN
 
 

@@ -113,6 +113,7 @@ class FastSolver {
 
  private:
   void set_values(const float* full, const float* rel, const float* pos);
+  void relative_columns(const float* rel, double* w);  // W = H A_R^T (4m x 3kr, column-major)
   double local_step(const float* x, bool energy);  // S = K~^T x, R = polar; E(x) if energy
   double local_energy(const float* x);             // E(x), the local step just made at x
   void global_step(float* out);       // out = G R + Tb, then relative correction

@@ -42,34 +42,6 @@ bool cholesky(double* a, int n) {
   return true;
 }
 
-// Solve L L^T X = B in place for `len` right-hand sides at once, with the factor from
-// cholesky(): B is n x len row-major (entry i of every right-hand side is row i, contiguous), so
-// each substitution step is one vectorised axpy over the len columns instead of a serial dot
-// product per right-hand side. Per entry the operations are those of cholesky_solve, in the same
-// order (bitwise the same result).
-void cholesky_solve_rows(const double* l, int n, double* b, int len) {
-  for (int i = 0; i < n; ++i) {
-    double* bi = b + static_cast<size_t>(i) * len;
-    for (int k = 0; k < i; ++k) {
-      const double c = l[k * n + i];
-      const double* bk = b + static_cast<size_t>(k) * len;
-      for (int r = 0; r < len; ++r) bi[r] -= c * bk[r];
-    }
-    const double d = l[i * n + i];
-    for (int r = 0; r < len; ++r) bi[r] /= d;
-  }
-  for (int i = n - 1; i >= 0; --i) {
-    double* bi = b + static_cast<size_t>(i) * len;
-    for (int k = i + 1; k < n; ++k) {
-      const double c = l[i * n + k];
-      const double* bk = b + static_cast<size_t>(k) * len;
-      for (int r = 0; r < len; ++r) bi[r] -= c * bk[r];
-    }
-    const double d = l[i * n + i];
-    for (int r = 0; r < len; ++r) bi[r] /= d;
-  }
-}
-
 // Solve L L^T x = b in place with the factor from cholesky().
 void cholesky_solve(const double* l, int n, double* b) {
   for (int i = 0; i < n; ++i) {
@@ -193,19 +165,7 @@ void FastSolver::column_schur() {
     float* zc = zc_.data() + static_cast<size_t>(c) * ncmax_ * mp_;
     if (nc == 0) continue;
     // W_c = H A_c^T: relative columns as in set_values, contact columns H M_v^T (H symmetric).
-    for (int qq = 0; qq < kr_; ++qq) {
-      const float* R = relR_.data() + 9 * qq;
-      for (int i = 0; i < 3; ++i) {
-        double* wcol = wc_.data() + static_cast<size_t>(3 * qq + i) * n4;
-        const double* hc = h_.data() + static_cast<size_t>(4 * child_[qq] + i) * n4;
-        for (int row = 0; row < n4; ++row) wcol[row] = hc[row];
-        for (int k = 0; k < 3; ++k) {
-          const double coef = R[3 * k + i];
-          const double* hp = h_.data() + static_cast<size_t>(4 * parent_[qq] + k) * n4;
-          for (int row = 0; row < n4; ++row) wcol[row] -= coef * hp[row];
-        }
-      }
-    }
+    relative_columns(relR_.data(), wc_.data());
     for (int j = nR; j < nc; ++j) {
       const double* a = crow64_.data() + static_cast<size_t>(cidx_[c][j - nR]) * n4;
       double* wcol = wc_.data() + static_cast<size_t>(j) * n4;
@@ -238,12 +198,30 @@ void FastSolver::column_schur() {
           "solve: the contacts and the other constraints are dependent (Schur complement not positive definite)");
     // Z_c = W_c S_c^{-1}: all rows of W_c at once (W_c^T's rows are W_c's columns, contiguous).
     std::copy(wc_.begin(), wc_.begin() + static_cast<size_t>(nc) * n4, zd_.begin());
-    cholesky_solve_rows(schurc_.data(), nc, zd_.data(), n4);
+    k_->cholesky_solve_rows(schurc_.data(), nc, zd_.data(), n4);
     for (int j = 0; j < nc; ++j)
       for (int row = 0; row < n4; ++row)
         zc[static_cast<size_t>(j) * mp_ + row] = static_cast<float>(zd_[static_cast<size_t>(j) * n4 + row]);
   }
   contacts_ready_ = true;
+}
+
+// W = H A_R^T for the relative rows at rotations rel (kr, 3, 3): column (q, i) of w (4m rows,
+// column-major) = H[:, 4c+i] - sum_k R[k][i] H[:, 4p+k] (c, p: joint q's child and parent).
+void FastSolver::relative_columns(const float* rel, double* w) {
+  const int n4 = 4 * m_;
+  for (int qq = 0; qq < kr_; ++qq) {
+    const float* R = rel + 9 * qq;
+    const double* hp[3];
+    for (int k = 0; k < 3; ++k) hp[k] = h_.data() + static_cast<size_t>(4 * parent_[qq] + k) * n4;
+    for (int i = 0; i < 3; ++i) {
+      double* wcol = w + static_cast<size_t>(3 * qq + i) * n4;
+      const double* hc = h_.data() + static_cast<size_t>(4 * child_[qq] + i) * n4;
+      std::copy(hc, hc + n4, wcol);
+      const double coef[3] = {R[i], R[3 + i], R[6 + i]};
+      k_->subtract_rows(wcol, hp, coef, 3, n4);
+    }
+  }
 }
 
 void FastSolver::set_values(const float* full, const float* rel, const float* pos) {
@@ -261,20 +239,7 @@ void FastSolver::set_values(const float* full, const float* rel, const float* po
   }
   if (kr_ == 0) return;
   const int n4 = 4 * m_, nR = 3 * kr_;
-  // W = H A_R^T (column (q,i) = H[:,4c+i] - sum_k R[k][i] H[:,4p+k]).
-  for (int qq = 0; qq < kr_; ++qq) {
-    const float* R = rel + 9 * qq;
-    for (int i = 0; i < 3; ++i) {
-      double* wcol = w_.data() + static_cast<size_t>(3 * qq + i) * n4;
-      const double* hc = h_.data() + static_cast<size_t>(4 * child_[qq] + i) * n4;
-      for (int row = 0; row < n4; ++row) wcol[row] = hc[row];
-      for (int k = 0; k < 3; ++k) {
-        const double coef = R[3 * k + i];
-        const double* hp = h_.data() + static_cast<size_t>(4 * parent_[qq] + k) * n4;
-        for (int row = 0; row < n4; ++row) wcol[row] -= coef * hp[row];
-      }
-    }
-  }
+  relative_columns(rel, w_.data());  // W = H A_R^T
   // S = A_R W (nR x nR, column-major).
   for (int col = 0; col < nR; ++col) {
     const double* wcol = w_.data() + static_cast<size_t>(col) * n4;
@@ -292,7 +257,7 @@ void FastSolver::set_values(const float* full, const float* rel, const float* po
         "solve: values.relative makes the relative constraints dependent (Schur complement not positive definite)");
   // Z = W S^{-1}, all rows of W at once: Z^T = S^{-1} W^T (zd_: nR x n4, W^T's rows contiguous).
   std::copy(w_.begin(), w_.begin() + static_cast<size_t>(nR) * n4, zd_.begin());
-  cholesky_solve_rows(schur_.data(), nR, zd_.data(), n4);
+  k_->cholesky_solve_rows(schur_.data(), nR, zd_.data(), n4);
   for (int j = 0; j < nR; ++j)
     for (int row = 0; row < n4; ++row)
       z_[static_cast<size_t>(j) * mp_ + row] = static_cast<float>(zd_[static_cast<size_t>(j) * n4 + row]);

@@ -30,7 +30,7 @@ def _make_take(path, rig, angles_deg, *, rate_hz: float = 100.0, zero=None, ok=N
     """Write a take of ``angles_deg`` (N, k) joint degrees as recorded by ``rig``'s servos with
     calibration ``zero`` ({id: ticks}; default the rig's). ok: (N, k) bool flags (default all).
     ids/models/rig_name: record it as another rig would."""
-    from puppet.bus.reading import Reading
+    from puppet.reading import Reading
     from puppet.rig.calibration import Calibration
     from puppet.rig.servo_map import ServoMap
     from puppet.take import TakeWriter

@@ -330,3 +330,37 @@ def test_a_silent_servo_is_named_not_the_first_of_the_group(rig, wave_take):
         assert torque[4] is None  # silent: not confirmed
         assert {i: v for i, v in torque.items() if i != 4} == {
             int(i): 0 for i in rig.servo_map.ids if int(i) != 4}
+
+
+def test_a_short_adapter_drop_ends_with_torque_off(rig, wave_take):
+    """The port comes back within the retry window: torque goes off, read back."""
+    ids = [int(i) for i in rig.servo_map.ids]
+    with hw_sim.serve(dict(rig.servo_map.models)) as bus:
+        with pytest.raises(DriveError) as info:
+            _perform(rig, wave_take, bus.link, loop=True,
+                     on_phase=_during_playback(lambda: bus.inject("unplug", duration_s=0.5)))
+        assert str(info.value).startswith("performance stopped (torque off): port ")
+        assert "lost" in str(info.value)
+        assert info.value.report.torque_after == dict.fromkeys(ids, 0)
+        assert _all_off(bus, rig)
+        assert {bus.servo(i).get("Bus Watchdog") for i in ids} == {0}
+
+
+def test_a_port_that_stays_gone_names_the_release_command(rig, wave_take):
+    import subprocess
+
+    ids = [int(i) for i in rig.servo_map.ids]
+    with hw_sim.serve(dict(rig.servo_map.models)) as bus:
+        with pytest.raises(DriveError) as info:
+            _perform(rig, wave_take, bus.link, loop=True,
+                     on_phase=_during_playback(lambda: bus.inject("unplug")))
+        assert "torque may still be on" in str(info.value)
+        assert f"`puppet release --port {bus.link}` turns it off" in str(info.value)
+        bus.clear_faults()  # the adapter is back
+        result = subprocess.run(["puppet", "release", "--port", str(bus.link), "--rig",
+                                 str(rig.path)], capture_output=True, text=True, timeout=120)
+        assert result.returncode == 0, result.stderr
+        assert result.stdout.splitlines() == [
+            f"servo {i}: Torque Enable 0, Bus Watchdog 0 (read back)" for i in ids]
+        assert _all_off(bus, rig)
+        assert {bus.servo(i).get("Bus Watchdog") for i in ids} == {0}

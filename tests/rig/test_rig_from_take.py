@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from puppet.bus.reading import Reading
+from puppet.reading import Reading
 from puppet.cli import main
 from puppet.cli.common import take_writer
 from puppet.replay import RIG_SOURCE_MARK
