@@ -458,9 +458,9 @@ class _Health:
                 continue
             self.trips[n] += 1
             if self.on_trip is None or self.trips[n] >= WATCHDOG_TRIPS_TO_STOP:
+                again = f", {self.trips[n]} checks in a row" if self.trips[n] > 1 else ""
                 raise HealthStop(dxl_id, "Bus Watchdog tripped (it heard nothing for longer "
-                                 f"than its period{', ' + str(self.trips[n]) + ' checks in a row' if self.trips[n] > 1 else ''}"
-                                 "): it stopped and refuses goals")
+                                 f"than its period{again}): it stopped and refuses goals")
             self.on_trip(n)
 
 

@@ -247,12 +247,13 @@ class DriveBus:
         """Of ``ids``, those that fail a read of their own -> {id: its error}. A group read
         fails as a whole when one servo is silent (one Fast Sync Read reply packet): this finds
         which. A timeout counts only once the line proves the silence (``BusLink.witness``,
-        asking a servo that answered) or after ``patience_s`` of unproven ones (a busy host
-        holds replies); a corrupt or error reply after ``ATTEMPTS``. PortError is raised."""
+        asking a servo that answered) or once ``patience_s`` (for the whole call) has passed
+        (a busy host holds replies); a corrupt or error reply after ``ATTEMPTS``. PortError is
+        raised."""
         heard = [i for i in self.ids if i not in ids]
         out = {}
+        deadline = time.monotonic() + patience_s  # for them all: a bus gone quiet costs it once
         for dxl_id in ids:
-            deadline = time.monotonic() + patience_s
             tries = 0
             while True:
                 try:

@@ -160,6 +160,7 @@ void FastSolver::set_contacts(int kc, const double* rows, const int32_t* axes) {
 
 void FastSolver::column_schur() {
   const int n4 = 4 * m_, nR = 3 * kr_;
+  contacts_ready_ = false;  // until every column is complete
   for (int c = 0; c < 3; ++c) {
     const int nc = nR + static_cast<int>(cidx_[c].size());
     float* zc = zc_.data() + static_cast<size_t>(c) * ncmax_ * mp_;
@@ -232,12 +233,16 @@ void FastSolver::set_values(const float* full, const float* rel, const float* po
   std::fill(tb_.begin(), tb_.end(), 0.0f);
   if (kf_ > 0) k_->gemm3(p2_.data(), mp_, mp_, 4 * kf_, full, 3, 1, tb_.data(), mp_, true);
   if (kp_ > 0) k_->gemm3(p2_.data() + static_cast<size_t>(4 * kf_) * mp_, mp_, mp_, kp_, pos, 3, 1, tb_.data(), mp_, true);
+  // The relative rows' Schur complement (Z, H_1; the contacts' Z_c) depends on rel alone: a held
+  // pose (the same rotations, bit for bit) keeps the last one.
+  const bool same_rel = kr_ > 0 && std::memcmp(relR_.data(), rel, sizeof(float) * 9 * kr_) == 0;
   if (kr_ > 0) std::memcpy(relR_.data(), rel, sizeof(float) * 9 * kr_);
   if (kc_ > 0) {
-    if (kr_ > 0 || !contacts_ready_) column_schur();
+    if (!contacts_ready_ || (kr_ > 0 && !same_rel)) column_schur();
     return;
   }
-  if (kr_ == 0) return;
+  if (kr_ == 0 || (same_rel && schur_ready_)) return;
+  schur_ready_ = false;  // until this one is complete
   const int n4 = 4 * m_, nR = 3 * kr_;
   relative_columns(rel, w_.data());  // W = H A_R^T
   // S = A_R W (nR x nR, column-major).
@@ -273,6 +278,7 @@ void FastSolver::set_values(const float* full, const float* rel, const float* po
       }
     }
   }
+  schur_ready_ = true;
 }
 
 double FastSolver::quad_energy(const float* x) {
@@ -506,6 +512,7 @@ void FastSolver::set_limits(int nl, const int32_t* child, const int32_t* parent,
   h1_.assign(kr_ > 0 ? n4 * n4 : 1, 0.0);
   sl_.assign(nL * nL, 0.0);
   yl_.assign(nL * 3, 0.0);
+  schur_ready_ = false;  // H_1 is made with the relative rows' Schur complement
 }
 
 void FastSolver::project_limits(float* out) {
