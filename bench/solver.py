@@ -451,6 +451,211 @@ def switch_case():
     }
 
 
+class NumpyStage:
+    """The solve stage's forward kinematics and value filling as puppet had them before the native
+    kernel (the per-bone NumPy loops of Skeleton.joint_rotations / pose_from_rotations and the
+    per-bone value copies): the "before" of stage_case, kept here as the baseline only."""
+
+    def __init__(self, skeleton, pattern):
+        sk = skeleton
+        axes = [sk.frames[j.bone] @ np.asarray(j.axes, float).reshape(-1, 3).T for j in sk.joints]
+        stacked = np.concatenate([a.T for a in axes])
+        self.dofs = np.concatenate([np.asarray(j.dofs, np.int64) for j in sk.joints])
+        self.ranges, offset = [], 0
+        for j in sk.joints:
+            self.ranges.append((j.bone, offset, offset + len(j.dofs)))
+            offset += len(j.dofs)
+        self.outer = stacked[:, :, None] * stacked[:, None, :]
+        self.i_minus_outer = np.eye(3) - self.outer
+        self.cross = np.zeros((len(stacked), 3, 3))
+        x, y, z = stacked.T
+        self.cross[:, 0, 1], self.cross[:, 0, 2], self.cross[:, 1, 2] = -z, y, -x
+        self.cross[:, 1, 0], self.cross[:, 2, 0], self.cross[:, 2, 1] = z, -y, x
+        k = len(self.dofs)
+        self.angle, self.cos, self.sin = np.empty(k), np.empty(k), np.empty(k)
+        self.axis_rot, self.tmp = np.empty((k, 3, 3)), np.empty((k, 3, 3))
+        self.mat, self.va, self.vb = np.empty((3, 3)), np.empty(3), np.empty(3)
+        self.rot = np.tile(np.eye(3), (sk.bone_count, 1, 1))
+        self.parents, self.heads = [int(p) for p in sk.parents], sk.heads
+        self.full = list(pattern.full)
+        self.children = [c for c, _, _ in pattern.relative]
+
+    def joint_rotations(self, angles):
+        np.take(angles, self.dofs, out=self.angle)
+        np.cos(self.angle, out=self.cos)
+        np.sin(self.angle, out=self.sin)
+        np.multiply(self.i_minus_outer, self.cos[:, None, None], out=self.axis_rot)
+        self.axis_rot += self.outer
+        np.multiply(self.cross, self.sin[:, None, None], out=self.tmp)
+        self.axis_rot += self.tmp
+        rot, a = self.rot, self.axis_rot
+        for bone, lo, hi in self.ranges:
+            if hi - lo == 1:
+                rot[bone] = a[lo]
+            elif hi - lo == 2:
+                np.matmul(a[lo], a[lo + 1], out=rot[bone])
+            else:
+                np.matmul(a[lo], a[lo + 1], out=self.mat)
+                np.matmul(self.mat, a[lo + 2], out=rot[bone])
+        return rot
+
+    def pose_from_rotations(self, rot, out):
+        offset, moved = self.va, self.vb
+        for i, p in enumerate(self.parents):
+            r, pivot = rot[i], self.heads[i]
+            np.matmul(r, pivot, out=offset)
+            np.subtract(pivot, offset, out=offset)
+            if p < 0:
+                out[i, :, :3] = r
+                out[i, :, 3] = offset
+            else:
+                np.matmul(out[p, :, :3], r, out=out[i, :, :3])
+                np.matmul(out[p, :, :3], offset, out=moved)
+                np.add(moved, out[p, :, 3], out=out[i, :, 3])
+        return out
+
+    def fill(self, values, rot, pose):
+        for i, j in enumerate(self.full):
+            values.full[i] = pose[j].T
+        for i, j in enumerate(self.children):
+            values.relative[i] = rot[j]
+
+
+def stage_case(frames):
+    """The per-frame solve stage on the built-in critter against its iterations alone, in one run.
+
+    Stage: ticks -> servo_map.angles -> forward kinematics (joint rotations, bone poses) ->
+    constraint values -> one 8-iteration solve (accelerated, warm-started: the loop's default).
+    Iterations alone: 8 x the per-iteration time of a 100-iteration call. "after" is the
+    project's path (native FK, PoseFill); "before" the same with NumpyStage's per-bone loops.
+    Each path warm-starts its own T (and solver) frame to frame over the demo's motion; the cases
+    take turns in blocks of 20 frames (shared machine noise); figures are medians over the frames.
+    Also: a solve call of 0 and of 8 iterations alone, each on its own solver with this frame's
+    values (the fixed cost per call; and 0 iterations at a held pose, which keeps the relative
+    rows' factor), and the loop's own Pipeline.solve (render=False: adds dropout bookkeeping and
+    stage statistics)."""
+    from puppet.demo import Performance
+    from puppet.fast.pattern import PoseFill
+    from puppet.loop import Pipeline
+    from puppet.reading import Reading
+    from puppet.rig import builtin
+
+    rig = builtin()
+    sk, smap = rig.skeleton, rig.servo_map
+    with Pipeline(rig, render=False, iterations=8) as pipeline:
+        model = pipeline.model
+        pattern = rig.pattern()
+        perf = Performance(rig)
+        ids = np.array([s.id for s in smap.servos])
+        n = frames + 20
+        ticks = [np.array([perf.position(i, f / 60) for i in ids]).round().astype(np.int32) for f in range(n)]
+        ok = np.ones(len(ids), bool)
+        b = sk.bone_count
+        paths = {}
+        for name in ("after", "before"):
+            values = pattern.values()
+            rig.fill_values(smap.angles(ticks[0]), values)  # pins and contacts: constant per rig
+            paths[name] = {"values": values, "T": model.rest_T(), "angles": np.empty(len(ids)),
+                           "rot": np.empty((b, 3, 3)), "pose": np.empty((b, 3, 4))}
+        fill, old = PoseFill(pattern), NumpyStage(sk, pattern)
+        T100, Tfix, T0 = model.rest_T(), model.rest_T(), model.rest_T()
+        # One solver per chain, as in the loop: a solver's first local step is free when it is
+        # handed back the T it returned last (fast_solver.h), which alternating chains would spoil.
+        solvers = {k: model.solver(pattern) for k in ("after", "before", "fixed", "zero", "long")}
+        rig.fill_values(smap.angles(ticks[0]), paths["after"]["values"])
+        for key, T in (("after", paths["after"]["T"]), ("before", paths["before"]["T"]), ("fixed", Tfix),
+                       ("zero", T0), ("long", T100)):
+            solvers[key].solve(paths["after"]["values"], T, iterations=200)  # every chain starts converged
+
+        def after(f):
+            p = paths["after"]
+            smap.angles(ticks[f], out=p["angles"])
+            pose = sk.pose(p["angles"], p["pose"], rotations=p["rot"])  # rotations and poses, one call
+            fill.fill(p["values"], p["rot"], pose)
+            solvers["after"].solve(p["values"], p["T"], iterations=8)
+
+        def before(f):
+            p = paths["before"]
+            smap.angles(ticks[f], out=p["angles"])
+            rot = old.joint_rotations(p["angles"])
+            pose = old.pose_from_rotations(rot, p["pose"])
+            old.fill(p["values"], rot, pose)
+            solvers["before"].solve(p["values"], p["T"], iterations=8)
+
+        def fk_after(f):
+            sk.pose(paths["after"]["angles"], paths["after"]["pose"], rotations=paths["after"]["rot"])
+            fill.fill(paths["after"]["values"], paths["after"]["rot"], paths["after"]["pose"])
+
+        def fk_before(f):
+            old.fill(paths["before"]["values"], old.joint_rotations(paths["before"]["angles"]),
+                     old.pose_from_rotations(old.rot, paths["before"]["pose"]))
+
+        # The solve calls alone get this frame's values, filled before the clock starts.
+        frame_values = {k: pattern.values() for k in ("call_0", "call_8", "call_100")}
+        for v in frame_values.values():
+            v.positional[:], v.contact[:] = paths["after"]["values"].positional, paths["after"]["values"].contact
+        rot, pose = np.empty((b, 3, 3)), np.empty((b, 3, 4))
+
+        def prepare(key, f):
+            fill.fill(frame_values[key], rot, sk.pose(smap.angles(ticks[f]), pose, rotations=rot))
+
+        held = frame_values["call_0"]
+        timed = {  # name: (untimed preparation or None, the timed call)
+            "stage_after": (None, after), "stage_before": (None, before),
+            "fk_values_after": (None, fk_after), "fk_values_before": (None, fk_before),
+            "angles": (None, lambda f: smap.angles(ticks[f], out=paths["after"]["angles"])),
+            "call_8": (prepare, lambda f: solvers["fixed"].solve(frame_values["call_8"], Tfix, iterations=8)),
+            "call_0": (prepare, lambda f: solvers["zero"].solve(frame_values["call_0"], T0, iterations=0)),
+            "call_0_held": (None, lambda f: solvers["zero"].solve(held, T0, iterations=0)),
+            "call_100": (prepare, lambda f: solvers["long"].solve(frame_values["call_100"], T100, iterations=100)),
+            "pipeline": (None, lambda f: pipeline.solve(Reading(int(f / 60 * 1e9), ids, ticks[f], ok))),
+        }
+        times = {k: [] for k in timed}
+        keys = list(timed)
+        block = 20  # frames per block: each case runs a block at a time (its data warm in cache, as
+        for b0 in range(0, n, block):  # in the loop), the cases' order rotating from block to block
+            turn = b0 // block % len(keys)
+            for k in keys[turn:] + keys[:turn]:
+                setup, run = timed[k]
+                for f in range(b0, min(b0 + block, n)):
+                    if setup is not None:
+                        setup(k, f)
+                    t0 = time.perf_counter_ns()
+                    run(f)
+                    if f >= 20:
+                        times[k].append((time.perf_counter_ns() - t0) / 1e3)
+    med = {k: statistics.median(v) for k, v in times.items()}
+    per_iter = med.pop("call_100") / 100
+    iterations_alone = 8 * per_iter
+    return {
+        "frames": frames, "m": model.m, "r": model.r, "bones": b,
+        "us_per_iter_100_call": per_iter, "iterations_alone_us": iterations_alone,
+        **{f"{k}_us": v for k, v in med.items()},
+        "call_8_over_iterations_alone_us": med["call_8"] - iterations_alone,
+        "ratio_after": med["stage_after"] / iterations_alone,
+        "ratio_before": med["stage_before"] / iterations_alone,
+        "ratio_pipeline": med["pipeline"] / iterations_alone,
+        "target_ratio": 1.3,
+    }
+
+
+def print_stage(st):
+    print(f"per-frame solve stage, built-in critter (m={st['m']}, r={st['r']}, {st['bones']} bones), "
+          f"median of {st['frames']} frames, us:")
+    print(f"  {'':<34}{'before':>9}{'after':>9}{'x':>7}")
+    print(f"  {'FK + constraint values':<34}{st['fk_values_before_us']:>9.1f}{st['fk_values_after_us']:>9.1f}"
+          f"{st['fk_values_before_us'] / st['fk_values_after_us']:>7.1f}")
+    print(f"  {'stage: angles, FK, values, 8 it':<34}{st['stage_before_us']:>9.1f}{st['stage_after_us']:>9.1f}"
+          f"{st['stage_before_us'] / st['stage_after_us']:>7.2f}")
+    print(f"  {'stage / iterations alone':<34}{st['ratio_before']:>9.2f}{st['ratio_after']:>9.2f}"
+          f"   (target <= {st['target_ratio']})")
+    print(f"  iterations alone 8 x {st['us_per_iter_100_call']:.2f} = {st['iterations_alone_us']:.1f}; one solve "
+          f"call of 8 iterations {st['call_8_us']:.1f}, of 0 (the fixed cost per call) {st['call_0_us']:.1f} "
+          f"(held pose {st['call_0_held_us']:.1f})")
+    print(f"  servo_map.angles {st['angles_us']:.1f}; the loop's Pipeline.solve {st['pipeline_us']:.1f} "
+          f"({st['ratio_pipeline']:.2f} x)")
+
+
 NATIVE_ARCH_BUILD = Path(__file__).resolve().parents[1] / "build" / "native-arch"
 """Where a -march=native build of the module is looked for (see README, Developer loop)."""
 
@@ -499,7 +704,14 @@ def main(argv=None):
     ap.add_argument("--quick", action="store_true", help="smaller sample counts (smoke run)")
     ap.add_argument("--module", help="use this build of puppet._native (a .so file)")
     ap.add_argument("--per-iter-only", action="store_true", help="only the per-iteration medians (build comparison)")
+    ap.add_argument("--stage-only", action="store_true", help="only the per-frame solve stage case (stage_case)")
     args = ap.parse_args(argv)
+    if args.stage_only:
+        stage = stage_case(args.frames)
+        print_stage(stage)
+        with open(args.json, "w") as fh:
+            json.dump({"native_simd": _native.simd, "frames": args.frames, "stage": stage}, fh, indent=2)
+        return
     V, F = character()
     if args.per_iter_only:
         with open(args.json, "w") as fh:
@@ -552,6 +764,8 @@ def main(argv=None):
           f"(of the {sw['diag']:.2f} diagonal) to free {sw['jump_to_free']:.4f} (unblended "
           f"{sw['jump_to_free_unblended']:.4f}), back to sensed {sw['jump_to_sensed']:.4f} (unblended "
           f"{sw['jump_to_sensed_unblended']:.4f})")
+    stage = stage_case(args.frames)
+    print_stage(stage)
     builds = compare_builds(V, F, args.frames, args)
     if builds is None:
         print(f"(no -march=native build in {NATIVE_ARCH_BUILD}: build comparison skipped)")
@@ -563,7 +777,7 @@ def main(argv=None):
                   f"   native/portable {c['native_arch_us'] / c['portable_us']:.3f}")
     with open(args.json, "w") as fh:
         json.dump({"native_simd": _native.simd, "frames": args.frames, "cases": results, "live": live,
-                   "tol": tol, "switch": sw, "builtin_limits": blim, "builds": builds}, fh, indent=2)
+                   "tol": tol, "switch": sw, "builtin_limits": blim, "stage": stage, "builds": builds}, fh, indent=2)
 
 
 if __name__ == "__main__":

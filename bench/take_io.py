@@ -38,7 +38,7 @@ if root:
 import numpy as np
 import puppet.take as take
 assert not root or take.__file__.startswith(root), take.__file__
-from puppet.bus.reading import Reading
+from puppet.reading import Reading
 k = 15
 ids = np.arange(1, k + 1)
 ticks, ok = np.zeros(k, np.int32), np.ones(k, bool)

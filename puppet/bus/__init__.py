@@ -15,8 +15,9 @@ Public API:
     BusLink(port, baud, latency_ms): the SDK with its crash paths absorbed (ping, read, write,
         sync_read, fast_sync_read, sync_write, reboot, broadcast_ping, rebuild)
     Reading(t_ns, ids, ticks int32, ok bool)
-    errors: BusError > PortError, ServoError > ServoTimeout, ServoCorrupt, ServoStatusError,
-            ServoModelMismatch, ServoMissing
+    errors: BusError > PortError > PortInUse (port_lock: one program per port),
+            ServoError > ServoTimeout, ServoCorrupt, ServoStatusError, ServoModelMismatch,
+            ServoMissing
 """
 
 from puppet.bus.configure import Change, SetupReport
@@ -30,15 +31,17 @@ from puppet.bus.errors import (
     ServoStatusError,
     ServoTimeout,
 )
-from puppet.bus.health import BusEvent, ServoHealth
+from puppet.bus.health import ServoHealth
 from puppet.bus.link import BusLink, set_latency_assumption
+from puppet.bus.port_lock import PortInUse
 from puppet.bus.reader import ServoReader
 from puppet.bus.reader_thread import LatestQueue, ReaderDied, ReaderThread
-from puppet.bus.reading import Reading
+from puppet.events import BusEvent, EventLog
+from puppet.reading import Reading
 
 __all__ = [
     "Reading", "ServoReader", "ReaderThread", "LatestQueue", "ReaderDied", "BusLink",
-    "set_latency_assumption", "SetupReport", "Change", "ServoHealth", "BusEvent",
-    "BusError", "PortError", "ServoError", "ServoTimeout", "ServoCorrupt", "ServoStatusError",
+    "set_latency_assumption", "SetupReport", "Change", "ServoHealth", "BusEvent", "EventLog",
+    "BusError", "PortError", "PortInUse", "ServoError", "ServoTimeout", "ServoCorrupt", "ServoStatusError",
     "ServoModelMismatch", "ServoMissing",
 ]

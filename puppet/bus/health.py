@@ -1,10 +1,8 @@
-"""Health of each servo and the log of bus events."""
+"""Health of each servo (the bus events and their log live in ``puppet.events``)."""
 
 from __future__ import annotations
 
-import time
-from collections import deque
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 from puppet.bus.errors import BusError
 
@@ -49,48 +47,3 @@ class ServoHealth:
     rebases: int = 0
     jitter: float = 0.0
     noisy: bool = False
-
-
-@dataclass(frozen=True)
-class BusEvent:
-    """Something that happened on the bus.
-
-    t_ns:   monotonic time, ns.
-    kind:   'port_lost', 'port_restored', 'servo_failed', 'servo_missing', 'servo_recovered',
-            'duplicate_id', 'corrupt', 'noisy', 'hardware_error', 'hardware_error_cleared', 'reboot_sent', 'rebooted',
-            'rebased', 'reconfigured', 'out_of_limits', 'fast_read_disabled'.
-    ids:    the servos concerned (empty for port events).
-    detail: human-readable context.
-    """
-
-    t_ns: int
-    kind: str
-    ids: tuple[int, ...]
-    detail: str = ""
-
-
-@dataclass
-class EventLog:
-    """A bounded log of BusEvents (oldest dropped first) and a running count per kind."""
-
-    maxlen: int = 1000
-    events: deque = field(init=False)
-    counts: dict[str, int] = field(default_factory=dict)
-
-    def __post_init__(self) -> None:
-        self.events = deque(maxlen=self.maxlen)
-
-    def add(self, kind: str, ids=(), detail: str = "") -> BusEvent:
-        event = BusEvent(time.monotonic_ns(), kind, tuple(int(i) for i in ids), detail)
-        self.events.append(event)
-        self.counts[kind] = self.counts.get(kind, 0) + 1
-        return event
-
-    def drain(self) -> list[BusEvent]:
-        """All events since the last drain, oldest first."""
-        out = []
-        while True:
-            try:
-                out.append(self.events.popleft())
-            except IndexError:
-                return out

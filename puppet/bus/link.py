@@ -22,8 +22,10 @@ import termios
 from dynamixel_sdk import protocol2_packet_handler as p2
 from dynamixel_sdk import robotis_def as rd
 
+from puppet.bus import port_lock
 from puppet.bus.control_table import Item, describe_status_error
 from puppet.bus.errors import PortError, ServoCorrupt, ServoError, ServoStatusError, ServoTimeout
+from puppet.bus.port_lock import PortInUse
 
 PROTOCOL = 2.0
 PORT_ERRORS = (serial.SerialException, OSError, termios.error)
@@ -175,16 +177,23 @@ class BusLink:
         return bool(self.port.is_open) and self.port.ser is not None
 
     def open(self) -> None:
-        """Open the port (if needed) at ``baud``. PortError if it cannot."""
+        """Open the port (if needed) at ``baud`` and take its lock (``port_lock``: one program
+        per port). PortError if it cannot; PortInUse naming the process that holds it."""
         try:
             if not self.port.is_open or self.port.getBaudRate() != self.baud or self.port.ser is None:
                 if not self.port.setBaudRate(self.baud):
                     raise PortError(self.port_name, f"baud rate {self.baud} refused by the SDK")
             if self.poll_block_s > 0:
                 self.port.ser.timeout = self.poll_block_s
+            fd = self.port.ser.fileno()
         except (*PORT_ERRORS, ValueError) as exc:
             self.port.is_open = False
             raise PortError(self.port_name, "cannot open", exc) from exc
+        try:
+            port_lock.lock(fd, self.port_name)
+        except PortInUse:
+            self.close()
+            raise
         self.port.is_using = False
 
     def close(self) -> None:
@@ -262,6 +271,11 @@ class BusLink:
         pending.clear()  # the line is in order: every earlier witness reply came before this one
         self._unsettled = len(got) > at + reply_size
         return LATE if before else SILENT
+
+    def heard_last(self, other_than: int) -> int | None:
+        """The servo other than ``other_than`` that answered cleanly most recently (a witness
+        for ``witness``), or None."""
+        return next((i for i in reversed(self._answered) if i != other_than), None)
 
     def _heard(self, dxl_id: int) -> None:
         """``dxl_id`` answered cleanly: the newest flush witness."""

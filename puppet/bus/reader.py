@@ -37,8 +37,9 @@ from puppet.bus import health as hs
 from puppet.bus.configure import SetupReport, configure_servo, identify, supports_fast_sync_read
 from puppet.bus.errors import PortError, ServoCorrupt, ServoError, ServoMissing, ServoTimeout
 from puppet.bus.link import SILENT, STALLED, BusLink, GroupRead
-from puppet.bus.reading import Reading
 from puppet.bus.unwrap import TurnUnwrapper
+from puppet.events import EventLog
+from puppet.reading import Reading
 
 READ_MODES = ("auto", "fast_sync_read", "sync_read")
 
@@ -142,7 +143,7 @@ class ServoReader:
         self._run = [0] * len(self.ids)           # good readings in a row
         self.unwrap = {i: TurnUnwrapper() for i in self.servos}
         self.health = {i: hs.ServoHealth(i, m) for i, m in self.servos.items()}
-        self.log = hs.EventLog()
+        self.log = EventLog()
         self.report: SetupReport | None = None
 
         self._group: list[int] = list(self.servos)     # ids in the group read, map order

@@ -40,9 +40,9 @@ from typing import Protocol
 
 import numpy as np
 
-from puppet.bus.health import EventLog
-from puppet.bus.reading import Reading
 from puppet.errors import PuppetError
+from puppet.events import EventLog
+from puppet.reading import Reading
 
 
 class ReaderProcessError(PuppetError, RuntimeError):
@@ -180,8 +180,9 @@ def _child(shm_name, slots, port, servos, options, rate_hz, events, commands,
         except (BusError, PuppetError, ValueError) as exc:
             _stop_hook(started, events)
             started = None
-            events.send(("error", str(exc) if isinstance(exc, PuppetError) and not isinstance(
-                exc, BusError) else f"{type(exc).__name__}: {exc}"))
+            # a PuppetError's text names its port or servo; a ValueError's gets its type
+            events.send(("error", str(exc) if isinstance(exc, PuppetError)
+                         else f"{type(exc).__name__}: {exc}"))
             return
         events.send(("report", report))
         period_ns = int(1e9 / rate_hz) if rate_hz else 0
@@ -299,7 +300,7 @@ class ReaderProcess:
             remaining = deadline - time.monotonic()
             if remaining <= 0 or self._events_closed or not self._proc.is_alive() and not self._events.poll():
                 self.stop()
-                raise ReaderProcessError(f"{self.port}: the reader process did not start")
+                raise ReaderProcessError(f"port {self.port}: the reader process did not start")
             if self._events.poll(min(remaining, 0.1)):
                 self._take_message()
         return self.report
@@ -313,15 +314,15 @@ class ReaderProcess:
         if kind == "report":
             self.report = payload
         elif kind == "event":
-            self.log.events.append(payload)
-            self.log.counts[payload.kind] = self.log.counts.get(payload.kind, 0) + 1
+            self.log.append(payload)
         elif kind == "note":
             self.notes.append(payload)
         elif kind == "torque_off":
             self.torque_after = payload
         elif kind == "error":
             self.stop()
-            raise ReaderProcessError(f"{self.port}: {payload}")
+            raise ReaderProcessError(
+                payload if payload.startswith(f"port {self.port}:") else f"port {self.port}: {payload}")
 
     def _poll_events(self) -> None:
         while not self._events_closed and self._events.poll():
@@ -353,7 +354,7 @@ class ReaderProcess:
             self.dropped += lost
         self._read = written
         if not out and not self.alive:
-            raise ReaderProcessError(f"{self.port}: the reader process stopped")
+            raise ReaderProcessError(f"port {self.port}: the reader process stopped")
         return out
 
     def latest(self, timeout: float | None = 1.0) -> Reading | None:

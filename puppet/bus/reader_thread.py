@@ -14,8 +14,8 @@ from concurrent.futures import Future
 
 from puppet.bus.errors import BusError
 from puppet.bus.reader import ServoReader
-from puppet.bus.reading import Reading
 from puppet.errors import PuppetError
+from puppet.reading import Reading
 
 
 class ReaderDied(PuppetError, RuntimeError):

@@ -60,6 +60,7 @@ def main() -> None:
       puppet play take.mcap --out take.mp4 --speed 0.5
       puppet demo --view                   watch in a browser; drag the tail
       puppet perform take.mcap --rig my.toml --port /dev/ttyUSB0
+      puppet release --port /dev/ttyUSB0   torque off on every servo, watchdog cleared
       puppet export take.mcap --gltf anim.glb --pc2 mesh.pc2 --up z --fps 24
       puppet rig init creature.glb --out creature.toml    a starting rig for your character
       puppet rig axes creature.toml --out sheet.png       each joint turned: pick axes
@@ -69,9 +70,9 @@ def main() -> None:
 
 
 def _register() -> None:
-    from puppet.cli import batch, bus, demo, export, live, perform, play, record, rig, view
+    from puppet.cli import batch, bus, demo, export, live, perform, play, record, release, rig, view
 
-    for module in (demo, live, record, play, export, batch, bus, rig, view, perform):
+    for module in (demo, live, record, play, export, batch, bus, rig, view, perform, release):
         for command in module.COMMANDS:
             main.add_command(command)
 

@@ -8,6 +8,11 @@ from puppet.cli.common import fail, load_rig, print_setup
 
 
 
+def _on_port(port: str, err) -> str:
+    """A bus error's text naming ``port`` once (a PortError's own text names it)."""
+    return str(err) if str(err).startswith(f"port {port}:") else f"port {port}: {err}"
+
+
 def _ping_all(port: str, baud: int) -> dict:
     """Broadcast ping on ``port``: {id: (model number, firmware)}; a bus error is an Error line."""
     from puppet.bus import BusError, BusLink
@@ -17,7 +22,7 @@ def _ping_all(port: str, baud: int) -> dict:
         link.open()
         return link.broadcast_ping()
     except BusError as err:
-        fail(f"port {port}: {err}")
+        fail(_on_port(port, err))
     finally:
         link.close()
 
@@ -90,7 +95,7 @@ def calibrate(rig_path: str, port: str, baud: int, out: str | None, guided: bool
         # generous: a loaded machine may hold replies; a servo that never reads is named
         reading = reader.read_clean(samples=9, timeout_s=15.0)
     except BusError as err:
-        fail(f"port {port}: {err}")
+        fail(_on_port(port, err))
     finally:
         reader.close()
     path = Calibration.capture(reading.ids, reading.ticks).save(target)
@@ -128,7 +133,7 @@ def _calibrate_guided(rig_path: str, port: str, baud: int, out: str | None, yes:
         results = session.run(reader.read, rest, say=lambda text: click.echo(text, err=True), models=models,
                               threshold_ticks=threshold, timeout_s=timeout_s)
     except BusError as err:
-        fail(f"port {port}: {err}")
+        fail(_on_port(port, err))
     finally:
         reader.close()
     path = session.write(results, out)

@@ -3,32 +3,18 @@
 -> goal ticks (the performing rig's calibration), clamped, rate-limited.
 
 A take recorded on one puppet plays on another with its own calibration: the joint angle is
-what carries over, ``angle = sign · (ticks − zero_take) · 2π / 4096 / gear`` (wrapped into one
-turn for direct drive) and ``goal = angle / (sign · 2π / 4096 / gear) + zero_rig``.
+what carries over, ticks -> radians through the take's zero ticks and back to goal ticks through
+the rig's (``puppet.servo_models.ServoUnits``: sign, gear, zero, its one wrap rule).
 Readings flagged not-ok hold that servo's last good value (the first good one before it).
 """
 
 from __future__ import annotations
 
-import json
-
 import numpy as np
 
 from puppet.drive.errors import DriveError
-from puppet.servo_models import TICKS_PER_TURN
+from puppet.servo_models import ServoUnits
 from puppet.take import Playback
-
-
-def take_zero_ticks(metadata, path) -> dict[int, int]:
-    """The zero ticks a take was recorded with ({} when it has none); DriveError if unreadable."""
-    text = metadata.calibration_text
-    if not text:
-        return {}
-    try:
-        table = json.loads(text).get("zero_ticks", {})
-        return {int(k): int(v) for k, v in table.items()}
-    except (ValueError, AttributeError, TypeError) as err:
-        raise DriveError(f"{path}: unreadable calibration in the take: {err}") from None
 
 
 class TakeGoals:
@@ -50,10 +36,11 @@ class TakeGoals:
         k = len(self.ids)
         if ticks.shape != (len(t_ns), k) or len(t_ns) == 0:
             raise DriveError(f"take readings shape {ticks.shape} does not fit {k} servos")
-        self._scale = np.array([s.sign * 2 * np.pi / TICKS_PER_TURN / s.gear for s in servos])
-        self._wrap = np.array([s.gear == 1.0 for s in servos], bool)
-        self._zero_take = np.array([take_zero.get(int(s.id), s.zero_ticks) for s in servos], np.int64)
-        self._zero = np.asarray(rig_zero, float)
+        zero_take = np.array([take_zero.get(int(s.id), s.zero_ticks) for s in servos], np.int64)
+        self._take_units = ServoUnits.for_servos(servos, zero_take)
+        """The take's units (its zero ticks): recorded ticks -> joint radians."""
+        self.units = ServoUnits.for_servos(servos, np.asarray(rig_zero, np.int64))
+        """The rig's units (its zero ticks): joint radians -> goal ticks."""
         ok = np.asarray(ok, bool)
         self.flagged = {int(i): int(n) for i, n in zip(self.ids, (~ok).sum(axis=0)) if n}
         self.never_ok = [int(i) for i, any_ok in zip(self.ids, ok.any(axis=0)) if not any_ok]
@@ -66,44 +53,41 @@ class TakeGoals:
             last[last < 0] = good[0]
             held[:, j] = held[last, j]
         self._never = ~ok.any(axis=0)
-        self.goals = self._goal_ticks(held)  # (N, k) float ticks; NaN: hold
-        self.goals[:, self._never] = np.nan
-        lo = np.array([s.limits[0] for s in servos]) / self._scale + self._zero
-        hi = np.array([s.limits[1] for s in servos]) / self._scale + self._zero
-        self.lo, self.hi = np.minimum(lo, hi), np.maximum(lo, hi)
+        self.goals = self.units.ticks(self._take_units.angles(held, clamp=False))  # (N, k) float
+        self.goals[:, self._never] = np.nan  # NaN: hold
+        self.lo, self.hi = self.units.tick_limits()
         self._frames = Playback(t_ns, held, ok, self.ids)
         self.duration_s = self._frames.duration_s
         self._ticks, self._ok = np.empty(k, np.int32), np.empty(k, bool)
-
-    def _goal_ticks(self, ticks: np.ndarray) -> np.ndarray:
-        """(..., k) recorded ticks -> this rig's goal ticks (float): the joint angle carries over."""
-        diff = np.asarray(ticks, np.int64) - self._zero_take
-        wrapped = (diff + TICKS_PER_TURN // 2) % TICKS_PER_TURN - TICKS_PER_TURN // 2
-        angles = np.where(self._wrap, wrapped, diff) * self._scale
-        return angles / self._scale + self._zero
+        self._angles, self._out = np.empty(k), np.empty(k)
 
     @classmethod
     def from_take(cls, reader, servo_map) -> "TakeGoals":
         """Goals for ``servo_map``'s servos from an open TakeReader (refused, TakeRigMismatch,
-        when the take's servos or models are not the rig's)."""
+        when the take's servos or models are not the rig's; RigError naming the take when its
+        calibration record is unreadable)."""
+        from puppet.rig.calibration import Calibration  # the parent's side only
         ids = [int(i) for i in servo_map.ids]
         reader.check_rig(ids, dict(servo_map.models))
         t_ns, ticks, ok = reader.arrays(ids=ids)
         if len(t_ns) == 0:
             raise DriveError(f"{reader.path}: the take holds no readings")
         return cls(servo_map.servos, t_ns, ticks, ok,
-                   take_zero_ticks(reader.metadata, reader.path), servo_map.zero)
+                   Calibration.from_record(reader.metadata.calibration_text, reader.path).zero_ticks,
+                   servo_map.zero)
 
     def degrees(self, ticks) -> np.ndarray:
         """(k,) tick differences -> joint degrees (absolute value)."""
-        return np.abs(np.asarray(ticks, float) * self._scale) * 180.0 / np.pi
+        return self.units.joint_degrees(ticks)
 
     def at(self, t: float) -> np.ndarray:
         """(k,) goal ticks (float; NaN = hold) at ``t`` seconds of play time into the take: the
         take's ticks there by its time rule (Playback.sample), converted as ``goals``; before
-        the start the first reading, after the end the last."""
+        the start the first reading, after the end the last. Reuses one output array: copy it
+        to keep it."""
         self._frames.sample(t * 1e9, self._ticks, self._ok)
-        out = self._goal_ticks(self._ticks)
+        self._take_units.angles(self._ticks, out=self._angles, clamp=False)
+        out = self.units.ticks(self._angles, out=self._out)
         out[self._never] = np.nan
         return out
 
@@ -113,20 +97,31 @@ class GoalShaper:
 
     lo/hi: (k,) goal-tick limits. max_step: (k,) most ticks a goal may move in one cycle.
     ``clamped`` / ``rate_limited``: (k,) int64 cycles in which a servo's goal was changed.
+    ``easing``: (k,) bool, servos moving at a slower step after ``ease`` until they get there.
     """
 
     def __init__(self, lo: np.ndarray, hi: np.ndarray, max_step: np.ndarray) -> None:
         self.lo, self.hi = np.asarray(lo, float), np.asarray(hi, float)
-        self.max_step = np.asarray(max_step, float)
+        self.max_step = np.array(max_step, float)
+        self._full_step = self.max_step.copy()
         k = len(self.lo)
         self.clamped = np.zeros(k, np.int64)
         self.rate_limited = np.zeros(k, np.int64)
+        self.easing = np.zeros(k, bool)
         self._tmp = np.empty(k)
         self.last = np.zeros(k)
 
     def start(self, present: np.ndarray) -> None:
         """Begin from the servos' present positions."""
         self.last[:] = present
+
+    def ease(self, n: int, present: float, step: float) -> None:
+        """Servo ``n`` begins again from ``present`` ticks (e.g. a servo its Bus Watchdog
+        stopped), its goal moving at most ``step`` ticks a cycle until it reaches the wanted
+        goal; from then on at its own max_step again."""
+        self.last[n] = present
+        self.max_step[n] = min(step, self._full_step[n])
+        self.easing[n] = True
 
     def shape(self, wanted: np.ndarray) -> np.ndarray:
         """(k,) goal ticks for this cycle from ``wanted`` (NaN = hold the last goal)."""
@@ -139,7 +134,11 @@ class GoalShaper:
         np.clip(tmp, self.lo, self.hi, out=tmp)
         tmp -= self.last
         fast = np.abs(tmp) > self.max_step
-        self.rate_limited += fast
+        self.rate_limited += fast & ~self.easing
         np.clip(tmp, -self.max_step, self.max_step, out=tmp)
         self.last += tmp
+        if self.easing.any():  # there (not rate-limited this cycle): full speed again
+            done = self.easing & ~fast
+            self.max_step[done] = self._full_step[done]
+            self.easing &= fast
         return self.last

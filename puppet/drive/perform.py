@@ -8,13 +8,24 @@ servo reports it has arrived (Moving 0, Moving Status in-position) -> playback: 
 Sync Write of goals then one Sync Read of Moving .. Present Temperature -> stop.
 
 Health watchdog while torque is on: every cycle (the state read) Present Temperature against
-a host limit below the servo's own, Present Current against a host cap on sustained current,
-the alert bit of each status (then Hardware Error Status is read to name the error), servos
-that stop answering; every ``WATCHDOG_CHECK_CYCLES`` cycles the Bus Watchdog items (-1 = it
-tripped). Any of these stops the performance naming the servo and the reading.
+a host limit below the servo's own, Present Current (Present Load on a model that senses no
+current) against a host cap on sustained current (``health.CurrentTemperatureStop``, caps from
+each servo's limits through the model table), the alert bit of each status (then Hardware
+Error Status is read to name the error), servos that stop answering; every ``WATCHDOG_CHECK_CYCLES`` cycles the Bus Watchdog items (-1 = it
+tripped). Any of these stops the performance naming the servo and the reading, with two
+tolerances for a busy host, where one late reply must cost one cycle, not the performance:
+a servo stops it only after ``READ_FAILURES_TO_STOP`` cycles in a row without a usable reading
+and only if it then fails a read of its own too (a Fast Sync Read fails as a whole for one
+silent servo: the servos that do not answer alone are named); a tripped Bus Watchdog (the host
+or the line stalled past its period) is re-armed, goal := present and eased back at the start
+speed, and stops it only when ``WATCHDOG_TRIPS_TO_STOP`` checks in a row find it tripped. A
+goal write not sent because the line was stalled costs that cycle (its goals go with the next).
 
 Stop (end of take, SIGINT, SIGTERM, bus error, any exception): torque off by one Sync Write
-with no reply, then servo by servo, then read back; see ``DriveBus.torque_off``.
+with no reply, then servo by servo, then read back; see ``DriveBus.torque_off``. A port lost
+mid-performance (an adapter pulled) is tried again for ``PORT_RETRY_S``: if it comes back,
+torque goes off as above (the performance does not resume); if not, the error says torque may
+still be on (the Bus Watchdog stops the servos) and names ``puppet release``.
 """
 
 from __future__ import annotations
@@ -29,18 +40,31 @@ from dataclasses import asdict, dataclass, field
 import numpy as np
 
 from puppet.bus.control_table import describe_hardware_error
-from puppet.bus.errors import BusError, PortError
+from puppet.bus.errors import BusError, PortError, ServoTimeout
 from puppet.bus.link import BusLink
+from puppet.bus.port_lock import PortInUse
 from puppet.drive import items as it
 from puppet.drive.errors import DriveError, HealthStop
 from puppet.drive.goals import GoalShaper, TakeGoals
+from puppet.drive.health import (CURRENT_FRACTION, CURRENT_SUSTAIN_S, TEMPERATURE_CAP_C,
+                                 TEMPERATURE_MARGIN_C, CurrentTemperatureStop)
 from puppet.drive.servos import DriveBus
 
 WATCHDOG_CHECK_CYCLES = 10
 """The Bus Watchdog items are read every this many cycles (the state read is every cycle)."""
 READ_FAILURES_TO_STOP = 10
-"""Consecutive cycles a servo may fail to answer before the performance stops."""
-TICKS_PER_DEGREE = 4096 / 360.0
+"""Consecutive cycles a servo may go without a usable reading (or the goals stay unsent on a
+stalled line) before the performance stops, if the servo then fails a read of its own too."""
+RESCUES_TO_STOP = 3
+"""Times in a row the servos of a failing group read all answer alone (no full reading in
+between) before the performance stops anyway: the health checks need the group read."""
+WATCHDOG_TRIPS_TO_STOP = 3
+"""Watchdog checks in a row that find a servo's Bus Watchdog tripped before the performance
+stops (each earlier trip is re-armed)."""
+PORT_RETRY_S = 2.0
+"""How long a port lost mid-performance is tried again (every ``PORT_RETRY_PERIOD_S``) to turn
+torque off."""
+PORT_RETRY_PERIOD_S = 0.1
 
 
 @dataclass
@@ -53,7 +77,8 @@ class PerformOptions:
     loop periods). start_speed_deg_s / start_accel_deg_s2: the slow start profile (joint
     degrees of a direct-drive servo). max_speed_deg_s: the per-cycle rate limit of goals and
     the playback profile. temperature_margin_c: host limit = servo limit - margin, at most
-    temperature_cap_c. current_fraction / current_sustain_s: host cap on sustained current.
+    temperature_cap_c. current_fraction / current_sustain_s: host cap on sustained current (or
+    load), see ``puppet.drive.health``.
     countdown_s: seconds of countdown. arrive_timeout_s: extra time allowed to arrive.
     baud, latency_ms: the link (see BusLink).
     """
@@ -67,10 +92,10 @@ class PerformOptions:
     start_speed_deg_s: float = 30.0
     start_accel_deg_s2: float = 200.0
     max_speed_deg_s: float = 360.0
-    temperature_margin_c: float = 10.0
-    temperature_cap_c: float = 65.0
-    current_fraction: float = 0.8
-    current_sustain_s: float = 0.3
+    temperature_margin_c: float = TEMPERATURE_MARGIN_C
+    temperature_cap_c: float = TEMPERATURE_CAP_C
+    current_fraction: float = CURRENT_FRACTION
+    current_sustain_s: float = CURRENT_SUSTAIN_S
     countdown_s: int = 3
     arrive_timeout_s: float = 10.0
     baud: int = 1_000_000
@@ -94,6 +119,8 @@ class PerformReport:
     flagged: dict = field(default_factory=dict)
     changes: list = field(default_factory=list)
     recovered: list = field(default_factory=list)
+    rearmed: dict = field(default_factory=dict)
+    unsent_cycles: int = 0
     torque_after: dict = field(default_factory=dict)
     log: list = field(default_factory=list)
 
@@ -106,6 +133,8 @@ class PerformReport:
         if self.tracking_median_deg is not None:
             lines.append(f"tracking: median {self.tracking_median_deg:.2f} deg, "
                          f"p99 {self.tracking_p99_deg:.2f} deg")
+        if self.rearmed:
+            lines.append(f"Bus Watchdog re-armed after a stall (times per servo): {self.rearmed}")
         for name in ("clamped", "rate_limited", "flagged"):
             table = getattr(self, name)
             if table:
@@ -146,10 +175,6 @@ class _Stopped(Exception):
     """A signal asked the performance to stop (internal)."""
 
 
-def _deg_to_ticks(deg: float) -> float:
-    return deg * TICKS_PER_DEGREE
-
-
 def perform(rig, reader, port: str, options: PerformOptions | None = None,
             log: Callable[[str], None] | None = None, on_phase: Callable[[str], None] | None = None
             ) -> PerformReport:
@@ -170,6 +195,10 @@ def perform(rig, reader, port: str, options: PerformOptions | None = None,
             log(text)
 
     phase = on_phase or (lambda _p: None)
+    if opts.watchdog:  # refused before anything moves: a model with no Bus Watchdog
+        from puppet.rig.servo_map import check_bus_watchdogs
+
+        check_bus_watchdogs(rig.servo_map.servos, rig.servo_map.path)
     goals = TakeGoals.from_take(reader, rig.servo_map)
     report.flagged = dict(goals.flagged)
     if goals.flagged:
@@ -207,6 +236,8 @@ def perform(rig, reader, port: str, options: PerformOptions | None = None,
             error = err
         finally:
             if torque_may_be_on:  # first, before anything that could fail
+                if isinstance(error, PortError) and _reopen(link):
+                    say(f"the port came back within {PORT_RETRY_S:.0f} s: turning torque off")
                 report.torque_after = bus.torque_off()
                 if isinstance(error, PortError) and any(v is None for v in report.torque_after.values()):
                     say(f"the port is gone: the servos' Bus Watchdog stops them "
@@ -215,6 +246,8 @@ def perform(rig, reader, port: str, options: PerformOptions | None = None,
             link.close()
             phase("stop")
     if error is not None:
+        if isinstance(error, PortInUse):  # another program's port: nothing was touched
+            raise error
         if isinstance(error, DriveError):
             error.report = report
             raise error
@@ -223,11 +256,30 @@ def perform(rig, reader, port: str, options: PerformOptions | None = None,
                 done = "torque never went on"
             elif report.torque_after and set(report.torque_after.values()) == {0}:
                 done = "torque off"
+            elif isinstance(error, PortError):
+                done = (f"the port did not come back within {PORT_RETRY_S:.0f} s: torque may still be "
+                        "on" + (f" until the Bus Watchdog stops the servos ({opts.watchdog_ms:.0f} ms)"
+                                if opts.watchdog else "")
+                        + f"; when the adapter is back, `puppet release --port {port}` turns it off")
             else:
-                done = "torque off NOT confirmed on every servo"
+                done = (f"torque off NOT confirmed on every servo; `puppet release --port {port}` "
+                        "turns it off")
             raise DriveError(f"performance stopped ({done}): {error}", report) from error
         raise error
     return report
+
+
+def _reopen(link: BusLink) -> bool:
+    """Try the lost port again for PORT_RETRY_S -> whether it is open again."""
+    deadline = time.monotonic() + PORT_RETRY_S
+    while True:
+        try:
+            link.rebuild()
+            return True
+        except PortError:
+            if time.monotonic() > deadline:
+                return False
+            time.sleep(PORT_RETRY_PERIOD_S)
 
 
 def _watchdog_units(opts: PerformOptions) -> int:
@@ -250,9 +302,10 @@ def _start(bus: DriveBus, goals: TakeGoals, opts, report, say, check_signal, pha
                 f"{lo[n]:.0f}..{hi[n]:.0f} ticks in {it.POSITION_MODES[info.mode]} mode (the turn "
                 "count is lost at power-up): turn the joint into range by hand")
     bus.write_all(it.GOAL_POSITION, present)
-    start_units = max(1, round(opts.start_speed_deg_s / it.VELOCITY_UNIT_DEG_S))
+    unit = bus.velocity_unit_deg_s
+    start_units = np.maximum(1, np.rint(opts.start_speed_deg_s / unit))
     accel_units = max(1, round(opts.start_accel_deg_s2 / it.ACCEL_UNIT_DEG_S2))
-    report.start_profile_deg_s = start_units * it.VELOCITY_UNIT_DEG_S
+    report.start_profile_deg_s = float((start_units * unit).max())
     bus.write_all(it.PROFILE_VELOCITY, start_units)   # never 0 (= full speed) for the start
     bus.write_all(it.PROFILE_ACCELERATION, accel_units)
     bus.write_all(it.TORQUE_ENABLE, 1)
@@ -262,7 +315,7 @@ def _start(bus: DriveBus, goals: TakeGoals, opts, report, say, check_signal, pha
         bus.write_all(it.BUS_WATCHDOG, units)
         say(f"Bus Watchdog {units * 20} ms on every servo")
     first = np.clip(np.where(np.isnan(goals.goals[0]), present, goals.goals[0]), lo, hi)
-    distance = np.abs(first - present).max() / TICKS_PER_DEGREE
+    distance = float(goals.units.servo_degrees(first - present).max())
     if not opts.yes:
         say(f"moving to the first pose ({distance:.0f} deg at most, "
             f"{report.start_profile_deg_s:.0f} deg/s) in {opts.countdown_s}")
@@ -273,7 +326,14 @@ def _start(bus: DriveBus, goals: TakeGoals, opts, report, say, check_signal, pha
     timeout = distance / max(report.start_profile_deg_s, 1e-3) * 3 + opts.arrive_timeout_s
     deadline = time.monotonic() + timeout
     speeds = np.zeros(len(bus.ids))
-    health = _Health(bus, opts)
+
+    def rearm(n: int) -> None:  # a stall tripped its watchdog: back to the slow move
+        dxl_id = bus.ids[n]
+        bus.rearm(dxl_id, _watchdog_units(opts))
+        bus.write(dxl_id, it.GOAL_POSITION, int(round(first[n])))
+        _rearmed(report, say, dxl_id)
+
+    health = _Health(bus, opts, on_trip=rearm)
     while True:
         check_signal()
         state = bus.read_state()
@@ -287,9 +347,8 @@ def _start(bus: DriveBus, goals: TakeGoals, opts, report, say, check_signal, pha
                     if m or not s & it.MOVING_STATUS_IN_POSITION]
             raise DriveError(f"servos {late} did not reach the first pose within {timeout:.0f} s")
         _wait(1.0 / opts.rate_hz, bus, opts, check_signal, keepalive=False)
-    report.start_max_speed_deg_s = {i: float(v * it.VELOCITY_UNIT_DEG_S)
-                                    for i, v in zip(bus.ids, speeds)}
-    play_units = max(1, round(opts.max_speed_deg_s / it.VELOCITY_UNIT_DEG_S))
+    report.start_max_speed_deg_s = {i: float(v * u) for i, v, u in zip(bus.ids, speeds, unit)}
+    play_units = np.maximum(1, np.rint(opts.max_speed_deg_s / unit))
     bus.write_all(it.PROFILE_ACCELERATION, 0)
     bus.write_all(it.PROFILE_VELOCITY, play_units)
     return first
@@ -309,6 +368,12 @@ def _wait(seconds: float, bus: DriveBus, opts, check_signal, keepalive: bool = T
         time.sleep(min(step, left))
 
 
+def _rearmed(report: PerformReport, say, dxl_id: int) -> None:
+    report.rearmed[dxl_id] = report.rearmed.get(dxl_id, 0) + 1
+    say(f"servo {dxl_id}: Bus Watchdog tripped (the host or the line stalled past its period): "
+        "re-armed, easing back from its present position")
+
+
 def _read_positions(bus: DriveBus) -> np.ndarray:
     """Present Position of every servo (one read each, so that none is missing)."""
     return np.array([bus.read(i, it.PRESENT_POSITION) for i in bus.ids], float)
@@ -326,18 +391,22 @@ def _limits(bus: DriveBus, goals: TakeGoals) -> tuple[np.ndarray, np.ndarray]:
 
 
 class _Health:
-    """The host-side health watchdog over each cycle's state (see the module docstring)."""
+    """The host-side health watchdog over each cycle's state (see the module docstring).
 
-    def __init__(self, bus: DriveBus, opts: PerformOptions) -> None:
-        self.bus, self.opts = bus, opts
+    on_trip: called with a servo's index when its Bus Watchdog is found tripped (it re-arms
+    it); None: a trip stops the performance at once.
+    """
+
+    def __init__(self, bus: DriveBus, opts: PerformOptions, on_trip=None) -> None:
+        self.bus, self.opts, self.on_trip = bus, opts, on_trip
         k = len(bus.ids)
-        self.temp_limit = np.array([min(bus.setup[i].temperature_limit - opts.temperature_margin_c,
-                                        opts.temperature_cap_c) for i in bus.ids])
-        self.current_cap = np.array([
-            (bus.setup[i].current_limit_ma or math.inf) * opts.current_fraction for i in bus.ids])
-        self.unit = np.array([it.CURRENT_UNIT_MA.get(bus.models[i]) or 0.0 for i in bus.ids])
-        self.over_s = np.zeros(k)
+        self.stop = CurrentTemperatureStop(
+            bus.ids, [bus.setup[i] for i in bus.ids], temperature_margin_c=opts.temperature_margin_c,
+            temperature_cap_c=opts.temperature_cap_c, current_fraction=opts.current_fraction,
+            current_sustain_s=opts.current_sustain_s)
         self.misses = np.zeros(k, np.int64)
+        self.trips = np.zeros(k, np.int64)
+        self.rescues = 0
         self.cycles = 0
 
     def check(self, state, dt: float) -> None:
@@ -351,30 +420,48 @@ class _Health:
             except BusError as err:
                 what = f"unreadable ({err})"
             raise HealthStop(dxl_id, f"hardware error: {what} (alert bit in its status)")
-        self.misses = np.where(state.ok, 0, self.misses + 1)
-        if (self.misses >= READ_FAILURES_TO_STOP).any():
-            n = int(np.argmax(self.misses))
-            dxl_id = bus.ids[n]
-            raise DriveError(f"servo {dxl_id}: no usable reading for {self.misses[n]} cycles "
-                             f"({state.failures.get(dxl_id)})")
-        hot = state.ok & (state.temperature > self.temp_limit)
-        if hot.any():
-            n = int(np.flatnonzero(hot)[0])
-            raise HealthStop(bus.ids[n], f"Present Temperature {state.temperature[n]} C above the "
-                             f"host limit {self.temp_limit[n]:.0f} C (servo limit "
-                             f"{bus.setup[bus.ids[n]].temperature_limit} C)")
-        current = np.abs(state.current) * self.unit
-        over = state.ok & (current > self.current_cap)
-        self.over_s = np.where(over, self.over_s + dt, 0.0)
-        if (self.over_s > self.opts.current_sustain_s).any():
-            n = int(np.argmax(self.over_s))
-            raise HealthStop(bus.ids[n], f"Present Current {current[n]:.0f} mA above the host cap "
-                             f"{self.current_cap[n]:.0f} mA for {self.over_s[n]:.2f} s")
+        self._check_misses(state)
+        self.stop.check(state, dt)
         if self.opts.watchdog and self.cycles % WATCHDOG_CHECK_CYCLES == 0:
-            for dxl_id, value in bus.read_watchdogs().items():
-                if value == it.WATCHDOG_TRIPPED:
-                    raise HealthStop(dxl_id, "Bus Watchdog tripped (it heard nothing for longer "
-                                     "than its period): it stopped and refuses goals")
+            self._check_watchdogs()
+
+    def _check_misses(self, state) -> None:
+        """Servos without a usable reading for READ_FAILURES_TO_STOP cycles: read each alone;
+        those that fail stop the performance, named (see the module docstring)."""
+        if state.ok.all():
+            self.rescues = 0
+        self.misses = np.where(state.ok, 0, self.misses + 1)
+        late = np.flatnonzero(self.misses >= READ_FAILURES_TO_STOP)
+        if not late.size:
+            return
+        ids = [self.bus.ids[n] for n in late]
+        cycles = int(self.misses[late].max())
+        silent = self.bus.unanswered(ids)
+        if silent:
+            names = sorted(silent)
+            raise DriveError(f"servo{'s' if len(names) > 1 else ''} {', '.join(map(str, names))}: "
+                             f"no usable reading for {cycles} cycles, nor alone "
+                             f"({silent[names[0]]})")
+        self.rescues += 1
+        if self.rescues >= RESCUES_TO_STOP:
+            raise DriveError(f"servos {ids}: the state read failed {cycles} cycles in a row "
+                             f"{self.rescues} times though each answers alone "
+                             f"({state.failures.get(ids[0])})")
+        self.misses[late] = 0  # each answered alone: the replies were late, not missing
+
+    def _check_watchdogs(self) -> None:
+        values = self.bus.read_watchdogs()
+        for n, dxl_id in enumerate(self.bus.ids):
+            if values.get(dxl_id) != it.WATCHDOG_TRIPPED:
+                if dxl_id in values:
+                    self.trips[n] = 0
+                continue
+            self.trips[n] += 1
+            if self.on_trip is None or self.trips[n] >= WATCHDOG_TRIPS_TO_STOP:
+                again = f", {self.trips[n]} checks in a row" if self.trips[n] > 1 else ""
+                raise HealthStop(dxl_id, "Bus Watchdog tripped (it heard nothing for longer "
+                                 f"than its period{again}): it stopped and refuses goals")
+            self.on_trip(n)
 
 
 def _playback(bus: DriveBus, goals: TakeGoals, servo_map, start_pose: np.ndarray, opts, report,
@@ -383,12 +470,18 @@ def _playback(bus: DriveBus, goals: TakeGoals, servo_map, start_pose: np.ndarray
     phase("playback")
     period = 1.0 / opts.rate_hz
     lo, hi = _limits(bus, goals)
-    max_step = np.full(len(bus.ids), _deg_to_ticks(opts.max_speed_deg_s) * period)
-    gears = np.array([s.gear for s in servo_map.servos])
-    max_step *= gears  # a geared servo turns gear times the joint
+    max_step = goals.units.ticks_per_joint_degree * (opts.max_speed_deg_s * period)
     shaper = GoalShaper(lo, hi, max_step)
     shaper.start(start_pose)
-    health = _Health(bus, opts)
+    ease_step = goals.units.ticks_per_joint_degree * (opts.start_speed_deg_s * period)
+
+    def rearm(n: int) -> None:  # a stall tripped its watchdog: ease back from where it stopped
+        dxl_id = bus.ids[n]
+        shaper.ease(n, bus.rearm(dxl_id, _watchdog_units(opts)), ease_step[n])
+        _rearmed(report, say, dxl_id)
+
+    health = _Health(bus, opts, on_trip=rearm)
+    unsent = 0
     errors: list[np.ndarray] = []
     t0 = time.monotonic()
     next_t = t0
@@ -408,8 +501,17 @@ def _playback(bus: DriveBus, goals: TakeGoals, servo_map, start_pose: np.ndarray
             say(f"warning: {now - last_write:.3f} s since the last goal frame (stalled host loop)")
         wanted = goals.at(t_take)
         command = shaper.shape(wanted)
-        bus.write_goals(command)
-        last_write = time.monotonic()
+        try:
+            bus.write_goals(command)
+            unsent = 0
+            last_write = time.monotonic()
+        except ServoTimeout as err:  # not sent: the line is stalled (replies still pending)
+            if not err.line_stalled:
+                raise
+            unsent += 1
+            report.unsent_cycles += 1
+            if unsent >= READ_FAILURES_TO_STOP:
+                raise DriveError(f"goals not sent for {unsent} cycles in a row: {err}") from err
         state = bus.read_state()
         health.check(state, period)
         target = np.clip(np.where(np.isnan(wanted), command, wanted), lo, hi)

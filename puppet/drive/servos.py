@@ -19,13 +19,19 @@ from puppet.bus.configure import (Change, SetupReport, ensure_status_return, ide
                                   supports_fast_sync_read)
 from puppet.bus.control_table import RETURN_DELAY_TIME, describe_hardware_error
 from puppet.bus.errors import BusError, PortError, ServoCorrupt, ServoStatusError, ServoTimeout
-from puppet.bus.link import BusLink
+from puppet.bus.link import SILENT, BusLink
 from puppet.drive import items as it
 from puppet.drive.errors import DriveError
+from puppet.servo_models import MODELS
 
 _STATE = struct.Struct("<BBhhiiiiHB")  # Moving .. Present Temperature (25 bytes)
 ATTEMPTS = 3
 """Tries of a single-servo read or write outside the loop (a reply lost to noise is retried)."""
+SILENCE_PATIENCE_S = 2.0
+"""How long ``unanswered`` goes on asking a servo whose timeouts the line cannot prove silent."""
+STALL_PATIENCE_S = 1.0
+"""How long an instruction outside the loop that was not sent because the line was stalled
+(replies still pending: a busy host) is tried again before it fails."""
 IDENTIFY_ROUNDS = 3
 IDENTIFY_PAUSE_S = 0.5
 """Rounds of pings (3 each) for servos that did not answer, this far apart, before refusing."""
@@ -36,7 +42,8 @@ class ServoSetup:
     """What setup learned about one servo.
 
     mode: operating mode; lo/hi: its own goal limits in ticks (position mode) or None;
-    temperature_limit: deg C; current_limit_ma: mA or None (no current item);
+    temperature_limit: deg C; current_limit_ma: its Current Limit in mA, or None (no current
+    item); current_unit_ma: the model's Present Current unit (None: it reports Present Load);
     watchdog: whether it has the Bus Watchdog.
     """
 
@@ -48,6 +55,7 @@ class ServoSetup:
     hi: int | None = None
     temperature_limit: int = 70
     current_limit_ma: float | None = None
+    current_unit_ma: float | None = None
     watchdog: bool = True
 
 
@@ -82,27 +90,42 @@ class DriveBus:
         self.recovered: list[int] = []
         self.setup: dict[int, ServoSetup] = {}
         self.fast_read = False  # Fast Sync Read for the state (every servo's firmware has it)
+        self.velocity_unit_deg_s = np.array([MODELS[self.models[i]].velocity_unit_deg_s
+                                             for i in self.ids])
+        """(k,) degrees/s of the servo shaft per Profile / Present Velocity unit."""
         k = len(self.ids)
         self.state = State(*(np.zeros(k, bool) for _ in range(2)),
                            *(np.zeros(k, np.int64) for _ in range(6)))
 
     def read(self, dxl_id: int, item) -> int:
-        """Read one item, tried up to ``ATTEMPTS`` times on a timeout or corrupt reply."""
-        for attempt in range(ATTEMPTS):
-            try:
-                return self.link.read(dxl_id, item)
-            except (ServoTimeout, ServoCorrupt):
-                if attempt == ATTEMPTS - 1:
-                    raise
-        raise AssertionError("unreachable")
+        """Read one item, tried up to ``ATTEMPTS`` times on a corrupt reply or a timeout the
+        line proves silent, and for up to ``STALL_PATIENCE_S`` while replies are late."""
+        return self._patient(lambda: self.link.read(dxl_id, item), dxl_id)
 
     def write(self, dxl_id: int, item, value: int) -> None:
-        """Write one item (idempotent), tried up to ``ATTEMPTS`` times like ``read``."""
-        for attempt in range(ATTEMPTS):
+        """Write one item (idempotent), tried like ``read``."""
+        self._patient(lambda: self.link.write(dxl_id, item, value), dxl_id)
+
+    def _patient(self, call, dxl_id: int | None = None, attempts: int = ATTEMPTS):
+        """call() until it succeeds: tried ``attempts`` times on a corrupt reply or a timeout
+        the line proves silent (``BusLink.witness``, asking the servo heard last), and for up
+        to ``STALL_PATIENCE_S`` while it was not sent (the line stalled) or its reply may only
+        be late (a busy host holds replies)."""
+        deadline = time.monotonic() + STALL_PATIENCE_S
+        tries = 0
+        while True:
             try:
-                return self.link.write(dxl_id, item, value)
-            except (ServoTimeout, ServoCorrupt):
-                if attempt == ATTEMPTS - 1:
+                return call()
+            except (ServoTimeout, ServoCorrupt) as exc:
+                if time.monotonic() < deadline:
+                    if exc.line_stalled:
+                        continue
+                    if exc.deadline and dxl_id is not None:
+                        witness = self.link.heard_last(other_than=dxl_id)
+                        if witness is None or self.link.witness(witness) != SILENT:
+                            continue
+                tries += 1
+                if tries >= attempts:
                     raise
 
     def _change(self, dxl_id: int, item, old: int, new: int, why: str = "") -> None:
@@ -144,11 +167,13 @@ class DriveBus:
         if hw:
             raise DriveError(f"servo {dxl_id}: hardware error latched ({describe_hardware_error(hw)}); "
                              "let it cool or fix the load, then power-cycle or reboot it")
-        info.watchdog = firmware >= it.BUS_WATCHDOG_FIRMWARE
+        first = MODELS[model].bus_watchdog_firmware
+        info.watchdog = first is not None and firmware >= first
         if not info.watchdog and use_watchdog:
+            needs = (f"firmware {firmware} has no Bus Watchdog (needs >= {first})" if first
+                     else f"model {model} has no Bus Watchdog")
             raise DriveError(
-                f"servo {dxl_id}: firmware {firmware} has no Bus Watchdog (needs "
-                f">= {it.BUS_WATCHDOG_FIRMWARE}): if this host died the servo would keep its last "
+                f"servo {dxl_id}: {needs}: if this host died the servo would keep its last "
                 "goal with torque on; update the firmware, or pass --no-watchdog to perform anyway")
         if info.watchdog:
             wd = self.read(dxl_id, it.BUS_WATCHDOG)
@@ -187,23 +212,68 @@ class DriveBus:
             info.lo = self.read(dxl_id, it.MIN_POSITION_LIMIT)
             info.hi = self.read(dxl_id, it.MAX_POSITION_LIMIT)
         info.temperature_limit = self.read(dxl_id, it.TEMPERATURE_LIMIT)
-        unit = it.CURRENT_UNIT_MA.get(model)
+        info.current_unit_ma = unit = MODELS[model].current_unit_ma
         if unit is not None:
             info.current_limit_ma = self.read(dxl_id, it.CURRENT_LIMIT) * unit
         return info
 
     # ---- group writes ---------------------------------------------------------------------
     def write_all(self, item, values) -> None:
-        """One Sync Write of ``item``: values (k,) in bus order, or one value for all."""
+        """One Sync Write of ``item``: values (k,) in bus order, or one value for all (sent
+        again while the line is stalled, up to ``STALL_PATIENCE_S``: a Sync Write has no reply,
+        and one not sent changed nothing)."""
         if np.ndim(values) == 0:
-            self.link.sync_write(item, dict.fromkeys(self.ids, int(values)))
+            table = dict.fromkeys(self.ids, int(values))
         else:
-            self.link.sync_write(item, {i: int(v) for i, v in zip(self.ids, values)})
+            table = {i: int(v) for i, v in zip(self.ids, values)}
+        self._patient(lambda: self.link.sync_write(item, table), attempts=1)
 
     def write_goals(self, goals: np.ndarray) -> None:
         """One Sync Write of Goal Position: (k,) float ticks, rounded."""
         self.link.sync_write(it.GOAL_POSITION,
                              {i: int(round(g)) for i, g in zip(self.ids, goals)})
+
+    def rearm(self, dxl_id: int, units: int) -> int:
+        """A servo its Bus Watchdog stopped (it reads -1, refuses goals; torque stays on):
+        clear the watchdog, Goal Position := Present Position, watchdog ``units`` again ->
+        that present position, raw ticks."""
+        self.write(dxl_id, it.BUS_WATCHDOG, 0)
+        raw = self.read(dxl_id, it.PRESENT_POSITION)
+        self.write(dxl_id, it.GOAL_POSITION, raw)
+        self.write(dxl_id, it.BUS_WATCHDOG, units)
+        return raw
+
+    def unanswered(self, ids, patience_s: float = SILENCE_PATIENCE_S) -> dict[int, BusError]:
+        """Of ``ids``, those that fail a read of their own -> {id: its error}. A group read
+        fails as a whole when one servo is silent (one Fast Sync Read reply packet): this finds
+        which. A timeout counts only once the line proves the silence (``BusLink.witness``,
+        asking a servo that answered) or once ``patience_s`` (for the whole call) has passed
+        (a busy host holds replies); a corrupt or error reply after ``ATTEMPTS``. PortError is
+        raised."""
+        heard = [i for i in self.ids if i not in ids]
+        out = {}
+        deadline = time.monotonic() + patience_s  # for them all: a bus gone quiet costs it once
+        for dxl_id in ids:
+            tries = 0
+            while True:
+                try:
+                    self.link.read(dxl_id, it.PRESENT_POSITION)
+                    heard.append(dxl_id)
+                    break
+                except PortError:
+                    raise
+                except ServoTimeout as err:
+                    late = err.line_stalled or not heard or self.link.witness(heard[-1]) != SILENT
+                    if late and time.monotonic() < deadline:
+                        continue
+                    out[dxl_id] = err
+                    break
+                except BusError as err:
+                    tries += 1
+                    if tries >= ATTEMPTS:
+                        out[dxl_id] = err
+                        break
+        return out
 
     def check_torque(self, want: int) -> None:
         """Read Torque Enable back from every servo; DriveError naming those that differ."""

@@ -17,6 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from puppet.cache import cache_dir, code_digest, read_failed, store
+from puppet.fast.blas import one_blas_thread
 from puppet.fast.clusters import kmeans_weight_space
 from puppet.fast.energy import ENERGIES, lbs_matrix, reduced_matrices
 from puppet.fast.errors import FastError, MeshError
@@ -95,6 +96,8 @@ class FastModel:
         normalize_weights: repair W by clipping negatives and rescaling rows (else refuse).
         cache_dir: directory of the precompute cache (None: default_cache_dir(); False: off).
 
+    Computed with one BLAS thread (``puppet.fast.blas``): the same on every machine setting.
+
     Attributes:
         n, m, m_bones, r: vertex, handle, bone and (actual) cluster counts.
         weights: (n, m) float32, bones then extras, rows summing to one (the renderer skins with it).
@@ -103,6 +106,7 @@ class FastModel:
         dropped_elements: degenerate (zero area/volume) elements left out of the energy.
     """
 
+    @one_blas_thread()
     def __init__(
         self,
         V,

@@ -14,6 +14,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from puppet import _kinematics
 from puppet.fast.errors import PatternError
 
 POINT_SUM_TOLERANCE = 1e-6
@@ -216,28 +217,22 @@ def rest_positions(entries, V: np.ndarray) -> np.ndarray:
 
 class PoseFill:
     """Writes a pattern's per-frame values from bone poses, for any pattern of a skeleton whose
-    bone j is handle j: full blocks ``pose[j].T`` (4, 3) and relative rotations ``rot[child]``.
+    bone j is handle j: full blocks ``pose[j].T`` (4, 3) and relative rotations ``rot[child]``,
+    in one native pass (puppet._kinematics.constraint_values: no per-bone loop, no allocation).
 
-    pattern: the Pattern; index arrays and work buffers are made here, so ``fill`` allocates
-    nothing. Positional and contact values are not touched (they are constant per rig: set them
-    once, e.g. with :func:`rest_positions`).
+    pattern: the Pattern; its index arrays (int32) are made here. Positional and contact values
+    are not touched (they are constant per rig: set them once, e.g. with :func:`rest_positions`).
     """
 
     def __init__(self, pattern: "Pattern"):
-        self.full = np.array(pattern.full, np.int64)
-        self.children = np.array([c for c, _, _ in pattern.relative], np.int64)
-        self._full = np.empty((len(self.full), 3, 4))
-        self._relative = np.empty((len(self.children), 3, 3))
+        self.full = np.array(pattern.full, np.int32)
+        self.children = np.array([c for c, _, _ in pattern.relative], np.int32)
 
     def fill(self, values: "Values", rot: np.ndarray, pose: np.ndarray) -> None:
         """values: this pattern's Values (written); rot: (b, 3, 3) model-space joint rotations;
-        pose: (b, 3, 4) bone affines [A_b | t_b] (see puppet.rig.skeleton), float64."""
-        if len(self.full):
-            np.take(pose, self.full, axis=0, out=self._full)
-            np.copyto(values.full, self._full.transpose(0, 2, 1), casting="same_kind")
-        if len(self.children):
-            np.take(rot, self.children, axis=0, out=self._relative)
-            np.copyto(values.relative, self._relative, casting="same_kind")
+        pose: (b, 3, 4) bone affines [A_b | t_b] (see puppet.rig.skeleton), float64 C-contiguous
+        (TypeError otherwise, never a copy); a bone index outside rot is a ValueError."""
+        _kinematics.constraint_values(rot, pose, self.full, values.full, self.children, values.relative)
 
 
 @dataclass

@@ -7,6 +7,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from puppet import _native
+from puppet.fast.blas import one_blas_thread
 from puppet.fast.errors import FastError
 from puppet.fast.factor import Factor, contact_rows, factor as factor_pattern
 from puppet.fast.pattern import Pattern, Values
@@ -57,6 +58,7 @@ class Solver:
                  (iterations, energy in model units^2, rejected accelerated steps).
     """
 
+    @one_blas_thread()  # the factorization: the same on every machine's thread setting
     def __init__(
         self,
         model,

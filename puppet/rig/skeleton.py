@@ -20,6 +20,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
+from puppet import _kinematics
 from puppet.rig.errors import RigError
 
 
@@ -125,7 +126,6 @@ class Skeleton:
         object.__setattr__(self, "tails", tails)
         object.__setattr__(self, "frames", frames)
         object.__setattr__(self, "_index", {n: i for i, n in enumerate(self.names)})
-        object.__setattr__(self, "_parent_list", [int(p) for p in parents])
         self._prepare_pose()
 
     # ---- structure ------------------------------------------------------------------------
@@ -154,99 +154,75 @@ class Skeleton:
 
     # ---- forward kinematics ---------------------------------------------------------------
     def _prepare_pose(self) -> None:
-        axes_rest = [np.asarray(j.axes, float).reshape(-1, 3) for j in self.joints]
-        for j, a in zip(self.joints, axes_rest):
-            if not 1 <= len(a) <= 3 or len(a) != len(np.asarray(j.dofs).reshape(-1)):
+        """Constant arrays of the native forward kinematics (solver_native forward_kinematics.h)."""
+        b = len(self.names)
+        by_bone: dict[int, tuple[np.ndarray, np.ndarray]] = {}
+        for j in self.joints:
+            a = np.asarray(j.axes, float).reshape(-1, 3)
+            dofs = np.asarray(j.dofs, np.int64).reshape(-1)
+            if not 1 <= len(a) <= 3 or len(a) != len(dofs):
                 raise RigError(f"joint of bone {self.names[j.bone]!r} needs 1-3 axes, one dof each",
                                field="skeleton.joints")
-        # All axes in model space, stacked, so one Rodrigues evaluation serves every joint.
-        model_axes = [self.frames[j.bone] @ a.T for j, a in zip(self.joints, axes_rest)]
-        stacked = np.concatenate([m.T for m in model_axes]) if model_axes else np.zeros((0, 3))
-        dofs = np.concatenate([np.asarray(j.dofs, np.int64) for j in self.joints]) \
-            if self.joints else np.zeros(0, np.int64)
-        starts, offset, jointed = [], 0, set()
-        for j in self.joints:
-            if j.bone in jointed:
+            if not 0 <= j.bone < b:
+                raise RigError(f"a joint names bone {j.bone}; the skeleton has {b} bones", field="skeleton.joints")
+            if (dofs < 0).any():
+                raise RigError(f"joint of bone {self.names[j.bone]!r} reads a negative angle index {dofs.min()}",
+                               field="skeleton.joints")
+            if j.bone in by_bone:
                 raise RigError(f"bone {self.names[j.bone]!r} has two joints", field="skeleton.joints")
-            jointed.add(j.bone)
-            starts.append((offset, offset + len(j.dofs)))
-            offset += len(j.dofs)
-        # Per-axis constants of Rodrigues' formula R = outer + cos·(I − outer) + sin·cross,
-        # and work buffers, so the per-frame path allocates no arrays.
-        outer = stacked[:, :, None] * stacked[:, None, :]
-        cross = np.zeros((len(stacked), 3, 3))
-        x, y, z = stacked.T
-        cross[:, 0, 1], cross[:, 0, 2], cross[:, 1, 2] = -z, y, -x
-        cross[:, 1, 0], cross[:, 2, 0], cross[:, 2, 1] = z, -y, x
+            by_bone[j.bone] = (a @ self.frames[j.bone].T, dofs)  # axes in model space: B a
+        counts = np.array([len(by_bone[i][1]) if i in by_bone else 0 for i in range(b)], np.int32)
+        axes = [by_bone[i][0] for i in sorted(by_bone)]
+        dofs = [by_bone[i][1] for i in sorted(by_bone)]
         work = {
-            "_outer": outer, "_i_minus_outer": np.eye(3) - outer, "_cross": cross,
-            "_dofs": dofs, "_axis_ranges": tuple(starts),
-            "_joint_bones": tuple(j.bone for j in self.joints),
-            "_angle_buf": np.empty(len(dofs)), "_cos_buf": np.empty(len(dofs)),
-            "_sin_buf": np.empty(len(dofs)), "_axis_rot": np.empty((len(dofs), 3, 3)),
-            "_axis_tmp": np.empty((len(dofs), 3, 3)), "_mat_tmp": np.empty((3, 3)),
-            "_vec_a": np.empty(3), "_vec_b": np.empty(3),
-            "_joint_rot": np.tile(np.eye(3), (len(self.names), 1, 1)),
+            # (k, 3) model-space axes grouped by bone, composition order within a bone;
+            # (k,) int32 the angle each reads; (b + 1,) int32 bone i's axes are [start[i], start[i + 1]).
+            "_fk_axes": np.ascontiguousarray(np.concatenate(axes) if axes else np.zeros((0, 3))),
+            "_fk_axis_dof": np.concatenate(dofs).astype(np.int32) if dofs else np.zeros(0, np.int32),
+            "_fk_bone_axes": np.concatenate([[0], np.cumsum(counts)]).astype(np.int32),
+            "_fk_parents": self.parents.astype(np.int32),
+            "_fk_heads": np.ascontiguousarray(self.heads),
+            "_joint_rot": np.empty((b, 3, 3)),  # pose()'s rotations
         }
         for key, value in work.items():
             object.__setattr__(self, key, value)
 
     def joint_rotations(self, joint_angles: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
-        """Each bone's joint rotation in model space.
+        """Each bone's joint rotation in model space (native, no allocation with ``out``).
 
-        joint_angles: (dof_count,) radians. out: optional (b, 3, 3) float64.
+        joint_angles: (dof_count,) float64 radians. out: optional (b, 3, 3) float64 C-contiguous.
         Returns (b, 3, 3): ``R_b = B_b Q_b B_bᵀ``; identity for bones without a joint.
         """
         if out is None:
             out = np.empty((len(self.names), 3, 3))
-        rot = self._joint_rot
-        if len(self._dofs):
-            np.take(joint_angles, self._dofs, out=self._angle_buf)
-            np.cos(self._angle_buf, out=self._cos_buf)
-            np.sin(self._angle_buf, out=self._sin_buf)
-            axis_rot, tmp = self._axis_rot, self._axis_tmp
-            np.multiply(self._i_minus_outer, self._cos_buf[:, None, None], out=axis_rot)
-            axis_rot += self._outer
-            np.multiply(self._cross, self._sin_buf[:, None, None], out=tmp)
-            axis_rot += tmp
-            for bone, (lo, hi) in zip(self._joint_bones, self._axis_ranges):
-                if hi - lo == 1:
-                    rot[bone] = axis_rot[lo]
-                elif hi - lo == 2:
-                    np.matmul(axis_rot[lo], axis_rot[lo + 1], out=rot[bone])
-                else:
-                    np.matmul(axis_rot[lo], axis_rot[lo + 1], out=self._mat_tmp)
-                    np.matmul(self._mat_tmp, axis_rot[lo + 2], out=rot[bone])
-        if out is not rot:
-            out[...] = rot
+        _kinematics.joint_rotations(np.ascontiguousarray(joint_angles, np.float64), self._fk_axes,
+                                    self._fk_axis_dof, self._fk_bone_axes, out)
         return out
 
-    def pose(self, joint_angles: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
-        """Forward kinematics.
+    def pose(self, joint_angles: np.ndarray, out: np.ndarray | None = None,
+             rotations: np.ndarray | None = None) -> np.ndarray:
+        """Forward kinematics (native, one call, no allocation with ``out``).
 
-        joint_angles: (dof_count,) radians (servo-map order for a rig).
-        out: optional (b, 3, 4) float64 to write into.
+        joint_angles: (dof_count,) float64 radians (servo-map order for a rig).
+        out: optional (b, 3, 4) float64 C-contiguous to write into.
+        rotations: optional (b, 3, 3) float64 C-contiguous that also receives the joint rotations
+                   (as :meth:`joint_rotations` writes them): rotations and poses in one call.
         Returns (b, 3, 4): bone b's affine ``[A_b | t_b]`` taking rest points to posed points.
         """
-        return self.pose_from_rotations(self.joint_rotations(joint_angles, self._joint_rot), out)
-
-    def pose_from_rotations(self, rotations: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
-        """Forward kinematics from model-space joint rotations (b, 3, 3); returns (b, 3, 4)."""
         if out is None:
             out = np.empty((len(self.names), 3, 4))
-        offset, moved = self._vec_a, self._vec_b
-        for i, p in enumerate(self._parent_list):
-            r = rotations[i]
-            pivot = self.heads[i]
-            np.matmul(r, pivot, out=offset)
-            np.subtract(pivot, offset, out=offset)          # p − R p
-            if p < 0:
-                out[i, :, :3] = r
-                out[i, :, 3] = offset
-            else:
-                np.matmul(out[p, :, :3], r, out=out[i, :, :3])
-                np.matmul(out[p, :, :3], offset, out=moved)
-                np.add(moved, out[p, :, 3], out=out[i, :, 3])
+        _kinematics.forward_kinematics(np.ascontiguousarray(joint_angles, np.float64), self._fk_axes,
+                                       self._fk_axis_dof, self._fk_bone_axes, self._fk_parents, self._fk_heads,
+                                       self._joint_rot if rotations is None else rotations, out)
+        return out
+
+    def pose_from_rotations(self, rotations: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
+        """Forward kinematics from model-space joint rotations (b, 3, 3) float64; returns (b, 3, 4)
+        float64 (into ``out`` if given, C-contiguous)."""
+        if out is None:
+            out = np.empty((len(self.names), 3, 4))
+        _kinematics.pose_from_rotations(np.ascontiguousarray(rotations, np.float64), self._fk_parents,
+                                        self._fk_heads, out)
         return out
 
     def rest_pose(self) -> np.ndarray:

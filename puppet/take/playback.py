@@ -13,7 +13,7 @@ frame 0 is the first reading. At speed 0.5 a take gives twice the frames.
 
 Ticks. Each servo's ticks are interpolated linearly between the two readings around the time,
 along the shorter way round the encoder (a step of more than half a turn between two readings
-is a wrap, never a fast spin; ``puppet.servo_models.TICKS_PER_TURN``), and rounded to whole
+is a wrap, never a fast spin; ``puppet.servo_models.HALF_TURN``), and rounded to whole
 ticks. ``ok`` is both neighbours' ok (a flagged servo's ticks are what the reader recorded: its
 last good value); a time on a reading is that reading. Nothing here reads a clock: the frames
 are a pure function of the take's timestamps and ticks.
@@ -27,7 +27,7 @@ from typing import Iterator, NamedTuple
 import numpy as np
 
 from puppet.reading import Reading
-from puppet.servo_models import TICKS_PER_TURN
+from puppet.servo_models import HALF_TURN, TICKS_PER_TURN
 from puppet.take.errors import TakeError
 
 MAX_GAP_S = 1.0
@@ -184,9 +184,9 @@ class Playback:
         a = float(play_ns - play[i]) / float(play[i + 1] - play[i])
         step, part = self._step, self._part
         np.subtract(self.ticks[i + 1], self.ticks[i], out=step)  # the short way round
-        step += TICKS_PER_TURN // 2
+        step += HALF_TURN
         np.remainder(step, TICKS_PER_TURN, out=step)
-        step -= TICKS_PER_TURN // 2
+        step -= HALF_TURN
         np.multiply(step, a, out=part)
         part += 0.5
         np.floor(part, out=part)

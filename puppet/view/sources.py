@@ -15,8 +15,8 @@ import time
 
 import numpy as np
 
-from puppet.bus.health import EventLog
-from puppet.bus.reading import Reading
+from puppet.events import EventLog
+from puppet.reading import Reading
 
 
 class _PacedSource:

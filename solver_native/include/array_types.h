@@ -32,3 +32,18 @@ using ConstIndexVec = nb::ndarray<const int32_t, nb::ndim<1>, nb::c_contig, nb::
 using ConstMatrixI = nb::ndarray<const int32_t, nb::ndim<2>, nb::c_contig, nb::device::cpu>;
 
 }  // namespace puppet
+
+namespace puppet {
+
+// Forward kinematics (float64, model units, radians): (b, 3, 3) joint rotations, (b, 3, 4) bone
+// poses [A | t], (n,) vectors (joint angles), (k, 3) rows (axes, heads).
+using RotationsD = nb::ndarray<double, nb::shape<-1, 3, 3>, nb::c_contig, nb::device::cpu>;
+using ConstRotationsD = nb::ndarray<const double, nb::shape<-1, 3, 3>, nb::c_contig, nb::device::cpu>;
+using PosesD = nb::ndarray<double, nb::shape<-1, 3, 4>, nb::c_contig, nb::device::cpu>;
+using ConstPosesD = nb::ndarray<const double, nb::shape<-1, 3, 4>, nb::c_contig, nb::device::cpu>;
+using ConstVecD = nb::ndarray<const double, nb::ndim<1>, nb::c_contig, nb::device::cpu>;
+using ConstRows3D = nb::ndarray<const double, nb::shape<-1, 3>, nb::c_contig, nb::device::cpu>;
+// Constraint values written by the caller's pass (puppet.fast.Values.full / .relative).
+using FullValuesOut = nb::ndarray<float, nb::shape<-1, 4, 3>, nb::c_contig, nb::device::cpu>;
+
+}  // namespace puppet

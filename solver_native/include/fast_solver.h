@@ -48,7 +48,8 @@
 // step, so also inside the joint limits).
 //
 // Everything is preallocated by the constructor; solve() allocates nothing and copies only T in
-// and out of its padded layout.
+// and out of its padded layout. The relative rows' Schur complement is rebuilt only when the
+// relative rotations change (a held pose keeps it).
 #pragma once
 
 #include <cstddef>
@@ -113,6 +114,7 @@ class FastSolver {
 
  private:
   void set_values(const float* full, const float* rel, const float* pos);
+  void relative_columns(const float* rel, double* w);  // W = H A_R^T (4m x 3kr, column-major)
   double local_step(const float* x, bool energy);  // S = K~^T x, R = polar; E(x) if energy
   double local_energy(const float* x);             // E(x), the local step just made at x
   void global_step(float* out);       // out = G R + Tb, then relative correction
@@ -135,7 +137,8 @@ class FastSolver {
   std::vector<float> tb_, z_;           // Tb (3 x mp), Z (3kr x mp)
   std::vector<double> w_, schur_;       // W (4m x 3kr), S (3kr x 3kr)
   std::vector<double> zd_;              // Z^T = S^{-1} W^T in double (3kr or more x 4m), scratch
-  std::vector<float> relR_;             // (kr, 3, 3)
+  std::vector<float> relR_;             // (kr, 3, 3) of the last solve
+  bool schur_ready_ = false;            // z_ (and h1_) made for relR_ (no contacts)
   // contacts
   int kc_ = 0, ncmax_ = 0;
   bool contacts_ready_ = false;

@@ -18,6 +18,8 @@ namespace puppet {
   void gemm3_sparse(const float* A, std::ptrdiff_t lda, int rows, const int32_t* off, const int32_t* ks, \
                     const float* B, std::ptrdiff_t bk, std::ptrdiff_t bc, float* out, std::ptrdiff_t ldo); \
   double dot(const float* a, const float* b, size_t n);                                                 \
+  void subtract_rows(double* y, const double* const* x, const double* c, int count, std::ptrdiff_t len);  \
+  void cholesky_solve_rows(const double* l, int n, double* b, std::ptrdiff_t len);                      \
   const char* isa();                                                                                    \
   }
 PUPPET_DECLARE_KERNELS(generic)
@@ -26,13 +28,19 @@ PUPPET_DECLARE_KERNELS(avx2)
 
 // One kernel set. gemm3: out[c*ldo + i] (+)= sum_k A[k*lda + i] B[k*bk + c*bc], c < 3, i < rows
 // (rows a multiple of 8); gemm3_sparse: the same, visiting per row tile only the columns listed
-// (see for_each_tile); dot: float dot product summed in double (n a multiple of 8).
+// (see for_each_tile); dot: float dot product summed in double (n a multiple of 8);
+// subtract_rows: y[r] = ((y[r] - c[0] x[0][r]) - c[1] x[1][r]) - ..., count (1..4) terms, r < len;
+// cholesky_solve_rows: L L^T X = B in place, L the n x n column-major Cholesky factor (lower), B
+// n x len row-major (entry i of all len right-hand sides contiguous), vectorised over the len
+// columns (the per-frame Schur complements' Z = W S^{-1}).
 struct Kernels {
   const char* isa;
   decltype(&generic::fit_rotations_soa) fit_rotations_soa;
   decltype(&generic::gemm3) gemm3;
   decltype(&generic::gemm3_sparse) gemm3_sparse;
   decltype(&generic::dot) dot;
+  decltype(&generic::subtract_rows) subtract_rows;
+  decltype(&generic::cholesky_solve_rows) cholesky_solve_rows;
 };
 
 // The best kernel set for this CPU (chosen on first use).

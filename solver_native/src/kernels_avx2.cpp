@@ -17,6 +17,12 @@ void gemm3_sparse(const float* A, std::ptrdiff_t lda, int rows, const int32_t* o
   generic::gemm3_sparse(A, lda, rows, off, ks, B, bk, bc, out, ldo);
 }
 double dot(const float* a, const float* b, size_t n) { return generic::dot(a, b, n); }
+void subtract_rows(double* y, const double* const* x, const double* c, int count, std::ptrdiff_t len) {
+  generic::subtract_rows(y, x, c, count, len);
+}
+void cholesky_solve_rows(const double* l, int n, double* b, std::ptrdiff_t len) {
+  generic::cholesky_solve_rows(l, n, b, len);
+}
 const char* isa() { return generic::isa(); }
 }  // namespace puppet::avx2
 #endif

@@ -74,6 +74,7 @@ def test_reader_thread_feeds_the_live_loop(sim, open_reader):
     class SolveCounter:
         iterations = 0
         solve_ns = 0
+        iterate_ns = 0
         solver_iterations = 0
         renderer = None
         full = 0

@@ -66,6 +66,7 @@ def test_missing_servo_is_flagged_and_others_flow(sim, open_reader):
     assert reading.ok.tolist() == [True, True, False, True]
     assert reader.health[9].state == hs.MISSING
     assert reader.group == (1, 2, 3)
+    reader.close()  # one program (here: one reader) per port
     strict = ServoReader(bus.link, {1: MODEL, 9: MODEL}, latency_ms=6)
     with pytest.raises(ServoMissing) as info:
         strict.open(strict=True)

@@ -11,9 +11,9 @@ import pytest
 from puppet.bus import Reading, ReaderDied, ReaderThread
 from puppet.bus import control_table as ct
 from puppet.bus.errors import PortError, ServoStatusError, ServoTimeout
-from puppet.bus.health import EventLog
 from puppet.bus.reader_thread import LatestQueue
 from puppet.bus.unwrap import TurnUnwrapper, nearest_turn_offset
+from puppet.events import EventLog
 
 
 def test_item_round_trips_signed_present_position():
@@ -106,15 +106,6 @@ def test_latest_queue_wakes_a_waiting_consumer():
     q.put("x")
     t.join(5)
     assert got == ["x"]
-
-
-def test_event_log_is_bounded_and_counts():
-    log = EventLog(maxlen=3)
-    for i in range(5):
-        log.add("servo_failed", [i], "x")
-    assert log.counts == {"servo_failed": 5}
-    assert [e.ids for e in log.drain()] == [(2,), (3,), (4,)]
-    assert log.drain() == []
 
 
 def test_reader_rejects_a_bad_map():

@@ -151,3 +151,17 @@ def test_importing_the_bus_imports_nothing_of_drive():
             "print(sorted(m for m in sys.modules if m.startswith('puppet.drive')))")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "[]"
+
+
+def test_a_reader_process_killed_has_its_actuators_stopped_from_the_parent(wait_until):
+    with hw_sim.serve(MODELS) as bus:
+        source = _source(bus.port)
+        try:
+            assert bus.servo(ACTUATOR).get("Torque Enable") == 1
+            source._proc.kill()  # no stop in the child: the hook's stop_from_parent does it
+            source._proc.join()
+        finally:
+            source.stop()
+        assert source.torque_after == {ACTUATOR: 0}
+        assert bus.servo(ACTUATOR).get("Torque Enable") == 0
+        assert bus.servo(ACTUATOR).get("Bus Watchdog") == 0

@@ -15,7 +15,7 @@ import pytest
 
 import hw_sim
 from puppet.rig.load import BUILTIN_RIG
-from puppet.bus.reading import Reading
+from puppet.reading import Reading
 from puppet.drive.actuate import ActuatorGoals
 from puppet.loop import Pipeline
 from puppet.rig import load_rig
@@ -167,3 +167,36 @@ def test_a_host_stall_trips_the_watchdog_and_the_tail_follows_the_solve_again(ta
         assert "watchdog_tripped" in out, out  # in the summary's faults seen
         assert f"actuators [{TAIL}]: torque off (read back)" in err, err
         assert tail.get("Torque Enable") == 0
+
+
+def test_a_short_adapter_drop_re_arms_the_tail_and_a_long_one_names_release(tail_rig,
+                                                                          expected_tail):
+    """An unplug of 0.5 s trips the tail's 100 ms watchdog: when the port is back the tail is
+    re-armed and follows the solve again. An unplug that lasts to the end: live says torque is
+    not confirmed off and names ``puppet release``."""
+    _, goal_ticks = expected_tail
+    sm = tail_rig.servo_map
+    rest = {int(i): int(z) for i, z in zip(sm.ids, sm.zero) if int(i) != TAIL}
+    _, rest_goal = _solved_tail(tail_rig, rest)
+    bound_ticks = BOUND_DEG * 4096 / 360.0
+    with hw_sim.serve(dict(sm.models)) as bus:
+        bus.set_positions(_pose_ticks(tail_rig))
+        tail = bus.servo(TAIL)
+        live = Live(bus.link, "--seconds", "600", watchdog_ms="100")
+        try:
+            _wait_for(lambda: abs(tail.get("Present Position") - goal_ticks) <= bound_ticks,
+                      f"the tail near {goal_ticks:.0f} ticks", live.proc)
+            bus.set_positions(rest)
+            bus.inject("unplug", duration_s=0.5)
+            _wait_for(lambda: abs(tail.get("Present Position") - rest_goal) <= bound_ticks,
+                      f"the tail following the solve again, near {rest_goal:.0f} ticks", live.proc)
+            assert tail.get("Torque Enable") == 1
+            bus.inject("unplug")
+            _wait_for(lambda: tail.get("Bus Watchdog") == -1, "the watchdog trip", live.proc)
+        finally:
+            live.proc.send_signal(signal.SIGTERM)
+            code, out, err = live.finish()
+        assert code == 0, err
+        assert "watchdog_tripped" in out, out
+        assert f"warning: actuator servos [{TAIL}]: torque not confirmed off" in err, err
+        assert f"`puppet release --port {bus.link}` turns it off" in err, err

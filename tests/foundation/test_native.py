@@ -91,3 +91,13 @@ def test_stubs_ship_with_the_module():
 
     stub = Path(_native.__file__).with_name("_native.pyi")
     assert "def fit_rotations" in stub.read_text()
+
+
+def test_kinematics_stubs_ship_with_their_module():
+    from pathlib import Path
+
+    from puppet import _kinematics
+
+    stub = Path(_kinematics.__file__).with_name("_kinematics.pyi")
+    assert all(f"def {name}" in stub.read_text()
+               for name in ("joint_rotations", "pose_from_rotations", "forward_kinematics", "constraint_values"))

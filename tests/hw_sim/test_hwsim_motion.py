@@ -99,7 +99,7 @@ def test_inject_validates_in_the_caller(bus):
 
 
 def test_replay_of_a_recorded_puppet_take(tmp_path, open_sdk):
-    from puppet.bus.reading import Reading
+    from puppet.reading import Reading
     from puppet.take import TakeWriter
 
     path = tmp_path / "take.mcap"

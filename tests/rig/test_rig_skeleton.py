@@ -104,3 +104,75 @@ def test_duplicate_bone_names_are_refused():
 def test_rest_frames_must_be_rotations():
     with pytest.raises(RigError, match="rest frame of bone 'b' is not a rotation"):
         Skeleton(("a", "b"), [-1, 0], np.zeros((2, 3)), np.ones((2, 3)), [np.eye(3), np.diag([1, 1, -1.0])])
+
+
+def reference_pose(parents, heads, frames, joints, angles):
+    """Plain NumPy forward kinematics, straight from the module's conventions: per bone
+    Q = prod R(axis_i, a_i) in the rest frame, R = B Q Bᵀ, then A = A_p R, t = A_p (h − R h) + t_p."""
+    b = len(parents)
+    rot = np.tile(np.eye(3), (b, 1, 1))
+    for j in joints:
+        q = np.eye(3)
+        for axis, dof in zip(j.axes, j.dofs):
+            x, y, z = axis
+            k = np.array([[0, -z, y], [z, 0, -x], [-y, x, 0]])
+            a = angles[dof]
+            q = q @ (np.eye(3) + np.sin(a) * k + (1 - np.cos(a)) * k @ k)
+        rot[j.bone] = frames[j.bone] @ q @ frames[j.bone].T
+    pose = np.zeros((b, 3, 4))
+    for i, p in enumerate(parents):
+        A, t = (np.eye(3), np.zeros(3)) if p < 0 else (pose[p, :, :3], pose[p, :, 3])
+        pose[i, :, :3] = A @ rot[i]
+        pose[i, :, 3] = A @ (heads[i] - rot[i] @ heads[i]) + t
+    return rot, pose
+
+
+def random_skeleton(rng, bones=12):
+    """A random tree (parents before children) with random rest frames, about two thirds of the
+    bones jointed with 1-3 random axes reading shuffled angle indices."""
+    parents = np.array([-1] + [int(rng.integers(0, i)) for i in range(1, bones)])
+    heads = rng.normal(size=(bones, 3))
+    frames = np.linalg.qr(rng.normal(size=(bones, 3, 3)))[0]
+    frames[:, :, 0] *= np.sign(np.linalg.det(frames))[:, None]  # proper rotations
+    jointed = [i for i in range(bones) if rng.random() < 0.67]
+    counts = [int(rng.integers(1, 4)) for _ in jointed]
+    dofs = rng.permutation(sum(counts))
+    joints, start = [], 0
+    for bone, n in zip(rng.permutation(jointed), counts):  # joints listed in no bone order
+        axes = rng.normal(size=(n, 3))
+        joints.append(Joint(int(bone), axes / np.linalg.norm(axes, axis=1, keepdims=True), dofs[start:start + n]))
+        start += n
+    names = tuple(f"b{i}" for i in range(bones))
+    return Skeleton(names, parents, heads, heads + 1.0, frames, tuple(joints))
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_native_forward_kinematics_matches_a_numpy_reference(seed):
+    rng = np.random.default_rng(seed)
+    sk = random_skeleton(rng)
+    assert {len(j.dofs) for j in sk.joints} <= {1, 2, 3} and len(sk.joints) > 0
+    for _ in range(10):
+        angles = rng.uniform(-np.pi, np.pi, sk.dof_count)
+        rot_ref, pose_ref = reference_pose(sk.parents, sk.heads, sk.frames, sk.joints, angles)
+        rot = np.empty((sk.bone_count, 3, 3))
+        assert sk.joint_rotations(angles, rot) is rot
+        np.testing.assert_allclose(rot, rot_ref, rtol=0, atol=1e-12)
+        pose = np.empty((sk.bone_count, 3, 4))
+        assert sk.pose_from_rotations(rot_ref, pose) is pose
+        np.testing.assert_allclose(pose, pose_ref, rtol=0, atol=1e-12)
+        np.testing.assert_allclose(sk.pose(angles), pose_ref, rtol=0, atol=1e-12)
+        rot_too = np.empty((sk.bone_count, 3, 3))
+        np.testing.assert_allclose(sk.pose(angles, pose, rotations=rot_too), pose_ref, rtol=0, atol=1e-12)
+        np.testing.assert_array_equal(rot_too, rot)
+
+
+def test_forward_kinematics_needs_every_angle_its_axes_read():
+    sk = chain([Joint(1, np.array([[0, 0, 1.0]]), np.array([2]))])
+    with pytest.raises(ValueError, match="reads angle 2, angles has 2 entries"):
+        sk.pose(np.zeros(2))
+
+
+def test_forward_kinematics_refuses_a_wrong_out_buffer():
+    sk = chain([Joint(1, np.array([[0, 0, 1.0]]), np.array([0]))])
+    with pytest.raises(TypeError, match="incompatible function arguments"):
+        sk.pose(np.zeros(1), np.empty((3, 3, 4), np.float32))

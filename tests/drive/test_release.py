@@ -1,0 +1,67 @@
+"""``puppet release`` on hw_sim with the real SDK: torque off and Bus Watchdog cleared on every
+servo found, read back; a port with nothing on it, or a rig servo missing, is an Error line."""
+
+from __future__ import annotations
+
+import subprocess
+
+import hw_sim
+
+MODELS = {1: "XL330-M288", 2: "XL430-W250", 5: "XM430-W350"}
+
+
+def _release(*args) -> subprocess.CompletedProcess:
+    return subprocess.run(["puppet", "release", *map(str, args)], capture_output=True, text=True,
+                          timeout=120)
+
+
+def _stiff(bus, ids) -> None:
+    """Servos as a crashed program leaves them: torque on, the watchdog tripped or armed."""
+    for dxl_id in ids:
+        bus.servo(dxl_id).set("Torque Enable", 1)
+        bus.servo(dxl_id).set("Bus Watchdog", -1 if dxl_id == 1 else 5)
+
+
+def test_release_finds_every_servo_and_turns_torque_off(open_sdk):
+    with hw_sim.serve(MODELS) as bus:
+        _stiff(bus, MODELS)
+        result = _release("--port", bus.port)
+        assert result.returncode == 0, result.stderr
+        assert result.stdout.splitlines() == [
+            f"servo {i}: Torque Enable 0, Bus Watchdog 0 (read back)" for i in MODELS]
+        sdk = open_sdk(bus.port)  # an independent client reads them back
+        for dxl_id in MODELS:
+            assert sdk.read4(dxl_id, 64) & 0xFF == 0   # Torque Enable
+            assert sdk.read4(dxl_id, 98) & 0xFF == 0   # Bus Watchdog
+
+
+def test_release_on_a_port_with_nothing_on_it_says_so():
+    with hw_sim.serve(MODELS) as bus:
+        bus.inject("power_off")
+        port = bus.port
+        result = _release("--port", port)
+    assert result.returncode == 1
+    assert "Traceback" not in result.stderr
+    assert result.stderr.strip().splitlines()[-1] == (
+        f"Error: port {port}: no servo answered a broadcast ping at 1000000 bps: nothing to "
+        "release (check the power, the cable and the baud rate)")
+
+
+def test_release_of_a_rig_names_the_servo_that_did_not_answer(tmp_path):
+    from puppet.rig.load import BUILTIN_RIG
+    from puppet.rig import load_rig
+
+    rig = load_rig(BUILTIN_RIG)
+    models = dict(rig.servo_map.models)
+    with hw_sim.serve(models) as bus:
+        _stiff(bus, [1, 2])
+        bus.inject("power_off", ids=[4])
+        port = bus.port
+        result = _release("--port", port, "--rig", BUILTIN_RIG)
+        assert bus.servo(1).get("Torque Enable") == 0
+        assert bus.servo(2).get("Bus Watchdog") == 0
+    assert result.returncode == 1
+    assert "servo 1: Torque Enable 0, Bus Watchdog 0 (read back)" in result.stdout
+    assert "servo 4:" not in result.stdout
+    assert result.stderr.strip().splitlines()[-1] == (
+        f"Error: port {port}: servo [4] of {BUILTIN_RIG} did not answer: torque unknown")
