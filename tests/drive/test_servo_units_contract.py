@@ -103,7 +103,7 @@ def test_perform_goals_carry_the_joint_angle_between_calibrations(angles):
     ticks = np.array([recorded.ticks_for(row) for row in angles], np.int32)
     ticks[20:, :5] += (JOINT_TURN_TICKS[:5] * np.array([1, -1, 2, 1, -1])).astype(np.int32)
     rig = ServoMap(SERVOS)
-    goals = TakeGoals(SERVOS, np.arange(len(angles)) / 100.0, ticks, np.ones(ticks.shape, bool),
+    goals = TakeGoals(SERVOS, np.arange(len(angles)) * 10_000_000, ticks, np.ones(ticks.shape, bool),
                       take_zero, rig.zero)
     expected = angles.copy()
     expected[20:, 5] = angles[20:, 5]  # no turns were added to the servo that does not wrap
