@@ -92,9 +92,9 @@ def play_in_view(take: str, rig_path: str | None, out: str | None, frames: str |
     stop = StopFlag()  # before the page is served: a Ctrl-C from then on ends the run cleanly
     try:
         rig, reader = open_take(take, rig_path)
-        frames = Playback.of_take(reader, rig.servo_map.ids)
-        marks = [(frames.play_s(t), name) for t, name in read_markers(take)]
-        source = TakeSource(frames, speed=speed, markers=marks)
+        playback = Playback.of_take(reader, rig.servo_map.ids)
+        marks = [(playback.play_s(t), name) for t, name in read_markers(take)]
+        source = TakeSource(playback, speed=speed, markers=marks)
         sinks = make_sinks(out, frames, fps)
         try:
             with Pipeline(rig, overlay=True, live=True) as pipeline:
