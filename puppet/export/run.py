@@ -172,20 +172,20 @@ def export_take(rig, reader, outputs: Outputs, *, fps: float = 30.0, up: str = "
     return exports.report
 
 
-def take_frames(rig, reader, fps: float, speed: float = 1.0) -> Playback:
+def take_frames(rig, reader, fps: float) -> Playback:
     """The frames of a take for ``rig``'s servos (the take checked against the rig first)."""
     fps = check_fps(fps)
     ids = [int(i) for i in rig.servo_map.ids]
     if len(reader) == 0:
         raise ExportError(reader.path, "the take holds no readings")
     reader.check_rig(ids, dict(rig.servo_map.models), rig_name=rig.name)
-    return Playback.of_take(reader, ids, fps=fps, speed=speed)
+    return Playback.of_take(reader, ids, fps=fps)
 
 
 class ExportWriters:
     """Every format asked in ``outputs``, written one solved frame at a time.
 
-    A context manager: entering checks the outputs and opens a temporary file per format;
+    A context manager: making it checks the outputs, entering opens a temporary file per format;
     ``write(pipeline)`` after each solve adds that frame (deformed mesh V' = M T, joint
     transforms) to every file; a clean exit closes the files and renames them into place and
     fills ``report``; an exception removes them (an existing good file is kept).
