@@ -45,6 +45,7 @@ from puppet.bus.reader_process import ReaderProcess
 from puppet.drive.actuators import ActuationPlan, ActuatorHook, LiveActuation
 from puppet.loop import Pipeline, run_live
 from puppet.rig import builtin, load_rig
+from puppet.rig.calibration import Calibration
 from puppet.rig.load import BUILTIN_RIG
 from puppet.take import TakeReader, TakeWriter
 
@@ -88,9 +89,9 @@ def _cycle(port: str, rig, baud: int, iterations: int) -> tuple[float, int]:
 def _wave_take(path: Path, rig) -> Path:
     ids = rig.servo_map.ids
     k = len(ids)
-    zero = {str(int(i)): int(z) for i, z in zip(ids, rig.servo_map.zero)}
+    calibration = Calibration.capture(ids, rig.servo_map.zero)
     with TakeWriter(path, ids=ids, models=dict(rig.servo_map.models), rig_map_text="",
-                    calibration_text=json.dumps({"zero_ticks": zero}), rig_name=rig.name,
+                    calibration_text=calibration.to_record(), rig_name=rig.name,
                     overwrite=True) as writer:
         for n in range(300):
             t = n / 100.0

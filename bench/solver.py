@@ -528,10 +528,12 @@ def stage_case(frames):
     constraint values -> one 8-iteration solve (accelerated, warm-started: the loop's default).
     Iterations alone: 8 x the per-iteration time of a 100-iteration call. "after" is the
     project's path (native FK, PoseFill); "before" the same with NumpyStage's per-bone loops.
-    Each path warm-starts its own T frame to frame over the demo's motion; the calls are
-    interleaved frame by frame (shared machine noise); figures are medians over the frames.
-    Also: a solve call of 0 and of 8 iterations alone (the fixed cost per call) and the loop's
-    own Pipeline.solve (render=False: adds dropout bookkeeping and stage statistics)."""
+    Each path warm-starts its own T (and solver) frame to frame over the demo's motion; the cases
+    take turns in blocks of 20 frames (shared machine noise); figures are medians over the frames.
+    Also: a solve call of 0 and of 8 iterations alone, each on its own solver with this frame's
+    values (the fixed cost per call; and 0 iterations at a held pose, which keeps the relative
+    rows' factor), and the loop's own Pipeline.solve (render=False: adds dropout bookkeeping and
+    stage statistics)."""
     from puppet.demo import Performance
     from puppet.fast.pattern import PoseFill
     from puppet.loop import Pipeline
@@ -543,7 +545,6 @@ def stage_case(frames):
     with Pipeline(rig, render=False, iterations=8) as pipeline:
         model = pipeline.model
         pattern = rig.pattern()
-        solver = model.solver(pattern)
         perf = Performance(rig)
         ids = np.array([s.id for s in smap.servos])
         n = frames + 20
@@ -557,18 +558,21 @@ def stage_case(frames):
             paths[name] = {"values": values, "T": model.rest_T(), "angles": np.empty(len(ids)),
                            "rot": np.empty((b, 3, 3)), "pose": np.empty((b, 3, 4))}
         fill, old = PoseFill(pattern), NumpyStage(sk, pattern)
-        T100, Tfix = model.rest_T(), model.rest_T()
-        for T in [p["T"] for p in paths.values()] + [T100, Tfix]:
-            rig.fill_values(smap.angles(ticks[0]), paths["after"]["values"])
-            solver.solve(paths["after"]["values"], T, iterations=200)  # every chain starts converged
+        T100, Tfix, T0 = model.rest_T(), model.rest_T(), model.rest_T()
+        # One solver per chain, as in the loop: a solver's first local step is free when it is
+        # handed back the T it returned last (fast_solver.h), which alternating chains would spoil.
+        solvers = {k: model.solver(pattern) for k in ("after", "before", "fixed", "zero", "long")}
+        rig.fill_values(smap.angles(ticks[0]), paths["after"]["values"])
+        for key, T in (("after", paths["after"]["T"]), ("before", paths["before"]["T"]), ("fixed", Tfix),
+                       ("zero", T0), ("long", T100)):
+            solvers[key].solve(paths["after"]["values"], T, iterations=200)  # every chain starts converged
 
         def after(f):
             p = paths["after"]
             smap.angles(ticks[f], out=p["angles"])
-            rot = sk.joint_rotations(p["angles"], p["rot"])
-            pose = sk.pose_from_rotations(rot, p["pose"])
-            fill.fill(p["values"], rot, pose)
-            solver.solve(p["values"], p["T"], iterations=8)
+            pose = sk.pose(p["angles"], p["pose"], rotations=p["rot"])  # rotations and poses, one call
+            fill.fill(p["values"], p["rot"], pose)
+            solvers["after"].solve(p["values"], p["T"], iterations=8)
 
         def before(f):
             p = paths["before"]
@@ -576,35 +580,50 @@ def stage_case(frames):
             rot = old.joint_rotations(p["angles"])
             pose = old.pose_from_rotations(rot, p["pose"])
             old.fill(p["values"], rot, pose)
-            solver.solve(p["values"], p["T"], iterations=8)
+            solvers["before"].solve(p["values"], p["T"], iterations=8)
 
         def fk_after(f):
-            sk.pose_from_rotations(sk.joint_rotations(paths["after"]["angles"], paths["after"]["rot"]),
-                                   paths["after"]["pose"])
+            sk.pose(paths["after"]["angles"], paths["after"]["pose"], rotations=paths["after"]["rot"])
             fill.fill(paths["after"]["values"], paths["after"]["rot"], paths["after"]["pose"])
 
         def fk_before(f):
             old.fill(paths["before"]["values"], old.joint_rotations(paths["before"]["angles"]),
                      old.pose_from_rotations(old.rot, paths["before"]["pose"]))
 
-        values = paths["after"]["values"]
-        timed = {
-            "stage_after": after, "stage_before": before,
-            "fk_values_after": fk_after, "fk_values_before": fk_before,
-            "angles": lambda f: smap.angles(ticks[f], out=paths["after"]["angles"]),
-            "call_8": lambda f: solver.solve(values, Tfix, iterations=8),
-            "call_0": lambda f: solver.solve(values, Tfix, iterations=0),
-            "call_100": lambda f: solver.solve(values, T100, iterations=100),
-            "pipeline": lambda f: pipeline.solve(Reading(int(f / 60 * 1e9), ids, ticks[f], ok)),
+        # The solve calls alone get this frame's values, filled before the clock starts.
+        frame_values = {k: pattern.values() for k in ("call_0", "call_8", "call_100")}
+        for v in frame_values.values():
+            v.positional[:], v.contact[:] = paths["after"]["values"].positional, paths["after"]["values"].contact
+        rot, pose = np.empty((b, 3, 3)), np.empty((b, 3, 4))
+
+        def prepare(key, f):
+            fill.fill(frame_values[key], rot, sk.pose(smap.angles(ticks[f]), pose, rotations=rot))
+
+        held = frame_values["call_0"]
+        timed = {  # name: (untimed preparation or None, the timed call)
+            "stage_after": (None, after), "stage_before": (None, before),
+            "fk_values_after": (None, fk_after), "fk_values_before": (None, fk_before),
+            "angles": (None, lambda f: smap.angles(ticks[f], out=paths["after"]["angles"])),
+            "call_8": (prepare, lambda f: solvers["fixed"].solve(frame_values["call_8"], Tfix, iterations=8)),
+            "call_0": (prepare, lambda f: solvers["zero"].solve(frame_values["call_0"], T0, iterations=0)),
+            "call_0_held": (None, lambda f: solvers["zero"].solve(held, T0, iterations=0)),
+            "call_100": (prepare, lambda f: solvers["long"].solve(frame_values["call_100"], T100, iterations=100)),
+            "pipeline": (None, lambda f: pipeline.solve(Reading(int(f / 60 * 1e9), ids, ticks[f], ok))),
         }
         times = {k: [] for k in timed}
         keys = list(timed)
-        for f in range(n):
-            for k in keys[f % len(keys):] + keys[:f % len(keys)]:  # rotate the order frame by frame
-                t0 = time.perf_counter_ns()
-                timed[k](f)
-                if f >= 20:
-                    times[k].append((time.perf_counter_ns() - t0) / 1e3)
+        block = 20  # frames per block: each case runs a block at a time (its data warm in cache, as
+        for b0 in range(0, n, block):  # in the loop), the cases' order rotating from block to block
+            turn = b0 // block % len(keys)
+            for k in keys[turn:] + keys[:turn]:
+                setup, run = timed[k]
+                for f in range(b0, min(b0 + block, n)):
+                    if setup is not None:
+                        setup(k, f)
+                    t0 = time.perf_counter_ns()
+                    run(f)
+                    if f >= 20:
+                        times[k].append((time.perf_counter_ns() - t0) / 1e3)
     med = {k: statistics.median(v) for k, v in times.items()}
     per_iter = med.pop("call_100") / 100
     iterations_alone = 8 * per_iter
@@ -612,7 +631,7 @@ def stage_case(frames):
         "frames": frames, "m": model.m, "r": model.r, "bones": b,
         "us_per_iter_100_call": per_iter, "iterations_alone_us": iterations_alone,
         **{f"{k}_us": v for k, v in med.items()},
-        "fixed_per_call_us": med["call_8"] - iterations_alone,
+        "call_8_over_iterations_alone_us": med["call_8"] - iterations_alone,
         "ratio_after": med["stage_after"] / iterations_alone,
         "ratio_before": med["stage_before"] / iterations_alone,
         "ratio_pipeline": med["pipeline"] / iterations_alone,
@@ -630,10 +649,11 @@ def print_stage(st):
           f"{st['stage_before_us'] / st['stage_after_us']:>7.2f}")
     print(f"  {'stage / iterations alone':<34}{st['ratio_before']:>9.2f}{st['ratio_after']:>9.2f}"
           f"   (target <= {st['target_ratio']})")
-    print(f"  iterations alone 8 x {st['us_per_iter_100_call']:.2f} = {st['iterations_alone_us']:.1f}; "
-          f"solve call 8 it {st['call_8_us']:.1f}, 0 it {st['call_0_us']:.1f} (fixed per call "
-          f"{st['fixed_per_call_us']:.1f}); servo_map.angles {st['angles_us']:.1f}; "
-          f"loop Pipeline.solve {st['pipeline_us']:.1f} ({st['ratio_pipeline']:.2f} x)")
+    print(f"  iterations alone 8 x {st['us_per_iter_100_call']:.2f} = {st['iterations_alone_us']:.1f}; one solve "
+          f"call of 8 iterations {st['call_8_us']:.1f}, of 0 (the fixed cost per call) {st['call_0_us']:.1f} "
+          f"(held pose {st['call_0_held_us']:.1f})")
+    print(f"  servo_map.angles {st['angles_us']:.1f}; the loop's Pipeline.solve {st['pipeline_us']:.1f} "
+          f"({st['ratio_pipeline']:.2f} x)")
 
 
 NATIVE_ARCH_BUILD = Path(__file__).resolve().parents[1] / "build" / "native-arch"

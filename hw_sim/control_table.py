@@ -13,6 +13,8 @@ from hw_sim.errors import UnknownModelError
 
 EEPROM_END = 64  # addresses 0..63 are EEPROM: writable only while Torque Enable is 0
 TICKS_PER_TURN = 4096  # encoder counts per output turn (device-side copy of puppet's)
+VELOCITY_UNIT_RPM = 0.229  # Profile / Present Velocity unit of every X-series model here
+BUS_WATCHDOG_FIRMWARE = 38  # first firmware with the Bus Watchdog (98) on every model here
 
 
 @dataclass(frozen=True)
@@ -55,6 +57,7 @@ class ServoModel:
     indirect: tuple[tuple[int, int, int], ...]
     baud_rates: dict[int, int]
     fast_sync_read_firmware: int = 45
+    spec: "ModelSpec | None" = field(default=None, compare=False)
     by_name: dict[str, Field] = field(default_factory=dict, compare=False)
     by_addr: dict[int, Field] = field(default_factory=dict, compare=False)
 
@@ -112,9 +115,15 @@ class ModelSpec:
     Current Limit (38) or None when the model has no current sensing (Present Load at 126);
     velocity_limit: Velocity Limit (44) default, 0.229 rpm; gains: Velocity I, Velocity P,
     Position D, Position I, Position P defaults; nominal_voltage: Present Input Voltage, 0.1 V.
-    Model numbers are exact (e-manual, SDK model list); limits and gains follow the e-manual
-    tables where read (XL330-M288, XL430-W250, XM430-W350, XH430-W350, XC330-T288) and the
-    nearest sibling's otherwise.
+    current_unit_ma: mA per unit of Present Current / Current Limit (None: Present Load, 0.1 %
+    of the motor's current); stall_current_ma: the most current the motor draws (None: the
+    Current Limit's default in mA); bus_watchdog_firmware: first firmware with the Bus Watchdog
+    (None: none); ticks_per_turn; velocity_unit_rpm.
+    Model numbers are exact (e-manual, SDK model list); units, Current Limit and Temperature
+    Limit follow the e-manual tables of every model (see puppet.servo_models.MODELS, which must
+    agree: tests/hw_sim/test_hwsim_models.py); voltages and gains follow the e-manual where read
+    (XL330-M288, XL430-W250, XC430-W150, XM430-W210/W350, XH430-W350, XM540-W150, XC330-T181/T288)
+    and the nearest sibling's otherwise.
     """
 
     name: str
@@ -129,42 +138,65 @@ class ModelSpec:
     modes: tuple[int, ...]
     gains: tuple[int, int, int, int, int]
     nominal_voltage: int
+    current_unit_ma: float | None = None
+    stall_current_ma: float | None = None
+    bus_watchdog_firmware: int | None = BUS_WATCHDOG_FIRMWARE
+    ticks_per_turn: int = TICKS_PER_TURN
+    velocity_unit_rpm: float = VELOCITY_UNIT_RPM
+
+    @property
+    def motor_current_ma(self) -> float:
+        """The most current the motor draws, mA (what the simulated current saturates at)."""
+        if self.stall_current_ma is not None:
+            return self.stall_current_ma
+        return self.current_limit * self.current_unit_ma
 
 
 _V5 = ((70, 31, 70), (35, 31, 70))      # X330 5 V models
 _V12_X330 = ((140, 55, 140), (55, 55, 140))
 _V12_X430 = ((140, 60, 140), (60, 60, 140))
+_V12_XC430 = ((160, 60, 160), (60, 60, 160))
 _V12_XM = ((160, 95, 160), (95, 95, 160))
 _G_X330 = (1600, 180, 0, 0, 400)
 _G_XL430 = (1000, 100, 4000, 0, 640)
 _G_XM = (1920, 100, 0, 0, 800)
 
+_MA1 = dict(current_unit_ma=1.0)
+_MA269 = dict(current_unit_ma=2.69)
+_LOAD = dict(stall_current_ma=1400.0)  # 1.4 A stall at 12 V (e-manual XL430 / XC430)
+
 MODEL_SPECS: tuple[ModelSpec, ...] = (
-    ModelSpec("XL330-M077", 1190, "X330", 46, 70, *_V5, 1750, 2047, _ALL_MODES, _G_X330, 50),
-    ModelSpec("XL330-M288", 1200, "X330", 46, 70, *_V5, 1750, 445, _ALL_MODES, _G_X330, 50),
-    ModelSpec("XC330-T181", 1210, "X330", 46, 70, *_V12_X330, 910, 1023, _ALL_MODES, _G_X330, 120),
-    ModelSpec("XC330-T288", 1220, "X330", 46, 70, *_V12_X330, 910, 620, _ALL_MODES, _G_X330, 120),
-    ModelSpec("XC330-M181", 1230, "X330", 46, 70, *_V5, 2352, 1023, _ALL_MODES, _G_X330, 50),
-    ModelSpec("XC330-M288", 1240, "X330", 46, 70, *_V5, 2352, 620, _ALL_MODES, _G_X330, 50),
+    ModelSpec("XL330-M077", 1190, "X330", 46, 70, *_V5, 1750, 2047, _ALL_MODES, _G_X330, 50, **_MA1),
+    ModelSpec("XL330-M288", 1200, "X330", 46, 70, *_V5, 1750, 445, _ALL_MODES, _G_X330, 50, **_MA1),
+    ModelSpec("XC330-T181", 1210, "X330", 46, 70, *_V12_X330, 910, 1023, _ALL_MODES, _G_X330, 120,
+              **_MA1),
+    ModelSpec("XC330-T288", 1220, "X330", 46, 70, *_V12_X330, 910, 620, _ALL_MODES, _G_X330, 120,
+              **_MA1),
+    ModelSpec("XC330-M181", 1230, "X330", 46, 70, *_V5, 2352, 1023, _ALL_MODES, _G_X330, 50, **_MA1),
+    ModelSpec("XC330-M288", 1240, "X330", 46, 70, *_V5, 2352, 620, _ALL_MODES, _G_X330, 50, **_MA1),
     ModelSpec("XL430-W250", 1060, "X430", 45, 72, *_V12_X430, None, 265, _NO_CURRENT_MODES,
-              _G_XL430, 115),
+              _G_XL430, 115, **_LOAD),
     ModelSpec("2XL430-W250", 1090, "X430", NO_FAST_SYNC_READ, 72, *_V12_X430, None, 265,
-              _NO_CURRENT_MODES, _G_XL430, 115),
-    ModelSpec("XC430-W150", 1070, "X430", 45, 72, *_V12_X430, None, 460, _NO_CURRENT_MODES,
-              _G_XL430, 115),
-    ModelSpec("XC430-W240", 1080, "X430", 45, 72, *_V12_X430, None, 306, _NO_CURRENT_MODES,
-              _G_XL430, 115),
-    ModelSpec("XM430-W210", 1030, "X430", 45, 80, *_V12_XM, 1193, 330, _ALL_MODES, _G_XM, 120),
-    ModelSpec("XM430-W350", 1020, "X430", 45, 80, *_V12_XM, 1193, 200, _ALL_MODES, _G_XM, 120),
+              _NO_CURRENT_MODES, _G_XL430, 115, **_LOAD),
+    ModelSpec("XC430-W150", 1070, "X430", 45, 80, *_V12_XC430, None, 460, _NO_CURRENT_MODES,
+              _G_XL430, 115, **_LOAD),
+    ModelSpec("XC430-W240", 1080, "X430", 45, 80, *_V12_XC430, None, 306, _NO_CURRENT_MODES,
+              _G_XL430, 115, **_LOAD),
+    ModelSpec("XM430-W210", 1030, "X430", 45, 80, *_V12_XM, 1193, 330, _ALL_MODES, _G_XM, 120,
+              **_MA269),
+    ModelSpec("XM430-W350", 1020, "X430", 45, 80, *_V12_XM, 1193, 200, _ALL_MODES, _G_XM, 120,
+              **_MA269),
     ModelSpec("XH430-W210", 1010, "X430", 45, 80, *_V12_XM, 648, 210, _ALL_MODES,
-              (1920, 100, 0, 0, 900), 120),
+              (1920, 100, 0, 0, 900), 120, **_MA269),
     ModelSpec("XH430-W350", 1000, "X430", 45, 80, *_V12_XM, 648, 280, _ALL_MODES,
-              (1920, 100, 0, 0, 900), 120),
-    ModelSpec("XM540-W150", 1130, "X540", 45, 80, *_V12_XM, 2047, 230, _ALL_MODES, _G_XM, 120),
-    ModelSpec("XM540-W270", 1120, "X540", 45, 80, *_V12_XM, 2047, 128, _ALL_MODES, _G_XM, 120),
+              (1920, 100, 0, 0, 900), 120, **_MA269),
+    ModelSpec("XM540-W150", 1130, "X540", 45, 80, *_V12_XM, 2047, 230, _ALL_MODES, _G_XM, 120,
+              **_MA269),
+    ModelSpec("XM540-W270", 1120, "X540", 45, 80, *_V12_XM, 2047, 128, _ALL_MODES, _G_XM, 120,
+              **_MA269),
 )
 """Every model hw_sim serves (device-side copy: puppet.servo_models names the same models with
-the same numbers and Fast Sync Read firmware; tests/hw_sim/test_hwsim_models.py checks)."""
+the same per-model facts, field by field; tests/hw_sim/test_hwsim_models.py checks)."""
 
 
 def _x_series(spec: "ModelSpec") -> ServoModel:
@@ -244,7 +276,7 @@ def _x_series(spec: "ModelSpec") -> ServoModel:
     fields.sort(key=lambda f: f.addr)
     return ServoModel(name, number, 52, tuple(fields), size, indirect,
                       _BAUD_X330 if baud_max == 6 else _BAUD_X430,
-                      fast_sync_read_firmware=spec.fast_sync_read_firmware)
+                      fast_sync_read_firmware=spec.fast_sync_read_firmware, spec=spec)
 
 
 def _indirect_base(indirect: tuple, addr_item: int) -> int:
@@ -261,13 +293,6 @@ MODELS: dict[str, ServoModel] = {spec.name: _x_series(spec) for spec in MODEL_SP
 # Nominal supply (0.1 V) and idle temperature (deg C) per model, for Present Input Voltage etc.
 NOMINAL_VOLTAGE = {spec.name: spec.nominal_voltage for spec in MODEL_SPECS}
 IDLE_TEMPERATURE = 31
-
-# Actuation model per model: Present Current unit (mA per unit; XL430 reports Present Load in
-# 0.1 % of its stall current instead), the current the motor can deliver (mA; the Current Limit
-# where the model has one), and the first firmware with the Bus Watchdog.
-CURRENT_UNIT_MA = {"XL330-M288": 1.0, "XL430-W250": None, "XM430-W350": 2.69}
-STALL_CURRENT_MA = {"XL330-M288": 1750.0, "XL430-W250": 1400.0, "XM430-W350": 3209.0}
-BUS_WATCHDOG_FIRMWARE = 38
 
 # Valid operating modes per model (the range check above is min..max; this is the exact set).
 OPERATING_MODES = {spec.name: set(spec.modes) for spec in MODEL_SPECS}

@@ -25,12 +25,11 @@ import math
 import random
 
 from hw_sim import codec
-from hw_sim.control_table import (BUS_WATCHDOG_FIRMWARE, CURRENT_UNIT_MA, EEPROM_END,
-                                  IDLE_TEMPERATURE, NOMINAL_VOLTAGE, OPERATING_MODES,
-                                  STALL_CURRENT_MA, TICKS_PER_TURN, Field, ServoModel)
+from hw_sim.control_table import (EEPROM_END, IDLE_TEMPERATURE, NOMINAL_VOLTAGE, OPERATING_MODES,
+                                  TICKS_PER_TURN, VELOCITY_UNIT_RPM, Field, ServoModel)
 
 TICKS_PER_REV = TICKS_PER_TURN
-VELOCITY_UNIT_TICKS_S = 0.229 / 60.0 * TICKS_PER_REV   # one 0.229 rpm unit in ticks/s
+VELOCITY_UNIT_TICKS_S = VELOCITY_UNIT_RPM / 60.0 * TICKS_PER_REV  # one 0.229 rpm unit in ticks/s
 ACCEL_UNIT_TICKS_S2 = 214.577 / 3600.0 * TICKS_PER_REV  # one 214.577 rev/min^2 unit in ticks/s^2
 
 # Hardware Error Status (70) bits.
@@ -73,6 +72,8 @@ class Servo:
                  baud_index: int | None = None, return_delay: int | None = None,
                  rng: random.Random | None = None) -> None:
         self.model = model
+        self.spec = model.spec  # the model's units, current, Bus Watchdog (MODEL_SPECS row)
+        self._velocity_unit = self.spec.velocity_unit_rpm / 60.0 * self.spec.ticks_per_turn
         self.joint = dxl_id
         self.motion = motion
         self.mem = bytearray(model.size)
@@ -221,7 +222,7 @@ class Servo:
                 if mode in (3, 4, 5):
                     self._profile_step(dt, now)
                 elif mode == 1:  # velocity control: turn at Goal Velocity
-                    self.velocity = self._get_raw(104, 4, True) * VELOCITY_UNIT_TICKS_S
+                    self.velocity = self._get_raw(104, 4, True) * self._velocity_unit
                     self.shaft += self.velocity * dt
                 else:  # current / PWM control with no load model: the shaft stays put
                     self.velocity = 0.0
@@ -234,7 +235,7 @@ class Servo:
             self._last_velocity = self.velocity
             self._actuation_step(dt, accel)
         tick = int((now - self.boot_t) * 1000.0) % 32768
-        vel_units = int(round(self.velocity / VELOCITY_UNIT_TICKS_S))
+        vel_units = int(round(self.velocity / self._velocity_unit))
         moving = 1 if abs(vel_units) > self._get_raw(24, 4) else 0
         pos = self._present_position()
         mem[120:122] = tick.to_bytes(2, "little")
@@ -251,10 +252,9 @@ class Servo:
             mem[140:144] = pos.to_bytes(4, "little", signed=True)
         else:
             mem[123] = 0
-        unit = CURRENT_UNIT_MA.get(self.model.name)
-        stall = STALL_CURRENT_MA.get(self.model.name, 1000.0)
+        unit = self.spec.current_unit_ma  # None: Present Load, 0.1 % of the motor's current
         present = (int(round(self.current_ma / unit)) if unit
-                   else int(round(1000.0 * self.current_ma / stall)))
+                   else int(round(1000.0 * self.current_ma / self.spec.motor_current_ma)))
         present = max(-32768, min(32767, present))
         mem[126:128] = present.to_bytes(2, "little", signed=True)
         mem[144:146] = int(self.voltage).to_bytes(2, "little")
@@ -262,12 +262,12 @@ class Servo:
 
     def _actuation_step(self, dt: float, accel: float) -> None:
         """Present Current, overload and temperature over ``dt`` s at ``accel`` ticks/s^2."""
-        stall = STALL_CURRENT_MA.get(self.model.name, 1000.0)
+        stall = self.spec.motor_current_ma
         if self.mem[64]:
             demand = (IDLE_CURRENT_MA + CURRENT_PER_ACCEL * accel
                       + CURRENT_PER_SPEED * abs(self.velocity) + self.load_ma)
-            limit = self._get_raw(38, 2) * (CURRENT_UNIT_MA.get(self.model.name) or 1.0) \
-                if "Current Limit" in self.model.by_name else stall
+            unit = self.spec.current_unit_ma
+            limit = self._get_raw(38, 2) * unit if unit is not None else stall
             limit = min(limit, stall)
             if demand > limit:
                 self.overload_s += dt
@@ -336,7 +336,7 @@ class Servo:
         target = self._get_raw(116, 4, True) - homing + self.base
         pv = self._get_raw(112, 4)
         pa = self._get_raw(108, 4)
-        vmax = (pv or max(self._get_raw(44, 4), 1)) * VELOCITY_UNIT_TICKS_S
+        vmax = (pv or max(self._get_raw(44, 4), 1)) * self._velocity_unit
         amax = pa * ACCEL_UNIT_TICKS_S2 if pa else math.inf
         err = target - self.shaft
         steps = max(1, int(dt / 0.001))
@@ -395,7 +395,8 @@ class Servo:
                 return codec.ERR_ACCESS
             if f.eeprom and self.mem[64]:
                 return codec.ERR_ACCESS
-            if f.addr == 98 and self.mem[6] < BUS_WATCHDOG_FIRMWARE:
+            first = self.spec.bus_watchdog_firmware
+            if f.addr == 98 and (first is None or self.mem[6] < first):
                 return codec.ERR_ACCESS  # firmware without the Bus Watchdog
             if f.addr in _GOAL_ADDRS and self.mem[98] == WATCHDOG_TRIPPED:
                 return codec.ERR_DATA_RANGE  # refused until the watchdog is cleared

@@ -19,8 +19,6 @@ from puppet.rig import Rig, builtin
 if TYPE_CHECKING:
     from puppet.loop import Pipeline, Summary
 
-from puppet.servo_models import TICKS_PER_TURN
-
 #: The demo's steady bus rate, readings per second: twice the loop's frames. Each frame also asks
 #: for a reading of its own just before it needs one (late latching), so a faster steady rate
 #: would only add readings nobody draws, and their CPU (reader and simulator) to a 2-core
@@ -39,12 +37,13 @@ class Performance:
     def __init__(self, rig: Rig, period_s: float = 2.4, reach: float = 0.7, max_angle: float = 0.9):
         self.period_s = period_s
         self._params: dict[int, tuple[float, float, float, float]] = {}
+        units = rig.servo_map.units  # ticks = zero + angle / radians_per_tick
         for k, servo in enumerate(rig.servo_map.servos):
             lo, hi = servo.limits
             amplitude = min(reach * min(abs(lo), abs(hi)), max_angle)
             phase = (math.pi if servo.joint.endswith("_R") else 0.0) + 0.6 * k
-            scale = servo.sign * servo.gear * TICKS_PER_TURN / (2 * math.pi)  # ticks per radian
-            self._params[int(servo.id)] = (float(rig.servo_map.zero[k]), amplitude, phase, scale)
+            self._params[int(servo.id)] = (float(units.zero[k]), amplitude, phase,
+                                           1.0 / float(units.radians_per_tick[k]))
 
     def position(self, servo_id: int, t: float) -> float:
         zero, amplitude, phase, scale = self._params.get(int(servo_id), (2048.0, 0.0, 0.0, 0.0))

@@ -10,7 +10,6 @@ gives the same frames (the solve is deterministic: fixed iterations, warm start 
 from __future__ import annotations
 
 import copy
-import json
 from collections.abc import Callable, Iterable
 from pathlib import Path
 
@@ -58,8 +57,8 @@ def open_take(take, rig: Rig | str | Path | None, *,
     default_rig: the given Rig is the built-in one chosen because no rig was named: the take must
          have been recorded on it, as with None.
     The returned rig carries the calibration the take was recorded with (its zero ticks).
-    Raises TakeError (empty take, take from another rig, unreadable calibration) or the rig's
-    RigError, each naming the file.
+    Raises TakeError (empty take, take from another rig) or RigError (the rig's, or the take's
+    unreadable calibration record), each naming the file.
     """
     from puppet.rig import Calibration, load_rig
 
@@ -78,12 +77,9 @@ def open_take(take, rig: Rig | str | Path | None, *,
                               f"the built-in rig {rig.name!r}; pass --rig with that rig's file")
     reader.check_rig([int(i) for i in rig.servo_map.ids], dict(rig.servo_map.models),
                      rig_name=rig.name)
-    try:  # replay with the calibration the take was recorded with
-        zero = json.loads(meta.calibration_text).get("zero_ticks", {}) if meta.calibration_text else {}
-        if zero:
-            rig.servo_map.calibrate(Calibration({int(k): int(v) for k, v in zero.items()}))
-    except (ValueError, AttributeError) as err:
-        raise TakeError(take, f"unreadable calibration in the take: {err}") from None
+    recorded = Calibration.from_record(meta.calibration_text, take)
+    if recorded.zero_ticks:  # replay with the calibration the take was recorded with
+        rig.servo_map.calibrate(recorded)
     return rig, reader
 
 

@@ -8,9 +8,7 @@ so the reported count stays continuous: on a jump of more than half a turn to a 
 
 from __future__ import annotations
 
-from puppet.bus.control_table import TICKS_PER_TURN
-
-HALF_TURN = TICKS_PER_TURN // 2
+from puppet.servo_models import HALF_TURN, TICKS_PER_TURN
 
 
 def nearest_turn_offset(raw: int, last: int) -> int:

@@ -168,6 +168,7 @@ def take_writer(take_path: str, rig, *, force: bool = False):
     An existing file at take_path is replaced only with force (--force); a rig file never.
     """
     from puppet.replay import RIG_SOURCE_MARK
+    from puppet.rig.calibration import Calibration
     from puppet.take import TakeWriter
 
     check_take_path(take_path, rig, force=force)
@@ -176,10 +177,10 @@ def take_writer(take_path: str, rig, *, force: bool = False):
         map_text = rig.path.read_text(encoding="utf-8")
         map_text += ("" if map_text.endswith("\n") or not map_text else "\n")
         map_text += f"{RIG_SOURCE_MARK}{rig.path.resolve()}\n"
-    calibration = {str(i): int(z) for i, z in zip(rig.servo_map.ids, rig.servo_map.zero)}
+    calibration = Calibration.capture(rig.servo_map.ids, rig.servo_map.zero)
     return TakeWriter(take_path, ids=[int(i) for i in rig.servo_map.ids],
                       models=dict(rig.servo_map.models), rig_map_text=map_text,
-                      calibration_text=json.dumps({"zero_ticks": calibration}),
+                      calibration_text=calibration.to_record(),
                       rig_name=rig.name, overwrite=force)
 
 

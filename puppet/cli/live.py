@@ -46,10 +46,13 @@ def report_actuators(source) -> None:
               show_default=True, help="auto: MSAA on a GPU, FXAA on a software renderer.")
 @click.option("--watchdog-ms", default=100.0, show_default=True,
               help="Actuator servos: their Bus Watchdog period (0: not set).")
+@click.option("--no-watchdog", is_flag=True,
+              help="Drive actuators without the Bus Watchdog, also on a model that has none "
+                   "(a host crash leaves them driving).")
 @view_option
 def live(rig_path: str, port: str, baud: int, take_path: str | None, out: str | None,
          frames: str | None, seconds: float | None, fps: float, antialias: str,
-         force: bool, view_address: str | None, watchdog_ms: float) -> None:
+         force: bool, view_address: str | None, watchdog_ms: float, no_watchdog: bool) -> None:
     """Read the puppet, solve and render live until Ctrl-C.
 
     Servos with role = "actuator" in the rig file are driven to the angle the solve gives
@@ -75,7 +78,8 @@ def live(rig_path: str, port: str, baud: int, take_path: str | None, out: str | 
     try:
         with Pipeline(rig, render=bool(sinks) or live_view is not None, overlay=True,
                       antialias=antialias, live=True) as pipeline:
-            plan = ActuationPlan.for_rig(rig, READ_RATE_HZ, watchdog_ms=watchdog_ms)
+            plan = ActuationPlan.for_rig(rig, READ_RATE_HZ,
+                                         watchdog_ms=0.0 if no_watchdog else watchdog_ms)
             actuation = LiveActuation(rig) if plan is not None else None
             source = start_reader(rig, port, baud, READ_RATE_HZ,
                                   hook=ActuatorHook(plan) if plan is not None else None)

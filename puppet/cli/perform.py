@@ -19,7 +19,8 @@ from puppet.cli.common import load_rig
 @click.option("--loop", is_flag=True, help="Repeat the take until stopped.")
 @click.option("--yes", is_flag=True, help="No countdown before the move to the first pose.")
 @click.option("--no-watchdog", is_flag=True,
-              help="Perform on servos without the Bus Watchdog (a host crash leaves them driving).")
+              help="Perform on servos without the Bus Watchdog, by model or firmware (a host crash "
+                   "leaves them driving).")
 @click.option("--watchdog-ms", default=100.0, show_default=True, type=click.FloatRange(min=20),
               help="Bus Watchdog period (at least three loop periods).")
 @click.option("--rate", "rate_hz", default=100.0, show_default=True,

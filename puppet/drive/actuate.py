@@ -5,7 +5,8 @@ The solver's ``T`` is (4m, 3): handle j maps a rest point v to ``[v 1] @ T[4j:4j
 linear part acting on column vectors is ``A_j = T[4j:4j+3].T``. Its rotation is the polar
 factor ``R_j`` (SVD, det +1). The joint's rotation is ``R_rel = R_parent^T R_child`` (a root's
 parent is the identity), the angle is the twist of ``R_rel`` about the servo's axis in model
-space (``frames[bone] @ axis``), and ``goal = angle / (sign · 2π / 4096 / gear) + zero``.
+space (``frames[bone] @ axis``), and the goal is that angle, clamped to the servo's limits, in
+ticks through its calibration (``puppet.servo_models.ServoUnits.ticks``).
 
 This is the building block for ``role = "actuator"`` servos in ``live``; it holds no state
 beyond preallocated work arrays, and its per-frame ``goals`` allocates no arrays.
@@ -18,7 +19,7 @@ import math
 import numpy as np
 
 from puppet._native import fit_rotations
-from puppet.servo_models import TICKS_PER_TURN
+from puppet.servo_models import ServoUnits
 
 
 def rotation_part(linear: np.ndarray) -> np.ndarray:
@@ -70,10 +71,8 @@ class ActuatorGoals:
         self.parents = np.array([skeleton.parents[b] for b in self.bones], np.int64)
         self.axes = np.array([skeleton.frames[b] @ np.asarray(s.axis, float)
                               for b, s in zip(self.bones, servos)])
-        self.scale = np.array([s.sign * 2 * np.pi / TICKS_PER_TURN / s.gear for s in servos])
-        self.zero = np.asarray(zero, float)
-        self.lo = np.array([s.limits[0] for s in servos])
-        self.hi = np.array([s.limits[1] for s in servos])
+        self.units = ServoUnits.for_servos(servos, np.asarray(zero, np.int64))
+        self.lo, self.hi = self.units.lo, self.units.hi
         self.angles = np.zeros(len(servos))
         self._goals = np.zeros(len(servos))
         # Work arrays of the per-frame path: the (3, 3) row blocks of T for each servo's bone
@@ -106,9 +105,7 @@ class ActuatorGoals:
             np.matmul(self._polar[k + n], self._polar[n].T, out=self._rel)
             self.angles[n] = twist_angle(self._rel, self.axes[n])
         np.clip(self.angles, self.lo, self.hi, out=self._goals)
-        self._goals /= self.scale
-        self._goals += self.zero
-        return self._goals
+        return self.units.ticks(self._goals, out=self._goals)
 
 
 _IDENTITY_ROWS = np.eye(3, dtype=np.float32)

@@ -22,6 +22,11 @@ watchdog that reads 0 although it was set means the servo rebooted (torque off, 
 and a latched hardware error (the reader's health) means it shut its torque off: either stops
 that actuator, torque off, as an ``actuator_stopped`` event; the others go on.
 
+Health: at the same checks the actuators' state is read (one Sync Read of Moving .. Present
+Temperature) and checked by ``health.CurrentTemperatureStop``, the same current (or load) and
+temperature stop as ``perform``, caps from each servo through the model table: an actuator over
+a limit is stopped, torque off, as an ``actuator_stopped`` event naming what was read.
+
 A port that stays down ``PORT_GONE_S`` is noted once with what to do (torque may still be on:
 ``puppet release``); a port that comes back within the watchdog period goes on, a later one
 finds the watchdog tripped and eases back as above.
@@ -39,9 +44,11 @@ from puppet.bus.control_table import describe_hardware_error
 from puppet.bus.errors import BusError
 from puppet.bus.link import BusLink
 from puppet.drive import items as it
+from puppet.drive.errors import HealthStop
 from puppet.drive.goals import GoalShaper
+from puppet.drive.health import CurrentTemperatureStop
 from puppet.drive.servos import DriveBus
-from puppet.servo_models import TICKS_PER_TURN
+from puppet.servo_models import ServoUnits
 
 
 @dataclass(frozen=True)
@@ -67,27 +74,31 @@ class ActuationPlan:
                 watchdog_ms: float = 100.0) -> "ActuationPlan | None":
         """The plan for ``rig``'s actuators read at ``rate_hz`` (None: the rig has none).
         max_speed_deg_s: joint speed limit of the goals (as ``perform``'s); watchdog_ms: the Bus
-        Watchdog period (at least three bus cycles; 0 = not set)."""
+        Watchdog period (at least three bus cycles; 0 = not set: --no-watchdog). With a
+        watchdog, an actuator whose model has none is refused (RigError naming servo, model and
+        line)."""
         servos = rig.servo_map.actuators
         if not servos:
             return None
-        zero = rig.servo_map.zero[rig.servo_map.actuator_index].astype(float)
-        scale = np.array([s.sign * 2 * np.pi / TICKS_PER_TURN / s.gear for s in servos])
-        a = np.array([s.limits[0] for s in servos]) / scale + zero
-        b = np.array([s.limits[1] for s in servos]) / scale + zero
-        step = np.array([max_speed_deg_s * TICKS_PER_TURN / 360.0 / rate_hz * s.gear
-                         for s in servos])
-        units = 0
+        if watchdog_ms > 0:
+            from puppet.rig.servo_map import check_bus_watchdogs  # the parent's side only
+
+            check_bus_watchdogs(servos, rig.servo_map.path)
+        units = ServoUnits.for_servos(servos, rig.servo_map.zero[rig.servo_map.actuator_index])
+        lo, hi = units.tick_limits()
+        step = units.ticks_per_joint_degree * (max_speed_deg_s / rate_hz)
+        watchdog_units = 0
         if watchdog_ms > 0:
             ms = max(watchdog_ms, 3 * 1000.0 / rate_hz)
-            units = max(1, min(127, math.ceil(ms / (it.WATCHDOG_UNIT_S * 1000.0))))
+            watchdog_units = max(1, min(127, math.ceil(ms / (it.WATCHDOG_UNIT_S * 1000.0))))
         return cls(tuple(int(s.id) for s in servos), {int(s.id): s.model for s in servos},
-                   tuple(np.minimum(a, b).tolist()), tuple(np.maximum(a, b).tolist()),
-                   tuple(step.tolist()), units, float(max_speed_deg_s))
+                   tuple(lo.tolist()), tuple(hi.tolist()), tuple(step.tolist()), watchdog_units,
+                   float(max_speed_deg_s))
 
 
 WATCHDOG_CHECK_CYCLES = 25
-"""Bus cycles between two reads of the actuators' Bus Watchdog (50 ms at live's 500 Hz)."""
+"""Bus cycles between two reads of the actuators' Bus Watchdog and of their current and
+temperature (50 ms at live's 500 Hz: well inside the 0.3 s a current must last to stop)."""
 EASE_BACK_DEG_S = 45.0
 """Joint speed (degrees/s) at which a re-armed actuator's goal goes from its present position
 back to the solve."""
@@ -112,6 +123,8 @@ class ActuatorHook:
         self.active = np.zeros(len(plan.ids), bool)
         self.offsets = np.zeros(len(plan.ids))
         self.cycles = 0
+        self.health: CurrentTemperatureStop | None = None
+        self._checked_ns = 0
         self._port_down_ns = 0
         self._port_noted = False
 
@@ -136,6 +149,8 @@ class ActuatorHook:
                 hi[n] = min(hi[n], info.hi + self.offsets[n])
         self.shaper = GoalShaper(lo, hi, np.array(plan.max_step))
         self.shaper.start(present)
+        self.health = CurrentTemperatureStop(plan.ids, [bus.setup[i] for i in plan.ids])
+        self._checked_ns = time.monotonic_ns()
         self._slow = np.array(plan.max_step) * min(1.0, EASE_BACK_DEG_S / plan.max_speed_deg_s)
         self._raw = dict.fromkeys(plan.ids, 0)
         self.torque_on = True  # from here on, stop() turns it off
@@ -197,11 +212,14 @@ class ActuatorHook:
         return goals
 
     def _watch(self, reader) -> None:
-        """The watchdog check: trips re-armed, reboots and hardware errors stopped."""
+        """The watchdog check: hardware errors (the servo's own stop, named first), a current
+        (or load) or temperature over the host's limits and reboots stopped; trips re-armed."""
         for n, dxl_id in enumerate(self.plan.ids):
             if self.active[n] and reader.health[dxl_id].hardware_error:
                 self._stop_one(n, reader, "hardware error latched: "
                                f"{describe_hardware_error(reader.health[dxl_id].hardware_error)}")
+        if self.active.any():
+            self._check_health(reader)
         if not self.plan.watchdog_units:
             return
         for dxl_id, value in self.bus.read_watchdogs().items():
@@ -213,6 +231,29 @@ class ActuatorHook:
             elif value == 0:
                 self._stop_one(n, reader, "its Bus Watchdog reads 0 although set: it rebooted "
                                "(torque off)")
+
+    def _check_health(self, reader) -> None:
+        """Read the actuators' state; stop each one over a current or temperature limit."""
+        state = self.bus.read_state()
+        now = time.monotonic_ns()
+        dt, self._checked_ns = (now - self._checked_ns) * 1e-9, now
+        for n in np.flatnonzero(state.alert & self.active):  # its own stop: named as such
+            try:
+                what = describe_hardware_error(self.bus.read(self.plan.ids[n],
+                                                             it.HARDWARE_ERROR_STATUS))
+            except BusError as err:
+                what = f"unreadable ({err})"
+            self._stop_one(int(n), reader, f"hardware error latched: {what}")
+        state.ok &= self.active  # a stopped actuator is no longer watched
+        while True:
+            try:
+                self.health.check(state, dt)
+                return
+            except HealthStop as stop:
+                n = self.plan.ids.index(stop.dxl_id)
+                self._stop_one(n, reader, stop.reading)
+                state.ok[n] = False
+                dt = 0.0  # the others' time over the cap was counted already
 
     def _rearm(self, n: int, reader) -> None:
         """Watchdog tripped: clear it, goal := present, ease back from there, watchdog set."""

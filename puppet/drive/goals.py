@@ -2,31 +2,17 @@
 ticks (the performing rig's calibration), interpolated in time, clamped, rate-limited.
 
 A take recorded on one puppet plays on another with its own calibration: the joint angle is
-what carries over, ``angle = sign · (ticks − zero_take) · 2π / 4096 / gear`` (wrapped into one
-turn for direct drive) and ``goal = angle / (sign · 2π / 4096 / gear) + zero_rig``.
+what carries over, ticks -> radians through the take's zero ticks and back to goal ticks through
+the rig's (``puppet.servo_models.ServoUnits``: sign, gear, zero, its one wrap rule).
 Readings flagged not-ok hold that servo's last good value (the first good one before it).
 """
 
 from __future__ import annotations
 
-import json
-
 import numpy as np
 
 from puppet.drive.errors import DriveError
-from puppet.servo_models import TICKS_PER_TURN
-
-
-def take_zero_ticks(metadata, path) -> dict[int, int]:
-    """The zero ticks a take was recorded with ({} when it has none); DriveError if unreadable."""
-    text = metadata.calibration_text
-    if not text:
-        return {}
-    try:
-        table = json.loads(text).get("zero_ticks", {})
-        return {int(k): int(v) for k, v in table.items()}
-    except (ValueError, AttributeError, TypeError) as err:
-        raise DriveError(f"{path}: unreadable calibration in the take: {err}") from None
+from puppet.servo_models import ServoUnits
 
 
 class TakeGoals:
@@ -50,13 +36,8 @@ class TakeGoals:
         self.t_s = np.asarray(t_s, float)
         self.duration_s = float(self.t_s[-1] - self.t_s[0]) if len(self.t_s) > 1 else 0.0
         self.t_s = self.t_s - self.t_s[0]
-        scale = np.array([s.sign * 2 * np.pi / TICKS_PER_TURN / s.gear for s in servos])
-        wrap = np.array([s.gear == 1.0 for s in servos], bool)
         zero_take = np.array([take_zero.get(int(s.id), s.zero_ticks) for s in servos], np.int64)
-        diff = ticks.astype(np.int64) - zero_take
-        wrapped = (diff + TICKS_PER_TURN // 2) % TICKS_PER_TURN - TICKS_PER_TURN // 2
-        diff = np.where(wrap, wrapped, diff)
-        angles = diff * scale
+        angles = ServoUnits.for_servos(servos, zero_take).angles(ticks, clamp=False)
         ok = np.asarray(ok, bool)
         self.flagged = {int(i): int(n) for i, n in zip(self.ids, (~ok).sum(axis=0)) if n}
         self.never_ok = [int(i) for i, any_ok in zip(self.ids, ok.any(axis=0)) if not any_ok]
@@ -68,29 +49,30 @@ class TakeGoals:
             last = np.maximum.accumulate(np.where(ok[:, j], np.arange(len(ok)), -1))
             last[last < 0] = good[0]
             angles[:, j] = angles[last, j]
-        self._scale = scale
-        self._zero = np.asarray(rig_zero, float)
-        self.goals = angles / scale + self._zero  # (N, k) float ticks; NaN: hold
-        lo = np.array([s.limits[0] for s in servos]) / scale + self._zero
-        hi = np.array([s.limits[1] for s in servos]) / scale + self._zero
-        self.lo, self.hi = np.minimum(lo, hi), np.maximum(lo, hi)
+        self.units = ServoUnits.for_servos(servos, np.asarray(rig_zero, np.int64))
+        """The rig's units (its zero ticks): joint radians -> goal ticks."""
+        self.goals = self.units.ticks(angles)  # (N, k) float ticks; NaN: hold
+        self.lo, self.hi = self.units.tick_limits()
         self._out = np.empty(k)
 
     @classmethod
     def from_take(cls, reader, servo_map) -> "TakeGoals":
         """Goals for ``servo_map``'s servos from an open TakeReader (refused, TakeRigMismatch,
-        when the take's servos or models are not the rig's)."""
+        when the take's servos or models are not the rig's; RigError naming the take when its
+        calibration record is unreadable)."""
+        from puppet.rig.calibration import Calibration  # the parent's side only
         ids = [int(i) for i in servo_map.ids]
         reader.check_rig(ids, dict(servo_map.models))
         t_ns, ticks, ok = reader.arrays(ids=ids)
         if len(t_ns) == 0:
             raise DriveError(f"{reader.path}: the take holds no readings")
         return cls(servo_map.servos, (t_ns - t_ns[0]) * 1e-9, ticks, ok,
-                   take_zero_ticks(reader.metadata, reader.path), servo_map.zero)
+                   Calibration.from_record(reader.metadata.calibration_text, reader.path).zero_ticks,
+                   servo_map.zero)
 
     def degrees(self, ticks) -> np.ndarray:
         """(k,) tick differences -> joint degrees (absolute value)."""
-        return np.abs(np.asarray(ticks, float) * self._scale) * 180.0 / np.pi
+        return self.units.joint_degrees(ticks)
 
     def at(self, t: float) -> np.ndarray:
         """(k,) goal ticks (float; NaN = hold) at ``t`` seconds into the take, linearly

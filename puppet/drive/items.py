@@ -1,4 +1,5 @@
-"""Control-table items and per-model units for driving X-series servos (declared as data)."""
+"""Control-table items for driving X-series servos (declared as data). Per-model units (current,
+velocity, Bus Watchdog firmware) are fields of ``puppet.servo_models.MODELS``."""
 
 from __future__ import annotations
 
@@ -31,13 +32,7 @@ DRIVE_MODE_TORQUE_ON_BY_GOAL = 0x08
 WATCHDOG_UNIT_S = 0.020
 WATCHDOG_TRIPPED = -1
 MOVING_STATUS_IN_POSITION = 0x01
-VELOCITY_UNIT_DEG_S = 0.229 * 360.0 / 60.0     # one Profile Velocity unit, degrees/s
 ACCEL_UNIT_DEG_S2 = 214.577 * 360.0 / 3600.0   # one Profile Acceleration unit, degrees/s^2
-
-# Per model: Present Current unit in mA (None: Present Load in 0.1 %, no current item), the
-# first firmware with the Bus Watchdog.
-CURRENT_UNIT_MA = {"XL330-M288": 1.0, "XL430-W250": None, "XM430-W350": 2.69}
-BUS_WATCHDOG_FIRMWARE = 38
 
 __all__ = ["DRIVE_MODE", "CURRENT_LIMIT", "TEMPERATURE_LIMIT", "MAX_POSITION_LIMIT",
            "MIN_POSITION_LIMIT", "BUS_WATCHDOG", "PROFILE_ACCELERATION", "PROFILE_VELOCITY",

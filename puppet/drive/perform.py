@@ -8,9 +8,10 @@ servo reports it has arrived (Moving 0, Moving Status in-position) -> playback: 
 Sync Write of goals then one Sync Read of Moving .. Present Temperature -> stop.
 
 Health watchdog while torque is on: every cycle (the state read) Present Temperature against
-a host limit below the servo's own, Present Current against a host cap on sustained current,
-the alert bit of each status (then Hardware Error Status is read to name the error), servos
-that stop answering; every ``WATCHDOG_CHECK_CYCLES`` cycles the Bus Watchdog items (-1 = it
+a host limit below the servo's own, Present Current (Present Load on a model that senses no
+current) against a host cap on sustained current (``health.CurrentTemperatureStop``, caps from
+each servo's limits through the model table), the alert bit of each status (then Hardware
+Error Status is read to name the error), servos that stop answering; every ``WATCHDOG_CHECK_CYCLES`` cycles the Bus Watchdog items (-1 = it
 tripped). Any of these stops the performance naming the servo and the reading, with two
 tolerances for a busy host, where one late reply must cost one cycle, not the performance:
 a servo stops it only after ``READ_FAILURES_TO_STOP`` cycles in a row without a usable reading
@@ -45,6 +46,8 @@ from puppet.bus.port_lock import PortInUse
 from puppet.drive import items as it
 from puppet.drive.errors import DriveError, HealthStop
 from puppet.drive.goals import GoalShaper, TakeGoals
+from puppet.drive.health import (CURRENT_FRACTION, CURRENT_SUSTAIN_S, TEMPERATURE_CAP_C,
+                                 TEMPERATURE_MARGIN_C, CurrentTemperatureStop)
 from puppet.drive.servos import DriveBus
 
 WATCHDOG_CHECK_CYCLES = 10
@@ -64,7 +67,6 @@ PORT_RETRY_S = 2.0
 """How long a port lost mid-performance is tried again (every ``PORT_RETRY_PERIOD_S``) to turn
 torque off."""
 PORT_RETRY_PERIOD_S = 0.1
-TICKS_PER_DEGREE = 4096 / 360.0
 
 
 @dataclass
@@ -77,7 +79,8 @@ class PerformOptions:
     loop periods). start_speed_deg_s / start_accel_deg_s2: the slow start profile (joint
     degrees of a direct-drive servo). max_speed_deg_s: the per-cycle rate limit of goals and
     the playback profile. temperature_margin_c: host limit = servo limit - margin, at most
-    temperature_cap_c. current_fraction / current_sustain_s: host cap on sustained current.
+    temperature_cap_c. current_fraction / current_sustain_s: host cap on sustained current (or
+    load), see ``puppet.drive.health``.
     countdown_s: seconds of countdown. arrive_timeout_s: extra time allowed to arrive.
     baud, latency_ms: the link (see BusLink).
     """
@@ -91,10 +94,10 @@ class PerformOptions:
     start_speed_deg_s: float = 30.0
     start_accel_deg_s2: float = 200.0
     max_speed_deg_s: float = 360.0
-    temperature_margin_c: float = 10.0
-    temperature_cap_c: float = 65.0
-    current_fraction: float = 0.8
-    current_sustain_s: float = 0.3
+    temperature_margin_c: float = TEMPERATURE_MARGIN_C
+    temperature_cap_c: float = TEMPERATURE_CAP_C
+    current_fraction: float = CURRENT_FRACTION
+    current_sustain_s: float = CURRENT_SUSTAIN_S
     countdown_s: int = 3
     arrive_timeout_s: float = 10.0
     baud: int = 1_000_000
@@ -174,10 +177,6 @@ class _Stopped(Exception):
     """A signal asked the performance to stop (internal)."""
 
 
-def _deg_to_ticks(deg: float) -> float:
-    return deg * TICKS_PER_DEGREE
-
-
 def perform(rig, reader, port: str, options: PerformOptions | None = None,
             log: Callable[[str], None] | None = None, on_phase: Callable[[str], None] | None = None
             ) -> PerformReport:
@@ -198,6 +197,10 @@ def perform(rig, reader, port: str, options: PerformOptions | None = None,
             log(text)
 
     phase = on_phase or (lambda _p: None)
+    if opts.watchdog:  # refused before anything moves: a model with no Bus Watchdog
+        from puppet.rig.servo_map import check_bus_watchdogs
+
+        check_bus_watchdogs(rig.servo_map.servos, rig.servo_map.path)
     goals = TakeGoals.from_take(reader, rig.servo_map)
     report.flagged = dict(goals.flagged)
     if goals.flagged:
@@ -301,9 +304,10 @@ def _start(bus: DriveBus, goals: TakeGoals, opts, report, say, check_signal, pha
                 f"{lo[n]:.0f}..{hi[n]:.0f} ticks in {it.POSITION_MODES[info.mode]} mode (the turn "
                 "count is lost at power-up): turn the joint into range by hand")
     bus.write_all(it.GOAL_POSITION, present)
-    start_units = max(1, round(opts.start_speed_deg_s / it.VELOCITY_UNIT_DEG_S))
+    unit = bus.velocity_unit_deg_s
+    start_units = np.maximum(1, np.rint(opts.start_speed_deg_s / unit))
     accel_units = max(1, round(opts.start_accel_deg_s2 / it.ACCEL_UNIT_DEG_S2))
-    report.start_profile_deg_s = start_units * it.VELOCITY_UNIT_DEG_S
+    report.start_profile_deg_s = float((start_units * unit).max())
     bus.write_all(it.PROFILE_VELOCITY, start_units)   # never 0 (= full speed) for the start
     bus.write_all(it.PROFILE_ACCELERATION, accel_units)
     bus.write_all(it.TORQUE_ENABLE, 1)
@@ -313,7 +317,7 @@ def _start(bus: DriveBus, goals: TakeGoals, opts, report, say, check_signal, pha
         bus.write_all(it.BUS_WATCHDOG, units)
         say(f"Bus Watchdog {units * 20} ms on every servo")
     first = np.clip(np.where(np.isnan(goals.goals[0]), present, goals.goals[0]), lo, hi)
-    distance = np.abs(first - present).max() / TICKS_PER_DEGREE
+    distance = float(goals.units.servo_degrees(first - present).max())
     if not opts.yes:
         say(f"moving to the first pose ({distance:.0f} deg at most, "
             f"{report.start_profile_deg_s:.0f} deg/s) in {opts.countdown_s}")
@@ -349,9 +353,8 @@ def _start(bus: DriveBus, goals: TakeGoals, opts, report, say, check_signal, pha
                     if m or not s & it.MOVING_STATUS_IN_POSITION]
             raise DriveError(f"servos {late} did not reach the first pose within {timeout:.0f} s")
         _wait(1.0 / opts.rate_hz, bus, opts, check_signal, keepalive=False)
-    report.start_max_speed_deg_s = {i: float(v * it.VELOCITY_UNIT_DEG_S)
-                                    for i, v in zip(bus.ids, speeds)}
-    play_units = max(1, round(opts.max_speed_deg_s / it.VELOCITY_UNIT_DEG_S))
+    report.start_max_speed_deg_s = {i: float(v * u) for i, v, u in zip(bus.ids, speeds, unit)}
+    play_units = np.maximum(1, np.rint(opts.max_speed_deg_s / unit))
     bus.write_all(it.PROFILE_ACCELERATION, 0)
     bus.write_all(it.PROFILE_VELOCITY, play_units)
     return first
@@ -403,12 +406,10 @@ class _Health:
     def __init__(self, bus: DriveBus, opts: PerformOptions, on_trip=None) -> None:
         self.bus, self.opts, self.on_trip = bus, opts, on_trip
         k = len(bus.ids)
-        self.temp_limit = np.array([min(bus.setup[i].temperature_limit - opts.temperature_margin_c,
-                                        opts.temperature_cap_c) for i in bus.ids])
-        self.current_cap = np.array([
-            (bus.setup[i].current_limit_ma or math.inf) * opts.current_fraction for i in bus.ids])
-        self.unit = np.array([it.CURRENT_UNIT_MA.get(bus.models[i]) or 0.0 for i in bus.ids])
-        self.over_s = np.zeros(k)
+        self.stop = CurrentTemperatureStop(
+            bus.ids, [bus.setup[i] for i in bus.ids], temperature_margin_c=opts.temperature_margin_c,
+            temperature_cap_c=opts.temperature_cap_c, current_fraction=opts.current_fraction,
+            current_sustain_s=opts.current_sustain_s)
         self.misses = np.zeros(k, np.int64)
         self.trips = np.zeros(k, np.int64)
         self.rescues = 0
@@ -426,19 +427,7 @@ class _Health:
                 what = f"unreadable ({err})"
             raise HealthStop(dxl_id, f"hardware error: {what} (alert bit in its status)")
         self._check_misses(state)
-        hot = state.ok & (state.temperature > self.temp_limit)
-        if hot.any():
-            n = int(np.flatnonzero(hot)[0])
-            raise HealthStop(bus.ids[n], f"Present Temperature {state.temperature[n]} C above the "
-                             f"host limit {self.temp_limit[n]:.0f} C (servo limit "
-                             f"{bus.setup[bus.ids[n]].temperature_limit} C)")
-        current = np.abs(state.current) * self.unit
-        over = state.ok & (current > self.current_cap)
-        self.over_s = np.where(over, self.over_s + dt, 0.0)
-        if (self.over_s > self.opts.current_sustain_s).any():
-            n = int(np.argmax(self.over_s))
-            raise HealthStop(bus.ids[n], f"Present Current {current[n]:.0f} mA above the host cap "
-                             f"{self.current_cap[n]:.0f} mA for {self.over_s[n]:.2f} s")
+        self.stop.check(state, dt)
         if self.opts.watchdog and self.cycles % WATCHDOG_CHECK_CYCLES == 0:
             self._check_watchdogs()
 
@@ -487,12 +476,10 @@ def _playback(bus: DriveBus, goals: TakeGoals, servo_map, start_pose: np.ndarray
     phase("playback")
     period = 1.0 / opts.rate_hz
     lo, hi = _limits(bus, goals)
-    max_step = np.full(len(bus.ids), _deg_to_ticks(opts.max_speed_deg_s) * period)
-    gears = np.array([s.gear for s in servo_map.servos])
-    max_step *= gears  # a geared servo turns gear times the joint
+    max_step = goals.units.ticks_per_joint_degree * (opts.max_speed_deg_s * period)
     shaper = GoalShaper(lo, hi, max_step)
     shaper.start(start_pose)
-    ease_step = _deg_to_ticks(opts.start_speed_deg_s) * period * gears
+    ease_step = goals.units.ticks_per_joint_degree * (opts.start_speed_deg_s * period)
 
     def rearm(n: int) -> None:  # a stall tripped its watchdog: ease back from where it stopped
         dxl_id = bus.ids[n]

@@ -22,6 +22,7 @@ from puppet.bus.errors import BusError, PortError, ServoCorrupt, ServoStatusErro
 from puppet.bus.link import SILENT, BusLink
 from puppet.drive import items as it
 from puppet.drive.errors import DriveError
+from puppet.servo_models import MODELS
 
 _STATE = struct.Struct("<BBhhiiiiHB")  # Moving .. Present Temperature (25 bytes)
 ATTEMPTS = 3
@@ -41,7 +42,8 @@ class ServoSetup:
     """What setup learned about one servo.
 
     mode: operating mode; lo/hi: its own goal limits in ticks (position mode) or None;
-    temperature_limit: deg C; current_limit_ma: mA or None (no current item);
+    temperature_limit: deg C; current_limit_ma: its Current Limit in mA, or None (no current
+    item); current_unit_ma: the model's Present Current unit (None: it reports Present Load);
     watchdog: whether it has the Bus Watchdog.
     """
 
@@ -53,6 +55,7 @@ class ServoSetup:
     hi: int | None = None
     temperature_limit: int = 70
     current_limit_ma: float | None = None
+    current_unit_ma: float | None = None
     watchdog: bool = True
 
 
@@ -87,6 +90,9 @@ class DriveBus:
         self.recovered: list[int] = []
         self.setup: dict[int, ServoSetup] = {}
         self.fast_read = False  # Fast Sync Read for the state (every servo's firmware has it)
+        self.velocity_unit_deg_s = np.array([MODELS[self.models[i]].velocity_unit_deg_s
+                                             for i in self.ids])
+        """(k,) degrees/s of the servo shaft per Profile / Present Velocity unit."""
         k = len(self.ids)
         self.state = State(*(np.zeros(k, bool) for _ in range(2)),
                            *(np.zeros(k, np.int64) for _ in range(6)))
@@ -161,11 +167,13 @@ class DriveBus:
         if hw:
             raise DriveError(f"servo {dxl_id}: hardware error latched ({describe_hardware_error(hw)}); "
                              "let it cool or fix the load, then power-cycle or reboot it")
-        info.watchdog = firmware >= it.BUS_WATCHDOG_FIRMWARE
+        first = MODELS[model].bus_watchdog_firmware
+        info.watchdog = first is not None and firmware >= first
         if not info.watchdog and use_watchdog:
+            needs = (f"firmware {firmware} has no Bus Watchdog (needs >= {first})" if first
+                     else f"model {model} has no Bus Watchdog")
             raise DriveError(
-                f"servo {dxl_id}: firmware {firmware} has no Bus Watchdog (needs "
-                f">= {it.BUS_WATCHDOG_FIRMWARE}): if this host died the servo would keep its last "
+                f"servo {dxl_id}: {needs}: if this host died the servo would keep its last "
                 "goal with torque on; update the firmware, or pass --no-watchdog to perform anyway")
         if info.watchdog:
             wd = self.read(dxl_id, it.BUS_WATCHDOG)
@@ -204,7 +212,7 @@ class DriveBus:
             info.lo = self.read(dxl_id, it.MIN_POSITION_LIMIT)
             info.hi = self.read(dxl_id, it.MAX_POSITION_LIMIT)
         info.temperature_limit = self.read(dxl_id, it.TEMPERATURE_LIMIT)
-        unit = it.CURRENT_UNIT_MA.get(model)
+        info.current_unit_ma = unit = MODELS[model].current_unit_ma
         if unit is not None:
             info.current_limit_ma = self.read(dxl_id, it.CURRENT_LIMIT) * unit
         return info

@@ -16,9 +16,7 @@ import numpy as np
 
 from puppet.export.errors import ExportError
 from puppet.reading import Reading
-from puppet.rig.servo_map import TICKS_PER_TURN
-
-HALF_TURN = TICKS_PER_TURN // 2
+from puppet.servo_models import HALF_TURN, TICKS_PER_TURN
 
 
 def check_fps(fps, where="--fps") -> float:

@@ -6,6 +6,10 @@ File layout (TOML; JSON has the same shape)::
     [zero_ticks]
     1 = 2051
     2 = 2040
+
+A take stores the calibration it was recorded with as one JSON record,
+``{"zero_ticks": {"1": 2051, "2": 2040}}``: ``to_record`` writes it (``record``), ``from_record``
+reads it back (``replay``, ``perform``, the view); one codec, checked as a file is.
 """
 
 from __future__ import annotations
@@ -52,12 +56,32 @@ class Calibration:
     def zero_for(self, servo_id: int, default: int) -> int:
         return self.zero_ticks.get(int(servo_id), int(default))
 
+    def _doc(self) -> dict:
+        return {"zero_ticks": {str(i): int(t) for i, t in sorted(self.zero_ticks.items())}}
+
+    def to_record(self) -> str:
+        """The calibration record a take stores: one line of JSON, ids in order."""
+        return json.dumps(self._doc())
+
+    @classmethod
+    def from_record(cls, text: str, take) -> "Calibration":
+        """The calibration a take was recorded with, from its record (``to_record``'s text; ""
+        for a take that stores none: no zero ticks). RigError naming the take file and the entry
+        at fault when the record is not such a text."""
+        if not text:
+            return cls()
+        try:
+            doc = json.loads(text)
+        except (ValueError, RecursionError) as err:
+            raise RigError(f"not valid JSON: {err}", path=take, field="calibration record") from None
+        return cls(_zero_table(doc, take, "calibration record "))
+
     def save(self, path) -> Path:
         """Write to ``path`` (.json for JSON, anything else TOML) atomically; returns the path."""
         path = Path(path)
         items = sorted(self.zero_ticks.items())
         if path.suffix.lower() == ".json":
-            text = json.dumps({"zero_ticks": {str(i): t for i, t in items}}, indent=2) + "\n"
+            text = json.dumps(self._doc(), indent=2) + "\n"
         else:
             lines = ["# puppet calibration: encoder ticks at the rig's rest pose", "[zero_ticks]"]
             lines += [f"{i} = {t}" for i, t in items]
@@ -89,21 +113,26 @@ class Calibration:
         except (json.JSONDecodeError, tomllib.TOMLDecodeError, UnicodeDecodeError, RecursionError) as err:
             raise RigError(f"not valid {'JSON' if path.suffix.lower() == '.json' else 'TOML'}: {err}",
                            path=path) from err
-        table = doc.get("zero_ticks") if isinstance(doc, dict) else None
-        if not isinstance(table, dict):
-            raise RigError("missing table [zero_ticks]", path=path, field="zero_ticks")
-        zero = {}
-        for key, value in table.items():
-            try:
-                servo_id = int(key)
-            except ValueError:
-                raise RigError(f"servo id {key!r} is not an integer", path=path,
-                               field=f"zero_ticks.{key}") from None
-            if not 0 <= servo_id <= 252:
-                raise RigError(f"servo id {servo_id} is not in 0..252", path=path,
-                               field=f"zero_ticks.{key}")
-            if isinstance(value, bool) or not isinstance(value, int) or not INT32[0] <= value <= INT32[1]:
-                raise RigError(f"zero ticks must be a 32-bit integer, got {value!r}", path=path,
-                               field=f"zero_ticks.{key}")
-            zero[servo_id] = value
-        return cls(zero, path)
+        return cls(_zero_table(doc, path), path)
+
+
+def _zero_table(doc, path, where: str = "") -> dict[int, int]:
+    """{id: ticks} of a parsed calibration document; RigError naming ``path`` and the entry."""
+    table = doc.get("zero_ticks") if isinstance(doc, dict) else None
+    if not isinstance(table, dict):
+        raise RigError("missing table [zero_ticks]", path=path, field=f"{where}zero_ticks")
+    zero = {}
+    for key, value in table.items():
+        try:
+            servo_id = int(key)
+        except ValueError:
+            raise RigError(f"servo id {key!r} is not an integer", path=path,
+                           field=f"{where}zero_ticks.{key}") from None
+        if not 0 <= servo_id <= 252:
+            raise RigError(f"servo id {servo_id} is not in 0..252", path=path,
+                           field=f"{where}zero_ticks.{key}")
+        if isinstance(value, bool) or not isinstance(value, int) or not INT32[0] <= value <= INT32[1]:
+            raise RigError(f"zero ticks must be a 32-bit integer, got {value!r}", path=path,
+                           field=f"{where}zero_ticks.{key}")
+        zero[servo_id] = value
+    return zero

@@ -1,8 +1,8 @@
 """Servo map: which servo senses which joint axis, and ticks -> joint angles.
 
-``angle = sign · (ticks − zero) · 2π / 4096 / gear``, clamped to the servo's limits. For a
-direct-drive servo (gear 1) the difference is first wrapped into one turn around zero, so a
-servo that rebooted (its multi-turn count reset) still reads the right angle.
+The conversion is ``puppet.servo_models.ServoUnits`` (``angle = sign · (ticks − zero) · 2π /
+ticks_per_turn / gear``, its one wrap rule, clamped to the servo's limits), so a servo that
+rebooted (its multi-turn count reset) still reads the right angle.
 """
 
 from __future__ import annotations
@@ -15,7 +15,7 @@ from puppet.rig.calibration import INT32, Calibration
 from puppet.rig.errors import RigError
 from puppet.rig.skeleton import Joint, Skeleton
 
-from puppet.servo_models import MODELS, TICKS_PER_TURN, known_models
+from puppet.servo_models import MODELS, ServoUnits, known_models
 
 GEAR_RANGE = (0.01, 100.0)
 """Servo turns per joint turn: a gear ratio outside this is a typo, not a mechanism."""
@@ -80,15 +80,9 @@ class ServoMap:
         self.actuator_index = np.array([i for i, s in enumerate(self.servos)
                                         if s.role == "actuator"], np.int64)
         """(a,) indices of the actuator servos, map order (empty: a pure sensor rig)."""
-        k = len(self.servos)
-        self.zero = np.array([s.zero_ticks for s in self.servos], np.int64)
-        self._scale = np.array([s.sign * 2 * np.pi / TICKS_PER_TURN / s.gear for s in self.servos])
-        self._lo = np.array([s.limits[0] for s in self.servos])
-        self._hi = np.array([s.limits[1] for s in self.servos])
-        self._wrap = np.array([s.gear == 1.0 for s in self.servos], bool)
-        self._any_wrap = bool(self._wrap.any())
-        self._diff = np.empty(k, np.int64)
-        self._wrapped = np.empty(k, np.int64)
+        self.units = ServoUnits.for_servos(self.servos)
+        """Ticks <-> joint radians of every servo (its ``zero`` is ``self.zero``)."""
+        self.zero = self.units.zero
         self.calibration = Calibration()
         if calibration is not None:
             self.calibrate(calibration)
@@ -107,23 +101,11 @@ class ServoMap:
         ticks: (k,) int32 encoder counts in map order. out: optional (k,) float64.
         Returns (k,) float64 radians, clamped to each servo's limits.
         """
-        if out is None:
-            out = np.empty(len(self.servos))
-        diff = self._diff
-        np.subtract(ticks, self.zero, out=diff)
-        if self._any_wrap:
-            wrapped = self._wrapped
-            np.add(diff, TICKS_PER_TURN // 2, out=wrapped)
-            np.remainder(wrapped, TICKS_PER_TURN, out=wrapped)
-            wrapped -= TICKS_PER_TURN // 2
-            np.copyto(diff, wrapped, where=self._wrap)
-        np.multiply(diff, self._scale, out=out)
-        np.clip(out, self._lo, self._hi, out=out)
-        return out
+        return self.units.angles(ticks, out)
 
     def ticks_for(self, angles: np.ndarray) -> np.ndarray:
         """Inverse of :meth:`angles` (no clamping): (k,) radians -> (k,) int32 ticks."""
-        return np.rint(np.asarray(angles) / self._scale + self.zero).astype(np.int32)
+        return np.rint(self.units.ticks(angles)).astype(np.int32)
 
     @property
     def actuators(self) -> tuple[Servo, ...]:
@@ -163,6 +145,18 @@ class ServoMap:
             joints.append(Joint(bone, np.array([self.servos[i].axis for i in members], float),
                                 np.array(members, np.int64)))
         return tuple(joints)
+
+
+def check_bus_watchdogs(servos, path=None, models=MODELS) -> None:
+    """Refuse to drive a servo whose model has no Bus Watchdog (``bus_watchdog_firmware`` None
+    in the model table): RigError naming the servo, its model and its line. ``perform`` checks
+    every servo it drives, ``live`` its actuators, unless given --no-watchdog."""
+    for s in servos:
+        if models[s.model].bus_watchdog_firmware is None:
+            raise RigError(f"model {s.model} has no Bus Watchdog: if this host stopped, the servo "
+                           "would hold its last goal with torque on; drive a model that has one, "
+                           "or pass --no-watchdog", path=path, line=s.line or None,
+                           field=f"servo {s.id} model")
 
 
 def _check_servo(s: Servo, path) -> None:

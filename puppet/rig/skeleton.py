@@ -196,21 +196,24 @@ class Skeleton:
         if out is None:
             out = np.empty((len(self.names), 3, 3))
         _kinematics.joint_rotations(np.ascontiguousarray(joint_angles, np.float64), self._fk_axes,
-                                self._fk_axis_dof, self._fk_bone_axes, out)
+                                    self._fk_axis_dof, self._fk_bone_axes, out)
         return out
 
-    def pose(self, joint_angles: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
-        """Forward kinematics (native, no allocation with ``out``).
+    def pose(self, joint_angles: np.ndarray, out: np.ndarray | None = None,
+             rotations: np.ndarray | None = None) -> np.ndarray:
+        """Forward kinematics (native, one call, no allocation with ``out``).
 
         joint_angles: (dof_count,) float64 radians (servo-map order for a rig).
         out: optional (b, 3, 4) float64 C-contiguous to write into.
+        rotations: optional (b, 3, 3) float64 C-contiguous that also receives the joint rotations
+                   (as :meth:`joint_rotations` writes them): rotations and poses in one call.
         Returns (b, 3, 4): bone b's affine ``[A_b | t_b]`` taking rest points to posed points.
         """
         if out is None:
             out = np.empty((len(self.names), 3, 4))
         _kinematics.forward_kinematics(np.ascontiguousarray(joint_angles, np.float64), self._fk_axes,
-                                   self._fk_axis_dof, self._fk_bone_axes, self._fk_parents, self._fk_heads,
-                                   self._joint_rot, out)
+                                       self._fk_axis_dof, self._fk_bone_axes, self._fk_parents, self._fk_heads,
+                                       self._joint_rot if rotations is None else rotations, out)
         return out
 
     def pose_from_rotations(self, rotations: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
@@ -219,7 +222,7 @@ class Skeleton:
         if out is None:
             out = np.empty((len(self.names), 3, 4))
         _kinematics.pose_from_rotations(np.ascontiguousarray(rotations, np.float64), self._fk_parents,
-                                    self._fk_heads, out)
+                                        self._fk_heads, out)
         return out
 
     def rest_pose(self) -> np.ndarray:

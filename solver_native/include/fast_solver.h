@@ -48,7 +48,8 @@
 // step, so also inside the joint limits).
 //
 // Everything is preallocated by the constructor; solve() allocates nothing and copies only T in
-// and out of its padded layout.
+// and out of its padded layout. The relative rows' Schur complement is rebuilt only when the
+// relative rotations change (a held pose keeps it).
 #pragma once
 
 #include <cstddef>
@@ -136,7 +137,8 @@ class FastSolver {
   std::vector<float> tb_, z_;           // Tb (3 x mp), Z (3kr x mp)
   std::vector<double> w_, schur_;       // W (4m x 3kr), S (3kr x 3kr)
   std::vector<double> zd_;              // Z^T = S^{-1} W^T in double (3kr or more x 4m), scratch
-  std::vector<float> relR_;             // (kr, 3, 3)
+  std::vector<float> relR_;             // (kr, 3, 3) of the last solve
+  bool schur_ready_ = false;            // z_ (and h1_) made for relR_ (no contacts)
   // contacts
   int kc_ = 0, ncmax_ = 0;
   bool contacts_ready_ = false;

@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <cmath>
 #include <cstring>
+#include <limits>
 #include <stdexcept>
 #include <string>
 
@@ -18,6 +19,15 @@ constexpr double kMaxRate = 0.995;   // observed rates above this are not a cont
 constexpr double kStopMargin = 1.75;  // tol stop: estimate x this <= tol (probe and rate noise; see converged)
 constexpr double kEnergyResolution = 1e-6;  // of c0: float32 data, double sums (the safeguard's slack)
 inline int round_up(int x) { return (x + kPad - 1) / kPad * kPad; }
+
+// A matrix entry for the per-iteration float32 kernels: below float32's normal range it is 0.
+// (Far tails of smooth weights leave entries ~1e-40 in K~; every product with such a subnormal
+// takes a microcode assist, which made a 24-bone rig's iterations ten times slower. What they
+// contribute is below float32 rounding of any sum they enter.)
+inline float normal_or_zero(double x) {
+  const float f = static_cast<float>(x);
+  return std::fabs(f) < std::numeric_limits<float>::min() ? 0.0f : f;
+}
 
 bool all_finite(const float* p, std::ptrdiff_t n) {
   float poison = 0.0f;
@@ -71,8 +81,8 @@ FastSolver::FastSolver(int m, int r, int kf, int kp, int kr, const float* csm, c
     for (int gg = 0; gg < r; ++gg)
       for (int i = 0; i < 3; ++i) {
         const int rho = i * rp_ + gg;
-        csm_[static_cast<size_t>(k) * rr + rho] = csm[static_cast<size_t>(k) * 3 * r + 3 * gg + i];
-        g_[static_cast<size_t>(rho) * mp_ + k] = g[static_cast<size_t>(k) * 3 * r + 3 * gg + i];
+        csm_[static_cast<size_t>(k) * rr + rho] = normal_or_zero(csm[static_cast<size_t>(k) * 3 * r + 3 * gg + i]);
+        g_[static_cast<size_t>(rho) * mp_ + k] = normal_or_zero(g[static_cast<size_t>(k) * 3 * r + 3 * gg + i]);
       }
   tile_off_.assign(1, 0);
   tile_k_.clear();
@@ -86,10 +96,10 @@ FastSolver::FastSolver(int m, int r, int kf, int kp, int kr, const float* csm, c
   });
   p2_.assign(static_cast<size_t>(std::max(nb, 1)) * mp_, 0.0f);
   for (int k = 0; k < n4; ++k)
-    for (int j = 0; j < nb; ++j) p2_[static_cast<size_t>(j) * mp_ + k] = p2[static_cast<size_t>(k) * nb + j];
+    for (int j = 0; j < nb; ++j) p2_[static_cast<size_t>(j) * mp_ + k] = normal_or_zero(p2[static_cast<size_t>(k) * nb + j]);
   q_.assign(static_cast<size_t>(n4) * mp_, 0.0f);
   for (int k = 0; k < n4; ++k)
-    for (int j = 0; j < n4; ++j) q_[static_cast<size_t>(j) * mp_ + k] = q[static_cast<size_t>(k) * n4 + j];
+    for (int j = 0; j < n4; ++j) q_[static_cast<size_t>(j) * mp_ + k] = normal_or_zero(q[static_cast<size_t>(k) * n4 + j]);
   h_.assign(h, h + static_cast<size_t>(n4) * n4);
   child_.assign(rel_child, rel_child + kr);
   parent_.assign(rel_parent, rel_parent + kr);
@@ -126,7 +136,7 @@ void FastSolver::set_probes(int p, const double* rows, double diag, double reach
   pp_ = round_up(std::max(p, 1));
   probe_.assign(static_cast<size_t>(n4) * pp_, 0.0f);
   for (int i = 0; i < p; ++i)
-    for (int k = 0; k < n4; ++k) probe_[static_cast<size_t>(k) * pp_ + i] = static_cast<float>(rows[static_cast<size_t>(i) * n4 + k]);
+    for (int k = 0; k < n4; ++k) probe_[static_cast<size_t>(k) * pp_ + i] = normal_or_zero(rows[static_cast<size_t>(i) * n4 + k]);
   pv_.assign(3 * static_cast<size_t>(pp_), 0.0f);
   diag_ = diag;
   reach_ = reach;
@@ -138,7 +148,7 @@ void FastSolver::set_contacts(int kc, const double* rows, const int32_t* axes) {
   crow64_.assign(rows, rows + static_cast<size_t>(kc) * n4);
   crow_.assign(static_cast<size_t>(std::max(kc, 1)) * mp_, 0.0f);
   for (int q = 0; q < kc; ++q)
-    for (int k = 0; k < n4; ++k) crow_[static_cast<size_t>(q) * mp_ + k] = static_cast<float>(rows[q * n4 + k]);
+    for (int k = 0; k < n4; ++k) crow_[static_cast<size_t>(q) * mp_ + k] = normal_or_zero(rows[q * n4 + k]);
   int most = 0;
   for (int c = 0; c < 3; ++c) {
     cidx_[c].clear();
@@ -160,6 +170,7 @@ void FastSolver::set_contacts(int kc, const double* rows, const int32_t* axes) {
 
 void FastSolver::column_schur() {
   const int n4 = 4 * m_, nR = 3 * kr_;
+  contacts_ready_ = false;  // until every column is complete
   for (int c = 0; c < 3; ++c) {
     const int nc = nR + static_cast<int>(cidx_[c].size());
     float* zc = zc_.data() + static_cast<size_t>(c) * ncmax_ * mp_;
@@ -232,12 +243,16 @@ void FastSolver::set_values(const float* full, const float* rel, const float* po
   std::fill(tb_.begin(), tb_.end(), 0.0f);
   if (kf_ > 0) k_->gemm3(p2_.data(), mp_, mp_, 4 * kf_, full, 3, 1, tb_.data(), mp_, true);
   if (kp_ > 0) k_->gemm3(p2_.data() + static_cast<size_t>(4 * kf_) * mp_, mp_, mp_, kp_, pos, 3, 1, tb_.data(), mp_, true);
+  // The relative rows' Schur complement (Z, H_1; the contacts' Z_c) depends on rel alone: a held
+  // pose (the same rotations, bit for bit) keeps the last one.
+  const bool same_rel = kr_ > 0 && std::memcmp(relR_.data(), rel, sizeof(float) * 9 * kr_) == 0;
   if (kr_ > 0) std::memcpy(relR_.data(), rel, sizeof(float) * 9 * kr_);
   if (kc_ > 0) {
-    if (kr_ > 0 || !contacts_ready_) column_schur();
+    if (!contacts_ready_ || (kr_ > 0 && !same_rel)) column_schur();
     return;
   }
-  if (kr_ == 0) return;
+  if (kr_ == 0 || (same_rel && schur_ready_)) return;
+  schur_ready_ = false;  // until this one is complete
   const int n4 = 4 * m_, nR = 3 * kr_;
   relative_columns(rel, w_.data());  // W = H A_R^T
   // S = A_R W (nR x nR, column-major).
@@ -273,6 +288,7 @@ void FastSolver::set_values(const float* full, const float* rel, const float* po
       }
     }
   }
+  schur_ready_ = true;
 }
 
 double FastSolver::quad_energy(const float* x) {
@@ -301,8 +317,8 @@ void FastSolver::set_dynamics(const float* mass_h2, const float* hm, const float
   hf_.assign(static_cast<size_t>(n4) * mp_, 0.0f);
   for (int k = 0; k < n4; ++k)
     for (int j = 0; j < n4; ++j) {
-      mh_[static_cast<size_t>(j) * mp_ + k] = mass_h2[static_cast<size_t>(k) * n4 + j];
-      hf_[static_cast<size_t>(j) * mp_ + k] = hm[static_cast<size_t>(k) * n4 + j];
+      mh_[static_cast<size_t>(j) * mp_ + k] = normal_or_zero(mass_h2[static_cast<size_t>(k) * n4 + j]);
+      hf_[static_cast<size_t>(j) * mp_ + k] = normal_or_zero(hm[static_cast<size_t>(k) * n4 + j]);
     }
   force_.assign(D, 0.0f);
   hforce_.assign(D, 0.0f);
@@ -506,6 +522,7 @@ void FastSolver::set_limits(int nl, const int32_t* child, const int32_t* parent,
   h1_.assign(kr_ > 0 ? n4 * n4 : 1, 0.0);
   sl_.assign(nL * nL, 0.0);
   yl_.assign(nL * 3, 0.0);
+  schur_ready_ = false;  // H_1 is made with the relative rows' Schur complement
 }
 
 void FastSolver::project_limits(float* out) {

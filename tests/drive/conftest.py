@@ -30,8 +30,6 @@ def _make_take(path, rig, angles_deg, *, rate_hz: float = 100.0, zero=None, ok=N
     """Write a take of ``angles_deg`` (N, k) joint degrees as recorded by ``rig``'s servos with
     calibration ``zero`` ({id: ticks}; default the rig's). ok: (N, k) bool flags (default all).
     ids/models/rig_name: record it as another rig would."""
-    import json
-
     from puppet.reading import Reading
     from puppet.rig.calibration import Calibration
     from puppet.rig.servo_map import ServoMap
@@ -40,14 +38,13 @@ def _make_take(path, rig, angles_deg, *, rate_hz: float = 100.0, zero=None, ok=N
     servo_map = ServoMap(rig.servo_map.servos, Calibration(zero) if zero else None)
     if not zero:
         servo_map.zero[:] = rig.servo_map.zero
-    zero_table = {str(int(i)): int(z) for i, z in zip(servo_map.ids, servo_map.zero)}
     angles = np.radians(np.asarray(angles_deg, float))
     n, k = angles.shape
     ok = np.ones((n, k), bool) if ok is None else ok
     take_ids = rig.servo_map.ids if ids is None else np.asarray(ids, np.int64)
     take_models = dict(rig.servo_map.models) if models is None else models
     with TakeWriter(path, ids=take_ids, models=take_models, rig_map_text="",
-                    calibration_text=json.dumps({"zero_ticks": zero_table}),
+                    calibration_text=Calibration.capture(servo_map.ids, servo_map.zero).to_record(),
                     rig_name=rig_name or rig.name, overwrite=True) as writer:
         for row in range(n):
             ticks = servo_map.ticks_for(angles[row])[:len(take_ids)]

@@ -82,3 +82,73 @@ def test_live_refuses_an_actuator_on_a_sensed_joint(tmp_path):
     assert "Traceback" not in done.stderr
     assert f"Error: {path}:{_servo_line(text, 16)}" in done.stderr
     assert "actuator servo 16 sits on joint 'neck'" in done.stderr
+
+
+def _rig_with_a_model_without_watchdog(tmp_path, monkeypatch):
+    """critter_tail.toml whose tail actuator (servo 16) is a model with no Bus Watchdog: every
+    model of the table has one, so such a record is made here, as a future model might be."""
+    from dataclasses import replace
+
+    from puppet.servo_models import MODELS
+
+    monkeypatch.setitem(MODELS, "XL330-NOWD", replace(MODELS["XL330-M288"], name="XL330-NOWD",
+                                                      number=9999, bus_watchdog_firmware=None))
+    text = _tail_rig_text(**{'id = 16\nmodel = "XL330-M288"': 'id = 16\nmodel = "XL330-NOWD"'})
+    path = tmp_path / "nowd.toml"
+    path.write_text(text)
+    return load_rig(path), path, text
+
+
+def test_every_model_of_the_table_has_a_bus_watchdog():
+    from puppet.servo_models import MODELS
+
+    assert {m.bus_watchdog_firmware for m in MODELS.values()} == {38}
+
+
+def test_an_actuator_without_bus_watchdog_is_refused_unless_no_watchdog(tmp_path, monkeypatch):
+    from puppet.drive.actuators import ActuationPlan
+
+    rig, path, text = _rig_with_a_model_without_watchdog(tmp_path, monkeypatch)
+    with pytest.raises(RigError) as caught:
+        ActuationPlan.for_rig(rig, 100.0)
+    err = caught.value
+    assert (err.path, err.line, err.field) == (str(path), _servo_line(text, 16), "servo 16 model")
+    assert str(err).startswith(f"{path}:{_servo_line(text, 16)}: servo 16 model: model XL330-NOWD "
+                               "has no Bus Watchdog")
+    assert "--no-watchdog" in str(err)
+    plan = ActuationPlan.for_rig(rig, 100.0, watchdog_ms=0.0)  # live --no-watchdog
+    assert (plan.ids, plan.watchdog_units) == ((16,), 0)
+
+
+def test_perform_refuses_a_model_without_bus_watchdog_unless_no_watchdog(tmp_path, monkeypatch,
+                                                                        make_take):
+    from puppet.drive import DriveError, PerformOptions, perform
+    from puppet.take import TakeReader
+
+    rig, path, text = _rig_with_a_model_without_watchdog(tmp_path, monkeypatch)
+    take = make_take(tmp_path / "t.mcap", rig, [[0.0] * len(rig.servo_map.ids)] * 3)
+    with pytest.raises(RigError) as caught:
+        perform(rig, TakeReader(take), str(tmp_path / "no-port"), PerformOptions(yes=True))
+    assert caught.value.field == "servo 16 model"
+    assert caught.value.line == _servo_line(text, 16)
+    # --no-watchdog: past the rig's check, on to the port (which is not there)
+    with pytest.raises(DriveError) as caught:
+        perform(rig, TakeReader(take), str(tmp_path / "no-port"),
+                PerformOptions(yes=True, watchdog=False))
+    assert str(caught.value).startswith(f"performance stopped (torque never went on): port "
+                                        f"{tmp_path / 'no-port'}: cannot open")
+
+
+def test_live_command_refuses_it_naming_servo_model_and_line(tmp_path, monkeypatch):
+    from click.testing import CliRunner
+
+    from puppet.cli import main
+
+    _, path, text = _rig_with_a_model_without_watchdog(tmp_path, monkeypatch)
+    result = CliRunner().invoke(main, ["live", "--rig", str(path), "--port", "/dev/null",
+                                       "--seconds", "1"])
+    assert result.exit_code == 1
+    assert result.stderr.strip() == (
+        f"Error: {path}:{_servo_line(text, 16)}: servo 16 model: model XL330-NOWD has no Bus "
+        "Watchdog: if this host stopped, the servo would hold its last goal with torque on; "
+        "drive a model that has one, or pass --no-watchdog")

@@ -11,9 +11,9 @@ import pytest
 
 import hw_sim
 from puppet.drive import DriveError, HealthStop, PerformOptions, perform
-from puppet.drive import items as it
 from puppet.drive.perform import _Health
 from puppet.drive.servos import ServoSetup, State
+from puppet.servo_models import MODELS
 from puppet.take import TakeReader
 from puppet.take.errors import TakeRigMismatch
 
@@ -85,7 +85,7 @@ def test_start_goes_from_present_no_faster_than_the_start_profile(rig, make_take
                 watching.set()
 
         report = _perform(rig, take, bus.port, start_speed_deg_s=40.0, on_phase=on_phase)
-        unit = it.VELOCITY_UNIT_DEG_S
+        unit = max(MODELS[m].velocity_unit_deg_s for m in rig.servo_map.models.values())
         assert max(seen.values()) > 0
         assert max(seen.values()) * unit <= report.start_profile_deg_s + unit
         assert 40.0 - unit <= report.start_profile_deg_s <= 40.0 + unit
@@ -111,11 +111,13 @@ def test_exception_during_playback_leaves_torque_off(rig, wave_take):
 
 
 def test_overload_stops_the_performance_naming_the_servo(rig, wave_take):
-    # Servo 4 is an XL430 (no current item): its own overload error (alert bit) stops it.
+    # The servo's own overload error (the alert bit of its status) stops it. (A load on an
+    # XL430 like servo 4 now meets the host's Present Load cap first: tests/drive/
+    # test_health_stops.py; here the servo latches its overload itself.)
     with hw_sim.serve(dict(rig.servo_map.models)) as bus:
         with pytest.raises(HealthStop) as info:
-            _perform(rig, wave_take, bus.port, loop=True,
-                     on_phase=_during_playback(lambda: bus.inject("load", 4, current=9000)))
+            _perform(rig, wave_take, bus.port, loop=True, on_phase=_during_playback(
+                lambda: bus.inject("hardware_error", 4, error="overload")))
         assert info.value.dxl_id == 4
         assert "overload" in str(info.value)
         assert str(info.value).startswith("servo 4:")
@@ -138,7 +140,7 @@ def test_sustained_current_above_the_host_cap_stops_it(rig, wave_take):
 
 def test_current_above_the_host_cap_stops_once_sustained():
     health = _Health(_two_servos(), PerformOptions(**OPTIONS))
-    unit = it.CURRENT_UNIT_MA["XL330-M288"]
+    unit = MODELS["XL330-M288"].current_unit_ma
     over = round(1500 / unit)  # 1500 mA: above the cap, 80 % of the 1750 mA Current Limit
     for _ in range(2):  # 0.2 s over the cap: not sustained yet
         health.check(_state([31, 31], current=[0, over]), dt=0.1)
@@ -170,7 +172,7 @@ def test_over_temperature_stops_the_performance_naming_the_servo(rig, wave_take)
 def _two_servos():
     """A bus as the health watchdog sees it after setup: XL330s 1 and 2, limits 70 C, 1750 mA."""
     setup = {i: ServoSetup(id=i, model="XL330-M288", firmware=52, temperature_limit=70,
-                           current_limit_ma=1750.0) for i in (1, 2)}
+                           current_limit_ma=1750.0, current_unit_ma=1.0) for i in (1, 2)}
     return SimpleNamespace(ids=[1, 2], setup=setup, models={1: "XL330-M288", 2: "XL330-M288"})
 
 

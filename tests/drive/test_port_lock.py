@@ -6,7 +6,6 @@ holder carries on untouched."""
 from __future__ import annotations
 
 import fcntl
-import json
 import os
 import signal
 import subprocess
@@ -17,7 +16,7 @@ import pytest
 
 import hw_sim
 from puppet.reading import Reading
-from puppet.rig import builtin
+from puppet.rig import Calibration, builtin
 from puppet.rig.load import BUILTIN_RIG
 from puppet.take import TakeWriter
 
@@ -32,9 +31,9 @@ def take(tmp_path_factory):
     rig = builtin()
     sm = rig.servo_map
     path = tmp_path_factory.mktemp("lock") / "rest.mcap"
-    zero = {str(int(i)): int(z) for i, z in zip(sm.ids, sm.zero)}
+    calibration = Calibration.capture(sm.ids, sm.zero)
     with TakeWriter(path, ids=sm.ids, models=dict(sm.models), rig_map_text="",
-                    calibration_text=json.dumps({"zero_ticks": zero}), rig_name=rig.name) as writer:
+                    calibration_text=calibration.to_record(), rig_name=rig.name) as writer:
         for n in range(100):
             writer.write(Reading(int(n * 1e7), sm.ids, sm.zero.astype(np.int32),
                                  np.ones(len(sm.ids), bool)))

@@ -4,6 +4,7 @@ read, ``hw-sim --rig`` serves exactly a rig's servos with a motion inside its li
 
 from __future__ import annotations
 
+import dataclasses
 import signal
 import subprocess
 import sys
@@ -16,19 +17,37 @@ import hw_sim.cli
 from hw_sim.control_table import MODELS as SIM_MODELS
 from hw_sim.control_table import TICKS_PER_TURN as SIM_TICKS_PER_TURN
 from hw_sim.motion import WithinLimits
+from hw_sim.servo import IDLE_CURRENT_MA
 from hw_sim.rig_servos import RigFileError, RigServo, read_rig_servos
-from puppet.servo_models import MODELS, TICKS_PER_TURN
+from puppet.servo_models import MODELS, TICKS_PER_TURN, ServoModel
 
 PRESENT_POSITION = 132
 
 
+def _device_facts(spec) -> dict:
+    """One hw_sim model row as puppet.servo_models.ServoModel names its fields."""
+    return dict(name=spec.name, number=spec.number,
+                fast_sync_read_firmware=spec.fast_sync_read_firmware,
+                current_unit_ma=spec.current_unit_ma, current_limit=spec.current_limit,
+                temperature_limit_c=spec.temp_limit,
+                bus_watchdog_firmware=spec.bus_watchdog_firmware,
+                ticks_per_turn=spec.ticks_per_turn, velocity_unit_rpm=spec.velocity_unit_rpm)
+
+
 def test_the_device_side_table_agrees_with_puppets():
-    assert {m.name: (m.number, m.fast_sync_read_firmware) for m in SIM_MODELS.values()} == \
-        {m.name: (m.number, m.fast_sync_read_firmware) for m in MODELS.values()}
+    # Every field of puppet's model table, for every model, equals hw_sim's own copy.
+    fields = [f.name for f in dataclasses.fields(ServoModel)]
+    assert sorted(_device_facts(SIM_MODELS["XL330-M288"].spec)) == sorted(fields)
+    assert {m.spec.name: _device_facts(m.spec) for m in SIM_MODELS.values()} == \
+        {m.name: dataclasses.asdict(m) for m in MODELS.values()}
     assert SIM_TICKS_PER_TURN == TICKS_PER_TURN
     for model in SIM_MODELS.values():  # the items puppet reads sit where puppet reads them
         assert (model.field("Model Number").addr, model.field("Present Position").addr,
                 model.field("Present Position").size) == (0, 132, 4)
+        senses = "Present Current" if MODELS[model.name].current_unit_ma else "Present Load"
+        assert model.by_addr[126].name == senses
+        assert ("Current Limit" in model.by_name) == (MODELS[model.name].current_limit is not None)
+        assert model.field("Temperature Limit").default == MODELS[model.name].temperature_limit_c
 
 
 def test_hw_sim_imports_nothing_of_puppet():
@@ -52,6 +71,32 @@ def test_every_model_is_served_and_read_by_the_bus():
             assert reading.ticks.tolist() == [2048] * len(servos)
         finally:
             reader.close()
+
+
+def test_every_model_reports_a_load_in_its_own_current_unit(open_sdk, wait_until):
+    # A load of half the motor's current (plus the idle current) reads back, through the SDK,
+    # as that current in the model's Present Current unit, or as Present Load (0.1 % of the
+    # motor's current) on a model that senses no current.
+    servos = {k + 1: name for k, name in enumerate(MODELS)}
+    with hw_sim.serve(servos) as bus:
+        sdk = open_sdk(bus.port)
+        expected = {}
+        for i, name in servos.items():
+            motor_ma = SIM_MODELS[name].spec.motor_current_ma
+            assert sdk.write(i, 64, 1, 1) == 0
+            bus.inject("load", i, current=motor_ma / 2)
+            unit = MODELS[name].current_unit_ma
+            drawn_ma = motor_ma / 2 + IDLE_CURRENT_MA
+            expected[i] = drawn_ma / unit if unit else 1000 * drawn_ma / motor_ma
+
+        def present(i: int) -> int:
+            raw = sdk.read4(i, 124) >> 16 & 0xFFFF  # Present PWM (124) then item 126
+            return raw - (1 << 16) if raw >= 1 << 15 else raw
+
+        for i in servos:  # the current settles from below (first order): wait, then compare
+            wait_until(lambda i=i: present(i) >= 0.97 * expected[i],
+                       what=f"servo {i} ({servos[i]}) reads its load")
+            assert present(i) == pytest.approx(expected[i], rel=0.03), servos[i]
 
 
 def rig_file(tmp_path, calibration: str = ""):

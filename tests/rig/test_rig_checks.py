@@ -57,12 +57,22 @@ def test_ticks_per_turn_and_energy_names_are_defined_once():
     import puppet.bus.control_table as ct
     import puppet.fast.energy as energy
     import puppet.rig
-    import puppet.rig.servo_map as servo_map
     import puppet.servo_models as servo_models
 
-    assert ct.TICKS_PER_TURN is servo_map.TICKS_PER_TURN is servo_models.TICKS_PER_TURN
+    assert ct.TICKS_PER_TURN is servo_models.TICKS_PER_TURN
     assert ct.MODELS is servo_models.MODELS
     assert puppet.rig.ENERGIES is energy.ENERGIES
+
+
+def test_servo_unit_conversions_live_only_in_servo_models():
+    # ticks <-> radians or degrees, and per-model units, are coded once (puppet.servo_models):
+    # no other module scales by the turn, holds a per-model unit table or its own turn constants.
+    copies = re.compile(r"TICKS_PER_TURN\s*/\s*(360|\(?2)|(2\s*\*\s*(np\.|math\.)?pi|360(\.0)?)\s*/\s*"
+                        r"TICKS_PER_TURN|4096\s*/\s*360|CURRENT_UNIT_MA|TICKS_PER_DEGREE|"
+                        r"^\s*HALF_TURN\s*=|BUS_WATCHDOG_FIRMWARE\s*=", re.M)
+    found = sorted(path.relative_to(PACKAGE).as_posix() for path in PACKAGE.rglob("*.py")
+                   if path.name != "servo_models.py" and copies.search(path.read_text()))
+    assert found == []
 
 
 def test_every_model_of_the_table_is_accepted_and_others_are_listed(tmp_path):

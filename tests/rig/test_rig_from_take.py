@@ -118,3 +118,34 @@ def test_a_take_without_a_rig_map_asks_for_rig(tmp_path):
     assert result.stderr.strip() == (f"Error: {take}: the take stores no rig map (recorded with rig "
                                      "'creature' loaded from a character file); pass --rig with "
                                      "that rig's file")
+
+
+def test_replay_and_perform_read_the_takes_calibration_through_one_codec(tmp_path):
+    """record writes the record (take_writer), replay and perform read it back (open_take,
+    TakeGoals.from_take); a damaged record is an error naming the take, for both."""
+    from puppet.drive.goals import TakeGoals
+    from puppet.replay import open_take
+    from puppet.rig import Calibration, RigError
+
+    rig = load_rig(BUILTIN_RIG)
+    rig.servo_map.calibrate(Calibration({int(i): 2048 + 7 * n for n, i in enumerate(rig.servo_map.ids)}))
+    take = tmp_path / "cal.mcap"
+    with take_writer(str(take), rig) as writer:
+        writer.write(Reading(0, rig.servo_map.ids, rig.servo_map.zero.astype(np.int32),
+                             np.ones(len(rig.servo_map.ids), bool)))
+    replayed, reader = open_take(take, load_rig(BUILTIN_RIG))
+    assert replayed.servo_map.zero.tolist() == rig.servo_map.zero.tolist()
+    goals = TakeGoals.from_take(reader, load_rig(BUILTIN_RIG).servo_map)
+    np.testing.assert_allclose(goals.goals[0], load_rig(BUILTIN_RIG).servo_map.zero)  # rest pose
+
+    bad = tmp_path / "bad.mcap"
+    with TakeWriter(bad, ids=rig.servo_map.ids, models=rig.servo_map.models, rig_map_text="",
+                    calibration_text="[zero_ticks]\n1 = 2048\n", rig_name=rig.name) as writer:
+        writer.write(Reading(0, rig.servo_map.ids, rig.servo_map.zero.astype(np.int32),
+                             np.ones(len(rig.servo_map.ids), bool)))
+    with pytest.raises(RigError) as info:
+        open_take(bad, load_rig(BUILTIN_RIG))
+    assert str(info.value).startswith(f"{bad}: calibration record: not valid JSON")
+    with pytest.raises(RigError) as info:
+        TakeGoals.from_take(TakeReader(bad), load_rig(BUILTIN_RIG).servo_map)
+    assert str(info.value).startswith(f"{bad}: calibration record: not valid JSON")

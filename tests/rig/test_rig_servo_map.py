@@ -132,3 +132,21 @@ def test_invalid_toml_is_reported_with_the_file(tube_rig_dir):
     path.write_text("name = \n")
     with pytest.raises(RigError, match="bad.toml:1: not valid TOML"):
         read_rig_file(path)
+
+
+def test_the_takes_calibration_record_round_trips_and_a_bad_one_names_the_take():
+    cal = Calibration({12: -4000, 3: 2048, 7: 1900})
+    text = cal.to_record()
+    assert text == '{"zero_ticks": {"3": 2048, "7": 1900, "12": -4000}}'
+    assert Calibration.from_record(text, "t.mcap").zero_ticks == {3: 2048, 7: 1900, 12: -4000}
+    assert Calibration.from_record("", "t.mcap").zero_ticks == {}  # a take that stores none
+    for bad, message in [("[zero]\n3 = 2048", "t.mcap: calibration record: not valid JSON"),
+                         ('{"zero": {}}', "t.mcap: calibration record zero_ticks: missing table"),
+                         ('{"zero_ticks": {"3": "x"}}',
+                          "t.mcap: calibration record zero_ticks.3: zero ticks must be a 32-bit"),
+                         ('{"zero_ticks": {"300": 1}}',
+                          "t.mcap: calibration record zero_ticks.300: servo id 300 is not in")]:
+        with pytest.raises(RigError) as info:
+            Calibration.from_record(bad, "t.mcap")
+        assert str(info.value).startswith(message), str(info.value)
+        assert info.value.path == "t.mcap"

@@ -161,6 +161,9 @@ def test_native_forward_kinematics_matches_a_numpy_reference(seed):
         assert sk.pose_from_rotations(rot_ref, pose) is pose
         np.testing.assert_allclose(pose, pose_ref, rtol=0, atol=1e-12)
         np.testing.assert_allclose(sk.pose(angles), pose_ref, rtol=0, atol=1e-12)
+        rot_too = np.empty((sk.bone_count, 3, 3))
+        np.testing.assert_allclose(sk.pose(angles, pose, rotations=rot_too), pose_ref, rtol=0, atol=1e-12)
+        np.testing.assert_array_equal(rot_too, rot)
 
 
 def test_forward_kinematics_needs_every_angle_its_axes_read():
