@@ -291,7 +291,7 @@ class ActuatorHook:
 
 class LiveActuation:
     """The host's side in ``live``: each frame's solve -> the actuators' wanted goals, handed
-    to the reader process's goal channel (``source.set_actuator_goals``).
+    to the reader process's goal channel (``source.set_goals``).
 
     rig: the rig (its ``servo_map.actuators``); ``source``: set it to the started ReaderProcess
     whose hook is this rig's ``ActuatorHook``. Use ``after_solve`` as ``run_live``'s hook.

@@ -40,7 +40,7 @@ from dataclasses import asdict, dataclass, field
 import numpy as np
 
 from puppet.bus.control_table import describe_hardware_error
-from puppet.bus.errors import BusError, PortError, ServoTimeout
+from puppet.bus.errors import BusError, PortError, ServoCorrupt, ServoTimeout
 from puppet.bus.link import BusLink
 from puppet.bus.port_lock import PortInUse
 from puppet.drive import items as it
@@ -58,9 +58,11 @@ stalled line) before the performance stops, if the servo then fails a read of it
 RESCUES_TO_STOP = 3
 """Times in a row the servos of a failing group read all answer alone (no full reading in
 between) before the performance stops anyway: the health checks need the group read."""
-WATCHDOG_TRIPS_TO_STOP = 3
-"""Watchdog checks in a row that find a servo's Bus Watchdog tripped before the performance
-stops (each earlier trip is re-armed)."""
+WATCHDOG_TRIPS_TO_STOP = 10
+"""Watchdog checks in a row (one every WATCHDOG_CHECK_CYCLES cycles) that find a servo's Bus
+Watchdog tripped before the performance stops; each earlier trip is re-armed. A host (or, on
+hw_sim, a simulator) starved for more than the watchdog period trips it again and again on a
+loaded machine: that costs the servo a slow ease back each time, not the performance."""
 PORT_RETRY_S = 2.0
 """How long a port lost mid-performance is tried again (every ``PORT_RETRY_PERIOD_S``) to turn
 torque off."""
@@ -322,15 +324,19 @@ def _start(bus: DriveBus, goals: TakeGoals, opts, report, say, check_signal, pha
         for n in range(opts.countdown_s, 0, -1):
             say(f"{n}...")
             _wait(1.0, bus, opts, check_signal)
-    bus.write_goals(first)
+    bus.write_all(it.GOAL_POSITION, np.round(first))  # sent again while the line is stalled
     timeout = distance / max(report.start_profile_deg_s, 1e-3) * 3 + opts.arrive_timeout_s
     deadline = time.monotonic() + timeout
     speeds = np.zeros(len(bus.ids))
 
     def rearm(n: int) -> None:  # a stall tripped its watchdog: back to the slow move
         dxl_id = bus.ids[n]
-        bus.rearm(dxl_id, _watchdog_units(opts))
-        bus.write(dxl_id, it.GOAL_POSITION, int(round(first[n])))
+        try:
+            bus.rearm(dxl_id, _watchdog_units(opts))
+            bus.write(dxl_id, it.GOAL_POSITION, int(round(first[n])))
+        except (ServoTimeout, ServoCorrupt) as err:  # the next check tries again
+            say(f"servo {dxl_id}: re-arming its Bus Watchdog failed ({err})")
+            return
         _rearmed(report, say, dxl_id)
 
     health = _Health(bus, opts, on_trip=rearm)
@@ -477,7 +483,11 @@ def _playback(bus: DriveBus, goals: TakeGoals, servo_map, start_pose: np.ndarray
 
     def rearm(n: int) -> None:  # a stall tripped its watchdog: ease back from where it stopped
         dxl_id = bus.ids[n]
-        shaper.ease(n, bus.rearm(dxl_id, _watchdog_units(opts)), ease_step[n])
+        try:
+            shaper.ease(n, bus.rearm(dxl_id, _watchdog_units(opts)), ease_step[n])
+        except (ServoTimeout, ServoCorrupt) as err:  # still tripped: the next check tries again
+            say(f"servo {dxl_id}: re-arming its Bus Watchdog failed ({err})")
+            return
         _rearmed(report, say, dxl_id)
 
     health = _Health(bus, opts, on_trip=rearm)

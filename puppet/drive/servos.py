@@ -157,8 +157,8 @@ class DriveBus:
         link, model = self.link, self.models[dxl_id]
         info = ServoSetup(dxl_id, model, firmware)
         for attempt in range(ATTEMPTS):
-            try:
-                ensure_status_return(link, dxl_id, self.changes)
+            try:  # patient while the line is stalled (its writes set absolute values)
+                self._patient(lambda: ensure_status_return(link, dxl_id, self.changes), dxl_id)
                 break
             except (ServoTimeout, ServoCorrupt, ServoStatusError):  # a late reply misread
                 if attempt == ATTEMPTS - 1:
@@ -265,6 +265,11 @@ class DriveBus:
                 except ServoTimeout as err:
                     late = err.line_stalled or not heard or self.link.witness(heard[-1]) != SILENT
                     if late and time.monotonic() < deadline:
+                        continue
+                    out[dxl_id] = err
+                    break
+                except ServoCorrupt as err:  # a late reply to another read, misread: ask again
+                    if time.monotonic() < deadline:
                         continue
                     out[dxl_id] = err
                     break

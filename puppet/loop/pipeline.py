@@ -192,9 +192,8 @@ class Pipeline:
         rig.servo_map.angles(reading.ticks, out=self.angles)
         free = self.dropout.update(reading)
         steps = self.steps.update(reading.t_ns)
-        rot = rig.skeleton.joint_rotations(self.angles, self._rot)
-        pose = rig.skeleton.pose_from_rotations(rot, self._pose)
-        stats = self.live.solve(free, rot, pose, self.T, self.iterations, steps)
+        rig.skeleton.pose(self.angles, out=self._pose, rotations=self._rot)  # one native call
+        stats = self.live.solve(free, self._rot, self._pose, self.T, self.iterations, steps)
         self.solve_ns += time.perf_counter_ns() - start
         self.iterate_ns += stats.iterate_ns
         self.solver_iterations += int(stats.iterations)

@@ -165,3 +165,16 @@ def test_a_reader_process_killed_has_its_actuators_stopped_from_the_parent(wait_
         assert source.torque_after == {ACTUATOR: 0}
         assert bus.servo(ACTUATOR).get("Torque Enable") == 0
         assert bus.servo(ACTUATOR).get("Bus Watchdog") == 0
+
+
+def test_a_port_gone_for_long_is_noted_with_the_release_command(wait_until):
+    with hw_sim.serve(MODELS) as bus:
+        source = _source(bus.link)
+        try:
+            bus.inject("unplug")
+            gone = wait_until(lambda: _events(source, "port_gone"), what="the port noted gone")
+            assert gone[0].ids == (ACTUATOR,)
+            assert f"`puppet release --port {bus.link}` turns it off" in gone[0].detail
+        finally:
+            source.stop()
+        assert source.torque_after == {ACTUATOR: None}  # unreadable: the port is gone
