@@ -12,11 +12,12 @@ import os
 from dataclasses import dataclass
 from pathlib import Path
 
-from puppet.atomic import check_output
+from puppet.atomic import check_folder_output, check_output
 from puppet.batch.errors import BatchError
 
 FORMATS = ("mp4", "gltf", "usd", "pc2", "bvh")
 SUFFIXES = {"mp4": ".mp4", "gltf": ".glb", "usd": ".usdc", "pc2": ".pc2", "bvh": ".bvh"}
+KINDS = {"mp4": "video", "gltf": "glb", "usd": "usd", "pc2": "pc2", "bvh": "bvh"}  # puppet.atomic
 DEFAULT_FORMATS = ("gltf", "usd", "pc2", "bvh")
 TAKE_SUFFIX = ".mcap"
 
@@ -78,7 +79,7 @@ def expand_takes(patterns: list[str] | tuple[str, ...]) -> list[Path]:
 
 def prepare_out(out: str | os.PathLike) -> Path:
     """The output folder, created if missing; BatchError unless a file can be made in it."""
-    folder = Path(out)
+    folder = check_folder_output(out, what="output folder")
     try:
         folder.mkdir(parents=True, exist_ok=True)
     except OSError as err:
@@ -96,9 +97,10 @@ def prepare_out(out: str | os.PathLike) -> Path:
 
 
 def plan_jobs(takes: list[Path], out: Path, formats: tuple[str, ...],
-              inputs: list[Path]) -> list[Job]:
-    """One Job per take; BatchError if two takes share a name (same output files) or an output
-    would be one of the inputs (a take, a rig file)."""
+              inputs: list[Path], *, force: bool = False) -> list[Job]:
+    """One Job per take; BatchError if two takes share a name (same output files), OutputError
+    if an output breaks ``puppet.atomic``'s rule (one of the inputs: a take, a rig file; a
+    device; another kind of file without ``force``)."""
     jobs: list[Job] = []
     by_name: dict[str, Path] = {}
     all_inputs = list(takes) + list(inputs)
@@ -108,8 +110,8 @@ def plan_jobs(takes: list[Path], out: Path, formats: tuple[str, ...],
             raise BatchError(f"{take}: same name as {other}: both would write {out / take.stem}.*; "
                              "rename one or run them in two batches")
         outputs = {fmt: out / f"{take.stem}{SUFFIXES[fmt]}" for fmt in formats}
-        for target in outputs.values():
-            check_output(target, inputs=all_inputs)
+        for fmt, target in outputs.items():
+            check_output(target, kind=KINDS[fmt], inputs=all_inputs, force=force)
         jobs.append(Job(take, outputs))
     return jobs
 

@@ -19,10 +19,10 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from puppet.atomic import atomic_output
+from puppet.atomic import OutputError, atomic_output, check_output
 from puppet.batch.errors import BatchError
 from puppet.batch.local import LocalEngine
-from puppet.batch.plan import (DEFAULT_FORMATS, Job, expand_takes, is_done, parse_formats,
+from puppet.batch.plan import (DEFAULT_FORMATS, KINDS, Job, expand_takes, is_done, parse_formats,
                                plan_jobs, prepare_out)
 from puppet.batch.ray_engine import RayEngine
 from puppet.batch.task import Settings, Shared, TakeResult
@@ -113,7 +113,7 @@ def make_engine(engine: str, workers: int | None, address: str | None):
 def run_batch(takes: list[str], out: str | os.PathLike, *, rig: Rig, rig_inputs: list[Path] = (),
               default_rig: bool = False, formats=DEFAULT_FORMATS, fps=30.0, up: str = "y",
               size=(640, 480), engine: str = "local", workers: int | None = None,
-              address: str | None = None, resume: bool = False,
+              address: str | None = None, resume: bool = False, force: bool = False,
               on_start: Callable[[int], None] | None = None,
               on_result: Callable[[TakeResult], None] | None = None) -> BatchReport:
     """Solve and write every take; see the module docstring for the order of checks.
@@ -134,7 +134,7 @@ def run_batch(takes: list[str], out: str | os.PathLike, *, rig: Rig, rig_inputs:
     inputs = [Path(p) for p in rig_inputs]
     paths = expand_takes(takes)
     folder = prepare_out(out)
-    jobs = plan_jobs(paths, folder, formats, inputs)
+    jobs = plan_jobs(paths, folder, formats, inputs, force=force)
     runner = make_engine(engine, workers, address)
     report = BatchReport(engine=engine, workers=workers or getattr(runner, "workers", None))
     rows: dict[Path, TakeResult] = {}
@@ -161,7 +161,7 @@ def run_batch(takes: list[str], out: str | os.PathLike, *, rig: Rig, rig_inputs:
 
             def finished(job: Job, result: TakeResult) -> None:
                 if result.error is None:
-                    _commit(job, result)
+                    _commit(job, result, [*paths, *inputs], force)
                 rows[job.take] = result
                 if on_result is not None:
                     on_result(result)
@@ -182,17 +182,21 @@ def run_batch(takes: list[str], out: str | os.PathLike, *, rig: Rig, rig_inputs:
     return report
 
 
-def _commit(job: Job, result: TakeResult) -> None:
+def _commit(job: Job, result: TakeResult, inputs: list[Path], force: bool) -> None:
     """Put a finished take's files in place: rename from staging (local) or write the bytes a
     remote worker sent (Ray), each atomically; a failure here is the take's error."""
     try:
         for fmt, target in job.outputs.items():
+            rule = dict(kind=KINDS[fmt], inputs=inputs, force=force)
             if result.data is not None:
-                with atomic_output(target) as temporary:
+                with atomic_output(target, **rule) as temporary:
                     temporary.write_bytes(result.data[fmt])
             else:
+                check_output(target, **rule)  # again: the folder may have changed meanwhile
                 os.replace(result.files[fmt], target)
         result.files = {fmt: str(target) for fmt, target in job.outputs.items()}
+    except OutputError as err:
+        result.error = str(err)
     except OSError as err:
         result.error = f"{err.filename or job.take}: cannot write the output: {err.strerror or err}"
     result.data = None

@@ -115,7 +115,7 @@ def run_take(job: Job, shared: Shared, staging: Path) -> TakeResult:
                 writers = [stack.enter_context(ExportWriters(rig, reader, exports, frames,
                                                              up=settings.up))
                            ] if exports.items() else []
-                with atomic_output(staging / names["mp4"]) as temporary:
+                with atomic_output(staging / names["mp4"], kind="video") as temporary:
                     sink = VideoSink(temporary, settings.fps)
                     try:
                         summary = play_take(rig, reader, [sink], frames=frames, solved=writers,

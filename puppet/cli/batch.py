@@ -7,7 +7,7 @@ import sys
 
 import click
 
-from puppet.cli.common import load_rig, rig_files
+from puppet.cli.common import force_option, load_rig, rig_files
 
 
 @click.command()
@@ -33,9 +33,10 @@ from puppet.cli.common import load_rig, rig_files
 @click.option("--resume", is_flag=True,
               help="Skip takes whose outputs all exist and are newer than the take and the rig.")
 @click.option("--json", "as_json", is_flag=True, help="Print the report as one JSON line.")
+@force_option
 def batch(takes: tuple[str, ...], out: str, rig_path: str | None, formats: str, fps: str,
           size: tuple[int, int], up: str, engine: str, address: str | None, workers: int | None,
-          resume: bool, as_json: bool) -> None:
+          resume: bool, as_json: bool, force: bool) -> None:
     """Solve and write every take; a failed take is reported and the others go on.
 
     \b
@@ -65,7 +66,7 @@ def batch(takes: tuple[str, ...], out: str, rig_path: str | None, formats: str, 
         report = run_batch(list(takes), out, rig=rig, rig_inputs=rig_files(rig),
                            default_rig=rig_path is None, formats=formats, fps=fps, up=up,
                            size=size, engine=engine, workers=workers, address=address,
-                           resume=resume, on_start=on_start, on_result=on_result)
+                           resume=resume, force=force, on_start=on_start, on_result=on_result)
     finally:
         if bar is not None:
             bar.__exit__(None, None, None)

@@ -2,9 +2,11 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import click
 
-from puppet.cli.common import fail, load_rig, print_setup
+from puppet.cli.common import fail, force_option, load_rig, print_setup, rig_files
 
 
 
@@ -62,8 +64,10 @@ def scan(port: str, baud: int) -> None:
               help="With --guided: seconds to wait for each joint to move and to come back.")
 @click.option("--threshold", default=150, show_default=True,
               help="With --guided: ticks a servo must move to count (4096 per turn).")
+@force_option
 def calibrate(rig_path: str, port: str, baud: int, out: str | None, guided: bool = False,
-              yes: bool = False, timeout_s: float = 120.0, threshold: int = 150) -> None:
+              yes: bool = False, timeout_s: float = 120.0, threshold: int = 150,
+              force: bool = False) -> None:
     """Capture the zero pose: hold the puppet in the rig's rest pose, then run this.
 
     With --guided, also find which servo each [[servo]] block is and its sign: move each joint
@@ -75,8 +79,9 @@ def calibrate(rig_path: str, port: str, baud: int, out: str | None, guided: bool
       puppet calibrate --rig my.toml --port /dev/ttyUSB0 --guided
     """
     if guided:
-        _calibrate_guided(rig_path, port, baud, out, yes, timeout_s, threshold)
+        _calibrate_guided(rig_path, port, baud, out, yes, timeout_s, threshold, force)
         return
+    from puppet.atomic import check_output
     from puppet.bus import BusError, ServoReader
     from puppet.rig import Calibration
 
@@ -84,6 +89,11 @@ def calibrate(rig_path: str, port: str, baud: int, out: str | None, guided: bool
     target = out or rig.calibration.path
     if target is None:
         fail(f"{rig_path}: the rig names no calibration file; pass --out FILE")
+    # the rig's own calibration file is what this command rewrites; every other file is an input
+    own = rig.calibration.path
+    inputs = [f for f in rig_files(rig) if own is None or Path(f).resolve() != Path(own).resolve()]
+    rule = dict(kind="calibration", inputs=inputs, force=force, what="calibration file")
+    check_output(target, **rule)  # before the bus: a refused output costs nothing
     reader = ServoReader(port, rig.servo_map.models, baud=baud)
     try:
         report = reader.open()
@@ -98,20 +108,21 @@ def calibrate(rig_path: str, port: str, baud: int, out: str | None, guided: bool
         fail(_on_port(port, err))
     finally:
         reader.close()
-    path = Calibration.capture(reading.ids, reading.ticks).save(target)
+    path = Calibration.capture(reading.ids, reading.ticks).save(target, **rule)
     click.echo(f"calibration: {path}")
     for dxl_id, ticks in zip(reading.ids, reading.ticks):
         click.echo(f"  servo {int(dxl_id)}: zero {int(ticks)}")
 
 
 def _calibrate_guided(rig_path: str, port: str, baud: int, out: str | None, yes: bool,
-                      timeout_s: float, threshold: int) -> None:
+                      timeout_s: float, threshold: int, force: bool) -> None:
     """``calibrate --guided``: prompts on stderr, results written into the rig file."""
     from puppet.bus import BusError, ServoReader
     from puppet.bus.control_table import MODELS_BY_NUMBER
     from puppet.rig.guided_calibration import GuidedCalibration
 
     session = GuidedCalibration(rig_path)
+    session.check_out(out, force=force)  # before the bus: a refused output costs nothing
     found = _ping_all(port, baud)
     unknown = sorted(i for i, (number, _) in found.items() if number not in MODELS_BY_NUMBER)
     if unknown:
@@ -136,7 +147,7 @@ def _calibrate_guided(rig_path: str, port: str, baud: int, out: str | None, yes:
         fail(_on_port(port, err))
     finally:
         reader.close()
-    path = session.write(results, out)
+    path = session.write(results, out, force=force)
     click.echo(f"rig file: {path}")
     if session.calibration_file is not None:
         click.echo(f"calibration: {session.calibration_file} (zero ticks updated too)")

@@ -72,19 +72,31 @@ class StopFlag:
         return self.stop
 
 
-def make_sinks(out: str | None, frames: str | None, fps: float, inputs=()) -> list:
-    """Frame sinks for a video file and/or a PNG folder; the video may not be one of ``inputs``
-    (it is written to a temporary file and renamed into place when finished)."""
-    from puppet.atomic import check_output
+def make_sinks(out: str | None, frames: str | None, fps: float, inputs=(), *,
+               force: bool = False) -> list:
+    """Frame sinks for a video file and/or a PNG folder, after checking both by the one rule
+    for outputs (``puppet.atomic``: not one of ``inputs``, not a device or FIFO, an existing file
+    of another kind only with ``force``). The video is written to a temporary file and renamed
+    into place when finished."""
+    from puppet.atomic import check_folder_output, check_output
     from puppet.render import PngSink, VideoSink
 
+    if out:
+        check_output(out, kind="video", inputs=inputs, force=force, what="video")
+    if frames:
+        check_folder_output(frames)
     sinks = []
     if out:
-        sinks.append(VideoSink(check_output(out, inputs=inputs, what="video"), fps))
+        sinks.append(VideoSink(out, fps))
     if frames:
         Path(frames).mkdir(parents=True, exist_ok=True)
         sinks.append(PngSink(frames))
     return sinks
+
+
+force_option = click.option(
+    "--force", is_flag=True,
+    help="Overwrite an existing output of another kind (an input, a device or a FIFO never).")
 
 
 def close_sinks(sinks, *, failed: bool = False) -> None:
@@ -143,23 +155,19 @@ def print_summary(summary, as_json: bool, extra: dict | None = None) -> None:
 
 
 def rig_files(rig) -> list[Path]:
-    """The files a rig was loaded from: rig file, character files, calibration (may be none)."""
-    files = [rig.path] if rig.path is not None else []
-    if rig.calibration.path is not None:
-        files.append(rig.calibration.path)
-    if rig.path is not None and rig.path.suffix == ".toml":
-        from puppet.rig.rig_file import read_rig_file
+    """The files a rig was loaded from (``puppet.rig.rig_file.loaded_files``)."""
+    from puppet.rig.rig_file import loaded_files
 
-        spec = read_rig_file(rig.path)
-        files += [p for p in (spec.mesh, spec.skeleton, spec.weights, spec.calibration) if p]
-    return files
+    return loaded_files(rig)
 
 
-def check_take_path(take_path: str, rig, *, force: bool) -> Path:
-    """Refuse a take path that is one of the rig's files, or an existing file without --force."""
+def check_take_path(take_path: str, rig, *, force: bool, inputs=()) -> Path:
+    """Refuse a take path that is one of the rig's files (or ``inputs``), a device or FIFO, or
+    an existing file without --force."""
     from puppet.atomic import check_output
 
-    return check_output(take_path, inputs=rig_files(rig), overwrite=force, what="take")
+    return check_output(take_path, kind="take", inputs=[*rig_files(rig), *inputs], force=force,
+                        keep_existing=True, what="take")
 
 
 def take_writer(take_path: str, rig, *, force: bool = False):

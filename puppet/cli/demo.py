@@ -4,7 +4,8 @@ from __future__ import annotations
 
 import click
 
-from puppet.cli.common import Null, StopFlag, fail, make_sinks, print_summary, progress
+from puppet.cli.common import (Null, StopFlag, fail, force_option, make_sinks, print_summary,
+                               progress, rig_files)
 from puppet.cli.view import open_view, take_factory_for, view_option
 
 
@@ -23,8 +24,10 @@ from puppet.cli.view import open_view, take_factory_for, view_option
                    "critter_dynamics.toml).")
 @click.option("--json", "as_json", is_flag=True, help="Print the summary as JSON.")
 @view_option
+@force_option
 def demo(out: str, seconds: float | None, faults: str | None, size: tuple[int, int], fps: float,
-         antialias: str, dynamics: bool, as_json: bool, view_address: str | None) -> None:
+         antialias: str, dynamics: bool, as_json: bool, view_address: str | None,
+         force: bool) -> None:
     """Run the live loop on the built-in character and a simulated bus, into a video.
 
     \b
@@ -36,15 +39,19 @@ def demo(out: str, seconds: float | None, faults: str | None, size: tuple[int, i
     from hw_sim.errors import FaultFileError
     from hw_sim.faults import FaultSchedule
 
+    from puppet.atomic import check_output
     from puppet.demo import run_demo
     from puppet.rig.load import BUILTIN_DYNAMICS_RIG, builtin, load_rig
 
+    fault_file = faults
     if faults is not None:  # checked before anything starts: a bad file is the user's to fix
         try:
             faults = FaultSchedule.from_file(faults)
         except FaultFileError as err:
             fail(str(err))
     rig = load_rig(BUILTIN_DYNAMICS_RIG) if dynamics else builtin()
+    inputs = [fault_file, *rig_files(rig)]
+    check_output(out, kind="video", inputs=inputs, force=force, what="video")  # opened later
     live_view = None
     if view_address is not None:  # bound before the simulated bus starts
         live_view = open_view(view_address, mode="live", take_factory=take_factory_for(rig))
@@ -55,7 +62,8 @@ def demo(out: str, seconds: float | None, faults: str | None, size: tuple[int, i
         with bar if bar is not None else Null():
             summary, report = run_demo(seconds=seconds, faults=faults, width=size[0], height=size[1],
                                        video_fps=fps, on_frame=on_frame, antialias=antialias,
-                                       sinks_for=lambda _p: make_sinks(out, None, fps),
+                                       sinks_for=lambda _p: make_sinks(out, None, fps, inputs=inputs,
+                                                                      force=force),
                                        view=live_view, should_stop=StopFlag(), rig=rig)
     finally:
         if live_view is not None:

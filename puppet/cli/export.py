@@ -7,7 +7,7 @@ import sys
 
 import click
 
-from puppet.cli.common import open_take
+from puppet.cli.common import force_option, open_take
 
 
 @click.command()
@@ -25,8 +25,9 @@ from puppet.cli.common import open_take
 @click.option("--up", type=click.Choice(["y", "z"]), default="y", show_default=True,
               help="Up axis of the PC2 points: z for Blender's Mesh Cache.")
 @click.option("--json", "as_json", is_flag=True, help="Print the report as one JSON line.")
+@force_option
 def export(take: str, rig_path: str | None, gltf: str | None, usd: str | None, pc2: str | None,
-           bvh: str | None, fps: str, up: str, as_json: bool) -> None:
+           bvh: str | None, fps: str, up: str, as_json: bool, force: bool) -> None:
     """Export a take; frame 1 is the take's first reading in every format.
 
     \b
@@ -38,7 +39,7 @@ def export(take: str, rig_path: str | None, gltf: str | None, usd: str | None, p
     from puppet.export.run import check_fps
 
     fps_value = check_fps(fps)
-    outputs = Outputs(gltf=gltf, usd=usd, pc2=pc2, bvh=bvh)
+    outputs = Outputs(gltf=gltf, usd=usd, pc2=pc2, bvh=bvh, force=force)
     if not outputs.items():
         raise ExportError("export", "nothing to write: give --gltf, --usd, --pc2 and/or --bvh FILE")
     rig, reader = open_take(take, rig_path)

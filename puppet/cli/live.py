@@ -6,7 +6,8 @@ from pathlib import Path
 
 import click
 
-from puppet.cli.common import StopFlag, load_rig, make_sinks, print_summary, start_reader, take_writer
+from puppet.cli.common import (StopFlag, check_take_path, load_rig, make_sinks, print_summary,
+                               rig_files, start_reader, take_writer)
 from puppet.cli.view import open_view, take_factory_for, view_option
 
 READ_RATE_HZ = 500.0
@@ -37,7 +38,8 @@ def report_actuators(source) -> None:
 @click.option("--port", required=True, help="Serial port, e.g. /dev/ttyUSB0 or hw-sim's pty.")
 @click.option("--baud", default=1_000_000, show_default=True, help="Bus baud rate.")
 @click.option("--record", "take_path", default=None, help="Also record a take here (.mcap).")
-@click.option("--force", is_flag=True, help="Replace an existing take file (--record).")
+@click.option("--force", is_flag=True, help="Replace an existing take file (--record), or an "
+              "existing file of another kind at --out (an input, a device or a FIFO never).")
 @click.option("--out", default=None, help="Video file to write.")
 @click.option("--frames", default=None, help="Folder for PNG frames.")
 @click.option("--seconds", default=None, type=float, help="Stop after this long (default: Ctrl-C).")
@@ -68,12 +70,17 @@ def live(rig_path: str, port: str, baud: int, take_path: str | None, out: str | 
     from puppet.take import BackgroundTakeWriter
 
     rig = load_rig(rig_path)
+    if take_path:  # every output checked before the view, the bus or any file is touched
+        from puppet.atomic import check_distinct
+
+        check_distinct({"--record": take_path, "--out": out})
+        check_take_path(take_path, rig, force=force)
+    sinks = make_sinks(out, frames, fps, inputs=rig_files(rig), force=force)
     live_view = None
     if view_address is not None:  # bound before the bus is touched: a taken port fails first
         takes = Path(take_path).parent if take_path else Path(".")
         live_view = open_view(view_address, mode="live", take_factory=take_factory_for(rig),
                               takes_dir=takes)
-    sinks = make_sinks(out, frames, fps)
     stop = StopFlag()
     try:
         with Pipeline(rig, render=bool(sinks) or live_view is not None, overlay=True,

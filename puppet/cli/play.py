@@ -6,7 +6,8 @@ import sys
 
 import click
 
-from puppet.cli.common import StopFlag, close_sinks, fail, make_sinks, open_take, print_summary
+from puppet.cli.common import (StopFlag, close_sinks, fail, force_option, make_sinks, open_take,
+                               print_summary, rig_files)
 from puppet.cli.view import view_option
 
 
@@ -21,8 +22,9 @@ from puppet.cli.view import view_option
 @click.option("--antialias", type=click.Choice(["msaa", "fxaa", "none"]), default="msaa",
               show_default=True, help="Offline: MSAA by default, whatever the renderer.")
 @view_option
+@force_option
 def play(take: str, rig_path: str | None, out: str | None, frames: str | None, speed: float,
-         fps: float, antialias: str, view_address: str | None) -> None:
+         fps: float, antialias: str, view_address: str | None, force: bool) -> None:
     """Replay a take through the solver and renderer (deterministic).
 
     \b
@@ -35,12 +37,12 @@ def play(take: str, rig_path: str | None, out: str | None, frames: str | None, s
     if view_address is not None:
         from puppet.cli.view import play_in_view
 
-        play_in_view(take, rig_path, out, frames, speed, fps, view_address)
+        play_in_view(take, rig_path, out, frames, speed, fps, view_address, force=force)
         return
     if not out and not frames:
         fail("nothing to write: give --out VIDEO and/or --frames FOLDER (or watch it: --view)")
     rig, reader = open_take(take, rig_path)
-    sinks = make_sinks(out, frames, fps, inputs=[take])
+    sinks = make_sinks(out, frames, fps, inputs=[take, *rig_files(rig)], force=force)
     stop = StopFlag()  # Ctrl-C or SIGTERM: stop after this frame, finish the video (playable)
     bar = None
     total = 0

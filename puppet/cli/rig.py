@@ -7,7 +7,7 @@ import time
 
 import click
 
-from puppet.cli.common import fail
+from puppet.cli.common import fail, force_option, rig_files
 
 
 @click.group()
@@ -45,7 +45,8 @@ def rig_init(character: str, out: str | None, skin: int | None, force: bool) -> 
 @click.option("--out", default="axes.png", show_default=True, help="Contact sheet (PNG) to write.")
 @click.option("--all", "every_joint", is_flag=True, help="Also joints without a servo, about x, y and z.")
 @click.option("--angle", default=30.0, show_default=True, help="Turn shown, degrees each way.")
-def rig_axes(rig_path: str, out: str, every_joint: bool, angle: float) -> None:
+@force_option
+def rig_axes(rig_path: str, out: str, every_joint: bool, angle: float, force: bool) -> None:
     """Render each servo's joint turned -ANGLE and +ANGLE: pick axis and sign by looking.
 
     One pair of panels per servo (per joint axis with --all), the positive side framed green.
@@ -57,9 +58,13 @@ def rig_axes(rig_path: str, out: str, every_joint: bool, angle: float) -> None:
     """
     from puppet.rig import load_rig
     from puppet.rig.axis_turns import axis_turns
+    from puppet.atomic import check_output
     from puppet.render.axes_sheet import Turn, render_turn_sheet, save_sheet
 
     loaded = load_rig(rig_path)
+    inputs = [rig_path, *rig_files(loaded)]
+    if out.lower().endswith(".png"):  # before rendering: a refused output costs nothing
+        check_output(out, kind="png", inputs=inputs, force=force, what="axes sheet")
     if not every_joint and len(loaded.servo_map) == 0:
         click.echo(f"{rig_path}: no [[servo]] blocks yet: showing every joint about x, y and z "
                    "(as --all); fill in a block's joint and axis to see just its servo", err=True)
@@ -68,7 +73,7 @@ def rig_axes(rig_path: str, out: str, every_joint: bool, angle: float) -> None:
     sk = loaded.skeleton
     sheet = render_turn_sheet(loaded.V, loaded.F, loaded.W, sk.heads, sk.tails, sk.parents, turns,
                               angle_deg=angle)
-    path = save_sheet(sheet, out, inputs=[rig_path, loaded.path])
+    path = save_sheet(sheet, out, inputs=inputs, force=force)
     click.echo(f"axes sheet: {path} ({len(sheet.panels)} panels: {len(turns)} pairs of -{angle:g}° and "
                f"+{angle:g}°, the positive side framed green)")
 

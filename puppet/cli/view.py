@@ -79,10 +79,10 @@ COMMANDS = (view,)
 
 
 def play_in_view(take: str, rig_path: str | None, out: str | None, frames: str | None,
-                 speed: float, fps: float, view_address: str) -> None:
+                 speed: float, fps: float, view_address: str, *, force: bool = False) -> None:
     """``puppet play TAKE --view``: the take on the wall clock, paused, scrubbed and sped up from
     the page, until Ctrl-C; --out / --frames get the frames as shown."""
-    from puppet.cli.common import make_sinks, open_take, print_summary
+    from puppet.cli.common import make_sinks, open_take, print_summary, rig_files
     from puppet.loop import Pipeline, run_live
     from puppet.take import Playback
     from puppet.take.markers import read_markers
@@ -95,7 +95,7 @@ def play_in_view(take: str, rig_path: str | None, out: str | None, frames: str |
         playback = Playback.of_take(reader, rig.servo_map.ids)
         marks = [(playback.play_s(t), name) for t, name in read_markers(take)]
         source = TakeSource(playback, speed=speed, markers=marks)
-        sinks = make_sinks(out, frames, fps)
+        sinks = make_sinks(out, frames, fps, inputs=[take, *rig_files(rig)], force=force)
         try:
             with Pipeline(rig, overlay=True, live=True) as pipeline:
                 live_view.attach(pipeline, source=source)

@@ -23,7 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
-from puppet.atomic import atomic_output, check_output
+from puppet.atomic import atomic_output, check_distinct, check_output
 from puppet.export.bvh import BvhWriter
 from puppet.export.errors import ExportError
 from puppet.export.gltf import GltfWriter
@@ -36,17 +36,20 @@ from puppet.take.playback import MAX_GAP_S, Playback, check_rate
 FORMATS = ("gltf", "usd", "pc2", "bvh")
 UP_AXES = ("y", "z")
 FIRST_FRAME = 1  # frame number of the take's first reading, in every format
+KINDS = {"gltf": "glb", "usd": "usd", "pc2": "pc2", "bvh": "bvh"}  # puppet.atomic's file kinds
 SUFFIXES = {"gltf": (".glb",), "usd": (".usdc", ".usda", ".usd")}  # the format follows the name
 
 
 @dataclass
 class Outputs:
-    """Files to write; None skips a format."""
+    """Files to write; None skips a format. force: an existing file of another kind may be
+    replaced (``puppet.atomic``'s rule; an input never)."""
 
     gltf: str | Path | None = None
     usd: str | Path | None = None
     pc2: str | Path | None = None
     bvh: str | Path | None = None
+    force: bool = False
 
     def items(self) -> list[tuple[str, Path]]:
         return [(f, Path(getattr(self, f))) for f in FORMATS if getattr(self, f)]
@@ -203,16 +206,16 @@ class ExportWriters:
         items = outputs.items()
         if not items:
             raise ExportError("export", "nothing to write: give --gltf, --usd, --pc2 and/or --bvh FILE")
-        self.inputs = [Path(reader.path)] + ([Path(rig.path)] if getattr(rig, "path", None) else [])
-        seen: dict[Path, str] = {}
+        from puppet.rig.rig_file import loaded_files
+
+        self.inputs = [Path(reader.path), *loaded_files(rig)]
+        self.force = outputs.force
+        check_distinct({f"--{fmt}": target for fmt, target in items})
         for fmt, target in items:
-            key = target.resolve()
-            if key in seen:
-                raise ExportError(target, f"given for both --{seen[key]} and --{fmt}")
-            seen[key] = fmt
             if fmt in SUFFIXES and target.suffix.lower() not in SUFFIXES[fmt]:
                 raise ExportError(target, f"--{fmt} files are named *{' or *'.join(SUFFIXES[fmt])}")
-            check_output(target, inputs=self.inputs)
+            check_output(target, kind=KINDS[fmt], inputs=self.inputs, force=self.force,
+                         what=f"--{fmt} output")
         if "bvh" in dict(items):
             self._bvh_offsets, self._end_sites = _bvh_skeleton(rig)
         self.rig, self.items, self.targets = rig, items, dict(items)
@@ -233,7 +236,9 @@ class ExportWriters:
         stack = self._stack.__enter__()
         try:
             for fmt, target in self.items:
-                temporary = stack.enter_context(atomic_output(target, inputs=self.inputs))
+                temporary = stack.enter_context(atomic_output(
+                    target, kind=KINDS[fmt], inputs=self.inputs, force=self.force,
+                    what=f"--{fmt} output"))
                 with _blame(target, fmt):
                     if fmt == "gltf":
                         self.writers[fmt] = GltfWriter(temporary, names=sk.names, parents=sk.parents,

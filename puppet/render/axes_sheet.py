@@ -152,8 +152,9 @@ def render_turn_sheet(V, F, W, heads, tails, parents, turns: list[Turn], *, angl
     return Sheet(image, panels)
 
 
-def save_sheet(sheet: Sheet, path, *, inputs=(), overwrite: bool = True) -> Path:
-    """Write the sheet as a PNG, atomically; refuses a path that is one of ``inputs``."""
+def save_sheet(sheet: Sheet, path, *, inputs=(), force: bool = False) -> Path:
+    """Write the sheet as a PNG, atomically, by ``puppet.atomic``'s rule (not one of
+    ``inputs``; an existing file of another kind only with ``force``)."""
     import imageio.v3 as iio
 
     from puppet.atomic import atomic_output
@@ -161,6 +162,6 @@ def save_sheet(sheet: Sheet, path, *, inputs=(), overwrite: bool = True) -> Path
     path = Path(path)
     if path.suffix.lower() != ".png":
         raise RenderInputError(f"{path}: the axes sheet is a PNG; name it ....png")
-    with atomic_output(path, inputs=[i for i in inputs if i is not None], overwrite=overwrite) as temporary:
+    with atomic_output(path, kind="png", inputs=inputs, force=force, what="axes sheet") as temporary:
         iio.imwrite(temporary, sheet.image)
     return path

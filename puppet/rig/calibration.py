@@ -15,7 +15,6 @@ reads it back (``replay``, ``perform``, the view); one codec, checked as a file 
 from __future__ import annotations
 
 import json
-import os
 import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -76,8 +75,13 @@ class Calibration:
             raise RigError(f"not valid JSON: {err}", path=take, field="calibration record") from None
         return cls(_zero_table(doc, take, "calibration record "))
 
-    def save(self, path) -> Path:
-        """Write to ``path`` (.json for JSON, anything else TOML) atomically; returns the path."""
+    def save(self, path, *, inputs=(), force: bool = False,
+             what: str = "calibration file") -> Path:
+        """Write to ``path`` (.json for JSON, anything else TOML) atomically by
+        ``puppet.atomic``'s rule (not one of ``inputs``; another kind of file only with
+        ``force``); returns the path."""
+        from puppet.atomic import atomic_output
+
         path = Path(path)
         items = sorted(self.zero_ticks.items())
         if path.suffix.lower() == ".json":
@@ -86,10 +90,10 @@ class Calibration:
             lines = ["# puppet calibration: encoder ticks at the rig's rest pose", "[zero_ticks]"]
             lines += [f"{i} = {t}" for i, t in items]
             text = "\n".join(lines) + "\n"
-        tmp = path.with_name(path.name + ".tmp")
         try:
-            tmp.write_text(text)
-            os.replace(tmp, path)
+            with atomic_output(path, kind="calibration", inputs=inputs, force=force,
+                               what=what) as temporary:
+                temporary.write_text(text)
         except OSError as err:
             raise RigError(f"cannot write calibration: {err.strerror}", path=path) from err
         self.path = path

@@ -445,3 +445,24 @@ def _skeleton(G: np.ndarray, joints: list[int], parent_node: dict, joint_names: 
         names.append(name)
     parents = np.array([-1 if parent_of[k] < 0 else new_index[parent_of[k]] for k in order])
     return Skeleton(tuple(names), parents, heads, np.array(tails), frames), order
+
+
+def external_files(path) -> list[Path]:
+    """The files a .gltf/.glb character names by uri (buffers, images), resolved next to it;
+    [] when it names none or cannot be read (reading it later says what is wrong)."""
+    import json
+    import struct
+
+    path = Path(path)
+    try:
+        raw = path.read_bytes()
+        if raw[:4] == GLB_MAGIC:
+            length, = struct.unpack_from("<I", raw, 12)
+            raw = raw[20:20 + length]
+        doc = json.loads(raw)
+        uris = [item.get("uri") for key in ("buffers", "images") for item in doc.get(key, [])
+                if isinstance(item, dict)]
+    except (OSError, ValueError, struct.error, AttributeError):
+        return []
+    return [path.parent / uri for uri in uris
+            if isinstance(uri, str) and uri and not uri.startswith("data:")]

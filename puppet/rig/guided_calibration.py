@@ -215,7 +215,26 @@ class GuidedCalibration:
                        field=f"servo #{step.index + 1} ({step.joint})")
 
     # ---- write-back ----------------------------------------------------------------------------
-    def write(self, found: list[Found], out=None) -> Path:
+    def check_out(self, out=None, *, force: bool = False) -> Path:
+        """The rig file to write (``out``, default: the rig file itself), checked by
+        ``puppet.atomic``'s rule: another path may be none of the rig's files (character,
+        buffers, calibration), nor a device, nor another kind of file without ``force``."""
+        from puppet.atomic import check_output
+
+        if out is None:
+            return check_output(self.path, kind="rig file", force=True, what="rig file")
+        return check_output(out, kind="rig file", inputs=self._inputs(), force=force,
+                            what="rig file")
+
+    def _inputs(self) -> list[Path]:
+        from puppet.rig.rig_file import input_files
+
+        try:
+            return input_files(self.path)
+        except RigError:  # unreadable as a rig: then only the file itself is known
+            return [self.path]
+
+    def write(self, found: list[Found], out=None, *, force: bool = False) -> Path:
         """Write id, sign, zero_ticks (and the bus's model) into the blocks; comments kept.
 
         out: another rig file to write (default: the rig file itself). The new text is checked as
@@ -240,7 +259,9 @@ class GuidedCalibration:
         if target.resolve() != self.path.resolve() and target.parent.resolve() != self.path.parent.resolve():
             raise RigError("the calibrated rig file must sit next to the original (its character "
                            "file is named relative to it)", path=target)
-        with atomic_output(target, inputs=[] if out is None else [self.path]) as temporary:
+        rule = (dict(force=True) if out is None
+                else dict(inputs=self._inputs(), force=force))
+        with atomic_output(target, kind="rig file", what="rig file", **rule) as temporary:
             temporary.write_text(text, encoding="utf-8")
             try:
                 spec = read_rig_file(temporary)

@@ -141,7 +141,7 @@ def write_rig_init(character_path, out=None, *, skin: int | None = None, force: 
     out: the rig file (default: the character's path with .toml). Refuses to overwrite an
     existing file unless ``force``; written atomically.
     """
-    from puppet.rig.gltf import read_gltf
+    from puppet.rig.gltf import external_files, read_gltf
 
     character_path = Path(character_path)
     if character_path.suffix.lower() not in (".glb", ".gltf"):
@@ -150,9 +150,11 @@ def write_rig_init(character_path, out=None, *, skin: int | None = None, force: 
     rig_path = Path(out) if out is not None else character_path.with_suffix(".toml")
     if rig_path.suffix.lower() != ".toml":
         raise RigError("a rig file ends in .toml", path=rig_path)
-    check_output(rig_path, inputs=[character_path], overwrite=force, what="rig file")
+    inputs = [character_path, *external_files(character_path)]
+    rule = dict(kind="rig file", inputs=inputs, force=force, keep_existing=True, what="rig file")
+    check_output(rig_path, **rule)
     character = read_gltf(character_path, skin=skin)
     text = rig_init_text(character_path, rig_path, character, skin)
-    with atomic_output(rig_path, inputs=[character_path], overwrite=force) as temporary:
+    with atomic_output(rig_path, **rule) as temporary:
         temporary.write_text(text, encoding="utf-8")
     return rig_path, character

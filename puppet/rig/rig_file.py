@@ -350,3 +350,28 @@ def _read_servo(index: int, table: dict, lines: _Lines, fail) -> Servo:
         fail(f"role must be one of {', '.join(ROLES)}, got {show(role)}", f"{label} role", line("role"))
     return Servo(servo_id, model, joint, axis / norm, order, sign, float(gear), zero,
                  (float(np.radians(limits[0])), float(np.radians(limits[1]))), header or 0, role)
+
+
+def input_files(path) -> list[Path]:
+    """Every file loading the rig at ``path`` reads: the rig file, its character, skeleton,
+    weights and calibration files, and a glTF character's buffers and images (outputs may be
+    none of them). ``path``: a rig file (.toml) or a bare character file."""
+    from puppet.rig.gltf import external_files
+
+    path = Path(path)
+    files, character = [path], path
+    if path.suffix.lower() == ".toml":
+        spec = read_rig_file(path)
+        files += [p for p in (spec.mesh, spec.skeleton, spec.weights, spec.calibration) if p]
+        character = spec.mesh
+    if character.suffix.lower() in (".gltf", ".glb"):
+        files += external_files(character)
+    return files
+
+
+def loaded_files(rig) -> list[Path]:
+    """The files a loaded rig came from (``input_files`` of its path, and its calibration file);
+    [] for a rig made in memory."""
+    files = input_files(rig.path) if getattr(rig, "path", None) is not None else []
+    calibration = getattr(getattr(rig, "calibration", None), "path", None)
+    return files + ([Path(calibration)] if calibration is not None else [])
