@@ -107,8 +107,8 @@ def check_output(target: str | os.PathLike, *, kind: str, inputs: Iterable = (),
     for source in inputs:
         if source is not None and _same_file(path, Path(source)):
             same = "" if str(source) == str(path) else f" ({source})"
-            raise OutputError(f"{path}: the {what} would overwrite an input of this command"
-                              f"{same}; choose another path")
+            raise OutputError(f"{path}: the {what} is also an input of this command{same}; "
+                              "choose another path")
     try:
         mode = os.stat(path).st_mode
     except FileNotFoundError:
@@ -122,8 +122,8 @@ def check_output(target: str | os.PathLike, *, kind: str, inputs: Iterable = (),
                               "must be a file path")
         found = file_kind(path)
         if keep_existing and not force:
-            raise OutputError(f"{path}: exists ({KIND_NAMES.get(found, found)}); pass --force "
-                              "to overwrite it")
+            raise OutputError(f"{path}: exists; pass --force to overwrite it (it is "
+                              f"{KIND_NAMES.get(found, found)})")
         if found not in ("empty", kind) and not force:
             raise OutputError(f"{path}: exists and is {KIND_NAMES.get(found, found)}, not "
                               f"{KIND_NAMES[kind]}; pass --force to overwrite it")
@@ -140,7 +140,7 @@ def check_folder_output(folder: str | os.PathLike, *, what: str = "frame folder"
     path = Path(folder)
     try:
         mode = os.stat(path).st_mode
-    except FileNotFoundError:
+    except OSError:  # absent (or a file on its way): making it says what is wrong
         return path
     if not stat.S_ISDIR(mode):
         raise OutputError(f"{path}: exists and is {_node_kind(mode) or 'a file'}, not a folder; "

@@ -118,8 +118,9 @@ def test_an_unwritable_folder_is_refused(tmp_path, take30):
 def test_a_full_disk_keeps_the_good_file_and_leaves_no_half_file(tmp_path, take30, fmt):
     """The file size limit stops writes part-way as a full disk does (EFBIG instead of ENOSPC)."""
     target = tmp_path / {"pc2": "mesh.pc2", "usd": "anim.usdc", "gltf": "anim.glb"}[fmt]
-    target.write_bytes(b"a good export from before")
+    good = {"pc2": b"POINTCACHE2\0", "usd": b"PXR-USDC", "gltf": b"glTF"}[fmt] + b" from before"
+    target.write_bytes(good)  # a file of the format's kind (another kind is refused up front)
     result = run(take30, f"--{fmt}", target, limit_bytes=400_000)
     assert_clean_error(result, str(target), "cannot write")
-    assert target.read_bytes() == b"a good export from before"
+    assert target.read_bytes() == good
     assert leftovers(tmp_path) == []
