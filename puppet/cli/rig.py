@@ -63,8 +63,7 @@ def rig_axes(rig_path: str, out: str, every_joint: bool, angle: float, force: bo
 
     loaded = load_rig(rig_path)
     inputs = [rig_path, *rig_files(loaded)]
-    if out.lower().endswith(".png"):  # before rendering: a refused output costs nothing
-        check_output(out, kind="png", inputs=inputs, force=force, what="axes sheet")
+    check_output(out, kind="png", inputs=inputs, force=force, what="axes sheet")  # before rendering
     if not every_joint and len(loaded.servo_map) == 0:
         click.echo(f"{rig_path}: no [[servo]] blocks yet: showing every joint about x, y and z "
                    "(as --all); fill in a block's joint and axis to see just its servo", err=True)

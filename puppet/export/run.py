@@ -212,10 +212,10 @@ class ExportWriters:
         self.force = outputs.force
         check_distinct({f"--{fmt}": target for fmt, target in items})
         for fmt, target in items:
-            if fmt in SUFFIXES and target.suffix.lower() not in SUFFIXES[fmt]:
-                raise ExportError(target, f"--{fmt} files are named *{' or *'.join(SUFFIXES[fmt])}")
             check_output(target, kind=KINDS[fmt], inputs=self.inputs, force=self.force,
                          what=f"--{fmt} output")
+            if fmt in SUFFIXES and target.suffix.lower() not in SUFFIXES[fmt]:
+                raise ExportError(target, f"--{fmt} files are named *{' or *'.join(SUFFIXES[fmt])}")
         if "bvh" in dict(items):
             self._bvh_offsets, self._end_sites = _bvh_skeleton(rig)
         self.rig, self.items, self.targets = rig, items, dict(items)

@@ -148,11 +148,11 @@ def write_rig_init(character_path, out=None, *, skin: int | None = None, force: 
         raise RigError(f"rig init reads a glTF character (.glb or .gltf), not {character_path.suffix!r}",
                        path=character_path)
     rig_path = Path(out) if out is not None else character_path.with_suffix(".toml")
-    if rig_path.suffix.lower() != ".toml":
-        raise RigError("a rig file ends in .toml", path=rig_path)
     inputs = [character_path, *external_files(character_path)]
     rule = dict(kind="rig file", inputs=inputs, force=force, keep_existing=True, what="rig file")
     check_output(rig_path, **rule)
+    if rig_path.suffix.lower() != ".toml":
+        raise RigError("a rig file ends in .toml", path=rig_path)
     character = read_gltf(character_path, skin=skin)
     text = rig_init_text(character_path, rig_path, character, skin)
     with atomic_output(rig_path, **rule) as temporary:
