@@ -19,6 +19,7 @@ from pathlib import Path
 
 from puppet.batch.plan import Job
 from puppet.batch.task import TakeResult, run_take, staging_folder
+from puppet.child_signals import sigint_blocked
 
 MAX_ATTEMPTS = 3  # tries per take whose worker dies under it
 
@@ -48,7 +49,10 @@ def _worker_main(connection: Connection, blob: bytes, staging_root: str) -> None
         except Exception as err:  # noqa: BLE001 - a bug in one take must not stop the others
             result = TakeResult(take=str(job.take),
                                 error=f"internal error: {type(err).__name__}: {err}")
-        connection.send(result)
+        try:
+            connection.send(result)
+        except OSError:  # the driver is gone: nobody to tell
+            return
 
 
 class _Worker:
@@ -58,7 +62,8 @@ class _Worker:
         self.connection, child = context.Pipe()
         self.process = context.Process(target=_worker_main, args=(child, blob, str(staging_root)),
                                        daemon=True)
-        self.process.start()
+        with sigint_blocked():  # a terminal's Ctrl-C is the driver's: it stops the workers
+            self.process.start()
         child.close()
         self.job: Job | None = None
 
@@ -69,12 +74,13 @@ class _Worker:
         except OSError:  # it died already: its sentinel says so and the take is given again
             pass
 
-    def stop(self) -> None:
+    def stop(self, now: bool = False) -> None:
+        """Let the worker finish and exit (``now``: kill it, after a Ctrl-C or an error)."""
         try:
             self.connection.send(None)
         except OSError:  # already gone
             pass
-        self.process.join(timeout=30)
+        self.process.join(timeout=0 if now else 30)
         if self.process.is_alive():
             self.process.kill()
             self.process.join()
@@ -137,9 +143,12 @@ class LocalEngine:
                                       f"{worker.process.exitcode})"))
                         workers[i] = _Worker(context, shared_blob, staging_root)
                         self._give_next(workers[i], todo, attempts)
-        finally:
+        except BaseException:
             for worker in workers:
-                worker.stop()
+                worker.stop(now=True)
+            raise
+        for worker in workers:
+            worker.stop()
 
     @staticmethod
     def _give_next(worker: _Worker, todo: list[Job], attempts: dict) -> None:

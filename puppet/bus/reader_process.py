@@ -40,6 +40,7 @@ from typing import Protocol
 
 import numpy as np
 
+from puppet.child_signals import sigint_blocked
 from puppet.errors import PuppetError
 from puppet.events import EventLog
 from puppet.reading import Reading
@@ -163,8 +164,9 @@ def _child(shm_name, slots, port, servos, options, rate_hz, events, commands,
     shm = shared_memory.SharedMemory(name=shm_name)
     goal_shm = inbox = reader = started = None
     parent = os.getppid()
-    if hook is not None:  # the parent stops us (Ctrl-C reaches the whole group)
-        signal.signal(signal.SIGINT, signal.SIG_IGN)
+    # SIGINT is blocked from birth (``sigint_blocked``): the parent stops us (a terminal's
+    # Ctrl-C reaches the whole group); ignored too, should anything unblock it.
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
     t_ns, ticks, ok, written, stop = _ring_arrays(shm.buf, slots, len(servos))
     if hook is not None:
         signal.signal(signal.SIGTERM, lambda *_: stop.__setitem__(0, 1))
@@ -290,7 +292,8 @@ class ReaderProcess:
             target=_child, name="puppet-bus-reader", daemon=True,
             args=(self._shm.name, self.slots, self.port, self.servos, self.options, self.rate_hz,
                   child_events, child_commands, self.hook, goal_name))
-        self._proc.start()
+        with sigint_blocked():  # a terminal's Ctrl-C is the parent's to handle: it stops us
+            self._proc.start()
         # The child has its own copies now: with ours closed, its death is an end of file here
         # (a message cut by it raises instead of blocking a read forever).
         child_events.close()
