@@ -167,10 +167,18 @@ def temporary_sibling(target: str | os.PathLike) -> Path:
     return path.with_name(f".{path.stem}.{os.getpid()}.partial{path.suffix}")
 
 
+def flush(path: str | os.PathLike) -> None:
+    """Flush a written file's data to disk."""
+    handle = os.open(path, os.O_RDONLY)
+    try:
+        os.fsync(handle)
+    finally:
+        os.close(handle)
+
+
 def commit(temporary: str | os.PathLike, target: str | os.PathLike) -> None:
     """Flush the finished temporary file to disk and rename it over the target."""
-    with open(temporary, "rb+") as handle:
-        os.fsync(handle.fileno())
+    flush(temporary)
     os.replace(temporary, target)
 
 

@@ -5,7 +5,9 @@ write each frame as it comes (the video keeps at most a few frames queued for it
 and close on `with` exit.
 """
 
+import os
 import queue
+import signal
 import shutil
 import subprocess
 import tempfile
@@ -17,7 +19,7 @@ import imageio.v3 as iio
 import imageio_ffmpeg
 import numpy as np
 
-from puppet.atomic import commit, temporary_sibling
+from puppet.atomic import flush, temporary_sibling
 from puppet.render.errors import SinkError
 
 
@@ -97,8 +99,11 @@ class VideoSink:
     and catches up from its queue.
 
     The video is written to a temporary file next to ``path`` and renamed to ``path`` when
-    ffmpeg has finished it (``close``): a failed encoder (killed, disk full) never leaves a
-    half file behind, and raises SinkError naming the file on the next write() or on close().
+    ffmpeg has finished it: a failed encoder (killed, disk full) never leaves a half file
+    behind, and raises SinkError naming the file on the next write() or on close(). The rename
+    is the encoder's own (a shell around ffmpeg, in a session of its own): when this process is
+    killed (SIGKILL, a crash), ffmpeg still finishes the frames it was given and ``path`` holds
+    that video, playable. ``abort`` kills the encoder first: nothing is renamed.
     """
 
     def __init__(self, path, fps: float = 30.0, *, size: tuple[int, int] | None = None, quality: float = 7.0,
@@ -134,7 +139,11 @@ class VideoSink:
         crf = int((1 - self.quality / 10.0) * 51)
         quality = ["-crf", str(crf), "-preset", self.preset] if self.codec == "libx264" else []
         nice = ["nice", "-n", str(self.nice)] if self.nice and shutil.which("nice") else []
-        return [*nice, imageio_ffmpeg.get_ffmpeg_exe(), "-y", "-f", "rawvideo", "-pix_fmt", "rgb24",
+        # ffmpeg, then (when it succeeded) the rename into place by the encoder's shell: it
+        # happens also when this process is gone (paths in the environment, see _open).
+        rename = ["sh", "-c", '"$@" && exec mv -f -- "$PUPPET_PARTIAL" "$PUPPET_VIDEO"',
+                  "puppet-video-encoder"]
+        return [*nice, *rename, imageio_ffmpeg.get_ffmpeg_exe(), "-y", "-f", "rawvideo", "-pix_fmt", "rgb24",
                 "-s", f"{size[0]}x{size[1]}", "-r", str(Fraction(self.fps).limit_denominator()),
                 "-i", "-", "-an", "-vcodec", self.codec, "-pix_fmt", "yuv420p", *quality,
                 "-v", "error", str(self._temporary)]
@@ -147,8 +156,9 @@ class VideoSink:
         try:
             # A session of its own: a Ctrl-C in the terminal goes to puppet, which then finishes
             # the video, and not to ffmpeg (which would stop before writing the file's index).
+            env = {**os.environ, "PUPPET_PARTIAL": str(self._temporary), "PUPPET_VIDEO": str(self.path)}
             self._process = subprocess.Popen(self._command(size), stdin=subprocess.PIPE, stdout=subprocess.DEVNULL,
-                                             stderr=self._log, start_new_session=True)
+                                             stderr=self._log, start_new_session=True, env=env)
         except OSError as err:
             raise SinkError(f"{self.path}: cannot start the video encoder: {err}") from err
         if self.encoder == "thread":
@@ -228,9 +238,9 @@ class VideoSink:
             status = self._process.wait()
             if self._error is None and status != 0:
                 self._error = f"the video encoder failed (status {status})"
-            if self._error is None:
+            if self._error is None:  # the encoder renamed it into place: flush it to disk
                 try:
-                    commit(self._temporary, self.path)
+                    flush(self.path)
                 except OSError as err:
                     self._error = f"cannot finish the video file: {err}"
             if self._error is not None and not self._reported:
@@ -243,7 +253,11 @@ class VideoSink:
     def abort(self) -> None:
         """Stop the encoder now and remove the unfinished file (nothing is renamed into place)."""
         if self._process is not None and self._process.poll() is None:
-            self._process.kill()
+            try:  # the encoder's whole session: its shell and ffmpeg (nothing renamed)
+                os.killpg(self._process.pid, signal.SIGKILL)
+            except ProcessLookupError:
+                pass
+            self._process.wait()
         self._error = self._error or "aborted"
         self._reported = True
         self.close()

@@ -103,6 +103,21 @@ def test_both_encoder_modes_write_the_same_frames(tmp_path, encoder):
         assert np.abs(original.astype(float) - back.astype(float)).mean() < 6.0
 
 
+def _ffmpeg_in_session(session: int) -> int | None:
+    """The pid of the ffmpeg process in session ``session`` (the encoder's), or None yet."""
+    from pathlib import Path
+
+    for entry in Path("/proc").iterdir():
+        try:
+            fields = (entry / "stat").read_text().rsplit(")", 1)[1].split()
+            command = (entry / "cmdline").read_bytes().split(b"\0")[0]
+        except (OSError, IndexError):
+            continue
+        if int(fields[3]) == session and b"ffmpeg" in command:
+            return int(entry.name)
+    return None
+
+
 def test_the_encoder_yields_the_cpu_to_the_loop(tmp_path, wait_until):
     """ffmpeg runs niced (the live loop's frames come first), or as this process with nice=0."""
     import os
@@ -111,8 +126,8 @@ def test_the_encoder_yields_the_cpu_to_the_loop(tmp_path, wait_until):
     for nice, expected in ((10, min(19, own + 10)), (0, own)):
         with VideoSink(tmp_path / f"nice{nice}.mp4", fps=24, size=(32, 32), nice=nice) as video:
             video.write(np.zeros((32, 32, 3), np.uint8))
-            pid = video._process.pid  # `nice` sets its niceness, then becomes ffmpeg
-            wait_until(lambda: os.getpriority(os.PRIO_PROCESS, pid) == expected
-                       and "ffmpeg" in open(f"/proc/{pid}/cmdline").read().split("\0")[0],
+            session = video._process.pid  # `nice` sets its niceness, then its shell runs ffmpeg
+            pid = wait_until(lambda: _ffmpeg_in_session(session), what="ffmpeg in its session")
+            wait_until(lambda: os.getpriority(os.PRIO_PROCESS, pid) == expected,
                        what=f"ffmpeg at niceness {expected}")
         assert (tmp_path / f"nice{nice}.mp4").exists()
