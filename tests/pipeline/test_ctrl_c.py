@@ -1,0 +1,103 @@
+"""A terminal's Ctrl-C reaches the whole process group (the command, its bus reader, its video
+encoder): `live`, `record`, `play` and `perform` stop cleanly (exit 0) and no process prints a
+traceback. A run killed outright (SIGKILL) leaves its video, playable, under its own name."""
+
+import os
+import signal
+import subprocess
+from pathlib import Path
+
+import imageio_ffmpeg
+import numpy as np
+import pytest
+
+import hw_sim
+from puppet.bus import Reading
+from puppet.rig import builtin
+from puppet.rig.load import BUILTIN_RIG
+from puppet.take import TakeWriter
+
+PATIENCE_S = 60.0  # as tests/conftest.py: a generous wait, never a threshold
+
+
+def _take(path: Path, seconds: float) -> Path:
+    """A take of the built-in rig: every servo swinging, 100 readings a second."""
+    rig = builtin()
+    k = len(rig.servo_map)
+    with TakeWriter(path, ids=[int(i) for i in rig.servo_map.ids], models=dict(rig.servo_map.models),
+                    rig_map_text="", calibration_text="", rig_name=rig.name) as writer:
+        for i in range(int(seconds * 100)):
+            ticks = (rig.servo_map.zero + 300 * np.sin(0.05 * i + np.arange(k))).astype(np.int32)
+            writer.write(Reading(i * 10_000_000, rig.servo_map.ids, ticks, np.ones(k, bool)))
+    return path
+
+
+def _grown(pattern_folder: Path, pattern: str, size: int):
+    """A predicate: some file matching ``pattern`` holds more than ``size`` bytes."""
+    return lambda: any(p.stat().st_size > size for p in pattern_folder.glob(pattern)
+                       if p.is_file())
+
+
+def _command(name: str, tmp_path: Path, port: str):
+    """(argv, predicate: the command is well under way)."""
+    rig = ["--rig", str(BUILTIN_RIG), "--port", port]
+    if name == "live":
+        return (["live", *rig, "--record", str(tmp_path / "t.mcap"), "--out", str(tmp_path / "v.mp4")],
+                _grown(tmp_path, ".v.*.partial.mp4", 20_000))
+    if name == "record":
+        return ["record", *rig, "--out", str(tmp_path / "t.mcap")], _grown(tmp_path, "t.mcap", 20_000)
+    take = _take(tmp_path / "long.mcap", 120.0)
+    if name == "play":
+        return (["play", str(take), "--out", str(tmp_path / "v.mp4"), "--antialias", "none"],
+                _grown(tmp_path, ".v.*.partial.mp4", 20_000))
+    err = tmp_path / "stderr.txt"
+    return (["perform", str(take), "--port", port, "--yes", "--latency-ms", "20",
+             "--watchdog-ms", "2000"], lambda: "phase: playback" in err.read_text())
+
+
+@pytest.mark.parametrize("name", ["live", "record", "play", "perform"])
+def test_one_ctrl_c_to_the_process_group_exits_0_without_a_traceback(name, tmp_path, wait_until):
+    rig = builtin()
+    with hw_sim.serve(dict(rig.servo_map.models), motion="wave") as bus:
+        argv, under_way = _command(name, tmp_path, bus.port)
+        err_path = tmp_path / "stderr.txt"
+        with open(err_path, "w") as err:
+            proc = subprocess.Popen(["puppet", *argv], stdout=subprocess.PIPE, stderr=err,
+                                    text=True, process_group=0)  # a terminal's job
+            try:
+                wait_until(lambda: proc.poll() is not None or under_way(),
+                           what=f"{name} under way")
+                assert proc.poll() is None, err_path.read_text()
+                os.killpg(proc.pid, signal.SIGINT)  # Ctrl-C: every process of the group
+                proc.communicate(timeout=2 * PATIENCE_S)
+            finally:
+                if proc.poll() is None:
+                    os.killpg(proc.pid, signal.SIGKILL)
+                    proc.wait()
+    stderr = err_path.read_text()
+    assert proc.returncode == 0, stderr
+    assert "Traceback" not in stderr, stderr
+    assert "KeyboardInterrupt" not in stderr, stderr
+
+
+def test_a_killed_live_run_leaves_its_video_under_its_name(tmp_path, wait_until):
+    """SIGKILL of `live --out`: the encoder finishes the frames it was given and renames the
+    video into place (README: Videos); no hidden partial file is left."""
+    video = tmp_path / "x.mp4"
+    rig = builtin()
+    with hw_sim.serve(dict(rig.servo_map.models), motion="wave") as bus:
+        proc = subprocess.Popen(["puppet", "live", "--rig", str(BUILTIN_RIG), "--port", bus.port,
+                                 "--out", str(video)], stdout=subprocess.DEVNULL,
+                                stderr=subprocess.DEVNULL)
+        try:
+            wait_until(_grown(tmp_path, ".x.*.partial.mp4", 20_000), what="encoded frames")
+            proc.kill()
+            proc.wait()
+            wait_until(lambda: video.exists(), what="the video renamed into place")
+        finally:
+            if proc.poll() is None:
+                proc.kill()
+                proc.wait()
+    wait_until(lambda: not list(tmp_path.glob(".x.*")), what="no partial file left")
+    frames, _ = imageio_ffmpeg.count_frames_and_secs(str(video))  # playable: it has its index
+    assert frames >= 1
