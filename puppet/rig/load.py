@@ -156,10 +156,15 @@ def rig_from_spec(spec: RigFile) -> Rig:
     for point, line in spec.pin_points:
         pins.append(int(np.argmin(((V - point) ** 2).sum(axis=1))))
         where.setdefault(pins[-1], line)
+    seen: set[int] = set()
     for i, vertex in enumerate(pins):
-        if vertex in pins[:i]:
+        if vertex in seen:
             line = (spec.pin_vertices + spec.pin_points)[i][1]
             fail(f"vertex {vertex} is pinned twice (first at line {where[vertex]})", "pin", line)
+        seen.add(vertex)
+    if pins and len(pins) >= n:
+        fail(f"{len(pins)} pins on a mesh of {n} vertices: at most {n - 1} (one vertex must stay "
+             "free to solve)", "pin", lines.top("pin") if lines else None)
     for name in spec.fixed:
         if name not in skeleton.names:
             fail(f"unknown fixed bone {name!r}; bones are {list(skeleton.names)}", "fixed",
