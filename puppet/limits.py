@@ -75,7 +75,7 @@ SPEED = Range(0.01, 100.0, "x")
 """Playback speed factor (1 = as recorded)."""
 FPS = Range(0.1, 1000.0, "frames/s")
 """Frames per second of a video, PNG folder or export."""
-SECONDS = Range(0.0, 1e6, "s", lo_open=True)
+SECONDS = Range(0.01, 1e6, "s")
 """How long a command runs (about 11 days at most)."""
 WATCHDOG_MS = Range(20.0, 2540.0, "ms")
 """Bus Watchdog period (the control table counts 20 ms units up to 127: 2 540 ms)."""
