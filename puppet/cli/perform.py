@@ -19,7 +19,8 @@ from puppet.cli.common import InRange, load_rig
 @click.option("--speed", default=1.0, show_default=True, type=InRange(limits.SPEED),
               help=f"Playback speed factor ({limits.SPEED}).")
 @click.option("--loop", is_flag=True, help="Repeat the take until stopped.")
-@click.option("--yes", is_flag=True, help="No countdown before the move to the first pose.")
+@click.option("--yes", is_flag=True, help="No countdown before the move to the first pose; "
+              "and perform a replay longer than 10 min (refused without it).")
 @click.option("--no-watchdog", is_flag=True,
               help="Perform on servos without the Bus Watchdog, by model or firmware (a host crash "
                    "leaves them driving).")
@@ -49,9 +50,7 @@ def perform(take: str, rig_path: str | None, port: str, baud: int, speed: float,
     from puppet.take import TakeReader
 
     rig = load_rig(rig_path)
-    reader = TakeReader(take)
-    if reader.truncated:
-        click.echo(f"warning: {take}: {reader.recovery}", err=True)
+    reader = TakeReader(take)  # what it skipped or cut is said by perform, before torque on
     options = PerformOptions(speed=speed, loop=loop, yes=yes, watchdog=not no_watchdog,
                              watchdog_ms=watchdog_ms, rate_hz=rate_hz, baud=baud,
                              latency_ms=latency_ms)

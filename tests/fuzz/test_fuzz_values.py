@@ -244,6 +244,7 @@ OPTIONS = [
     (["live"], "--baud", ["--rig", "r.toml", "--port", "p"], 1),
     (["record"], "--rate", ["take.mcap", "--rig", "r.toml", "--port", "p"], 1),
     (["record"], "--seconds", ["take.mcap", "--rig", "r.toml", "--port", "p"], 1),
+    (["record"], "--baud", ["take.mcap", "--rig", "r.toml", "--port", "p"], 1),
     (["calibrate"], "--threshold", ["--rig", "r.toml", "--port", "p"], 1),
     (["calibrate"], "--timeout", ["--rig", "r.toml", "--port", "p"], 1),
     (["calibrate"], "--baud", ["--rig", "r.toml", "--port", "p"], 1),
