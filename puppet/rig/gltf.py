@@ -15,7 +15,7 @@ Weights of all sets are summed per joint and rows renormalized to 1.
 Bounds (an error naming the file past them): at most MAX_JOINTS joints, MAX_VERTICES vertices
 and MAX_WEIGHT_ENTRIES vertices x joints (the dense weight matrix); joint names of at most
 MAX_NAME_LENGTH characters, valid Unicode (a lone surrogate is refused). Node transforms and
-positions must be finite; the skinned meshes must hold at least one triangle. The node
+positions must be finite, and rest vertices and joints within COORD (+-1e6 model units); the skinned meshes must hold at least one triangle. The node
 hierarchy is walked without recursion (a chain of any depth within MAX_JOINTS reads).
 
 Welding: copies of a vertex that the exporter split at seams (same position, same weights) are
@@ -34,6 +34,7 @@ import numpy as np
 
 from puppet.rig.errors import RigError
 from puppet.rig.skeleton import Skeleton
+from puppet.rig.solve_options import COORD
 from puppet.rig.weight_check import normalize_weights
 from puppet.rig.weld import weld_index, weld_mesh
 
@@ -395,6 +396,10 @@ def read_gltf(path, skin: int | None = None) -> GltfCharacter:
     if not np.isfinite(V).all():
         raise RigError("the rest pose puts vertices at infinity (huge node or bind transforms)",
                        path=path, field=f"skins[{skin_index}]")
+    reach = max(float(np.abs(V).max()), float(np.abs(G[:, :3, 3]).max()))
+    if not COORD.holds(reach):
+        raise RigError(f"rest vertices or joints lie {reach:.3g} model units from the origin; "
+                       f"coordinates must each be {COORD}", path=path, field=f"skins[{skin_index}]")
 
     skeleton, order = _skeleton(G, joints, parent_node, joint_names, V)
     W = W[:, order]
