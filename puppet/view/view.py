@@ -31,7 +31,7 @@ from puppet.view.address import Access, bind, parse_address
 from puppet.view.encoder import FrameEncoder
 from puppet.view.handles import Handle, drag_target, project, surface_bary, surface_point
 from puppet.view.orbit import OrbitCamera
-from puppet.view.protocol import PANEL_HZ
+from puppet.view.protocol import MAX_HANDLES, PANEL_HZ
 from puppet.view.server import ViewServer
 
 log = logging.getLogger("puppet.view")
@@ -218,8 +218,8 @@ class View:
                     self._mark(msg["name"])
                 elif kind == "playback":
                     self._playback(msg["action"], msg["value"])
-            except PuppetError as err:
-                self._warn(f"{kind}: {err}")
+            except PuppetError as err:  # told to the page that asked
+                self._warn(f"{kind}: {err}", client, kind=f"{kind} refused")
                 if kind == "pick":  # the page's pending drag becomes an orbit
                     self.server.send_to(client, {"type": "pick_miss", "key": msg["key"]})
         for camera_id, (dx, dy, px, py, zoom) in moves.items():
@@ -246,8 +246,9 @@ class View:
             camera = self._cameras[camera_id] = self._cameras[0].copy()
         return camera
 
-    def _warn(self, text: str) -> None:
-        self.server.warn(text)
+    def _warn(self, text: str, client: str | None = None, kind: str | None = None) -> None:
+        """A warning logged and shown on the pages (client: that viewer's only), merged per kind."""
+        self.server.warn(text, client, kind)
 
     # ---- handles ------------------------------------------------------------------------------
     def _pick(self, pipeline, client: str, msg: dict) -> None:
@@ -265,7 +266,7 @@ class View:
             if client not in self._told_background:  # once per viewer: it is also how one orbits
                 self._told_background.add(client)
                 self._warn(f"a drag that started on the background (at {x}, {y}) moves no handle; "
-                           "such drags turn the camera")
+                           "such drags turn the camera", client)
             return
         triangle = int(hit.triangle)
         bary = surface_bary(hit.bary)
@@ -274,6 +275,9 @@ class View:
             self._keys[(client, msg["key"])] = existing.id
             self.server.send_to(client, {"type": "handle", "key": msg["key"], "handle": existing.id})
             return
+        if len(self._handles) >= MAX_HANDLES:
+            raise PuppetError(f"at most {MAX_HANDLES} handles: remove one (right click or double click "
+                              "on it) to pin another")
         # The handle starts where its point is now (nothing jumps), then goes where it is dragged.
         point, _ = surface_point(pipeline.model, self._F, pipeline.T, triangle, bary)
         corners = tuple(int(v) for v in self._F[triangle])

@@ -6,6 +6,8 @@
 const HEADER = 24;
 const FLAG_DRAFT = 1;
 const HANDLE_RADIUS = 7;
+const MAX_NOTICES = 50;    // notices kept (state.notices and the list): the newest
+const MAX_FAULTS = 200;    // bus events kept
 
 const query = new URLSearchParams(location.search);
 const token = query.get("token");
@@ -18,6 +20,7 @@ const state = {
   servos: [], handles: [], handleSpots: [], bones: [], overlay: true, ownCamera: false,
   recording: { on: false }, faults: [], markers: [], notices: [], panel: null, playback: null,
   connected: { frames: false, control: false }, lastPick: null,
+  panels: 0, panelTimes: [],  // panel updates received; arrival times (ms, performance.now), newest 600
 };
 window.puppetView = state;
 
@@ -114,6 +117,9 @@ const handlers = {
   },
   panel(m) {
     state.panel = m;
+    state.panels += 1;
+    state.panelTimes.push(performance.now());
+    if (state.panelTimes.length > 600) state.panelTimes.shift();
     if (m.servos) updateServos(m.servos);
     if (m.handles) state.handleSpots = m.handles;
     if (m.bones) state.bones = m.bones;
@@ -124,7 +130,7 @@ const handlers = {
     if (m.playback) updatePlayback(m.playback);
     drawMarks();
   },
-  fault(m) { state.faults.push(m); addFault(m); },
+  fault(m) { state.faults.push(m); if (state.faults.length > MAX_FAULTS) state.faults.shift(); addFault(m); },
   handles(m) { state.handles = m.handles; },
   handle(m) {
     state.lastPick = { key: m.key, handle: m.handle, refactor_ms: m.refactor_ms };
@@ -152,11 +158,12 @@ function showConnection() {
 }
 
 function note(text) {
-  state.notices.push(text);
+  state.notices.push({ text, t: performance.now() });
+  if (state.notices.length > MAX_NOTICES) state.notices.shift();
   const li = document.createElement("li");
   li.textContent = text;
   $("notices").prepend(li);
-  while ($("notices").children.length > 50) $("notices").lastChild.remove();
+  while ($("notices").children.length > MAX_NOTICES) $("notices").lastChild.remove();
 }
 
 // ---- panel --------------------------------------------------------------------------------
@@ -195,7 +202,7 @@ function addFault(f) {
   const li = document.createElement("li");
   li.textContent = `${f.t_s.toFixed(2)} s ${f.kind}${f.ids.length ? " ids " + f.ids.join(",") : ""}${f.detail ? ": " + f.detail : ""}`;
   $("faults").prepend(li);
-  while ($("faults").children.length > 200) $("faults").lastChild.remove();
+  while ($("faults").children.length > MAX_FAULTS) $("faults").lastChild.remove();
 }
 
 function setOverlay(on) { state.overlay = on; $("overlay").setAttribute("aria-pressed", String(on)); }
