@@ -44,6 +44,9 @@ PICK_RATE_HZ, PICK_BURST = 4.0, 8
 MAX_HANDLES = 16
 #: A viewer whose socket takes no data (a send waits) for this long is dropped, with a note.
 STALL_DROP_S = 10.0
+#: Kernel send buffer per control socket (bytes; Linux doubles it): a stuck viewer's socket is
+#: full after this (and asyncio's 64 KiB) instead of after megabytes of autotuned buffer.
+CONTROL_SNDBUF = 32 * 1024
 #: Control messages (other than the panel, which is latest-wins) waiting per viewer; beyond it
 #: the oldest are dropped (a snapshot on reconnect has the state).
 OUTBOX_MESSAGES = 64

@@ -19,6 +19,7 @@ import asyncio
 import json
 import logging
 import math
+import socket
 import threading
 import time
 from collections import deque
@@ -31,7 +32,7 @@ from puppet.view.address import Access
 from puppet.view.encoder import EncodedFrame
 from puppet.view.guard import RateLimit, Throttle, parse_message
 from puppet.view.protocol import (CREDIT, FLAG_DRAFT, INPUT_BURST, INPUT_RATE_HZ, MAX_CLIENT_MESSAGE,
-                                  NOTICE_EVERY_S, OUTBOX_MESSAGES, PANEL_HZ, PICK_BURST, PICK_RATE_HZ,
+                                  CONTROL_SNDBUF, NOTICE_EVERY_S, OUTBOX_MESSAGES, PANEL_HZ, PICK_BURST, PICK_RATE_HZ,
                                   STALL_DROP_S, frame_header)
 
 log = logging.getLogger("puppet.view")
@@ -396,6 +397,9 @@ class ViewServer:
             await viewer.control.close()
         viewer.control = ws
         viewer.outbox = outbox = Outbox()
+        sock = request.transport.get_extra_info("socket") if request.transport is not None else None
+        if sock is not None:
+            sock.setsockopt(socket.SOL_SOCKET, socket.SO_SNDBUF, CONTROL_SNDBUF)
         snapshot = self.view.snapshot()
         snapshot["viewer"] = viewer.number
         outbox.put(json.dumps(snapshot))
