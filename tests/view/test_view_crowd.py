@@ -61,3 +61,80 @@ def test_a_viewer_that_never_reads_stalls_nobody_and_is_dropped(new_page, demo, 
     count = page.evaluate("puppetView.shown")
     tools.wait_js(page, f"puppetView.shown > {count} + 5")
     tools.wait_until(lambda: "dropped: its connection took no data" in demo.stderr(), what="the drop in the log")
+
+
+MALFORMED = ["[" * 2000 + "]" * 2000, "not json", json.dumps({"type": "launch"}),
+             json.dumps({"type": "drag", "key": "x", "x": 1, "y": 2}), json.dumps([1, 2])]
+
+
+async def _flood(url: str, bones: list, pickers: int) -> dict:
+    """One client sends 10 000 malformed messages and 1000 picks as fast as it can; ``pickers``
+    more clients press on the character 8 times each (their pick burst). Every client reads what
+    it is sent (so none is dropped as stuck); returns the notices each one got."""
+    import random
+
+    base = url.rstrip("/").replace("http://", "ws://")
+    origin = url.rstrip("/")
+    rng = random.Random(7)
+    notices: dict[str, list] = {}
+
+    def on_character():
+        bone = rng.choice(bones)
+        t = rng.uniform(0.2, 0.8)
+        return [a + t * (b - a) + rng.uniform(-2, 2) for a, b in zip(bone["a"], bone["b"])]
+
+    async def read(name, ws):
+        async for msg in ws:
+            message = json.loads(msg.data)
+            if message.get("type") == "notice":
+                notices[name].append(message["text"])
+
+    async with aiohttp.ClientSession() as session:
+        sockets = {}
+        for name in ["flood"] + [f"picker{i}" for i in range(pickers)]:
+            sockets[name] = await session.ws_connect(f"{base}/ws/control?client={name}", origin=origin)
+            notices[name] = []
+        readers = [asyncio.ensure_future(read(name, ws)) for name, ws in sockets.items()]
+        flood = sockets["flood"]
+        for i in range(10_000):
+            await flood.send_str(MALFORMED[i % len(MALFORMED)])
+        for key in range(1000):
+            x, y = on_character()
+            await flood.send_str(json.dumps({"type": "pick", "key": key, "seq": 0, "x": x, "y": y}))
+        for i in range(pickers):
+            for key in range(8):
+                x, y = on_character()
+                await sockets[f"picker{i}"].send_str(json.dumps({"type": "pick", "key": key, "seq": 0,
+                                                                 "x": x, "y": y}))
+        await asyncio.sleep(3 * 2.0)  # the merged notices come NOTICE_EVERY_S apart
+        for ws in sockets.values():
+            await ws.close()
+        await asyncio.gather(*readers, return_exceptions=True)
+    return notices
+
+
+def test_one_clients_flood_costs_the_others_nothing(new_page, demo, tools):
+    page = tools.open_view(new_page, demo)
+    tools.wait_js(page, "puppetView.bones.length > 0")
+    bones = page.evaluate("puppetView.bones")
+    shown, panels = page.evaluate("[puppetView.shown, puppetView.panels]")
+    notices = tools.run_async(_flood(demo.url, bones, pickers=3))
+    # The other viewer kept getting frames and panel updates.
+    tools.wait_js(page, f"puppetView.shown > {shown} + 10 && puppetView.panels > {panels} + 5")
+    # Handles end at the cap, with a clear notice to the page that asked for one more.
+    handles = tools.wait_js(page, f"puppetView.handles.length === {MAX_HANDLES} && puppetView.handles")
+    assert len(handles) == MAX_HANDLES
+    everyone = [text for texts in notices.values() for text in texts]
+    assert any(f"at most {MAX_HANDLES} handles" in text for text in everyone)
+    # The flooder's notices were merged per kind (a handful, not one per message) and never
+    # echo what it sent; nothing about its input reached the other page.
+    assert 0 < len(notices["flood"]) < 40, notices["flood"]
+    assert not any("launch" in text or "not json" in text for text in notices["flood"])
+    assert any("more like it" in text for text in notices["flood"])
+    texts = page.evaluate("puppetView.notices.map(n => n.text)")
+    assert not any("malformed" in t or "too many" in t or "ignored" in t for t in texts), texts
+    assert page.evaluate("puppetView.notices.length") <= 50
+    err = demo.stderr()
+    assert "Traceback" not in err and "RecursionError" not in err
+    assert "unknown message type 'launch'" in err  # logged on the server, merged
+    assert err.count("unknown message type 'launch'") < 40
