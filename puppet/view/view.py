@@ -39,6 +39,8 @@ log = logging.getLogger("puppet.view")
 RING = 64                 # frames remembered for picking (about 1 s at 60 fps)
 VIEW_SHARE = 0.6          # the most of the loop's wall time spent rendering for viewers
 INTERACTION_S = 0.3       # frames are drafts until this long after the last camera/handle move
+KEEPALIVE_S = 2.0         # an idle view (nothing moved, camera still) sends one frame this often
+STILL_T = 1e-5            # a pose whose T entries all moved less than this is the same picture
 ORBIT_RAD_PER_PX = 0.01
 MODES = ("live", "play", "rig")
 
@@ -102,6 +104,7 @@ class View:
         self._bone_names = list(rig.skeleton.names)
         m = pipeline.model.m
         self._ring_T = np.zeros((RING, 4 * m, 3), np.float32)
+        self._T_scratch = np.zeros((4 * m, 3), np.float32)
         self._ring_seq = np.full(RING, -1, np.int64)
         self._ring_camera: list = [None] * RING
         self._last: dict[int, tuple] = {}          # camera -> (T copy, version, overlay, states, draft)
@@ -428,7 +431,8 @@ class View:
             last_t = self._last_render_s.get(camera_id, -math.inf)
             if now - last_t < period:
                 continue
-            if camera_id not in force and not self._dirty(pipeline, camera_id, now):
+            if camera_id not in force and now - last_t < KEEPALIVE_S \
+                    and not self._dirty(pipeline, camera_id, now):
                 continue
             if last_t < best_t:
                 best, best_t = camera_id, last_t
@@ -440,9 +444,14 @@ class View:
             return True
         T, version, overlay, states, draft = last
         camera = self._cameras.get(camera_id)
-        return (draft and now - self._last_interaction >= INTERACTION_S) or overlay != self.overlay \
-            or camera is None or version != camera.version or states != pipeline.bone_states \
-            or not np.array_equal(T, pipeline.T)
+        if (draft and now - self._last_interaction >= INTERACTION_S) or overlay != self.overlay \
+                or camera is None or version != camera.version or states != pipeline.bone_states:
+            return True
+        # The solver's answer for a still pose differs in the last bits from solve to solve.
+        scratch = self._T_scratch
+        np.subtract(T, pipeline.T, out=scratch)
+        np.abs(scratch, out=scratch)
+        return bool(scratch.max() > STILL_T)
 
     def _render(self, pipeline, camera_id: int, image, reading, now: float) -> None:
         orbit = self._camera(camera_id)

@@ -6,6 +6,7 @@
 const HEADER = 24;
 const FLAG_DRAFT = 1;
 const HANDLE_RADIUS = 7;
+const PIN_DRAG_PX = 4;     // a press pins a point only once the pointer moved this far (screen px): a click pins nothing
 const MAX_NOTICES = 50;    // notices kept (state.notices and the list): the newest
 const MAX_FAULTS = 200;    // bus events kept
 
@@ -18,7 +19,7 @@ const state = {
   client, viewer: null, mode: null, width: 640, height: 480,
   shownSeq: -1, shown: 0, draft: false, drafts: 0, fps: 0, shownTimes: [],
   servos: [], handles: [], handleSpots: [], bones: [], overlay: true, ownCamera: false,
-  recording: { on: false }, faults: [], markers: [], notices: [], panel: null, playback: null,
+  recording: { on: false }, faults: [], markers: [], notices: [], panel: null, playback: null, takeMarks: [],
   connected: { frames: false, control: false }, lastPick: null,
   panels: 0, panelTimes: [],  // panel updates received; arrival times (ms, performance.now), newest 600
 };
@@ -222,13 +223,39 @@ function updatePlayback(p) {
   scrub.max = String(p.duration_s || 1);
   if (!scrubbing) scrub.value = String(p.position_s);
   $("clock").textContent = `${p.position_s.toFixed(1)} / ${p.duration_s.toFixed(1)} s`;
-  $("pause").textContent = p.paused ? "play" : "pause";
+  $("pause").textContent = p.paused || atEnd(p) ? "play" : "pause";
+  showTakeMarks(p.markers || [], p.duration_s || 1);
+}
+
+function atEnd(p) { return p.position_s >= p.duration_s - 1e-3; }
+
+// The take's marks: ticks on the slider and a list; a click jumps there. Rebuilt only on change.
+let takeMarksKey = "";
+function showTakeMarks(markers, duration) {
+  const key = JSON.stringify(markers);
+  if (key === takeMarksKey) return;
+  takeMarksKey = key;
+  state.takeMarks = markers;
+  $("take-marks").replaceChildren(...markers.map(m => {
+    const option = document.createElement("option");
+    option.value = String(Math.min(m.t_s, duration)); option.label = m.name;
+    return option;
+  }));
+  $("take-mark-list").replaceChildren(...markers.map(m => {
+    const li = document.createElement("li");
+    const button = document.createElement("button");
+    button.className = "take-mark";
+    button.textContent = `${m.name} · ${m.t_s.toFixed(2)} s`;
+    button.onclick = () => send({ type: "playback", action: "seek", value: m.t_s });
+    li.append(button);
+    return li;
+  }));
 }
 
 // ---- marks drawn by the page (handles, the drag in progress) --------------------------------
 let marksShown = false;  // anything on the marks canvas (clearing an empty one still repaints it)
 function drawMarks() {
-  const dragging = drag && !drag.orbit && !drag.pan;
+  const dragging = drag && drag.started && !drag.orbit && !drag.pan;
   if (!marksShown && !state.handleSpots.length && !dragging) return;
   marksShown = state.handleSpots.length > 0 || dragging;
   marks.style.opacity = marksShown ? "1" : "0";  // an empty layer is left out of compositing
@@ -296,18 +323,24 @@ marks.addEventListener("pointerdown", event => {
   const [x, y] = imagePoint(event);
   const key = nextKey++;
   drag = { key, x, y, startX: x, startY: y, lastX: x, lastY: y, dirty: false, pending: false,
-           handle: null, orbit: false, pan: event.button === 1 || event.shiftKey };
+           handle: null, orbit: false, pan: event.button === 1 || event.shiftKey,
+           screenX: event.clientX, screenY: event.clientY, seq: Math.max(state.shownSeq, 0), started: false };
   if (drag.pan) return;
   const spot = handleAt(x, y);
   if (spot) {
-    drag.handle = spot.id;
+    drag.handle = spot.id; drag.started = true;
     send({ type: "grab", key, handle: spot.id });
-  } else {
-    drag.pending = true;
-    send({ type: "pick", key, seq: Math.max(state.shownSeq, 0), x, y });
   }
   drawMarks();
 });
+
+// A press on the character becomes a pick (a new handle) only once it is a drag.
+function startPick(event) {
+  if (drag.started || Math.hypot(event.clientX - drag.screenX, event.clientY - drag.screenY) < PIN_DRAG_PX) return false;
+  drag.started = true; drag.pending = true;
+  send({ type: "pick", key: drag.key, seq: drag.seq, x: drag.startX, y: drag.startY });
+  return true;
+}
 
 marks.addEventListener("pointermove", event => {
   if (!drag) return;
@@ -316,11 +349,11 @@ marks.addEventListener("pointermove", event => {
   drag.lastX = x; drag.lastY = y; drag.x = x; drag.y = y;
   if (drag.pan) queueMove("pan", dx, dy);
   else if (drag.orbit) queueMove("orbit", dx, dy);
-  else { drag.dirty = true; scheduleFlush(); }
+  else if (drag.started || startPick(event)) { drag.dirty = true; scheduleFlush(); }
 });
 
 function endDrag() {
-  if (drag && drag.dirty && !drag.orbit && !drag.pan) send({ type: "drag", key: drag.key, x: drag.x, y: drag.y });
+  if (drag && drag.started && drag.dirty && !drag.orbit && !drag.pan) send({ type: "drag", key: drag.key, x: drag.x, y: drag.y });
   drag = null;
   drawMarks();
 }
@@ -349,7 +382,11 @@ $("own").onclick = () => {
 };
 $("record").onclick = () => send({ type: "record", on: !state.recording.on });
 $("marker").onclick = () => send({ type: "marker", name: ($("marker-name").value || "mark").slice(0, 80) });
-$("pause").onclick = () => send({ type: "playback", action: state.playback && state.playback.paused ? "play" : "pause", value: 0 });
+// At the end (e.g. scrubbed there) the button plays from the start, whatever the last panel said.
+$("pause").onclick = () => {
+  const p = state.playback;
+  send({ type: "playback", action: p && (p.paused || atEnd(p)) ? "play" : "pause", value: 0 });
+};
 $("scrub").addEventListener("input", () => { scrubbing = true; send({ type: "playback", action: "seek", value: Number($("scrub").value) }); });
 $("scrub").addEventListener("change", () => { scrubbing = false; });
 $("speed").onchange = () => send({ type: "playback", action: "speed", value: Number($("speed").value) });
