@@ -31,7 +31,7 @@ from puppet.view.address import Access, bind, parse_address
 from puppet.view.encoder import FrameEncoder
 from puppet.view.handles import Handle, drag_target, project, surface_bary, surface_point
 from puppet.view.orbit import OrbitCamera
-from puppet.view.protocol import PANEL_HZ
+from puppet.view.protocol import MAX_HANDLES, PANEL_HZ
 from puppet.view.server import ViewServer
 
 log = logging.getLogger("puppet.view")
@@ -39,6 +39,8 @@ log = logging.getLogger("puppet.view")
 RING = 64                 # frames remembered for picking (about 1 s at 60 fps)
 VIEW_SHARE = 0.6          # the most of the loop's wall time spent rendering for viewers
 INTERACTION_S = 0.3       # frames are drafts until this long after the last camera/handle move
+KEEPALIVE_S = 2.0         # an idle view (nothing moved, camera still) sends one frame this often
+STILL_T = 1e-5            # a pose whose T entries all moved less than this is the same picture
 ORBIT_RAD_PER_PX = 0.01
 MODES = ("live", "play", "rig")
 
@@ -102,6 +104,7 @@ class View:
         self._bone_names = list(rig.skeleton.names)
         m = pipeline.model.m
         self._ring_T = np.zeros((RING, 4 * m, 3), np.float32)
+        self._T_scratch = np.zeros((4 * m, 3), np.float32)
         self._ring_seq = np.full(RING, -1, np.int64)
         self._ring_camera: list = [None] * RING
         self._last: dict[int, tuple] = {}          # camera -> (T copy, version, overlay, states, draft)
@@ -218,8 +221,8 @@ class View:
                     self._mark(msg["name"])
                 elif kind == "playback":
                     self._playback(msg["action"], msg["value"])
-            except PuppetError as err:
-                self._warn(f"{kind}: {err}")
+            except PuppetError as err:  # told to the page that asked
+                self._warn(f"{kind}: {err}", client, kind=f"{kind} refused")
                 if kind == "pick":  # the page's pending drag becomes an orbit
                     self.server.send_to(client, {"type": "pick_miss", "key": msg["key"]})
         for camera_id, (dx, dy, px, py, zoom) in moves.items():
@@ -246,8 +249,9 @@ class View:
             camera = self._cameras[camera_id] = self._cameras[0].copy()
         return camera
 
-    def _warn(self, text: str) -> None:
-        self.server.warn(text)
+    def _warn(self, text: str, client: str | None = None, kind: str | None = None) -> None:
+        """A warning logged and shown on the pages (client: that viewer's only), merged per kind."""
+        self.server.warn(text, client, kind)
 
     # ---- handles ------------------------------------------------------------------------------
     def _pick(self, pipeline, client: str, msg: dict) -> None:
@@ -265,7 +269,7 @@ class View:
             if client not in self._told_background:  # once per viewer: it is also how one orbits
                 self._told_background.add(client)
                 self._warn(f"a drag that started on the background (at {x}, {y}) moves no handle; "
-                           "such drags turn the camera")
+                           "such drags turn the camera", client)
             return
         triangle = int(hit.triangle)
         bary = surface_bary(hit.bary)
@@ -274,6 +278,9 @@ class View:
             self._keys[(client, msg["key"])] = existing.id
             self.server.send_to(client, {"type": "handle", "key": msg["key"], "handle": existing.id})
             return
+        if len(self._handles) >= MAX_HANDLES:
+            raise PuppetError(f"at most {MAX_HANDLES} handles: remove one (right click or double click "
+                              "on it) to pin another")
         # The handle starts where its point is now (nothing jumps), then goes where it is dragged.
         point, _ = surface_point(pipeline.model, self._F, pipeline.T, triangle, bary)
         corners = tuple(int(v) for v in self._F[triangle])
@@ -424,7 +431,8 @@ class View:
             last_t = self._last_render_s.get(camera_id, -math.inf)
             if now - last_t < period:
                 continue
-            if camera_id not in force and not self._dirty(pipeline, camera_id, now):
+            if camera_id not in force and now - last_t < KEEPALIVE_S \
+                    and not self._dirty(pipeline, camera_id, now):
                 continue
             if last_t < best_t:
                 best, best_t = camera_id, last_t
@@ -436,9 +444,14 @@ class View:
             return True
         T, version, overlay, states, draft = last
         camera = self._cameras.get(camera_id)
-        return (draft and now - self._last_interaction >= INTERACTION_S) or overlay != self.overlay \
-            or camera is None or version != camera.version or states != pipeline.bone_states \
-            or not np.array_equal(T, pipeline.T)
+        if (draft and now - self._last_interaction >= INTERACTION_S) or overlay != self.overlay \
+                or camera is None or version != camera.version or states != pipeline.bone_states:
+            return True
+        # The solver's answer for a still pose differs in the last bits from solve to solve.
+        scratch = self._T_scratch
+        np.subtract(T, pipeline.T, out=scratch)
+        np.abs(scratch, out=scratch)
+        return bool(scratch.max() > STILL_T)
 
     def _render(self, pipeline, camera_id: int, image, reading, now: float) -> None:
         orbit = self._camera(camera_id)

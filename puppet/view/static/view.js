@@ -6,6 +6,9 @@
 const HEADER = 24;
 const FLAG_DRAFT = 1;
 const HANDLE_RADIUS = 7;
+const PIN_DRAG_PX = 4;     // a press pins a point only once the pointer moved this far (screen px): a click pins nothing
+const MAX_NOTICES = 50;    // notices kept (state.notices and the list): the newest
+const MAX_FAULTS = 200;    // bus events kept
 
 const query = new URLSearchParams(location.search);
 const token = query.get("token");
@@ -16,8 +19,9 @@ const state = {
   client, viewer: null, mode: null, width: 640, height: 480,
   shownSeq: -1, shown: 0, draft: false, drafts: 0, fps: 0, shownTimes: [],
   servos: [], handles: [], handleSpots: [], bones: [], overlay: true, ownCamera: false,
-  recording: { on: false }, faults: [], markers: [], notices: [], panel: null, playback: null,
+  recording: { on: false }, faults: [], markers: [], notices: [], panel: null, playback: null, takeMarks: [],
   connected: { frames: false, control: false }, lastPick: null,
+  panels: 0, panelTimes: [],  // panel updates received; arrival times (ms, performance.now), newest 600
 };
 window.puppetView = state;
 
@@ -114,6 +118,9 @@ const handlers = {
   },
   panel(m) {
     state.panel = m;
+    state.panels += 1;
+    state.panelTimes.push(performance.now());
+    if (state.panelTimes.length > 600) state.panelTimes.shift();
     if (m.servos) updateServos(m.servos);
     if (m.handles) state.handleSpots = m.handles;
     if (m.bones) state.bones = m.bones;
@@ -124,7 +131,7 @@ const handlers = {
     if (m.playback) updatePlayback(m.playback);
     drawMarks();
   },
-  fault(m) { state.faults.push(m); addFault(m); },
+  fault(m) { state.faults.push(m); if (state.faults.length > MAX_FAULTS) state.faults.shift(); addFault(m); },
   handles(m) { state.handles = m.handles; },
   handle(m) {
     state.lastPick = { key: m.key, handle: m.handle, refactor_ms: m.refactor_ms };
@@ -152,11 +159,12 @@ function showConnection() {
 }
 
 function note(text) {
-  state.notices.push(text);
+  state.notices.push({ text, t: performance.now() });
+  if (state.notices.length > MAX_NOTICES) state.notices.shift();
   const li = document.createElement("li");
   li.textContent = text;
   $("notices").prepend(li);
-  while ($("notices").children.length > 50) $("notices").lastChild.remove();
+  while ($("notices").children.length > MAX_NOTICES) $("notices").lastChild.remove();
 }
 
 // ---- panel --------------------------------------------------------------------------------
@@ -195,7 +203,7 @@ function addFault(f) {
   const li = document.createElement("li");
   li.textContent = `${f.t_s.toFixed(2)} s ${f.kind}${f.ids.length ? " ids " + f.ids.join(",") : ""}${f.detail ? ": " + f.detail : ""}`;
   $("faults").prepend(li);
-  while ($("faults").children.length > 200) $("faults").lastChild.remove();
+  while ($("faults").children.length > MAX_FAULTS) $("faults").lastChild.remove();
 }
 
 function setOverlay(on) { state.overlay = on; $("overlay").setAttribute("aria-pressed", String(on)); }
@@ -215,13 +223,39 @@ function updatePlayback(p) {
   scrub.max = String(p.duration_s || 1);
   if (!scrubbing) scrub.value = String(p.position_s);
   $("clock").textContent = `${p.position_s.toFixed(1)} / ${p.duration_s.toFixed(1)} s`;
-  $("pause").textContent = p.paused ? "play" : "pause";
+  $("pause").textContent = p.paused || atEnd(p) ? "play" : "pause";
+  showTakeMarks(p.markers || [], p.duration_s || 1);
+}
+
+function atEnd(p) { return p.position_s >= p.duration_s - 1e-3; }
+
+// The take's marks: ticks on the slider and a list; a click jumps there. Rebuilt only on change.
+let takeMarksKey = "";
+function showTakeMarks(markers, duration) {
+  const key = JSON.stringify(markers);
+  if (key === takeMarksKey) return;
+  takeMarksKey = key;
+  state.takeMarks = markers;
+  $("take-marks").replaceChildren(...markers.map(m => {
+    const option = document.createElement("option");
+    option.value = String(Math.min(m.t_s, duration)); option.label = m.name;
+    return option;
+  }));
+  $("take-mark-list").replaceChildren(...markers.map(m => {
+    const li = document.createElement("li");
+    const button = document.createElement("button");
+    button.className = "take-mark";
+    button.textContent = `${m.name} · ${m.t_s.toFixed(2)} s`;
+    button.onclick = () => send({ type: "playback", action: "seek", value: m.t_s });
+    li.append(button);
+    return li;
+  }));
 }
 
 // ---- marks drawn by the page (handles, the drag in progress) --------------------------------
 let marksShown = false;  // anything on the marks canvas (clearing an empty one still repaints it)
 function drawMarks() {
-  const dragging = drag && !drag.orbit && !drag.pan;
+  const dragging = drag && drag.started && !drag.orbit && !drag.pan;
   if (!marksShown && !state.handleSpots.length && !dragging) return;
   marksShown = state.handleSpots.length > 0 || dragging;
   marks.style.opacity = marksShown ? "1" : "0";  // an empty layer is left out of compositing
@@ -289,18 +323,24 @@ marks.addEventListener("pointerdown", event => {
   const [x, y] = imagePoint(event);
   const key = nextKey++;
   drag = { key, x, y, startX: x, startY: y, lastX: x, lastY: y, dirty: false, pending: false,
-           handle: null, orbit: false, pan: event.button === 1 || event.shiftKey };
+           handle: null, orbit: false, pan: event.button === 1 || event.shiftKey,
+           screenX: event.clientX, screenY: event.clientY, seq: Math.max(state.shownSeq, 0), started: false };
   if (drag.pan) return;
   const spot = handleAt(x, y);
   if (spot) {
-    drag.handle = spot.id;
+    drag.handle = spot.id; drag.started = true;
     send({ type: "grab", key, handle: spot.id });
-  } else {
-    drag.pending = true;
-    send({ type: "pick", key, seq: Math.max(state.shownSeq, 0), x, y });
   }
   drawMarks();
 });
+
+// A press on the character becomes a pick (a new handle) only once it is a drag.
+function startPick(event) {
+  if (drag.started || Math.hypot(event.clientX - drag.screenX, event.clientY - drag.screenY) < PIN_DRAG_PX) return false;
+  drag.started = true; drag.pending = true;
+  send({ type: "pick", key: drag.key, seq: drag.seq, x: drag.startX, y: drag.startY });
+  return true;
+}
 
 marks.addEventListener("pointermove", event => {
   if (!drag) return;
@@ -309,11 +349,11 @@ marks.addEventListener("pointermove", event => {
   drag.lastX = x; drag.lastY = y; drag.x = x; drag.y = y;
   if (drag.pan) queueMove("pan", dx, dy);
   else if (drag.orbit) queueMove("orbit", dx, dy);
-  else { drag.dirty = true; scheduleFlush(); }
+  else if (drag.started || startPick(event)) { drag.dirty = true; scheduleFlush(); }
 });
 
 function endDrag() {
-  if (drag && drag.dirty && !drag.orbit && !drag.pan) send({ type: "drag", key: drag.key, x: drag.x, y: drag.y });
+  if (drag && drag.started && drag.dirty && !drag.orbit && !drag.pan) send({ type: "drag", key: drag.key, x: drag.x, y: drag.y });
   drag = null;
   drawMarks();
 }
@@ -342,7 +382,11 @@ $("own").onclick = () => {
 };
 $("record").onclick = () => send({ type: "record", on: !state.recording.on });
 $("marker").onclick = () => send({ type: "marker", name: ($("marker-name").value || "mark").slice(0, 80) });
-$("pause").onclick = () => send({ type: "playback", action: state.playback && state.playback.paused ? "play" : "pause", value: 0 });
+// At the end (e.g. scrubbed there) the button plays from the start, whatever the last panel said.
+$("pause").onclick = () => {
+  const p = state.playback;
+  send({ type: "playback", action: p && (p.paused || atEnd(p)) ? "play" : "pause", value: 0 });
+};
 $("scrub").addEventListener("input", () => { scrubbing = true; send({ type: "playback", action: "seek", value: Number($("scrub").value) }); });
 $("scrub").addEventListener("change", () => { scrubbing = false; });
 $("speed").onchange = () => send({ type: "playback", action: "speed", value: Number($("speed").value) });
