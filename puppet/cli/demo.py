@@ -12,10 +12,12 @@ from puppet.cli.view import open_view, take_factory_for, view_option
 @click.command()
 @click.option("--out", default="demo.mp4", show_default=True, help="Video file to write.")
 @click.option("--seconds", default=None, type=InRange(limits.SECONDS),
-              help="Length of the run [default: 10; with --view: until Ctrl-C].")
+              help=f"Length of the run ({limits.SECONDS}) [default: 10; with --view: until "
+                   "Ctrl-C].")
 @click.option("--faults", default=None, type=click.Path(exists=True, dir_okay=False),
               help="hw_sim fault file to play during the run.")
-@click.option("--size", default=(640, 480), type=(InRange(limits.FRAME_SIZE), InRange(limits.FRAME_SIZE)), show_default=True,
+@click.option("--size", default=(640, 480), show_default=True,
+              type=(InRange(limits.FRAME_SIZE), InRange(limits.FRAME_SIZE)),
               help=f"Frame size: width and height, each {limits.FRAME_SIZE}.")
 @click.option("--fps", default=30.0, show_default=True, type=InRange(limits.FPS),
               help=f"Frame rate of the video and frames ({limits.FPS}).")

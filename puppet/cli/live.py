@@ -7,7 +7,8 @@ from pathlib import Path
 import click
 
 from puppet import limits
-from puppet.cli.common import InRange, StopFlag, load_rig, make_sinks, print_summary, start_reader, take_writer
+from puppet.cli.common import (InRange, StopFlag, load_rig, make_sinks, print_summary, start_reader,
+                               take_writer)
 from puppet.cli.view import open_view, take_factory_for, view_option
 
 READ_RATE_HZ = 500.0

@@ -27,7 +27,8 @@ from puppet.cli.common import InRange, load_rig
 @click.option("--watchdog-ms", default=100.0, show_default=True, type=InRange(limits.WATCHDOG_MS),
               help=f"Bus Watchdog period ({limits.WATCHDOG_MS}; at least three loop periods).")
 @click.option("--rate", "rate_hz", default=100.0, show_default=True,
-              type=InRange(limits.GOAL_RATE_HZ), help=f"Goal writes per second ({limits.GOAL_RATE_HZ}).")
+              type=InRange(limits.GOAL_RATE_HZ),
+              help=f"Goal writes per second ({limits.GOAL_RATE_HZ}).")
 @click.option("--latency-ms", default=None, type=InRange(limits.LATENCY_MS),
               help=f"Adapter latency the SDK timeouts assume ({limits.LATENCY_MS}; default: the "
                    "adapter's, or 1).")

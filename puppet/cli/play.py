@@ -7,7 +7,8 @@ import sys
 import click
 
 from puppet import limits
-from puppet.cli.common import InRange, StopFlag, close_sinks, fail, make_sinks, open_take, print_summary
+from puppet.cli.common import (InRange, StopFlag, close_sinks, fail, make_sinks, open_take,
+                               print_summary)
 from puppet.cli.view import view_option
 
 

@@ -7,7 +7,8 @@ import time
 import click
 
 from puppet import limits
-from puppet.cli.common import InRange, StopFlag, check_take_path, load_rig, start_reader, take_writer
+from puppet.cli.common import (InRange, StopFlag, check_take_path, load_rig, start_reader,
+                               take_writer)
 
 
 @click.command()

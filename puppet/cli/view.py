@@ -53,7 +53,8 @@ def take_factory_for(rig):
               help="Where to serve the page (default 127.0.0.1:8765).")
 @click.option("--seconds", default=None, type=InRange(limits.SECONDS),
               help=f"Stop after this long ({limits.SECONDS}; default: Ctrl-C).")
-@click.option("--size", default=(640, 480), type=(InRange(limits.FRAME_SIZE), InRange(limits.FRAME_SIZE)), show_default=True,
+@click.option("--size", default=(640, 480), show_default=True,
+              type=(InRange(limits.FRAME_SIZE), InRange(limits.FRAME_SIZE)),
               help=f"Frame size: width and height, each {limits.FRAME_SIZE}.")
 def view(rig_path: str | None, address: str, seconds: float | None, size: tuple[int, int]) -> None:
     """Show a rig in the browser in its rest pose; drag point handles to pose it (no bus).

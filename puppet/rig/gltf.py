@@ -15,8 +15,9 @@ Weights of all sets are summed per joint and rows renormalized to 1.
 Bounds (an error naming the file past them): at most MAX_JOINTS joints, MAX_VERTICES vertices
 and MAX_WEIGHT_ENTRIES vertices x joints (the dense weight matrix); joint names of at most
 MAX_NAME_LENGTH characters, valid Unicode (a lone surrogate is refused). Node transforms and
-positions must be finite, and rest vertices and joints within COORD (+-1e6 model units); the skinned meshes must hold at least one triangle. The node
-hierarchy is walked without recursion (a chain of any depth within MAX_JOINTS reads).
+positions must be finite, and rest vertices and joints within COORD (+-1e6 model units);
+the skinned meshes must hold at least one triangle. The node hierarchy is walked without
+recursion (a chain of any depth within MAX_JOINTS reads).
 
 Welding: copies of a vertex that the exporter split at seams (same position, same weights) are
 welded into one (``puppet.rig.weld``); ``source_index`` maps the file's vertices to the welded
@@ -284,7 +285,8 @@ def _read_meshes(gltf, acc: _Accessors, path: Path, mesh_nodes: list[int], joint
                                f"at most {MAX_VERTICES} vertices and {MAX_WEIGHT_ENTRIES} vertices x "
                                "joints are read", path=path, field=f"{where}.POSITION")
             if not np.isfinite(P).all():
-                raise RigError("a vertex position is not finite", path=path, field=f"{where}.POSITION")
+                raise RigError("a vertex position is not finite", path=path,
+                               field=f"{where}.POSITION")
             if prim.indices is not None:
                 idx = acc.read(prim.indices, f"{where}.indices", normalize=False).reshape(-1).astype(np.int64)
             else:
@@ -450,7 +452,8 @@ def _rest_globals(nodes, parent_node: dict, joints: list[int], path: Path) -> np
             try:
                 local = _node_local(nodes[i])
             except (TypeError, ValueError) as err:
-                raise RigError(f"unusable transform: {err}", path=path, field=f"nodes[{i}]") from None
+                raise RigError(f"unusable transform: {err}", path=path,
+                               field=f"nodes[{i}]") from None
             if not np.isfinite(local).all():
                 raise RigError("transform is not finite (translation, rotation, scale or matrix)",
                                path=path, field=f"nodes[{i}]")

@@ -7,11 +7,11 @@ to the mesh; and holds one commented ``[[servo]]`` block per joint for the user 
 and fill (``puppet rig axes`` and ``puppet calibrate --guided`` help).
 The text parses as it is (``puppet rig info`` loads it: a rig with no servos yet).
 
-Joint names are written as TOML strings with every non-printable character (controls, line
-and paragraph separators, format characters) as a ``\\uXXXX`` escape, which TOML reads back to
-the same name; comments show Python's repr (which escapes them too). Names glTF cannot hold as Unicode text (a
-lone surrogate) are refused when the file is read (puppet.rig.gltf, with its joint and vertex
-bounds).
+Joint names are written as TOML strings with every non-printable character (controls, line and
+paragraph separators, format characters) as a ``\\uXXXX`` escape, which TOML reads back to the
+same name; comments show Python's repr (which escapes them too). Names glTF cannot hold as
+Unicode text (a lone surrogate) are refused when the file is read (puppet.rig.gltf, with its
+joint and vertex bounds).
 """
 
 from __future__ import annotations

@@ -17,7 +17,7 @@ out of it). Example::
     damping = 0.9                 # 0 (no momentum) .. 1 (full momentum)
     gravity = [0, -9.81, 0]       # model units / s^2, each -1e5..1e5 (default: none)
     dt = 0.016666                 # solver time step, seconds (DT: 0.0001..1); frames take
-    max_steps = 4                 #   round(elapsed / dt) steps (elapsed from the reading times), 1..64
+    max_steps = 4                 #   round(elapsed / dt) steps (from the reading times), 1..64
 
     [[contact]]                   # per-axis positional constraint (e.g. a foot on the floor)
     vertex = 1234                 # or point = [x, y, z] (COORD): the nearest vertex
