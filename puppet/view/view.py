@@ -27,6 +27,7 @@ from pathlib import Path
 import numpy as np
 
 from puppet.errors import PuppetError
+from puppet.events import EVENT_KINDS
 from puppet.view.address import Access, bind, parse_address
 from puppet.view.encoder import FrameEncoder
 from puppet.view.handles import Handle, drag_target, project, surface_bary, surface_point
@@ -40,9 +41,23 @@ RING = 64                 # frames remembered for picking (about 1 s at 60 fps)
 VIEW_SHARE = 0.6          # the most of the loop's wall time spent rendering for viewers
 INTERACTION_S = 0.3       # frames are drafts until this long after the last camera/handle move
 KEEPALIVE_S = 2.0         # an idle view (nothing moved, camera still) sends one frame this often
-STILL_T = 1e-5            # a pose whose T entries all moved less than this is the same picture
+STILL = 1 / 2000          # a pose whose T entries all moved less than this times the model's size
+                          # is the same picture (the solver still settling; ~0.2 px at 480 px)
 ORBIT_RAD_PER_PX = 0.01
 MODES = ("live", "play", "rig")
+
+
+def bone_legend() -> list[dict]:
+    """The overlay's bone colours for the page: [{state, color ('#rrggbb', sRGB), words}]."""
+    from puppet.render.overlay import BONE_STATE_COLORS, BONE_STATE_WORDS
+
+    def srgb(c: float) -> int:
+        c = 12.92 * c if c <= 0.0031308 else 1.055 * c ** (1 / 2.4) - 0.055
+        return round(min(max(c, 0.0), 1.0) * 255)
+
+    return [{"state": state, "color": "#" + "".join(f"{srgb(c):02x}" for c in rgb),
+             "words": BONE_STATE_WORDS[state]}
+            for state, rgb in BONE_STATE_COLORS.items() if state is not None]
 
 
 class View:
@@ -105,6 +120,8 @@ class View:
         m = pipeline.model.m
         self._ring_T = np.zeros((RING, 4 * m, 3), np.float32)
         self._T_scratch = np.zeros((4 * m, 3), np.float32)
+        V = np.asarray(pipeline.model.V)
+        self._still_T = STILL * max(float(np.ptp(V, axis=0).max()), 1e-6)
         self._ring_seq = np.full(RING, -1, np.int64)
         self._ring_camera: list = [None] * RING
         self._last: dict[int, tuple] = {}          # camera -> (T copy, version, overlay, states, draft)
@@ -155,6 +172,7 @@ class View:
                 "servos": [{"id": i, "joint": j} for i, j in zip(self._servo_ids, self._servo_joints)],
                 "bones": self._bone_names, "handles": handles, "faults": faults,
                 "markers": markers, "overlay": self.overlay, "recording": self._recording_state(),
+                "legend": bone_legend(),
                 "panel": panel, "playback": self._playback_state()}
 
     def panel(self, camera: int) -> dict:
@@ -447,11 +465,11 @@ class View:
         if (draft and now - self._last_interaction >= INTERACTION_S) or overlay != self.overlay \
                 or camera is None or version != camera.version or states != pipeline.bone_states:
             return True
-        # The solver's answer for a still pose differs in the last bits from solve to solve.
+        # A still pose: the solver's answer still settles by far less than a pixel per solve.
         scratch = self._T_scratch
         np.subtract(T, pipeline.T, out=scratch)
         np.abs(scratch, out=scratch)
-        return bool(scratch.max() > STILL_T)
+        return bool(scratch.max() > self._still_T)
 
     def _render(self, pipeline, camera_id: int, image, reading, now: float) -> None:
         orbit = self._camera(camera_id)
@@ -507,12 +525,16 @@ class View:
             return
         self._events_seen = total
         for event in events:
+            kind = EVENT_KINDS.get(event.kind)
+            fault = kind is None or kind.fault
             item = {"t_s": round(event.t_ns / 1e9 - self._t0, 3), "kind": event.kind,
-                    "ids": list(event.ids), "detail": event.detail}
+                    "ids": list(event.ids), "detail": event.detail[:200], "fault": fault,
+                    "words": kind.words if kind is not None else event.kind}
             with self._lock:
                 self._faults.append(item)
-            for servo in event.ids:
-                self._last_fault[int(servo)] = event.kind
+            if fault:  # "last fault" names faults only, in the puppeteer's words
+                for servo in event.ids:
+                    self._last_fault[int(servo)] = item["words"]
             self.server.send_to(None, {"type": "fault", **item})
 
     def _update_panel(self, pipeline, reading, now: float) -> None:

@@ -64,6 +64,8 @@ function connectFrames() {
         frameCanvas.width = marks.width = bitmap.width;
         frameCanvas.height = marks.height = bitmap.height;
         state.width = bitmap.width; state.height = bitmap.height;
+        document.documentElement.style.setProperty("--frame-w", `${bitmap.width}px`);
+        $("stage").style.aspectRatio = `${bitmap.width} / ${bitmap.height}`;
       }
       frameCtx.drawImage(bitmap, 0, 0);
       bitmap.close();
@@ -110,7 +112,8 @@ const handlers = {
     state.viewer = m.viewer; state.mode = m.mode; state.servos = m.servos; state.handles = m.handles;
     state.faults = m.faults.slice(); state.markers = m.markers.slice(); state.overlay = m.overlay;
     buildServoTable(m.servos);
-    $("faults").replaceChildren(); m.faults.forEach(addFault);
+    $("faults").replaceChildren(); $("events").replaceChildren(); m.faults.forEach(addFault);
+    showLegend(m.legend || []);
     setOverlay(m.overlay); setRecording(m.recording);
     $("playback").hidden = m.mode !== "play";
     $("record").disabled = m.mode !== "live";  // a take of the rest pose or of a take: nothing new
@@ -175,7 +178,7 @@ function buildServoTable(servos) {
     const row = body.insertRow();
     row.dataset.id = s.id;
     row.insertCell().textContent = s.id;
-    row.insertCell().textContent = s.joint;
+    const joint = row.insertCell(); joint.textContent = s.joint; joint.title = s.joint;
     const angle = row.insertCell(); angle.className = "num"; angle.textContent = "–";
     row.insertCell().textContent = "–";
     row.insertCell().textContent = "";
@@ -195,15 +198,31 @@ function updateServos(servos) {
     const state = s.ok ? "state-ok" : "";
     if (row.cells[3].className !== state) row.cells[3].className = state;
     setText(row.cells[4], s.fault);
+    if (row.cells[4].title !== s.fault) row.cells[4].title = s.fault;
     if (row.classList.contains("flagged") === s.ok) row.classList.toggle("flagged", !s.ok);
   });
 }
 
+// Faults in the puppeteer's words (the kind and the bus's own detail on hover); events that are
+// not faults (a servo back, settings restored) on a quieter list of their own.
 function addFault(f) {
   const li = document.createElement("li");
-  li.textContent = `${f.t_s.toFixed(2)} s ${f.kind}${f.ids.length ? " ids " + f.ids.join(",") : ""}${f.detail ? ": " + f.detail : ""}`;
-  $("faults").prepend(li);
-  while ($("faults").children.length > MAX_FAULTS) $("faults").lastChild.remove();
+  const servos = f.ids.length ? (f.ids.length > 1 ? "servos " : "servo ") + f.ids.join(", ") + ": " : "";
+  li.textContent = `${f.t_s.toFixed(1)} s  ${servos}${f.words || f.kind}`;
+  li.title = `${f.kind}${f.detail ? ": " + f.detail : ""}`;
+  const list = $(f.fault === false ? "events" : "faults");
+  list.prepend(li);
+  while (list.children.length > MAX_FAULTS) list.lastChild.remove();
+}
+
+function showLegend(legend) {
+  $("legend").replaceChildren(...legend.map(item => {
+    const li = document.createElement("li");
+    const swatch = document.createElement("span");
+    swatch.className = "swatch"; swatch.style.background = item.color;
+    li.append(swatch, `${item.state}: ${item.words}`);
+    return li;
+  }));
 }
 
 function setOverlay(on) { state.overlay = on; $("overlay").setAttribute("aria-pressed", String(on)); }
