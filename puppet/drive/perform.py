@@ -39,6 +39,7 @@ from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
+from puppet import limits
 from puppet.bus.control_table import describe_hardware_error
 from puppet.bus.errors import BusError, PortError, ServoCorrupt, ServoTimeout
 from puppet.bus.link import BusLink
@@ -79,7 +80,8 @@ hour unattended."""
 class PerformOptions:
     """How to perform.
 
-    speed: take time per wall second. loop: repeat the take. yes: no countdown, and a replay
+    speed, rate_hz and watchdog_ms: within puppet.limits SPEED, GOAL_RATE_HZ, WATCHDOG_MS (else
+    refused before anything opens). speed: take time per wall second. loop: repeat the take. yes: no countdown, and a replay
     longer than MAX_REPLAY_S is performed (else refused).
     watchdog: set the servos' Bus Watchdog (False: --no-watchdog). rate_hz: goal writes per
     second. watchdog_ms: Bus Watchdog period, ms (rounded up to 20 ms units; at least three
@@ -198,6 +200,10 @@ def perform(rig, reader, port: str, options: PerformOptions | None = None,
     ``report`` attached, torque already off) for anything else.
     """
     opts = options or PerformOptions()
+    for name, bound in (("speed", limits.SPEED), ("rate_hz", limits.GOAL_RATE_HZ),
+                        ("watchdog_ms", limits.WATCHDOG_MS)):
+        if not bound.holds(getattr(opts, name)):  # nan speed: a performance that never ends
+            raise DriveError(f"{name} {bound.problem(getattr(opts, name))}")
     report = PerformReport()
     lines = report.log
 

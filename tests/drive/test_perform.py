@@ -402,3 +402,14 @@ def test_a_replay_longer_than_the_bound_needs_yes(rig, make_take, tmp_path):
     assert str(info.value) == (f"{take}: the replay would last 690 s at speed 0.01, over 600 s; "
                                "give --yes to perform it")
     assert type(info.value) is DriveError
+
+
+def test_absurd_options_are_refused_before_the_port_opens(rig, wave_take):
+    for name, bad in (("speed", float("nan")), ("speed", 0.0), ("rate_hz", float("inf")),
+                      ("watchdog_ms", float("nan")), ("watchdog_ms", 1e9)):
+        with pytest.raises(DriveError) as info:  # not a PortError: the port is never opened
+            perform(rig, TakeReader(wave_take), "/nonexistent/port",
+                    PerformOptions(**{**OPTIONS, name: bad}))
+        assert type(info.value) is DriveError
+        assert str(info.value).startswith(f"{name} must be a number ")
+        assert str(info.value).endswith(f", got {bad!r}")
