@@ -296,6 +296,39 @@ def option_case(command, option, extra, nargs, text) -> str:
     return "correct run"
 
 
+# hw-sim's numeric options (argparse): the simulator starts (prints its port) or exits 2 with
+# one "hw-sim: ..." line naming the option.
+HW_SIM_OPTIONS = [("--baud", "baud"), ("--return-delay-us", "return")]
+
+
+def hw_sim_cases():
+    return [(option, word, label, text) for option, word in HW_SIM_OPTIONS
+            for label, text, _ in VALUES]
+
+
+def hw_sim_case(option: str, word: str, text: str) -> str:
+    import subprocess
+
+    proc = subprocess.Popen([sys.executable, "-c", "import sys; from hw_sim.cli import main; "
+                             "sys.exit(main())", "--servos", "1", option, text],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        started = proc.stdout.readline()  # the port path, or "" when it exits
+        if started:
+            proc.terminate()
+        _, err = proc.communicate(timeout=BOUND_S)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        proc.communicate()
+        return "hang"
+    if "Traceback" in err:
+        return "internal error"
+    if started:
+        return "correct run"
+    lines = [line for line in err.splitlines() if line.startswith("hw-sim: ")]
+    return "clean" if proc.returncode == 2 and lines and word in lines[-1] else "vague error"
+
+
 def table() -> dict[str, collections.Counter]:
     """Outcome counts per source over every case (the report's table)."""
     import tempfile
@@ -303,13 +336,15 @@ def table() -> dict[str, collections.Counter]:
     folder = Path(tempfile.mkdtemp(prefix="fuzz_values_"))
     base = base_rig_text()
     counts = {"rig file": collections.Counter(), "fault file": collections.Counter(),
-              "command line": collections.Counter()}
+              "command line": collections.Counter(), "hw-sim options": collections.Counter()}
     for field, how, spec, label, text in rig_cases():
         counts["rig file"][rig_case(folder, base, field, how, spec, label, text)] += 1
     for _, line, word, label, text in fault_cases():
         counts["fault file"][fault_case(folder, line, word, label, text)] += 1
     for command, option, extra, nargs, _, text in option_cases():
         counts["command line"][option_case(command, option, extra, nargs, text)] += 1
+    for option, word, _, text in hw_sim_cases():
+        counts["hw-sim options"][hw_sim_case(option, word, text)] += 1
     return counts
 
 
@@ -340,6 +375,12 @@ def test_every_numeric_option_is_refused_by_name_or_in_its_documented_range():
     for command, option, extra, nargs, label, text in option_cases():
         outcome = option_case(command, option, extra, nargs, text)
         assert outcome in OK, (command, option, label, outcome)
+
+
+def test_every_hw_sim_numeric_option_is_refused_by_name_or_starts():
+    for option, word, label, text in hw_sim_cases():
+        outcome = hw_sim_case(option, word, text)
+        assert outcome in OK, (option, label, outcome)
 
 
 def test_every_numeric_option_of_every_command_is_covered():
