@@ -29,6 +29,11 @@ def builtin() -> Rig:
     return load_rig(BUILTIN_RIG)
 
 
+PINS_PER_HANDLE = 4
+"""Pins a rig may hold per handle (bone or extra weight): four points fix an affine handle, so
+more can only over-determine the solve (documented beside [[pin]] in rig_file.py)."""
+
+
 def check_regular_file(path: Path, what: str) -> None:
     """RigError naming ``path`` unless it is missing (the reader reports that) or a regular file:
     a FIFO, device or socket would block or never end when read."""
@@ -191,9 +196,12 @@ def rig_from_spec(spec: RigFile) -> Rig:
             line = (spec.pin_vertices + spec.pin_points)[i][1]
             fail(f"vertex {vertex} is pinned twice (first at line {where[vertex]})", "pin", line)
         seen.add(vertex)
-    if pins and len(pins) >= n:
-        fail(f"{len(pins)} pins on a mesh of {n} vertices: at most {n - 1} (one vertex must stay "
-             "free to solve)", "pin", lines.top("pin") if lines else None)
+    handles = skeleton.bone_count + spec.solver.extra_weights
+    most = min(n - 1, PINS_PER_HANDLE * handles)
+    if len(pins) > most:
+        fail(f"{len(pins)} pins; at most {most}: {PINS_PER_HANDLE} per handle ({handles} handles: "
+             f"bones and extra weights), and fewer than the mesh's {n} vertices (more pins "
+             "over-determine the solve)", "pin", lines.top("pin") if lines else None)
     for name in spec.fixed:
         if name not in skeleton.names:
             fail(f"unknown fixed bone {name!r}; bones are {list(skeleton.names)}", "fixed",

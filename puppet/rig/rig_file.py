@@ -26,7 +26,7 @@ Example (paths are relative to the rig file)::
     zero_ticks = 2048             # ticks at the rest pose (int32)
     limits_deg = [-60, 60]        # low < high, within +-LIMIT_RANGE_DEG
 
-    [[pin]]                       # at most the mesh's vertex count - 1 pins (one stays free)
+    [[pin]]                       # at most 4 per handle (load.PINS_PER_HANDLE), < vertex count
     vertex = 1234                 # or point = [x, y, z] (COORD): the nearest vertex
 
 Every number must lie in its documented range (puppet.limits.Range; the constants below and in

@@ -363,6 +363,35 @@ def test_every_rig_field_value_is_refused_by_name_or_solves(tmp_path):
     assert outcomes["correct run"] >= 20  # the in-range draws (0, -0, tiny ...) really solve
 
 
+def test_pins_on_every_vertex_are_a_clean_error_at_load(tmp_path):
+    """They used to reach the solver (MemoryError, or minutes, then an over-determined
+    pattern); the count is bounded by the handles when the rig loads."""
+    from puppet.rig.errors import RigError
+    from puppet.rig.load import PINS_PER_HANDLE, load_rig
+
+    base = re.sub(r"(?ms)^\[\[pin\]\].*?(?=^\[|\Z)", "", base_rig_text())  # its own pin out
+    rig = load_rig(_write(tmp_path / "plain.toml", base))
+    handles = rig.skeleton.bone_count + rig.solver_options.extra_weights
+    n = len(rig.V)
+    for count in (PINS_PER_HANDLE * handles + 1, n):
+        path = _write(tmp_path / f"pins{count}.toml",
+                      base + "".join(f"\n[[pin]]\nvertex = {v}\n" for v in range(count)))
+        start = time.monotonic()
+        with pytest.raises(RigError) as info:
+            load_rig(path)
+        assert info.value.field == "pin"
+        assert info.value.message.startswith(f"{count} pins; at most {PINS_PER_HANDLE * handles}: ")
+        assert time.monotonic() - start < BOUND_S
+    pinned = load_rig(_write(tmp_path / "ok.toml", base + "".join(
+        f"\n[[pin]]\nvertex = {v}\n" for v in range(0, n, n // 3)[:3])))
+    assert len(pinned.pins) == 3
+
+
+def _write(path: Path, text: str) -> Path:
+    path.write_text(text)
+    return path
+
+
 def test_every_fault_parameter_value_is_refused_by_name_or_runs(tmp_path):
     cases = fault_cases()
     assert len(cases) >= 9 * len(VALUES)
