@@ -15,8 +15,11 @@ finite (``dt = 1e300``, a contact at 1e308) gets past loading.
 from __future__ import annotations
 
 import math
+import numbers
 import reprlib
 from dataclasses import dataclass
+
+import numpy as np
 
 _show = reprlib.Repr()
 _show.maxlevel, _show.maxstring, _show.maxother, _show.maxlist = 2, 40, 40, 4
@@ -45,12 +48,13 @@ class Range:
         return f"{kind} {span}{' ' + self.unit if self.unit else ''}"
 
     def holds(self, value) -> bool:
-        """Whether value is a number (int, or float unless integer) inside the range."""
-        if isinstance(value, bool) or not isinstance(value, (int, float)):
+        """Whether value is a number (an integer when ``integer``; numpy scalars too, never a
+        bool), finite, inside the range."""
+        if isinstance(value, (bool, np.bool_)) or not isinstance(value, numbers.Real):
             return False
-        if self.integer and not isinstance(value, int):
+        if self.integer and not isinstance(value, numbers.Integral):
             return False
-        if isinstance(value, float) and not math.isfinite(value):
+        if not isinstance(value, numbers.Integral) and not math.isfinite(value):
             return False
         if self.lo_open:
             return self.lo < value <= self.hi
@@ -59,13 +63,6 @@ class Range:
     def problem(self, value) -> str | None:
         """None when value holds, else 'must be <range>, got <value>' (value shown short)."""
         return None if self.holds(value) else f"must be {self}, got {_show.repr(value)}"
-
-    def check(self, value, error):
-        """value when it holds; else raise ``error(problem)``."""
-        message = self.problem(value)
-        if message is not None:
-            raise error(message)
-        return value
 
 
 # Command-line options (their help text shows these ranges).
