@@ -3,6 +3,8 @@ built-in character."""
 
 from __future__ import annotations
 
+import os
+import stat
 import zipfile
 from pathlib import Path
 
@@ -27,10 +29,32 @@ def builtin() -> Rig:
     return load_rig(BUILTIN_RIG)
 
 
+def check_regular_file(path: Path, what: str) -> None:
+    """RigError naming ``path`` unless it is missing (the reader reports that) or a regular file:
+    a FIFO, device or socket would block or never end when read."""
+    try:
+        mode = os.stat(path).st_mode
+    except FileNotFoundError:
+        return
+    except OSError as err:
+        raise RigError(f"cannot read {what}: {err.strerror or err}", path=path) from None
+    if stat.S_ISDIR(mode):
+        raise RigError(f"is a folder, not a {what}", path=path)
+    if not stat.S_ISREG(mode):
+        kind = ("a FIFO (named pipe)" if stat.S_ISFIFO(mode) else "a device" if
+                stat.S_ISCHR(mode) or stat.S_ISBLK(mode) else "a socket" if stat.S_ISSOCK(mode)
+                else "not a regular file")
+        raise RigError(f"is {kind}, not a {what} (only regular files are read)", path=path)
+
+
 def read_character_npz(path):
     """(V, F, W, skeleton) from the compact .npz character format written by
     ``puppet/rig/builtin/make_character.py`` (keys: CHARACTER_KEYS)."""
     path = Path(path)
+    check_regular_file(path, "character file")
+    if not zipfile.is_zipfile(path):
+        raise RigError("not a character .npz: not a zip archive (an .npz is written by "
+                       "numpy.savez)", path=path)
     try:
         with np.load(path, allow_pickle=False) as data:
             missing = [k for k in CHARACTER_KEYS if k not in data.files]
@@ -60,6 +84,10 @@ def _read_character(spec):
     (source_index: see ``Rig.source_index``)."""
     from puppet.rig.tgf_dmat import read_dmat, read_tgf
 
+    for what, path in (("mesh", spec.mesh), ("skeleton", spec.skeleton), ("weights", spec.weights),
+                       ("calibration", spec.calibration)):
+        if path is not None:
+            check_regular_file(path, f"{what} file")
     suffix = spec.mesh.suffix.lower()
     if suffix == ".npz":
         return (*read_character_npz(spec.mesh), None)
@@ -95,6 +123,7 @@ def load_rig(path) -> Rig:
     """Load a rig: a TOML rig file, or a bare .glb/.gltf/.npz character (no servos)."""
     path = Path(path)
     suffix = path.suffix.lower()
+    check_regular_file(path, "rig file" if suffix == ".toml" else "character file")
     if suffix in (".glb", ".gltf"):
         from puppet.rig.gltf import read_gltf
 
@@ -156,10 +185,15 @@ def rig_from_spec(spec: RigFile) -> Rig:
     for point, line in spec.pin_points:
         pins.append(int(np.argmin(((V - point) ** 2).sum(axis=1))))
         where.setdefault(pins[-1], line)
+    seen: set[int] = set()
     for i, vertex in enumerate(pins):
-        if vertex in pins[:i]:
+        if vertex in seen:
             line = (spec.pin_vertices + spec.pin_points)[i][1]
             fail(f"vertex {vertex} is pinned twice (first at line {where[vertex]})", "pin", line)
+        seen.add(vertex)
+    if pins and len(pins) >= n:
+        fail(f"{len(pins)} pins on a mesh of {n} vertices: at most {n - 1} (one vertex must stay "
+             "free to solve)", "pin", lines.top("pin") if lines else None)
     for name in spec.fixed:
         if name not in skeleton.names:
             fail(f"unknown fixed bone {name!r}; bones are {list(skeleton.names)}", "fixed",
