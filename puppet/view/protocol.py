@@ -11,8 +11,10 @@ little-endian header then the JPEG bytes (no base64, no JSON):
     offset 16  int64   send time, ns (server's monotonic clock)
     offset 24  ...     JPEG
 
-The page answers each frame once it is drawn with ``{"type": "ack", "seq": N}`` on the same
-socket; the server computes reading-to-page latency on its own clock. Control (``/ws/control``)
+The page answers each frame once it is drawn with ``{"type": "ack", "seq": N, "drawn_ms": D}``
+on the same socket (D: arrival to drawn, ms, on the page's clock); the server computes each
+tab's reading-to-drawn latency on its own clock and splits it: reading -> send (server),
+send -> arrival and the ack back (transport), arrival -> drawn (the page's D). Control (``/ws/control``)
 carries small JSON messages both ways: panel, snapshot, faults, handles; input from the page.
 """
 

@@ -106,7 +106,8 @@ class Viewer:
     camera: int = 0
     credit: int = CREDIT
     slot: EncodedFrame | None = None
-    inflight: dict = field(default_factory=dict)   # seq -> reading t_ns
+    inflight: dict = field(default_factory=dict)   # seq -> (reading t_ns, send t_ns)
+    latency_ms: deque = field(default_factory=lambda: deque(maxlen=300))  # this tab's reading -> drawn
     sent: int = 0
     shown: int = 0
     drops: int = 0
@@ -135,6 +136,8 @@ class ViewServer:
         self.demand: frozenset = frozenset()   # camera ids some viewer can take a frame for
         self.force: set = set()                # camera ids that need a frame now (a viewer joined)
         self.latency_ms: deque = deque(maxlen=4000)
+        #: (reading -> send, send -> arrival and the ack back, arrival -> drawn) ms per shown frame
+        self.latency_split: deque = deque(maxlen=4000)
         self.shown = 0
         self.drops = 0
         self.bytes_sent = 0
@@ -375,11 +378,19 @@ class ViewServer:
             self._refused_input(viewer, "malformed", f"malformed message on the frame socket ignored: "
                                 f"{text[:40]!r}", page="malformed message on the frame socket ignored")
             return
-        reading_t_ns = viewer.inflight.pop(message["seq"], None)
-        if reading_t_ns is None:
+        sent = viewer.inflight.pop(message["seq"], None)
+        if sent is None:
             return
+        reading_t_ns, send_t_ns = sent
         now = time.monotonic_ns()
-        self.latency_ms.append((now - reading_t_ns) / 1e6)
+        total_ms = (now - reading_t_ns) / 1e6
+        self.latency_ms.append(total_ms)
+        viewer.latency_ms.append(total_ms)
+        # The page measures arrival -> drawn on its own clock; the rest is transport both ways.
+        drawn_ms = message.get("drawn_ms")
+        if _number(drawn_ms) and 0 <= drawn_ms <= total_ms:
+            to_send_ms = (send_t_ns - reading_t_ns) / 1e6
+            self.latency_split.append((to_send_ms, max(total_ms - to_send_ms - drawn_ms, 0.0), drawn_ms))
         viewer.shown += 1
         self.shown += 1
         viewer.shown_times.append(now / 1e9)
@@ -479,12 +490,13 @@ class ViewServer:
         if ws is None or ws.closed:
             return
         viewer.credit -= 1
-        viewer.inflight[frame.seq] = frame.reading_t_ns
+        send_t_ns = time.monotonic_ns()
+        viewer.inflight[frame.seq] = (frame.reading_t_ns, send_t_ns)
         if len(viewer.inflight) > 4 * CREDIT:  # acks lost: forget the oldest
             for seq in sorted(viewer.inflight)[: len(viewer.inflight) - 4 * CREDIT]:
                 del viewer.inflight[seq]
         data = frame_header(FLAG_DRAFT if frame.draft else 0, frame.camera, frame.seq,
-                            frame.reading_t_ns, time.monotonic_ns()) + frame.jpeg
+                            frame.reading_t_ns, send_t_ns) + frame.jpeg
         viewer.sent += 1
         viewer.bytes_sent += len(data)
         self.bytes_sent += len(data)
@@ -524,6 +536,7 @@ class ViewServer:
                                    "camera": viewer.camera, "ignored": viewer.ignored,
                                    "limited": viewer.limited, "lost": viewer.outbox.lost}
                 panel["latency_ms"] = latency
+                panel["viewer"]["latency_ms"] = summarize_ms(viewer.latency_ms)
                 viewer.outbox.put_panel(json.dumps(panel))
             for text in self._notices.due(now):
                 self._send_control(None, _notice(text))
@@ -539,12 +552,8 @@ class ViewServer:
         return now - min(starts) if starts else 0.0
 
     def latency_summary(self) -> dict:
-        recent = list(self.latency_ms)[-300:]
-        if not recent:
-            return {"median": None, "p99": None}
-        recent.sort()
-        return {"median": round(recent[len(recent) // 2], 1),
-                "p99": round(recent[min(len(recent) - 1, math.ceil(0.99 * len(recent)) - 1)], 1)}
+        """Median and p99 (ms) of the newest 300 frames shown on any page."""
+        return summarize_ms(list(self.latency_ms)[-300:])
 
     def send_to(self, client: str | None, message: dict) -> None:
         """Send a control message to one viewer (None: every viewer); any thread."""
@@ -555,6 +564,15 @@ class ViewServer:
         for viewer in self.viewers.values():
             if (client is None or viewer.client == client) and viewer.outbox is not None:
                 viewer.outbox.put(text)
+
+
+def summarize_ms(values) -> dict:
+    """{"median", "p99"} of a few hundred ms figures, rounded to 0.1 (None when empty)."""
+    recent = sorted(values)
+    if not recent:
+        return {"median": None, "p99": None}
+    return {"median": round(recent[len(recent) // 2], 1),
+            "p99": round(recent[min(len(recent) - 1, math.ceil(0.99 * len(recent)) - 1)], 1)}
 
 
 def _notice(text: str) -> str:

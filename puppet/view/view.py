@@ -8,8 +8,8 @@ after it.
 
 Threads: the loop (GL, solver, handles, cameras, recording), the server (sockets, credit,
 slots), the encoder (JPEG). The loop renders for the view only when some viewer has credit for
-a frame, the encoder is free and the picture changed, at most ``max_fps`` per camera and one
-view render per loop frame; the shared camera, untouched, reuses the frame the loop already drew
+a frame, the encoder is free and the picture changed (an idle view: one keep-alive frame every
+KEEPALIVE_S), at most ``max_fps`` per camera and one view render per loop frame; the shared camera, untouched, reuses the frame the loop already drew
 for its video (no render at all). Renders for viewers take at most VIEW_SHARE of the loop's wall
 time (after a render of d seconds the next waits d (1 / VIEW_SHARE - 1) seconds): the loop's rate
 comes first; viewers (one shared camera, or their own) share what is left.

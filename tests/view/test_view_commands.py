@@ -82,6 +82,13 @@ def test_view_beyond_loopback_needs_the_token_and_poses_by_drags(new_page, tools
         page = tools.open_view(new_page, f"{local}?token={token}")
         page.screenshot(path=str(tmp_path / "view_rest.png"))
         assert page.evaluate("puppetView.mode") == "rig"
+        # Refused requests are logged on the server (merged), never shown to the pages.
+        panels = page.evaluate("puppetView.panels")
+        for i in range(30):
+            with pytest.raises(urllib.error.HTTPError):
+                urllib.request.urlopen(f"{local}probe{i}", timeout=30)
+        tools.wait_js(page, f"puppetView.panels > {panels} + 5")
+        assert not any("refused" in n["text"] for n in page.evaluate("puppetView.notices"))
         tx, ty = tools.drag_tail(page)
         tools.wait_until(lambda: tools.is_character(tools.frame_image(page)[ty - 4:ty + 5, tx - 4:tx + 5]),
                          what="the dragged tail")

@@ -25,6 +25,10 @@ def test_frames_arrive_and_change(new_page, demo, tmp_path, tools):
     changed = np.abs(first.astype(int) - second.astype(int)).max(axis=2) > 30
     assert changed.sum() > 100  # the critter moved between the two frames
     tools.wait_js(page, "puppetView.panel && puppetView.panel.latency_ms.median !== null")
+    # This tab's own reading -> drawn latency is what the page shows.
+    own = tools.wait_js(page, "puppetView.panel.viewer.latency_ms.median !== null && puppetView.panel.viewer.latency_ms")
+    assert 0 < own["median"] <= own["p99"]
+    tools.wait_until(lambda: page.inner_text("#latency") != "–", what="the page's latency shown")
 
 
 def test_servo_panel_flags_a_dropped_servo(new_page, demo, tmp_path, tools):

@@ -51,6 +51,7 @@ function connectFrames() {
   frames.onclose = () => { state.connected.frames = false; showConnection(); setTimeout(connectFrames, 1000); };
   frames.onmessage = event => {
     const data = event.data;
+    const arrived = performance.now();
     if (!(data instanceof ArrayBuffer) || data.byteLength <= HEADER) return;
     const head = new DataView(data, 0, HEADER);
     const flags = head.getUint8(1);
@@ -77,7 +78,9 @@ function connectFrames() {
       state.shownTimes.push(now);
       while (state.shownTimes.length && now - state.shownTimes[0] > 2000) state.shownTimes.shift();
     }, () => {}).finally(() => {
-      if (socket.readyState === WebSocket.OPEN) socket.send(JSON.stringify({ type: "ack", seq }));
+      // drawn_ms: arrival -> drawn on this page's clock (the server splits its latency with it).
+      const drawnMs = Math.round((performance.now() - arrived) * 100) / 100;
+      if (socket.readyState === WebSocket.OPEN) socket.send(JSON.stringify({ type: "ack", seq, drawn_ms: drawnMs }));
     });
   };
 }
@@ -129,7 +132,9 @@ const handlers = {
     if (m.bones) state.bones = m.bones;
     if (m.viewer) { $("drops").textContent = m.viewer.drops + (m.drops ? ` (+${m.drops} skipped)` : ""); }
     $("loop-fps").textContent = m.loop_fps !== undefined ? m.loop_fps.toFixed(0) : "–";
-    if (m.latency_ms && m.latency_ms.median !== null) $("latency").textContent = `${m.latency_ms.median} (p99 ${m.latency_ms.p99})`;
+    // This tab's own reading -> drawn latency (each tab has its own figure).
+    const own = m.viewer && m.viewer.latency_ms;
+    if (own && own.median !== null) $("latency").textContent = `${own.median} (p99 ${own.p99})`;
     if (m.recording) setRecording(m.recording);
     if (m.playback) updatePlayback(m.playback);
     drawMarks();
