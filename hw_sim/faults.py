@@ -165,6 +165,8 @@ class FaultSchedule:
     def from_file(cls, path: str | Path) -> "FaultSchedule":
         """Parse a fault file; FaultFileError names the file and line of the first problem."""
         path = Path(path)
+        if path.exists() and not path.is_file():  # a FIFO or device would block or never end
+            raise FaultFileError(path, None, "not a regular file (only regular files are read)")
         try:
             text = path.read_text(encoding="utf-8")
         except OSError as exc:

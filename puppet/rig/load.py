@@ -3,15 +3,13 @@ built-in character."""
 
 from __future__ import annotations
 
-import os
-import stat
 import zipfile
 from pathlib import Path
 
 import numpy as np
 
 from puppet.rig.calibration import Calibration
-from puppet.rig.errors import RigError
+from puppet.rig.errors import RigError, check_regular_file
 from puppet.rig.rig import Rig
 from puppet.rig.rig_file import RigFile, read_rig_file, read_rig_text
 from puppet.rig.servo_map import ServoMap
@@ -32,24 +30,6 @@ def builtin() -> Rig:
 PINS_PER_HANDLE = 4
 """Pins a rig may hold per handle (bone or extra weight): four points fix an affine handle, so
 more can only over-determine the solve (documented beside [[pin]] in rig_file.py)."""
-
-
-def check_regular_file(path: Path, what: str) -> None:
-    """RigError naming ``path`` unless it is missing (the reader reports that) or a regular file:
-    a FIFO, device or socket would block or never end when read."""
-    try:
-        mode = os.stat(path).st_mode
-    except FileNotFoundError:
-        return
-    except OSError as err:
-        raise RigError(f"cannot read {what}: {err.strerror or err}", path=path) from None
-    if stat.S_ISDIR(mode):
-        raise RigError(f"is a folder, not a {what}", path=path)
-    if not stat.S_ISREG(mode):
-        kind = ("a FIFO (named pipe)" if stat.S_ISFIFO(mode) else "a device" if
-                stat.S_ISCHR(mode) or stat.S_ISBLK(mode) else "a socket" if stat.S_ISSOCK(mode)
-                else "not a regular file")
-        raise RigError(f"is {kind}, not a {what} (only regular files are read)", path=path)
 
 
 def read_character_npz(path):

@@ -49,7 +49,7 @@ import numpy as np
 
 from puppet.fast.energy_names import ENERGIES
 from puppet.limits import Range
-from puppet.rig.errors import RigError
+from puppet.rig.errors import RigError, check_regular_file
 from puppet.rig.rig import SolverOptions
 from puppet.rig.servo_map import GEAR_RANGE, INT32, ROLES, Servo, ServoMap
 from puppet.rig.solve_options import COORD, VERTEX, SolveExtras, read_solve_extras
@@ -152,6 +152,7 @@ class RigFile:
 def read_rig_file(path) -> RigFile:
     """Parse and validate a rig TOML file; every error names the file and the line."""
     path = Path(path)
+    check_regular_file(path, "rig file")
     try:
         raw = path.read_bytes()
     except FileNotFoundError:

@@ -56,3 +56,21 @@ def test_a_non_zip_npz_names_the_file(tmp_path):
     assert str(info.value) == (f"{tmp_path / 'mesh.npz'}: not a character .npz: not a zip archive "
                                "(an .npz is written by numpy.savez)")
     assert "pickle" not in str(info.value)
+
+
+def test_a_fifo_as_the_rig_file_is_refused(tmp_path):
+    os.mkfifo(tmp_path / "rig.toml")
+    with pytest.raises(RigError) as info:
+        load_rig(tmp_path / "rig.toml")
+    assert str(info.value) == (f"{tmp_path / 'rig.toml'}: is a FIFO (named pipe), not a rig file "
+                               "(only regular files are read)")
+
+
+@pytest.mark.parametrize("option", ["--rig", "--faults"])
+def test_hw_sim_refuses_a_fifo_for_its_files(tmp_path, option):
+    os.mkfifo(tmp_path / "fifo")
+    result = subprocess.run(["hw-sim", option, str(tmp_path / "fifo")], capture_output=True,
+                            text=True, timeout=300)
+    assert result.returncode == 2
+    assert "Traceback" not in result.stderr
+    assert f"{tmp_path / 'fifo'}: not a regular file (only regular files are read)" in result.stderr
