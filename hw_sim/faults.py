@@ -21,7 +21,8 @@ hardware_error     latch Hardware Error Status bits (alert bit in every status, 
 noise              Present Position jitters by +-amplitude counts (default 2)
 echo               half-duplex echo: the host sees its own instruction before each reply (bus-wide)
 load               an external load on the shaft: params current (mA drawn holding it, default
-                   800), heat (heating speed factor, default 1: larger heats faster)
+                   800, 0..10000), heat (heating speed factor, default 1: larger heats faster,
+                   0..1000)
 =================  ==========================================================================
 
 Fault file (one fault per line, ``#`` comments)::
@@ -61,6 +62,8 @@ KINDS: dict[str, dict[str, tuple[type, object]]] = {
     "load": {"current": (float, 800.0), "heat": (float, 1.0)},
 }
 # param -> (lowest, highest) accepted value (both included); every number must also be finite.
+# Every numeric parameter of KINDS has one (a test checks). hw_sim keeps its own ranges: it
+# imports nothing from puppet (puppet.limits holds the host's).
 RANGES: dict[str, tuple[float, float]] = {
     "p": (0.0, 1.0),
     "keep": (0, 1024),
@@ -68,6 +71,8 @@ RANGES: dict[str, tuple[float, float]] = {
     "bits": (0, 0xFF),         # hardware_error: Hardware Error Status is one byte
     "offset": (-(1 << 20), 1 << 20),
     "amplitude": (0, 4096),
+    "current": (0.0, 10_000.0),  # load: mA drawn holding the shaft (X series stall: ~1.5 A)
+    "heat": (0.0, 1000.0),       # load: heating speed factor (1 = as modelled)
 }
 MAX_TIME_S = 1e6
 """Start times and durations in a fault file: finite, 0..MAX_TIME_S seconds."""
@@ -113,7 +118,7 @@ class Fault:
             if name in RANGES and isinstance(value, (int, float)):
                 lo, hi = RANGES[name]
                 if not (math.isfinite(value) and lo <= value <= hi):
-                    what = "a probability in 0..1" if name == "p" else f"in {lo}..{hi}"
+                    what = "a probability in 0..1" if name == "p" else f"in {lo:g}..{hi:g}"
                     raise FaultError(f"fault {kind!r}: {name}={value} is not {what}")
         if kind == "hardware_error" and full["bits"] is None:
             if full["error"] not in HW_ERROR_BITS:
@@ -160,6 +165,8 @@ class FaultSchedule:
     def from_file(cls, path: str | Path) -> "FaultSchedule":
         """Parse a fault file; FaultFileError names the file and line of the first problem."""
         path = Path(path)
+        if path.exists() and not path.is_file():  # a FIFO or device would block or never end
+            raise FaultFileError(path, None, "not a regular file (only regular files are read)")
         try:
             text = path.read_text(encoding="utf-8")
         except OSError as exc:

@@ -45,6 +45,8 @@ def _number(value) -> bool:
 def read_rig_servos(path) -> list[RigServo]:
     """The rig's servos in file order; RigFileError naming the file (and servo) otherwise."""
     path = Path(path)
+    if path.exists() and not path.is_file():  # a FIFO or device would block or never end
+        raise RigFileError(path, None, "not a regular file (only regular files are read)")
     try:
         doc = tomllib.loads(path.read_text(encoding="utf-8"))
     except OSError as exc:

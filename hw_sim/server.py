@@ -63,6 +63,8 @@ class Server:
                  strict_baud: bool = False, seed: int = 0) -> None:
         if not servos:
             raise HwSimError("a bus needs at least one servo")
+        if isinstance(baud, bool) or not isinstance(baud, int) or baud <= 0:
+            raise HwSimError(f"baud {baud!r} is not a positive whole number of bit/s")
         self.t0 = time.monotonic()
         self.motion = Programmatic(make_motion(motion))
         self.schedule = make_schedule(faults)

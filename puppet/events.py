@@ -12,39 +12,84 @@ from __future__ import annotations
 import time
 from collections import deque
 from dataclasses import dataclass, field
+from typing import NamedTuple
 
-EVENT_KINDS: dict[str, str] = {
+class EventKind(NamedTuple):
+    """One kind of bus event. meaning: what happened, for developers; fault: something a
+    puppeteer should act on (else a return to normal, or bookkeeping); words: what it means to a
+    puppeteer, short (the view's fault log and "last fault", the summary)."""
+
+    meaning: str
+    fault: bool
+    words: str
+
+
+EVENT_KINDS: dict[str, EventKind] = {
     # the port
-    "port_lost": "the port went away (USB unplugged, adapter reset); every servo reads not ok",
-    "port_restored": "the port opened again; the servos in the group read were reconfigured",
-    "read_error": "a read raised past the reader's own fault handling (the reader thread's net)",
-    "transaction_failed": "a bookkeeping transaction (health, probe) failed; the readings stand",
-    "fast_read_disabled": "servos answered Fast Sync Read with an error; Sync Read from now on",
+    "port_lost": EventKind("the port went away (USB unplugged, adapter reset); every servo reads not ok",
+        True, "adapter unplugged or reset: no servo answers"),
+    "port_restored": EventKind("the port opened again; the servos in the group read were reconfigured",
+        False, "adapter back: servos answering again"),
+    "read_error": EventKind("a read raised past the reader's own fault handling (the reader thread's net)",
+        True, "reading the servos failed unexpectedly"),
+    "transaction_failed": EventKind("a bookkeeping transaction (health, probe) failed; the readings stand",
+        False, "a background check of the servos failed (readings fine)"),
+    "fast_read_disabled": EventKind("servos answered Fast Sync Read with an error; Sync Read from now on",
+        False, "servos refused fast reads: slower reads from now on"),
     # one servo's replies
-    "servo_failed": "a read of the servo failed (timeout, error status); it stays in the group",
-    "servo_missing": "the servo stopped answering: out of the group read, probed now and then",
-    "servo_recovered": "the servo read cleanly again after a failure",
-    "duplicate_id": "corrupt replies in a row while ping answers: two servos share the id",
-    "corrupt": "corrupt replies in a row (CRC, truncated), ping too: out of the group read",
-    "out_of_limits": "the servo's value fell outside its tick limits and was not taken",
-    "rebased": "the servo's raw position jumped (a reboot re-based it): turn offset updated",
-    "noisy": "the servo's jitter rose above the noise threshold",
-    "quiet": "the servo's jitter fell back below the noise threshold",
+    "servo_failed": EventKind("a read of the servo failed (timeout, error status); it stays in the group",
+        True, "servo missed a reading"),
+    "servo_missing": EventKind("the servo stopped answering: out of the group read, probed now and then",
+        True, "servo stopped answering (cable? power?)"),
+    "servo_recovered": EventKind("the servo read cleanly again after a failure",
+        False, "servo answering again"),
+    "duplicate_id": EventKind("corrupt replies in a row while ping answers: two servos share the id",
+        True, "two servos share this id"),
+    "corrupt": EventKind("corrupt replies in a row (CRC, truncated), ping too: out of the group read",
+        True, "garbled replies (loose cable or noise)"),
+    "out_of_limits": EventKind("the servo's value fell outside its tick limits and was not taken",
+        True, "servo reported a position outside its limits"),
+    "rebased": EventKind("the servo's raw position jumped (a reboot re-based it): turn offset updated",
+        False, "servo restarted: its position was re-based"),
+    "noisy": EventKind("the servo's jitter rose above the noise threshold",
+        True, "servo reading is jittery"),
+    "quiet": EventKind("the servo's jitter fell back below the noise threshold",
+        False, "servo reading steady again"),
     # the servo's own state
-    "hardware_error": "the servo latched a Hardware Error Status (overload, heat, voltage)",
-    "hardware_error_cleared": "the servo's Hardware Error Status went back to 0",
-    "reboot_sent": "a Reboot was sent to clear a latched hardware error",
-    "reboot_failed": "a Reboot was sent and not acknowledged",
-    "rebooted": "the servo's Realtime Tick fell behind: it rebooted (power cycle, brown-out)",
-    "reconfigured": "the servo's settings were written again (after a reboot or a return)",
-    "reconfigure_failed": "writing the servo's settings again failed",
+    "hardware_error": EventKind("the servo latched a Hardware Error Status (overload, heat, voltage)",
+        True, "servo shut itself off (overload, heat or voltage)"),
+    "hardware_error_cleared": EventKind("the servo's Hardware Error Status went back to 0",
+        False, "servo's error cleared"),
+    "reboot_sent": EventKind("a Reboot was sent to clear a latched hardware error",
+        False, "restarting the servo to clear its error"),
+    "reboot_failed": EventKind("a Reboot was sent and not acknowledged",
+        True, "servo did not restart"),
+    "rebooted": EventKind("the servo's Realtime Tick fell behind: it rebooted (power cycle, brown-out)",
+        True, "servo lost power and restarted"),
+    "reconfigured": EventKind("the servo's settings were written again (after a reboot or a return)",
+        False, "servo settings restored"),
+    "reconfigure_failed": EventKind("writing the servo's settings again failed",
+        True, "could not restore the servo's settings"),
     # driving actuators
-    "write_failed": "a goal write to actuator servos failed",
-    "watchdog_tripped": "an actuator's Bus Watchdog tripped (the host was silent): re-armed",
-    "actuator_stopped": "an actuator was stopped, torque off (hardware error, reboot)",
-    "port_gone": "the port stayed gone with actuators driven: their torque may still be on",
+    "write_failed": EventKind("a goal write to actuator servos failed",
+        True, "could not send a move to the motors"),
+    "watchdog_tripped": EventKind("an actuator's Bus Watchdog tripped (the host was silent): re-armed",
+        True, "motor stopped: the computer went quiet too long (restarted)"),
+    "actuator_stopped": EventKind("an actuator was stopped, torque off (hardware error, reboot)",
+        True, "motor stopped, torque off"),
+    "port_gone": EventKind("the port stayed gone with actuators driven: their torque may still be on",
+        True, "adapter gone while motors were driven: their torque may still be on"),
 }
 """Every kind of bus event, with its meaning. ``BusEvent.kind`` is always one of these keys."""
+
+
+def describe_counts(counts: dict[str, int]) -> str:
+    """A count per kind ({kind: n}) as one line: faults first, then the other events (a kind
+    not in EVENT_KINDS, e.g. the summary's 'servo_not_ok', counts as a fault)."""
+    faults = [f"{k} {n}" for k, n in sorted(counts.items()) if k not in EVENT_KINDS or EVENT_KINDS[k].fault]
+    other = [f"{k} {n}" for k, n in sorted(counts.items()) if k in EVENT_KINDS and not EVENT_KINDS[k].fault]
+    line = ", ".join(faults) or "none"
+    return f"{line}; other events: {', '.join(other)}" if other else line
 
 
 @dataclass(frozen=True)

@@ -26,6 +26,13 @@ import pytest
 # A handled SIGINT here resets to the default in every child at exec.
 signal.signal(signal.SIGINT, signal.default_int_handler)
 
+# Subprocesses that tests start with ``python -c`` run in the checkout's root: without this, the
+# current folder comes first on their path and they import the source tree, which has no built
+# native modules (puppet._native, puppet._kinematics) when the package is installed normally
+# (CI's `pip install .`), instead of the installed package. PYTHONSAFEPATH (Python >= 3.11)
+# leaves the current folder off their path.
+os.environ["PYTHONSAFEPATH"] = "1"
+
 PATIENCE_S = 60.0
 """How long a test waits for a condition that a quiet machine meets in milliseconds."""
 

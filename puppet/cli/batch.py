@@ -7,7 +7,8 @@ import sys
 
 import click
 
-from puppet.cli.common import force_option, load_rig, rig_files
+from puppet import limits
+from puppet.cli.common import InRange, force_option, load_rig, rig_files
 
 
 @click.command()
@@ -17,9 +18,11 @@ from puppet.cli.common import force_option, load_rig, rig_files
 @click.option("--formats", default="gltf,usd,pc2,bvh", show_default=True,
               help="Comma-separated, of mp4 (as puppet play), gltf, usd, pc2, bvh (as puppet "
                    "export).")
-@click.option("--fps", default="30", show_default=True, help="Frames per second of every output.")
-@click.option("--size", nargs=2, type=int, default=(640, 480), show_default=True,
-              metavar="W H", help="Video size in pixels (mp4).")
+@click.option("--fps", default="30", show_default=True,
+              help=f"Frames per second of every output ({limits.FPS}).")
+@click.option("--size", nargs=2, type=InRange(limits.FRAME_SIZE), default=(640, 480),
+              show_default=True, metavar="W H",
+              help=f"Video size in pixels (mp4), each {limits.FRAME_SIZE}.")
 @click.option("--up", type=click.Choice(["y", "z"]), default="y", show_default=True,
               help="Up axis of the PC2 points: z for Blender's Mesh Cache.")
 @click.option("--engine", type=click.Choice(["local", "ray"]), default="local", show_default=True,
@@ -28,8 +31,9 @@ from puppet.cli.common import force_option, load_rig, rig_files
 @click.option("--address", default=None,
               help="Ray cluster to run on (host:6379, ray://host:10001 or auto); default: a "
                    "Ray started here.")
-@click.option("--workers", type=click.IntRange(min=1), default=None,
-              help="Worker processes (local) or CPUs of a Ray started here [default: cores].")
+@click.option("--workers", type=InRange(limits.WORKERS), default=None,
+              help=f"Worker processes (local) or CPUs of a Ray started here ({limits.WORKERS}) "
+                   "[default: cores].")
 @click.option("--resume", is_flag=True,
               help="Skip takes whose outputs all exist and are newer than the take and the rig.")
 @click.option("--json", "as_json", is_flag=True, help="Print the report as one JSON line.")

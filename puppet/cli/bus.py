@@ -6,7 +6,8 @@ from pathlib import Path
 
 import click
 
-from puppet.cli.common import fail, force_option, load_rig, print_setup, rig_files
+from puppet import limits
+from puppet.cli.common import InRange, fail, force_option, load_rig, print_setup, rig_files
 
 
 
@@ -31,7 +32,8 @@ def _ping_all(port: str, baud: int) -> dict:
 
 @click.command()
 @click.option("--port", required=True, help="Serial port.")
-@click.option("--baud", default=1_000_000, show_default=True, help="Bus baud rate.")
+@click.option("--baud", default=1_000_000, show_default=True, type=InRange(limits.BAUD),
+              help=f"Bus speed: {limits.BAUD}.")
 def scan(port: str, baud: int) -> None:
     """List the servos on a bus (broadcast ping): ids, models, firmware.
 
@@ -53,7 +55,8 @@ def scan(port: str, baud: int) -> None:
 @click.command()
 @click.option("--rig", "rig_path", required=True, help="Rig file (TOML).")
 @click.option("--port", required=True, help="Serial port.")
-@click.option("--baud", default=1_000_000, show_default=True, help="Bus baud rate.")
+@click.option("--baud", default=1_000_000, show_default=True, type=InRange(limits.BAUD),
+              help=f"Bus speed: {limits.BAUD}.")
 @click.option("--out", default=None, help="Calibration file (default: the rig's); with --guided, "
               "a rig file to write instead of updating RIG.")
 @click.option("--guided", is_flag=True, help="Find each [[servo]] block's id, sign and zero ticks by "
@@ -61,9 +64,12 @@ def scan(port: str, baud: int) -> None:
 @click.option("--yes", is_flag=True, help="With --guided: do not wait for Enter before reading the "
               "rest pose.")
 @click.option("--timeout", "timeout_s", default=120.0, show_default=True,
-              help="With --guided: seconds to wait for each joint to move and to come back.")
-@click.option("--threshold", default=150, show_default=True,
-              help="With --guided: ticks a servo must move to count (4096 per turn).")
+              type=InRange(limits.TIMEOUT_S),
+              help=f"With --guided: seconds to wait for each joint to move and to come back "
+                   f"({limits.TIMEOUT_S}).")
+@click.option("--threshold", default=150, show_default=True, type=InRange(limits.THRESHOLD_TICKS),
+              help=f"With --guided: ticks a servo must move to count (4096 per turn; "
+                   f"{limits.THRESHOLD_TICKS}).")
 @force_option
 def calibrate(rig_path: str, port: str, baud: int, out: str | None, guided: bool = False,
               yes: bool = False, timeout_s: float = 120.0, threshold: int = 150,

@@ -13,6 +13,28 @@ import click
 from puppet.errors import PuppetError
 
 
+class InRange(click.ParamType):
+    """A click type for a number checked against a puppet.limits.Range: nan, inf and values
+    outside it are refused naming the option, the value and the range."""
+
+    def __init__(self, limits) -> None:
+        self.limits = limits
+        self.name = "integer" if limits.integer else "float"
+
+    def convert(self, value, param, ctx):
+        if isinstance(value, (int, float)) and not isinstance(value, bool):
+            number = value
+        else:
+            try:
+                number = int(value) if self.limits.integer else float(value)
+            except (TypeError, ValueError):
+                self.fail(f"{value!r} is not {self.limits}", param, ctx)
+        problem = self.limits.problem(number)
+        if problem is not None:
+            self.fail(problem, param, ctx)
+        return number
+
+
 def fail(message: str) -> None:
     """Exit 1 with 'Error: message' on stderr."""
     raise click.ClickException(message)

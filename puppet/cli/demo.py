@@ -4,19 +4,24 @@ from __future__ import annotations
 
 import click
 
-from puppet.cli.common import (Null, StopFlag, fail, force_option, make_sinks, print_summary,
-                               progress, rig_files)
+from puppet import limits
+from puppet.cli.common import (InRange, Null, StopFlag, fail, force_option, make_sinks,
+                               print_summary, progress, rig_files)
 from puppet.cli.view import open_view, take_factory_for, view_option
 
 
 @click.command()
 @click.option("--out", default="demo.mp4", show_default=True, help="Video file to write.")
-@click.option("--seconds", default=None, type=click.FloatRange(min=0.1),
-              help="Length of the run [default: 10; with --view: until Ctrl-C].")
+@click.option("--seconds", default=None, type=InRange(limits.SECONDS),
+              help=f"Length of the run ({limits.SECONDS}) [default: 10; with --view: until "
+                   "Ctrl-C].")
 @click.option("--faults", default=None, type=click.Path(exists=True, dir_okay=False),
               help="hw_sim fault file to play during the run.")
-@click.option("--size", default=(640, 480), type=(int, int), show_default=True, help="Frame size.")
-@click.option("--fps", default=30.0, show_default=True, help="Video frame rate.")
+@click.option("--size", default=(640, 480), show_default=True,
+              type=(InRange(limits.FRAME_SIZE), InRange(limits.FRAME_SIZE)),
+              help=f"Frame size: width and height, each {limits.FRAME_SIZE}.")
+@click.option("--fps", default=30.0, show_default=True, type=InRange(limits.FPS),
+              help=f"Frame rate of the video and frames ({limits.FPS}).")
 @click.option("--antialias", type=click.Choice(["auto", "msaa", "fxaa", "none"]), default="auto",
               show_default=True, help="auto: MSAA on a GPU, FXAA on a software renderer.")
 @click.option("--dynamics", is_flag=True,

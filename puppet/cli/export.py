@@ -7,6 +7,7 @@ import sys
 
 import click
 
+from puppet import limits
 from puppet.cli.common import force_option, open_take
 
 
@@ -21,7 +22,7 @@ from puppet.cli.common import force_option, open_take
                                           "file's vertex order (Blender Mesh Cache).")
 @click.option("--bvh", default=None, help="Every joint as BVH (names made BVH-safe).")
 @click.option("--fps", default="30", show_default=True,
-              help="Frames per second, resampled from the reading times (any number > 0).")
+              help=f"Frames per second, resampled from the reading times ({limits.FPS}).")
 @click.option("--up", type=click.Choice(["y", "z"]), default="y", show_default=True,
               help="Up axis of the PC2 points: z for Blender's Mesh Cache.")
 @click.option("--json", "as_json", is_flag=True, help="Print the report as one JSON line.")

@@ -6,8 +6,9 @@ from pathlib import Path
 
 import click
 
-from puppet.cli.common import (StopFlag, check_take_path, load_rig, make_sinks, print_summary,
-                               rig_files, start_reader, take_writer)
+from puppet import limits
+from puppet.cli.common import (InRange, StopFlag, check_take_path, load_rig, make_sinks,
+                               print_summary, rig_files, start_reader, take_writer)
 from puppet.cli.view import open_view, take_factory_for, view_option
 
 READ_RATE_HZ = 500.0
@@ -36,18 +37,21 @@ def report_actuators(source) -> None:
 @click.command()
 @click.option("--rig", "rig_path", required=True, help="Rig file (TOML).")
 @click.option("--port", required=True, help="Serial port, e.g. /dev/ttyUSB0 or hw-sim's pty.")
-@click.option("--baud", default=1_000_000, show_default=True, help="Bus baud rate.")
+@click.option("--baud", default=1_000_000, show_default=True, type=InRange(limits.BAUD),
+              help=f"Bus speed: {limits.BAUD}.")
 @click.option("--record", "take_path", default=None, help="Also record a take here (.mcap).")
 @click.option("--force", is_flag=True, help="Replace an existing take file (--record), or an "
               "existing file of another kind at --out (an input, a device or a FIFO never).")
 @click.option("--out", default=None, help="Video file to write.")
 @click.option("--frames", default=None, help="Folder for PNG frames.")
-@click.option("--seconds", default=None, type=float, help="Stop after this long (default: Ctrl-C).")
-@click.option("--fps", default=30.0, show_default=True, help="Video frame rate.")
+@click.option("--seconds", default=None, type=InRange(limits.SECONDS),
+              help=f"Stop after this long ({limits.SECONDS}; default: Ctrl-C).")
+@click.option("--fps", default=30.0, show_default=True, type=InRange(limits.FPS),
+              help=f"Frame rate of the video and frames ({limits.FPS}).")
 @click.option("--antialias", type=click.Choice(["auto", "msaa", "fxaa", "none"]), default="auto",
               show_default=True, help="auto: MSAA on a GPU, FXAA on a software renderer.")
-@click.option("--watchdog-ms", default=100.0, show_default=True,
-              help="Actuator servos: their Bus Watchdog period (0: not set).")
+@click.option("--watchdog-ms", default=100.0, show_default=True, type=InRange(limits.WATCHDOG_MS),
+              help=f"Actuator servos: their Bus Watchdog period ({limits.WATCHDOG_MS}).")
 @click.option("--no-watchdog", is_flag=True,
               help="Drive actuators without the Bus Watchdog, also on a model that has none "
                    "(a host crash leaves them driving).")

@@ -6,8 +6,9 @@ import sys
 
 import click
 
-from puppet.cli.common import (StopFlag, close_sinks, fail, force_option, make_sinks, open_take,
-                               print_summary, rig_files)
+from puppet import limits
+from puppet.cli.common import (InRange, StopFlag, close_sinks, fail, force_option, make_sinks,
+                               open_take, print_summary, rig_files)
 from puppet.cli.view import view_option
 
 
@@ -16,9 +17,10 @@ from puppet.cli.view import view_option
 @click.option("--rig", "rig_path", default=None, help="Rig to replay on (default: the take's).")
 @click.option("--out", default=None, help="Video file to write.")
 @click.option("--frames", default=None, help="Folder for PNG frames.")
-@click.option("--speed", default=1.0, show_default=True, type=click.FloatRange(min=0.01),
+@click.option("--speed", default=1.0, show_default=True, type=InRange(limits.SPEED),
               help="Playback speed factor.")
-@click.option("--fps", default=30.0, show_default=True, help="Output frame rate.")
+@click.option("--fps", default=30.0, show_default=True, type=InRange(limits.FPS),
+              help=f"Frame rate of the video and frames ({limits.FPS}).")
 @click.option("--antialias", type=click.Choice(["msaa", "fxaa", "none"]), default="msaa",
               show_default=True, help="Offline: MSAA by default, whatever the renderer.")
 @view_option

@@ -6,16 +6,21 @@ import time
 
 import click
 
-from puppet.cli.common import StopFlag, check_take_path, load_rig, start_reader, take_writer
+from puppet import limits
+from puppet.cli.common import (InRange, StopFlag, check_take_path, load_rig, start_reader,
+                               take_writer)
 
 
 @click.command()
 @click.option("--rig", "rig_path", required=True, help="Rig file (TOML).")
 @click.option("--port", required=True, help="Serial port.")
 @click.option("--out", required=True, help="Take file to write (.mcap).")
-@click.option("--baud", default=1_000_000, show_default=True, help="Bus baud rate.")
-@click.option("--seconds", default=None, type=float, help="Stop after this long (default: Ctrl-C).")
-@click.option("--rate", default=500.0, show_default=True, help="Readings per second.")
+@click.option("--baud", default=1_000_000, show_default=True, type=InRange(limits.BAUD),
+              help=f"Bus speed: {limits.BAUD}.")
+@click.option("--seconds", default=None, type=InRange(limits.SECONDS),
+              help=f"Stop after this long ({limits.SECONDS}; default: Ctrl-C).")
+@click.option("--rate", default=500.0, show_default=True, type=InRange(limits.READ_RATE_HZ),
+              help=f"Readings per second ({limits.READ_RATE_HZ}).")
 @click.option("--force", is_flag=True, help="Replace an existing take file.")
 def record(rig_path: str, port: str, out: str, baud: int, seconds: float | None, rate: float,
            force: bool) -> None:

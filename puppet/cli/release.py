@@ -4,14 +4,16 @@ from __future__ import annotations
 
 import click
 
-from puppet.cli.common import fail, load_rig
+from puppet import limits
+from puppet.cli.common import InRange, fail, load_rig
 
 
 @click.command()
 @click.option("--port", required=True, help="Serial port of the bus.")
 @click.option("--rig", "rig_path", default=None,
               help="Release this rig's servos (default: every servo a broadcast ping finds).")
-@click.option("--baud", default=1_000_000, show_default=True, help="Bus speed, bit/s.")
+@click.option("--baud", default=1_000_000, show_default=True, type=InRange(limits.BAUD),
+              help=f"Bus speed: {limits.BAUD}.")
 def release(port: str, rig_path: str | None, baud: int) -> None:
     """Turn torque off on every servo and clear its Bus Watchdog, read back.
 

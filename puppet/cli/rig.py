@@ -7,7 +7,8 @@ import time
 
 import click
 
-from puppet.cli.common import fail, force_option, rig_files
+from puppet import limits
+from puppet.cli.common import InRange, fail, force_option, rig_files
 
 
 @click.group()
@@ -18,7 +19,8 @@ def rig() -> None:
 @rig.command("init")
 @click.argument("character")
 @click.option("--out", default=None, help="Rig file to write (default: CHARACTER with .toml).")
-@click.option("--skin", type=int, default=None, help="Which glTF skin, when the file has several.")
+@click.option("--skin", type=InRange(limits.SKIN_INDEX), default=None,
+              help="Which glTF skin, when the file has several (0, 1, ...).")
 @click.option("--force", is_flag=True, help="Overwrite an existing rig file.")
 def rig_init(character: str, out: str | None, skin: int | None, force: bool) -> None:
     """Write a starting rig file from a skinned glTF character.
@@ -44,7 +46,8 @@ def rig_init(character: str, out: str | None, skin: int | None, force: bool) -> 
 @click.argument("rig_path")
 @click.option("--out", default="axes.png", show_default=True, help="Contact sheet (PNG) to write.")
 @click.option("--all", "every_joint", is_flag=True, help="Also joints without a servo, about x, y and z.")
-@click.option("--angle", default=30.0, show_default=True, help="Turn shown, degrees each way.")
+@click.option("--angle", default=30.0, show_default=True, type=InRange(limits.ANGLE_DEG),
+              help=f"Turn shown each way ({limits.ANGLE_DEG}).")
 @force_option
 def rig_axes(rig_path: str, out: str, every_joint: bool, angle: float, force: bool) -> None:
     """Render each servo's joint turned -ANGLE and +ANGLE: pick axis and sign by looking.

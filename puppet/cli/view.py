@@ -7,7 +7,8 @@ import logging
 
 import click
 
-from puppet.cli.common import StopFlag, load_rig
+from puppet import limits
+from puppet.cli.common import InRange, StopFlag, load_rig
 
 view_option = click.option(
     "--view", "view_address", is_flag=False, flag_value="", default=None, metavar="[HOST:]PORT",
@@ -50,8 +51,11 @@ def take_factory_for(rig):
 @click.option("--rig", "rig_path", default=None, help="Rig file (default: the built-in critter).")
 @click.option("--address", "address", default="", metavar="[HOST:]PORT",
               help="Where to serve the page (default 127.0.0.1:8765).")
-@click.option("--seconds", default=None, type=float, help="Stop after this long (default: Ctrl-C).")
-@click.option("--size", default=(640, 480), type=(int, int), show_default=True, help="Frame size.")
+@click.option("--seconds", default=None, type=InRange(limits.SECONDS),
+              help=f"Stop after this long ({limits.SECONDS}; default: Ctrl-C).")
+@click.option("--size", default=(640, 480), show_default=True,
+              type=(InRange(limits.FRAME_SIZE), InRange(limits.FRAME_SIZE)),
+              help=f"Frame size: width and height, each {limits.FRAME_SIZE}.")
 def view(rig_path: str | None, address: str, seconds: float | None, size: tuple[int, int]) -> None:
     """Show a rig in the browser in its rest pose; drag point handles to pose it (no bus).
 

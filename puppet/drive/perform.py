@@ -39,6 +39,7 @@ from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
+from puppet import limits
 from puppet.bus.control_table import describe_hardware_error
 from puppet.bus.errors import BusError, PortError, ServoCorrupt, ServoTimeout
 from puppet.bus.link import BusLink
@@ -69,11 +70,19 @@ torque off."""
 PORT_RETRY_PERIOD_S = 0.1
 
 
+MAX_REPLAY_S = 600.0
+"""Longest replay (take play time / speed, one pass) performed without ``yes`` (--yes): a longer
+one is refused before the port opens, so a wrong take or speed does not drive the puppet for an
+hour unattended."""
+
+
 @dataclass
 class PerformOptions:
     """How to perform.
 
-    speed: take time per wall second. loop: repeat the take. yes: no countdown.
+    speed, rate_hz and watchdog_ms: within puppet.limits SPEED, GOAL_RATE_HZ, WATCHDOG_MS (else
+    refused before anything opens). speed: take time per wall second. loop: repeat the take. yes: no countdown, and a replay
+    longer than MAX_REPLAY_S is performed (else refused).
     watchdog: set the servos' Bus Watchdog (False: --no-watchdog). rate_hz: goal writes per
     second. watchdog_ms: Bus Watchdog period, ms (rounded up to 20 ms units; at least three
     loop periods). start_speed_deg_s / start_accel_deg_s2: the slow start profile (joint
@@ -119,6 +128,7 @@ class PerformReport:
     clamped: dict = field(default_factory=dict)
     rate_limited: dict = field(default_factory=dict)
     flagged: dict = field(default_factory=dict)
+    take_damage: str | None = None   # what reading the take skipped or cut (TakeReader.recovery)
     changes: list = field(default_factory=list)
     recovered: list = field(default_factory=list)
     rearmed: dict = field(default_factory=dict)
@@ -135,6 +145,8 @@ class PerformReport:
         if self.tracking_median_deg is not None:
             lines.append(f"tracking: median {self.tracking_median_deg:.2f} deg, "
                          f"p99 {self.tracking_p99_deg:.2f} deg")
+        if self.take_damage:
+            lines.append(f"take: {self.take_damage}")
         if self.rearmed:
             lines.append(f"Bus Watchdog re-armed after a stall (times per servo): {self.rearmed}")
         for name in ("clamped", "rate_limited", "flagged"):
@@ -188,6 +200,10 @@ def perform(rig, reader, port: str, options: PerformOptions | None = None,
     ``report`` attached, torque already off) for anything else.
     """
     opts = options or PerformOptions()
+    for name, bound in (("speed", limits.SPEED), ("rate_hz", limits.GOAL_RATE_HZ),
+                        ("watchdog_ms", limits.WATCHDOG_MS)):
+        if not bound.holds(getattr(opts, name)):  # nan speed: a performance that never ends
+            raise DriveError(f"{name} {bound.problem(getattr(opts, name))}")
     report = PerformReport()
     lines = report.log
 
@@ -203,8 +219,16 @@ def perform(rig, reader, port: str, options: PerformOptions | None = None,
         check_bus_watchdogs(rig.servo_map.servos, rig.servo_map.path)
     goals = TakeGoals.from_take(reader, rig.servo_map)
     report.flagged = dict(goals.flagged)
+    # Everything wrong with the take is said before the port opens (torque on comes later).
+    report.take_damage = reader.recovery
+    if reader.recovery is not None:
+        say(f"warning: {reader.path}: {reader.recovery}")
     if goals.flagged:
         say(f"flagged readings in the take (those servos hold their last good value): {goals.flagged}")
+    replay_s = goals.duration_s / opts.speed
+    if replay_s > MAX_REPLAY_S and not opts.yes:
+        raise DriveError(f"{reader.path}: the replay would last {replay_s:.0f} s at speed "
+                         f"{opts.speed:g}, over {MAX_REPLAY_S:.0f} s; give --yes to perform it")
     servo_map = rig.servo_map
     ids = [int(i) for i in servo_map.ids]
     link = BusLink(port, baud=opts.baud, latency_ms=opts.latency_ms)

@@ -6,6 +6,7 @@ import os
 import time
 from dataclasses import dataclass, field
 
+from puppet.events import describe_counts
 from puppet.loop.histogram import Histogram
 
 
@@ -94,6 +95,5 @@ class Summary:
         lines.append(f"solver: {d['solver_us_per_iter']} us/iteration (the iterations alone), "
                      f"{d['iterations_per_frame']} iterations/frame; the rest of the solve stage "
                      f"(angles, kinematics, constraint values) {d['solve_other_us_per_frame']} us/frame")
-        faults = ", ".join(f"{k} {v}" for k, v in sorted(d["faults"].items())) or "none"
-        lines.append(f"faults seen: {faults}")
+        lines.append(f"faults seen: {describe_counts(d['faults'])}")  # puppet.events: faults, then the rest
         return "\n".join(lines)

@@ -18,6 +18,13 @@ BONE_STATE_COLORS = {
     "faulted": (1.0, 0.15, 0.1),
     None: (1.0, 0.85, 0.2),
 }
+#: What each bone state means to a puppeteer (the live view's legend).
+BONE_STATE_WORDS = {
+    "sensed": "follows its servo",
+    "relative": "follows its servo, under a free parent",
+    "free": "no servo: solved from the others (and pins)",
+    "faulted": "servo not answering: holds its last angle",
+}
 
 #: Diamond outline of a bone, as a triangle strip in (along, across) coordinates.
 BONE_CORNERS = np.array([[0.0, 0.0], [0.2, -1.0], [0.2, 1.0], [1.0, 0.0]], dtype=np.float32)

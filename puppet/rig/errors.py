@@ -2,6 +2,10 @@
 
 from __future__ import annotations
 
+import os
+import stat
+from pathlib import Path
+
 from puppet.errors import PuppetError
 
 
@@ -32,3 +36,21 @@ class RigError(PuppetError, ValueError):
         if self.path is not None:
             return self
         return RigError(self.message, path=path, field=self.field, line=self.line)
+
+
+def check_regular_file(path: Path, what: str) -> None:
+    """RigError naming ``path`` unless it is missing (the reader reports that) or a regular file:
+    a FIFO, device or socket would block or never end when read."""
+    try:
+        mode = os.stat(path).st_mode
+    except FileNotFoundError:
+        return
+    except OSError as err:
+        raise RigError(f"cannot read {what}: {err.strerror or err}", path=path) from None
+    if stat.S_ISDIR(mode):
+        raise RigError(f"is a folder, not a {what}", path=path)
+    if not stat.S_ISREG(mode):
+        kind = ("a FIFO (named pipe)" if stat.S_ISFIFO(mode) else "a device" if
+                stat.S_ISCHR(mode) or stat.S_ISBLK(mode) else "a socket" if stat.S_ISSOCK(mode)
+                else "not a regular file")
+        raise RigError(f"is {kind}, not a {what} (only regular files are read)", path=path)

@@ -12,6 +12,13 @@ pose is its bind pose). Bone j's pivot and frame are its joint node's rest globa
 (scale removed); its tip is its child joint (if exactly one) or pivot + frame y · length.
 Weights of all sets are summed per joint and rows renormalized to 1.
 
+Bounds (an error naming the file past them): at most MAX_JOINTS joints, MAX_VERTICES vertices
+and MAX_WEIGHT_ENTRIES vertices x joints (the dense weight matrix); joint names of at most
+MAX_NAME_LENGTH characters, valid Unicode (a lone surrogate is refused). Node transforms and
+positions must be finite, and rest vertices and joints within COORD (+-1e6 model units);
+the skinned meshes must hold at least one triangle. The node hierarchy is walked without
+recursion (a chain of any depth within MAX_JOINTS reads).
+
 Welding: copies of a vertex that the exporter split at seams (same position, same weights) are
 welded into one (``puppet.rig.weld``); ``source_index`` maps the file's vertices to the welded
 ones. Joints that no vertex follows are kept (the solver moves them rigidly with their
@@ -28,6 +35,7 @@ import numpy as np
 
 from puppet.rig.errors import RigError
 from puppet.rig.skeleton import Skeleton
+from puppet.rig.solve_options import COORD
 from puppet.rig.weight_check import normalize_weights
 from puppet.rig.weld import weld_index, weld_mesh
 
@@ -38,6 +46,14 @@ TRIANGLES = 4
 GLB_MAGIC = b"glTF"
 #: A joint whose weight never exceeds this influences no vertex.
 UNUSED_WEIGHT = 1e-6
+#: Joints of the skin read (each is a bone: a handle of every per-frame solve).
+MAX_JOINTS = 2048
+#: Vertices of the skinned meshes, in the file (before welding).
+MAX_VERTICES = 1_000_000
+#: Vertices x joints: the dense weight matrix (float64: 8 bytes each, 400 MB at the bound).
+MAX_WEIGHT_ENTRIES = 50_000_000
+#: Characters of a joint name.
+MAX_NAME_LENGTH = 256
 
 
 @dataclass
@@ -264,6 +280,13 @@ def _read_meshes(gltf, acc: _Accessors, path: Path, mesh_nodes: list[int], joint
             if P.shape[1] != 3:
                 raise RigError("POSITION must be VEC3", path=path, field=f"{where}.POSITION")
             n = len(P)
+            if offset + n > MAX_VERTICES or (offset + n) * joint_count > MAX_WEIGHT_ENTRIES:
+                raise RigError(f"too large: {offset + n} vertices so far with {joint_count} joints; "
+                               f"at most {MAX_VERTICES} vertices and {MAX_WEIGHT_ENTRIES} vertices x "
+                               "joints are read", path=path, field=f"{where}.POSITION")
+            if not np.isfinite(P).all():
+                raise RigError("a vertex position is not finite", path=path,
+                               field=f"{where}.POSITION")
             if prim.indices is not None:
                 idx = acc.read(prim.indices, f"{where}.indices", normalize=False).reshape(-1).astype(np.int64)
             else:
@@ -293,6 +316,9 @@ def _read_meshes(gltf, acc: _Accessors, path: Path, mesh_nodes: list[int], joint
             triangles.append(idx.reshape(-1, 3) + offset)
             weights.append(Wp)
             offset += n
+    if not positions or not sum(len(t) for t in triangles):
+        raise RigError("the skinned meshes hold no triangles (a character needs a surface)",
+                       path=path, field="meshes")
     return np.concatenate(positions), np.concatenate(triangles), np.concatenate(weights)
 
 
@@ -352,29 +378,30 @@ def read_gltf(path, skin: int | None = None) -> GltfCharacter:
                        field=f"skins[{skin_index}].joints")
     if len(set(joints)) != len(joints):
         raise RigError("a joint node is listed twice", path=path, field=f"skins[{skin_index}].joints")
-    joint_names = [nodes[j].name or f"joint{k}" for k, j in enumerate(joints)]
+    if len(joints) > MAX_JOINTS:
+        raise RigError(f"{len(joints)} joints; at most {MAX_JOINTS} are read", path=path,
+                       field=f"skins[{skin_index}].joints")
+    joint_names = [_joint_name(nodes[j].name, k, j, path) for k, j in enumerate(joints)]
 
     V_mesh, F, W_raw = _read_meshes(gltf, acc, path, mesh_nodes, len(joints))
     W = normalize_weights(W_raw, path=path, field_name="WEIGHTS_n")
 
     # Rest pose of the node hierarchy.
-    parent_node = {c: i for i, n in enumerate(nodes) for c in (n.children or [])}
-    globals_: dict[int, np.ndarray] = {}
-
-    def global_of(i, depth=0):
-        if depth > len(nodes):
-            raise RigError("node hierarchy has a cycle", path=path, field=f"nodes[{i}]")
-        if i not in globals_:
-            local = _node_local(nodes[i])
-            p = parent_node.get(i)
-            globals_[i] = local if p is None else global_of(p, depth + 1) @ local
-        return globals_[i]
-
+    parent_node = {c: i for i, n in enumerate(nodes) for c in (n.children or [])
+                   if isinstance(c, int)}
+    G = _rest_globals(nodes, parent_node, joints, path)
     ibm = _inverse_bind_matrices(skin_def, skin_index, acc, path, joint_names)
-    G = np.array([global_of(j) for j in joints])
     skinning = np.einsum("jab,jbc->jac", G, ibm)  # (joints, 4, 4)
     V_h = np.concatenate([V_mesh, np.ones((len(V_mesh), 1))], axis=1)
-    V = np.einsum("nj,jab,nb->na", W, skinning[:, :3, :], V_h)
+    with np.errstate(over="ignore", invalid="ignore"):
+        V = np.einsum("nj,jab,nb->na", W, skinning[:, :3, :], V_h)
+    if not np.isfinite(V).all():
+        raise RigError("the rest pose puts vertices at infinity (huge node or bind transforms)",
+                       path=path, field=f"skins[{skin_index}]")
+    reach = max(float(np.abs(V).max()), float(np.abs(G[:, :3, 3]).max()))
+    if not COORD.holds(reach):
+        raise RigError(f"rest vertices or joints lie {reach:.3g} model units from the origin; "
+                       f"coordinates must each be {COORD}", path=path, field=f"skins[{skin_index}]")
 
     skeleton, order = _skeleton(G, joints, parent_node, joint_names, V)
     W = W[:, order]
@@ -387,6 +414,56 @@ def read_gltf(path, skin: int | None = None) -> GltfCharacter:
     unused = tuple(name for name, w in zip(skeleton.names, W.max(axis=0)) if w <= UNUSED_WEIGHT)
     return GltfCharacter(V, F.astype(np.int32), W, skeleton, np.array([joints[k] for k in order]),
                          source_index, file_vertices, skin_index, unused)
+
+
+def _joint_name(name, k: int, node: int, path: Path) -> str:
+    """Joint k's name (node ``node``'s, or 'joint{k}'); RigError for one that cannot be written
+    back (a lone surrogate is not Unicode text) or is longer than MAX_NAME_LENGTH."""
+    if not name:
+        return f"joint{k}"
+    if not isinstance(name, str):
+        raise RigError(f"name {name!r} is not a string", path=path, field=f"nodes[{node}].name")
+    if len(name) > MAX_NAME_LENGTH:
+        raise RigError(f"joint name of {len(name)} characters; at most {MAX_NAME_LENGTH}",
+                       path=path, field=f"nodes[{node}].name")
+    try:
+        name.encode("utf-8")
+    except UnicodeEncodeError:
+        raise RigError(f"joint name {ascii(name)} holds a lone surrogate: not Unicode text",
+                       path=path, field=f"nodes[{node}].name") from None
+    return name
+
+
+def _rest_globals(nodes, parent_node: dict, joints: list[int], path: Path) -> np.ndarray:
+    """(joints, 4, 4) rest global transforms of the joint nodes, walking up each node's
+    ancestors without recursion (RigError naming the node for a cycle or a transform that is
+    not finite)."""
+    globals_: dict[int, np.ndarray] = {}
+    for j in joints:
+        chain, i, seen = [], j, set()
+        while i is not None and i not in globals_:  # up to a known or a root node
+            if i in seen:
+                raise RigError("node hierarchy has a cycle", path=path, field=f"nodes[{i}]")
+            seen.add(i)
+            chain.append(i)
+            i = parent_node.get(i)
+        above = None if i is None else globals_[i]
+        for i in reversed(chain):  # back down, parents first
+            try:
+                local = _node_local(nodes[i])
+            except (TypeError, ValueError) as err:
+                raise RigError(f"unusable transform: {err}", path=path,
+                               field=f"nodes[{i}]") from None
+            if not np.isfinite(local).all():
+                raise RigError("transform is not finite (translation, rotation, scale or matrix)",
+                               path=path, field=f"nodes[{i}]")
+            with np.errstate(over="ignore", invalid="ignore"):
+                above = local if above is None else above @ local
+            if not np.isfinite(above).all():
+                raise RigError("rest transform overflows (huge translations or scales above it)",
+                               path=path, field=f"nodes[{i}]")
+            globals_[i] = above
+    return np.array([globals_[j] for j in joints])
 
 
 def _skeleton(G: np.ndarray, joints: list[int], parent_node: dict, joint_names: list[str],
@@ -406,16 +483,18 @@ def _skeleton(G: np.ndarray, joints: list[int], parent_node: dict, joint_names: 
 
     parent_of = [joint_parent(k) for k in range(len(joints))]
     order: list[int] = []
-
-    def place(k):
-        if k in order:
-            return
-        if parent_of[k] >= 0:
-            place(parent_of[k])
-        order.append(k)
-
-    for k in range(len(joints)):
-        place(k)
+    placed: set[int] = set()
+    for k in range(len(joints)):  # each joint after its parent, without recursion
+        chain = []
+        while k >= 0 and k not in placed:
+            chain.append(k)
+            k = parent_of[k]
+        for c in reversed(chain):
+            placed.add(c)
+            order.append(c)
+    children: dict[int, list[int]] = {}
+    for c, p in enumerate(parent_of):
+        children.setdefault(p, []).append(c)
     new_index = {k: i for i, k in enumerate(order)}
     heads = G[order, :3, 3]
     frames = []
@@ -429,7 +508,7 @@ def _skeleton(G: np.ndarray, joints: list[int], parent_node: dict, joint_names: 
     extent = float(np.linalg.norm(V.max(0) - V.min(0))) if len(V) else 1.0
     tails = []
     for i, k in enumerate(order):
-        kids = [c for c in range(len(joints)) if parent_of[c] == k]
+        kids = children.get(k, [])
         if len(kids) == 1 and np.linalg.norm(G[kids[0], :3, 3] - heads[i]) > 1e-9:
             tails.append(G[kids[0], :3, 3])
         else:

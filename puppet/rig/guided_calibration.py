@@ -26,6 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
+from puppet import limits
 from puppet.rig.errors import RigError
 
 #: About 13° of servo shaft: a deliberate move, far above sensor noise (a few ticks).
@@ -156,6 +157,10 @@ class GuidedCalibration:
         models: {id: model name} found on the bus, written into the blocks; timeout_s: per joint.
         Raises RigError naming the joint whose servo did not move or return in time.
         """
+        for name, value, bound in (("threshold_ticks", threshold_ticks, limits.THRESHOLD_TICKS),
+                                   ("timeout_s", timeout_s, limits.TIMEOUT_S)):
+            if not bound.holds(value):  # 0 would take a still servo for a moved one
+                raise RigError(bound.problem(value), path=self.path, field=name)
         ids = [int(i) for i in zero_reading.ids]
         zero = np.asarray(zero_reading.ticks, np.int64).copy()
         if len(ids) < len(self.steps):

@@ -6,11 +6,16 @@ fixes bones that no vertex follows: the solve could not place them) and solver o
 to the mesh; and holds one commented ``[[servo]]`` block per joint for the user to uncomment
 and fill (``puppet rig axes`` and ``puppet calibrate --guided`` help).
 The text parses as it is (``puppet rig info`` loads it: a rig with no servos yet).
+
+Joint names are written as TOML strings with every non-printable character (controls, line and
+paragraph separators, format characters) as a ``\\uXXXX`` escape, which TOML reads back to the
+same name; comments show Python's repr (which escapes them too). Names glTF cannot hold as
+Unicode text (a lone surrogate) are refused when the file is read (puppet.rig.gltf, with its
+joint and vertex bounds).
 """
 
 from __future__ import annotations
 
-import json
 import os
 from pathlib import Path
 
@@ -44,14 +49,15 @@ def suggested_solver(vertices: int, bones: int) -> tuple[int, int]:
 def suggested_root(parents: np.ndarray, unused: set[int]) -> int:
     """The bone to hold fixed: the root with the most descendants, moved down past bones that
     influence no vertex while they have exactly one child (an exporter's 'root' bone)."""
-    parents = np.asarray(parents)
-    children = {i: [int(c) for c in np.flatnonzero(parents == i)] for i in range(len(parents))}
-
-    def size(i):
-        return 1 + sum(size(c) for c in children[i])
-
+    parents = np.asarray(parents)  # parents first: parents[i] < i
+    children: dict[int, list[int]] = {i: [] for i in range(len(parents))}
+    size = np.ones(len(parents), np.int64)  # bones in each subtree, summed up without recursion
+    for i in range(len(parents) - 1, -1, -1):
+        if parents[i] >= 0:
+            children[int(parents[i])].insert(0, i)
+            size[parents[i]] += size[i]
     roots = [int(i) for i in np.flatnonzero(parents < 0)]
-    bone = max(roots, key=size)
+    bone = max(roots, key=lambda i: size[i])
     while bone in unused and len(children[bone]) == 1:
         bone = children[bone][0]
     return bone
@@ -66,8 +72,18 @@ def _line(code: str, comment: str) -> str:
 
 
 def _toml_string(text: str) -> str:
-    """A TOML basic string (JSON escaping is valid TOML for these)."""
-    return json.dumps(text, ensure_ascii=False)
+    """A TOML basic string: quotes and backslashes escaped, every non-printable character as
+    \\uXXXX (or \\UXXXXXXXX), so the text reads back to ``text`` and holds no control
+    character (TOML refuses them, DEL included, in strings and comments)."""
+    out = []
+    for ch in text:
+        if ch in '"\\':
+            out.append("\\" + ch)
+        elif ch.isprintable():
+            out.append(ch)
+        else:
+            out.append(f"\\u{ord(ch):04X}" if ord(ch) <= 0xFFFF else f"\\U{ord(ch):08X}")
+    return '"' + "".join(out) + '"'
 
 
 def rig_init_text(character_path: Path, rig_path: Path, character, skin: int | None) -> str:
@@ -85,6 +101,11 @@ def rig_init_text(character_path: Path, rig_path: Path, character, skin: int | N
         mesh = os.path.relpath(character_path.resolve(), rig_path.resolve().parent)
     except ValueError:  # another drive (Windows)
         mesh = str(character_path.resolve())
+    try:
+        mesh.encode("utf-8")
+    except UnicodeEncodeError:  # undecodable bytes in the file's name
+        raise RigError("its path is not UTF-8 text: a rig file cannot name it; rename the file",
+                       path=character_path) from None
     lines = [
         f"# Rig for {character_path.name}, written by `puppet rig init`.",
         "# Directions are the character's own: glTF's +Y is up and +Z forward, so +X is the",
@@ -94,7 +115,7 @@ def rig_init_text(character_path: Path, rig_path: Path, character, skin: int | N
         f"# `puppet calibrate --rig {rig_path.name} --port PORT --guided` finds each servo's id,",
         "# sign and zero ticks and writes them here (or set them by hand).",
         "",
-        f"name = {_toml_string(character_path.stem)}",
+        f"name = {_toml_string(character_path.stem.encode('utf-8', 'replace').decode())}",
         f"mesh = {_toml_string(mesh.replace(os.sep, '/'))}",
     ]
     if skin is not None:
@@ -117,7 +138,8 @@ def rig_init_text(character_path: Path, rig_path: Path, character, skin: int | N
         "# ---- joints, parents first -----------------------------------------------------------",
     ]
     for i, name in enumerate(names):
-        parent = "root, no parent" if sk.parents[i] < 0 else f"parent {names[sk.parents[i]]!r}"
+        parent = ("root, no parent" if sk.parents[i] < 0
+                  else f"parent {names[sk.parents[i]]!r}")
         where, turns = bone_axes(sk.frames[i], sk.heads[i], sk.tails[i])
         lines += ["", f"# joint {name!r} ({parent})"
                   + (": no vertex follows it (held fixed)" if name in unused_names else "")

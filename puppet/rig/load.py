@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 
 from puppet.rig.calibration import Calibration
-from puppet.rig.errors import RigError
+from puppet.rig.errors import RigError, check_regular_file
 from puppet.rig.rig import Rig
 from puppet.rig.rig_file import RigFile, read_rig_file, read_rig_text
 from puppet.rig.servo_map import ServoMap
@@ -27,10 +27,19 @@ def builtin() -> Rig:
     return load_rig(BUILTIN_RIG)
 
 
+PINS_PER_HANDLE = 4
+"""Pins a rig may hold per handle (bone or extra weight): four points fix an affine handle, so
+more can only over-determine the solve (documented beside [[pin]] in rig_file.py)."""
+
+
 def read_character_npz(path):
     """(V, F, W, skeleton) from the compact .npz character format written by
     ``puppet/rig/builtin/make_character.py`` (keys: CHARACTER_KEYS)."""
     path = Path(path)
+    check_regular_file(path, "character file")
+    if not zipfile.is_zipfile(path):
+        raise RigError("not a character .npz: not a zip archive (an .npz is written by "
+                       "numpy.savez)", path=path)
     try:
         with np.load(path, allow_pickle=False) as data:
             missing = [k for k in CHARACTER_KEYS if k not in data.files]
@@ -60,6 +69,10 @@ def _read_character(spec):
     (source_index: see ``Rig.source_index``)."""
     from puppet.rig.tgf_dmat import read_dmat, read_tgf
 
+    for what, path in (("mesh", spec.mesh), ("skeleton", spec.skeleton), ("weights", spec.weights),
+                       ("calibration", spec.calibration)):
+        if path is not None:
+            check_regular_file(path, f"{what} file")
     suffix = spec.mesh.suffix.lower()
     if suffix == ".npz":
         return (*read_character_npz(spec.mesh), None)
@@ -95,6 +108,7 @@ def load_rig(path) -> Rig:
     """Load a rig: a TOML rig file, or a bare .glb/.gltf/.npz character (no servos)."""
     path = Path(path)
     suffix = path.suffix.lower()
+    check_regular_file(path, "rig file" if suffix == ".toml" else "character file")
     if suffix in (".glb", ".gltf"):
         from puppet.rig.gltf import read_gltf
 
@@ -156,10 +170,18 @@ def rig_from_spec(spec: RigFile) -> Rig:
     for point, line in spec.pin_points:
         pins.append(int(np.argmin(((V - point) ** 2).sum(axis=1))))
         where.setdefault(pins[-1], line)
+    seen: set[int] = set()
     for i, vertex in enumerate(pins):
-        if vertex in pins[:i]:
+        if vertex in seen:
             line = (spec.pin_vertices + spec.pin_points)[i][1]
             fail(f"vertex {vertex} is pinned twice (first at line {where[vertex]})", "pin", line)
+        seen.add(vertex)
+    handles = skeleton.bone_count + spec.solver.extra_weights
+    most = min(n - 1, PINS_PER_HANDLE * handles)
+    if len(pins) > most:
+        fail(f"{len(pins)} pins; at most {most}: {PINS_PER_HANDLE} per handle ({handles} handles: "
+             f"bones and extra weights), and fewer than the mesh's {n} vertices (more pins "
+             "over-determine the solve)", "pin", lines.top("pin") if lines else None)
     for name in spec.fixed:
         if name not in skeleton.names:
             fail(f"unknown fixed bone {name!r}; bones are {list(skeleton.names)}", "fixed",

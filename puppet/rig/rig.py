@@ -16,7 +16,6 @@ from pathlib import Path
 
 import numpy as np
 
-from puppet.fast.energy_names import ENERGIES
 from puppet.fast.pattern import Pattern, PoseFill, Values, full_and_relative
 from puppet.rig.calibration import Calibration
 from puppet.rig.errors import RigError

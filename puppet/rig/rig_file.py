@@ -26,11 +26,13 @@ Example (paths are relative to the rig file)::
     zero_ticks = 2048             # ticks at the rest pose (int32)
     limits_deg = [-60, 60]        # low < high, within +-LIMIT_RANGE_DEG
 
-    [[pin]]
-    vertex = 1234                 # or point = [x, y, z]: the nearest vertex
+    [[pin]]                       # at most 4 per handle (load.PINS_PER_HANDLE), < vertex count
+    vertex = 1234                 # or point = [x, y, z] (COORD): the nearest vertex
 
-Every number must be finite (TOML allows ``nan`` and ``inf``: they are refused). Every error is
-a RigError naming the file, the line of the key (or of its table) and the field.
+Every number must lie in its documented range (puppet.limits.Range; the constants below and in
+puppet/rig/solve_options.py): TOML's ``nan`` and ``inf`` are refused, and so is anything finite
+but absurd. Every error is a RigError naming the file, the line of the key (or of its table), the
+field, the value and the range.
 """
 
 from __future__ import annotations
@@ -46,10 +48,11 @@ from pathlib import Path
 import numpy as np
 
 from puppet.fast.energy_names import ENERGIES
-from puppet.rig.errors import RigError
+from puppet.limits import Range
+from puppet.rig.errors import RigError, check_regular_file
 from puppet.rig.rig import SolverOptions
 from puppet.rig.servo_map import GEAR_RANGE, INT32, ROLES, Servo, ServoMap
-from puppet.rig.solve_options import SolveExtras, read_solve_extras
+from puppet.rig.solve_options import COORD, VERTEX, SolveExtras, read_solve_extras
 from puppet.servo_models import MODELS, known_models
 
 NAMED_AXES = {"x": (1.0, 0, 0), "y": (0, 1.0, 0), "z": (0, 0, 1.0)}
@@ -61,10 +64,19 @@ TOP_KEYS = {"name", "mesh", "skin", "skeleton", "weights", "calibration", "fixed
 
 LIMIT_RANGE_DEG = 360.0
 """Joint limits lie within +-one turn of the rest pose (servo_map.LIMIT_RANGE, in degrees)."""
+LIMIT_DEG = Range(-LIMIT_RANGE_DEG, LIMIT_RANGE_DEG, "degrees")
 MAX_CLUSTERS = 5000
 """Rotation clusters; also at most the mesh's vertex count (checked when the mesh is read)."""
+CLUSTERS = Range(1, MAX_CLUSTERS, integer=True)
 MAX_EXTRA_WEIGHTS = 200
 """Extra (free) weight functions: each adds a handle to every per-frame solve."""
+EXTRA_WEIGHTS = Range(0, MAX_EXTRA_WEIGHTS, integer=True)
+SERVO_ID = Range(0, 252, integer=True)
+"""Dynamixel ids (253.. are reserved, 254 is broadcast)."""
+ORDER = Range(1, 3, integer=True)
+GEAR = Range(*GEAR_RANGE, "servo turns per joint turn")
+ZERO_TICKS = Range(*INT32, "ticks", integer=True)
+SKIN = Range(0, 1_000_000, integer=True)
 MAX_PATH_LENGTH = 4096
 
 _show = reprlib.Repr()
@@ -140,6 +152,7 @@ class RigFile:
 def read_rig_file(path) -> RigFile:
     """Parse and validate a rig TOML file; every error names the file and the line."""
     path = Path(path)
+    check_regular_file(path, "rig file")
     try:
         raw = path.read_bytes()
     except FileNotFoundError:
@@ -205,8 +218,8 @@ def read_rig_text(text: str, *, path, base) -> RigFile:
     if not isinstance(name, str) or not name:
         fail(f"must be a non-empty string, got {show(name)}", "name", lines.top("name"))
     skin = doc.get("skin")
-    if skin is not None and (isinstance(skin, bool) or not isinstance(skin, int) or skin < 0):
-        fail(f"must be a glTF skin index >= 0, got {show(skin)}", "skin", lines.top("skin"))
+    if skin is not None and not SKIN.holds(skin):
+        fail(f"a glTF skin index {SKIN.problem(skin)}", "skin", lines.top("skin"))
     fixed = doc.get("fixed", [])
     if not isinstance(fixed, list) or not all(isinstance(f, str) and f for f in fixed):
         fail(f"must be a list of bone names, got {show(fixed)}", "fixed", lines.top("fixed"))
@@ -235,8 +248,8 @@ def read_rig_text(text: str, *, path, base) -> RigFile:
             fail("needs exactly one of 'vertex = INDEX' or 'point = [x, y, z]'", label, line)
         if "vertex" in pin:
             v = pin["vertex"]
-            if isinstance(v, bool) or not isinstance(v, int) or v < 0:
-                fail(f"must be a vertex index >= 0, got {show(v)}", f"{label} vertex",
+            if not VERTEX.holds(v):
+                fail(f"a vertex index {VERTEX.problem(v)}", f"{label} vertex",
                      lines.key("pin", i, "vertex"))
             pin_vertices.append((v, lines.key("pin", i, "vertex")))
         else:
@@ -244,16 +257,6 @@ def read_rig_text(text: str, *, path, base) -> RigFile:
             pin_points.append((_vector(pin["point"], f"{label} point", at, fail), at))
     return RigFile(Path(str(path)), name, mesh, skeleton, weights, calibration, tuple(fixed),
                    solver, servo_map, pin_vertices, pin_points, lines, skin, extras)
-
-
-def _integer(value, low: int, high: int) -> bool:
-    return not isinstance(value, bool) and isinstance(value, int) and low <= value <= high
-
-
-def _number(value) -> bool:
-    """A finite TOML number (int or float, not bool, not nan/inf)."""
-    return (not isinstance(value, bool) and isinstance(value, (int, float))
-            and math.isfinite(value))
 
 
 def _read_solver(table, lines, fail) -> SolverOptions:
@@ -267,12 +270,12 @@ def _read_solver(table, lines, fail) -> SolverOptions:
     clusters = table.get("clusters", defaults.clusters)
     extra = table.get("extra_weights", defaults.extra_weights)
     energy = table.get("energy", defaults.energy)
-    if not _integer(clusters, 1, MAX_CLUSTERS):
-        fail(f"must be an integer 1..{MAX_CLUSTERS} (and at most the mesh's vertex count), "
-             f"got {show(clusters)}", "solver.clusters", lines.key("solver", 0, "clusters"))
-    if not _integer(extra, 0, MAX_EXTRA_WEIGHTS):
-        fail(f"must be an integer 0..{MAX_EXTRA_WEIGHTS}, got {show(extra)}",
-             "solver.extra_weights", lines.key("solver", 0, "extra_weights"))
+    if not CLUSTERS.holds(clusters):
+        fail(f"{CLUSTERS.problem(clusters)} (and at most the mesh's vertex count)",
+             "solver.clusters", lines.key("solver", 0, "clusters"))
+    if not EXTRA_WEIGHTS.holds(extra):
+        fail(EXTRA_WEIGHTS.problem(extra), "solver.extra_weights",
+             lines.key("solver", 0, "extra_weights"))
     if not isinstance(energy, str) or energy not in ENERGIES:
         fail(f"unknown energy {show(energy)} (known: {', '.join(ENERGIES)})", "solver.energy",
              lines.key("solver", 0, "energy"))
@@ -280,12 +283,10 @@ def _read_solver(table, lines, fail) -> SolverOptions:
 
 
 def _vector(value, field_name, line, fail) -> np.ndarray:
-    if not isinstance(value, list) or len(value) != 3 or not all(map(_number, value)):
-        fail(f"must be three finite numbers, got {show(value)}", field_name, line)
-    vector = np.array(value, np.float64)
-    if not np.isfinite(vector).all():  # finite ints can still overflow a float64
-        fail(f"must be three finite numbers, got {show(value)}", field_name, line)
-    return vector
+    """Three numbers, each within COORD (model units)."""
+    if not isinstance(value, list) or len(value) != 3 or not all(map(COORD.holds, value)):
+        fail(f"must be three numbers, each {COORD}, got {show(value)}", field_name, line)
+    return np.array(value, np.float64)
 
 
 def _read_servo(index: int, table: dict, lines: _Lines, fail) -> Servo:
@@ -296,8 +297,8 @@ def _read_servo(index: int, table: dict, lines: _Lines, fail) -> Servo:
         return lines.key("servo", index, key)
 
     servo_id = table.get("id")
-    if not _integer(servo_id, 0, 252):
-        fail(f"id must be an integer 0..252, got {show(servo_id)}", f"{label} id", line("id"))
+    if not SERVO_ID.holds(servo_id):
+        fail(f"id {SERVO_ID.problem(servo_id)}", f"{label} id", line("id"))
     label = f"servo {servo_id}"
     for key in table:
         if key not in SERVO_KEYS:
@@ -323,25 +324,21 @@ def _read_servo(index: int, table: dict, lines: _Lines, fail) -> Servo:
     if not 1e-9 < norm < math.inf:
         fail(f"axis {show(raw_axis)} has zero length or is not finite", f"{label} axis", line("axis"))
     order = table.get("order", 1)
-    if not _integer(order, 1, 3):
-        fail(f"order must be 1, 2 or 3, got {show(order)}", f"{label} order", line("order"))
+    if not ORDER.holds(order):
+        fail(f"order {ORDER.problem(order)}", f"{label} order", line("order"))
     sign = table.get("sign", 1)
-    if not _integer(sign, -1, 1) or sign == 0:
+    if isinstance(sign, bool) or not isinstance(sign, int) or sign not in (1, -1):
         fail(f"sign must be 1 or -1, got {show(sign)}", f"{label} sign", line("sign"))
     gear = table.get("gear", 1.0)
-    low, high = GEAR_RANGE
-    if not _number(gear) or not low <= gear <= high:
-        fail(f"gear must be a number {low}..{high} (servo turns per joint turn; use sign = -1 "
-             f"to reverse), got {show(gear)}", f"{label} gear", line("gear"))
+    if not GEAR.holds(gear):
+        fail(f"gear {GEAR.problem(gear)} (use sign = -1 to reverse)", f"{label} gear", line("gear"))
     zero = table.get("zero_ticks", 2048)
-    if not _integer(zero, *INT32):
-        fail(f"zero_ticks must be an integer {INT32[0]}..{INT32[1]}, got {show(zero)}",
-             f"{label} zero_ticks", line("zero_ticks"))
+    if not ZERO_TICKS.holds(zero):
+        fail(f"zero_ticks {ZERO_TICKS.problem(zero)}", f"{label} zero_ticks", line("zero_ticks"))
     limits = table.get("limits_deg", [-180.0, 180.0])
-    if (not isinstance(limits, list) or len(limits) != 2 or not all(map(_number, limits))
-            or not all(abs(x) <= LIMIT_RANGE_DEG for x in limits)):
-        fail(f"limits_deg must be [low, high]: finite degrees within +-{LIMIT_RANGE_DEG:g}, "
-             f"got {show(limits)}", f"{label} limits_deg", line("limits_deg"))
+    if not isinstance(limits, list) or len(limits) != 2 or not all(map(LIMIT_DEG.holds, limits)):
+        fail(f"limits_deg must be [low, high], each {LIMIT_DEG}, got {show(limits)}",
+             f"{label} limits_deg", line("limits_deg"))
     if not limits[0] < limits[1]:
         fail(f"limits reversed or empty: low {limits[0]} >= high {limits[1]}", f"{label} limits_deg",
              line("limits_deg"))

@@ -4,8 +4,8 @@ Read by ``read_rig_file`` (it hands the parsed TOML document over first; these k
 out of it). Example::
 
     on_dropout = "free"           # hold (default): a silent servo keeps its last angle;
-    dropout_ms = 150              #   free: after this long its bones are solved (free bones)
-    dropout_blend_frames = 6      # frames over which a switch (either way) is blended
+    dropout_ms = 150              #   free: after this long its bones are solved (0..60000 ms)
+    dropout_blend_frames = 6      # frames over which a switch (either way) is blended (1..120)
 
     [[servo]]
     id = 3
@@ -13,34 +13,51 @@ out of it). Example::
     ...
 
     [solver.dynamics]             # secondary motion: inertia, damping, gravity
-    density = 0.002               # mass per unit area (>= 0): larger lags and swings longer
+    density = 0.002               # mass per unit area (DENSITY: 0..1000): larger lags longer
     damping = 0.9                 # 0 (no momentum) .. 1 (full momentum)
-    gravity = [0, -9.81, 0]       # model units / s^2 (default: none)
-    dt = 0.016666                 # solver time step, seconds (> 0); frames take
-    max_steps = 4                 #   round(elapsed / dt) steps (elapsed from the reading times)
+    gravity = [0, -9.81, 0]       # model units / s^2, each -1e5..1e5 (default: none)
+    dt = 0.016666                 # solver time step, seconds (DT: 0.0001..1); frames take
+    max_steps = 4                 #   round(elapsed / dt) steps (from the reading times), 1..64
 
     [[contact]]                   # per-axis positional constraint (e.g. a foot on the floor)
-    vertex = 1234                 # or point = [x, y, z]: the nearest vertex
+    vertex = 1234                 # or point = [x, y, z] (COORD): the nearest vertex
     axes = "y"                    # any of x, y, z: the coordinates held; the others stay free
-    value = 0.0                   # one number per axis (or one for all); default: rest position
+    value = 0.0                   # one number per axis (or one for all), COORD; default: rest
 
     [[limit]]                     # joint limit of a free (solved) bone, relative to its parent
     bone = "chest"
-    swing_deg = 20                # cone half-angle about the bone's rest direction
-    twist_deg = [-15, 15]         # twist about it, [min, max]
+    swing_deg = 20                # cone half-angle about the bone's rest direction, 0..180
+    twist_deg = [-15, 15]         # twist about it, [min, max], within -180..180
+
+Every number is checked against the Range declared below (puppet.limits); errors name the field,
+the value and the range.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-import numpy as np
+from puppet.limits import Range
 
 DROPOUT_MODES = ("hold", "free")
 TOP_KEYS = ("on_dropout", "dropout_ms", "dropout_blend_frames", "contact", "limit")
 DYNAMICS_KEYS = ("density", "damping", "gravity", "dt", "max_steps")
 CONTACT_KEYS = ("vertex", "point", "axes", "value")
 LIMIT_KEYS = ("bone", "swing_deg", "twist_deg")
+
+COORD = Range(-1e6, 1e6, "model units")
+"""A point or coordinate of the character (contacts, pins)."""
+VERTEX = Range(0, 2**31 - 1, integer=True)
+"""A vertex index (and less than the mesh's vertex count, checked when the mesh is read)."""
+DROPOUT_MS = Range(0, 60_000, "ms")
+BLEND_FRAMES = Range(1, 120, "frames", integer=True)
+DENSITY = Range(0, 1000, "mass per unit area")
+DAMPING = Range(0, 1)
+GRAVITY = Range(-1e5, 1e5, "model units/s^2")
+DT = Range(1e-4, 1.0, "s")
+MAX_STEPS = Range(1, 64, integer=True)
+SWING_DEG = Range(0, 180, "degrees")
+TWIST_DEG = Range(-180, 180, "degrees")
 
 
 @dataclass(frozen=True)
@@ -106,10 +123,6 @@ class SolveExtras:
         return self.on_dropout == "free" or "free" in self.servo_dropout.values()
 
 
-def _number(value) -> bool:
-    return isinstance(value, (int, float)) and not isinstance(value, bool) and np.isfinite(value)
-
-
 def read_solve_extras(doc: dict, lines, fail) -> SolveExtras:
     """Take this module's keys out of the parsed rig document ``doc`` (in place) and validate them.
 
@@ -120,11 +133,11 @@ def read_solve_extras(doc: dict, lines, fail) -> SolveExtras:
         fail(f"must be one of {', '.join(DROPOUT_MODES)}, got {mode!r}", "on_dropout",
              lines.key("", 0, "on_dropout"))
     ms = doc.pop("dropout_ms", 150.0)
-    if not _number(ms) or ms < 0:
-        fail(f"must be a number of milliseconds >= 0, got {ms!r}", "dropout_ms", lines.key("", 0, "dropout_ms"))
+    if not DROPOUT_MS.holds(ms):
+        fail(DROPOUT_MS.problem(ms), "dropout_ms", lines.key("", 0, "dropout_ms"))
     blend = doc.pop("dropout_blend_frames", 6)
-    if isinstance(blend, bool) or not isinstance(blend, int) or not 1 <= blend <= 120:
-        fail(f"must be an integer 1..120, got {blend!r}", "dropout_blend_frames",
+    if not BLEND_FRAMES.holds(blend):
+        fail(BLEND_FRAMES.problem(blend), "dropout_blend_frames",
              lines.key("", 0, "dropout_blend_frames"))
     servo_dropout = {}
     servos = doc.get("servo", [])
@@ -164,15 +177,14 @@ def _read_limit(index: int, table: dict, lines, fail) -> LimitSpec:
     if not isinstance(bone, str) or not bone:
         fail(f"bone must be a bone name, got {bone!r}", f"{label} bone", line("bone"))
     swing = table.get("swing_deg", 180.0)
-    if not _number(swing) or not 0 <= swing <= 180:
-        fail(f"swing_deg must be a number in 0..180, got {swing!r}", f"{label} swing_deg", line("swing_deg"))
+    if not SWING_DEG.holds(swing):
+        fail(f"swing_deg {SWING_DEG.problem(swing)}", f"{label} swing_deg", line("swing_deg"))
     twist = table.get("twist_deg", [-180.0, 180.0])
-    if not isinstance(twist, list) or len(twist) != 2 or not all(_number(x) for x in twist):
-        fail(f"twist_deg must be [min, max] degrees, got {twist!r}", f"{label} twist_deg", line("twist_deg"))
+    if not isinstance(twist, list) or len(twist) != 2 or not all(map(TWIST_DEG.holds, twist)):
+        fail(f"twist_deg must be [min, max], each {TWIST_DEG}, got {twist!r}", f"{label} twist_deg",
+             line("twist_deg"))
     if twist[0] > twist[1]:
         fail(f"twist_deg min {twist[0]} > max {twist[1]}", f"{label} twist_deg", line("twist_deg"))
-    if not -180 <= twist[0] <= twist[1] <= 180:
-        fail(f"twist_deg must lie within -180..180, got {twist!r}", f"{label} twist_deg", line("twist_deg"))
     if "swing_deg" not in table and "twist_deg" not in table:
         fail("needs swing_deg and/or twist_deg", label, lines.table("limit", index))
     return LimitSpec(bone, float(swing), (float(twist[0]), float(twist[1])), line("bone"))
@@ -191,20 +203,21 @@ def _read_dynamics(table, lines, fail) -> DynamicsOptions:
             fail(f"unknown option (known: {', '.join(DYNAMICS_KEYS)})", f"{where}.{key}", line(key))
     d = DynamicsOptions()
     density = table.get("density", d.density)
-    if not _number(density) or density < 0:
-        fail(f"density must be a number >= 0, got {density!r}", f"{where}.density", line("density"))
+    if not DENSITY.holds(density):
+        fail(f"density {DENSITY.problem(density)}", f"{where}.density", line("density"))
     damping = table.get("damping", d.damping)
-    if not _number(damping) or not 0 <= damping <= 1:
-        fail(f"damping must be a number in 0..1, got {damping!r}", f"{where}.damping", line("damping"))
+    if not DAMPING.holds(damping):
+        fail(f"damping {DAMPING.problem(damping)}", f"{where}.damping", line("damping"))
     gravity = table.get("gravity", list(d.gravity))
-    if not isinstance(gravity, list) or len(gravity) != 3 or not all(_number(g) for g in gravity):
-        fail(f"gravity must be three numbers, got {gravity!r}", f"{where}.gravity", line("gravity"))
+    if not isinstance(gravity, list) or len(gravity) != 3 or not all(map(GRAVITY.holds, gravity)):
+        fail(f"gravity must be three numbers, each {GRAVITY}, got {gravity!r}", f"{where}.gravity",
+             line("gravity"))
     dt = table.get("dt", d.dt)
-    if not _number(dt) or not dt > 0:
-        fail(f"time step dt must be a number of seconds > 0, got {dt!r}", f"{where}.dt", line("dt"))
+    if not DT.holds(dt):
+        fail(f"time step dt {DT.problem(dt)}", f"{where}.dt", line("dt"))
     steps = table.get("max_steps", d.max_steps)
-    if isinstance(steps, bool) or not isinstance(steps, int) or not 1 <= steps <= 64:
-        fail(f"max_steps must be an integer 1..64, got {steps!r}", f"{where}.max_steps", line("max_steps"))
+    if not MAX_STEPS.holds(steps):
+        fail(f"max_steps {MAX_STEPS.problem(steps)}", f"{where}.max_steps", line("max_steps"))
     return DynamicsOptions(float(density), float(damping), tuple(float(g) for g in gravity), float(dt), steps)
 
 
@@ -223,12 +236,12 @@ def _read_contact(index: int, table: dict, lines, fail) -> ContactSpec:
         fail("give 'vertex' or 'point', not both", label, header)
     if "vertex" in table:
         vertex = table["vertex"]
-        if isinstance(vertex, bool) or not isinstance(vertex, int) or vertex < 0:
-            fail(f"must be a vertex index >= 0, got {vertex!r}", f"{label} vertex", line("vertex"))
+        if not VERTEX.holds(vertex):
+            fail(f"a vertex index {VERTEX.problem(vertex)}", f"{label} vertex", line("vertex"))
     elif "point" in table:
         p = table["point"]
-        if not isinstance(p, list) or len(p) != 3 or not all(_number(x) for x in p):
-            fail(f"must be three numbers, got {p!r}", f"{label} point", line("point"))
+        if not isinstance(p, list) or len(p) != 3 or not all(map(COORD.holds, p)):
+            fail(f"must be three numbers, each {COORD}, got {p!r}", f"{label} point", line("point"))
         point = tuple(float(x) for x in p)
     else:
         fail("needs 'vertex' or 'point'", label, header)
@@ -243,11 +256,12 @@ def _read_contact(index: int, table: dict, lines, fail) -> ContactSpec:
     raw = table.get("value")
     if raw is None:
         values = (None,) * len(axes)
-    elif _number(raw):
+    elif COORD.holds(raw):
         values = (float(raw),) * len(axes)
-    elif isinstance(raw, list) and len(raw) == len(axes) and all(_number(x) for x in raw):
+    elif isinstance(raw, list) and len(raw) == len(axes) and all(map(COORD.holds, raw)):
         values = tuple(float(x) for x in raw)
     else:
-        fail(f"value must be a number or {len(axes)} numbers (one per axis), got {raw!r}",
+        fail(f"value must be a number or {len(axes)} numbers (one per axis), each {COORD}, "
+             f"got {raw!r}",
              f"{label} value", line("value"))
     return ContactSpec(vertex, point, axes, values, line("vertex") if vertex is not None else header)

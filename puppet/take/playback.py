@@ -26,6 +26,7 @@ from typing import Iterator, NamedTuple
 
 import numpy as np
 
+from puppet.limits import FPS, SPEED, Range
 from puppet.reading import Reading
 from puppet.servo_models import HALF_TURN, TICKS_PER_TURN
 from puppet.take.errors import TakeError
@@ -78,14 +79,16 @@ def _seconds(s: float) -> str:
     return text if s < 600 else f"{text} ({s / 3600:.1f} h)"
 
 
-def check_rate(value, what: str, source) -> float:
-    """value as a float, or TakeError (naming source) unless it is a finite number > 0."""
+def check_rate(value, what: str, source, limits: Range = FPS) -> float:
+    """value as a float, or TakeError (naming source) unless it is a number within ``limits``
+    (puppet.limits.FPS for frames per second, SPEED for a speed factor)."""
     try:
         number = float(value)
     except (TypeError, ValueError):
         raise TakeError(source, f"{what} must be a number, got {value!r}") from None
-    if not (math.isfinite(number) and number > 0):
-        raise TakeError(source, f"{what} must be > 0, got {value!r}")
+    problem = limits.problem(number)
+    if problem is not None:
+        raise TakeError(source, f"{what} {problem}")
     return number
 
 
@@ -109,7 +112,7 @@ class Playback:
     def __init__(self, t_ns, ticks, ok, ids, *, fps: float = 30.0, speed: float = 1.0,
                  source="take"):
         self.fps = check_rate(fps, "frames per second", source)
-        self.speed = check_rate(speed, "speed", source)
+        self.speed = check_rate(speed, "speed", source, SPEED)
         t = np.asarray(t_ns, np.int64)
         if t.ndim != 1 or len(t) == 0:
             raise TakeError(source, "the take holds no readings")

@@ -11,8 +11,10 @@ little-endian header then the JPEG bytes (no base64, no JSON):
     offset 16  int64   send time, ns (server's monotonic clock)
     offset 24  ...     JPEG
 
-The page answers each frame once it is drawn with ``{"type": "ack", "seq": N}`` on the same
-socket; the server computes reading-to-page latency on its own clock. Control (``/ws/control``)
+The page answers each frame once it is drawn with ``{"type": "ack", "seq": N, "drawn_ms": D}``
+on the same socket (D: arrival to drawn, ms, on the page's clock); the server computes each
+tab's reading-to-drawn latency on its own clock and splits it: reading -> send (server),
+send -> arrival and the ack back (transport), arrival -> drawn (the page's D). Control (``/ws/control``)
 carries small JSON messages both ways: panel, snapshot, faults, handles; input from the page.
 """
 
@@ -32,6 +34,26 @@ MAX_CLIENT_MESSAGE = 4096
 #: repaints the page's servo table: at 15 Hz that was a quarter of a headless Chromium tab's CPU
 #: (3 tabs beside the loop on 2 cores: 27 page fps instead of 31).
 PANEL_HZ = 5.0
+
+# ---- what one viewer may cost the others (per connection; see puppet.view.guard) ----------
+#: Messages per second a page may send on either socket, and at once: the page merges camera
+#: moves and drags into one message per animation frame (<= 60 Hz each) and acknowledges each
+#: frame (<= the view's max fps). Messages above the limit are dropped unread and counted.
+INPUT_RATE_HZ, INPUT_BURST = 120.0, 240
+#: Picks (a press on the character: a GPU pick and a solver refactor) per second, and at once.
+PICK_RATE_HZ, PICK_BURST = 4.0, 8
+#: Handles the view holds at most; a pick beyond them is refused with a notice.
+MAX_HANDLES = 16
+#: A viewer whose socket takes no data (a send waits) for this long is dropped, with a note.
+STALL_DROP_S = 10.0
+#: Kernel send buffer per control socket (bytes; Linux doubles it): a stuck viewer's socket is
+#: full after this (and asyncio's 64 KiB) instead of after megabytes of autotuned buffer.
+CONTROL_SNDBUF = 32 * 1024
+#: Control messages (other than the panel, which is latest-wins) waiting per viewer; beyond it
+#: the oldest are dropped (a snapshot on reconnect has the state).
+OUTBOX_MESSAGES = 64
+#: Notices of one kind go out at most once per this many seconds; the rest are merged.
+NOTICE_EVERY_S = 2.0
 
 
 def frame_header(flags: int, camera: int, seq: int, reading_t_ns: int, send_t_ns: int) -> bytes:

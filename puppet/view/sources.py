@@ -19,6 +19,11 @@ from puppet.events import EventLog
 from puppet.reading import Reading
 
 
+#: A play position this close to a take's end (s) is its end: play() starts over (a slider's
+#: value is rounded, so scrubbing to the end may stop a hair short of it).
+END_S = 0.01
+
+
 class _PacedSource:
     """A source that makes its own readings, one every ``period_s`` seconds (monotonic clock).
 
@@ -96,7 +101,7 @@ class TakeSource(_PacedSource):
     def play(self) -> None:
         with self._lock:
             self._advance()
-            if self._position_s >= self.duration_s:
+            if self._position_s >= self.duration_s - END_S:  # at the end (scrubbed there): from the start
                 self._position_s = 0.0
             self.paused = False
 

@@ -8,8 +8,8 @@ after it.
 
 Threads: the loop (GL, solver, handles, cameras, recording), the server (sockets, credit,
 slots), the encoder (JPEG). The loop renders for the view only when some viewer has credit for
-a frame, the encoder is free and the picture changed, at most ``max_fps`` per camera and one
-view render per loop frame; the shared camera, untouched, reuses the frame the loop already drew
+a frame, the encoder is free and the picture changed (an idle view: one keep-alive frame every
+KEEPALIVE_S), at most ``max_fps`` per camera and one view render per loop frame; the shared camera, untouched, reuses the frame the loop already drew
 for its video (no render at all). Renders for viewers take at most VIEW_SHARE of the loop's wall
 time (after a render of d seconds the next waits d (1 / VIEW_SHARE - 1) seconds): the loop's rate
 comes first; viewers (one shared camera, or their own) share what is left.
@@ -27,11 +27,12 @@ from pathlib import Path
 import numpy as np
 
 from puppet.errors import PuppetError
+from puppet.events import EVENT_KINDS
 from puppet.view.address import Access, bind, parse_address
 from puppet.view.encoder import FrameEncoder
 from puppet.view.handles import Handle, drag_target, project, surface_bary, surface_point
 from puppet.view.orbit import OrbitCamera
-from puppet.view.protocol import PANEL_HZ
+from puppet.view.protocol import MAX_HANDLES, PANEL_HZ
 from puppet.view.server import ViewServer
 
 log = logging.getLogger("puppet.view")
@@ -39,8 +40,24 @@ log = logging.getLogger("puppet.view")
 RING = 64                 # frames remembered for picking (about 1 s at 60 fps)
 VIEW_SHARE = 0.6          # the most of the loop's wall time spent rendering for viewers
 INTERACTION_S = 0.3       # frames are drafts until this long after the last camera/handle move
+KEEPALIVE_S = 2.0         # an idle view (nothing moved, camera still) sends one frame this often
+STILL = 1 / 2000          # a pose whose T entries all moved less than this times the model's size
+                          # is the same picture (the solver still settling; ~0.2 px at 480 px)
 ORBIT_RAD_PER_PX = 0.01
 MODES = ("live", "play", "rig")
+
+
+def bone_legend() -> list[dict]:
+    """The overlay's bone colours for the page: [{state, color ('#rrggbb', sRGB), words}]."""
+    from puppet.render.overlay import BONE_STATE_COLORS, BONE_STATE_WORDS
+
+    def srgb(c: float) -> int:
+        c = 12.92 * c if c <= 0.0031308 else 1.055 * c ** (1 / 2.4) - 0.055
+        return round(min(max(c, 0.0), 1.0) * 255)
+
+    return [{"state": state, "color": "#" + "".join(f"{srgb(c):02x}" for c in rgb),
+             "words": BONE_STATE_WORDS[state]}
+            for state, rgb in BONE_STATE_COLORS.items() if state is not None]
 
 
 class View:
@@ -102,6 +119,9 @@ class View:
         self._bone_names = list(rig.skeleton.names)
         m = pipeline.model.m
         self._ring_T = np.zeros((RING, 4 * m, 3), np.float32)
+        self._T_scratch = np.zeros((4 * m, 3), np.float32)
+        V = np.asarray(pipeline.model.V)
+        self._still_T = STILL * max(float(np.ptp(V, axis=0).max()), 1e-6)
         self._ring_seq = np.full(RING, -1, np.int64)
         self._ring_camera: list = [None] * RING
         self._last: dict[int, tuple] = {}          # camera -> (T copy, version, overlay, states, draft)
@@ -152,6 +172,7 @@ class View:
                 "servos": [{"id": i, "joint": j} for i, j in zip(self._servo_ids, self._servo_joints)],
                 "bones": self._bone_names, "handles": handles, "faults": faults,
                 "markers": markers, "overlay": self.overlay, "recording": self._recording_state(),
+                "legend": bone_legend(),
                 "panel": panel, "playback": self._playback_state()}
 
     def panel(self, camera: int) -> dict:
@@ -218,8 +239,8 @@ class View:
                     self._mark(msg["name"])
                 elif kind == "playback":
                     self._playback(msg["action"], msg["value"])
-            except PuppetError as err:
-                self._warn(f"{kind}: {err}")
+            except PuppetError as err:  # told to the page that asked
+                self._warn(f"{kind}: {err}", client, kind=f"{kind} refused")
                 if kind == "pick":  # the page's pending drag becomes an orbit
                     self.server.send_to(client, {"type": "pick_miss", "key": msg["key"]})
         for camera_id, (dx, dy, px, py, zoom) in moves.items():
@@ -246,8 +267,9 @@ class View:
             camera = self._cameras[camera_id] = self._cameras[0].copy()
         return camera
 
-    def _warn(self, text: str) -> None:
-        self.server.warn(text)
+    def _warn(self, text: str, client: str | None = None, kind: str | None = None) -> None:
+        """A warning logged and shown on the pages (client: that viewer's only), merged per kind."""
+        self.server.warn(text, client, kind)
 
     # ---- handles ------------------------------------------------------------------------------
     def _pick(self, pipeline, client: str, msg: dict) -> None:
@@ -265,7 +287,7 @@ class View:
             if client not in self._told_background:  # once per viewer: it is also how one orbits
                 self._told_background.add(client)
                 self._warn(f"a drag that started on the background (at {x}, {y}) moves no handle; "
-                           "such drags turn the camera")
+                           "such drags turn the camera", client)
             return
         triangle = int(hit.triangle)
         bary = surface_bary(hit.bary)
@@ -274,6 +296,9 @@ class View:
             self._keys[(client, msg["key"])] = existing.id
             self.server.send_to(client, {"type": "handle", "key": msg["key"], "handle": existing.id})
             return
+        if len(self._handles) >= MAX_HANDLES:
+            raise PuppetError(f"at most {MAX_HANDLES} handles: remove one (right click or double click "
+                              "on it) to pin another")
         # The handle starts where its point is now (nothing jumps), then goes where it is dragged.
         point, _ = surface_point(pipeline.model, self._F, pipeline.T, triangle, bary)
         corners = tuple(int(v) for v in self._F[triangle])
@@ -424,7 +449,8 @@ class View:
             last_t = self._last_render_s.get(camera_id, -math.inf)
             if now - last_t < period:
                 continue
-            if camera_id not in force and not self._dirty(pipeline, camera_id, now):
+            if camera_id not in force and now - last_t < KEEPALIVE_S \
+                    and not self._dirty(pipeline, camera_id, now):
                 continue
             if last_t < best_t:
                 best, best_t = camera_id, last_t
@@ -436,9 +462,14 @@ class View:
             return True
         T, version, overlay, states, draft = last
         camera = self._cameras.get(camera_id)
-        return (draft and now - self._last_interaction >= INTERACTION_S) or overlay != self.overlay \
-            or camera is None or version != camera.version or states != pipeline.bone_states \
-            or not np.array_equal(T, pipeline.T)
+        if (draft and now - self._last_interaction >= INTERACTION_S) or overlay != self.overlay \
+                or camera is None or version != camera.version or states != pipeline.bone_states:
+            return True
+        # A still pose: the solver's answer still settles by far less than a pixel per solve.
+        scratch = self._T_scratch
+        np.subtract(T, pipeline.T, out=scratch)
+        np.abs(scratch, out=scratch)
+        return bool(scratch.max() > self._still_T)
 
     def _render(self, pipeline, camera_id: int, image, reading, now: float) -> None:
         orbit = self._camera(camera_id)
@@ -494,12 +525,16 @@ class View:
             return
         self._events_seen = total
         for event in events:
+            kind = EVENT_KINDS.get(event.kind)
+            fault = kind is None or kind.fault
             item = {"t_s": round(event.t_ns / 1e9 - self._t0, 3), "kind": event.kind,
-                    "ids": list(event.ids), "detail": event.detail}
+                    "ids": list(event.ids), "detail": event.detail[:200], "fault": fault,
+                    "words": kind.words if kind is not None else event.kind}
             with self._lock:
                 self._faults.append(item)
-            for servo in event.ids:
-                self._last_fault[int(servo)] = event.kind
+            if fault:  # "last fault" names faults only, in the puppeteer's words
+                for servo in event.ids:
+                    self._last_fault[int(servo)] = item["words"]
             self.server.send_to(None, {"type": "fault", **item})
 
     def _update_panel(self, pipeline, reading, now: float) -> None:

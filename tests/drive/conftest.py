@@ -26,10 +26,11 @@ def rig():
 
 
 def _make_take(path, rig, angles_deg, *, rate_hz: float = 100.0, zero=None, ok=None,
-               ids=None, models=None, rig_name=None):
+               ids=None, models=None, rig_name=None, times_s=None):
     """Write a take of ``angles_deg`` (N, k) joint degrees as recorded by ``rig``'s servos with
     calibration ``zero`` ({id: ticks}; default the rig's). ok: (N, k) bool flags (default all).
-    ids/models/rig_name: record it as another rig would."""
+    ids/models/rig_name: record it as another rig would. times_s: (N,) reading times (default
+    every 1 / rate_hz)."""
     from puppet.reading import Reading
     from puppet.rig.calibration import Calibration
     from puppet.rig.servo_map import ServoMap
@@ -48,7 +49,8 @@ def _make_take(path, rig, angles_deg, *, rate_hz: float = 100.0, zero=None, ok=N
                     rig_name=rig_name or rig.name, overwrite=True) as writer:
         for row in range(n):
             ticks = servo_map.ticks_for(angles[row])[:len(take_ids)]
-            writer.write(Reading(t_ns=int(row / rate_hz * 1e9), ids=take_ids,
+            t_s = row / rate_hz if times_s is None else times_s[row]
+            writer.write(Reading(t_ns=int(t_s * 1e9), ids=take_ids,
                                  ticks=ticks.astype(np.int32), ok=ok[row, :len(take_ids)]))
     return path
 

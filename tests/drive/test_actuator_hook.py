@@ -67,7 +67,10 @@ def test_port_restored_leaves_the_actuator_torque_on(wait_until):
             _follows(source, bus, 2100, wait_until, "driving before the unplug")
             bus.inject("unplug", duration_s=0.3)
             wait_until(lambda: _events(source, "port_restored"), what="the port restored")
-            wait_until(lambda: _events(source, "reconfigured", 1), what="sensors reconfigured")
+            # The restore reconfigures the group's sensors (on a starved host a sensor's
+            # reconfigure can time out: either way the reader has had its go at them).
+            wait_until(lambda: _events(source, "reconfigured", 1) or _events(source, "reconfigure_failed", 1),
+                       what="sensors reconfigured")
             _follows(source, bus, 2000, wait_until, "driving after the port came back")
             assert bus.servo(ACTUATOR).get("Torque Enable") == 1
             assert all("Torque Enable" not in e.detail

@@ -364,3 +364,52 @@ def test_a_port_that_stays_gone_names_the_release_command(rig, wave_take):
             f"servo {i}: Torque Enable 0, Bus Watchdog 0 (read back)" for i in ids]
         assert _all_off(bus, rig)
         assert {bus.servo(i).get("Bus Watchdog") for i in ids} == {0}
+
+
+def test_damaged_readings_and_cut_gaps_are_said_before_the_port_opens(rig, make_take, tmp_path):
+    k = len(rig.servo_map.ids)
+    times = np.r_[np.arange(20) / 100.0, 5.0 + np.arange(20) / 100.0]  # a 4.8 s gap: cut
+    take = make_take(tmp_path / "damaged.mcap", rig, np.zeros((40, k)), times_s=times)
+    data = bytearray(take.read_bytes())
+    data[len(data) // 2] ^= 0xFF  # one reading's checksum no longer matches
+    take.write_bytes(bytes(data))
+    events = []
+    with hw_sim.serve(dict(rig.servo_map.models)) as bus:
+        report = perform(rig, TakeReader(take), bus.port, PerformOptions(**OPTIONS),
+                         log=lambda line: events.append(("log", line)),
+                         on_phase=lambda p: events.append(("phase", p)))
+        assert _all_off(bus, rig)
+    warning = next(i for i, (kind, text) in enumerate(events)
+                   if kind == "log" and text.startswith(f"warning: {take}: "))
+    assert warning < events.index(("phase", "setup"))  # before anything can turn torque on
+    said = events[warning][1]
+    assert "skipped 1 damaged record(s) (1 checksum mismatch)" in said
+    assert "1 gap(s) between readings longer than 1 s" in said
+    assert report.take_damage == said.removeprefix(f"warning: {take}: ")
+    assert f"take: {report.take_damage}" in report.text()
+    assert report.stop_reason == "end of take"
+
+
+def test_a_replay_longer_than_the_bound_needs_yes(rig, make_take, tmp_path):
+    from puppet.drive.perform import MAX_REPLAY_S
+
+    k = len(rig.servo_map.ids)
+    take = make_take(tmp_path / "long.mcap", rig, np.zeros((70, k)), rate_hz=10.0)  # 6.9 s
+    assert 6.9 / 0.01 > MAX_REPLAY_S
+    options = PerformOptions(**{**OPTIONS, "yes": False}, speed=0.01)
+    with pytest.raises(DriveError) as info:  # refused before the (missing) port is opened
+        perform(rig, TakeReader(take), "/nonexistent/port", options)
+    assert str(info.value) == (f"{take}: the replay would last 690 s at speed 0.01, over 600 s; "
+                               "give --yes to perform it")
+    assert type(info.value) is DriveError
+
+
+def test_absurd_options_are_refused_before_the_port_opens(rig, wave_take):
+    for name, bad in (("speed", float("nan")), ("speed", 0.0), ("rate_hz", float("inf")),
+                      ("watchdog_ms", float("nan")), ("watchdog_ms", 1e9)):
+        with pytest.raises(DriveError) as info:  # not a PortError: the port is never opened
+            perform(rig, TakeReader(wave_take), "/nonexistent/port",
+                    PerformOptions(**{**OPTIONS, name: bad}))
+        assert type(info.value) is DriveError
+        assert str(info.value).startswith(f"{name} must be a number ")
+        assert str(info.value).endswith(f", got {bad!r}")

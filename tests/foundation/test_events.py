@@ -44,10 +44,24 @@ def test_every_logged_event_kind_is_declared_and_every_declared_kind_is_logged()
     assert len(logged) == len(EVENT_KINDS) >= 21
 
 
-def test_every_kind_has_a_one_line_meaning():
-    for kind, meaning in EVENT_KINDS.items():
+def test_every_kind_has_a_one_line_meaning_and_words_for_a_puppeteer():
+    for kind, (meaning, fault, words) in EVENT_KINDS.items():
         assert kind.isidentifier() and kind == kind.lower()
         assert meaning.strip() == meaning and "\n" not in meaning and len(meaning) > 10
+        assert isinstance(fault, bool)
+        assert words.strip() == words and "\n" not in words and 10 < len(words) <= 80
+        assert "_" not in words  # words, not an identifier
+    assert EVENT_KINDS["servo_missing"].fault and not EVENT_KINDS["servo_recovered"].fault
+    assert not EVENT_KINDS["reconfigured"].fault and not EVENT_KINDS["hardware_error_cleared"].fault
+
+
+def test_the_summary_line_lists_faults_then_the_other_events():
+    from puppet.events import describe_counts
+
+    assert describe_counts({}) == "none"
+    assert describe_counts({"servo_recovered": 1, "servo_missing": 2, "servo_not_ok": 5}) == \
+        "servo_missing 2, servo_not_ok 5; other events: servo_recovered 1"
+    assert describe_counts({"quiet": 3}) == "none; other events: quiet 3"
 
 
 def test_the_log_refuses_an_unknown_kind_naming_it():

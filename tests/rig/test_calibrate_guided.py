@@ -9,6 +9,7 @@ import time
 import tomllib
 
 import numpy as np
+import pytest
 
 import hw_sim
 from puppet.rig import load_rig
@@ -167,3 +168,20 @@ def test_guided_write_keeps_a_named_calibration_file_in_step(tmp_path, character
     assert Calibration.load(session.calibration_file).zero_ticks == {**rest, 99: 1234}
     loaded = load_rig(rig)
     assert dict(zip(loaded.servo_map.ids.tolist(), loaded.servo_map.zero.tolist())) == rest
+
+
+def test_a_threshold_of_zero_or_below_is_refused_before_any_reading(tmp_path, character):
+    """0 would take a servo that did not move for the one that did (ids and signs swapped);
+    a negative one never ends. Refused naming the value and the range, nothing read."""
+    from puppet.rig.errors import RigError
+    from puppet.rig.guided_calibration import GuidedCalibration
+
+    session = GuidedCalibration(_rig(tmp_path, character))
+    rest = {21: 2000, 14: 2000, 7: 2000, 3: 2000}
+    for bad in (0, -5, 1e9, float("nan")):
+        read = _Script(list(rest), [rest])
+        with pytest.raises(RigError) as info:
+            session.run(read, read(), say=lambda text: None, threshold_ticks=bad)
+        assert info.value.field == "threshold_ticks"
+        assert info.value.message.startswith("must be an integer 8..2048 ticks, got ")
+        assert read.k == 1  # only the rest reading given to run(); nothing more was read

@@ -15,6 +15,7 @@ import numpy as np
 import pytest
 
 from puppet.rig import builtin
+from puppet.view.view import KEEPALIVE_S
 
 
 def run_puppet(tools, *args, timeout=300):
@@ -81,6 +82,13 @@ def test_view_beyond_loopback_needs_the_token_and_poses_by_drags(new_page, tools
         page = tools.open_view(new_page, f"{local}?token={token}")
         page.screenshot(path=str(tmp_path / "view_rest.png"))
         assert page.evaluate("puppetView.mode") == "rig"
+        # Refused requests are logged on the server (merged), never shown to the pages.
+        panels = page.evaluate("puppetView.panels")
+        for i in range(30):
+            with pytest.raises(urllib.error.HTTPError):
+                urllib.request.urlopen(f"{local}probe{i}", timeout=30)
+        tools.wait_js(page, f"puppetView.panels > {panels} + 5")
+        assert not any("refused" in n["text"] for n in page.evaluate("puppetView.notices"))
         tx, ty = tools.drag_tail(page)
         tools.wait_until(lambda: tools.is_character(tools.frame_image(page)[ty - 4:ty + 5, tx - 4:tx + 5]),
                          what="the dragged tail")
@@ -92,8 +100,9 @@ def test_view_beyond_loopback_needs_the_token_and_poses_by_drags(new_page, tools
     assert "refused / from 127.0.0.1: missing or wrong token" in view.stderr()
 
 
-def write_take(path, seconds: float = 3.0, rate_hz: float = 100.0):
-    """A take of the built-in rig whose servos swing: written as the recorder writes."""
+def write_take(path, seconds: float = 3.0, rate_hz: float = 100.0, marks=()):
+    """A take of the built-in rig whose servos swing: written as the recorder writes.
+    marks: (seconds into the take, name) stored as the view's marker button stores them."""
     from puppet.bus import Reading
     from puppet.cli.common import take_writer
 
@@ -105,6 +114,8 @@ def write_take(path, seconds: float = 3.0, rate_hz: float = 100.0):
         t = i / rate_hz
         ticks = (zero + 300 * math.sin(2 * math.pi * t / 1.5)).astype(np.int32)
         writer.write(Reading(1_000_000_000 + int(t * 1e9), ids, ticks, np.ones(len(ids), bool)))
+    for t, name in marks:
+        writer.mark(1_000_000_000 + int(t * 1e9), name)
     writer.close()
 
 
@@ -128,6 +139,55 @@ def test_play_view_pauses_and_seeks(new_page, tools, tmp_path):
         page.click("#pause")  # play on, at half speed, to the end
         tools.wait_js(page, "puppetView.playback.speed === 0.5 && puppetView.playback.paused "
                             "&& puppetView.playback.position_s === puppetView.playback.duration_s")
+    finally:
+        status = play.stop()
+    assert status == 0, play.stderr()
+    assert "Traceback" not in play.stderr()
+
+
+def test_play_view_shows_the_takes_marks_and_plays_again_from_the_end(new_page, tools, tmp_path):
+    take = tmp_path / "marked.mcap"
+    write_take(take, marks=[(0.5, "lift"), (2.0, "a rather long mark name that must not overflow")])
+    play = tools.PuppetProcess(["play", str(take), "--view", str(tools.free_port())], tmp_path)
+    try:
+        page = tools.open_view(new_page, play)
+        tools.wait_js(page, "puppetView.takeMarks.length === 2")
+        ticks = page.evaluate("Array.from(document.querySelectorAll('#take-marks option'), o => Number(o.value))")
+        assert ticks == [0.5, 2.0]  # on the slider, at the marks' play times
+        buttons = page.locator("#take-mark-list button")
+        assert buttons.count() == 2
+        assert buttons.nth(0).inner_text().startswith("lift")
+        page.click("#pause")
+        tools.wait_js(page, "puppetView.playback.paused && !puppetView.draft")
+        # Paused: nothing moves, so once the solver settled (a second or two) only a keep-alive
+        # frame now and then (it streamed 17-20 frames per second before).
+        paused_at = page.evaluate("performance.now()")
+        tools.wait_js(page, f"performance.now() > {paused_at} + 2000")
+        shown, start = page.evaluate("[puppetView.shown, performance.now()]")
+        tools.wait_js(page, f"performance.now() > {start} + 6000")
+        assert page.evaluate("puppetView.shown") - shown <= 6 / KEEPALIVE_S + 2
+        # A plain click on the character pins nothing (a handle needs a drag of a few pixels).
+        bone = page.evaluate("puppetView.bones[Math.floor(puppetView.bones.length / 2)]")
+        box = page.locator("#marks").bounding_box()
+        scale = box["width"] / page.evaluate("puppetView.width")
+        page.mouse.click(box["x"] + (bone["a"][0] + bone["b"][0]) / 2 * scale,
+                         box["y"] + (bone["a"][1] + bone["b"][1]) / 2 * scale)
+        panels = page.evaluate("puppetView.panels")
+        tools.wait_js(page, f"puppetView.panels > {panels} + 5")
+        assert page.evaluate("puppetView.handles.length") == 0
+        assert page.evaluate("puppetView.lastPick") is None
+        buttons.nth(1).click()  # jump to the mark
+        tools.wait_js(page, "Math.abs(puppetView.playback.position_s - 2.0) < 0.01")
+        buttons.nth(0).click()
+        tools.wait_js(page, "Math.abs(puppetView.playback.position_s - 0.5) < 0.01")
+        # Scrub to the end, then play: it plays again from the start.
+        page.evaluate("const s = document.getElementById('scrub'); s.value = s.max;"
+                      "s.dispatchEvent(new Event('input')); s.dispatchEvent(new Event('change'));")
+        tools.wait_js(page, "puppetView.playback.position_s >= puppetView.playback.duration_s - 0.01")
+        page.click("#pause")
+        tools.wait_js(page, "!puppetView.playback.paused && puppetView.playback.position_s > 0.1 "
+                            "&& puppetView.playback.position_s < puppetView.playback.duration_s - 0.1")
+        assert page.evaluate("document.documentElement.scrollWidth <= innerWidth")
     finally:
         status = play.stop()
     assert status == 0, play.stderr()

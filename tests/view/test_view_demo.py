@@ -25,6 +25,10 @@ def test_frames_arrive_and_change(new_page, demo, tmp_path, tools):
     changed = np.abs(first.astype(int) - second.astype(int)).max(axis=2) > 30
     assert changed.sum() > 100  # the critter moved between the two frames
     tools.wait_js(page, "puppetView.panel && puppetView.panel.latency_ms.median !== null")
+    # This tab's own reading -> drawn latency is what the page shows.
+    own = tools.wait_js(page, "puppetView.panel.viewer.latency_ms.median !== null && puppetView.panel.viewer.latency_ms")
+    assert 0 < own["median"] <= own["p99"]
+    tools.wait_until(lambda: page.inner_text("#latency") != "–", what="the page's latency shown")
 
 
 def test_servo_panel_flags_a_dropped_servo(new_page, demo, tmp_path, tools):
@@ -213,3 +217,28 @@ def test_a_slow_viewer_gets_fewer_frames_and_drops_are_counted(new_page, demo, t
     assert result["after_ack"][3] > second[3] + 3  # the newest frame, not the next in a queue
     count = page.evaluate("puppetView.shown")
     tools.wait_js(page, f"puppetView.shown > {count} + 5")  # the page was not slowed down
+
+
+def test_the_page_fits_every_width(new_page, demo, tmp_path, tools):
+    page = tools.open_view(new_page, demo)
+    tools.wait_js(page, "document.querySelectorAll('#servos tbody tr').length > 0")
+    # The longest words the table can get: a fault's words and a joint name without spaces.
+    page.evaluate("const row = document.querySelector('#servos tbody tr');"
+                  "row.cells[1].textContent = 'a_joint_name_much_longer_than_the_column'.repeat(3);")
+    legend = page.evaluate("Array.from(document.querySelectorAll('#legend li'), li => li.textContent)")
+    assert any(text.startswith("faulted: servo not answering") for text in legend)
+    for width, height in ((390, 844), (1024, 768), (1366, 768), (1920, 1080)):
+        page.set_viewport_size({"width": width, "height": height})
+        tools.wait_js(page, f"innerWidth === {width}")
+        page.screenshot(path=str(tmp_path / f"layout_{width}.png"), full_page=True)
+        assert page.evaluate("document.documentElement.scrollWidth <= innerWidth"), width
+        stage = page.locator("#stage").bounding_box()
+        side = page.locator("#side").bounding_box()
+        toolbar = page.locator("#toolbar").bounding_box()
+        assert stage["x"] >= 0 and stage["x"] + stage["width"] <= width
+        assert toolbar["x"] + toolbar["width"] <= width
+        assert abs(stage["width"] / stage["height"] - 640 / 480) < 0.02
+        if width >= 1024:  # the panel beside the stage, its top in view
+            assert side["x"] >= stage["x"] + stage["width"] and side["y"] < height / 2, (width, side)
+        else:  # below it
+            assert side["y"] >= stage["y"] + stage["height"], (width, side)

@@ -281,3 +281,22 @@ def test_take_source_shows_the_take_by_its_one_rule():
         assert got.ticks.tolist() == frames.at(position).ticks.tolist()
     source.seek(0.6)  # half way through the cut gap: half way from 100 to 300, 4090 to 10 (wrap)
     assert source.latest(timeout=1.0).ticks.tolist() == [200, 4096 + 2]
+
+
+def test_page_messages_parse_bounded_and_notices_merge_per_kind():
+    from puppet.view.guard import RateLimit, Throttle, parse_message
+
+    assert parse_message("[" * 2000 + "]" * 2000) is None  # no RecursionError: refused unparsed
+    assert parse_message('{"type": "orbit", "dx": 1, "dy": 2}') == {"type": "orbit", "dx": 1, "dy": 2}
+    assert parse_message("[1, 2]") is None
+    limit = RateLimit(rate_per_s=10, burst=3)
+    assert [limit.take(0.0) for _ in range(4)] == [True, True, True, False]
+    assert limit.take(0.1) is True and limit.refused == 1  # 0.1 s at 10 per second: one more
+    notes = Throttle(every_s=2.0)
+    assert notes.offer("bad", "bad 1", 0.0) == "bad 1"
+    assert notes.offer("bad", "bad 2", 0.5) is None
+    assert notes.offer("bad", "bad 3", 1.0) is None
+    assert notes.offer("other", "other 1", 1.0) == "other 1"
+    assert notes.due(1.5) == []
+    assert notes.due(2.0) == ["bad 3 (and 1 more like it)"]
+    assert notes.due(5.0) == []

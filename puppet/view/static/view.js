@@ -6,6 +6,9 @@
 const HEADER = 24;
 const FLAG_DRAFT = 1;
 const HANDLE_RADIUS = 7;
+const PIN_DRAG_PX = 4;     // a press pins a point only once the pointer moved this far (screen px): a click pins nothing
+const MAX_NOTICES = 50;    // notices kept (state.notices and the list): the newest
+const MAX_FAULTS = 200;    // bus events kept
 
 const query = new URLSearchParams(location.search);
 const token = query.get("token");
@@ -16,8 +19,9 @@ const state = {
   client, viewer: null, mode: null, width: 640, height: 480,
   shownSeq: -1, shown: 0, draft: false, drafts: 0, fps: 0, shownTimes: [],
   servos: [], handles: [], handleSpots: [], bones: [], overlay: true, ownCamera: false,
-  recording: { on: false }, faults: [], markers: [], notices: [], panel: null, playback: null,
+  recording: { on: false }, faults: [], markers: [], notices: [], panel: null, playback: null, takeMarks: [],
   connected: { frames: false, control: false }, lastPick: null,
+  panels: 0, panelTimes: [],  // panel updates received; arrival times (ms, performance.now), newest 600
 };
 window.puppetView = state;
 
@@ -47,6 +51,7 @@ function connectFrames() {
   frames.onclose = () => { state.connected.frames = false; showConnection(); setTimeout(connectFrames, 1000); };
   frames.onmessage = event => {
     const data = event.data;
+    const arrived = performance.now();
     if (!(data instanceof ArrayBuffer) || data.byteLength <= HEADER) return;
     const head = new DataView(data, 0, HEADER);
     const flags = head.getUint8(1);
@@ -60,6 +65,8 @@ function connectFrames() {
         frameCanvas.width = marks.width = bitmap.width;
         frameCanvas.height = marks.height = bitmap.height;
         state.width = bitmap.width; state.height = bitmap.height;
+        document.documentElement.style.setProperty("--frame-w", `${bitmap.width}px`);
+        $("stage").style.aspectRatio = `${bitmap.width} / ${bitmap.height}`;
       }
       frameCtx.drawImage(bitmap, 0, 0);
       bitmap.close();
@@ -71,7 +78,9 @@ function connectFrames() {
       state.shownTimes.push(now);
       while (state.shownTimes.length && now - state.shownTimes[0] > 2000) state.shownTimes.shift();
     }, () => {}).finally(() => {
-      if (socket.readyState === WebSocket.OPEN) socket.send(JSON.stringify({ type: "ack", seq }));
+      // drawn_ms: arrival -> drawn on this page's clock (the server splits its latency with it).
+      const drawnMs = Math.round((performance.now() - arrived) * 100) / 100;
+      if (socket.readyState === WebSocket.OPEN) socket.send(JSON.stringify({ type: "ack", seq, drawn_ms: drawnMs }));
     });
   };
 }
@@ -106,7 +115,8 @@ const handlers = {
     state.viewer = m.viewer; state.mode = m.mode; state.servos = m.servos; state.handles = m.handles;
     state.faults = m.faults.slice(); state.markers = m.markers.slice(); state.overlay = m.overlay;
     buildServoTable(m.servos);
-    $("faults").replaceChildren(); m.faults.forEach(addFault);
+    $("faults").replaceChildren(); $("events").replaceChildren(); m.faults.forEach(addFault);
+    showLegend(m.legend || []);
     setOverlay(m.overlay); setRecording(m.recording);
     $("playback").hidden = m.mode !== "play";
     $("record").disabled = m.mode !== "live";  // a take of the rest pose or of a take: nothing new
@@ -114,17 +124,22 @@ const handlers = {
   },
   panel(m) {
     state.panel = m;
+    state.panels += 1;
+    state.panelTimes.push(performance.now());
+    if (state.panelTimes.length > 600) state.panelTimes.shift();
     if (m.servos) updateServos(m.servos);
     if (m.handles) state.handleSpots = m.handles;
     if (m.bones) state.bones = m.bones;
     if (m.viewer) { $("drops").textContent = m.viewer.drops + (m.drops ? ` (+${m.drops} skipped)` : ""); }
     $("loop-fps").textContent = m.loop_fps !== undefined ? m.loop_fps.toFixed(0) : "–";
-    if (m.latency_ms && m.latency_ms.median !== null) $("latency").textContent = `${m.latency_ms.median} (p99 ${m.latency_ms.p99})`;
+    // This tab's own reading -> drawn latency (each tab has its own figure).
+    const own = m.viewer && m.viewer.latency_ms;
+    if (own && own.median !== null) $("latency").textContent = `${own.median} (p99 ${own.p99})`;
     if (m.recording) setRecording(m.recording);
     if (m.playback) updatePlayback(m.playback);
     drawMarks();
   },
-  fault(m) { state.faults.push(m); addFault(m); },
+  fault(m) { state.faults.push(m); if (state.faults.length > MAX_FAULTS) state.faults.shift(); addFault(m); },
   handles(m) { state.handles = m.handles; },
   handle(m) {
     state.lastPick = { key: m.key, handle: m.handle, refactor_ms: m.refactor_ms };
@@ -152,11 +167,12 @@ function showConnection() {
 }
 
 function note(text) {
-  state.notices.push(text);
+  state.notices.push({ text, t: performance.now() });
+  if (state.notices.length > MAX_NOTICES) state.notices.shift();
   const li = document.createElement("li");
   li.textContent = text;
   $("notices").prepend(li);
-  while ($("notices").children.length > 50) $("notices").lastChild.remove();
+  while ($("notices").children.length > MAX_NOTICES) $("notices").lastChild.remove();
 }
 
 // ---- panel --------------------------------------------------------------------------------
@@ -167,7 +183,7 @@ function buildServoTable(servos) {
     const row = body.insertRow();
     row.dataset.id = s.id;
     row.insertCell().textContent = s.id;
-    row.insertCell().textContent = s.joint;
+    const joint = row.insertCell(); joint.textContent = s.joint; joint.title = s.joint;
     const angle = row.insertCell(); angle.className = "num"; angle.textContent = "–";
     row.insertCell().textContent = "–";
     row.insertCell().textContent = "";
@@ -187,15 +203,31 @@ function updateServos(servos) {
     const state = s.ok ? "state-ok" : "";
     if (row.cells[3].className !== state) row.cells[3].className = state;
     setText(row.cells[4], s.fault);
+    if (row.cells[4].title !== s.fault) row.cells[4].title = s.fault;
     if (row.classList.contains("flagged") === s.ok) row.classList.toggle("flagged", !s.ok);
   });
 }
 
+// Faults in the puppeteer's words (the kind and the bus's own detail on hover); events that are
+// not faults (a servo back, settings restored) on a quieter list of their own.
 function addFault(f) {
   const li = document.createElement("li");
-  li.textContent = `${f.t_s.toFixed(2)} s ${f.kind}${f.ids.length ? " ids " + f.ids.join(",") : ""}${f.detail ? ": " + f.detail : ""}`;
-  $("faults").prepend(li);
-  while ($("faults").children.length > 200) $("faults").lastChild.remove();
+  const servos = f.ids.length ? (f.ids.length > 1 ? "servos " : "servo ") + f.ids.join(", ") + ": " : "";
+  li.textContent = `${f.t_s.toFixed(1)} s  ${servos}${f.words || f.kind}`;
+  li.title = `${f.kind}${f.detail ? ": " + f.detail : ""}`;
+  const list = $(f.fault === false ? "events" : "faults");
+  list.prepend(li);
+  while (list.children.length > MAX_FAULTS) list.lastChild.remove();
+}
+
+function showLegend(legend) {
+  $("legend").replaceChildren(...legend.map(item => {
+    const li = document.createElement("li");
+    const swatch = document.createElement("span");
+    swatch.className = "swatch"; swatch.style.background = item.color;
+    li.append(swatch, `${item.state}: ${item.words}`);
+    return li;
+  }));
 }
 
 function setOverlay(on) { state.overlay = on; $("overlay").setAttribute("aria-pressed", String(on)); }
@@ -215,13 +247,39 @@ function updatePlayback(p) {
   scrub.max = String(p.duration_s || 1);
   if (!scrubbing) scrub.value = String(p.position_s);
   $("clock").textContent = `${p.position_s.toFixed(1)} / ${p.duration_s.toFixed(1)} s`;
-  $("pause").textContent = p.paused ? "play" : "pause";
+  $("pause").textContent = p.paused || atEnd(p) ? "play" : "pause";
+  showTakeMarks(p.markers || [], p.duration_s || 1);
+}
+
+function atEnd(p) { return p.position_s >= p.duration_s - 1e-3; }
+
+// The take's marks: ticks on the slider and a list; a click jumps there. Rebuilt only on change.
+let takeMarksKey = "";
+function showTakeMarks(markers, duration) {
+  const key = JSON.stringify(markers);
+  if (key === takeMarksKey) return;
+  takeMarksKey = key;
+  state.takeMarks = markers;
+  $("take-marks").replaceChildren(...markers.map(m => {
+    const option = document.createElement("option");
+    option.value = String(Math.min(m.t_s, duration)); option.label = m.name;
+    return option;
+  }));
+  $("take-mark-list").replaceChildren(...markers.map(m => {
+    const li = document.createElement("li");
+    const button = document.createElement("button");
+    button.className = "take-mark";
+    button.textContent = `${m.name} · ${m.t_s.toFixed(2)} s`;
+    button.onclick = () => send({ type: "playback", action: "seek", value: m.t_s });
+    li.append(button);
+    return li;
+  }));
 }
 
 // ---- marks drawn by the page (handles, the drag in progress) --------------------------------
 let marksShown = false;  // anything on the marks canvas (clearing an empty one still repaints it)
 function drawMarks() {
-  const dragging = drag && !drag.orbit && !drag.pan;
+  const dragging = drag && drag.started && !drag.orbit && !drag.pan;
   if (!marksShown && !state.handleSpots.length && !dragging) return;
   marksShown = state.handleSpots.length > 0 || dragging;
   marks.style.opacity = marksShown ? "1" : "0";  // an empty layer is left out of compositing
@@ -289,18 +347,24 @@ marks.addEventListener("pointerdown", event => {
   const [x, y] = imagePoint(event);
   const key = nextKey++;
   drag = { key, x, y, startX: x, startY: y, lastX: x, lastY: y, dirty: false, pending: false,
-           handle: null, orbit: false, pan: event.button === 1 || event.shiftKey };
+           handle: null, orbit: false, pan: event.button === 1 || event.shiftKey,
+           screenX: event.clientX, screenY: event.clientY, seq: Math.max(state.shownSeq, 0), started: false };
   if (drag.pan) return;
   const spot = handleAt(x, y);
   if (spot) {
-    drag.handle = spot.id;
+    drag.handle = spot.id; drag.started = true;
     send({ type: "grab", key, handle: spot.id });
-  } else {
-    drag.pending = true;
-    send({ type: "pick", key, seq: Math.max(state.shownSeq, 0), x, y });
   }
   drawMarks();
 });
+
+// A press on the character becomes a pick (a new handle) only once it is a drag.
+function startPick(event) {
+  if (drag.started || Math.hypot(event.clientX - drag.screenX, event.clientY - drag.screenY) < PIN_DRAG_PX) return false;
+  drag.started = true; drag.pending = true;
+  send({ type: "pick", key: drag.key, seq: drag.seq, x: drag.startX, y: drag.startY });
+  return true;
+}
 
 marks.addEventListener("pointermove", event => {
   if (!drag) return;
@@ -309,11 +373,11 @@ marks.addEventListener("pointermove", event => {
   drag.lastX = x; drag.lastY = y; drag.x = x; drag.y = y;
   if (drag.pan) queueMove("pan", dx, dy);
   else if (drag.orbit) queueMove("orbit", dx, dy);
-  else { drag.dirty = true; scheduleFlush(); }
+  else if (drag.started || startPick(event)) { drag.dirty = true; scheduleFlush(); }
 });
 
 function endDrag() {
-  if (drag && drag.dirty && !drag.orbit && !drag.pan) send({ type: "drag", key: drag.key, x: drag.x, y: drag.y });
+  if (drag && drag.started && drag.dirty && !drag.orbit && !drag.pan) send({ type: "drag", key: drag.key, x: drag.x, y: drag.y });
   drag = null;
   drawMarks();
 }
@@ -342,7 +406,11 @@ $("own").onclick = () => {
 };
 $("record").onclick = () => send({ type: "record", on: !state.recording.on });
 $("marker").onclick = () => send({ type: "marker", name: ($("marker-name").value || "mark").slice(0, 80) });
-$("pause").onclick = () => send({ type: "playback", action: state.playback && state.playback.paused ? "play" : "pause", value: 0 });
+// At the end (e.g. scrubbed there) the button plays from the start, whatever the last panel said.
+$("pause").onclick = () => {
+  const p = state.playback;
+  send({ type: "playback", action: p && (p.paused || atEnd(p)) ? "play" : "pause", value: 0 });
+};
 $("scrub").addEventListener("input", () => { scrubbing = true; send({ type: "playback", action: "seek", value: Number($("scrub").value) }); });
 $("scrub").addEventListener("change", () => { scrubbing = false; });
 $("speed").onchange = () => send({ type: "playback", action: "speed", value: Number($("speed").value) });

@@ -1,0 +1,96 @@
+"""Documented physical ranges of every number a user can give (rig file, command-line option).
+
+A ``Range`` is the one record of a limit: low and high ends (both included unless ``lo_open``),
+unit, and whether the number must be an integer. Readers check a value with ``Range.problem``
+(None when it fits, else a phrase for the error that names the field); the command line uses
+``puppet.cli.common.InRange``, a click type made from a Range. The limits of a rig-file key or an
+option are declared beside its documentation (puppet/rig/rig_file.py, solve_options.py, and the
+option's help text, which shows the range).
+
+Every number is refused when it is not a number, a bool, nan or infinite, or outside its range;
+ranges bound values to what the solver, the bus and memory can take, so nothing absurd but
+finite (``dt = 1e300``, a contact at 1e308) gets past loading.
+"""
+
+from __future__ import annotations
+
+import math
+import numbers
+import reprlib
+from dataclasses import dataclass
+
+import numpy as np
+
+_show = reprlib.Repr()
+_show.maxlevel, _show.maxstring, _show.maxother, _show.maxlist = 2, 40, 40, 4
+
+
+def _num(x: float) -> str:
+    """1000000 rather than 1e+06; 0.0001 and 2147483647 as written."""
+    return str(int(x)) if float(x).is_integer() else f"{x:g}"
+
+
+@dataclass(frozen=True)
+class Range:
+    """lo..hi in ``unit`` (both ends included; lo excluded when ``lo_open``); ``integer``: whole
+    numbers only."""
+
+    lo: float
+    hi: float
+    unit: str = ""
+    integer: bool = False
+    lo_open: bool = False
+
+    def __str__(self) -> str:
+        kind = "an integer" if self.integer else "a number"
+        span = (f"above {_num(self.lo)} up to {_num(self.hi)}" if self.lo_open
+                else f"{_num(self.lo)}..{_num(self.hi)}")
+        return f"{kind} {span}{' ' + self.unit if self.unit else ''}"
+
+    def holds(self, value) -> bool:
+        """Whether value is a number (an integer when ``integer``; numpy scalars too, never a
+        bool), finite, inside the range."""
+        if isinstance(value, (bool, np.bool_)) or not isinstance(value, numbers.Real):
+            return False
+        if self.integer and not isinstance(value, numbers.Integral):
+            return False
+        if not isinstance(value, numbers.Integral) and not math.isfinite(value):
+            return False
+        if self.lo_open:
+            return self.lo < value <= self.hi
+        return self.lo <= value <= self.hi
+
+    def problem(self, value) -> str | None:
+        """None when value holds, else 'must be <range>, got <value>' (value shown short)."""
+        return None if self.holds(value) else f"must be {self}, got {_show.repr(value)}"
+
+
+# Command-line options (their help text shows these ranges).
+BAUD = Range(9600, 10_500_000, "bit/s", integer=True)
+"""Bus speed: Dynamixel baud rates run from 9 600 to 10.5 M bit/s (X series: up to 4.5 M)."""
+SPEED = Range(0.01, 100.0, "x")
+"""Playback speed factor (1 = as recorded)."""
+FPS = Range(0.1, 1000.0, "frames/s")
+"""Frames per second of a video, PNG folder or export."""
+SECONDS = Range(0.01, 1e6, "s")
+"""How long a command runs (about 11 days at most)."""
+WATCHDOG_MS = Range(20.0, 2540.0, "ms")
+"""Bus Watchdog period (the control table counts 20 ms units up to 127: 2 540 ms)."""
+READ_RATE_HZ = Range(1.0, 2000.0, "Hz")
+"""Readings per second of the bus reader."""
+GOAL_RATE_HZ = Range(1.0, 1000.0, "Hz")
+"""Goal writes per second while performing."""
+LATENCY_MS = Range(1, 255, "ms", integer=True)
+"""USB adapter latency timer (the FTDI timer's range)."""
+WORKERS = Range(1, 1024, integer=True)
+"""batch: worker processes or CPUs."""
+FRAME_SIZE = Range(16, 8192, "px", integer=True)
+"""Width and height of rendered frames."""
+THRESHOLD_TICKS = Range(8, 2048, "ticks", integer=True)
+"""Guided calibration: ticks a joint must move to count (4096 per turn; at most half a turn)."""
+TIMEOUT_S = Range(0.1, 86_400.0, "s")
+"""Guided calibration: seconds to wait for each joint."""
+ANGLE_DEG = Range(0.0, 180.0, "degrees", lo_open=True)
+"""rig axes: the turn shown each way."""
+SKIN_INDEX = Range(0, 1_000_000, integer=True)
+"""glTF skin index."""
