@@ -72,6 +72,9 @@ def test_axes_sheet_of_a_rig_without_servos_shows_every_joint_and_refuses_its_ow
     assert iio.imread(tmp_path / "fresh.png").shape == ((pairs + 1) // 2 * PANEL_H, 4 * PANEL_W, 3)
     result = run("rig", "axes", rig, "--out", rig, "--all")
     assert result.returncode == 1 and "Traceback" not in result.stderr
+    assert f"{rig}: the axes sheet is also an input of this command" in result.stderr
+    result = run("rig", "axes", rig, "--out", tmp_path / "sheet.jpg", "--all")
+    assert result.returncode == 1 and "Traceback" not in result.stderr
     assert "the axes sheet is a PNG" in result.stderr
 
 

@@ -74,7 +74,8 @@ def test_init_refuses_to_overwrite_without_force(tmp_path, character):
     result = run("rig", "init", glb, "--force")
     assert result.returncode == 0, result.stderr
     assert rig.read_text().startswith("# Rig for beast.glb")
-    assert_error(run("rig", "init", glb, "--out", glb, "--force"), "rig file ends in .toml")
+    assert_error(run("rig", "init", glb, "--out", glb, "--force"), "is also an input")  # even forced
+    assert_error(run("rig", "init", glb, "--out", tmp_path / "beast.txt"), "rig file ends in .toml")
 
 
 def test_character_to_take_and_video(tmp_path, character):
