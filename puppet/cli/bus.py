@@ -114,7 +114,7 @@ def calibrate(rig_path: str, port: str, baud: int, out: str | None, guided: bool
         fail(_on_port(port, err))
     finally:
         reader.close()
-    path = Calibration.capture(reading.ids, reading.ticks).save(target, **rule)
+    path = Calibration.capture(reading.ids, reading.ticks).save(target, inputs=inputs, force=force)
     click.echo(f"calibration: {path}")
     for dxl_id, ticks in zip(reading.ids, reading.ticks):
         click.echo(f"  servo {int(dxl_id)}: zero {int(ticks)}")
