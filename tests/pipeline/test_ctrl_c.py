@@ -55,8 +55,11 @@ def _command(name: str, tmp_path: Path, port: str):
              "--watchdog-ms", "2000"], lambda: "phase: playback" in err.read_text())
 
 
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
 @pytest.mark.parametrize("name", ["live", "record", "play", "perform"])
-def test_one_ctrl_c_to_the_process_group_exits_0_without_a_traceback(name, tmp_path, wait_until):
+def test_one_ctrl_c_to_the_process_group_exits_0_without_a_traceback(name, sig, tmp_path,
+                                                                     wait_until):
+    """SIGINT as a terminal's Ctrl-C, SIGTERM as a service manager stopping the group."""
     rig = builtin()
     with hw_sim.serve(dict(rig.servo_map.models), motion="wave") as bus:
         argv, under_way = _command(name, tmp_path, bus.port)
@@ -68,7 +71,7 @@ def test_one_ctrl_c_to_the_process_group_exits_0_without_a_traceback(name, tmp_p
                 wait_until(lambda: proc.poll() is not None or under_way(),
                            what=f"{name} under way")
                 assert proc.poll() is None, err_path.read_text()
-                os.killpg(proc.pid, signal.SIGINT)  # Ctrl-C: every process of the group
+                os.killpg(proc.pid, sig)  # every process of the group
                 proc.communicate(timeout=2 * PATIENCE_S)
             finally:
                 if proc.poll() is None:
