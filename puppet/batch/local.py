@@ -19,7 +19,7 @@ from pathlib import Path
 
 from puppet.batch.plan import Job
 from puppet.batch.task import TakeResult, run_take, staging_folder
-from puppet.child_signals import sigint_blocked
+from puppet.child_signals import children_deaf_to_ctrl_c
 
 MAX_ATTEMPTS = 3  # tries per take whose worker dies under it
 
@@ -62,7 +62,7 @@ class _Worker:
         self.connection, child = context.Pipe()
         self.process = context.Process(target=_worker_main, args=(child, blob, str(staging_root)),
                                        daemon=True)
-        with sigint_blocked():  # a terminal's Ctrl-C is the driver's: it stops the workers
+        with children_deaf_to_ctrl_c():  # a terminal's Ctrl-C is the driver's: it stops the workers
             self.process.start()
         child.close()
         self.job: Job | None = None

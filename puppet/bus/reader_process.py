@@ -40,7 +40,7 @@ from typing import Protocol
 
 import numpy as np
 
-from puppet.child_signals import sigint_blocked
+from puppet.child_signals import children_deaf_to_ctrl_c
 from puppet.errors import PuppetError
 from puppet.events import EventLog
 from puppet.reading import Reading
@@ -164,8 +164,8 @@ def _child(shm_name, slots, port, servos, options, rate_hz, events, commands,
     shm = shared_memory.SharedMemory(name=shm_name)
     goal_shm = inbox = reader = started = None
     parent = os.getppid()
-    # SIGINT is blocked from birth (``sigint_blocked``): the parent stops us (a terminal's
-    # Ctrl-C reaches the whole group); ignored too, should anything unblock it.
+    # SIGINT is ignored from birth (``children_deaf_to_ctrl_c``): the parent stops us (a
+    # terminal's Ctrl-C reaches the whole group).
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     t_ns, ticks, ok, written, stop = _ring_arrays(shm.buf, slots, len(servos))
     if hook is not None:
@@ -292,7 +292,7 @@ class ReaderProcess:
             target=_child, name="puppet-bus-reader", daemon=True,
             args=(self._shm.name, self.slots, self.port, self.servos, self.options, self.rate_hz,
                   child_events, child_commands, self.hook, goal_name))
-        with sigint_blocked():  # a terminal's Ctrl-C is the parent's to handle: it stops us
+        with children_deaf_to_ctrl_c():  # a terminal's Ctrl-C is the parent's: it stops the child
             self._proc.start()
         # The child has its own copies now: with ours closed, its death is an end of file here
         # (a message cut by it raises instead of blocking a read forever).

@@ -104,3 +104,39 @@ def test_a_killed_live_run_leaves_its_video_under_its_name(tmp_path, wait_until)
     wait_until(lambda: not list(tmp_path.glob(".x.*")), what="no partial file left")
     frames, _ = imageio_ffmpeg.count_frames_and_secs(str(video))  # playable: it has its index
     assert frames >= 1
+
+
+def test_ctrl_c_to_batch_leaves_no_worker_traceback(tmp_path, wait_until):
+    """Batch workers are deaf to the terminal: the driver stops them; no traceback, no worker
+    left running, no staging folder left."""
+    takes = [_take(tmp_path / f"t{i}.mcap", 60.0) for i in range(2)]
+    out = tmp_path / "out"
+    err_path = tmp_path / "stderr.txt"
+    with open(err_path, "w") as err:
+        proc = subprocess.Popen(["puppet", "batch", *map(str, takes), "--out", str(out),
+                                 "--formats", "pc2,bvh", "--workers", "2"],
+                                stdout=subprocess.PIPE, stderr=err, text=True, process_group=0)
+        try:
+            wait_until(lambda: proc.poll() is not None
+                       or any(p.is_dir() for p in out.glob(".puppet-batch.*.partial/*")),
+                       what="a worker at work")
+            assert proc.poll() is None, err_path.read_text()
+            os.killpg(proc.pid, signal.SIGINT)
+            proc.communicate(timeout=2 * PATIENCE_S)
+        finally:
+            if proc.poll() is None:
+                os.killpg(proc.pid, signal.SIGKILL)
+                proc.wait()
+    stderr = err_path.read_text()
+    assert "Traceback" not in stderr and "KeyboardInterrupt" not in stderr, stderr
+    wait_until(lambda: not list(out.glob(".puppet-batch.*")), what="the staging folder removed")
+    wait_until(lambda: _group_gone(proc.pid), what="every worker of the group ended")
+
+
+def _group_gone(group: int) -> bool:
+    """True when no process of process group ``group`` is left."""
+    try:
+        os.killpg(group, 0)
+    except ProcessLookupError:
+        return True
+    return False
