@@ -42,6 +42,10 @@ from puppet.events import EventLog
 from puppet.reading import Reading
 
 READ_MODES = ("auto", "fast_sync_read", "sync_read")
+DUPLICATE_PROBES = 6
+"""Pings and single position reads that tell two servos on one id from a burst of bad CRCs."""
+DUPLICATE_PINGS_OK = 5
+"""Pings (of DUPLICATE_PROBES) that must answer for a duplicate id."""
 
 
 class ServoReader:
@@ -470,7 +474,7 @@ class ServoReader:
 
     def _failed(self, dxl_id: int, exc: ServoError, now: int) -> None:
         """Book one failed read. Timeouts in a row -> MISSING; corrupt replies in a row ->
-        DUPLICATE (ping still answers) or CORRUPT; both leave the group read and are probed.
+        DUPLICATE (ping answers, position reads never do: see _collides) or CORRUPT; both leave the group read and are probed.
         Error-status replies -> FAILING (they cost the group nothing)."""
         h = self.health[dxl_id]
         self._run[self._index[dxl_id]] = 0
@@ -481,7 +485,7 @@ class ServoReader:
         if h.state in (hs.MISSING, hs.DUPLICATE, hs.CORRUPT):
             return
         if h.corrupt_in_a_row >= self.duplicate_after:
-            h.state = hs.DUPLICATE if self._ping_answers(dxl_id) else hs.CORRUPT
+            h.state = hs.DUPLICATE if self._collides(dxl_id) else hs.CORRUPT
             self._leave_group(dxl_id, now)
             if h.state == hs.DUPLICATE:
                 self.log.add("duplicate_id", [dxl_id], f"{h.corrupt_in_a_row} corrupt replies in a row while "
@@ -494,16 +498,25 @@ class ServoReader:
             h.state = hs.FAILING
             self.log.add("servo_failed", [dxl_id], str(exc))
 
-    def _ping_answers(self, dxl_id: int) -> bool:
-        """Two servos on one id send identical ping replies (same model) that survive the
-        collision, while their differing position replies do not."""
-        for _ in range(3):
+    def _collides(self, dxl_id: int) -> bool:
+        """True when the replies look like two servos answering to one id: their ping replies
+        are identical (same model) and survive the collision, their position replies differ and
+        never do. A burst of bad CRCs spoils both alike, so ping must answer at least
+        DUPLICATE_PINGS_OK of DUPLICATE_PROBES tries and no position read may (a CRC burst that
+        passes some of its replies is taken for a duplicate at most about 0.1 % of the time)."""
+        pings = reads = 0
+        for _ in range(DUPLICATE_PROBES):
             try:
                 self.link.ping(dxl_id)
-                return True
+                pings += 1
             except ServoError:
-                continue
-        return False
+                pass
+            try:
+                self.link.read_with_status(dxl_id, ct.PRESENT_POSITION)
+                reads += 1
+            except ServoError:
+                pass
+        return pings >= DUPLICATE_PINGS_OK and reads == 0
 
     def _mark_missing(self, dxl_id: int, exc: ServoError) -> None:
         h = self.health[dxl_id]

@@ -151,6 +151,17 @@ def test_duplicate_id_is_told_from_corruption(sim, open_reader, read_until, kind
     assert reader.health[2].state == hs.OK
 
 
+def test_a_burst_of_bad_crcs_is_not_taken_for_a_duplicate_id(sim, open_reader, read_until, kinds):
+    # Replies of servo 2 corrupted 30 % of the time: ping answers now and then, and so do position
+    # reads: that is a noisy line, not two servos on one id (whose position replies never pass).
+    bus, reader = _start(sim, open_reader)
+    bus.inject("bad_crc", ids=[2], p=0.3)
+    read_until(reader, lambda r: reader.health[2].state in (hs.CORRUPT, hs.DUPLICATE),
+               what="servo 2 diagnosed after corrupt replies in a row")
+    assert reader.health[2].state == hs.CORRUPT
+    assert "duplicate_id" not in kinds(reader) and "corrupt" in kinds(reader)
+
+
 def test_hardware_error_is_reported_and_cleared_by_reboot(sim, open_reader, read_until, kinds):
     bus, reader = _start(sim, open_reader)
     bus.inject("hardware_error", ids=[3], error="overload")
