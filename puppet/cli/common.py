@@ -183,12 +183,12 @@ def rig_files(rig) -> list[Path]:
     return loaded_files(rig)
 
 
-def check_take_path(take_path: str, rig, *, force: bool, inputs=()) -> Path:
-    """Refuse a take path that is one of the rig's files (or ``inputs``), a device or FIFO, or
-    an existing file without --force."""
+def check_take_path(take_path: str, rig, *, force: bool) -> Path:
+    """Refuse a take path that is one of the rig's files, a device or FIFO, or an existing file
+    without --force (``puppet.atomic``'s rule)."""
     from puppet.atomic import check_output
 
-    return check_output(take_path, kind="take", inputs=[*rig_files(rig), *inputs], force=force,
+    return check_output(take_path, kind="take", inputs=rig_files(rig), force=force,
                         keep_existing=True, what="take")
 
 
