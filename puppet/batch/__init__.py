@@ -10,10 +10,11 @@ store). Modules: plan (takes, outputs, resume), task (the worker's work), local 
 (the engines), run (the driver and its report).
 """
 
+from puppet.batch.cancel import BatchCancelled
 from puppet.batch.errors import BatchError
 from puppet.batch.plan import DEFAULT_FORMATS, FORMATS, SUFFIXES
 from puppet.batch.run import ENGINES, BatchReport, run_batch
 from puppet.batch.task import TakeResult
 
-__all__ = ["BatchError", "BatchReport", "DEFAULT_FORMATS", "ENGINES", "FORMATS", "SUFFIXES",
-           "TakeResult", "run_batch"]
+__all__ = ["BatchCancelled", "BatchError", "BatchReport", "DEFAULT_FORMATS", "ENGINES", "FORMATS",
+           "SUFFIXES", "TakeResult", "run_batch"]

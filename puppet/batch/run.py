@@ -13,18 +13,19 @@ from __future__ import annotations
 
 import os
 import pickle
-import shutil
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
 from puppet.atomic import OutputError, atomic_output, check_output
+from puppet.batch.cancel import BatchCancelled, cancel_on_signals, held
 from puppet.batch.errors import BatchError
 from puppet.batch.local import LocalEngine
 from puppet.batch.plan import (DEFAULT_FORMATS, KINDS, Job, expand_takes, is_done, parse_formats,
                                plan_jobs, prepare_out)
 from puppet.batch.ray_engine import RayEngine
+from puppet.batch.staging import Staging, node_temp, remove_stale
 from puppet.batch.task import Settings, Shared, TakeResult
 from puppet.loop import RigPrecompute
 from puppet.rig import Rig
@@ -100,13 +101,17 @@ def _check_settings(fps, up: str, size) -> tuple[float, tuple[int, int]]:
     return fps_value, (width, height)
 
 
-def make_engine(engine: str, workers: int | None, address: str | None):
+def make_engine(engine: str, workers: int | None, address: str | None, *,
+                retries: int | None = None, take_timeout: float | None = None):
+    limits = dict(take_timeout=take_timeout)
+    if retries is not None:
+        limits["retries"] = retries
     if engine == "local":
         if address:
             raise BatchError("--address is for --engine ray")
-        return LocalEngine(workers)
+        return LocalEngine(workers, **limits)
     if engine == "ray":
-        return RayEngine(workers, address)
+        return RayEngine(workers, address, **limits)
     raise BatchError(f"--engine: {engine!r} is not one of {ENGINES}")
 
 
@@ -114,6 +119,7 @@ def run_batch(takes: list[str], out: str | os.PathLike, *, rig: Rig, rig_inputs:
               default_rig: bool = False, formats=DEFAULT_FORMATS, fps=30.0, up: str = "y",
               size=(640, 480), engine: str = "local", workers: int | None = None,
               address: str | None = None, resume: bool = False, force: bool = False,
+              retries: int | None = None, take_timeout: float | None = None,
               on_start: Callable[[int], None] | None = None,
               on_result: Callable[[TakeResult], None] | None = None) -> BatchReport:
     """Solve and write every take; see the module docstring for the order of checks.
@@ -123,7 +129,12 @@ def run_batch(takes: list[str], out: str | os.PathLike, *, rig: Rig, rig_inputs:
     compares times with them); default_rig: no rig was named (takes must be the built-in's).
     formats: of plan.FORMATS; fps, up, size: as ``puppet export`` / ``puppet play``.
     engine: 'local' or 'ray'; workers: processes (local) or CPUs of a local Ray (default: cores);
-    address: a Ray cluster. resume: skip takes whose outputs are all newer than their inputs.
+    address: a Ray cluster (None: a private instance). resume: skip takes whose outputs are all
+    newer than their inputs. retries: tries after the first of a take whose worker died
+    (default 2); take_timeout: seconds a take may run (default: task.take_timeout_s's, scaled
+    by the take's length).
+    SIGINT or SIGTERM (on the main thread) stops every worker, removes the staging folders and
+    raises cancel.BatchCancelled with the report so far (unfinished takes: cancelled).
     on_start(number of takes to run) and on_result(result) drive a progress bar.
     """
     start = time.perf_counter()
@@ -134,8 +145,9 @@ def run_batch(takes: list[str], out: str | os.PathLike, *, rig: Rig, rig_inputs:
     inputs = [Path(p) for p in rig_inputs]
     paths = expand_takes(takes)
     folder = prepare_out(out)
+    remove_stale(folder)  # what a killed batch left (its lock is free): resume or not
     jobs = plan_jobs(paths, folder, formats, inputs, force=force)
-    runner = make_engine(engine, workers, address)
+    runner = make_engine(engine, workers, address, retries=retries, take_timeout=take_timeout)
     report = BatchReport(engine=engine, workers=workers or getattr(runner, "workers", None))
     rows: dict[Path, TakeResult] = {}
     todo: list[Job] = []
@@ -145,41 +157,59 @@ def run_batch(takes: list[str], out: str | os.PathLike, *, rig: Rig, rig_inputs:
                                         files={f: str(p) for f, p in job.outputs.items()})
         else:
             todo.append(job)
-    if todo:
-        runner.check()  # Ray imported and reached before the precompute and any take
     try:
-        if todo:
-            precompute = RigPrecompute.for_rig(rig)
-            report.precompute_s = precompute.seconds
-            report.precompute_bytes = precompute.nbytes()
-            shared = Shared(rig=rig, default_rig=default_rig, precompute=precompute,
-                            settings=Settings(formats=formats, fps=fps, up=up, size=size))
-            blob = pickle.dumps(shared, protocol=pickle.HIGHEST_PROTOCOL)
-            report.shared_bytes = len(blob)
-            if on_start is not None:
-                on_start(len(todo))
-
-            def finished(job: Job, result: TakeResult) -> None:
-                if result.error is None:
-                    _commit(job, result, [*paths, *inputs], force)
-                rows[job.take] = result
-                if on_result is not None:
-                    on_result(result)
-
-            staging_root = folder / f".puppet-batch.{os.getpid()}.partial"
+        with cancel_on_signals():
             try:
-                if isinstance(runner, RayEngine):
-                    runner.run(todo, shared, finished)
-                else:
-                    staging_root.mkdir(exist_ok=True)
-                    runner.run(todo, blob, staging_root, finished)
+                if todo:
+                    _run(todo, runner, rig, default_rig, Settings(formats=formats, fps=fps,
+                                                                 up=up, size=size),
+                         folder, report, rows, [*paths, *inputs], force, on_start, on_result)
             finally:
-                shutil.rmtree(staging_root, ignore_errors=True)  # what dead workers left
-    finally:
-        runner.close()
+                runner.close()
+    except BatchCancelled as stop:
+        report.rows = [rows.get(job.take) or TakeResult(
+            take=str(job.take), error=f"cancelled ({stop.signal_name})") for job in jobs]
+        report.seconds = time.perf_counter() - start
+        raise BatchCancelled(stop.signal_name, report) from None
     report.rows = [rows[job.take] for job in jobs]
     report.seconds = time.perf_counter() - start
     return report
+
+
+def _run(todo: list[Job], runner, rig: Rig, default_rig: bool, settings: Settings, folder: Path,
+         report: BatchReport, rows: dict, inputs: list[Path], force: bool, on_start, on_result
+         ) -> None:
+    """Start the engine, precompute the rig once, run the takes, commit each as it ends."""
+    runner.check()  # Ray imported and reached before the precompute and any take
+    if isinstance(runner, RayEngine):
+        remove_stale(node_temp())  # what killed batches' tasks left on this machine
+    precompute = RigPrecompute.for_rig(rig)
+    report.precompute_s = precompute.seconds
+    report.precompute_bytes = precompute.nbytes()
+    shared = Shared(rig=rig, default_rig=default_rig, precompute=precompute, settings=settings)
+    blob = pickle.dumps(shared, protocol=pickle.HIGHEST_PROTOCOL)
+    report.shared_bytes = len(blob)
+    if on_start is not None:
+        on_start(len(todo))
+
+    def finished(job: Job, result: TakeResult) -> None:
+        with held():  # a take's files go into place whole, or not at all
+            if result.error is None:
+                _commit(job, result, inputs, force)
+            rows[job.take] = result
+        if on_result is not None:
+            on_result(result)
+
+    stagings = [Staging(folder)]  # the workers' files (local), the driver's temporaries
+    try:
+        if isinstance(runner, RayEngine):
+            stagings.append(Staging(node_temp()))  # the tasks' files on this machine
+            runner.run(todo, shared, stagings[0].path.name, finished)
+        else:
+            runner.run(todo, blob, stagings[0].path, finished)
+    finally:
+        for staging in stagings:
+            staging.remove()  # also what stopped or dead workers left
 
 
 def _commit(job: Job, result: TakeResult, inputs: list[Path], force: bool) -> None:

@@ -63,7 +63,8 @@ class TakeResult:
     files: {format: path of the finished file in the staging folder}; data: {format: bytes} when the worker sends
     the files back (Ray); error: why the take failed (None when it did), its outputs untouched;
     warning: e.g. a damaged take's recovery report; attempts: tries it took (a dead worker's
-    take is retried); worker: "host:pid" that ran it.
+    take is retried); worker: "host:pid" that ran it; log_lines: the task's own output lines
+    (Ray), colour codes removed.
     """
 
     take: str
@@ -77,6 +78,30 @@ class TakeResult:
     attempts: int = 1
     worker: str = ""
     skipped: bool = False
+    log_lines: list[str] = field(default_factory=list)
+
+
+TIMEOUT_BASE_S = 120.0
+TIMEOUT_PER_SECOND = 60.0
+"""The default --take-timeout: TIMEOUT_BASE_S + TIMEOUT_PER_SECOND x the take's length in
+seconds (a 10 s take: 12 min). A video costs about 1 CPU second per second of take here (render
+and encode, docs/scale.md), exports far less: the default is for a machine tens of times slower
+or busier, while a hung take still frees its worker."""
+
+
+def take_timeout_s(take: Path, limit_s: float | None) -> float:
+    """Seconds a take may run: ``limit_s`` (--take-timeout) when given, else the default scaled
+    by the take's length (a take that cannot be read gets the base: it fails at once anyway)."""
+    if limit_s is not None:
+        return float(limit_s)
+    from puppet.take import TakeReader
+
+    try:
+        with TakeReader(take) as reader:
+            seconds = reader.duration_s()
+    except Exception:  # noqa: BLE001 - a bad take is the task's to report, in its row
+        seconds = 0.0
+    return TIMEOUT_BASE_S + TIMEOUT_PER_SECOND * seconds
 
 
 def staging_folder(root: Path, job: Job) -> Path:
@@ -121,8 +146,10 @@ def run_take(job: Job, shared: Shared, staging: Path) -> TakeResult:
                         summary = play_take(rig, reader, [sink], frames=frames, solved=writers,
                                             antialias=settings.antialias, size=settings.size,
                                             precompute=shared.precompute)
-                    finally:
-                        sink.close()
+                    except BaseException:  # a failure, or the worker stopped: encoder killed
+                        sink.abort()
+                        raise
+                    sink.close()
             result.frames = summary.frames
         result.files = {fmt: str(staging / name) for fmt, name in names.items()}
     except (PuppetError, OSError) as err:

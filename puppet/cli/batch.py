@@ -10,6 +10,11 @@ import click
 from puppet import limits
 from puppet.cli.common import InRange, force_option, load_rig, rig_files
 
+EXIT_DONE = 0       # every take done (or up to date with --resume)
+EXIT_SETUP = 1      # nothing done: a setup error (`Error: ...`: an option, the takes, --out, Ray)
+EXIT_FAILED = 3     # some takes failed or timed out (their rows say why); the others are written
+# cancelled by SIGINT or SIGTERM: 128 + the signal's number (130, 143), as a shell reports it
+
 
 @click.command()
 @click.argument("takes", nargs=-1)
@@ -34,14 +39,25 @@ from puppet.cli.common import InRange, force_option, load_rig, rig_files
 @click.option("--workers", type=InRange(limits.WORKERS), default=None,
               help=f"Worker processes (local) or CPUs of a Ray started here ({limits.WORKERS}) "
                    "[default: cores].")
+@click.option("--retries", type=InRange(limits.RETRIES), default=2, show_default=True,
+              help="Tries after the first of a take whose worker died (killed, out of memory).")
+@click.option("--take-timeout", "take_timeout", type=InRange(limits.SECONDS), default=None,
+              metavar="SECONDS",
+              help="Fail a take that runs longer and free its worker [default: 120 s + 60 s "
+                   "per second of take].")
 @click.option("--resume", is_flag=True,
               help="Skip takes whose outputs all exist and are newer than the take and the rig.")
 @click.option("--json", "as_json", is_flag=True, help="Print the report as one JSON line.")
 @force_option
 def batch(takes: tuple[str, ...], out: str, rig_path: str | None, formats: str, fps: str,
           size: tuple[int, int], up: str, engine: str, address: str | None, workers: int | None,
-          resume: bool, as_json: bool, force: bool) -> None:
+          retries: int, take_timeout: float | None, resume: bool, as_json: bool,
+          force: bool) -> None:
     """Solve and write every take; a failed take is reported and the others go on.
+
+    Exit status: 0 all done; 1 nothing done (setup error); 3 some takes failed or timed out;
+    130 / 143 cancelled by SIGINT (Ctrl-C) / SIGTERM: every worker stopped, staging removed,
+    the summary so far printed.
 
     \b
     Examples:
@@ -49,7 +65,7 @@ def batch(takes: tuple[str, ...], out: str, rig_path: str | None, formats: str, 
       puppet batch session/ --out videos/ --formats mp4 --size 1280 720 --resume
       puppet batch session/*.mcap --out exports/ --engine ray --address 10.0.0.5:6379
     """
-    from puppet.batch import BatchError, run_batch
+    from puppet.batch import BatchCancelled, BatchError, run_batch
 
     if not takes:
         raise BatchError("no takes given: name take files, folders or patterns (session/*.mcap)")
@@ -70,14 +86,26 @@ def batch(takes: tuple[str, ...], out: str, rig_path: str | None, formats: str, 
         report = run_batch(list(takes), out, rig=rig, rig_inputs=rig_files(rig),
                            default_rig=rig_path is None, formats=formats, fps=fps, up=up,
                            size=size, engine=engine, workers=workers, address=address,
-                           resume=resume, force=force, on_start=on_start, on_result=on_result)
+                           resume=resume, force=force, retries=retries,
+                           take_timeout=take_timeout, on_start=on_start, on_result=on_result)
+    except BatchCancelled as stop:
+        if bar is not None:
+            bar.__exit__(None, None, None)
+            bar = None
+        report = stop.report
+        click.echo(json.dumps(report.as_dict()) if as_json else report.table())
+        click.echo(f"cancelled by {stop.signal_name}: every worker stopped, staging removed",
+                   err=True)
+        raise click.exceptions.Exit(stop.exit_status) from None
     finally:
         if bar is not None:
             bar.__exit__(None, None, None)
     click.echo(json.dumps(report.as_dict()) if as_json else report.table())
     if report.failed:
-        raise click.ClickException(f"{len(report.failed)} of {len(report.rows)} takes failed "
-                                   "(see the table); the others are written")
+        failed = click.ClickException(f"{len(report.failed)} of {len(report.rows)} takes "
+                                      "failed (see the table); the others are written")
+        failed.exit_code = EXIT_FAILED
+        raise failed
 
 
 COMMANDS = (batch,)
