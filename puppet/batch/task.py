@@ -97,6 +97,8 @@ def take_timeout_s(take: Path, limit_s: float | None) -> float:
     from puppet.take import TakeReader
 
     try:
+        if not take.is_file():  # a FIFO would block the driver: the task reports it
+            raise OSError
         with TakeReader(take) as reader:
             seconds = reader.duration_s()
     except Exception:  # noqa: BLE001 - a bad take is the task's to report, in its row
