@@ -48,9 +48,11 @@ class BatchCancelled(KeyboardInterrupt):
 
 
 class _State:
+    active = False       # inside cancel_on_signals (main thread)
     held = 0             # depth of held() blocks
     pending: str | None = None
     cancelled: str | None = None
+    received = None      # the Received of the active block
 
 
 _state = _State()
@@ -63,24 +65,49 @@ def _on_signal(signum, _frame) -> None:
     if _state.held:
         _state.pending = _state.pending or name
         return
+    _cancel(name)
+
+
+def _cancel(name: str) -> None:
     _state.cancelled = name
+    if _state.received is not None:
+        _state.received.signal_name = name
     raise BatchCancelled(name)
 
 
+class Received:
+    """What ``cancel_on_signals`` yields: ``signal_name`` of the first signal, None until one
+    came (a library that turned our BatchCancelled into a plain KeyboardInterrupt, as Ray's
+    wait does, loses the name: it is kept here)."""
+
+    signal_name: str | None = None
+
+
 @contextmanager
-def cancel_on_signals() -> Iterator[None]:
+def cancel_on_signals() -> Iterator[Received]:
     """SIGINT and SIGTERM raise BatchCancelled inside this block (main thread only)."""
+    received = Received()
     if threading.current_thread() is not threading.main_thread():
-        yield
+        yield received
         return
     previous = {s: signal.signal(s, _on_signal) for s in SIGNALS}
-    _state.held, _state.pending, _state.cancelled = 0, None, None
+    _state.held, _state.pending, _state.cancelled, _state.active = 0, None, None, True
+    _state.received = received
     try:
-        yield
+        yield received
     finally:
         for s, handler in previous.items():
             signal.signal(s, signal.SIG_DFL if handler is None else handler)
-        _state.held, _state.pending, _state.cancelled = 0, None, None
+        _state.held, _state.pending, _state.cancelled, _state.active = 0, None, None, False
+        _state.received = None
+
+
+def reclaim_signals() -> None:
+    """Set our handlers again inside ``cancel_on_signals`` after a library replaced them (``ray.init``
+    sets its own SIGTERM handler, and its core a C-level one)."""
+    if _state.active and threading.current_thread() is threading.main_thread():
+        for s in SIGNALS:
+            signal.signal(s, _on_signal)
 
 
 @contextmanager
@@ -93,5 +120,4 @@ def held() -> Iterator[None]:
         _state.held -= 1
         if not _state.held and _state.pending is not None and _state.cancelled is None:
             name, _state.pending = _state.pending, None
-            _state.cancelled = name
-            raise BatchCancelled(name)
+            _cancel(name)

@@ -44,6 +44,7 @@ from collections.abc import Callable
 from contextlib import contextmanager
 from pathlib import Path
 
+from puppet.batch.cancel import reclaim_signals
 from puppet.batch.errors import BatchError
 from puppet.batch.plan import Job
 from puppet.batch.staging import node_temp
@@ -207,6 +208,7 @@ class RayEngine:
             self.close()
             where = f"--address {self.address}" if self.address else "--engine ray"
             raise BatchError(f"{where}: cannot start or reach Ray: {err}") from None
+        reclaim_signals()  # Ray's core set its own SIGTERM handler: a batch stops our way
 
     def close(self) -> None:
         """Shut down what check() started (a private instance stops with every process)."""

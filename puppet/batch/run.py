@@ -157,8 +157,9 @@ def run_batch(takes: list[str], out: str | os.PathLike, *, rig: Rig, rig_inputs:
                                         files={f: str(p) for f, p in job.outputs.items()})
         else:
             todo.append(job)
+    received = None
     try:
-        with cancel_on_signals():
+        with cancel_on_signals() as received:
             try:
                 if todo:
                     _run(todo, runner, rig, default_rig, Settings(formats=formats, fps=fps,
@@ -166,11 +167,13 @@ def run_batch(takes: list[str], out: str | os.PathLike, *, rig: Rig, rig_inputs:
                          folder, report, rows, [*paths, *inputs], force, on_start, on_result)
             finally:
                 runner.close()
-    except BatchCancelled as stop:
+    except KeyboardInterrupt as stop:  # BatchCancelled, or a Ctrl-C off the main thread
+        name = (getattr(stop, "signal_name", None) or getattr(received, "signal_name", None)
+                or "SIGINT")
         report.rows = [rows.get(job.take) or TakeResult(
-            take=str(job.take), error=f"cancelled ({stop.signal_name})") for job in jobs]
+            take=str(job.take), error=f"cancelled ({name})") for job in jobs]
         report.seconds = time.perf_counter() - start
-        raise BatchCancelled(stop.signal_name, report) from None
+        raise BatchCancelled(name, report) from None
     report.rows = [rows[job.take] for job in jobs]
     report.seconds = time.perf_counter() - start
     return report
