@@ -209,9 +209,26 @@ class RayEngine:
             where = f"--address {self.address}" if self.address else "--engine ray"
             raise BatchError(f"{where}: cannot start or reach Ray: {err}") from None
         reclaim_signals()  # Ray's core set its own SIGTERM handler: a batch stops our way
+        self._hear_raylet()
+
+    def _hear_raylet(self) -> None:
+        """Ray's driver prints the messages its raylets push (a worker died, out of memory) on
+        stdout from a thread of its own, coloured; they are kept for the rows of the takes that
+        were running instead (``ray._private.worker.print_to_stdstream``: no public hook)."""
+        import ray._private.worker as ray_worker
+
+        self._lines: list[str] = []
+        self._printer = getattr(ray_worker, "print_to_stdstream", None)
+        if self._printer is not None:
+            ray_worker.print_to_stdstream = lambda data, **_: self._lines.extend(
+                f"({data.get('pid', 'ray')}) {line}" for line in data.get("lines", ()))
 
     def close(self) -> None:
         """Shut down what check() started (a private instance stops with every process)."""
+        if getattr(self, "_printer", None) is not None:
+            import ray._private.worker as ray_worker
+
+            ray_worker.print_to_stdstream, self._printer = self._printer, None
         if self._started:
             self._started = False
             with _quiet_ray():
@@ -237,6 +254,7 @@ class RayEngine:
         tries = {job.take: 0 for job in jobs}
         limits = {job.take: take_timeout_s(job.take, self.take_timeout) for job in jobs}
         running: dict = {}  # ObjectRef -> (job, deadline)
+        notes: dict[Path, list[str]] = {}  # Ray's lines heard while a take ran
         slots = self.slots()
         try:
             while todo or running:
@@ -257,12 +275,16 @@ class RayEngine:
                 soonest = min(deadline for _, deadline in running.values())
                 wait_s = min(POLL_S, max(0.0, soonest - time.monotonic()))
                 done, _ = ray.wait(list(running), num_returns=1, timeout=wait_s)
+                heard = self._heard()
+                for job, _ in running.values():  # Ray's lines go to the takes then running
+                    notes.setdefault(job.take, []).extend(heard)
                 for ref in done:
                     job, _ = running.pop(ref)
                     result = self._result(ray, ref, job, tries[job.take])
                     if result is None:
                         todo.append(job)  # its worker or node died: next in line again
                     else:
+                        result.log_lines[:0] = notes.pop(job.take, [])
                         on_result(job, result)
                 now = time.monotonic()
                 for ref, (job, deadline) in list(running.items()):
@@ -271,6 +293,7 @@ class RayEngine:
                         ray.cancel(ref, force=True)
                         on_result(job, TakeResult(
                             take=str(job.take), attempts=tries[job.take],
+                            log_lines=notes.pop(job.take, []),
                             error=f"timed out: still running after {limits[job.take]:g} s "
                                   "(--take-timeout); its Ray task was cancelled with force"))
         except BaseException:
@@ -281,6 +304,13 @@ class RayEngine:
                     pass
             raise
         return put_s
+
+    def _heard(self) -> list[str]:
+        """Ray's lines heard since the last call, colour codes removed."""
+        lines = getattr(self, "_lines", [])
+        heard = [_COLOUR.sub("", line).rstrip() for line in lines[:len(lines)]]
+        del lines[:len(heard)]
+        return heard
 
     def _result(self, ray, ref, job: Job, tries: int) -> TakeResult | None:
         """The finished task's row; None when it should run again (its worker or node died)."""

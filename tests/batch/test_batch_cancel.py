@@ -207,6 +207,8 @@ def test_retries_are_counted_per_take(tmp_path, critter, tools, wait_until, engi
         if batch.poll() is None:
             os.killpg(batch.pid, signal.SIGKILL)
             batch.wait()
+    assert len(stdout.splitlines()) == 1, stdout  # the report alone: nothing raw of Ray's
+    assert "\x1b[" not in stdout + stderr
     row = rows_of(stdout)["long.mcap"]
     if retries:
         assert batch.returncode == EXIT_DONE, stderr
