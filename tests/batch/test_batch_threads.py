@@ -1,0 +1,46 @@
+"""The same batch through the Python API (``run_batch``) and the command line runs its workers
+with the same thread settings (one BLAS thread each), so the CPU per take is alike; before, the
+API's workers ran multithreaded BLAS and used 2-4 times the command line's CPU."""
+
+import json
+import os
+import subprocess
+import sys
+import tempfile
+
+import pytest
+
+from puppet.fast.blas import ONE_THREAD_ENV
+
+API = """
+import json, sys
+from puppet.batch import run_batch
+from puppet.rig import builtin
+report = run_batch(sys.argv[1:-2], sys.argv[-1], rig=builtin(), default_rig=True,
+                   formats=("pc2", "gltf"), workers=1, engine=sys.argv[-2])
+print(json.dumps([row.cpu_seconds for row in report.rows]))
+"""
+
+
+@pytest.mark.parametrize("engine", ["local", pytest.param("ray", marks=pytest.mark.skipif(
+    __import__("importlib").util.find_spec("ray") is None, reason="ray is not installed"))])
+def test_the_python_api_uses_the_command_lines_cpu_per_take(tmp_path, critter, tools, engine):
+    takes = [tools.write_take(tmp_path / f"t{i}.mcap", critter, readings=300, seed=i)
+             for i in range(3)]
+    # a caller's environment with no thread settings at all: BLAS would take every core
+    env = {k: v for k, v in os.environ.items() if k not in ONE_THREAD_ENV}
+    api = subprocess.run([sys.executable, "-P", "-c", API, *map(str, takes), engine,
+                          tmp_path / "api"], capture_output=True, text=True, timeout=900, env=env,
+                         cwd=tempfile.gettempdir())
+    assert api.returncode == 0, api.stderr
+    cli = subprocess.run(["puppet", "batch", *map(str, takes), "--out", tmp_path / "cli",
+                          "--formats", "pc2,gltf", "--workers", 1, "--engine", engine, "--json"],
+                         capture_output=True, text=True, timeout=900, env=env,
+                         cwd=tempfile.gettempdir())
+    assert cli.returncode == 0, cli.stderr
+    api_cpu = sum(json.loads(api.stdout.splitlines()[-1]))
+    cli_cpu = sum(row["cpu_s"] for row in json.loads(cli.stdout.splitlines()[0])["takes"])
+    assert 0.5 < api_cpu / cli_cpu < 1.6, (api_cpu, cli_cpu)
+    for take in takes:
+        assert (tmp_path / "api" / f"{take.stem}.pc2").read_bytes() == \
+            (tmp_path / "cli" / f"{take.stem}.pc2").read_bytes()
