@@ -30,7 +30,8 @@ from pathlib import Path
 
 from puppet.batch.cancel import STOP_GRACE_S
 from puppet.batch.plan import Job
-from puppet.batch.task import TakeResult, run_take, staging_folder, take_timeout_s
+from puppet.batch.row import TIMED_OUT, TakeResult
+from puppet.batch.task import run_take, staging_folder, take_timeout_s
 from puppet.child_signals import children_deaf_to_ctrl_c
 from puppet.fast.blas import children_one_blas_thread
 
@@ -82,8 +83,8 @@ def _worker_main(connection: Connection, blob: bytes, staging_root: str, parent:
             try:
                 result = run_take(job, shared, staging_folder(root, job))
             except Exception as err:  # noqa: BLE001 - a bug in one take must not stop the others
-                result = TakeResult(take=str(job.take),
-                                    error=f"internal error: {type(err).__name__}: {err}")
+                result = TakeResult.failed(job.take,
+                                           f"internal error: {type(err).__name__}: {err}")
             try:
                 connection.send(result)
             except OSError:  # the driver is gone: nobody to tell
@@ -196,7 +197,7 @@ class LocalEngine:
                             result = None
                         if result is not None:
                             worker.job = None
-                            result.attempts = tries[job.take]
+                            result.retries = tries[job.take] - 1
                             on_result(job, result)
                             give_next(worker)
                             continue
@@ -209,17 +210,17 @@ class LocalEngine:
                         if tries[job.take] <= self.retries:
                             todo.append(job)  # next in line again
                         else:
-                            on_result(job, TakeResult(
-                                take=str(job.take), attempts=tries[job.take],
-                                error=f"a worker process died under this take "
-                                      f"{tries[job.take]} times (exit status "
-                                      f"{worker.process.exitcode})"))
+                            on_result(job, TakeResult.failed(
+                                job.take, f"a worker process died under this take "
+                                          f"{tries[job.take]} times (exit status "
+                                          f"{worker.process.exitcode})",
+                                retries=tries[job.take] - 1))
                     else:  # past its time limit: the worker is stopped and replaced
                         _stop_all([worker], now=True)
-                        on_result(job, TakeResult(
-                            take=str(job.take), attempts=tries[job.take],
-                            error=f"timed out: still running after {worker.limit_s:g} s "
-                                  "(--take-timeout); its worker was stopped"))
+                        on_result(job, TakeResult.failed(
+                            job.take, f"still running after {worker.limit_s:g} s "
+                                      "(--take-timeout); its worker was stopped",
+                            state=TIMED_OUT, retries=tries[job.take] - 1))
                     workers[i] = _Worker(context, shared_blob, staging_root)
                     give_next(workers[i])
         except BaseException:

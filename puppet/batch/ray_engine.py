@@ -32,9 +32,9 @@ Ray's reaches the terminal.
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import os
-import re
 import shutil
 import socket
 import sys
@@ -48,7 +48,8 @@ from puppet.batch.cancel import reclaim_signals
 from puppet.batch.errors import BatchError
 from puppet.batch.plan import Job
 from puppet.batch.staging import node_temp
-from puppet.batch.task import Shared, TakeResult, run_take, staging_folder, take_timeout_s
+from puppet.batch.row import TIMED_OUT, TakeResult, plain
+from puppet.batch.task import Shared, run_take, staging_folder, take_timeout_s
 from puppet.fast.blas import children_one_blas_thread
 
 INSTALL_HINT = "pip install 'puppet[ray]'"
@@ -59,7 +60,6 @@ POLL_S = 0.5             # the driver wakes at least this often (signals, time l
 _RETRIED = ("WorkerCrashedError", "NodeDiedError", "OutOfMemoryError", "LocalRayletDiedError",
             "ObjectLostError", "OwnerDiedError")
 _HTTP2_PREFACE = b"PRI * HTTP/2.0\r\n\r\nSM\r\n\r\n" + b"\x00\x00\x00\x04\x00\x00\x00\x00\x00"
-_COLOUR = re.compile(r"\x1b\[[0-9;?]*[ -/]*[@-~]")
 
 
 def import_ray():
@@ -136,12 +136,12 @@ def _captured_output(path: Path):
             os.close(f)
 
 
-def _plain_lines(path: Path) -> list[str]:
+def _lines(path: Path) -> list[str]:
+    """The non-empty lines of a captured output file."""
     try:
-        text = path.read_text(errors="replace")
+        return [line for line in path.read_text(errors="replace").splitlines() if line.strip()]
     except OSError:
         return []
-    return [_COLOUR.sub("", line).rstrip("\r") for line in text.splitlines() if line.strip()]
 
 
 def _ray_task(job: Job, take_bytes: bytes, shared: Shared, staging_name: str) -> TakeResult:
@@ -153,15 +153,16 @@ def _ray_task(job: Job, take_bytes: bytes, shared: Shared, staging_name: str) ->
     try:
         local_take = folder / job.take.name
         local_take.write_bytes(take_bytes)
-        local_job = Job(local_take, job.outputs)
+        local_job = dataclasses.replace(job, take=local_take)
         log = folder / ".log"
         with one_blas_thread(), _captured_output(log):
             result = run_take(local_job, shared, folder)
         result.take = str(job.take)
-        result.log_lines = _plain_lines(log)
-        for name in ("error", "warning"):  # name the user's take, not this node's copy
-            if getattr(result, name) is not None:
-                setattr(result, name, getattr(result, name).replace(str(local_take), str(job.take)))
+        for line in _lines(log):
+            result.add_log(line)
+        # name the user's take, not this node's copy
+        result.reason = result.reason.replace(str(local_take), str(job.take))
+        result.warnings = [w.replace(str(local_take), str(job.take)) for w in result.warnings]
         if result.error is None:
             result.data = {fmt: Path(path).read_bytes() for fmt, path in result.files.items()}
         return result
@@ -263,9 +264,8 @@ class RayEngine:
                     try:
                         take_bytes = job.take.read_bytes()
                     except OSError as err:
-                        on_result(job, TakeResult(take=str(job.take),
-                                                  error=f"{job.take}: cannot read the take: "
-                                                        f"{err.strerror or err}"))
+                        on_result(job, TakeResult.failed(job.take, f"{job.take}: cannot read "
+                                                                   f"the take: {err.strerror or err}"))
                         continue
                     tries[job.take] += 1
                     ref = task.remote(job, take_bytes, shared_ref, staging_name)
@@ -291,11 +291,11 @@ class RayEngine:
                     if now >= deadline:
                         del running[ref]
                         ray.cancel(ref, force=True)
-                        on_result(job, TakeResult(
-                            take=str(job.take), attempts=tries[job.take],
-                            log_lines=notes.pop(job.take, []),
-                            error=f"timed out: still running after {limits[job.take]:g} s "
-                                  "(--take-timeout); its Ray task was cancelled with force"))
+                        on_result(job, TakeResult.failed(
+                            job.take, f"still running after {limits[job.take]:g} s "
+                                      "(--take-timeout); its Ray task was cancelled with force",
+                            state=TIMED_OUT, retries=tries[job.take] - 1,
+                            log_lines=notes.pop(job.take, [])))
         except BaseException:
             for ref in running:
                 try:
@@ -308,7 +308,7 @@ class RayEngine:
     def _heard(self) -> list[str]:
         """Ray's lines heard since the last call, colour codes removed."""
         lines = getattr(self, "_lines", [])
-        heard = [_COLOUR.sub("", line).rstrip() for line in lines[:len(lines)]]
+        heard = [plain(line) for line in lines[:len(lines)]]
         del lines[:len(heard)]
         return heard
 
@@ -322,9 +322,9 @@ class RayEngine:
             what = "its Ray worker or node died" if type(err).__name__ in _RETRIED else \
                 "the Ray task failed"
             first = str(err).strip().splitlines()[0] if str(err).strip() else type(err).__name__
-            return TakeResult(take=str(job.take), attempts=tries,
-                              error=f"{what} ({tries} tries): {_COLOUR.sub('', first)}")
-        result.attempts = tries
+            return TakeResult.failed(job.take, f"{what} ({tries} tries): {plain(first)}",
+                                     retries=tries - 1)
+        result.retries = tries - 1
         return result
 
 

@@ -80,6 +80,11 @@ def take_folders(out: Path, engine: str, driver: int, take: str) -> list[Path]:
     return list(base.glob(f".puppet-batch.*.{driver}.partial/{take}.*"))
 
 
+def outputs(out: Path) -> list[str]:
+    """The output files in --out (not the logs and manifests beside them)."""
+    return sorted(p.name for p in out.iterdir() if p.suffix in (".glb", ".pc2", ".bvh", ".mp4"))
+
+
 def start(args, engine):
     # A neutral working folder, as a user's (Ray puts it on its workers' import path); a
     # session of its own, so the test can signal and check the batch's process group.
@@ -123,15 +128,17 @@ def test_a_signal_mid_batch_stops_every_process_and_removes_staging(tmp_path, cr
     assert f"cancelled by {name}" in stderr
     rows = rows_of(stdout)
     assert sorted(rows) == ["long0.mcap", "long1.mcap", "short.mcap"]
-    assert rows["long0.mcap"]["error"] == f"cancelled ({name})"
+    assert (rows["long0.mcap"]["state"], rows["long0.mcap"]["reason"]) == (
+        "cancelled", f"cancelled by {name}")
     for row in rows.values():  # done or cancelled, never anything else
-        assert row["error"] in (None, f"cancelled ({name})"), row
+        assert row["state"] in ("done", "cancelled"), row
     wait_until(lambda: not still_running(snapshot, batch.pid), timeout=PATIENCE_S,
                what=f"every process of the batch gone (left: {still_running(snapshot, batch.pid)})")
     assert staging_left(out, batch.pid) == []
-    done = [take for take, row in rows.items() if row["error"] is None]
-    assert sorted(p.name for p in out.iterdir()) == sorted(
+    done = [take for take, row in rows.items() if row["state"] == "done"]
+    assert outputs(out) == sorted(
         f"{Path(take).stem}{suffix}" for take in done for suffix in (".glb", ".pc2"))
+    assert sorted(p.name for p in out.glob("*.log")) == [f"{Path(t).stem}.log" for t in sorted(rows)]
 
 
 def test_a_killed_drivers_workers_die_and_the_next_run_removes_its_staging(tmp_path, critter,
@@ -159,7 +166,7 @@ def test_a_killed_drivers_workers_die_and_the_next_run_removes_its_staging(tmp_p
                            capture_output=True, text=True, timeout=600)
     assert after.returncode == EXIT_DONE, after.stderr
     assert staging_left(out, batch.pid) == []
-    assert sorted(p.name for p in out.iterdir()) == ["other.pc2"]
+    assert outputs(out) == ["other.pc2"]
 
 
 @pytest.mark.parametrize("engine", ENGINES)
@@ -184,10 +191,12 @@ def test_a_hung_take_times_out_and_its_worker_is_freed(tmp_path, critter, tools,
             batch.wait()
     assert batch.returncode == EXIT_FAILED, stderr
     rows = rows_of(stdout)
-    assert rows["hung.mcap"]["error"].startswith("timed out: still running after 60 s")
-    assert rows["after.mcap"]["error"] is None
+    assert rows["hung.mcap"]["state"] == "timed out"
+    assert rows["hung.mcap"]["reason"].startswith("still running after 60 s (--take-timeout)")
+    assert rows["after.mcap"]["state"] == "done"
     assert _stat(worker) is None or _stat(worker)[3] == "Z"
-    assert sorted(p.name for p in out.iterdir()) == ["after.pc2"]
+    assert outputs(out) == ["after.pc2"]
+    assert "timed out" in (out / "hung.log").read_text()
 
 
 @pytest.mark.parametrize("engine", ENGINES)
@@ -212,11 +221,11 @@ def test_retries_are_counted_per_take(tmp_path, critter, tools, wait_until, engi
     row = rows_of(stdout)["long.mcap"]
     if retries:
         assert batch.returncode == EXIT_DONE, stderr
-        assert (row["error"], row["attempts"]) == (None, 2)
+        assert (row["state"], row["retries"]) == ("done", 1)
         assert (out / "long.pc2").read_bytes() == tools.serial(long_take, tmp_path / "serial",
                                                                ("pc2",))["pc2"]
     else:
         assert batch.returncode == EXIT_FAILED, stderr
-        assert row["attempts"] == 1
-        assert "died" in row["error"]
-        assert sorted(p.name for p in out.iterdir()) == []
+        assert (row["state"], row["retries"]) == ("failed", 0)
+        assert "died" in row["reason"]
+        assert outputs(out) == []
