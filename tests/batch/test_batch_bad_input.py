@@ -68,7 +68,7 @@ def test_an_unreachable_ray_address_fails_before_any_work(tmp_path, session):
     pytest.importorskip("ray", reason="ray is not installed (pip install 'puppet[ray]')")
     result = run(session[0], "--out", tmp_path / "out", "--engine", "ray", "--address",
                  "127.0.0.1:9")
-    assert_clean_error(result, "--address 127.0.0.1:9", "no Ray cluster answers there")
+    assert_clean_error(result, "--address 127.0.0.1:9", "no Ray head answers there")
     assert list((tmp_path / "out").iterdir()) == []
     assert_clean_error(run(session[0], "--out", tmp_path / "out", "--address", "127.0.0.1:9"),
                        "--address is for --engine ray")
