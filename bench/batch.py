@@ -22,7 +22,8 @@ solve-heavy formats when nothing else runs; a shared machine lowers it).
 JSON: {"cases": [{"engine", "workers", "takes", "formats", "takes_per_min",
 "overhead_ms_per_task", "precompute_s", "precompute_per_take_s", "seconds", "task_seconds_sum",
 "task_cpu_seconds_sum", "load_1min": [before, after] (the machine's 1-minute load average:
-2 cores, so above 2 means other work competed)}], "ratios": [...],
+2 cores, so above 2 means other work competed), "cpu_share_per_worker": the takes' CPU seconds /
+(wall seconds x workers): 1.0 when each worker had a core to itself}], "ratios": [...],
 "cost": {per-take CPU seconds and bytes}, "ray_start_s", "shared_bytes", "precompute_bytes"}.
 """
 
@@ -146,7 +147,9 @@ def run_case(engine: str, workers: int, takes: list[Path], out: Path, rig, forma
             "task_seconds_sum": round(sum(r.seconds for r in report.rows), 3),
             "task_cpu_seconds_sum": round(sum(r.cpu_seconds for r in report.rows), 3),
             "precompute_bytes": report.precompute_bytes,
-            "load_1min": [round(load_before, 2), round(os.getloadavg()[0], 2)]}
+            "load_1min": [round(load_before, 2), round(os.getloadavg()[0], 2)],
+            "cpu_share_per_worker": round(sum(r.cpu_seconds for r in report.rows)
+                                          / (report.seconds * workers), 3)}
 
 
 def main() -> None:
@@ -193,8 +196,9 @@ def main() -> None:
                 if engine == "ray":
                     t0 = time.perf_counter()
                     # a private instance, as puppet batch starts (never a running cluster)
+                    os.environ.setdefault("RAY_AUTH_MODE", "disabled")  # as the engine's
                     ray.init(address="local", num_cpus=workers, include_dashboard=False,
-                             log_to_driver=False)
+                             log_to_driver=False, logging_level="ERROR")
                     result["ray_start_s"] = round(time.perf_counter() - t0, 3)
                 try:
                     empty_cache()
@@ -219,7 +223,7 @@ def main() -> None:
         print(f"{c['engine']:6} {c['workers']:>7} {c['formats']:10} {c['takes_per_min']:>9.2f} "
               f"{c['overhead_ms_per_task']:>16.1f} {c['precompute_s']:>12.3f} "
               f"{c['precompute_per_take_s']:>10.3f}  load {c['load_1min'][0]:.1f}-"
-              f"{c['load_1min'][1]:.1f}")
+              f"{c['load_1min'][1]:.1f}, each worker had {c['cpu_share_per_worker']:.2f} core")
     for r in result["ratios"]:
         print(f"2 workers / 1 worker, {r['engine']} {r['formats']}: {r['two_over_one']:.2f}")
     cost = result["cost"]
