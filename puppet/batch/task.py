@@ -44,14 +44,13 @@ class Settings:
 class Shared:
     """Sent once to every worker (pickled; on Ray put once in the object store).
 
-    rig: the loaded rig (uncalibrated: each take applies its own recorded calibration to a copy);
-    default_rig: no --rig was given (a take must name the built-in rig); precompute: the rig's
-    FastModel and factorization, never recomputed per take; settings: see Settings.
+    rigs: {``plan.TakeRig.key``: (rig, precompute)}: every rig the batch's takes are solved on
+    (``Job.rig_key`` picks one), uncalibrated (each take applies its own recorded calibration to
+    a copy), with its FastModel and factorization, never recomputed per take; settings: see
+    Settings.
     """
 
-    rig: Rig
-    default_rig: bool
-    precompute: RigPrecompute
+    rigs: dict[str, tuple[Rig, RigPrecompute]]
     settings: Settings
 
 
@@ -78,13 +77,14 @@ def run_take(job: Job, shared: Shared, staging: Path) -> TakeResult:
     settings = shared.settings
     names = {fmt: target.name for fmt, target in job.outputs.items()}
     try:
-        rig, reader = open_take(job.take, shared.rig, default_rig=shared.default_rig)
+        rig, precompute = shared.rigs[job.rig_key]
+        rig, reader = open_take(job.take, rig)
         if reader.recovery is not None:
             result.warnings.append(str(reader.recovery))
         exports = Outputs(**{fmt: staging / names[fmt] for fmt in EXPORT_FORMATS if fmt in names})
         if "mp4" not in names:
             report = export_take(rig, reader, exports, fps=settings.fps, up=settings.up,
-                                 precompute=shared.precompute)
+                                 precompute=precompute)
             result.frames = report.frames
         else:  # one solve of every frame: the video and every export from the same T
             frames = take_frames(rig, reader, settings.fps)
@@ -97,7 +97,7 @@ def run_take(job: Job, shared: Shared, staging: Path) -> TakeResult:
                     try:
                         summary = play_take(rig, reader, [sink], frames=frames, solved=writers,
                                             antialias=settings.antialias, size=settings.size,
-                                            precompute=shared.precompute)
+                                            precompute=precompute)
                     finally:
                         sink.close()
             result.frames = summary.frames
