@@ -65,17 +65,21 @@ def character_sha256(rig) -> str:
     return h.hexdigest()
 
 
-def shaping_settings(formats, fps: float, up: str, size, antialias: str) -> dict:
-    """The settings that shape the asked formats' bytes: fps always; up for PC2; size and
-    antialias for the video. A setting no asked format uses is left out (changing --size does
-    not redo a batch of exports)."""
-    settings: dict = {"fps": float(fps)}
+def shaping_settings(settings) -> dict:
+    """The settings (``task.Settings``) that shape the asked formats' bytes: fps always; up for
+    PC2; keys and keys_units for glTF; size and antialias for the video. A setting no asked
+    format uses is left out (changing --size does not redo a batch of exports)."""
+    formats = settings.formats
+    shaping: dict = {"fps": float(settings.fps)}
     if "pc2" in formats:
-        settings["up"] = up
+        shaping["up"] = settings.up
+    if "gltf" in formats:
+        shaping["keys"] = settings.keys
+        shaping["keys_units"] = settings.keys_units
     if "mp4" in formats:
-        settings["size"] = [int(size[0]), int(size[1])]
-        settings["antialias"] = antialias
-    return settings
+        shaping["size"] = [int(settings.size[0]), int(settings.size[1])]
+        shaping["antialias"] = settings.antialias
+    return shaping
 
 
 @dataclass(frozen=True)

@@ -120,6 +120,24 @@ def _check_settings(fps, up: str, size) -> tuple[float, tuple[int, int]]:
     return fps_value, (width, height)
 
 
+def _check_keys(keys, keys_units, formats) -> None:
+    """--keys / --keys-units as ``puppet export`` takes them, for a batch's formats."""
+    from puppet import limits
+
+    if keys is None:
+        if keys_units is not None:
+            raise BatchError("--keys-units: needs --keys (the rotation tolerance, degrees)")
+        return
+    for option, value, bound in (("--keys", keys, limits.KEYS_DEG),
+                                 ("--keys-units", keys_units, limits.KEYS_UNITS)):
+        problem = None if value is None else bound.problem(value)
+        if problem:
+            raise BatchError(f"{option}: {problem}")
+    if "gltf" not in formats:
+        raise BatchError("--keys: reduces the glTF's keys: add gltf to --formats (BVH, USD and "
+                         "PC2 keep every frame)")
+
+
 def make_engine(engine: str, workers: int | None, address: str | None):
     if engine == "local":
         if address:
@@ -132,7 +150,8 @@ def make_engine(engine: str, workers: int | None, address: str | None):
 
 def run_batch(takes: list[str], out: str | os.PathLike, *, rig: Rig | None = None,
               rig_inputs: list[Path] = (), formats=DEFAULT_FORMATS, fps=30.0, up: str = "y",
-              size=(640, 480), engine: str = "local", workers: int | None = None,
+              size=(640, 480), keys: float | None = None, keys_units: float | None = None,
+              engine: str = "local", workers: int | None = None,
               address: str | None = None, resume: bool = False, dry_run: bool = False,
               force: bool = False, on_start: Callable[[int], None] | None = None,
               on_result: Callable[[TakeResult], None] | None = None) -> BatchReport:
@@ -141,7 +160,8 @@ def run_batch(takes: list[str], out: str | os.PathLike, *, rig: Rig | None = Non
     takes: files, folders or glob patterns; out: the output folder (created); rig: the rig
     every take is solved on (--rig; a take of other servos is refused in its row), or None for
     each take's own (``plan.RigFinder``); rig_inputs: the rig's files (never overwritten).
-    formats: of plan.FORMATS; fps, up, size: as ``puppet export`` / ``puppet play``.
+    formats: of plan.FORMATS; fps, up, size, keys, keys_units: as ``puppet export`` / ``puppet
+    play``.
     engine: 'local' or 'ray'; workers: processes (local) or CPUs of a local Ray (default: cores);
     address: a Ray cluster. resume: skip takes whose manifest says their outputs are up to date
     (``manifest.changes``; a redone take's row says why). dry_run: decide and report, per take,
@@ -151,6 +171,7 @@ def run_batch(takes: list[str], out: str | os.PathLike, *, rig: Rig | None = Non
     start = time.perf_counter()
     formats = parse_formats(formats)
     fps, size = _check_settings(fps, up, size)
+    _check_keys(keys, keys_units, formats)
     if workers is not None and workers < 1:
         raise BatchError(f"--workers: {workers} must be >= 1")
     inputs = [Path(p) for p in rig_inputs]
@@ -161,8 +182,9 @@ def run_batch(takes: list[str], out: str | os.PathLike, *, rig: Rig | None = Non
     runner = make_engine(engine, workers, address)
     report = BatchReport(engine=engine, workers=workers or getattr(runner, "workers", None),
                          out=str(folder), dry_run=dry_run)
-    settings = Settings(formats=formats, fps=fps, up=up, size=size)
-    shaping = shaping_settings(formats, fps, up, size, settings.antialias)
+    settings = Settings(formats=formats, fps=fps, up=up, size=size, keys=keys,
+                        keys_units=keys_units)
+    shaping = shaping_settings(settings)
     rows: dict[Path, TakeResult] = {}
     made: dict[Path, Made] = {}
     todo: list[Job] = []

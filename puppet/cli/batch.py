@@ -8,7 +8,8 @@ import sys
 import click
 
 from puppet import limits
-from puppet.cli.common import InRange, force_option, load_rig, rig_files
+from puppet.cli.common import (InRange, force_option, keys_option, keys_units_option, load_rig,
+                               rig_files)
 
 
 @click.command()
@@ -30,6 +31,8 @@ from puppet.cli.common import InRange, force_option, load_rig, rig_files
               help=f"Video size in pixels (mp4), each {limits.FRAME_SIZE}.")
 @click.option("--up", type=click.Choice(["y", "z"]), default="y", show_default=True,
               help="Up axis of the PC2 points: z for Blender's Mesh Cache.")
+@keys_option
+@keys_units_option
 @click.option("--engine", type=click.Choice(["local", "ray"]), default="local", show_default=True,
               help="local: a process pool on this machine; ray: Ray tasks (pip install "
                    "'puppet[ray]').")
@@ -48,7 +51,8 @@ from puppet.cli.common import InRange, force_option, load_rig, rig_files
 @click.option("--json", "as_json", is_flag=True, help="Print the report as one JSON line.")
 @force_option
 def batch(takes: tuple[str, ...], out: str, rig_path: str | None, formats: str, fps: str,
-          size: tuple[int, int], up: str, engine: str, address: str | None, workers: int | None,
+          size: tuple[int, int], up: str, keys: float | None, keys_units: float | None,
+          engine: str, address: str | None, workers: int | None,
           resume: bool, dry_run: bool, as_json: bool, force: bool) -> None:
     """Solve and write every take; a failed take is reported and the others go on.
 
@@ -88,7 +92,8 @@ def batch(takes: tuple[str, ...], out: str, rig_path: str | None, formats: str, 
     try:
         report = run_batch(list(takes), out, rig=rig,
                            rig_inputs=rig_files(rig) if rig is not None else [],
-                           formats=formats, fps=fps, up=up, size=size, engine=engine,
+                           formats=formats, fps=fps, up=up, size=size, keys=keys,
+                           keys_units=keys_units, engine=engine,
                            workers=workers, address=address, resume=resume, dry_run=dry_run,
                            force=force, on_start=on_start, on_result=on_result)
     finally:

@@ -133,3 +133,21 @@ def test_the_character_checksum_follows_the_character_not_its_file(tmp_path):
     arrays["V"] = arrays["V"] * 1.01
     np.savez(folder / "critter.npz", **arrays)
     assert character_sha256(load_rig(folder / "my.toml")) != character_sha256(builtin())
+
+
+def test_keys_shape_the_gltf_as_in_export_and_a_change_redoes_it(tmp_path, critter, tools):
+    take = tools.write_take(tmp_path / "t.mcap", critter)
+    out = tmp_path / "out"
+    args = [take, "--out", out, "--formats", "gltf,bvh", "--workers", 1]
+    assert batch(*args).returncode == 0
+    reduced = batch(*args, "--resume", "--keys", "0.5")
+    assert reduced.returncode == 0, reduced.stderr
+    assert rows_of(reduced) == [("t.mcap", "done", "keys (none) -> 0.5")]
+    subprocess.run(["puppet", "export", take, "--gltf", tmp_path / "alone.glb", "--keys", "0.5"],
+                   check=True, capture_output=True, timeout=300)
+    assert (out / "t.glb").read_bytes() == (tmp_path / "alone.glb").read_bytes()
+    assert rows_of(batch(*args, "--resume", "--keys", "0.5"))[0][1] == "skipped"
+    for bad, words in ((["--keys-units", "0.1"], "--keys-units: needs --keys"),
+                       (["--keys", "0.5", "--formats", "bvh"], "--keys: reduces the glTF's keys")):
+        refused = batch(*args, *bad)
+        assert refused.returncode == 1 and f"Error: {words}" in refused.stderr
