@@ -2,8 +2,11 @@
 (``puppet.take.Playback``; frame 1 = the first reading) and written atomically:
 
 - glTF 2.0 (.glb): the character with its skin and one animation of every joint (solved ones too);
+  for a glTF character, the file's own vertices, attributes, materials, images and nodes;
 - USD: the exact deformed mesh as time-sampled points, and the skeleton as UsdSkel;
-- PC2 point cache of the deformed mesh in the character file's own vertex order;
+- PC2 point cache of the deformed mesh in the character file's own vertex order, in the mesh
+  object's local space (``space="object"``, where Blender's glTF importer puts the mesh) or the
+  model frame (``space="model"``);
 - BVH with every joint (BVH-safe names).
 
 ``export_take`` runs the whole export of one take; ``ExportWriters`` is its per-frame sink (also fed
