@@ -7,14 +7,15 @@
 - PC2 point cache of the deformed mesh in the character file's own vertex order, in the mesh
   object's local space (``space="object"``, where Blender's glTF importer puts the mesh) or the
   model frame (``space="model"``);
-- BVH with every joint (BVH-safe names).
+- BVH with every joint, named as in the rig (whitespace -> ``_``: ``puppet.export.names``),
+  End Sites measured on the mesh.
 
 ``export_take`` runs the whole export of one take; ``ExportWriters`` is its per-frame sink (also fed
 beside a video by ``puppet.replay.play_take``); the writers stream one frame at a time.
 USD needs usd-core, imported only when a USD file is written.
 """
 
-from puppet.export.bvh import BvhWriter, write_bvh
+from puppet.export.bvh import BvhWriter, mesh_end_sites, write_bvh
 from puppet.export.errors import ExportError
 from puppet.export.euler import euler_to_matrix, matrix_to_euler
 from puppet.export.gltf import GltfWriter
@@ -41,6 +42,7 @@ __all__ = [
     "export_take",
     "check_fps",
     "matrix_to_euler",
+    "mesh_end_sites",
     "polar_rotations",
     "safe_names",
     "write_bvh",
