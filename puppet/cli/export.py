@@ -8,7 +8,7 @@ import sys
 import click
 
 from puppet import limits
-from puppet.cli.common import force_option, open_take
+from puppet.cli.common import InRange, force_option, open_take
 
 
 @click.command()
@@ -31,16 +31,26 @@ from puppet.cli.common import force_option, open_take
               help="Space of the PC2 points: object = the mesh object's local space, as Blender's "
                    "glTF importer places the character (the Mesh Cache lands it on a moved or "
                    "scaled character); model = the model frame (the file's world).")
+@click.option("--keys", default=None, type=InRange(limits.KEYS_DEG), metavar="DEG",
+              help="glTF: per channel only the keys that reproduce the solved curve within DEG "
+                   f"degrees (rotations; {limits.KEYS_DEG}), LINEAR as Blender plays it; the "
+                   "report lists the keys kept per joint. Default: a key on every frame. BVH, USD "
+                   "and PC2 keep every frame.")
+@click.option("--keys-units", default=None, type=InRange(limits.KEYS_UNITS), metavar="UNITS",
+              help="With --keys: translations within UNITS model units (default: the distance "
+                   "a DEG turn moves a point one bounding-box diagonal away).")
 @click.option("--json", "as_json", is_flag=True, help="Print the report as one JSON line.")
 @force_option
 def export(take: str, rig_path: str | None, gltf: str | None, usd: str | None, pc2: str | None,
-           bvh: str | None, fps: str, up: str, space: str, as_json: bool, force: bool) -> None:
+           bvh: str | None, fps: str, up: str, space: str, keys: float | None,
+           keys_units: float | None, as_json: bool, force: bool) -> None:
     """Export a take; frame 1 is the take's first reading in every format.
 
     \b
     Examples:
       puppet export take.mcap --gltf anim.glb --fps 24
       puppet export take.mcap --usd anim.usdc --pc2 mesh.pc2 --up z --bvh skeleton.bvh
+      puppet export take.mcap --gltf anim.glb --keys 0.5   # editable keys
     """
     from puppet.export import ExportError, Outputs, export_take
     from puppet.export.run import check_fps
@@ -60,8 +70,8 @@ def export(take: str, rig_path: str | None, gltf: str | None, usd: str | None, p
         bar.update(1)
 
     try:
-        report = export_take(rig, reader, outputs, fps=fps_value, up=up, space=space,
-                             progress=progress)
+        report = export_take(rig, reader, outputs, fps=fps_value, up=up, space=space, keys=keys,
+                             keys_units=keys_units, progress=progress)
     finally:
         if bar is not None:
             bar.__exit__(None, None, None)

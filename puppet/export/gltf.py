@@ -19,12 +19,21 @@ For any other rig (the built-in critter, OBJ/PLY) the same code writes the plain
   skin 0         joints 0..b-1; inverseBindMatrices = inverse rest world transform of each joint.
   mesh 0         one triangle primitive: POSITION, NORMAL, indices, JOINTS_n / WEIGHTS_n
                  (``influences`` per vertex, 4 per set; the largest weights, renormalized).
+  animation 0    per joint one translation and one rotation channel (LINEAR): frame k (k = 1..N)
+                 at k / fps seconds, so Blender's importer (frame = time · scene fps) puts frame 1
+                 on scene frame 1 when the scene runs at fps. A key on every frame (one shared
+                 key-time accessor), or with a key tolerance the keys that reproduce each channel
+                 within it (``puppet.export.key_reduction``; LINEAR, which Blender plays as written).
+  extras         the scene's and the animation's: {"puppet_fps", "puppet_frame_start": 1,
+                 "puppet_frame_end": N}. Blender 5.0's importer turns the scene's into custom
+                 properties of the scene (``import_scene_extras``, on by default) and changes
+                 neither the scene's rate nor its range: set the scene's fps before importing,
+                 then the range, e.g. (Python console) ``s = bpy.context.scene; s.frame_start,
+                 s.frame_end = s["puppet_frame_start"], s["puppet_frame_end"]`` (or the action's
+                 ``frame_range``, which is 1..N at the right fps).
 Joints under a node with a non-uniform scale and a rotation cannot follow a rigid motion exactly
 with translation and rotation keys; their keys keep the pivots exact and take the nearest
 rotation, and ``written`` holds what the file reproduces (the export reports its skinning error).
-  animation 0    per joint one translation and one rotation channel (LINEAR), all sharing one
-                 key-time accessor: frame k (k = 1..N) at k / fps seconds, so Blender's importer
-                 (frame = time · scene fps) puts frame 1 on scene frame 1.
 
 Keys are the joints' parent-relative transforms of the rigid world maps P_j given per frame
 (see ``puppet.export.joint_transforms``): posed world of joint j = P_j ∘ G_j (G_j its rest world).
@@ -39,6 +48,7 @@ import numpy as np
 import pygltflib
 
 from puppet.export.errors import ExportError
+from puppet.export.key_reduction import reduce_curve
 from puppet.export.joint_transforms import (compose, local_transforms, matrix_to_quaternion,
                                             polar_rotations, rest_globals)
 from puppet.export.writer import ExportWriter
@@ -210,16 +220,21 @@ class GltfWriter(ExportWriter):
     source:     the character file's SourceScene (``Rig.source``): its nodes, primitives,
                 attributes and materials are written (V must be in its vertex order); None: the
                 plain layout (module docstring).
+    keys_deg:   None: a key on every frame; else rotation keys reduced to this tolerance, degrees
+                (``puppet.export.key_reduction``). keys_units: the same for translations, model
+                units (None: every frame).
     Fields: joints (n, influences) int64 and weights (n, influences) float32: the skin as written;
-    node_of_joint (b,) the node of each joint; written (b, 3, 4): after each write(), the rigid
-    maps of rest points that the file's keys reproduce (the world given, up to the nearest
+    keys_kept {joint name: {"translation": keys, "rotation": keys}} once closed; node_of_joint
+    (b,) the node of each joint; written (b, 3, 4): after each write(), the rigid maps of rest
+    points that the file's keys at that frame reproduce (the world given, up to the nearest
     rotation under non-uniformly scaled nodes); warnings: what could not be written.
     """
 
     close_on_error = False  # the .glb is written in one piece: an error inside `with` writes none
 
     def __init__(self, path, *, names, parents, heads, frames, V, F, W, fps: float,
-                 influences: int = 4, name: str = "character", source: SourceScene | None = None):
+                 influences: int = 4, name: str = "character", keys_deg: float | None = None,
+                 keys_units: float | None = None, source: SourceScene | None = None):
         self.path = Path(path)
         if influences < 4 or influences % 4:
             raise ExportError(self.path, f"influences must be a multiple of 4, got {influences}")
@@ -233,6 +248,8 @@ class GltfWriter(ExportWriter):
         self.F = np.asarray(F, np.int64)
         self.fps = float(fps)
         self.name = name
+        self.keys_deg, self.keys_units = keys_deg, keys_units
+        self.keys_kept: dict[str, dict[str, int]] = {}
         self.joints, self.weights = top_weights(W, influences)
         self.scene = source if source is not None else plain_scene(
             self.names, self.parents, self.rest, len(self.V), self.F, name)
@@ -472,33 +489,46 @@ class GltfWriter(ExportWriter):
     def _document(self) -> pygltflib.GLTF2:
         gltf = pygltflib.GLTF2(asset=pygltflib.Asset(version="2.0", generator="puppet"))
         blob = _Blob(gltf)
-        b = self.b
         self._nodes(gltf)
         self._materials(gltf, blob)
         self._meshes(gltf, blob)
-        # Animation: shared key times, a translation and a rotation sampler per joint.
+        self._animation(gltf, blob)
+        data = blob.bytes()
+        gltf.buffers.append(pygltflib.Buffer(byteLength=len(data)))
+        gltf.set_binary_blob(data)
+        return gltf
+
+    def _animation(self, gltf: pygltflib.GLTF2, blob: _Blob) -> None:
+        """Animation 0: a translation and a rotation channel per joint (LINEAR), every frame a key
+        or, with a key tolerance, the keys ``reduce_curve`` keeps (channels with the same kept
+        frames share one key-time accessor); the timing in the scene's and animation's extras."""
         N = self.num_frames
         times = (np.arange(1, N + 1) / self.fps).astype(np.float32)
-        t_acc = blob.add(times, FLOAT, "SCALAR", minmax=True)
         translations = np.stack(self._translations, 1)  # (b, N, 3)
         rotations = np.stack(self._rotations, 1)        # (b, N, 4)
+        time_accessors: dict[tuple[int, ...], int] = {}
         samplers, channels = [], []
-        for j in range(b):
-            for path, values, kind in (("translation", translations[j], "VEC3"),
-                                       ("rotation", rotations[j], "VEC4")):
-                out = blob.add(values, FLOAT, kind)
-                samplers.append(pygltflib.AnimationSampler(input=t_acc, output=out,
+        self.keys_kept = {}
+        for j in range(self.b):
+            kept = {}
+            for path, values, kind, tol in (("translation", translations[j], "VEC3", self.keys_units),
+                                            ("rotation", rotations[j], "VEC4", self.keys_deg)):
+                keys = (np.arange(N) if tol is None else
+                        reduce_curve(times, values.astype(np.float64), path, tol))
+                kept[path] = len(keys)
+                key_tuple = tuple(int(k) for k in keys)
+                if key_tuple not in time_accessors:
+                    time_accessors[key_tuple] = blob.add(times[keys], FLOAT, "SCALAR", minmax=True)
+                out = blob.add(values[keys], FLOAT, kind)
+                samplers.append(pygltflib.AnimationSampler(input=time_accessors[key_tuple], output=out,
                                                            interpolation="LINEAR"))
                 channels.append(pygltflib.AnimationChannel(
                     sampler=len(samplers) - 1,
                     target=pygltflib.AnimationChannelTarget(node=int(self.node_of_joint[j]), path=path)))
+            self.keys_kept[self.names[j]] = kept
         timing = self.timing()
         gltf.animations.append(pygltflib.Animation(
             name=self.name, samplers=samplers, channels=channels,
             extras={**timing, "note": "frame k is at k/fps seconds; frame 1 is the take's first "
                                       "reading"}))
         gltf.scenes[gltf.scene].extras = {**(gltf.scenes[gltf.scene].extras or {}), **timing}
-        data = blob.bytes()
-        gltf.buffers.append(pygltflib.Buffer(byteLength=len(data)))
-        gltf.set_binary_blob(data)
-        return gltf
