@@ -276,8 +276,7 @@ class ExportWriters:
     rig, reader: the rig solved on and the take (TakeReader, its path: the take is an input no
     output may overwrite). frames: the Playback the frames come from (its fps, count, cuts).
     up, space, influences, meters_per_unit, keys, keys_units: as export_take. Fields: report
-    (ExportReport),
-    frames (written so far).
+    (ExportReport), frames (written so far).
     """
 
     def __init__(self, rig, reader, outputs: Outputs, frames: Playback, *, up: str = "y",
