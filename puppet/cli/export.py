@@ -15,7 +15,9 @@ from puppet.cli.common import InRange, force_option, open_take
 @click.argument("take")
 @click.option("--rig", "rig_path", default=None, help="Rig to solve on (default: the take's).")
 @click.option("--gltf", default=None, help="glTF binary (.glb): the character, its skin and every "
-                                           "joint animated.")
+                                           "joint animated; its scene extras puppet_fps, "
+                                           "puppet_frame_start, puppet_frame_end give the take's "
+                                           "rate and range (Blender: scene custom properties).")
 @click.option("--usd", default=None, help="USD (.usdc/.usda): exact mesh points per frame and the "
                                           "skeleton (UsdSkel).")
 @click.option("--pc2", default=None, help="Point cache of the deformed mesh in the character "
@@ -37,8 +39,8 @@ from puppet.cli.common import InRange, force_option, open_take
                    "report lists the keys kept per joint. Default: a key on every frame. BVH, USD "
                    "and PC2 keep every frame.")
 @click.option("--keys-units", default=None, type=InRange(limits.KEYS_UNITS), metavar="UNITS",
-              help="With --keys: translations within UNITS model units (default: the distance "
-                   "a DEG turn moves a point one bounding-box diagonal away).")
+              help=f"With --keys: translations within UNITS model units ({limits.KEYS_UNITS}; "
+                   "default: the distance a DEG turn moves a point one bounding-box diagonal away).")
 @click.option("--json", "as_json", is_flag=True, help="Print the report as one JSON line.")
 @force_option
 def export(take: str, rig_path: str | None, gltf: str | None, usd: str | None, pc2: str | None,
