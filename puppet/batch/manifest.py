@@ -51,9 +51,17 @@ def bytes_sha256(data: bytes | str) -> str:
 
 def character_sha256(rig) -> str:
     """sha256 (hex) of the character a rig solves, as loaded: rest vertices, triangles, weights,
-    the skeleton (names, parents, heads, tails, frames) and the source vertex order. The same
-    character gives the same checksum whichever file or folder it was read from."""
+    the skeleton (names, parents, heads, tails, frames) and the source vertex order; for a glTF
+    character, also the bytes of its file and of the buffers and images it names (its look and
+    place, which exports carry: ``Rig.source``). The same character gives the same checksum
+    whichever folder it was read from."""
+    from puppet.rig.gltf import external_files
+
     h = hashlib.sha256()
+    source = getattr(rig, "source", None)
+    if source is not None:
+        for path in [Path(source.path), *external_files(source.path)]:
+            h.update(file_sha256(path).encode() if path.is_file() else b"missing")
     skeleton = rig.skeleton
     arrays = [rig.V, rig.F, rig.W, skeleton.parents, skeleton.heads, skeleton.tails,
               skeleton.frames, rig.source_index if rig.source_index is not None else np.zeros(0)]
@@ -66,13 +74,14 @@ def character_sha256(rig) -> str:
 
 
 def shaping_settings(settings) -> dict:
-    """The settings (``task.Settings``) that shape the asked formats' bytes: fps always; up for
-    PC2; keys and keys_units for glTF; size and antialias for the video. A setting no asked
-    format uses is left out (changing --size does not redo a batch of exports)."""
+    """The settings (``task.Settings``) that shape the asked formats' bytes: fps always; up and
+    space for PC2; keys and keys_units for glTF; size and antialias for the video. A setting no
+    asked format uses is left out (changing --size does not redo a batch of exports)."""
     formats = settings.formats
     shaping: dict = {"fps": float(settings.fps)}
     if "pc2" in formats:
         shaping["up"] = settings.up
+        shaping["space"] = settings.space
     if "gltf" in formats:
         shaping["keys"] = settings.keys
         shaping["keys_units"] = settings.keys_units

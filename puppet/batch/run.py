@@ -120,6 +120,13 @@ def _check_settings(fps, up: str, size) -> tuple[float, tuple[int, int]]:
     return fps_value, (width, height)
 
 
+def _check_space(space: str) -> None:
+    from puppet.export.run import SPACES
+
+    if space not in SPACES:
+        raise BatchError(f"--space: must be one of {SPACES}, got {space!r}")
+
+
 def _check_keys(keys, keys_units, formats) -> None:
     """--keys / --keys-units as ``puppet export`` takes them, for a batch's formats."""
     from puppet import limits
@@ -150,7 +157,8 @@ def make_engine(engine: str, workers: int | None, address: str | None):
 
 def run_batch(takes: list[str], out: str | os.PathLike, *, rig: Rig | None = None,
               rig_inputs: list[Path] = (), formats=DEFAULT_FORMATS, fps=30.0, up: str = "y",
-              size=(640, 480), keys: float | None = None, keys_units: float | None = None,
+              space: str = "object", size=(640, 480), keys: float | None = None,
+              keys_units: float | None = None,
               engine: str = "local", workers: int | None = None,
               address: str | None = None, resume: bool = False, dry_run: bool = False,
               force: bool = False, on_start: Callable[[int], None] | None = None,
@@ -160,8 +168,8 @@ def run_batch(takes: list[str], out: str | os.PathLike, *, rig: Rig | None = Non
     takes: files, folders or glob patterns; out: the output folder (created); rig: the rig
     every take is solved on (--rig; a take of other servos is refused in its row), or None for
     each take's own (``plan.RigFinder``); rig_inputs: the rig's files (never overwritten).
-    formats: of plan.FORMATS; fps, up, size, keys, keys_units: as ``puppet export`` / ``puppet
-    play``.
+    formats: of plan.FORMATS; fps, up, space, size, keys, keys_units: as ``puppet export`` /
+    ``puppet play``.
     engine: 'local' or 'ray'; workers: processes (local) or CPUs of a local Ray (default: cores);
     address: a Ray cluster. resume: skip takes whose manifest says their outputs are up to date
     (``manifest.changes``; a redone take's row says why). dry_run: decide and report, per take,
@@ -182,7 +190,8 @@ def run_batch(takes: list[str], out: str | os.PathLike, *, rig: Rig | None = Non
     runner = make_engine(engine, workers, address)
     report = BatchReport(engine=engine, workers=workers or getattr(runner, "workers", None),
                          out=str(folder), dry_run=dry_run)
-    settings = Settings(formats=formats, fps=fps, up=up, size=size, keys=keys,
+    _check_space(space)
+    settings = Settings(formats=formats, fps=fps, up=up, space=space, size=size, keys=keys,
                         keys_units=keys_units)
     shaping = shaping_settings(settings)
     rows: dict[Path, TakeResult] = {}

@@ -31,12 +31,14 @@ EXPORT_FORMATS = ("gltf", "usd", "pc2", "bvh")
 class Settings:
     """What every take is made with. formats: of plan.FORMATS; fps: frames per second of every
     output; up: PC2 up axis ('y' or 'z'); size: (width, height) pixels of the mp4; antialias:
-    as ``puppet play --antialias`` (msaa by default, offline quality); keys, keys_units: glTF key
-    reduction as ``puppet export --keys/--keys-units`` (None: a key on every frame)."""
+    as ``puppet play --antialias`` (msaa by default, offline quality); space: the PC2's points'
+    space as ``puppet export --space``; keys, keys_units: glTF key reduction as ``puppet export
+    --keys/--keys-units`` (None: a key on every frame)."""
 
     formats: tuple[str, ...]
     fps: float = 30.0
     up: str = "y"
+    space: str = "object"
     size: tuple[int, int] = (640, 480)
     antialias: str = "msaa"
     keys: float | None = None
@@ -87,14 +89,16 @@ def run_take(job: Job, shared: Shared, staging: Path) -> TakeResult:
         exports = Outputs(**{fmt: staging / names[fmt] for fmt in EXPORT_FORMATS if fmt in names})
         if "mp4" not in names:
             report = export_take(rig, reader, exports, fps=settings.fps, up=settings.up,
-                                 keys=settings.keys, keys_units=settings.keys_units,
+                                 space=settings.space, keys=settings.keys,
+                                 keys_units=settings.keys_units,
                                  precompute=precompute)
             result.frames = report.frames
         else:  # one solve of every frame: the video and every export from the same T
             frames = take_frames(rig, reader, settings.fps)
             with contextlib.ExitStack() as stack:
                 writers = [stack.enter_context(ExportWriters(
-                    rig, reader, exports, frames, up=settings.up, keys=settings.keys,
+                    rig, reader, exports, frames, up=settings.up, space=settings.space,
+                    keys=settings.keys,
                     keys_units=settings.keys_units))
                            ] if exports.items() else []
                 with atomic_output(staging / names["mp4"], kind="video") as temporary:

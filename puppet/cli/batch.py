@@ -9,7 +9,7 @@ import click
 
 from puppet import limits
 from puppet.cli.common import (InRange, force_option, keys_option, keys_units_option, load_rig,
-                               rig_files)
+                               rig_files, space_option)
 
 
 @click.command()
@@ -31,6 +31,7 @@ from puppet.cli.common import (InRange, force_option, keys_option, keys_units_op
               help=f"Video size in pixels (mp4), each {limits.FRAME_SIZE}.")
 @click.option("--up", type=click.Choice(["y", "z"]), default="y", show_default=True,
               help="Up axis of the PC2 points: z for Blender's Mesh Cache.")
+@space_option
 @keys_option
 @keys_units_option
 @click.option("--engine", type=click.Choice(["local", "ray"]), default="local", show_default=True,
@@ -51,7 +52,8 @@ from puppet.cli.common import (InRange, force_option, keys_option, keys_units_op
 @click.option("--json", "as_json", is_flag=True, help="Print the report as one JSON line.")
 @force_option
 def batch(takes: tuple[str, ...], out: str, rig_path: str | None, formats: str, fps: str,
-          size: tuple[int, int], up: str, keys: float | None, keys_units: float | None,
+          size: tuple[int, int], up: str, space: str, keys: float | None,
+          keys_units: float | None,
           engine: str, address: str | None, workers: int | None,
           resume: bool, dry_run: bool, as_json: bool, force: bool) -> None:
     """Solve and write every take; a failed take is reported and the others go on.
@@ -92,7 +94,7 @@ def batch(takes: tuple[str, ...], out: str, rig_path: str | None, formats: str, 
     try:
         report = run_batch(list(takes), out, rig=rig,
                            rig_inputs=rig_files(rig) if rig is not None else [],
-                           formats=formats, fps=fps, up=up, size=size, keys=keys,
+                           formats=formats, fps=fps, up=up, space=space, size=size, keys=keys,
                            keys_units=keys_units, engine=engine,
                            workers=workers, address=address, resume=resume, dry_run=dry_run,
                            force=force, on_start=on_start, on_result=on_result)

@@ -117,6 +117,11 @@ def make_sinks(out: str | None, frames: str | None, fps: float, inputs=(), *,
     return sinks
 
 
+space_option = click.option(
+    "--space", type=click.Choice(["object", "model"]), default="object", show_default=True,
+    help="Space of the PC2 points: object = the mesh object's local space, as Blender's "
+         "glTF importer places the character (the Mesh Cache lands it on a moved or "
+         "scaled character); model = the model frame (the file's world).")
 keys_option = click.option(
     "--keys", default=None, type=InRange(limits.KEYS_DEG), metavar="DEG",
     help="glTF: per channel only the keys that reproduce the solved curve within DEG "

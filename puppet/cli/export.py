@@ -8,7 +8,8 @@ import sys
 import click
 
 from puppet import limits
-from puppet.cli.common import force_option, keys_option, keys_units_option, open_take
+from puppet.cli.common import (force_option, keys_option, keys_units_option, open_take,
+                               space_option)
 
 
 @click.command()
@@ -29,13 +30,14 @@ from puppet.cli.common import force_option, keys_option, keys_units_option, open
               help=f"Frames per second, resampled from the reading times ({limits.FPS}).")
 @click.option("--up", type=click.Choice(["y", "z"]), default="y", show_default=True,
               help="Up axis of the PC2 points: z for Blender's Mesh Cache.")
+@space_option
 @keys_option
 @keys_units_option
 @click.option("--json", "as_json", is_flag=True, help="Print the report as one JSON line.")
 @force_option
 def export(take: str, rig_path: str | None, gltf: str | None, usd: str | None, pc2: str | None,
-           bvh: str | None, fps: str, up: str, keys: float | None, keys_units: float | None,
-           as_json: bool, force: bool) -> None:
+           bvh: str | None, fps: str, up: str, space: str, keys: float | None,
+           keys_units: float | None, as_json: bool, force: bool) -> None:
     """Export a take; frame 1 is the take's first reading in every format.
 
     \b
@@ -62,11 +64,13 @@ def export(take: str, rig_path: str | None, gltf: str | None, usd: str | None, p
         bar.update(1)
 
     try:
-        report = export_take(rig, reader, outputs, fps=fps_value, up=up, keys=keys,
+        report = export_take(rig, reader, outputs, fps=fps_value, up=up, space=space, keys=keys,
                              keys_units=keys_units, progress=progress)
     finally:
         if bar is not None:
             bar.__exit__(None, None, None)
+    for warning in report.warnings:
+        click.echo(f"warning: {warning}", err=True)
     click.echo(json.dumps(report.as_dict()) if as_json else report.text())
 
 

@@ -45,7 +45,7 @@ def test_resume_redoes_a_take_when_what_shapes_it_changed_and_says_why(tmp_path,
     assert manifest["take"]["sha256"] == hashlib.sha256(takes[0].read_bytes()).hexdigest()
     assert manifest["rig"]["file"] == str(BUILTIN_RIG)
     assert manifest["character"]["sha256"] == character_sha256(critter)
-    assert manifest["settings"] == {"fps": 30.0, "up": "y"}
+    assert manifest["settings"] == {"fps": 30.0, "up": "y", "space": "object"}
     assert manifest["outputs"]["pc2"] == {
         "path": "t0.pc2", "bytes": (out / "t0.pc2").stat().st_size,
         "sha256": hashlib.sha256((out / "t0.pc2").read_bytes()).hexdigest()}
@@ -58,7 +58,8 @@ def test_resume_redoes_a_take_when_what_shapes_it_changed_and_says_why(tmp_path,
     assert snapshot(out) == files
 
     # settings that shape the files: each redone take says what changed
-    for option, value, reason in (("--fps", 24, "fps 30 -> 24"), ("--up", "z", "up y -> z")):
+    for option, value, reason in (("--fps", 24, "fps 30 -> 24"), ("--up", "z", "up y -> z"),
+                                  ("--space", "model", "space object -> model")):
         changed = batch(*args, "--resume", option, value)
         assert changed.returncode == 0, changed.stderr
         assert [r[1:] for r in rows_of(changed)] == [("done", reason)] * 2
