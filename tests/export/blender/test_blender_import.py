@@ -1,0 +1,101 @@
+"""Every step of docs/blender.md, done in Blender (``bpy``) by docs/blender_check.py, on the built-in
+critter and on a seamed, textured character whose armature and mesh nodes are moved, turned
+and scaled unevenly: what each step shows is compared with the solver's vertices, frame by
+frame (max and RMS distance, % of the rest bounding-box diagonal), with the scene's rate and
+range.
+
+Exact formats (PC2, USD) must land within float32 rounding: EXACT_PCT. Skinned formats (glTF,
+BVH driving the mesh) are linear blend skinning of the solve's joints, which only approximates
+the FAST mesh: Blender must show the very figures that ``puppet export`` reports for that
+skinning (within AGREE_PCT), and those must stay small (SKINNING_MAX_PCT).
+"""
+
+import numpy as np
+import pytest
+
+EXACT_PCT = 1e-4  # % of the diagonal: float32 rounding of coordinates of a few units
+AGREE_PCT = 0.01  # Blender's skinning vs puppet's own evaluation of the same file
+SKINNING_MAX_PCT = 5.0
+
+
+def distances_pct(shown, vertices: np.ndarray) -> np.ndarray:
+    """(N, n) distance of each shown vertex from the solver's, % of the diagonal."""
+    assert vertices.shape == shown.expected.shape, (
+        f"{shown.name}: Blender shows {vertices.shape} (frames, vertices, 3), "
+        f"the solve has {shown.expected.shape}")
+    return np.linalg.norm(vertices - shown.expected, axis=2) / shown.diagonal * 100
+
+
+def figures(shown, step: str) -> tuple[float, float]:
+    """(max, RMS) % of the diagonal of a step against the solve, printed for the record."""
+    d = distances_pct(shown, shown.steps[step]["vertices"])
+    worst, rms = float(d.max()), float(np.sqrt((d ** 2).mean()))
+    print(f"{shown.name} {step}: max {worst:.3g} %, RMS {rms:.3g} % of the diagonal, "
+          f"{len(d)} frames at {shown.steps[step]['fps']:g} fps")
+    return worst, rms
+
+
+def assert_frames_and_rate(shown, step: str) -> None:
+    """The scene plays frames 1..N at the take's rate after the document's steps."""
+    s = shown.steps[step]
+    assert (s["fps"], s["frame_start"], s["frame_end"]) == (shown.fps, 1, shown.frames), step
+    if "action_range" in s:
+        assert tuple(s["action_range"]) == (1.0, float(shown.frames)), step
+
+
+def test_gltf_shows_the_skinning_that_export_reports(shown):
+    assert_frames_and_rate(shown, "gltf")
+    assert shown.steps["gltf"]["bones"] == list(shown.joint_names)
+    worst, rms = figures(shown, "gltf")
+    assert abs(worst - shown.report["lbs_max_pct"]) <= AGREE_PCT
+    assert abs(rms - shown.report["lbs_rms_pct"]) <= AGREE_PCT
+    assert worst < SKINNING_MAX_PCT
+
+
+def test_pc2_on_the_exported_glb_is_the_solve(shown):
+    assert_frames_and_rate(shown, "pc2_glb")
+    worst, _ = figures(shown, "pc2_glb")
+    assert worst < EXACT_PCT
+
+
+def test_usd_is_the_solve(shown):
+    assert_frames_and_rate(shown, "usd")
+    worst, _ = figures(shown, "usd")
+    assert worst < EXACT_PCT
+
+
+def test_bvh_drives_the_characters_own_mesh(shown):
+    """The BVH's bones take over the mesh's Armature modifier: its vertex groups (the character
+    file's joint names) must find a bone each, and the skinning must be the glTF's."""
+    assert_frames_and_rate(shown, "bvh")
+    assert shown.steps["bvh"]["bones"] == list(shown.joint_names)
+    assert set(shown.steps["bvh"]["vertex_groups"]) <= set(shown.steps["bvh"]["bones"])
+    worst, rms = figures(shown, "bvh")
+    assert abs(worst - shown.report["lbs_max_pct"]) <= AGREE_PCT
+    assert abs(rms - shown.report["lbs_rms_pct"]) <= AGREE_PCT
+
+
+def test_the_test_character_in_blender_is_the_rigs_rest_pose(mare_shown):
+    """The builder's file, as Blender imports it, is what puppet read (the yardstick of the rest)."""
+    rest = mare_shown.steps["pc2_source"]["rest"]
+    assert rest.shape == mare_shown.expected.shape[1:]
+    d = np.linalg.norm(rest - mare_shown.rest_expected, axis=1) / mare_shown.diagonal * 100
+    assert d.max() < EXACT_PCT
+
+
+def test_pc2_on_the_characters_own_import_is_the_solve(mare_shown):
+    """The moved, turned, unevenly scaled character imported from its own file: the PC2 lands
+    on it exactly (the points are in the mesh object's local space)."""
+    assert_frames_and_rate(mare_shown, "pc2_source")
+    worst, _ = figures(mare_shown, "pc2_source")
+    assert worst < EXACT_PCT
+
+
+def test_gltf_keeps_the_characters_vertices_and_look(mare_shown):
+    """The exported .glb comes back with the file's vertices (seam copies too), its UV sets,
+    materials and texture."""
+    gltf = mare_shown.steps["gltf"]
+    assert gltf["vertices"].shape[1] == mare_shown.expected.shape[1]
+    assert len(gltf["uv_layers"]) == 2
+    assert gltf["materials"] == ["coat", "hoof"]
+    assert len(gltf["images"]) == 1
