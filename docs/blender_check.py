@@ -129,6 +129,8 @@ def run_steps(fps, frames, glb, pc2, bvh, usd, character=None) -> dict:
         body = import_gltf(glb, fps, frames)
         armature = next(m.object for m in body.modifiers if m.type == "ARMATURE")
         shown["gltf"] = {**scene_state(armature), "vertices": play(body),
+                         "scene_properties": {k: v for k, v in bpy.context.scene.items()
+                                              if k.startswith("puppet_")},
                          "bones": [b.name for b in armature.data.bones],
                          "uv_layers": [uv.name for uv in body.data.uv_layers],
                          "materials": [m.name for m in body.data.materials if m],

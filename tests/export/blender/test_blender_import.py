@@ -52,6 +52,13 @@ def test_gltf_shows_the_skinning_that_export_reports(shown):
     assert worst < SKINNING_MAX_PCT
 
 
+def test_gltf_records_its_rate_and_range_for_blender(shown):
+    """The importer turns the glTF scene's extras into the scene's custom properties: the rate
+    to set and the range 1..N."""
+    assert shown.steps["gltf"]["scene_properties"] == {
+        "puppet_fps": shown.fps, "puppet_frame_start": 1, "puppet_frame_end": shown.frames}
+
+
 def test_pc2_on_the_exported_glb_is_the_solve(shown):
     assert_frames_and_rate(shown, "pc2_glb")
     worst, _ = figures(shown, "pc2_glb")
