@@ -69,6 +69,12 @@ def scene_state(frames_of=None) -> dict:
     return state
 
 
+def placement(mesh) -> dict:
+    """(4, 4) world matrices of a skinned mesh object and of its armature object."""
+    armature = next(m.object for m in mesh.modifiers if m.type == "ARMATURE")
+    return {"mesh_world": np.array(mesh.matrix_world), "armature_world": np.array(armature.matrix_world)}
+
+
 def play(obj) -> np.ndarray:
     """(frames, n, 3) world vertices of ``obj`` on every frame of the scene's range."""
     scene = bpy.context.scene
@@ -134,7 +140,8 @@ def run_steps(fps, frames, glb, pc2, bvh, usd, character=None) -> dict:
                          "bones": [b.name for b in armature.data.bones],
                          "uv_layers": [uv.name for uv in body.data.uv_layers],
                          "materials": [m.name for m in body.data.materials if m],
-                         "images": sorted(i.name for i in bpy.data.images if i.size[0])}
+                         "images": sorted(i.name for i in bpy.data.images if i.size[0]),
+                         **placement(body)}
         if pc2:
             add_mesh_cache(body, pc2)
             shown["pc2_glb"] = {**scene_state(), "vertices": play(body)}
@@ -142,7 +149,7 @@ def run_steps(fps, frames, glb, pc2, bvh, usd, character=None) -> dict:
         body = import_gltf(character, fps, frames)
         rest = world_vertices(body)  # the character as its file has it (no animation)
         add_mesh_cache(body, pc2)
-        shown["pc2_source"] = {**scene_state(), "vertices": play(body), "rest": rest}
+        shown["pc2_source"] = {**scene_state(), "vertices": play(body), "rest": rest, **placement(body)}
     if bvh and (character or glb):
         body = import_gltf(character or glb)  # the BVH import sets the scene's rate and range
         armature = import_bvh(bvh)

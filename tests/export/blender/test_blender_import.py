@@ -106,3 +106,10 @@ def test_gltf_keeps_the_characters_vertices_and_look(mare_shown):
     assert len(gltf["uv_layers"]) == 2
     assert gltf["materials"] == ["coat", "hoof"]
     assert len(gltf["images"]) == 1
+
+
+def test_gltf_puts_the_character_where_its_file_does(mare_shown):
+    """The exported .glb's armature and mesh objects get the transforms of the character file's."""
+    gltf, source = mare_shown.steps["gltf"], mare_shown.steps["pc2_source"]
+    np.testing.assert_allclose(gltf["armature_world"], source["armature_world"], atol=1e-6)
+    np.testing.assert_allclose(gltf["mesh_world"], source["mesh_world"], atol=1e-6)
