@@ -86,12 +86,16 @@ def play(obj) -> np.ndarray:
 
 
 def import_gltf(path, fps=None, frames=None):
-    """docs, glTF: rate first, File > Import > glTF 2.0 with the defaults, then End = N (a
-    plain import into Blender's default scene without fps and frames)."""
+    """docs, glTF: rate first, File > Import > glTF 2.0 with the defaults, then Start and End
+    from the scene's custom properties puppet_frame_start/end that the import made from the
+    file (a character file has none: 1 and ``frames``). Without fps and frames: a plain import
+    into Blender's default scene."""
     fresh_scene(fps)
     bpy.ops.import_scene.gltf(filepath=path)
+    scene = bpy.context.scene
     if frames is not None:
-        bpy.context.scene.frame_start, bpy.context.scene.frame_end = 1, frames
+        scene.frame_start = scene.get("puppet_frame_start", 1)
+        scene.frame_end = scene.get("puppet_frame_end", frames)
     return skinned_mesh()
 
 
