@@ -75,14 +75,23 @@ def placement(mesh) -> dict:
     return {"mesh_world": np.array(mesh.matrix_world), "armature_world": np.array(armature.matrix_world)}
 
 
-def play(obj) -> np.ndarray:
-    """(frames, n, 3) world vertices of ``obj`` on every frame of the scene's range."""
+def play(obj, armature=None) -> dict:
+    """{"vertices": (frames, n, 3) world vertices of ``obj`` on every frame of the scene's range}
+    and, with an armature, "pose_rotations" (frames, bones, 4) w, x, y, z and "pose_locations"
+    (frames, bones, 3): each pose bone's own (parent-relative) transform, as its F-curves play."""
     scene = bpy.context.scene
-    shown = []
+    vertices, rotations, locations = [], [], []
     for frame in range(scene.frame_start, scene.frame_end + 1):
         scene.frame_set(frame)
-        shown.append(world_vertices(obj))
-    return np.array(shown)
+        vertices.append(world_vertices(obj))
+        if armature is not None:
+            basis = [b.matrix_basis.decompose() for b in armature.pose.bones]
+            rotations.append([tuple(r) for _, r, _ in basis])
+            locations.append([tuple(t) for t, _, _ in basis])
+    out = {"vertices": np.array(vertices)}
+    if armature is not None:
+        out.update(pose_rotations=np.array(rotations), pose_locations=np.array(locations))
+    return out
 
 
 def import_gltf(path, fps=None, frames=None):
@@ -138,7 +147,11 @@ def run_steps(fps, frames, glb, pc2, bvh, usd, character=None) -> dict:
     if glb:
         body = import_gltf(glb, fps, frames)
         armature = next(m.object for m in body.modifiers if m.type == "ARMATURE")
-        shown["gltf"] = {**scene_state(armature), "vertices": play(body),
+        action = armature.animation_data.action
+        shown["gltf"] = {**scene_state(armature), **play(body, armature),
+                         "keys": sum(len(c.keyframe_points) for layer in action.layers
+                                     for strip in layer.strips for bag in strip.channelbags
+                                     for c in bag.fcurves),
                          "scene_properties": {k: v for k, v in bpy.context.scene.items()
                                               if k.startswith("puppet_")},
                          "bones": [b.name for b in armature.data.bones],
@@ -148,23 +161,23 @@ def run_steps(fps, frames, glb, pc2, bvh, usd, character=None) -> dict:
                          **placement(body)}
         if pc2:
             add_mesh_cache(body, pc2)
-            shown["pc2_glb"] = {**scene_state(), "vertices": play(body)}
+            shown["pc2_glb"] = {**scene_state(), **play(body)}
     if pc2 and character:
         body = import_gltf(character, fps, frames)
         rest = world_vertices(body)  # the character as its file has it (no animation)
         add_mesh_cache(body, pc2)
-        shown["pc2_source"] = {**scene_state(), "vertices": play(body), "rest": rest, **placement(body)}
+        shown["pc2_source"] = {**scene_state(), **play(body), "rest": rest, **placement(body)}
     if bvh and (character or glb):
         body = import_gltf(character or glb)  # the BVH import sets the scene's rate and range
         armature = import_bvh(bvh)
         bpy.context.scene.frame_end = frames  # the importer only lengthens the range, to N + 1
         drive_with(body, armature)
-        shown["bvh"] = {**scene_state(armature), "vertices": play(body),
+        shown["bvh"] = {**scene_state(armature), **play(body),
                         "bones": [b.name for b in armature.data.bones],
                         "vertex_groups": [g.name for g in body.vertex_groups]}
     if usd:
         body = import_usd(usd, fps)
-        shown["usd"] = {**scene_state(), "vertices": play(body)}
+        shown["usd"] = {**scene_state(), **play(body)}
     return shown
 
 

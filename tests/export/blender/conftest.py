@@ -62,7 +62,8 @@ class Shown:
     fps, frames: the export's rate and frame count; report: ``puppet export --json``'s report.
     steps: {step: {"vertices": (frames, n, 3) world vertices, "fps", "frame_start",
         "frame_end", ...}} as docs/blender_check.py saved them.
-    joint_names: the rig's joint names (the character file's).
+    joint_names: the rig's joint names (the character file's); blender_output: what
+        docs/blender_check.py printed (one line per step).
     """
 
     name: str
@@ -74,7 +75,6 @@ class Shown:
     report: dict
     steps: dict
     joint_names: tuple
-    files: dict
     blender_output: str
 
 
@@ -122,7 +122,7 @@ def shown_for(name, rig, take, folder, fps, rig_file=None, character_file=None) 
     steps, output = run_blender_check(folder, fps, len(expected), files, character_file)
     rest = rig.V[order] @ Y_UP_TO_BLENDER.T
     return Shown(name, expected, rest, float(np.linalg.norm(rig.V.max(0) - rig.V.min(0))), fps,
-                 len(expected), report, steps, tuple(rig.skeleton.names), files, output)
+                 len(expected), report, steps, tuple(rig.skeleton.names), output)
 
 
 @pytest.fixture(scope="session")

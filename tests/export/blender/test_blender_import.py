@@ -11,7 +11,6 @@ skinning (within AGREE_PCT), and those must stay small (SKINNING_MAX_PCT).
 """
 
 import numpy as np
-import pytest
 
 EXACT_PCT = 1e-4  # % of the diagonal: float32 rounding of coordinates of a few units
 AGREE_PCT = 0.01  # Blender's skinning vs puppet's own evaluation of the same file
