@@ -156,6 +156,7 @@ def run_steps(fps, frames, glb, pc2, bvh, usd, character=None) -> dict:
                                               if k.startswith("puppet_")},
                          "bones": [b.name for b in armature.data.bones],
                          "uv_layers": [uv.name for uv in body.data.uv_layers],
+                         "color_attributes": [c.name for c in body.data.color_attributes],
                          "materials": [m.name for m in body.data.materials if m],
                          "images": sorted(i.name for i in bpy.data.images if i.size[0]),
                          **placement(body)}

@@ -12,8 +12,9 @@ its own translation, rotation and uneven scale. Bone names follow Blender's conv
                └ thigh.R ─ shin.R
 
 Seams: each tube ring repeats its first vertex at its end (u = 0 and u = 1: a UV seam) and each
-cap has its own copies of its ring (a hard edge), as glTF exporters write them. The body carries
-an embedded PNG texture on TEXCOORD_0 and a second UV set, TEXCOORD_1; the legs a plain material.
+cap has its own copies of its ring (a hard edge), as glTF exporters write them. Every primitive has
+two UV sets (TEXCOORD_0, TEXCOORD_1) and vertex colours (COLOR_0); the body's material has an
+embedded PNG texture on TEXCOORD_0, the legs' is plain.
 
 Skinning follows Blender's exporter: positions are in the mesh node's local space and each
 inverse bind matrix is ``inverse(joint world) @ mesh world``, so the rest pose puts every vertex
@@ -220,6 +221,8 @@ def build():
             NORMAL=accessor(normals.astype(np.float32), g.FLOAT, g.VEC3),
             TEXCOORD_0=accessor(uv0.astype(np.float32), g.FLOAT, g.VEC2),
             TEXCOORD_1=accessor(uv1.astype(np.float32), g.FLOAT, g.VEC2),
+            COLOR_0=accessor(np.column_stack([uv0, np.full(len(uv0), 0.5), np.ones(len(uv0))])
+                             .astype(np.float32), g.FLOAT, g.VEC4),
             JOINTS_0=accessor(np.where(weights > 0, order, 0).astype(np.uint16), g.UNSIGNED_SHORT, g.VEC4),
             WEIGHTS_0=accessor(weights.astype(np.float32), g.FLOAT, g.VEC4))
         prims.append(g.Primitive(attributes=attributes, material=0 if k == 0 else 1,

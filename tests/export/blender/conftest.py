@@ -43,12 +43,23 @@ export_data = load_module("blender_test_export_data", HERE.parent / "conftest.py
 
 def bpy_missing() -> str | None:
     """Why ``bpy`` cannot run here, or None."""
-    if importlib.util.find_spec("bpy") is None:
-        return (f"the bpy module (Blender as a Python module, PyPI) is not installed in this "
-                f"Python {sys.version_info.major}.{sys.version_info.minor}: its wheels are for one "
-                f"Python version (bpy 5.0: 3.11) and a few platforms; CI installs it with "
-                f"pip install '.[test]'")
-    return None
+    if importlib.util.find_spec("bpy") is not None:
+        return None
+    version = f"{sys.version_info.major}.{sys.version_info.minor}"
+    if version != "3.11":
+        return (f"bpy (Blender 5.0 as a Python module) cannot install here: PyPI has its wheels "
+                f"for Python 3.11 only and this is Python {version}; the test extras install it "
+                f"under Python 3.11 (pip install '.[test]', as CI does)")
+    return ("bpy (Blender 5.0 as a Python module) is not installed: pip install '.[test]' "
+            "installs it (as CI does), or pip install bpy")
+
+
+@pytest.fixture(scope="session", autouse=True)
+def needs_bpy():
+    """Every test here runs Blender: skipped, saying why, where bpy is not installed."""
+    reason = bpy_missing()
+    if reason:
+        pytest.skip(reason)
 
 
 @dataclass
@@ -57,7 +68,9 @@ class Shown:
 
     expected: (N, n_file, 3) the solver's vertices of every frame, in the character file's vertex
         order, in Blender's world axes (what every step should show, up to skinning);
-        rest_expected (n_file, 3) the rig's rest vertices the same way.
+        rest_expected (n_file, 3) the rig's rest vertices the same way; rigid_skinning
+        (N, n_file, 3) the same way, linear blend skinning with the file's 4 largest weights of
+        the joints' rigid maps (rotation part and pivot of each FAST handle: what a BVH drives).
     diagonal: rest bounding-box diagonal (model units), the yardstick of every % below.
     fps, frames: the export's rate and frame count; report: ``puppet export --json``'s report.
     steps: {step: {"vertices": (frames, n, 3) world vertices, "fps", "frame_start",
@@ -69,6 +82,7 @@ class Shown:
     name: str
     expected: np.ndarray
     rest_expected: np.ndarray
+    rigid_skinning: np.ndarray
     diagonal: float
     fps: float
     frames: int
@@ -78,12 +92,16 @@ class Shown:
     blender_output: str
 
 
+STEP_FILES = {"gltf": "--glb", "pc2": "--pc2", "bvh": "--bvh", "usd": "--usd"}
+
+
 def run_blender_check(folder: Path, fps: float, frames: int, files: dict, character_file=None) -> tuple[dict, str]:
-    """Run docs/blender_check.py on the export in ``folder``: ({step: shown}, its output)."""
+    """Run docs/blender_check.py on the files of an export ({format: path}, any of them):
+    ({step: shown}, what it printed)."""
     saved = folder / "shown.npz"
     argv = [sys.executable, str(CHECK_SCRIPT), "--fps", f"{fps:g}", "--frames", str(frames),
-            "--glb", str(files["gltf"]), "--pc2", str(files["pc2"]), "--bvh", str(files["bvh"]),
-            "--usd", str(files["usd"]), "--save", str(saved)]
+            "--save", str(saved)]
+    argv += [arg for fmt, path in files.items() for arg in (STEP_FILES[fmt], str(path))]
     if character_file is not None:
         argv += ["--character", str(character_file)]
     result = subprocess.run(argv, cwd=folder, capture_output=True, text=True, timeout=BLENDER_TIMEOUT_S)
@@ -97,13 +115,15 @@ def run_blender_check(folder: Path, fps: float, frames: int, files: dict, charac
     return meta, result.stdout
 
 
-def export(folder: Path, take: Path, fps: float, rig_file=None) -> tuple[dict, dict]:
-    """``puppet export`` exactly as docs/blender.md writes it: ({format: path}, report)."""
-    files = {"gltf": folder / "anim.glb", "usd": folder / "anim.usdc", "bvh": folder / "skeleton.bvh",
-             "pc2": folder / "mesh.pc2"}
-    argv = ["puppet", "export", str(take), "--fps", f"{fps:g}", "--gltf", str(files["gltf"]),
-            "--usd", str(files["usd"]), "--bvh", str(files["bvh"]), "--pc2", str(files["pc2"]),
-            "--up", "z", "--json"]
+DOCS_FILES = {"gltf": "anim.glb", "usd": "anim.usdc", "bvh": "skeleton.bvh", "pc2": "mesh.pc2"}
+
+
+def export(folder: Path, take: Path, fps: float, rig_file=None, formats=tuple(DOCS_FILES),
+           options=("--up", "z")) -> tuple[dict, dict]:
+    """``puppet export`` as docs/blender.md writes it: ({format: path}, its --json report)."""
+    files = {fmt: folder / DOCS_FILES[fmt] for fmt in formats}
+    argv = ["puppet", "export", str(take), "--fps", f"{fps:g}", *options, "--json"]
+    argv += [arg for fmt, path in files.items() for arg in (f"--{fmt}", str(path))]
     if rig_file is not None:
         argv += ["--rig", str(rig_file)]
     result = subprocess.run(argv, capture_output=True, text=True, timeout=600)
@@ -111,23 +131,39 @@ def export(folder: Path, take: Path, fps: float, rig_file=None) -> tuple[dict, d
     return files, json.loads(result.stdout.strip().splitlines()[-1])
 
 
-def shown_for(name, rig, take, folder, fps, rig_file=None, character_file=None) -> Shown:
-    reason = bpy_missing()
-    if reason:
-        pytest.skip(reason)
+def rigid_skinning(rig, Ts: np.ndarray) -> np.ndarray:
+    """(N, n, 3) model-space linear blend skinning of the rig's rest vertices by each joint's
+    rigid map P_j (``puppet.export.JointTransforms``) for every frame's T (N, 4m, 3), with each
+    vertex's 4 largest weights renormalized (what a glTF skin holds)."""
+    from puppet.export import JointTransforms
+    from puppet.export.gltf import top_weights
+
+    joints, weights = top_weights(rig.W, 4)
+    maps = JointTransforms(rig.skeleton.heads)
+    Vh = np.hstack([rig.V, np.ones((len(rig.V), 1))])
+    out = []
+    for T in Ts:
+        P = maps.update(T).world  # (b, 3, 4)
+        posed = np.einsum("bij,nj->nbi", P, Vh)  # every vertex by every joint
+        out.append(np.einsum("nk,nki->ni", weights, np.take_along_axis(posed, joints[:, :, None], 1)))
+    return np.array(out)
+
+
+def shown_for(name, rig, take, folder, fps, reference, rig_file=None, character_file=None) -> Shown:
     files, report = export(folder, take, fps, rig_file)
-    reference = export_data.reference_solve(rig, take, fps=fps)
     order = np.arange(len(rig.V)) if rig.source_index is None else np.asarray(rig.source_index)
     expected = reference.deformed[:, order] @ Y_UP_TO_BLENDER.T
     steps, output = run_blender_check(folder, fps, len(expected), files, character_file)
     rest = rig.V[order] @ Y_UP_TO_BLENDER.T
-    return Shown(name, expected, rest, float(np.linalg.norm(rig.V.max(0) - rig.V.min(0))), fps,
+    rigid = rigid_skinning(rig, reference.T)[:, order] @ Y_UP_TO_BLENDER.T
+    return Shown(name, expected, rest, rigid, float(np.linalg.norm(rig.V.max(0) - rig.V.min(0))), fps,
                  len(expected), report, steps, tuple(rig.skeleton.names), output)
 
 
 @pytest.fixture(scope="session")
-def critter_shown(tmp_path_factory, critter, take30, fps) -> Shown:
-    return shown_for("critter", critter, take30, tmp_path_factory.mktemp("critter_blender"), fps)
+def critter_shown(tmp_path_factory, critter, take30, fps, reference) -> Shown:
+    return shown_for("critter", critter, take30, tmp_path_factory.mktemp("critter_blender"), fps,
+                     reference)
 
 
 @pytest.fixture(scope="session")
@@ -149,7 +185,26 @@ def mare_shown(mare_files) -> Shown:
     from puppet.rig import load_rig
 
     folder, glb, rig_file, take = mare_files
-    return shown_for("mare", load_rig(rig_file), take, folder, 30.0, rig_file, glb)
+    rig = load_rig(rig_file)
+    reference = export_data.reference_solve(rig, take, fps=30.0)
+    return shown_for("mare", rig, take, folder, 30.0, reference, rig_file, glb)
+
+
+@dataclass
+class Keyed:
+    """A glTF exported with ``--keys``: its report, and the glTF steps in Blender."""
+
+    report: dict
+    gltf: dict
+
+
+@pytest.fixture(scope="session")
+def critter_keyed(tmp_path_factory, critter_shown, take30, fps) -> Keyed:
+    """The critter's take exported with --keys 0.5 (glTF only) and imported into Blender."""
+    folder = tmp_path_factory.mktemp("critter_keys")
+    files, report = export(folder, take30, fps, formats=("gltf",), options=("--keys", "0.5"))
+    steps, _ = run_blender_check(folder, fps, critter_shown.frames, files)
+    return Keyed(report, steps["gltf"])
 
 
 @pytest.fixture(params=["critter", "mare"])
