@@ -29,6 +29,10 @@ from puppet.cli.common import InRange, force_option, open_take
               help=f"Frames per second, resampled from the reading times ({limits.FPS}).")
 @click.option("--up", type=click.Choice(["y", "z"]), default="y", show_default=True,
               help="Up axis of the PC2 points: z for Blender's Mesh Cache.")
+@click.option("--space", type=click.Choice(["object", "model"]), default="object", show_default=True,
+              help="Space of the PC2 points: object = the mesh object's local space, as Blender's "
+                   "glTF importer places the character (the Mesh Cache lands it on a moved or "
+                   "scaled character); model = the model frame (the file's world).")
 @click.option("--keys", default=None, type=InRange(limits.KEYS_DEG), metavar="DEG",
               help="glTF: per channel only the keys that reproduce the solved curve within DEG "
                    f"degrees (rotations; {limits.KEYS_DEG}), LINEAR as Blender plays it; the "
@@ -40,8 +44,8 @@ from puppet.cli.common import InRange, force_option, open_take
 @click.option("--json", "as_json", is_flag=True, help="Print the report as one JSON line.")
 @force_option
 def export(take: str, rig_path: str | None, gltf: str | None, usd: str | None, pc2: str | None,
-           bvh: str | None, fps: str, up: str, keys: float | None, keys_units: float | None,
-           as_json: bool, force: bool) -> None:
+           bvh: str | None, fps: str, up: str, space: str, keys: float | None,
+           keys_units: float | None, as_json: bool, force: bool) -> None:
     """Export a take; frame 1 is the take's first reading in every format.
 
     \b
@@ -68,11 +72,13 @@ def export(take: str, rig_path: str | None, gltf: str | None, usd: str | None, p
         bar.update(1)
 
     try:
-        report = export_take(rig, reader, outputs, fps=fps_value, up=up, keys=keys,
+        report = export_take(rig, reader, outputs, fps=fps_value, up=up, space=space, keys=keys,
                              keys_units=keys_units, progress=progress)
     finally:
         if bar is not None:
             bar.__exit__(None, None, None)
+    for warning in report.warnings:
+        click.echo(f"warning: {warning}", err=True)
     click.echo(json.dumps(report.as_dict()) if as_json else report.text())
 
 
