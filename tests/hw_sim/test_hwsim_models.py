@@ -196,22 +196,6 @@ def test_servos_option_parses_mixed_models():
             hw_sim.cli.parse_servos(bad, "XL330-M288")
 
 
-class HwSim:
-    """``hw-sim ARGS`` as a user runs it: the port it prints, stopped with Ctrl-C."""
-
-    def __init__(self, interrupt_and_wait, *args: str) -> None:
-        self.interrupt_and_wait = interrupt_and_wait
-        self.proc = subprocess.Popen([sys.executable, "-m", "hw_sim.cli", *args],
-                                     stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-        self.port = self.proc.stdout.readline().strip()
-
-    def stop(self) -> str:
-        code = self.interrupt_and_wait(self.proc)
-        err = self.proc.stderr.read()
-        assert code == 0, err
-        return err
-
-
 def served(open_sdk, short, port: str, expected: dict[int, int], ids) -> dict[int, int]:
     """{id: model number} of the ids in ``ids`` that answer a ping: those in ``expected`` are
     pinged with the patient deadline, the others (which must stay silent) with a short one."""
@@ -229,9 +213,9 @@ def served(open_sdk, short, port: str, expected: dict[int, int], ids) -> dict[in
 
 
 def test_hw_sim_rig_serves_exactly_the_rigs_servos_within_limits(tmp_path, open_sdk, short,
-                                                                  interrupt_and_wait):
+                                                                  hw_sim_command):
     path = rig_file(tmp_path)
-    sim = HwSim(interrupt_and_wait, "--rig", str(path))
+    sim = hw_sim_command("--rig", str(path))
     try:
         assert sim.port.startswith("/dev/pts/")
         expected = {3: 1220, 7: 1120, 20: 1090}
@@ -256,8 +240,8 @@ def test_hw_sim_rig_serves_exactly_the_rigs_servos_within_limits(tmp_path, open_
     assert "motion within the rig's limits" in err
 
 
-def test_hw_sim_servos_serves_mixed_models_without_a_rig(open_sdk, short, interrupt_and_wait):
-    sim = HwSim(interrupt_and_wait, "--servos", "1-3:XL330-M288,4-9:XL430-W250", "--motion", "wave")
+def test_hw_sim_servos_serves_mixed_models_without_a_rig(open_sdk, short, hw_sim_command):
+    sim = hw_sim_command("--servos", "1-3:XL330-M288,4-9:XL430-W250", "--motion", "wave")
     try:
         expected = {**{i: 1200 for i in (1, 2, 3)}, **{i: 1060 for i in range(4, 10)}}
         assert served(open_sdk, short, sim.port, expected, range(1, 11)) == expected
