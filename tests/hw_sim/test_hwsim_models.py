@@ -120,6 +120,35 @@ def test_every_model_is_served_and_read_by_the_bus():
             reader.close()
 
 
+def test_every_model_is_served_and_read_through_the_sdk_at_its_own_addresses(open_sdk):
+    # One bus per protocol; each servo pinged (model number) and read with the SDK of its
+    # protocol where puppet's table says its items are: Present Position (the middle of its
+    # range, held still), Present Temperature, Torque Enable; then turned on and sent a goal.
+    for protocol in (1.0, 2.0):
+        names = [name for name, m in MODELS.items() if m.protocol == protocol]
+        servos = {k + 1: name for k, name in enumerate(names)}
+        with hw_sim.serve(servos) as bus:
+            sdk = open_sdk(bus.port, protocol=protocol)
+            ph, port = sdk.packet, sdk.port
+            read = {1: ph.read1ByteTxRx, 2: ph.read2ByteTxRx, 4: ph.read4ByteTxRx}
+            write = {1: ph.write1ByteTxRx, 2: ph.write2ByteTxRx, 4: ph.write4ByteTxRx}
+            for i, name in servos.items():
+                items = MODELS[name].items
+                assert ph.ping(port, i)[:2] == (MODELS[name].number, 0), name
+                position = items.present_position
+                assert read[position.size](port, i, position.address)[:2] == \
+                    (MODELS[name].position_ticks // 2, 0), name
+                temperature = items.present_temperature
+                assert read[temperature.size](port, i, temperature.address)[:2] == \
+                    (bus.servo(i).get("Present Temperature"), 0), name
+                assert write[1](port, i, items.torque_enable.address, 1) == (0, 0), name
+                goal = MODELS[name].position_ticks // 2 + 10
+                assert write[items.goal_position.size](port, i, items.goal_position.address,
+                                                        goal) == (0, 0), name
+                assert read[1](port, i, items.torque_enable.address)[:2] == (1, 0), name
+                assert bus.servo(i).get("Goal Position") == goal, name
+
+
 def test_every_model_reports_a_load_in_its_own_current_unit(open_sdk, wait_until):
     # A load of half the motor's current (plus the idle current) reads back, through the SDK,
     # as that current in the model's Present Current unit, or as Present Load (0.1 % of the
