@@ -174,13 +174,15 @@ def _below(folder: Path, base: Path) -> Path:
 
 
 def _make_folder(folder: Path, out: Path) -> None:
+    """Make a folder below OUT for mirrored takes; BatchError naming it when it cannot be."""
+    if folder.exists() and not folder.is_dir():
+        raise BatchError(f"{folder}: exists in the output folder {out} and is not a folder; "
+                         "it is where takes of that folder write")
     try:
         folder.mkdir(parents=True, exist_ok=True)
     except OSError as err:
         raise BatchError(f"{folder}: cannot create this folder of the output folder {out}: "
                          f"{err.strerror or err}") from None
-    if not folder.is_dir():
-        raise BatchError(f"{folder}: exists in the output folder {out} and is not a folder")
 
 
 @dataclass(frozen=True)
