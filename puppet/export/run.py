@@ -104,7 +104,8 @@ class ExportReport:
                 "gaps_cut": [{"at_s": c.at_ns * 1e-9, "gap_s": c.gap_ns * 1e-9} for c in self.cuts],
                 "files": {f: {"path": str(p), "bytes": b} for f, (p, b) in self.files.items()},
                 "renamed_joints": {f: dict(m) for f, m in self.renamed.items()},
-                "keys": self.keys, "lbs_rms_pct": self.lbs_rms_pct, "lbs_max_pct": self.lbs_max_pct, "bvh_stretch_max_pct": self.bvh_stretch_max_pct,
+                "keys": self.keys, "lbs_rms_pct": self.lbs_rms_pct, "lbs_max_pct": self.lbs_max_pct,
+                "bvh_stretch_max_pct": self.bvh_stretch_max_pct,
                 "pc2_space": self.pc2_space, "warnings": list(self.warnings),
                 "seconds": round(self.seconds, 3)}
 
@@ -353,8 +354,8 @@ class ExportWriters:
                         self.writers[fmt] = Pc2Writer(temporary, order.n_out,
                                                       start_frame=float(FIRST_FRAME), sample_rate=1.0)
                     else:
-                        self.writers[fmt] = BvhWriter(temporary, names=self._bvh_names, parents=sk.parents,
-                                                      offsets=self._bvh_offsets,
+                        self.writers[fmt] = BvhWriter(temporary, names=self._bvh_names,
+                                                      parents=sk.parents, offsets=self._bvh_offsets,
                                                       end_sites=self._end_sites,
                                                       frame_time=1.0 / fps, positions="all")
         except BaseException:
