@@ -263,7 +263,7 @@ def take_frames(rig, reader, fps: float) -> Playback:
     if len(reader) == 0:
         raise ExportError(reader.path, "the take holds no readings")
     reader.check_rig(ids, dict(rig.servo_map.models), rig_name=rig.name)
-    return Playback.of_take(reader, ids, fps=fps)
+    return Playback.of_take(reader, ids, fps=fps, rig=rig)
 
 
 class ExportWriters:
