@@ -135,7 +135,7 @@ def play_take(rig: Rig, reader: TakeReader, sinks: Iterable, *, fps: float = 30.
     from puppet.take import Playback
 
     if frames is None:
-        frames = Playback.of_take(reader, rig.servo_map.ids, fps=fps, speed=speed)
+        frames = Playback.of_take(reader, rig.servo_map.ids, fps=fps, speed=speed, rig=rig)
     solved = list(solved)
     with Pipeline(rig, overlay=True, antialias=antialias, width=size[0], height=size[1],
                   precompute=precompute) as pipeline:
