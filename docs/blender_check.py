@@ -50,6 +50,14 @@ def skinned_mesh():
     return found[0]
 
 
+def rest_vertices(obj) -> np.ndarray:
+    """(n, 3) the mesh's own vertices (no modifier: its rest pose) in world space."""
+    co = np.empty(3 * len(obj.data.vertices))
+    obj.data.vertices.foreach_get("co", co)
+    M = np.array(obj.matrix_world)
+    return co.reshape(-1, 3) @ M[:3, :3].T + M[:3, 3]
+
+
 def world_vertices(obj) -> np.ndarray:
     """(n, 3) the evaluated mesh (every modifier applied) in world space."""
     evaluated = obj.evaluated_get(bpy.context.evaluated_depsgraph_get())
@@ -148,7 +156,7 @@ def run_steps(fps, frames, glb, pc2, bvh, usd, character=None) -> dict:
         body = import_gltf(glb, fps, frames)
         armature = next(m.object for m in body.modifiers if m.type == "ARMATURE")
         action = armature.animation_data.action
-        shown["gltf"] = {**scene_state(armature), **play(body, armature),
+        shown["gltf"] = {**scene_state(armature), **play(body, armature), "rest": rest_vertices(body),
                          "keys": sum(len(c.keyframe_points) for layer in action.layers
                                      for strip in layer.strips for bag in strip.channelbags
                                      for c in bag.fcurves),
@@ -165,7 +173,7 @@ def run_steps(fps, frames, glb, pc2, bvh, usd, character=None) -> dict:
             shown["pc2_glb"] = {**scene_state(), **play(body)}
     if pc2 and character:
         body = import_gltf(character, fps, frames)
-        rest = world_vertices(body)  # the character as its file has it (no animation)
+        rest = rest_vertices(body)
         add_mesh_cache(body, pc2)
         shown["pc2_source"] = {**scene_state(), **play(body), "rest": rest, **placement(body)}
     if bvh and (character or glb):
@@ -183,8 +191,10 @@ def run_steps(fps, frames, glb, pc2, bvh, usd, character=None) -> dict:
 
 
 def report(shown) -> str:
-    """One line per step; distances from the PC2 step's mesh (the exact FAST mesh)."""
+    """One line per step; distances from the PC2 step's mesh (the exact FAST mesh), % of the
+    diagonal of the character's rest bounding box (as ``puppet export`` prints them)."""
     reference = next((shown[k]["vertices"] for k in ("pc2_source", "pc2_glb") if k in shown), None)
+    rest = next((shown[k]["rest"] for k in ("pc2_source", "gltf") if k in shown), None)
     lines = []
     for step, s in shown.items():
         V = s["vertices"]
@@ -193,9 +203,9 @@ def report(shown) -> str:
         if "action_range" in s:
             line += f", keys on {s['action_range'][0]:g}..{s['action_range'][1]:g}"
         if reference is not None and V.shape == reference.shape:
-            diagonal = np.linalg.norm(reference[0].max(0) - reference[0].min(0))
+            diagonal = np.linalg.norm(rest.max(0) - rest.min(0))
             d = np.linalg.norm(V - reference, axis=2) / diagonal * 100
-            line += f"; from the PC2 mesh: max {d.max():.2e} %, RMS {np.sqrt((d ** 2).mean()):.2e} %"
+            line += f"; from the PC2 mesh: max {d.max():.3g} %, RMS {np.sqrt((d ** 2).mean()):.3g} %"
         elif reference is not None:
             line += f"; cannot compare with the PC2 mesh: shape {V.shape} vs {reference.shape}"
         lines.append(line)
