@@ -77,10 +77,21 @@ def scene_state(frames_of=None) -> dict:
     return state
 
 
+def look(mesh) -> dict:
+    """The mesh's UV maps, colour attributes and materials, and the images loaded (with pixels)."""
+    return {"uv_layers": [uv.name for uv in mesh.data.uv_layers],
+            "color_attributes": [c.name for c in mesh.data.color_attributes],
+            "materials": [m.name for m in mesh.data.materials if m],
+            "images": sorted(i.name for i in bpy.data.images if i.has_data or i.size[0])}
+
+
 def placement(mesh) -> dict:
-    """(4, 4) world matrices of a skinned mesh object and of its armature object."""
-    armature = next(m.object for m in mesh.modifiers if m.type == "ARMATURE")
-    return {"mesh_world": np.array(mesh.matrix_world), "armature_world": np.array(armature.matrix_world)}
+    """(4, 4) world matrices of a mesh object and of the armature object of its Armature modifier."""
+    armature = next((m.object for m in mesh.modifiers if m.type == "ARMATURE"), None)
+    out = {"mesh_world": np.array(mesh.matrix_world)}
+    if armature is not None:
+        out["armature_world"] = np.array(armature.matrix_world)
+    return out
 
 
 def play(obj, armature=None) -> dict:
@@ -163,11 +174,7 @@ def run_steps(fps, frames, glb, pc2, bvh, usd, character=None) -> dict:
                          "scene_properties": {k: v for k, v in bpy.context.scene.items()
                                               if k.startswith("puppet_")},
                          "bones": [b.name for b in armature.data.bones],
-                         "uv_layers": [uv.name for uv in body.data.uv_layers],
-                         "color_attributes": [c.name for c in body.data.color_attributes],
-                         "materials": [m.name for m in body.data.materials if m],
-                         "images": sorted(i.name for i in bpy.data.images if i.size[0]),
-                         **placement(body)}
+                         **look(body), **placement(body)}
         if pc2:
             add_mesh_cache(body, pc2)
             shown["pc2_glb"] = {**scene_state(), **play(body)}
@@ -186,7 +193,7 @@ def run_steps(fps, frames, glb, pc2, bvh, usd, character=None) -> dict:
                         "vertex_groups": [g.name for g in body.vertex_groups]}
     if usd:
         body = import_usd(usd, fps)
-        shown["usd"] = {**scene_state(), **play(body)}
+        shown["usd"] = {**scene_state(), **play(body), **look(body), **placement(body)}
     return shown
 
 
