@@ -15,9 +15,8 @@ from puppet.fast.blas import ONE_THREAD_ENV
 API = """
 import json, sys
 from puppet.batch import run_batch
-from puppet.rig import builtin
-report = run_batch(sys.argv[1:-2], sys.argv[-1], rig=builtin(), default_rig=True,
-                   formats=("pc2", "gltf"), workers=1, engine=sys.argv[-2])
+report = run_batch(sys.argv[1:-2], sys.argv[-1], formats=("pc2", "gltf"), workers=1,
+                   engine=sys.argv[-2])
 print(json.dumps([row.cpu_seconds for row in report.rows]))
 """
 
