@@ -8,6 +8,7 @@ from dataclasses import dataclass, field
 from puppet.bus import control_table as ct
 from puppet.bus.errors import ServoError, ServoModelMismatch, ServoStatusError, ServoTimeout
 from puppet.bus.link import SILENT, BusLink
+from puppet.servo_models import X_ITEMS, ControlItems
 
 
 @dataclass(frozen=True)
@@ -39,7 +40,8 @@ class SetupReport:
                 (only filled when a broadcast ping was asked for).
     changes:    every write made (torque off, return delay 0, ...).
     hardware_errors: {id: Hardware Error Status bits} for servos with a latched error.
-    read_mode:  'fast_sync_read' or 'sync_read'.
+    read_mode:  'fast_sync_read' or 'sync_read' (Protocol 2.0); 'bulk_read', 'read' or
+                'bulk_read + read' (Protocol 1.0: see ``read_plan``).
     """
 
     found: dict[int, ServoInfo] = field(default_factory=dict)
@@ -79,20 +81,57 @@ def identify(link: BusLink, servos: Mapping[int, str], report: SetupReport, atte
         raise ServoModelMismatch(mismatched_ids, "ping", "; ".join(mismatched))
 
 
+def bus_protocol(servos: Mapping[int, str], what: str = "the servo map") -> float:
+    """The one protocol of the models in ``servos`` ({id: model name}) -> 1.0 or 2.0.
+
+    One bus carries one protocol: a Protocol 1.0 servo ignores Protocol 2.0 packets and the
+    other way round, so one port cannot read both (ROBOTIS documents no adapter that would).
+    ValueError naming the servos of each protocol otherwise."""
+    by_protocol: dict[float, list[str]] = {}
+    for dxl_id, name in servos.items():
+        model = ct.model_named(name)
+        by_protocol.setdefault(model.protocol, []).append(f"{dxl_id} ({name})")
+    if len(by_protocol) > 1:
+        parts = "; ".join(f"Protocol {p:.1f}: servos {', '.join(ids)}"
+                          for p, ids in sorted(by_protocol.items()))
+        raise ValueError(f"{what} mixes protocols on one bus ({parts}): one bus carries one "
+                         "protocol; put each protocol's servos on a port of their own, or "
+                         "change the MX firmware's protocol (Dynamixel Wizard)")
+    return next(iter(by_protocol), 2.0)
+
+
+def read_plan(servos: Mapping[int, str]) -> tuple[list[int], list[int]]:
+    """How a Protocol 1.0 bus reads ``servos`` ({id: model name}) -> (ids read by one Bulk
+    Read (0x92: MX series), ids read one Read each (AX, RX: no Bulk Read, and Protocol 1.0 has
+    no Sync Read)), each in map order."""
+    bulk = [i for i, m in servos.items() if ct.model_named(m).bulk_read]
+    return bulk, [i for i in servos if i not in bulk]
+
+
+def p1_read_mode(servos: Mapping[int, str]) -> str:
+    """The read mode of a Protocol 1.0 bus, in words ('bulk_read', 'read', 'bulk_read + read')."""
+    bulk, alone = read_plan(servos)
+    return " + ".join(name for name, ids in (("bulk_read", bulk), ("read", alone)) if ids)
+
+
 def supports_fast_sync_read(servos: Mapping[int, str], found: Mapping[int, ServoInfo]) -> bool:
-    """True when every found servo's firmware has Fast Sync Read (X330 FW >= 46, X430 >= 45)."""
+    """True when every found servo's firmware has Fast Sync Read (X330 FW >= 46, X430 >= 45;
+    no Protocol 1.0 model, XL-320 or MX(2.0))."""
     return bool(found) and all(
         info.firmware >= ct.model_named(servos[i]).fast_sync_read_firmware for i, info in found.items())
 
 
-def ensure_status_return(link: BusLink, dxl_id: int, changes: list[Change]) -> None:
+def ensure_status_return(link: BusLink, dxl_id: int, changes: list[Change],
+                         items: ControlItems = X_ITEMS) -> None:
     """Status Return Level 2 (reply to everything), which the rest of the setup relies on.
+    ``items``: the servo model's (``ServoModel.items``).
 
     At level 1 the servo answers reads but not writes; at level 0 only pings. The level is set
     by a write that expects no reply, then checked by a read. ServoError if it stays silent.
     """
+    srl = items.status_return_level
     try:
-        level = link.read(dxl_id, ct.STATUS_RETURN_LEVEL)
+        level = link.read(dxl_id, srl)
     except ServoTimeout:
         # A pinged servo that ignores reads is at level 0, or its reply is only late (a loaded
         # machine): it answers pings, so a ping tells, by what arrives before its reply.
@@ -101,34 +140,38 @@ def ensure_status_return(link: BusLink, dxl_id: int, changes: list[Change]) -> N
         level = 0
     if level >= 2:
         return
-    link.write_no_reply(dxl_id, ct.STATUS_RETURN_LEVEL, 2)
-    changes.append(Change(dxl_id, ct.STATUS_RETURN_LEVEL.name, level, 2))
-    if link.read(dxl_id, ct.STATUS_RETURN_LEVEL) != 2:
+    link.write_no_reply(dxl_id, srl, 2)
+    changes.append(Change(dxl_id, srl.name, level, 2))
+    if link.read(dxl_id, srl) != 2:
         raise ServoStatusError([dxl_id], "write Status Return Level", "the level did not change")
 
 
-def configure_servo(link: BusLink, dxl_id: int, driven: bool, changes: list[Change]) -> None:
+def configure_servo(link: BusLink, dxl_id: int, driven: bool, changes: list[Change],
+                    items: ControlItems = X_ITEMS) -> None:
     """Status Return Level 2 and Return Delay Time 0 on one servo; a sensor's torque off.
 
     driven: the servo is an actuator that a driver owns (``ServoReader(driven=...)``): its
     torque is never changed here, and its return delay (an EEPROM item, writable only with
     torque off) only while its torque is off; the driver's own setup makes it safe to drive.
+    ``items``: the servo model's (``ServoModel.items``: the addresses differ by protocol).
     Appends every write to ``changes``. Raises ServoError/PortError on a failed transaction.
     """
-    ensure_status_return(link, dxl_id, changes)
-    torque = link.read(dxl_id, ct.TORQUE_ENABLE)
-    delay = link.read(dxl_id, ct.RETURN_DELAY_TIME)
+    ensure_status_return(link, dxl_id, changes, items)
+    torque_item, delay_item = items.torque_enable, items.return_delay_time
+    torque = link.read(dxl_id, torque_item)
+    delay = link.read(dxl_id, delay_item)
     if delay != 0 and not (driven and torque):
         if torque:  # EEPROM is locked while torque is on
-            link.write(dxl_id, ct.TORQUE_ENABLE, 0)
-            changes.append(Change(dxl_id, ct.TORQUE_ENABLE.name, torque, 0))
+            link.write(dxl_id, torque_item, 0)
+            changes.append(Change(dxl_id, torque_item.name, torque, 0))
             torque = 0
-        link.write(dxl_id, ct.RETURN_DELAY_TIME, 0)
-        changes.append(Change(dxl_id, ct.RETURN_DELAY_TIME.name, delay, 0))
+        link.write(dxl_id, delay_item, 0)
+        changes.append(Change(dxl_id, delay_item.name, delay, 0))
     if not driven and torque:
-        link.write(dxl_id, ct.TORQUE_ENABLE, 0)
-        changes.append(Change(dxl_id, ct.TORQUE_ENABLE.name, torque, 0))
+        link.write(dxl_id, torque_item, 0)
+        changes.append(Change(dxl_id, torque_item.name, torque, 0))
 
 
 __all__ = ["Change", "ServoInfo", "SetupReport", "identify", "supports_fast_sync_read",
+           "bus_protocol", "read_plan", "p1_read_mode",
            "configure_servo", "ensure_status_return"]
