@@ -8,7 +8,7 @@ from dataclasses import dataclass, field
 from puppet.bus import control_table as ct
 from puppet.bus.errors import ServoError, ServoModelMismatch, ServoStatusError, ServoTimeout
 from puppet.bus.link import SILENT, BusLink
-from puppet.servo_models import X_ITEMS, ControlItems
+from puppet.servo_models import X_ITEMS, ControlItems, protocol_of
 
 
 @dataclass(frozen=True)
@@ -82,22 +82,12 @@ def identify(link: BusLink, servos: Mapping[int, str], report: SetupReport, atte
 
 
 def bus_protocol(servos: Mapping[int, str], what: str = "the servo map") -> float:
-    """The one protocol of the models in ``servos`` ({id: model name}) -> 1.0 or 2.0.
-
-    One bus carries one protocol: a Protocol 1.0 servo ignores Protocol 2.0 packets and the
-    other way round, so one port cannot read both (ROBOTIS documents no adapter that would).
-    ValueError naming the servos of each protocol otherwise."""
-    by_protocol: dict[float, list[str]] = {}
-    for dxl_id, name in servos.items():
-        model = ct.model_named(name)
-        by_protocol.setdefault(model.protocol, []).append(f"{dxl_id} ({name})")
-    if len(by_protocol) > 1:
-        parts = "; ".join(f"Protocol {p:.1f}: servos {', '.join(ids)}"
-                          for p, ids in sorted(by_protocol.items()))
-        raise ValueError(f"{what} mixes protocols on one bus ({parts}): one bus carries one "
-                         "protocol; put each protocol's servos on a port of their own, or "
-                         "change the MX firmware's protocol (Dynamixel Wizard)")
-    return next(iter(by_protocol), 2.0)
+    """The one protocol of ``servos`` ({id: model name}) -> 1.0 or 2.0 (``servo_models.
+    protocol_of``); ValueError starting with ``what`` naming the servos of each otherwise."""
+    try:
+        return protocol_of(servos)
+    except ValueError as err:
+        raise ValueError(f"{what}: {err}") from None
 
 
 def read_plan(servos: Mapping[int, str]) -> tuple[list[int], list[int]]:
