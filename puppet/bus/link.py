@@ -487,7 +487,9 @@ class BusLink:
             try:
                 found[int(dxl_id)] = self.ping(int(dxl_id))
             except ServoError:
-                continue
+                # No settling before the next ping: a late reply carries this id, and the next
+                # ping takes only its own id's status (the SDK drops the others).
+                self._unsettled = False
         return found
 
     def read(self, dxl_id: int, item: Item) -> int:
