@@ -20,7 +20,9 @@ from puppet.cli.common import force_option, open_take
                                           "skeleton (UsdSkel).")
 @click.option("--pc2", default=None, help="Point cache of the deformed mesh in the character "
                                           "file's vertex order (Blender Mesh Cache).")
-@click.option("--bvh", default=None, help="Every joint as BVH (names made BVH-safe).")
+@click.option("--bvh", default=None, help="Every joint as BVH, named as in the rig (whitespace and "
+                                          "control characters -> _, accents dropped; dots and .L/.R "
+                                          "kept); End Sites reach the mesh's farthest vertex.")
 @click.option("--fps", default="30", show_default=True,
               help=f"Frames per second, resampled from the reading times ({limits.FPS}).")
 @click.option("--up", type=click.Choice(["y", "z"]), default="y", show_default=True,

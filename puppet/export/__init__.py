@@ -4,14 +4,15 @@
 - glTF 2.0 (.glb): the character with its skin and one animation of every joint (solved ones too);
 - USD: the exact deformed mesh as time-sampled points, and the skeleton as UsdSkel;
 - PC2 point cache of the deformed mesh in the character file's own vertex order;
-- BVH with every joint (BVH-safe names).
+- BVH with every joint, named as in the rig (whitespace -> ``_``: ``puppet.export.names``),
+  End Sites measured on the mesh.
 
 ``export_take`` runs the whole export of one take; ``ExportWriters`` is its per-frame sink (also fed
 beside a video by ``puppet.replay.play_take``); the writers stream one frame at a time.
 USD needs usd-core, imported only when a USD file is written.
 """
 
-from puppet.export.bvh import BvhWriter, write_bvh
+from puppet.export.bvh import BvhWriter, mesh_end_sites, write_bvh
 from puppet.export.errors import ExportError
 from puppet.export.euler import euler_to_matrix, matrix_to_euler
 from puppet.export.gltf import GltfWriter
@@ -38,6 +39,7 @@ __all__ = [
     "export_take",
     "check_fps",
     "matrix_to_euler",
+    "mesh_end_sites",
     "polar_rotations",
     "safe_names",
     "write_bvh",

@@ -161,6 +161,15 @@ class GltfWriter(ExportWriter):
         self._translations.append(local[:, :, 3].astype(np.float32))
         self._rotations.append(q.astype(np.float32))
 
+    def timing(self) -> dict:
+        """The take's rate and frame range as written in the scene's and the animation's extras:
+        {"puppet_fps": frames per second, "puppet_frame_start": 1, "puppet_frame_end": N}.
+        Blender's glTF importer (``import_scene_extras``, on by default) makes the scene's extras
+        custom properties of the scene it imports into; it does not change the scene's rate or
+        range itself, and places key time t on frame t × the scene's fps."""
+        return {"puppet_fps": self.fps, "puppet_frame_start": 1,
+                "puppet_frame_end": self.num_frames}
+
     def skin(self, world: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
         """(n, 3) linear blend skinning of the written skin for world (b, 3, 4): what a viewer shows.
 
@@ -256,10 +265,12 @@ class GltfWriter(ExportWriter):
                 channels.append(pygltflib.AnimationChannel(
                     sampler=len(samplers) - 1,
                     target=pygltflib.AnimationChannelTarget(node=j, path=path)))
+        timing = self.timing()
         gltf.animations.append(pygltflib.Animation(
             name=self.name, samplers=samplers, channels=channels,
-            extras={"fps": self.fps, "frames": N, "first_frame": 1,
-                    "note": "frame k is at k/fps seconds; frame 1 is the take's first reading"}))
+            extras={**timing, "note": "frame k is at k/fps seconds; frame 1 is the take's first "
+                                      "reading"}))
+        gltf.scenes[gltf.scene].extras = {**(gltf.scenes[gltf.scene].extras or {}), **timing}
         data = blob.bytes()
         gltf.buffers.append(pygltflib.Buffer(byteLength=len(data)))
         gltf.set_binary_blob(data)

@@ -24,7 +24,7 @@ from pathlib import Path
 import numpy as np
 
 from puppet.atomic import atomic_output, check_distinct, check_output
-from puppet.export.bvh import BvhWriter
+from puppet.export.bvh import BvhWriter, mesh_end_sites
 from puppet.export.errors import ExportError
 from puppet.export.gltf import GltfWriter
 from puppet.export.joint_transforms import JointTransforms
@@ -61,7 +61,8 @@ class ExportReport:
 
     frames: frames per file; fps: their rate; take_seconds: first to last reading, as recorded;
     cuts: the gaps between readings cut to MAX_GAP_S (puppet.take.Cut), the same in every output.
-    files: {format: (path, bytes)}. renamed: {joint name: safe name} for BVH/USD joints.
+    files: {format: (path, bytes)}. renamed: {format: {joint name: its name in that file}} for
+        the joints a format's naming rule changed (``puppet.export.names``: BVH, USD paths).
     lbs_rms_pct, lbs_max_pct: linear blend skinning of the glTF's skeleton with the file's own
         weights against the FAST mesh, over every vertex of every frame, % of the rest bounding
         box diagonal (None without --gltf).
@@ -77,7 +78,7 @@ class ExportReport:
     take_seconds: float
     cuts: list = field(default_factory=list)
     files: dict[str, tuple[Path, int]] = field(default_factory=dict)
-    renamed: dict[str, str] = field(default_factory=dict)
+    renamed: dict[str, dict[str, str]] = field(default_factory=dict)
     lbs_rms_pct: float | None = None
     lbs_max_pct: float | None = None
     bvh_stretch_max_pct: float | None = None
@@ -88,8 +89,8 @@ class ExportReport:
                 "take_seconds": round(self.take_seconds, 6),
                 "gaps_cut": [{"at_s": c.at_ns * 1e-9, "gap_s": c.gap_ns * 1e-9} for c in self.cuts],
                 "files": {f: {"path": str(p), "bytes": b} for f, (p, b) in self.files.items()},
-                "renamed_joints": dict(self.renamed), "lbs_rms_pct": self.lbs_rms_pct,
-                "lbs_max_pct": self.lbs_max_pct, "bvh_stretch_max_pct": self.bvh_stretch_max_pct,
+                "renamed_joints": {f: dict(m) for f, m in self.renamed.items()},
+                "lbs_rms_pct": self.lbs_rms_pct, "lbs_max_pct": self.lbs_max_pct, "bvh_stretch_max_pct": self.bvh_stretch_max_pct,
                 "seconds": round(self.seconds, 3)}
 
     def text(self) -> str:
@@ -106,8 +107,9 @@ class ExportReport:
         if self.bvh_stretch_max_pct is not None:
             lines.append(f"bvh: every joint has position channels (the solve moves pivots up to "
                          f"{self.bvh_stretch_max_pct:.3f} % of the bbox diagonal off rest offsets)")
-        for old, new in self.renamed.items():
-            lines.append(f"joint renamed for BVH/USD: {old!r} -> {new!r}")
+        for fmt, renamed in self.renamed.items():
+            for old, new in renamed.items():
+                lines.append(f"{fmt}: joint {old!r} is named {new!r} (the format's naming rule)")
         return "\n".join(lines)
 
 
@@ -136,7 +138,7 @@ def _bvh_skeleton(rig):
         raise ExportError("--bvh", f"a BVH file has one root joint; the rig's skeleton has "
                                    f"{len(roots)}: {[sk.names[r] for r in roots]}")
     offsets = sk.heads - np.where(sk.parents[:, None] >= 0, sk.heads[sk.parents], 0.0)
-    return offsets, sk.tails - sk.heads
+    return offsets, mesh_end_sites(sk.heads, sk.tails, sk.frames, sk.parents, rig.V, rig.W)
 
 
 def check_fps(fps, where: str = "--fps") -> float:
@@ -232,7 +234,8 @@ class ExportWriters:
     def __enter__(self) -> "ExportWriters":
         rig, sk, order, fps = self.rig, self.rig.skeleton, self.order, self.fps
         V_out = order.take(rig.V)
-        self._safe, self.renamed = safe_names(sk.names)
+        self._bvh_names, bvh_renamed = safe_names(sk.names, "bvh")
+        self.renamed = {"bvh": bvh_renamed} if bvh_renamed and "bvh" in self.targets else {}
         stack = self._stack.__enter__()
         try:
             for fmt, target in self.items:
@@ -252,12 +255,13 @@ class ExportWriters:
                                                       heads=sk.heads, frames=sk.frames, V=V_out,
                                                       F=order.F, fps=fps, name=rig.name,
                                                       meters_per_unit=self.meters_per_unit)
-                        self.renamed.update(self.writers[fmt].renamed)
+                        if self.writers[fmt].renamed:
+                            self.renamed["usd"] = dict(self.writers[fmt].renamed)
                     elif fmt == "pc2":
                         self.writers[fmt] = Pc2Writer(temporary, order.n_out,
                                                       start_frame=float(FIRST_FRAME), sample_rate=1.0)
                     else:
-                        self.writers[fmt] = BvhWriter(temporary, names=self._safe, parents=sk.parents,
+                        self.writers[fmt] = BvhWriter(temporary, names=self._bvh_names, parents=sk.parents,
                                                       offsets=self._bvh_offsets,
                                                       end_sites=self._end_sites,
                                                       frame_time=1.0 / fps, positions="all")
@@ -287,8 +291,7 @@ class ExportWriters:
         report.frames = self.frames
         for fmt, target in self.items:
             report.files[fmt] = (target, target.stat().st_size)
-        if "bvh" in self.targets or "usd" in self.targets:
-            report.renamed = self.renamed
+        report.renamed = self.renamed
         rig = self.rig
         diagonal = float(np.linalg.norm(rig.V.max(0) - rig.V.min(0))) or 1.0
         if "gltf" in self.writers:
