@@ -487,7 +487,6 @@ class ServoUnits:
         return np.abs(np.asarray(ticks, float)) / ticks_per_degree(self.ticks_per_turn)
 
 
-
 def protocol_of(servos) -> float:
     """The one protocol of the servos ``servos`` ({id: model name}; 2.0 when empty).
 
