@@ -41,7 +41,7 @@ class SetupReport:
     changes:    every write made (torque off, return delay 0, ...).
     hardware_errors: {id: Hardware Error Status bits} for servos with a latched error.
     read_mode:  'fast_sync_read' or 'sync_read' (Protocol 2.0); 'bulk_read', 'read' or
-                'bulk_read + read' (Protocol 1.0: see ``read_plan``).
+                'bulk_read + read' (Protocol 1.0: see ``p1_read_mode``).
     """
 
     found: dict[int, ServoInfo] = field(default_factory=dict)
@@ -90,17 +90,12 @@ def bus_protocol(servos: Mapping[int, str], what: str = "the servo map") -> floa
         raise ValueError(f"{what}: {err}") from None
 
 
-def read_plan(servos: Mapping[int, str]) -> tuple[list[int], list[int]]:
-    """How a Protocol 1.0 bus reads ``servos`` ({id: model name}) -> (ids read by one Bulk
-    Read (0x92: MX series), ids read one Read each (AX, RX: no Bulk Read, and Protocol 1.0 has
-    no Sync Read)), each in map order."""
-    bulk = [i for i, m in servos.items() if ct.model_named(m).bulk_read]
-    return bulk, [i for i in servos if i not in bulk]
-
-
 def p1_read_mode(servos: Mapping[int, str]) -> str:
-    """The read mode of a Protocol 1.0 bus, in words ('bulk_read', 'read', 'bulk_read + read')."""
-    bulk, alone = read_plan(servos)
+    """How a Protocol 1.0 bus reads ``servos`` ({id: model name}), in words: 'bulk_read' (one
+    Bulk Read, 0x92, of the MX servos: ``ServoModel.bulk_read``), 'read' (one Read per AX / RX
+    servo: they have no Bulk Read, and Protocol 1.0 has no Sync Read) or 'bulk_read + read'."""
+    bulk = [i for i, m in servos.items() if ct.model_named(m).bulk_read]
+    alone = [i for i in servos if i not in bulk]
     return " + ".join(name for name, ids in (("bulk_read", bulk), ("read", alone)) if ids)
 
 
@@ -163,5 +158,5 @@ def configure_servo(link: BusLink, dxl_id: int, driven: bool, changes: list[Chan
 
 
 __all__ = ["Change", "ServoInfo", "SetupReport", "identify", "supports_fast_sync_read",
-           "bus_protocol", "read_plan", "p1_read_mode",
+           "bus_protocol", "p1_read_mode",
            "configure_servo", "ensure_status_return"]

@@ -18,7 +18,7 @@ from __future__ import annotations
 import contextlib
 import os
 import time
-from collections.abc import Iterable, Iterator, Mapping
+from collections.abc import Collection, Iterable, Iterator, Mapping
 from dataclasses import dataclass, field
 
 import dynamixel_sdk
@@ -216,11 +216,20 @@ class GroupRead:
     values: {id: decoded value} for every servo that answered cleanly.
     errors: {id: status error byte} for every servo that answered (0 = clean; bit 7 = alert).
     failed: {id: ServoError} for every servo without a usable value.
+    alone:  ids read by a Read of their own (``BusLink.group_read`` on Protocol 1.0).
     """
 
     values: dict[int, int] = field(default_factory=dict)
     errors: dict[int, int] = field(default_factory=dict)
     failed: dict[int, ServoError] = field(default_factory=dict)
+    alone: set[int] = field(default_factory=set)
+
+    def merge(self, other: "GroupRead") -> None:
+        """Take in ``other``'s results (another part of the same read)."""
+        self.values.update(other.values)
+        self.errors.update(other.errors)
+        self.failed.update(other.failed)
+        self.alone |= other.alone
 
 
 class BusLink:
@@ -593,6 +602,44 @@ class BusLink:
         if failure is not None:
             return GroupRead(failed=dict.fromkeys(ids, failure))
         return self._replies(dict.fromkeys(ids, item), "sync_read")
+
+    def group_read(self, items: Mapping[int, Item], *, fast: bool = False,
+                   bulk: Collection[int] = ()) -> GroupRead:
+        """One item per servo ({id: Item}, the servo's own address) by the fastest transactions
+        the bus has: on Protocol 2.0 one Sync Read (``fast``: Fast Sync Read) per distinct
+        item; on Protocol 1.0 (no Sync Read) one Bulk Read of the ``bulk`` servos (MX) and
+        one Read per other servo (AX / RX have no Bulk Read). ``GroupRead.alone``: the ids
+        read by a Read of their own. After a Read not sent because the line stayed stalled,
+        the rest fail with the same error, unsent."""
+        if not self.wire.p1:
+            by_item: dict[Item, list[int]] = {}
+            for dxl_id, item in items.items():
+                by_item.setdefault(item, []).append(dxl_id)
+            read = self.fast_sync_read if fast else self.sync_read
+            if len(by_item) == 1:
+                item, ids = next(iter(by_item.items()))
+                return read(ids, item)
+            out = GroupRead()
+            for item, ids in by_item.items():
+                out.merge(read(ids, item))
+            return out
+        bulk_items = {i: item for i, item in items.items() if i in bulk}
+        out = self.bulk_read(bulk_items) if bulk_items else GroupRead()
+        stalled: ServoError | None = None
+        for dxl_id, item in items.items():
+            if dxl_id in bulk_items:
+                continue
+            out.alone.add(dxl_id)
+            if stalled is not None:
+                out.failed[dxl_id] = stalled
+                continue
+            try:
+                out.values[dxl_id], out.errors[dxl_id] = self.read_with_status(dxl_id, item)
+            except ServoError as exc:
+                out.failed[dxl_id] = exc
+                if exc.line_stalled:
+                    stalled = exc
+        return out
 
     def bulk_read(self, items: Mapping[int, Item]) -> GroupRead:
         """Protocol 1.0 Bulk Read (0x92; MX series only) of one item per servo ({id: Item}):

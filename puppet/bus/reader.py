@@ -44,7 +44,7 @@ import numpy as np
 from puppet.bus import control_table as ct
 from puppet.bus import health as hs
 from puppet.bus.configure import (SetupReport, bus_protocol, configure_servo, identify,
-                                  p1_read_mode, read_plan, supports_fast_sync_read)
+                                  p1_read_mode, supports_fast_sync_read)
 from puppet.bus.errors import PortError, ServoCorrupt, ServoError, ServoMissing, ServoTimeout
 from puppet.bus.link import SILENT, STALLED, BusLink, GroupRead
 from puppet.bus.unwrap import TurnUnwrapper, unwrap_period
@@ -69,7 +69,7 @@ class ServoReader:
     latency_ms: the SDK's latency assumption (module global ``LATENCY_TIMER``), ms; None: the
                adapter's FTDI latency timer from sysfs where there is one, else 1.
     read_mode: 'auto' (fast sync read if all firmware supports it), 'fast_sync_read', 'sync_read'
-               (Protocol 2.0; a Protocol 1.0 bus always reads as ``configure.read_plan`` says).
+               (Protocol 2.0; a Protocol 1.0 bus always reads as ``configure.p1_read_mode`` says).
     driven:    ids of actuators a driver owns (puppet.drive, through the ReaderProcess hook):
                read like the others, but setup, reconfiguration, recovery and auto-reboot never
                change their torque or reboot them (see ``configure_servo``).
@@ -328,50 +328,18 @@ class ServoReader:
         self.link.read(dxl_id, self.items[dxl_id].present_position)
         return self.link.hardware_bits.get(dxl_id, 0)
 
-    def _group_read(self, ids: list[int]) -> tuple[GroupRead, set[int]]:
+    def _group_read(self, ids: list[int]) -> GroupRead:
         """Present Position of ``ids`` by the fastest transactions their models have (see the
-        module docstring) -> (result, the ids already read alone: no second try this frame)."""
-        if self.link.wire.p1:
-            return self._p1_group_read(ids)
-        by_item: dict = {}
-        for dxl_id in ids:
-            by_item.setdefault(self.items[dxl_id].present_position, []).append(dxl_id)
-        if len(by_item) == 1:
-            return self._sync_group_read(ids, next(iter(by_item))), set()
-        out = GroupRead()
-        for item, some in by_item.items():
-            part = self._sync_group_read(some, item)
-            out.values.update(part.values)
-            out.errors.update(part.errors)
-            out.failed.update(part.failed)
-        return out, set()
-
-    def _sync_group_read(self, ids: list[int], item: ct.Item) -> GroupRead:
-        if self.read_mode == "fast_sync_read":
-            result = self.link.fast_sync_read(ids, item)
-            if self._fast_unsupported(result):
-                self.read_mode = "sync_read"
-                self.log.add("fast_read_disabled", ids, "servos answered Fast Sync Read with an error")
-                result = self.link.sync_read(ids, item)
-            return result
-        return self.link.sync_read(ids, item)
-
-    def _p1_group_read(self, ids: list[int]) -> tuple[GroupRead, set[int]]:
-        """Protocol 1.0: one Bulk Read of the MX servos of ``ids``, one Read per other servo."""
-        bulk, alone = read_plan({i: self.servos[i] for i in ids})
-        out = self.link.bulk_read({i: self.items[i].present_position for i in bulk}) if bulk \
-            else GroupRead()
-        for dxl_id in alone:
-            if self._stalled:
-                break
-            try:
-                raw, error = self.link.read_with_status(dxl_id, self.items[dxl_id].present_position)
-            except ServoError as exc:
-                out.failed[dxl_id] = exc
-                continue
-            out.errors[dxl_id] = error
-            out.values[dxl_id] = raw
-        return out, set(alone)
+        module docstring; ``BusLink.group_read``)."""
+        items = {i: self.items[i].present_position for i in ids}
+        bulk = [i for i in ids if self.models[i].bulk_read]
+        fast = self.read_mode == "fast_sync_read"
+        result = self.link.group_read(items, fast=fast, bulk=bulk)
+        if fast and self._fast_unsupported(result):
+            self.read_mode = "sync_read"
+            self.log.add("fast_read_disabled", ids, "servos answered Fast Sync Read with an error")
+            result = self.link.group_read(items, bulk=bulk)
+        return result
 
     @staticmethod
     def _fast_unsupported(result: GroupRead) -> bool:
@@ -382,7 +350,7 @@ class ServoReader:
     def _read_group(self, now: int) -> None:
         if not self._group:
             return
-        result, alone = self._group_read(self._group)
+        result = self._group_read(self._group)
         exact = time.monotonic_ns() - now <= self.exact_within_ns
         for dxl_id, error in result.errors.items():
             self._note_alert(dxl_id, error)
@@ -393,7 +361,7 @@ class ServoReader:
             else:
                 self._read_alone(dxl_id, implausible, now)
         for dxl_id, exc in result.failed.items():
-            if dxl_id in alone:
+            if dxl_id in result.alone:
                 self._alone_failed(dxl_id, exc, now)
             else:
                 self._read_alone(dxl_id, exc, now)
