@@ -7,8 +7,10 @@ Per ``read()``:
    per Present Position item: an XL-320 keeps it at 37, 2 bytes, the others at 132, 4 bytes);
    on Protocol 1.0, which has no Sync Read, one Bulk Read (0x92) of the MX servos and one Read
    per AX / RX servo (they have no Bulk Read). Servos that answered keep their values even if
-   others failed. A value outside the model's positions (0..max_position: an AX, RX or XL-320
-   whose shaft sits in its 60° dead zone) is flagged (``dead_zone`` event), never taken.
+   others failed. On a model with a dead zone (AX, RX, XL-320: 1024 positions over 300°) a
+   value at either end (0 or max_position: what the servo reads anywhere in its 60° dead zone)
+   or beyond is flagged (``dead_zone`` event, ``ServoHealth.dead_zone``), never taken: the
+   joint holds its last good angle (rig load keeps joint limits inside the positions).
 3. Each servo the group read failed for gets one individual read; a servo that still fails
    holds its last good value, is flagged (``ok`` False), and after ``missing_after`` failures
    in a row leaves the group read: it is then probed alone every ``probe_period_s``, so a dead
@@ -469,12 +471,13 @@ class ServoReader:
         """Take ``raw`` as the servo's value at ``now``; ``exact``: that time is known to within
         ``exact_within_s`` (only such values feed the jitter estimate)."""
         h = self.health[dxl_id]
-        top = self.models[dxl_id].max_position
-        if self.link.wire.p1 or self.models[dxl_id].dead_zone_deg:
-            if not 0 <= raw <= top:  # no angle: the shaft is where no position is measured
+        if self.models[dxl_id].dead_zone_deg:
+            top = self.models[dxl_id].max_position
+            if not 0 < raw < top:  # no angle: the shaft may be anywhere in the dead zone
                 if not h.dead_zone:
-                    self.log.add("dead_zone", [dxl_id], f"Present Position {raw} outside its "
-                                 f"model's 0..{top} ({self.servos[dxl_id]})")
+                    self.log.add("dead_zone", [dxl_id], f"Present Position {raw}: at an end of "
+                                 f"its {self.servos[dxl_id]}'s 0..{top}, where the "
+                                 f"{self.models[dxl_id].dead_zone_deg:.0f}° dead zone reads")
                 h.dead_zone = True
                 return
             h.dead_zone = False
