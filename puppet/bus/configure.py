@@ -6,7 +6,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 
 from puppet.bus import control_table as ct
-from puppet.bus.errors import ServoError, ServoModelMismatch, ServoStatusError, ServoTimeout
+from puppet.bus.errors import BusError, ServoError, ServoModelMismatch, ServoStatusError, ServoTimeout
 from puppet.bus.link import SILENT, BusLink
 from puppet.servo_models import X_ITEMS, ControlItems, protocol_of
 
@@ -90,6 +90,21 @@ def bus_protocol(servos: Mapping[int, str], what: str = "the servo map") -> floa
         raise ValueError(f"{what}: {err}") from None
 
 
+def check_baud(servos: Mapping[int, str], baud: int, port: str = "") -> None:
+    """BusError naming every servo of ``servos`` ({id: model name}) whose model cannot select
+    ``baud`` bit/s (``ServoModel.baud_rates``: 4 Mbit/s on X-series, 1 Mbit/s at most on AX /
+    RX and the XL-320, ...)."""
+    slow = {i: m for i, m in servos.items() if int(baud) not in ct.model_named(m).baud_rates}
+    if slow:
+        names = ", ".join(f"{i} ({m}: {_rates(ct.model_named(m).baud_rates)})" for i, m in slow.items())
+        raise BusError(f"{'port ' + port + ': ' if port else ''}{baud} bit/s is not a rate of "
+                       f"servo{'s' if len(slow) > 1 else ''} {names}")
+
+
+def _rates(bauds) -> str:
+    return "up to " + (f"{max(bauds) / 1e6:g} Mbit/s" if max(bauds) >= 1e6 else f"{max(bauds)} bit/s")
+
+
 def p1_read_mode(servos: Mapping[int, str]) -> str:
     """How a Protocol 1.0 bus reads ``servos`` ({id: model name}), in words: 'bulk_read' (one
     Bulk Read, 0x92, of the MX servos: ``ServoModel.bulk_read``), 'read' (one Read per AX / RX
@@ -158,5 +173,5 @@ def configure_servo(link: BusLink, dxl_id: int, driven: bool, changes: list[Chan
 
 
 __all__ = ["Change", "ServoInfo", "SetupReport", "identify", "supports_fast_sync_read",
-           "bus_protocol", "p1_read_mode",
+           "bus_protocol", "p1_read_mode", "check_baud",
            "configure_servo", "ensure_status_return"]

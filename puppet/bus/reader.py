@@ -45,8 +45,8 @@ import numpy as np
 
 from puppet.bus import control_table as ct
 from puppet.bus import health as hs
-from puppet.bus.configure import (SetupReport, bus_protocol, configure_servo, identify,
-                                  p1_read_mode, supports_fast_sync_read)
+from puppet.bus.configure import (SetupReport, bus_protocol, check_baud, configure_servo,
+                                  identify, p1_read_mode, supports_fast_sync_read)
 from puppet.bus.errors import PortError, ServoCorrupt, ServoError, ServoMissing, ServoTimeout
 from puppet.bus.link import SILENT, STALLED, BusLink, GroupRead
 from puppet.bus.unwrap import TurnUnwrapper, unwrap_period
@@ -67,7 +67,8 @@ class ServoReader:
                ``dynamixel_sdk.PortHandler``.
     servos:    {id: model name} ('XL330-M288', 'XL430-W250', 'AX-12A', ...), in reading order;
                all of one protocol (ValueError naming the servos of each otherwise).
-    baud:      bits per second.
+    baud:      bits per second: one every servo's model can select (BusError naming those
+               that cannot).
     latency_ms: the SDK's latency assumption (module global ``LATENCY_TIMER``), ms; None: the
                adapter's FTDI latency timer from sysfs where there is one, else 1.
     read_mode: 'auto' (fast sync read if all firmware supports it), 'fast_sync_read', 'sync_read'
@@ -125,6 +126,7 @@ class ServoReader:
             ct.model_named(name)
         self.servos = {int(i): str(m) for i, m in servos.items()}
         self.protocol = bus_protocol(self.servos, "ServoReader: the servo map")
+        check_baud(self.servos, baud, str(port) if isinstance(port, str) else port.getPortName())
         self.models = {i: ct.model_named(m) for i, m in self.servos.items()}
         self.items = {i: m.items for i, m in self.models.items()}
         """{id: ControlItems}: where each servo's model keeps what the reader reads."""

@@ -17,17 +17,19 @@ def _on_port(port: str, err) -> str:
 
 
 def _ping_all(port: str, baud: int) -> dict:
-    """Broadcast ping on ``port``: {id: (model number, firmware)}; a bus error is an Error line."""
-    from puppet.bus import BusError, BusLink
+    """The servos on ``port`` at ``baud``: {id: (model number, firmware)} of one protocol (2.0
+    first, then 1.0: a bus carries one; ``puppet.bus.scan``); a bus error is an Error line."""
+    from puppet.bus import BusError
+    from puppet.bus.scan import scan as scan_bus
 
-    link = BusLink(port, baud=baud)
     try:
-        link.open()
-        return link.broadcast_ping()
+        for protocol in (2.0, 1.0):
+            found = scan_bus(port, (baud,), (protocol,))
+            if found:
+                return {f.id: (f.number, f.firmware) for f in found}
     except BusError as err:
         fail(_on_port(port, err))
-    finally:
-        link.close()
+    return {}
 
 
 class BaudOrAll(InRange):

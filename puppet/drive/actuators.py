@@ -48,7 +48,7 @@ from puppet.drive.errors import HealthStop
 from puppet.drive.goals import GoalShaper
 from puppet.drive.health import CurrentTemperatureStop
 from puppet.drive.servos import DriveBus
-from puppet.servo_models import ServoUnits
+from puppet.servo_models import ServoUnits, protocol_of
 
 
 @dataclass(frozen=True)
@@ -189,7 +189,8 @@ class ActuatorHook:
     def stop_from_parent(self, port: str, options: dict, note) -> dict[int, int | None] | None:
         """The reader process died with the actuators' torque maybe on: open ``port`` here and
         turn it off (read back); None when the port cannot be opened (noted)."""
-        link = BusLink(port, **{k: v for k, v in options.items() if k in ("baud", "latency_ms")})
+        link = BusLink(port, **{k: v for k, v in options.items() if k in ("baud", "latency_ms")},
+                       protocol=protocol_of(self.plan.models))
         try:
             link.open()
             return DriveBus(link, self.plan.ids, self.plan.models, note).torque_off()

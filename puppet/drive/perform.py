@@ -50,6 +50,7 @@ from puppet.drive.goals import GoalShaper, TakeGoals
 from puppet.drive.health import (CURRENT_FRACTION, CURRENT_SUSTAIN_S, TEMPERATURE_CAP_C,
                                  TEMPERATURE_MARGIN_C, CurrentTemperatureStop)
 from puppet.drive.servos import DriveBus
+from puppet.servo_models import protocol_of
 
 WATCHDOG_CHECK_CYCLES = 10
 """The Bus Watchdog items are read every this many cycles (the state read is every cycle)."""
@@ -231,7 +232,8 @@ def perform(rig, reader, port: str, options: PerformOptions | None = None,
                          f"{opts.speed:g}, over {MAX_REPLAY_S:.0f} s; give --yes to perform it")
     servo_map = rig.servo_map
     ids = [int(i) for i in servo_map.ids]
-    link = BusLink(port, baud=opts.baud, latency_ms=opts.latency_ms)
+    link = BusLink(port, baud=opts.baud, latency_ms=opts.latency_ms,
+                   protocol=protocol_of(servo_map.models))
     bus = DriveBus(link, ids, dict(servo_map.models), say)
     torque_may_be_on = False
     error: BaseException | None = None

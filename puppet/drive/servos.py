@@ -24,14 +24,14 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from puppet.bus.configure import (Change, SetupReport, ensure_status_return, identify,
-                                  supports_fast_sync_read)
+from puppet.bus.configure import (Change, SetupReport, check_baud, ensure_status_return,
+                                  identify, supports_fast_sync_read)
 from puppet.bus.control_table import describe_hardware_error
 from puppet.bus.errors import BusError, PortError, ServoCorrupt, ServoStatusError, ServoTimeout
 from puppet.bus.link import SILENT, BusLink
 from puppet.drive import items as it
 from puppet.drive.errors import DriveError
-from puppet.servo_models import MODELS
+from puppet.servo_models import MODELS, protocol_of
 ATTEMPTS = 3
 """Tries of a single-servo read or write outside the loop (a reply lost to noise is retried)."""
 SILENCE_PATIENCE_S = 2.0
@@ -92,6 +92,10 @@ class DriveBus:
         self.link = link
         self.ids = [int(i) for i in ids]
         self.models = {int(i): m for i, m in models.items()}
+        if protocol_of(self.models) != link.protocol:
+            raise ValueError(f"DriveBus: servos {self.ids} speak Protocol "
+                             f"{protocol_of(self.models):.1f}, the link {link.protocol:.1f}")
+        check_baud(self.models, link.baud, link.port_name)
         self.log = log
         self.changes: list[Change] = []
         self.recovered: list[int] = []
