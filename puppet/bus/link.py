@@ -194,6 +194,21 @@ class Wire:
             address & 0xFF, address >> 8, size & 0xFF, size >> 8]
         return tx
 
+    def write_tx(self, dxl_id: int, address: int, data: list[int]) -> list:
+        """The SDK's txRxPacket list of a Protocol 1.0 Write."""
+        tx = [0] * (len(data) + 7)
+        tx[p1.PKT_ID], tx[p1.PKT_LENGTH], tx[p1.PKT_INSTRUCTION] = dxl_id, len(data) + 3, rd.INST_WRITE
+        tx[p1.PKT_PARAMETER0] = address
+        tx[p1.PKT_PARAMETER0 + 1: p1.PKT_PARAMETER0 + 1 + len(data)] = data
+        return tx
+
+    def sent(self, tx: list) -> list:
+        """The whole packet of a txRxPacket list after the SDK sent it (it fills in the header
+        and checksum in place)."""
+        if self.p1:
+            return tx[: tx[p1.PKT_LENGTH] + 4]
+        return tx[: (tx[p2.PKT_LENGTH_L] | tx[p2.PKT_LENGTH_H] << 8) + 7]
+
     def ping_tx(self, dxl_id: int) -> list:
         """The SDK's txRxPacket list of a Ping."""
         if self.p1:
@@ -431,13 +446,16 @@ class BusLink:
             self.port.is_using = False
             raise ServoCorrupt(ids, instruction, f"malformed reply ({type(exc).__name__} in the SDK)") from exc
 
-    def _receive(self, dxl_id: int, size: int) -> tuple[list, int]:
+    def _receive(self, dxl_id: int, size: int, echo: list | None = None) -> tuple[list, int]:
         """Status packets until one from ``dxl_id`` that can answer a read of ``size`` bytes
         (or the deadline already set): packets from others and late replies of another
-        size (e.g. to a ping) are skipped. -> (packet, SDK result code)."""
+        size (e.g. to a ping) are skipped, and ``echo`` (the instruction just sent, as a
+        half-duplex adapter may echo it). -> (packet, SDK result code)."""
         wire = self.wire
         while True:
             rx, code = wire.rx(self.port)
+            if code == rd.COMM_SUCCESS and rx == echo:
+                continue
             if code != rd.COMM_SUCCESS or rx[wire.id_at] == dxl_id and not wire.stale(rx, size):
                 if code == rd.COMM_SUCCESS and wire.p1:
                     self.hardware_bits[dxl_id] = wire.hardware_bits(rx)
@@ -469,10 +487,13 @@ class BusLink:
 
     def _exchange(self, tx: list, dxl_id: int, size: int) -> tuple[list, int]:
         """Send ``tx`` and take the status from ``dxl_id`` that can answer it (``size`` data
-        bytes; late replies of another size skipped) -> (packet, SDK result code)."""
+        bytes; late replies of another size skipped) -> (packet, SDK result code). On a
+        half-duplex adapter that echoes the host's bytes, a Protocol 1.0 instruction reads like
+        a status from its id (the format is the same): its echo is skipped."""
         rx, code, _ = self.ph.txRxPacket(self.port, tx)
-        if code == rd.COMM_SUCCESS and self.wire.stale(rx, size):
-            rx, code = self._receive(dxl_id, size)
+        echo = self.wire.sent(tx) if self.wire.p1 else None
+        if code == rd.COMM_SUCCESS and (rx == echo or self.wire.stale(rx, size)):
+            rx, code = self._receive(dxl_id, size, echo)
         elif code == rd.COMM_SUCCESS and self.wire.p1:
             self.hardware_bits[dxl_id] = self.wire.hardware_bits(rx)
         return rx, code
@@ -531,20 +552,17 @@ class BusLink:
         """Write one item of one servo and wait for its status."""
         instruction = f"write {item.name}"
         with self._transaction([dxl_id], instruction):
-            code, error = self.ph.writeTxRx(self.port, dxl_id, item.address, item.size, item.encode(value))
+            if self.wire.p1:  # through _exchange: an echoed Write reads like its status
+                rx, code = self._exchange(self.wire.write_tx(dxl_id, item.address, item.encode(value)),
+                                          dxl_id, 0)
+                error = self.wire.error(rx) if code == rd.COMM_SUCCESS else 0
+            else:
+                code, error = self.ph.writeTxRx(self.port, dxl_id, item.address, item.size,
+                                                item.encode(value))
         if code != rd.COMM_SUCCESS:
             raise self._fail(code, [dxl_id], instruction)
-        error = self._error_byte(dxl_id, error)
         if error & 0x7F:
             raise ServoStatusError([dxl_id], instruction, describe_status_error(error), error=error)
-
-    def _error_byte(self, dxl_id: int, raw: int) -> int:
-        """A status error byte the SDK handed back -> the Protocol 2.0 form (``Wire.error``);
-        on Protocol 1.0 its hardware bits are kept in ``hardware_bits``."""
-        if not self.wire.p1:
-            return raw
-        self.hardware_bits[dxl_id] = raw & P1_HARDWARE_BITS
-        return self.wire.error([0] * self.wire.error_at + [raw])
 
     def write_no_reply(self, dxl_id: int, item: Item, value: int) -> None:
         """Write one item without waiting for a status (for a servo whose Status Return Level
