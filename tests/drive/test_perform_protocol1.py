@@ -5,7 +5,6 @@ without a Bus Watchdog unless told."""
 
 from __future__ import annotations
 
-import re
 import threading
 
 import numpy as np
@@ -16,7 +15,6 @@ from puppet.drive import DriveError, HealthStop, PerformOptions, perform
 from puppet.drive.release import release
 from puppet.rig import load_rig
 from puppet.rig.errors import RigError
-from puppet.rig.load import BUILTIN_RIG
 from puppet.take import TakeReader
 
 OPTIONS = dict(yes=True, latency_ms=20, watchdog=False)
@@ -24,24 +22,9 @@ AX_IDS = range(1, 9)
 
 
 @pytest.fixture
-def p1_rig(tmp_path):
-    """The built-in critter on Protocol 1.0: servos 1..8 AX-12A (zero 512, the middle of its
-    positions), 9..15 MX-28."""
-    text = BUILTIN_RIG.read_text().replace('mesh = "critter.npz"',
-                                           f'mesh = "{BUILTIN_RIG.parent / "critter.npz"}"')
-
-    def servo(match):
-        block, dxl_id = match.group(0), int(match.group(1))
-        model = "AX-12A" if dxl_id in AX_IDS else "MX-28"
-        block = re.sub(r'model = "[^"]*"', f'model = "{model}"', block)
-        if dxl_id in AX_IDS:
-            block = re.sub(r"zero_ticks = \d+", f"zero_ticks = {510 + dxl_id}", block)
-        return block
-
-    text = re.sub(r"\[\[servo\]\]\nid = (\d+)\n(?:(?!\[\[).*\n)*", servo, text)
-    path = tmp_path / "critter_p1.toml"
-    path.write_text(text)
-    return load_rig(path)
+def p1_rig(protocol1_rig):
+    """The built-in critter on Protocol 1.0 (tests/conftest.py): 1..8 AX-12A, 9..15 MX-28."""
+    return load_rig(protocol1_rig)
 
 
 @pytest.fixture
