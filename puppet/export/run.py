@@ -15,6 +15,7 @@ complete (``puppet.atomic``): a failed export leaves no half file and keeps an e
 from __future__ import annotations
 
 import contextlib
+import math
 import sys
 import time
 from collections.abc import Callable, Iterator
@@ -23,6 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
+from puppet import limits
 from puppet.atomic import atomic_output, check_distinct, check_output
 from puppet.export.bvh import BvhWriter, mesh_end_sites
 from puppet.export.errors import ExportError
@@ -35,6 +37,7 @@ from puppet.take.playback import MAX_GAP_S, Playback, check_rate
 
 FORMATS = ("gltf", "usd", "pc2", "bvh")
 UP_AXES = ("y", "z")
+SPACES = ("object", "model")  # where point caches' points are: see point_space()
 FIRST_FRAME = 1  # frame number of the take's first reading, in every format
 KINDS = {"gltf": "glb", "usd": "usd", "pc2": "pc2", "bvh": "bvh"}  # puppet.atomic's file kinds
 SUFFIXES = {"gltf": (".glb",), "usd": (".usdc", ".usda", ".usd")}  # the format follows the name
@@ -70,6 +73,14 @@ class ExportReport:
         the largest distance between a pivot and where rotations and rest offsets alone would put
         it, % of the diagonal (None without --bvh). The BVH carries a position channel on every
         joint for this, so its joints land on the solved pivots all the same.
+    pc2_space: where the PC2's points are: 'model' or 'object' (the mesh object's local space,
+        ``point_space``); None without --pc2.
+    warnings: what of the character file could not be carried (a missing image file...), in
+        words naming the file.
+    keys: None (a glTF key on every frame) or the glTF's key reduction: {"rotation_deg",
+        "translation_units": the tolerances, "kept": keys written, "every_frame": keys a key on
+        every frame would take, "kept_pct", "joints": {joint name: {"translation": keys,
+        "rotation": keys}}}.
     seconds: wall time of the export.
     """
 
@@ -82,6 +93,9 @@ class ExportReport:
     lbs_rms_pct: float | None = None
     lbs_max_pct: float | None = None
     bvh_stretch_max_pct: float | None = None
+    pc2_space: str | None = None
+    warnings: list[str] = field(default_factory=list)
+    keys: dict | None = None
     seconds: float = 0.0
 
     def as_dict(self) -> dict:
@@ -90,7 +104,9 @@ class ExportReport:
                 "gaps_cut": [{"at_s": c.at_ns * 1e-9, "gap_s": c.gap_ns * 1e-9} for c in self.cuts],
                 "files": {f: {"path": str(p), "bytes": b} for f, (p, b) in self.files.items()},
                 "renamed_joints": {f: dict(m) for f, m in self.renamed.items()},
-                "lbs_rms_pct": self.lbs_rms_pct, "lbs_max_pct": self.lbs_max_pct, "bvh_stretch_max_pct": self.bvh_stretch_max_pct,
+                "keys": self.keys, "lbs_rms_pct": self.lbs_rms_pct, "lbs_max_pct": self.lbs_max_pct,
+                "bvh_stretch_max_pct": self.bvh_stretch_max_pct,
+                "pc2_space": self.pc2_space, "warnings": list(self.warnings),
                 "seconds": round(self.seconds, 3)}
 
     def text(self) -> str:
@@ -101,12 +117,21 @@ class ExportReport:
                          f"{max(c.gap_ns for c in self.cuts) * 1e-9:.3f} s)")
         for fmt, (path, size) in self.files.items():
             lines.append(f"{fmt}: {path} ({size} bytes)")
+        if self.pc2_space == "object":
+            lines.append("pc2: points in the mesh object's local space (where Blender's glTF importer "
+                         "puts the character's mesh; --space model: the model frame)")
         if self.lbs_rms_pct is not None:
             lines.append(f"gltf skeleton vs FAST mesh (LBS with the file's weights): RMS "
                          f"{self.lbs_rms_pct:.3f} %, max {self.lbs_max_pct:.3f} % of the bbox diagonal")
         if self.bvh_stretch_max_pct is not None:
             lines.append(f"bvh: every joint has position channels (the solve moves pivots up to "
                          f"{self.bvh_stretch_max_pct:.3f} % of the bbox diagonal off rest offsets)")
+        if self.keys is not None:
+            k = self.keys
+            lines.append(f"gltf keys within {k['rotation_deg']:g}° and {k['translation_units']:.4g} "
+                         f"model units: {k['kept']} of {k['every_frame']} ({k['kept_pct']:.1f} %)")
+            lines.extend(f"  {name}: {c['rotation']} rotation, {c['translation']} translation"
+                         for name, c in k["joints"].items())
         for fmt, renamed in self.renamed.items():
             for old, new in renamed.items():
                 lines.append(f"{fmt}: joint {old!r} is named {new!r} (the format's naming rule)")
@@ -141,13 +166,62 @@ def _bvh_skeleton(rig):
     return offsets, mesh_end_sites(sk.heads, sk.tails, sk.frames, sk.parents, rig.V, rig.W)
 
 
+def point_space(rig, space: str = "object") -> np.ndarray | None:
+    """(3, 4) map from model-frame points to the space a point cache is written in, or None
+    where that is the model frame itself.
+
+    space 'object': the local space of the mesh object that Blender's glTF importer makes from
+    the character file (``SourceScene.object_world``: the armature object's, which the skinned mesh
+    is parented to with an identity transform), so the Mesh Cache modifier lands the points on a
+    moved, turned or scaled character. 'model': the model frame (the file's world). The two
+    are the same for a character that is not glTF or whose armature has no transform.
+    """
+    if space not in SPACES:
+        raise ExportError("--space", f"must be one of {SPACES}, got {space!r}")
+    source = rig.source
+    if space == "model" or source is None or np.allclose(source.object_world, np.eye(4), atol=0):
+        return None
+    return np.linalg.inv(source.object_world)[:3]
+
+
+def default_keys_units(rig, degrees: float) -> float:
+    """Translation tolerance (model units) that goes with a rotation tolerance of ``degrees``:
+    how far that turn moves a point one rest bounding-box diagonal from its pivot
+    (radians(degrees) × diagonal; 0.5° on the built-in critter: 0.016 units, 0.87 % of it)."""
+    diagonal = float(np.linalg.norm(rig.V.max(0) - rig.V.min(0))) or 1.0
+    return math.radians(degrees) * diagonal
+
+
+def _key_tolerances(rig, outputs: Outputs, keys, keys_units) -> tuple[float | None, float | None]:
+    """(degrees, model units) of glTF key reduction, or (None, None) for a key on every frame;
+    each checked against its Range in puppet.limits, errors naming the option."""
+    if keys is None:
+        if keys_units is not None:
+            raise ExportError("--keys-units", "needs --keys (the rotation tolerance, degrees)")
+        return None, None
+    problem = limits.KEYS_DEG.problem(keys)
+    if problem:
+        raise ExportError("--keys", problem)
+    if not outputs.gltf:
+        raise ExportError("--keys", "reduces the glTF's keys: give --gltf FILE (BVH, USD and PC2 "
+                                    "keep every frame)")
+    if keys_units is None:
+        keys_units = default_keys_units(rig, keys)
+    problem = limits.KEYS_UNITS.problem(keys_units)
+    if problem:
+        raise ExportError("--keys-units", problem)
+    return float(keys), float(keys_units)
+
+
 def check_fps(fps, where: str = "--fps") -> float:
     """fps as a float, or an error naming ``where`` unless it is a finite number > 0."""
     return check_rate(fps, "frames per second", where)
 
 
 def export_take(rig, reader, outputs: Outputs, *, fps: float = 30.0, up: str = "y",
-                iterations: int = 8, influences: int = 4, meters_per_unit: float = 1.0,
+                space: str = "object", iterations: int = 8, influences: int = 4,
+                meters_per_unit: float = 1.0, keys: float | None = None,
+                keys_units: float | None = None,
                 progress: Callable[[int, int], None] | None = None,
                 precompute=None) -> ExportReport:
     """Export a take (TakeReader) solved on ``rig`` into every file named in ``outputs``.
@@ -155,15 +229,20 @@ def export_take(rig, reader, outputs: Outputs, *, fps: float = 30.0, up: str = "
     fps:        output frames per second (> 0); frames by ``puppet.take.Playback``.
     up:         'y' (the model's frame) or 'z' (Blender: (x, y, z) -> (x, −z, y)), PC2 only:
                 glTF is Y-up by its spec, USD says its upAxis, BVH importers convert Y-up.
+    space:      'object' or 'model': the space of the PC2 points (``point_space``), before ``up``.
     iterations: FAST iterations per frame. influences: glTF weights per vertex (multiple of 4).
+    keys:       None: a glTF key on every frame; else the glTF's rotation keys reproduce each
+                joint's solved curve within ``keys`` degrees, its translation keys within
+                ``keys_units`` model units (None: ``default_keys_units``), LINEAR
+                (``puppet.export.key_reduction``). BVH, USD and PC2 stay per frame.
     progress:   called with (frames done, frames in all) after each frame.
     precompute: a shared ``puppet.loop.RigPrecompute`` of ``rig`` (batch), None: built here.
     Raises ExportError (or the take's TakeRigMismatch) naming the file at fault.
     """
     start = time.monotonic()
     frames = take_frames(rig, reader, fps)
-    with ExportWriters(rig, reader, outputs, frames, up=up, influences=influences,
-                       meters_per_unit=meters_per_unit) as exports:
+    with ExportWriters(rig, reader, outputs, frames, up=up, space=space, influences=influences,
+                       meters_per_unit=meters_per_unit, keys=keys, keys_units=keys_units) as exports:
         from puppet.loop import Pipeline, run_frames  # the solver's native module: only here
 
         with Pipeline(rig, render=False, iterations=iterations, precompute=precompute) as pipeline:
@@ -197,17 +276,20 @@ class ExportWriters:
 
     rig, reader: the rig solved on and the take (TakeReader, its path: the take is an input no
     output may overwrite). frames: the Playback the frames come from (its fps, count, cuts).
-    up, influences, meters_per_unit: as export_take. Fields: report (ExportReport), frames
-    (written so far).
+    up, space, influences, meters_per_unit, keys, keys_units: as export_take. Fields: report
+    (ExportReport), frames (written so far).
     """
 
     def __init__(self, rig, reader, outputs: Outputs, frames: Playback, *, up: str = "y",
-                 influences: int = 4, meters_per_unit: float = 1.0):
+                 space: str = "object", influences: int = 4, meters_per_unit: float = 1.0,
+                 keys: float | None = None, keys_units: float | None = None):
         if up not in UP_AXES:
             raise ExportError("--up", f"up axis must be one of {UP_AXES}, got {up!r}")
+        self.to_space = point_space(rig, space)
         items = outputs.items()
         if not items:
             raise ExportError("export", "nothing to write: give --gltf, --usd, --pc2 and/or --bvh FILE")
+        self.keys_deg, self.keys_units = _key_tolerances(rig, outputs, keys, keys_units)
         from puppet.rig.rig_file import loaded_files
 
         self.inputs = [Path(reader.path), *loaded_files(rig)]
@@ -226,6 +308,10 @@ class ExportWriters:
         self.order = SourceOrder(rig)
         self.report = ExportReport(frames=len(frames), fps=frames.fps, cuts=list(frames.cuts),
                                    take_seconds=(frames.t_ns[-1] - frames.t_ns[0]) * 1e-9)
+        if "pc2" in self.targets:
+            self.report.pc2_space = space
+        if rig.source is not None and any(f in self.targets for f in ("gltf", "usd")):
+            self.report.warnings += rig.source.warnings
         self.writers: dict[str, object] = {}
         self.frames = 0
         self._stack = contextlib.ExitStack()
@@ -247,7 +333,10 @@ class ExportWriters:
                         self.writers[fmt] = GltfWriter(temporary, names=sk.names, parents=sk.parents,
                                                        heads=sk.heads, frames=sk.frames, V=V_out,
                                                        F=order.F, W=order.take(rig.W), fps=fps,
-                                                       influences=self.influences, name=rig.name)
+                                                       influences=self.influences, name=rig.name,
+                                                       keys_deg=self.keys_deg,
+                                                       keys_units=self.keys_units,
+                                                       source=rig.source)
                     elif fmt == "usd":
                         from puppet.export.usd import UsdWriter
 
@@ -261,8 +350,8 @@ class ExportWriters:
                         self.writers[fmt] = Pc2Writer(temporary, order.n_out,
                                                       start_frame=float(FIRST_FRAME), sample_rate=1.0)
                     else:
-                        self.writers[fmt] = BvhWriter(temporary, names=self._bvh_names, parents=sk.parents,
-                                                      offsets=self._bvh_offsets,
+                        self.writers[fmt] = BvhWriter(temporary, names=self._bvh_names,
+                                                      parents=sk.parents, offsets=self._bvh_offsets,
                                                       end_sites=self._end_sites,
                                                       frame_time=1.0 / fps, positions="all")
         except BaseException:
@@ -291,6 +380,8 @@ class ExportWriters:
         report.frames = self.frames
         for fmt, target in self.items:
             report.files[fmt] = (target, target.stat().st_size)
+        for writer in self.writers.values():
+            report.warnings += getattr(writer, "warnings", [])
         report.renamed = self.renamed
         rig = self.rig
         diagonal = float(np.linalg.norm(rig.V.max(0) - rig.V.min(0))) or 1.0
@@ -299,6 +390,13 @@ class ExportWriters:
             count = max(b["count"], 1) if b else 1
             report.lbs_rms_pct = 100.0 * float(np.sqrt((b["squares"] if b else 0.0) / count)) / diagonal
             report.lbs_max_pct = 100.0 * (b["worst"] if b else 0.0) / diagonal
+            if self.keys_deg is not None:
+                joints = self.writers["gltf"].keys_kept
+                kept = sum(sum(c.values()) for c in joints.values())
+                every = 2 * len(joints) * self.frames
+                report.keys = {"rotation_deg": self.keys_deg, "translation_units": self.keys_units,
+                               "kept": kept, "every_frame": every,
+                               "kept_pct": 100.0 * kept / max(every, 1), "joints": joints}
         if "bvh" in self.writers:
             report.bvh_stretch_max_pct = 100.0 * (self._buffers["drift"] if self._buffers else 0.0) / diagonal
 
@@ -313,6 +411,7 @@ class ExportWriters:
             "deformed": np.empty((len(rig.V), 3)),
             "points": np.empty((order.n_out, 3)),
             "pc2_points": np.empty((order.n_out, 3), np.float32),
+            "in_space": np.empty((order.n_out, 3)),
             "joints": JointTransforms(sk.heads),
             "rotations": np.empty((sk.bone_count, 3, 3)),
             "offsets": sk.heads - np.where(parents[:, None] >= 0, sk.heads[parents], 0.0),
@@ -338,13 +437,17 @@ class ExportWriters:
             np.matmul(b["M"], b["T"], out=b["deformed"])
             order.take(b["deformed"], out=points)
         if pc2 is not None:
-            pc2_points = b["pc2_points"]
+            pc2_points, cache = b["pc2_points"], points
+            if self.to_space is not None:  # into the mesh object's local space
+                cache = b["in_space"]
+                np.matmul(points, self.to_space[:, :3].T, out=cache)
+                cache += self.to_space[:, 3]
             if up == "z":
-                pc2_points[:, 0] = points[:, 0]
-                pc2_points[:, 1] = -points[:, 2]
-                pc2_points[:, 2] = points[:, 1]
+                pc2_points[:, 0] = cache[:, 0]
+                pc2_points[:, 1] = -cache[:, 2]
+                pc2_points[:, 2] = cache[:, 1]
             else:
-                pc2_points[...] = points
+                pc2_points[...] = cache
             with _blame(targets["pc2"], "pc2"):
                 pc2.write(pc2_points)
         if usd is not None:
@@ -353,7 +456,7 @@ class ExportWriters:
         if gltf is not None:
             skinned = b["skinned"]
             gltf.write(joints.world)
-            gltf.skin(joints.world, out=skinned)
+            gltf.skin(gltf.written, out=skinned)  # what the file's keys reproduce
             skinned -= points
             error = np.sqrt(np.einsum("ij,ij->i", skinned, skinned))
             b["squares"] += float(np.dot(error, error))
