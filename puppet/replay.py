@@ -24,13 +24,42 @@ relative to it). A TOML comment: the stored text parses as the rig file did, sam
 takes without it (older ones) still play."""
 
 
+RIG_CHARACTER_MARK = "# puppet: recorded on character sha256 "
+"""Line added before RIG_SOURCE_MARK: the checksum of the character the take was recorded on
+(``puppet.checksum.character_sha256``), so a take replayed without ``--rig`` is never solved on
+a character changed since (its rig file's character edited or replaced). Older takes lack it."""
+
+
+def _mark(meta, mark: str) -> str | None:
+    """The value of the last line of the stored rig map starting with ``mark``; None if none."""
+    found = None
+    for line in meta.rig_map_text.splitlines():
+        if line.startswith(mark):
+            found = line[len(mark):].strip()
+    return found
+
+
+def recorded_rig_file(meta) -> str | None:
+    """Where the rig file was when the take was recorded (RIG_SOURCE_MARK); None when the take
+    does not say (a take of a rig made in memory, or an older take)."""
+    return _mark(meta, RIG_SOURCE_MARK)
+
+
+def recorded_character(meta) -> str | None:
+    """The sha256 of the character the take was recorded on (RIG_CHARACTER_MARK), or None."""
+    return _mark(meta, RIG_CHARACTER_MARK)
+
+
 def rig_from_take(take, meta) -> Rig:
     """The rig a take was recorded with, from the rig map text it stores.
 
     Its character files are looked for relative to where the rig file was when recording began
     (RIG_SOURCE_MARK), then next to the take, then (for a take of the built-in rig) in the
-    built-in rig's folder; the error names the missing file and the --rig option.
+    built-in rig's folder; the error names the missing file and the --rig option. A take that
+    recorded its character's checksum (RIG_CHARACTER_MARK) is refused (TakeError) when the
+    character found is another one.
     """
+    from puppet.checksum import character_sha256
     from puppet.rig import builtin
     from puppet.rig.load import BUILTIN_RIG, builtin_name, load_rig_text
 
@@ -40,23 +69,29 @@ def rig_from_take(take, meta) -> Rig:
             return builtin()
         raise TakeError(take, f"the take stores no rig map (recorded with rig {meta.rig_name!r} "
                               "loaded from a character file); pass --rig with that rig's file")
-    bases = [Path(line[len(RIG_SOURCE_MARK):].strip()).parent
-             for line in text.splitlines()[-1:] if line.startswith(RIG_SOURCE_MARK)]
+    recorded = recorded_rig_file(meta)
+    bases = [Path(recorded).parent] if recorded else []
     bases.append(Path(take).resolve().parent)
     if meta.rig_name == builtin_name():
         bases.append(BUILTIN_RIG.parent)
-    return load_rig_text(text, label=f"{take} (rig map)", bases=bases,
-                         hint="pass --rig with the rig file")
+    where = f"recorded with rig file {recorded}" if recorded else "recorded with a rig file"
+    rig = load_rig_text(text, label=f"{take} (rig map)", bases=bases,
+                        hint=f"{where}; pass --rig with that rig file")
+    character = recorded_character(meta)
+    if character is not None and character != character_sha256(rig):
+        found = rig.source.path if getattr(rig, "source", None) is not None else None
+        raise TakeError(take, f"the character found for its rig ({where}) is not the one it was "
+                              "recorded on: its vertices, weights, skeleton or file changed since"
+                              f"{f' ({found})' if found else ''}; pass --rig to solve it on a "
+                              "rig of your choosing")
+    return rig
 
 
-def open_take(take, rig: Rig | str | Path | None, *,
-              default_rig: bool = False) -> tuple[Rig, TakeReader]:
+def open_take(take, rig: Rig | str | Path | None) -> tuple[Rig, TakeReader]:
     """(rig, TakeReader) for a take, the rig's servos checked against the take's.
 
     rig: None for the rig the take stores (``rig_from_take``), a rig file to load, or a loaded
          Rig (a copy is calibrated and returned; the argument is left untouched).
-    default_rig: the given Rig is the built-in one chosen because no rig was named: the take must
-         have been recorded on it, as with None.
     The returned rig carries the calibration the take was recorded with (its zero ticks).
     Raises TakeError (empty take, take from another rig) or RigError (the rig's, or the take's
     unreadable calibration record), each naming the file.
@@ -73,9 +108,6 @@ def open_take(take, rig: Rig | str | Path | None, *,
         rig = copy.deepcopy(rig)  # the calibration below is this take's own
     else:
         rig = load_rig(rig)
-    if default_rig and meta.rig_name != rig.name:
-        raise TakeError(take, f"take from another rig: recorded with rig {meta.rig_name!r}, not "
-                              f"the built-in rig {rig.name!r}; pass --rig with that rig's file")
     reader.check_rig([int(i) for i in rig.servo_map.ids], dict(rig.servo_map.models),
                      rig_name=rig.name)
     recorded = Calibration.from_record(meta.calibration_text, take)
@@ -103,7 +135,7 @@ def play_take(rig: Rig, reader: TakeReader, sinks: Iterable, *, fps: float = 30.
     from puppet.take import Playback
 
     if frames is None:
-        frames = Playback.of_take(reader, rig.servo_map.ids, fps=fps, speed=speed)
+        frames = Playback.of_take(reader, rig.servo_map.ids, fps=fps, speed=speed, rig=rig)
     solved = list(solved)
     with Pipeline(rig, overlay=True, antialias=antialias, width=size[0], height=size[1],
                   precompute=precompute) as pipeline:

@@ -10,6 +10,7 @@ from pathlib import Path
 
 import click
 
+from puppet import limits
 from puppet.errors import PuppetError
 
 
@@ -116,6 +117,21 @@ def make_sinks(out: str | None, frames: str | None, fps: float, inputs=(), *,
     return sinks
 
 
+space_option = click.option(
+    "--space", type=click.Choice(["object", "model"]), default="object", show_default=True,
+    help="Space of the PC2 points: object = the mesh object's local space, as Blender's "
+         "glTF importer places the character (the Mesh Cache lands it on a moved or "
+         "scaled character); model = the model frame (the file's world).")
+keys_option = click.option(
+    "--keys", default=None, type=InRange(limits.KEYS_DEG), metavar="DEG",
+    help="glTF: per channel only the keys that reproduce the solved curve within DEG "
+         f"degrees (rotations; {limits.KEYS_DEG}), LINEAR as Blender plays it; the "
+         "report lists the keys kept per joint. Default: a key on every frame. BVH, USD "
+         "and PC2 keep every frame.")
+keys_units_option = click.option(
+    "--keys-units", default=None, type=InRange(limits.KEYS_UNITS), metavar="UNITS",
+    help=f"With --keys: translations within UNITS model units ({limits.KEYS_UNITS}; "
+         "default: the distance a DEG turn moves a point one bounding-box diagonal away).")
 force_option = click.option(
     "--force", is_flag=True,
     help="Overwrite an existing output of another kind (an input, a device or a FIFO never).")
@@ -197,7 +213,8 @@ def take_writer(take_path: str, rig, *, force: bool = False):
 
     An existing file at take_path is replaced only with force (--force); a rig file never.
     """
-    from puppet.replay import RIG_SOURCE_MARK
+    from puppet.checksum import character_sha256
+    from puppet.replay import RIG_CHARACTER_MARK, RIG_SOURCE_MARK
     from puppet.rig.calibration import Calibration
     from puppet.take import TakeWriter
 
@@ -206,6 +223,7 @@ def take_writer(take_path: str, rig, *, force: bool = False):
     if rig.path is not None and rig.path.suffix == ".toml":
         map_text = rig.path.read_text(encoding="utf-8")
         map_text += ("" if map_text.endswith("\n") or not map_text else "\n")
+        map_text += f"{RIG_CHARACTER_MARK}{character_sha256(rig)}\n"
         map_text += f"{RIG_SOURCE_MARK}{rig.path.resolve()}\n"
     calibration = Calibration.capture(rig.servo_map.ids, rig.servo_map.zero)
     return TakeWriter(take_path, ids=[int(i) for i in rig.servo_map.ids],

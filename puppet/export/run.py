@@ -40,7 +40,7 @@ UP_AXES = ("y", "z")
 SPACES = ("object", "model")  # where point caches' points are: see point_space()
 FIRST_FRAME = 1  # frame number of the take's first reading, in every format
 KINDS = {"gltf": "glb", "usd": "usd", "pc2": "pc2", "bvh": "bvh"}  # puppet.atomic's file kinds
-SUFFIXES = {"gltf": (".glb",), "usd": (".usdc", ".usda", ".usd")}  # the format follows the name
+SUFFIXES = {"gltf": (".glb",), "usd": (".usdc", ".usda", ".usd", ".usdz")}  # the format follows the name
 
 
 @dataclass
@@ -263,7 +263,7 @@ def take_frames(rig, reader, fps: float) -> Playback:
     if len(reader) == 0:
         raise ExportError(reader.path, "the take holds no readings")
     reader.check_rig(ids, dict(rig.servo_map.models), rig_name=rig.name)
-    return Playback.of_take(reader, ids, fps=fps)
+    return Playback.of_take(reader, ids, fps=fps, rig=rig)
 
 
 class ExportWriters:
@@ -343,7 +343,11 @@ class ExportWriters:
                         self.writers[fmt] = UsdWriter(temporary, names=sk.names, parents=sk.parents,
                                                       heads=sk.heads, frames=sk.frames, V=V_out,
                                                       F=order.F, fps=fps, name=rig.name,
-                                                      meters_per_unit=self.meters_per_unit)
+                                                      meters_per_unit=self.meters_per_unit,
+                                                      source=rig.source, weld=order.index,
+                                                      textures=target.with_name(
+                                                          f"{target.stem}_textures"),
+                                                      inputs=self.inputs)
                         if self.writers[fmt].renamed:
                             self.renamed["usd"] = dict(self.writers[fmt].renamed)
                     elif fmt == "pc2":
