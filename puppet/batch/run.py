@@ -34,7 +34,8 @@ from puppet.batch.manifest import write as write_manifest
 from puppet.batch.plan import (DEFAULT_FORMATS, KINDS, Job, RigFinder, expand_takes,
                                parse_formats, plan_jobs, prepare_out)
 from puppet.batch.ray_engine import RayEngine
-from puppet.batch.row import DONE, FAILED, SKIPPED, STATES, TO_DO, UNFINISHED, TakeResult
+from puppet.batch.row import (CANCELLED, DONE, FAILED, SKIPPED, STATES, TO_DO, UNFINISHED,
+                              TakeResult)
 from puppet.batch.task import Settings, Shared
 from puppet.checksum import file_sha256
 from puppet.errors import PuppetError
@@ -272,6 +273,10 @@ def run_batch(takes: list[str], out: str | os.PathLike, *, rig: Rig | None = Non
                 shutil.rmtree(staging_root, ignore_errors=True)  # what dead workers left
     finally:
         runner.close()
+    for job in todo:  # never reported by the engine (it stopped first): not run, not written
+        if rows[job.take].state == TO_DO:
+            rows[job.take].fail("not run: the batch stopped before this take", CANCELLED)
+            rows[job.take].files = {}
     report.rows = [rows[job.take] for job in jobs]
     report.seconds = time.perf_counter() - start
     return report
