@@ -213,7 +213,8 @@ def take_writer(take_path: str, rig, *, force: bool = False):
 
     An existing file at take_path is replaced only with force (--force); a rig file never.
     """
-    from puppet.replay import RIG_SOURCE_MARK
+    from puppet.checksum import character_sha256
+    from puppet.replay import RIG_CHARACTER_MARK, RIG_SOURCE_MARK
     from puppet.rig.calibration import Calibration
     from puppet.take import TakeWriter
 
@@ -222,6 +223,7 @@ def take_writer(take_path: str, rig, *, force: bool = False):
     if rig.path is not None and rig.path.suffix == ".toml":
         map_text = rig.path.read_text(encoding="utf-8")
         map_text += ("" if map_text.endswith("\n") or not map_text else "\n")
+        map_text += f"{RIG_CHARACTER_MARK}{character_sha256(rig)}\n"
         map_text += f"{RIG_SOURCE_MARK}{rig.path.resolve()}\n"
     calibration = Calibration.capture(rig.servo_map.ids, rig.servo_map.zero)
     return TakeWriter(take_path, ids=[int(i) for i in rig.servo_map.ids],
