@@ -19,8 +19,10 @@ from puppet.cli.common import (force_option, keys_option, keys_units_option, ope
                                            "joint animated; its scene extras puppet_fps, "
                                            "puppet_frame_start, puppet_frame_end give the take's "
                                            "rate and range (Blender: scene custom properties).")
-@click.option("--usd", default=None, help="USD (.usdc/.usda): exact mesh points per frame and the "
-                                          "skeleton (UsdSkel).")
+@click.option("--usd", default=None, help="USD (.usdc/.usda; .usdz: packaged with its textures): "
+                                          "exact mesh points per frame, the skeleton (UsdSkel) and, "
+                                          "for a glTF character, its UVs, colours, materials "
+                                          "(textures in <name>_textures/ beside it) and nodes.")
 @click.option("--pc2", default=None, help="Point cache of the deformed mesh in the character "
                                           "file's vertex order (Blender Mesh Cache).")
 @click.option("--bvh", default=None, help="Every joint as BVH, named as in the rig (whitespace and "

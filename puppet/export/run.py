@@ -40,7 +40,7 @@ UP_AXES = ("y", "z")
 SPACES = ("object", "model")  # where point caches' points are: see point_space()
 FIRST_FRAME = 1  # frame number of the take's first reading, in every format
 KINDS = {"gltf": "glb", "usd": "usd", "pc2": "pc2", "bvh": "bvh"}  # puppet.atomic's file kinds
-SUFFIXES = {"gltf": (".glb",), "usd": (".usdc", ".usda", ".usd")}  # the format follows the name
+SUFFIXES = {"gltf": (".glb",), "usd": (".usdc", ".usda", ".usd", ".usdz")}  # the format follows the name
 
 
 @dataclass
@@ -343,7 +343,11 @@ class ExportWriters:
                         self.writers[fmt] = UsdWriter(temporary, names=sk.names, parents=sk.parents,
                                                       heads=sk.heads, frames=sk.frames, V=V_out,
                                                       F=order.F, fps=fps, name=rig.name,
-                                                      meters_per_unit=self.meters_per_unit)
+                                                      meters_per_unit=self.meters_per_unit,
+                                                      source=rig.source, weld=order.index,
+                                                      textures=target.with_name(
+                                                          f"{target.stem}_textures"),
+                                                      inputs=self.inputs)
                         if self.writers[fmt].renamed:
                             self.renamed["usd"] = dict(self.writers[fmt].renamed)
                     elif fmt == "pc2":

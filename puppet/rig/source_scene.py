@@ -99,7 +99,8 @@ class SourceScene:
     materials:    glTF material dicts (as in the file); textures, samplers: dicts; images:
                   SourceImage (the texture dicts' "source" index it; None: left out).
     skeleton_node: the skin's ``skeleton`` node or None.
-    object_world: (4, 4) float64, the space of Blender's imported mesh object (module docstring).
+    armature:     the node Blender makes the armature object (module docstring), None: the scene root.
+    object_world: (4, 4) float64, the space of Blender's imported mesh object: armature's world.
     warnings:     what could not be carried, in words naming the file.
     """
 
@@ -115,6 +116,7 @@ class SourceScene:
     samplers: list[dict] = field(default_factory=list)
     images: list[SourceImage] = field(default_factory=list)
     skeleton_node: int | None = None
+    armature: int | None = None
     object_world: np.ndarray = field(default_factory=lambda: np.eye(4))
     warnings: list[str] = field(default_factory=list)
 
@@ -296,6 +298,6 @@ def read_source_scene(gltf, acc, path: Path, *, locals_: np.ndarray, worlds: np.
         mesh_names=[gltf.meshes[gltf.nodes[i].mesh].name for i in mesh_nodes], primitives=primitives,
         attributes=attributes, materials=[_plain(m) for m in gltf.materials or []],
         textures=textures, samplers=[_plain(s) for s in gltf.samplers or []], images=images,
-        skeleton_node=skeleton,
+        skeleton_node=skeleton, armature=armature,
         object_world=np.eye(4) if armature is None else worlds[armature].copy(),
         warnings=warnings)

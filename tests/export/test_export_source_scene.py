@@ -226,3 +226,92 @@ def test_missing_image_file_warns_and_exports_a_plain_material(tmp_path):
     export_take(rig, TakeReader(take), Outputs(gltf=tmp_path / "with.glb"), fps=10)
     gltf = pygltflib.GLTF2().load_binary(str(tmp_path / "with.glb"))
     assert len(gltf.images) == 1 and gltf.materials[0].pbrMetallicRoughness.baseColorTexture.index == 0
+
+
+def _usd_mesh(stage):
+    from pxr import UsdGeom
+
+    meshes = [p for p in stage.Traverse() if p.IsA(UsdGeom.Mesh)]
+    assert len(meshes) == 1
+    return UsdGeom.Mesh(meshes[0])
+
+
+@pytest.mark.parametrize("suffix", [".usda", ".usdz"])
+def test_usd_carries_the_files_place_uvs_colours_and_textured_material(pillar, suffix):
+    from pxr import Usd, UsdGeom, UsdShade
+
+    rig, take, reference, folder = pillar
+    out = folder / f"anim{suffix}"
+    report = export_take(rig, TakeReader(take), Outputs(usd=out), fps=shared.FPS)
+    assert report.warnings == []
+    stage = Usd.Stage.Open(str(out))
+    mesh = _usd_mesh(stage)
+    # The mesh sits under the Armature node's Xform (its TRS as written), as Blender's glTF
+    # importer parents it; its points there, moved by its world transform, are the solve's.
+    assert str(mesh.GetPath()) == "/pillar/Armature/pillar"
+    armature = UsdGeom.Xformable(stage.GetPrimAtPath("/pillar/Armature"))
+    assert [op.GetOpName() for op in armature.GetOrderedXformOps()] == [
+        "xformOp:translate", "xformOp:orient", "xformOp:scale"]
+    solved = reference.deformed[:, rig.source_index]
+    for frame in (1, len(solved) // 2, len(solved)):
+        time = Usd.TimeCode(frame)
+        world = np.array(UsdGeom.XformCache(time).GetLocalToWorldTransform(mesh.GetPrim())).T
+        np.testing.assert_allclose(world, dressed.armature_world(), atol=1e-6)
+        local = np.array(mesh.GetPointsAttr().Get(time), np.float64)
+        np.testing.assert_allclose(local @ world[:3, :3].T + world[:3, 3], solved[frame - 1], atol=2e-5)
+        normals = np.array(mesh.GetNormalsAttr().Get(time))
+        np.testing.assert_allclose(np.linalg.norm(normals, axis=1), 1.0, atol=1e-5)
+        seam = np.arange(0, len(dressed.geometry()[0]) - 2, dressed.SIDES + 1)  # u = 0 copies
+        np.testing.assert_allclose(normals[seam], normals[seam + dressed.SIDES], atol=1e-6)  # smooth
+    # The file's triangles, UV sets (t = 1 - v), colours.
+    V, F, N, uv0, uv1, colours, _ = dressed.geometry()
+    np.testing.assert_array_equal(np.array(mesh.GetFaceVertexIndicesAttr().Get()).reshape(-1, 3), F)
+    primvars = UsdGeom.PrimvarsAPI(mesh)
+    for name, uv in (("st", uv0), ("st1", uv1)):
+        st = np.array(primvars.GetPrimvar(name).Get())
+        assert primvars.GetPrimvar(name).GetInterpolation() == "vertex"
+        np.testing.assert_allclose(st, np.column_stack([uv[:, 0], 1 - uv[:, 1]]), atol=1e-7)
+    np.testing.assert_allclose(np.array(mesh.GetDisplayColorPrimvar().Get()), colours[:, :3])
+    np.testing.assert_allclose(np.array(mesh.GetDisplayOpacityPrimvar().Get()), colours[:, 3])
+    # The material: a UsdPreviewSurface whose diffuse colour is the texture, the image beside
+    # the layer (or inside the .usdz) byte for byte.
+    material, _ = UsdShade.MaterialBindingAPI(mesh.GetPrim()).ComputeBoundMaterial()
+    assert material.GetPath().name == "skin"
+    surface = material.ComputeSurfaceSource()[0]
+    assert surface.GetIdAttr().Get() == "UsdPreviewSurface"
+    (source,) = surface.GetInput("diffuseColor").GetConnectedSources()[0]
+    texture = UsdShade.Shader(source.source.GetPrim())
+    assert texture.GetIdAttr().Get() == "UsdUVTexture"
+    np.testing.assert_allclose(texture.GetInput("scale").Get(), [1.0, 0.9, 0.8, 1.0])
+    asset = texture.GetInput("file").Get()
+    assert asset.resolvedPath != ""
+    if suffix == ".usdz":
+        import zipfile
+
+        with zipfile.ZipFile(out) as package:
+            names = package.namelist()
+            assert names[0].endswith(".usdc")
+            (image,) = [n for n in names if n.endswith(".png")]
+            assert package.read(image) == dressed.png_bytes()
+    else:
+        assert Path(asset.resolvedPath).read_bytes() == dressed.png_bytes()
+        assert Path(asset.resolvedPath).parent == folder / "anim_textures"
+    assert surface.GetInput("roughness").Get() == pytest.approx(0.7)
+    assert surface.GetInput("metallic").Get() == pytest.approx(0.0)
+
+
+def test_usd_of_a_missing_image_has_a_plain_material(tmp_path):
+    from pxr import Usd, UsdShade
+
+    dressed.build(tmp_path / "pillar.gltf", image_file=False)
+    (tmp_path / "pillar.toml").write_text(RIG.format(mesh="pillar.gltf"))
+    rig = load_rig(tmp_path / "pillar.toml")
+    take = shared.write_take(tmp_path / "take.mcap", rig, readings=8)
+    report = export_take(rig, TakeReader(take), Outputs(usd=tmp_path / "anim.usdc"), fps=10)
+    assert len(report.warnings) == 1 and str(tmp_path / dressed.IMAGE) in report.warnings[0]
+    stage = Usd.Stage.Open(str(tmp_path / "anim.usdc"))
+    material, _ = UsdShade.MaterialBindingAPI(_usd_mesh(stage).GetPrim()).ComputeBoundMaterial()
+    surface = material.ComputeSurfaceSource()[0]
+    assert not surface.GetInput("diffuseColor").HasConnectedSource()
+    np.testing.assert_allclose(surface.GetInput("diffuseColor").Get(), [1.0, 0.9, 0.8])
+    assert not (tmp_path / "anim_textures").exists()

@@ -118,10 +118,11 @@ def run_blender_check(folder: Path, fps: float, frames: int, files: dict, charac
 DOCS_FILES = {"gltf": "anim.glb", "usd": "anim.usdc", "bvh": "skeleton.bvh", "pc2": "mesh.pc2"}
 
 
-def export(folder: Path, take: Path, fps: float, rig_file=None, formats=tuple(DOCS_FILES),
+def export(folder: Path, take: Path, fps: float, rig_file=None, names=DOCS_FILES,
            options=("--up", "z")) -> tuple[dict, dict]:
-    """``puppet export`` as docs/blender.md writes it: ({format: path}, its --json report)."""
-    files = {fmt: folder / DOCS_FILES[fmt] for fmt in formats}
+    """``puppet export`` as docs/blender.md writes it (names: {format: file name}): ({format:
+    path}, its --json report)."""
+    files = {fmt: folder / name for fmt, name in names.items()}
     argv = ["puppet", "export", str(take), "--fps", f"{fps:g}", *options, "--json"]
     argv += [arg for fmt, path in files.items() for arg in (f"--{fmt}", str(path))]
     if rig_file is not None:
@@ -202,9 +203,20 @@ class Keyed:
 def critter_keyed(tmp_path_factory, critter_shown, take30, fps) -> Keyed:
     """The critter's take exported with --keys 0.5 (glTF only) and imported into Blender."""
     folder = tmp_path_factory.mktemp("critter_keys")
-    files, report = export(folder, take30, fps, formats=("gltf",), options=("--keys", "0.5"))
+    files, report = export(folder, take30, fps, names={"gltf": "anim.glb"}, options=("--keys", "0.5"))
     steps, _ = run_blender_check(folder, fps, critter_shown.frames, files)
     return Keyed(report, steps["gltf"])
+
+
+@pytest.fixture(scope="session")
+def mare_usdz(mare_files, mare_shown) -> dict:
+    """The USD step on the transformed character exported as a packaged .usdz."""
+    folder, _, rig_file, take = mare_files
+    folder = folder / "usdz"
+    folder.mkdir()
+    files, _ = export(folder, take, mare_shown.fps, rig_file, names={"usd": "anim.usdz"})
+    steps, _ = run_blender_check(folder, mare_shown.fps, mare_shown.frames, files)
+    return steps["usd"]
 
 
 @pytest.fixture(params=["critter", "mare"])

@@ -118,6 +118,23 @@ def test_gltf_puts_the_character_where_its_file_does(mare_shown):
     np.testing.assert_allclose(gltf["mesh_world"], source["mesh_world"], atol=1e-6)
 
 
+def test_usd_keeps_the_characters_look(mare_shown):
+    """The USD comes back with the file's UV sets, vertex colours, materials and texture."""
+    usd = mare_shown.steps["usd"]
+    assert (len(usd["uv_layers"]), len(usd["color_attributes"])) == (2, 1)
+    assert usd["materials"] == ["coat", "hoof"]
+    assert len(usd["images"]) == 1
+
+
+def test_usdz_is_the_solve_with_its_texture_inside(mare_shown, mare_usdz):
+    """``--usd anim.usdz``: one file with the texture packaged, imported the same way."""
+    assert (mare_usdz["fps"], mare_usdz["frame_start"], mare_usdz["frame_end"]) == (
+        mare_shown.fps, 1, mare_shown.frames)
+    assert distances_pct(mare_shown, mare_usdz["vertices"]).max() < EXACT_PCT
+    assert mare_usdz["materials"] == ["coat", "hoof"]
+    assert len(mare_usdz["images"]) == 1
+
+
 def test_reduced_keys_play_in_blender_within_the_tolerance(critter_shown, critter_keyed):
     """``--keys 0.5``: Blender's own evaluation of the reduced glTF, every bone on every frame,
     stays within the tolerances of the key-per-frame glTF (the solved curve), with the keys
