@@ -7,7 +7,7 @@ started, ``joint`` the id the servo was created with. Positions are continuous c
 - ``Hold``: every joint still (2048 unless told otherwise).
 - ``Programmatic``: positions set by tests (``SimBus.set_positions``).
 - ``Wave`` / ``Walk`` / ``Spin``: built-in performances.
-- ``WithinLimits``: every servo of a rig swings about its zero ticks inside its joint limits
+- ``WithinLimits``: every servo of a rig swings across its own joint range, centre ± 0.35 × span
   (``hw-sim --rig``'s default motion).
 - ``OneAtATime``: a person following ``puppet calibrate --guided``: each servo in turn is turned
   in its joint's positive direction, held and brought back (``hw-sim --motion guided``).
@@ -107,24 +107,25 @@ class Spin:
 
 
 class WithinLimits:
-    """A performance fitted to a rig: each servo swings sinusoidally inside its joint limits,
+    """A performance fitted to a rig: each servo swings sinusoidally across its own joint range,
     each a little behind the one before.
 
-    The swing is centred on the rest pose (``zero_ticks``) when the rest pose lies inside the
-    limits, with an amplitude of ``reach`` times the nearer limit; otherwise on the middle of the
-    limits, with ``reach`` times half their span. Amplitudes are capped at ``max_deg``.
+    Joint angle ``centre + reach · span · sin(2π t / period_s + phase)`` with ``centre`` the
+    middle of ``limits_deg`` and ``span`` their width, degrees: with the default ``reach`` of
+    0.35 a knee with limits [-5, 120] swings 13.75°..101.25°, bending only the way it bends.
     servos: objects with ``id``, ``zero_ticks``, ``sign``, ``gear`` (servo turns per joint turn)
     and ``limits_deg`` (low, high), e.g. ``hw_sim.rig_servos.RigServo``. Ids it does not name
     hold 2048.
     """
 
-    def __init__(self, servos, period_s: float = 2.4, reach: float = 0.7, max_deg: float = 50.0):
+    def __init__(self, servos, period_s: float = 2.4, reach: float = 0.35):
+        if not 0.0 <= reach <= 0.5:
+            raise ValueError(f"reach must be 0..0.5 of the span (0.5 touches the limits), got {reach}")
         self.period_s = period_s
         self.params: dict[int, tuple[float, float, float]] = {}
         for k, s in enumerate(servos):
             low, high = s.limits_deg
-            centre_deg = 0.0 if low < 0.0 < high else 0.5 * (low + high)
-            amplitude_deg = min(reach * min(centre_deg - low, high - centre_deg), max_deg)
+            centre_deg, amplitude_deg = 0.5 * (low + high), reach * (high - low)
             ticks_per_deg = s.sign * s.gear * TICKS_PER_TURN / 360.0
             self.params[int(s.id)] = (s.zero_ticks + centre_deg * ticks_per_deg,
                                       amplitude_deg * ticks_per_deg, 0.6 * k)
