@@ -82,6 +82,8 @@ class Server:
             if not 0 <= int(dxl_id) <= 252:
                 raise HwSimError(f"servo id {dxl_id} is outside 0..252")
             model = get_model(model_name)
+            if model.spec.family not in ("X330", "X430", "X540", "MX2"):  # until P1 / XL-320
+                raise HwSimError(f"servo {dxl_id}: hw_sim does not serve {model_name} yet")
             servo_list.append(Servo(model, int(dxl_id), motion=self.motion, now=0.0,
                                     baud_index=model.baud_index(baud), return_delay=rd,
                                     rng=random.Random(rng.random())))

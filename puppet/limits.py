@@ -92,5 +92,9 @@ TIMEOUT_S = Range(0.1, 86_400.0, "s")
 """Guided calibration: seconds to wait for each joint."""
 ANGLE_DEG = Range(0.0, 180.0, "degrees", lo_open=True)
 """rig axes: the turn shown each way."""
+KEYS_DEG = Range(0.0, 90.0, "degrees", lo_open=True)
+"""export --keys: how far a reduced glTF rotation curve may stray from the solve."""
+KEYS_UNITS = Range(0.0, 1e6, "model units", lo_open=True)
+"""export --keys-units: how far a reduced glTF translation curve may stray from the solve."""
 SKIN_INDEX = Range(0, 1_000_000, integer=True)
 """glTF skin index."""

@@ -29,8 +29,10 @@ from dataclasses import dataclass
 import numpy as np
 
 TICKS_PER_TURN = 4096
-"""Encoder counts per output revolution (12-bit absolute encoder): every model below has this
-``ticks_per_turn`` (the bus's unwrap and the take's resampling rely on it)."""
+"""Encoder counts per output revolution of the X-series and MX models (12-bit absolute encoder).
+A model's own resolution is its ``ticks_per_turn`` (AX / RX / XL-320: 1024 positions over 300°,
+so 1228.8 per 360°); this constant is the X-series value the multi-turn unwrap and the take's
+resampling use."""
 HALF_TURN = TICKS_PER_TURN // 2
 """Half a turn of ticks: the largest step a reading may take between two reads and still be
 taken the short way round."""
@@ -39,30 +41,203 @@ NO_FAST_SYNC_READ = 256
 """Above any Firmware Version (one byte): no firmware of the model has Fast Sync Read."""
 
 PRESENT_LOAD_UNIT_PCT = 0.1
-"""Present Load (126) unit, % of the maximum torque, of the models that sense no current
-(``current_unit_ma`` None)."""
+"""Present Load unit, % of the maximum torque, of the models that sense no current
+(``current_unit_ma`` None): X-series 126, Protocol 1.0 40, XL-320 41."""
 
 VELOCITY_UNIT_RPM = 0.229
-"""Profile Velocity / Present Velocity unit, rev/min, of every X-series model below."""
+"""Profile Velocity / Present Velocity unit, rev/min, of the X-series and MX(2.0) models."""
+
+PROTOCOL_1 = 1.0
+PROTOCOL_2 = 2.0
+"""Dynamixel protocol versions, as ``dynamixel_sdk.PacketHandler`` takes them."""
+
+
+@dataclass(frozen=True)
+class Item:
+    """One control-table item: name (as the e-manual writes it), address (byte offset), size in
+    bytes, and how its bytes encode a number.
+
+    signed: two's complement. direction_bit: sign-magnitude instead (Protocol 1.0 / XL-320
+    Present Speed, Present Load, Moving Speed in wheel mode: bits 0..9 the magnitude, bit 10 set
+    = clockwise = negative). zero: the raw value that means 0 (MX-64 / MX-106 Current (68):
+    2048). eeprom: in the EEPROM area (written only while torque is off).
+    """
+
+    name: str
+    address: int
+    size: int
+    signed: bool = False
+    eeprom: bool = False
+    direction_bit: int | None = None
+    zero: int = 0
+
+    def decode(self, data: bytes | bytearray | list[int]) -> int:
+        """Little-endian bytes -> int."""
+        raw = int.from_bytes(bytes(data[: self.size]), "little", signed=self.signed)
+        if self.direction_bit is not None:
+            magnitude = raw & ((1 << self.direction_bit) - 1)
+            return -magnitude if raw >> self.direction_bit & 1 else magnitude
+        return raw - self.zero
+
+    def encode(self, value: int) -> list[int]:
+        """int -> little-endian byte list of ``size`` bytes (the inverse of :meth:`decode`)."""
+        value = int(value)
+        if self.direction_bit is not None:
+            value = -value | 1 << self.direction_bit if value < 0 else value
+        else:
+            value += self.zero
+        return list(value.to_bytes(self.size, "little", signed=self.signed and value < 0))
+
+
+@dataclass(frozen=True)
+class ControlItems:
+    """Where a model keeps the items the host uses (``Item``; None: the model has no such item).
+
+    Position: ``goal_position``, ``present_position``, ``min_position_limit`` /
+    ``max_position_limit`` (Protocol 1.0 and XL-320: CW / CCW Angle Limit). Speed:
+    ``moving_speed`` (the speed of a position move: Protocol 1.0 / XL-320 Moving Speed,
+    X / MX(2.0) Profile Velocity; 0 = as fast as it can), ``present_speed`` (Present Speed /
+    Present Velocity). Load: ``present_load`` (0.1 % of the maximum torque) or
+    ``present_current`` (``current_unit_ma`` units), ``current_limit``. ``present_voltage``
+    (0.1 V), ``present_temperature`` (deg C), ``moving``, ``registered``, ``torque_enable``,
+    ``led``, ``temperature_limit``, ``status_return_level``, ``return_delay_time`` (2 µs),
+    ``baud_rate``, ``id``, ``model_number``, ``firmware_version``. Protocol 2.0 only:
+    ``hardware_error_status`` (Protocol 1.0 reports errors in every status packet's error byte
+    instead), ``operating_mode`` (XL-320: Control Mode, 1 wheel / 2 joint), ``drive_mode``,
+    ``bus_watchdog``, ``realtime_tick`` (also MX on Protocol 1.0, address 50).
+    """
+
+    model_number: Item
+    firmware_version: Item
+    id: Item
+    baud_rate: Item
+    return_delay_time: Item
+    min_position_limit: Item
+    max_position_limit: Item
+    temperature_limit: Item
+    status_return_level: Item
+    torque_enable: Item
+    led: Item
+    goal_position: Item
+    moving_speed: Item
+    present_position: Item
+    present_speed: Item
+    present_voltage: Item
+    present_temperature: Item
+    registered: Item
+    moving: Item
+    present_load: Item | None = None
+    present_current: Item | None = None
+    current_limit: Item | None = None
+    hardware_error_status: Item | None = None
+    operating_mode: Item | None = None
+    drive_mode: Item | None = None
+    bus_watchdog: Item | None = None
+    realtime_tick: Item | None = None
+
+
+def _x_items(current: bool) -> ControlItems:
+    """X-series and MX(2.0) (Protocol 2.0): Present Current at 126 when ``current`` (with
+    Current Limit 38), Present Load there otherwise."""
+    return ControlItems(
+        Item("Model Number", 0, 2, eeprom=True), Item("Firmware Version", 6, 1, eeprom=True),
+        Item("ID", 7, 1, eeprom=True), Item("Baud Rate", 8, 1, eeprom=True),
+        Item("Return Delay Time", 9, 1, eeprom=True),
+        Item("Min Position Limit", 52, 4, eeprom=True),
+        Item("Max Position Limit", 48, 4, eeprom=True),
+        Item("Temperature Limit", 31, 1, eeprom=True), Item("Status Return Level", 68, 1),
+        Item("Torque Enable", 64, 1), Item("LED", 65, 1),
+        Item("Goal Position", 116, 4, signed=True), Item("Profile Velocity", 112, 4),
+        Item("Present Position", 132, 4, signed=True), Item("Present Velocity", 128, 4, signed=True),
+        Item("Present Input Voltage", 144, 2), Item("Present Temperature", 146, 1),
+        Item("Registered Instruction", 69, 1), Item("Moving", 122, 1),
+        present_load=None if current else Item("Present Load", 126, 2, signed=True),
+        present_current=Item("Present Current", 126, 2, signed=True) if current else None,
+        current_limit=Item("Current Limit", 38, 2, eeprom=True) if current else None,
+        hardware_error_status=Item("Hardware Error Status", 70, 1),
+        operating_mode=Item("Operating Mode", 11, 1, eeprom=True),
+        drive_mode=Item("Drive Mode", 10, 1, eeprom=True),
+        bus_watchdog=Item("Bus Watchdog", 98, 1, signed=True),
+        realtime_tick=Item("Realtime Tick", 120, 2))
+
+
+def _p1_items(mx: bool = False, current: bool = False) -> ControlItems:
+    """AX / RX / MX on Protocol 1.0 (one table; MX adds Realtime Tick at 50, MX-64 / MX-106
+    Current at 68)."""
+    return ControlItems(
+        Item("Model Number", 0, 2, eeprom=True), Item("Firmware Version", 2, 1, eeprom=True),
+        Item("ID", 3, 1, eeprom=True), Item("Baud Rate", 4, 1, eeprom=True),
+        Item("Return Delay Time", 5, 1, eeprom=True),
+        Item("CW Angle Limit", 6, 2, eeprom=True), Item("CCW Angle Limit", 8, 2, eeprom=True),
+        Item("Temperature Limit", 11, 1, eeprom=True),
+        Item("Status Return Level", 16, 1, eeprom=True),
+        Item("Torque Enable", 24, 1), Item("LED", 25, 1),
+        Item("Goal Position", 30, 2), Item("Moving Speed", 32, 2),
+        Item("Present Position", 36, 2), Item("Present Speed", 38, 2, direction_bit=10),
+        Item("Present Voltage", 42, 1), Item("Present Temperature", 43, 1),
+        Item("Registered", 44, 1), Item("Moving", 46, 1),
+        present_load=Item("Present Load", 40, 2, direction_bit=10),
+        present_current=Item("Current", 68, 2, zero=2048) if current else None,
+        realtime_tick=Item("Realtime Tick", 50, 2) if mx else None)
+
+
+_XL320_ITEMS = ControlItems(
+    Item("Model Number", 0, 2, eeprom=True), Item("Firmware Version", 2, 1, eeprom=True),
+    Item("ID", 3, 1, eeprom=True), Item("Baud Rate", 4, 1, eeprom=True),
+    Item("Return Delay Time", 5, 1, eeprom=True),
+    Item("CW Angle Limit", 6, 2, eeprom=True), Item("CCW Angle Limit", 8, 2, eeprom=True),
+    Item("Temperature Limit", 12, 1, eeprom=True),
+    Item("Status Return Level", 17, 1, eeprom=True),
+    Item("Torque Enable", 24, 1), Item("LED", 25, 1),
+    Item("Goal Position", 30, 2), Item("Moving Speed", 32, 2),
+    Item("Present Position", 37, 2), Item("Present Speed", 39, 2, direction_bit=10),
+    Item("Present Voltage", 45, 1), Item("Present Temperature", 46, 1),
+    Item("Registered Instruction", 47, 1), Item("Moving", 49, 1),
+    present_load=Item("Present Load", 41, 2, direction_bit=10),
+    hardware_error_status=Item("Hardware Error Status", 50, 1),
+    operating_mode=Item("Control Mode", 11, 1, eeprom=True))
+
+X_ITEMS = _x_items(current=True)
+"""The X-series items (current-sensing models): what ``puppet.bus.control_table`` names."""
+
+BAUDS_X330 = (9600, 57600, 115200, 1_000_000, 2_000_000, 3_000_000, 4_000_000)
+BAUDS_X430 = BAUDS_X330 + (4_500_000,)
+BAUDS_P1 = (9600, 19200, 57600, 115200, 200_000, 250_000, 400_000, 500_000, 1_000_000)
+"""AX / RX Baud Rate (4) values 207, 103, 34, 16, 9, 7, 4, 3, 1 (2 Mbit/s / (value + 1),
+nominal rates as the e-manual lists them)."""
+BAUDS_MX1 = BAUDS_P1 + (2_250_000, 2_500_000, 3_000_000)
+"""MX on Protocol 1.0: the AX / RX rates plus values 250, 251, 252."""
+BAUDS_XL320 = (9600, 57600, 115200, 1_000_000)
 
 
 @dataclass(frozen=True)
 class ServoModel:
-    """A Dynamixel model as the host sees it.
+    """A Dynamixel model as the host sees it: every per-model fact is a field here.
 
-    name:                    e.g. "XL430-W250" (what a rig file writes).
+    name:                    e.g. "XL430-W250", "AX-12A", "MX-28(2.0)" (what a rig file writes).
     number:                  Model Number (address 0) the servo reports in a ping.
     fast_sync_read_firmware: first firmware version with Fast Sync Read; NO_FAST_SYNC_READ when
-                             the model has none (the dual-axis 2XL430).
-    current_unit_ma:         mA per unit of Present Current (126) and Current Limit (38); None
-                             when the model senses no current (it reports Present Load, 0.1 % of
-                             its maximum torque, at 126 and has no Current Limit).
-    current_limit:           Current Limit (38) default, in current_unit_ma units (None: none).
-    temperature_limit_c:     Temperature Limit (31) default, deg C.
+                             the model has none (2XL430, every Protocol 1.0 model, MX(2.0),
+                             XL-320).
+    current_unit_ma:         mA per unit of ``items.present_current`` (and Current Limit); None
+                             when the model senses no current (it reports ``items.present_load``,
+                             0.1 % of its maximum torque).
+    current_limit:           Current Limit default, in current_unit_ma units (None: no such item;
+                             MX-64 / MX-106 on Protocol 1.0 sense current but have no limit).
+    temperature_limit_c:     Temperature Limit default, deg C.
     bus_watchdog_firmware:   first firmware version with the Bus Watchdog (98); None when the
                              model has none (such a model may not be driven unless told).
-    ticks_per_turn:          position resolution, encoder ticks per output turn.
-    velocity_unit_rpm:       rev/min per unit of Profile Velocity (112) / Present Velocity (128).
+    protocol:                PROTOCOL_1 or PROTOCOL_2: the one protocol its firmware speaks.
+    position_ticks:          distinct Present Position values in one turn of the usable range:
+                             positions 0..position_ticks-1 (4096, or 1024 on AX / RX / XL-320).
+    position_range_deg:      degrees those positions cover: 360, or 300 (AX / RX / XL-320: the
+                             other 60° are the dead zone, where the potentiometer reads nothing
+                             usable). ``ticks_per_turn`` = position_ticks · 360 / range.
+    velocity_unit_rpm:       rev/min per unit of ``items.moving_speed`` / ``items.present_speed``.
+    sync_read:               the model answers Sync Read (Protocol 2.0, 0x82).
+    bulk_read:               the model answers Bulk Read (0x92; on Protocol 1.0 only MX does).
+    baud_rates:              the line speeds (bit/s) its Baud Rate item can select, ascending.
+    items:                   where it keeps what the host reads and writes (ControlItems).
     """
 
     name: str
@@ -72,12 +247,34 @@ class ServoModel:
     current_limit: int | None
     temperature_limit_c: int
     bus_watchdog_firmware: int | None = 38
-    ticks_per_turn: int = TICKS_PER_TURN
+    protocol: float = PROTOCOL_2
+    position_ticks: int = TICKS_PER_TURN
+    position_range_deg: float = 360.0
     velocity_unit_rpm: float = VELOCITY_UNIT_RPM
+    sync_read: bool = True
+    bulk_read: bool = True
+    baud_rates: tuple[int, ...] = BAUDS_X430
+    items: ControlItems = X_ITEMS
+
+    @property
+    def ticks_per_turn(self) -> float:
+        """Position ticks per 360° of the output shaft (4096; 1228.8 on AX / RX / XL-320)."""
+        n = self.position_ticks * 360.0 / self.position_range_deg
+        return int(n) if n.is_integer() else n
+
+    @property
+    def max_position(self) -> int:
+        """The highest Present / Goal Position of the usable range (4095 or 1023)."""
+        return self.position_ticks - 1
+
+    @property
+    def dead_zone_deg(self) -> float:
+        """Degrees of a turn no position reading covers (60 on AX / RX / XL-320, else 0)."""
+        return 360.0 - self.position_range_deg
 
     @property
     def current_limit_ma(self) -> float | None:
-        """The default Current Limit in mA (None: the model senses no current)."""
+        """The default Current Limit in mA (None: the model has no Current Limit)."""
         if self.current_unit_ma is None or self.current_limit is None:
             return None
         return self.current_limit * self.current_unit_ma
@@ -88,9 +285,18 @@ class ServoModel:
         return self.velocity_unit_rpm * 360.0 / 60.0
 
 
-_X330 = dict(fast_sync_read_firmware=46, current_unit_ma=1.0, temperature_limit_c=70)
-_X430_LOAD = dict(current_unit_ma=None, current_limit=None)
+_X330 = dict(fast_sync_read_firmware=46, current_unit_ma=1.0, temperature_limit_c=70,
+             baud_rates=BAUDS_X330)
+_X430_LOAD = dict(current_unit_ma=None, current_limit=None, items=_x_items(current=False))
 _XM = dict(fast_sync_read_firmware=45, current_unit_ma=2.69, temperature_limit_c=80)
+_P1 = dict(fast_sync_read_firmware=NO_FAST_SYNC_READ, bus_watchdog_firmware=None,
+           protocol=PROTOCOL_1, sync_read=False)
+_AX_RX = dict(_P1, current_unit_ma=None, current_limit=None, position_ticks=1024,
+              position_range_deg=300.0, velocity_unit_rpm=0.111, bulk_read=False,
+              baud_rates=BAUDS_P1, items=_p1_items())
+_MX1 = dict(_P1, current_limit=None, temperature_limit_c=80, velocity_unit_rpm=0.114,
+            baud_rates=BAUDS_MX1)
+_MX2 = dict(fast_sync_read_firmware=NO_FAST_SYNC_READ, temperature_limit_c=80)
 
 MODELS: dict[str, ServoModel] = {
     m.name: m
@@ -111,17 +317,63 @@ MODELS: dict[str, ServoModel] = {
         ServoModel("XH430-W350", 1000, current_limit=648, **_XM),
         ServoModel("XM540-W150", 1130, current_limit=2047, **_XM),
         ServoModel("XM540-W270", 1120, current_limit=2047, **_XM),
+        # Protocol 1.0.
+        ServoModel("AX-12A", 12, temperature_limit_c=70, **_AX_RX),
+        ServoModel("AX-12W", 300, temperature_limit_c=70, **_AX_RX),
+        ServoModel("AX-18A", 18, temperature_limit_c=75, **_AX_RX),
+        ServoModel("RX-24F", 24, temperature_limit_c=80, **_AX_RX),
+        ServoModel("RX-28", 28, temperature_limit_c=80, **_AX_RX),
+        ServoModel("RX-64", 64, temperature_limit_c=80, **_AX_RX),
+        ServoModel("MX-12W", 104, current_unit_ma=None, items=_p1_items(mx=True),
+                   **dict(_MX1, velocity_unit_rpm=0.916)),
+        ServoModel("MX-28", 29, current_unit_ma=None, items=_p1_items(mx=True), **_MX1),
+        ServoModel("MX-64", 310, current_unit_ma=4.5, items=_p1_items(mx=True, current=True),
+                   **_MX1),
+        ServoModel("MX-106", 320, current_unit_ma=4.5, items=_p1_items(mx=True, current=True),
+                   **_MX1),
+        # Protocol 2.0, not X-series.
+        ServoModel("MX-28(2.0)", 30, current_unit_ma=None, current_limit=None,
+                   items=_x_items(current=False), **_MX2),
+        ServoModel("MX-64(2.0)", 311, current_unit_ma=3.36, current_limit=1941, **_MX2),
+        ServoModel("MX-106(2.0)", 321, current_unit_ma=3.36, current_limit=2047, **_MX2),
+        ServoModel("XL-320", 350, NO_FAST_SYNC_READ, None, None, temperature_limit_c=65,
+                   bus_watchdog_firmware=None, position_ticks=1024, position_range_deg=300.0,
+                   velocity_unit_rpm=0.111, baud_rates=BAUDS_XL320, items=_XL320_ITEMS),
     )
 }
 """Every model a rig may name. Sources: the ROBOTIS e-manual control tables
-(emanual.robotis.com/docs/en/dxl/x/<model>/, e.g. xm430-w210, xh430-w350, xm540-w150,
-xc330-t181, xc430-w150, xl330-m288, xl430-w250) and the SDK's model list for the numbers:
+(emanual.robotis.com/docs/en/dxl/<series>/<model>/: x/xm430-w210, x/xh430-w350, x/xm540-w150,
+x/xc330-t181, x/xc430-w150, x/xl330-m288, x/xl430-w250; ax/ax-12a, ax/ax-12w, ax/ax-18a;
+rx/rx-24f, rx/rx-28, rx/rx-64; mx/mx-12w, mx/mx-28, mx/mx-64, mx/mx-106; mx/mx-28-2,
+mx/mx-64-2, mx/mx-106-2; x/xl320), the e-manual's protocol pages (protocol1: BULK_READ is MX
+only, no Sync Read; protocol2: Fast Sync Read on X-series firmware 45 / 46, not 2XL), and
+dynamixel_sdk 4.1.0 (its model list ``dynamixel_easy_sdk/control_table/dynamixel.model`` and
+tables ``mx_28.model``, ``mx_64.model``, ``mx_106.model``, ``xl320.model``) for the numbers.
+
 X330: Present Current and Current Limit in 1.0 mA (XL330 1750, XC330-T 910, XC330-M 2352),
 Temperature Limit 70 C; XM430 / XH430-W / XM540: 2.69 mA (XM430 1193, XH430-W 648, XM540 2047;
 the 1.34 mA unit belongs to the 24 V XH430-V models, not listed), 80 C; XL430 / 2XL430 / XC430:
-Present Load in 0.1 % and no Current Limit, 72 C (XL430) and 80 C (XC430). All: 4096 ticks per
-turn, 0.229 rev/min velocity unit, Bus Watchdog (98) from firmware 38 (e-manual "Bus
-Watchdog": firmware v38 and above; X330 firmware starts above it)."""
+Present Load in 0.1 % and no Current Limit, 72 C (XL430) and 80 C (XC430). All X: 4096 ticks
+per turn, 0.229 rev/min velocity unit, Bus Watchdog (98) from firmware 38 (e-manual "Bus
+Watchdog": firmware v38 and above; X330 firmware starts above it).
+
+Protocol 1.0 (no Bus Watchdog, no Hardware Error Status item: errors come in each status
+packet's error byte): AX-12A (12), AX-12W (300), AX-18A (18), RX-24F (24), RX-28 (28), RX-64
+(64): Present Position at 36 (2 bytes), 1024 positions over 300° (0.29° per unit) and a 60°
+dead zone, Moving Speed at 32 in 0.111 rev/min, Present Load at 40 (0.1 %, bit 10 direction),
+Temperature Limit 70 (AX-12A / AX-12W), 75 (AX-18A), 80 (RX), baud 2 Mbit/s / (value + 1) up
+to 1 Mbit/s, no Bulk Read. MX-12W (104), MX-28 (29), MX-64 (310), MX-106 (320): same addresses,
+4096 positions over 360°, Moving Speed 0.114 rev/min (MX-12W 0.916), Realtime Tick at 50,
+Bulk Read, baud values 250..252 for 2.25 / 2.5 / 3 Mbit/s, 80 C; MX-64 / MX-106 sense current
+at 68 (4.5 mA per unit, 2048 = 0 A) and have no Current Limit.
+
+Protocol 2.0, not X: MX-28(2.0) (30), MX-64(2.0) (311), MX-106(2.0) (321) use the X-series
+addresses (Present Position 132, 4 bytes; Bus Watchdog 98, the same e-manual section as the X
+series); MX-28(2.0) reports Present Load, MX-64(2.0) / MX-106(2.0) Present Current in 3.36 mA
+(Current Limit 1941 / 2047); no Fast Sync Read (not among the e-manual's supported products).
+XL-320 (350): its own table (Present Position 37, 2 bytes, 1024 positions over 300°; Goal
+Position 30, Moving Speed 32 in 0.111 rev/min, Present Load 41, Hardware Error Status 50),
+65 C, 1 Mbit/s at most, no Bus Watchdog, no Fast Sync Read."""
 MODELS_BY_NUMBER: dict[int, ServoModel] = {m.number: m for m in MODELS.values()}
 
 

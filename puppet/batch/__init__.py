@@ -6,14 +6,15 @@
 One take is one task (``task.run_take``: the same ``export_take`` / ``play_take`` as ``puppet
 export`` and ``puppet play``, so outputs are byte-identical). The rig's precompute is built once
 by the driver and sent once to each worker (``local``: a process pool; ``ray``: the object
-store). Modules: plan (takes, outputs, resume), task (the worker's work), local and ray_engine
-(the engines), run (the driver and its report).
+store). Modules: plan (takes, outputs, resume), task (the worker's work), row (one take's row:
+state, worker, times, retries, outputs, reason, log), local and ray_engine (the engines), run
+(the driver and its report).
 """
 
 from puppet.batch.errors import BatchError
 from puppet.batch.plan import DEFAULT_FORMATS, FORMATS, SUFFIXES
+from puppet.batch.row import STATES, TakeResult
 from puppet.batch.run import ENGINES, BatchReport, run_batch
-from puppet.batch.task import TakeResult
 
-__all__ = ["BatchError", "BatchReport", "DEFAULT_FORMATS", "ENGINES", "FORMATS", "SUFFIXES",
-           "TakeResult", "run_batch"]
+__all__ = ["BatchError", "BatchReport", "DEFAULT_FORMATS", "ENGINES", "FORMATS", "STATES",
+           "SUFFIXES", "TakeResult", "run_batch"]

@@ -18,7 +18,8 @@ from multiprocessing.connection import Connection, wait
 from pathlib import Path
 
 from puppet.batch.plan import Job
-from puppet.batch.task import TakeResult, run_take, staging_folder
+from puppet.batch.row import TakeResult
+from puppet.batch.task import run_take, staging_folder
 from puppet.child_signals import children_deaf_to_ctrl_c
 
 MAX_ATTEMPTS = 3  # tries per take whose worker dies under it
@@ -47,8 +48,7 @@ def _worker_main(connection: Connection, blob: bytes, staging_root: str) -> None
         try:
             result = run_take(job, shared, staging_folder(root, job))
         except Exception as err:  # noqa: BLE001 - a bug in one take must not stop the others
-            result = TakeResult(take=str(job.take),
-                                error=f"internal error: {type(err).__name__}: {err}")
+            result = TakeResult.failed(job.take, f"internal error: {type(err).__name__}: {err}")
         try:
             connection.send(result)
         except OSError:  # the driver is gone: nobody to tell
@@ -126,7 +126,7 @@ class LocalEngine:
                             result = None
                         if result is not None:
                             worker.job = None
-                            result.attempts = attempts[job.take]
+                            result.retries = attempts[job.take] - 1
                             on_result(job, result)
                             self._give_next(worker, todo, attempts)
                             continue
@@ -136,11 +136,11 @@ class LocalEngine:
                         if attempts[job.take] < MAX_ATTEMPTS:
                             todo.append(job)  # next in line again
                         else:
-                            on_result(job, TakeResult(
-                                take=str(job.take), attempts=attempts[job.take],
-                                error=f"a worker process died under this take "
-                                      f"{attempts[job.take]} times (exit status "
-                                      f"{worker.process.exitcode})"))
+                            on_result(job, TakeResult.failed(
+                                job.take, f"a worker process died under this take "
+                                          f"{attempts[job.take]} times (exit status "
+                                          f"{worker.process.exitcode})",
+                                retries=attempts[job.take] - 1))
                         workers[i] = _Worker(context, shared_blob, staging_root)
                         self._give_next(workers[i], todo, attempts)
         except BaseException:

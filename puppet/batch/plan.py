@@ -1,7 +1,7 @@
 """What a batch will do: the takes (patterns expanded), each take's output files, resume.
 
 A take ``session/take01.mcap`` writes ``OUT/take01.<ext>`` for every asked format (FORMATS):
-mp4 as ``puppet play --out``, the others as ``puppet export``. Everything here runs in the
+mp4 as ``puppet play --out``, the others as ``puppet export``; and its log, ``OUT/take01.log``. Everything here runs in the
 driver before any work starts, so bad input fails fast and names what is wrong.
 """
 
@@ -20,14 +20,17 @@ SUFFIXES = {"mp4": ".mp4", "gltf": ".glb", "usd": ".usdc", "pc2": ".pc2", "bvh":
 KINDS = {"mp4": "video", "gltf": "glb", "usd": "usd", "pc2": "pc2", "bvh": "bvh"}  # puppet.atomic
 DEFAULT_FORMATS = ("gltf", "usd", "pc2", "bvh")
 TAKE_SUFFIX = ".mcap"
+LOG_SUFFIX = ".log"
 
 
 @dataclass(frozen=True)
 class Job:
-    """One take = one task. take: the take file; outputs: {format: final path} in OUT."""
+    """One take = one task. take: the take file; outputs: {format: final path} in OUT; log: the
+    take's log file in OUT (its row, warnings, errors and the engine's lines for it)."""
 
     take: Path
     outputs: dict[str, Path]
+    log: Path
 
     @property
     def name(self) -> str:
@@ -110,9 +113,11 @@ def plan_jobs(takes: list[Path], out: Path, formats: tuple[str, ...],
             raise BatchError(f"{take}: same name as {other}: both would write {out / take.stem}.*; "
                              "rename one or run them in two batches")
         outputs = {fmt: out / f"{take.stem}{SUFFIXES[fmt]}" for fmt in formats}
+        log = out / f"{take.stem}{LOG_SUFFIX}"
         for fmt, target in outputs.items():
             check_output(target, kind=KINDS[fmt], inputs=all_inputs, force=force)
-        jobs.append(Job(take, outputs))
+        check_output(log, kind="text", inputs=all_inputs, force=force, what="log file")
+        jobs.append(Job(take, outputs, log))
     return jobs
 
 

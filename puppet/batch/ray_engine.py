@@ -12,6 +12,7 @@ Ray runs it again (``max_retries``) and only a complete result is ever written.
 
 from __future__ import annotations
 
+import dataclasses
 import os
 import shutil
 import socket
@@ -21,7 +22,8 @@ from pathlib import Path
 
 from puppet.batch.errors import BatchError
 from puppet.batch.plan import Job
-from puppet.batch.task import Shared, TakeResult, run_take, staging_folder
+from puppet.batch.row import TakeResult
+from puppet.batch.task import Shared, run_take, staging_folder
 
 INSTALL_HINT = "pip install 'puppet[ray]'"
 MAX_RETRIES = 3        # Ray re-runs a task whose worker process or node died
@@ -58,12 +60,12 @@ def _ray_task(job: Job, take_bytes: bytes, shared: Shared) -> TakeResult:
     try:
         local_take = root / job.take.name
         local_take.write_bytes(take_bytes)
-        local_job = Job(local_take, job.outputs)
+        local_job = dataclasses.replace(job, take=local_take)
         result = run_take(local_job, shared, staging_folder(root, local_job))
         result.take = str(job.take)
-        for name in ("error", "warning"):  # name the user's take, not this node's copy
-            if getattr(result, name) is not None:
-                setattr(result, name, getattr(result, name).replace(str(local_take), str(job.take)))
+        # name the user's take, not this node's copy
+        result.reason = result.reason.replace(str(local_take), str(job.take))
+        result.warnings = [w.replace(str(local_take), str(job.take)) for w in result.warnings]
         if result.error is None:
             result.data = {fmt: Path(path).read_bytes() for fmt, path in result.files.items()}
         return result
@@ -130,8 +132,8 @@ class RayEngine:
             try:
                 take_bytes = job.take.read_bytes()
             except OSError as err:
-                on_result(job, TakeResult(take=str(job.take), error=f"{job.take}: cannot read the "
-                                                                    f"take: {err.strerror or err}"))
+                on_result(job, TakeResult.failed(job.take, f"{job.take}: cannot read the take: "
+                                                           f"{err.strerror or err}"))
                 continue
             futures[task.remote(job, take_bytes, shared_ref)] = job
         pending = list(futures)
@@ -141,6 +143,6 @@ class RayEngine:
             try:
                 result = ray.get(done[0])
             except ray.exceptions.RayError as err:  # retries exhausted: worker or node lost
-                result = TakeResult(take=str(job.take), error=f"Ray task failed: {err}")
+                result = TakeResult.failed(job.take, f"Ray task failed: {err}")
             on_result(job, result)
         return put_s

@@ -25,7 +25,8 @@ from puppet.batch.local import LocalEngine
 from puppet.batch.plan import (DEFAULT_FORMATS, KINDS, Job, expand_takes, is_done, parse_formats,
                                plan_jobs, prepare_out)
 from puppet.batch.ray_engine import RayEngine
-from puppet.batch.task import Settings, Shared, TakeResult
+from puppet.batch.row import SKIPPED, STATES, UNFINISHED, TakeResult
+from puppet.batch.task import Settings, Shared
 from puppet.loop import RigPrecompute
 from puppet.rig import Rig
 
@@ -37,13 +38,14 @@ class BatchReport:
     """What a batch did.
 
     rows: one TakeResult per take, in the order the takes were given (skipped ones included);
-    precompute_s / precompute_bytes: building the rig's FastModel and factorization once, and its
-    pickled size; shared_bytes: everything sent once to each worker (rig + precompute +
-    settings); seconds: wall time of the whole batch.
+    out: the output folder; precompute_s / precompute_bytes: building the rig's FastModel and
+    factorization once, and its pickled size; shared_bytes: everything sent once to each worker
+    (rig + precompute + settings); seconds: wall time of the whole batch.
     """
 
     engine: str
     workers: int | None
+    out: str = ""
     rows: list[TakeResult] = field(default_factory=list)
     precompute_s: float = 0.0
     precompute_bytes: int = 0
@@ -52,39 +54,41 @@ class BatchReport:
 
     @property
     def failed(self) -> list[TakeResult]:
-        return [r for r in self.rows if r.error is not None]
+        """Rows of takes whose outputs were not written (failed, cancelled, timed out)."""
+        return [r for r in self.rows if r.state in UNFINISHED]
+
+    def counts(self) -> dict[str, int]:
+        """{state: number of rows}, every state of row.STATES."""
+        return {state: sum(1 for r in self.rows if r.state == state) for state in STATES}
 
     def as_dict(self) -> dict:
-        return {"engine": self.engine, "workers": self.workers,
+        return {"engine": self.engine, "workers": self.workers, "out": self.out,
                 "precompute_s": round(self.precompute_s, 3),
                 "precompute_bytes": self.precompute_bytes, "shared_bytes": self.shared_bytes,
-                "seconds": round(self.seconds, 3),
-                "takes": [{"take": r.take, "frames": r.frames, "seconds": round(r.seconds, 3),
-                           "outputs": sorted(r.files), "skipped": r.skipped,
-                           "attempts": r.attempts, "error": r.error, "warning": r.warning}
-                          for r in self.rows]}
+                "seconds": round(self.seconds, 3), "counts": self.counts(),
+                "takes": [r.as_dict() for r in self.rows]}
 
     def table(self) -> str:
-        """The summary table: take, frames, seconds, outputs, error."""
-        head = ("take", "frames", "seconds", "outputs", "error")
+        """The summary: one line per take (take, state, worker, cpu, wall, retries, outputs,
+        reason), then the counts per state."""
+        head = ("take", "state", "worker", "cpu s", "wall s", "retries", "outputs", "reason")
+        folder = Path(self.out)
         body = []
         for r in self.rows:
-            outputs = "up to date" if r.skipped else ",".join(r.files) or "-"
-            if r.attempts > 1:
-                outputs += f" (try {r.attempts})"
-            error = r.error or (f"warning: {r.warning}" if r.warning else "")
-            body.append((Path(r.take).name, str(r.frames) if r.frames else "-",
-                         f"{r.seconds:.2f}" if not r.skipped else "-", outputs, error))
-        widths = [max(len(row[i]) for row in [head, *body]) for i in range(4)]
-        lines = ["  ".join(c.ljust(w) for c, w in zip(row[:4], widths)) + "  " + row[4]
+            ran = r.state != SKIPPED and bool(r.worker)
+            body.append((r.take, r.state, r.worker or "-",
+                         f"{r.cpu_seconds:.2f}" if ran else "-",
+                         f"{r.seconds:.2f}" if ran else "-", str(r.retries),
+                         r.short_outputs(folder), r.reason))
+        widths = [max(len(row[i]) for row in [head, *body]) for i in range(len(head) - 1)]
+        lines = ["  ".join(c.ljust(w) for c, w in zip(row[:-1], widths)) + "  " + row[-1]
                  for row in [head, *body]]
-        done = sum(1 for r in self.rows if r.error is None and not r.skipped)
-        skipped = sum(1 for r in self.rows if r.skipped)
-        lines.append(f"{done} done, {skipped} up to date, {len(self.failed)} failed in "
-                     f"{self.seconds:.1f} s on {self.engine} ({self.workers or 'auto'} workers); "
+        counts = ", ".join(f"{n} {state}" for state, n in self.counts().items() if n)
+        lines.append(f"{counts or 'no takes'} in {self.seconds:.1f} s on {self.engine} "
+                     f"({self.workers or 'auto'} workers), outputs and logs in {self.out}; "
                      f"rig precompute {self.precompute_s:.2f} s, {self.precompute_bytes} bytes, "
                      f"shared once per worker ({self.shared_bytes} bytes with the rig)")
-        return "\n".join(lines)
+        return "\n".join(line.rstrip() for line in lines)
 
 
 def _check_settings(fps, up: str, size) -> tuple[float, tuple[int, int]]:
@@ -136,13 +140,15 @@ def run_batch(takes: list[str], out: str | os.PathLike, *, rig: Rig, rig_inputs:
     folder = prepare_out(out)
     jobs = plan_jobs(paths, folder, formats, inputs, force=force)
     runner = make_engine(engine, workers, address)
-    report = BatchReport(engine=engine, workers=workers or getattr(runner, "workers", None))
+    report = BatchReport(engine=engine, workers=workers or getattr(runner, "workers", None),
+                         out=str(folder))
     rows: dict[Path, TakeResult] = {}
     todo: list[Job] = []
     for job in jobs:
         if resume and is_done(job, inputs):
-            rows[job.take] = TakeResult(take=str(job.take), skipped=True,
-                                        files={f: str(p) for f, p in job.outputs.items()})
+            rows[job.take] = TakeResult(take=str(job.take), state=SKIPPED, reason="up to date",
+                                        files={f: str(p) for f, p in job.outputs.items()},
+                                        log=str(job.log))
         else:
             todo.append(job)
     if todo:
@@ -162,6 +168,9 @@ def run_batch(takes: list[str], out: str | os.PathLike, *, rig: Rig, rig_inputs:
             def finished(job: Job, result: TakeResult) -> None:
                 if result.error is None:
                     _commit(job, result, [*paths, *inputs], force)
+                else:
+                    result.files, result.data = {}, None
+                _write_log(job, result, [*paths, *inputs], force)
                 rows[job.take] = result
                 if on_result is not None:
                     on_result(result)
@@ -196,7 +205,24 @@ def _commit(job: Job, result: TakeResult, inputs: list[Path], force: bool) -> No
                 os.replace(result.files[fmt], target)
         result.files = {fmt: str(target) for fmt, target in job.outputs.items()}
     except OutputError as err:
-        result.error = str(err)
+        result.fail(str(err))
     except OSError as err:
-        result.error = f"{err.filename or job.take}: cannot write the output: {err.strerror or err}"
+        result.fail(f"{err.filename or job.take}: cannot write the output: {err.strerror or err}")
+    if result.error is not None:
+        result.files = {}
     result.data = None
+
+
+def _write_log(job: Job, result: TakeResult, inputs: list[Path], force: bool) -> None:
+    """Write the take's log file (atomically); a log that cannot be written is a warning in the
+    row, never the take's failure (its outputs are in place)."""
+    try:
+        with atomic_output(job.log, kind="text", inputs=inputs, force=force,
+                           what="log file") as temporary:
+            temporary.write_text(result.log_text(), encoding="utf-8")
+        result.log = str(job.log)
+    except OutputError as err:
+        result.warnings.append(f"log not written: {err}")
+    except OSError as err:
+        result.warnings.append(f"log not written: {err.filename or job.log}: "
+                               f"{err.strerror or err}")

@@ -19,6 +19,7 @@ from pathlib import Path
 
 from puppet.atomic import atomic_output
 from puppet.batch.plan import Job
+from puppet.batch.row import TakeResult
 from puppet.errors import PuppetError
 from puppet.loop import RigPrecompute
 from puppet.rig import Rig
@@ -54,31 +55,6 @@ class Shared:
     settings: Settings
 
 
-@dataclass
-class TakeResult:
-    """What one task did.
-
-    take: the take file; frames: frames written per file (exports; else the video's);
-    seconds: wall time of the task in the worker; cpu_seconds: its process CPU time;
-    files: {format: path of the finished file in the staging folder}; data: {format: bytes} when the worker sends
-    the files back (Ray); error: why the take failed (None when it did), its outputs untouched;
-    warning: e.g. a damaged take's recovery report; attempts: tries it took (a dead worker's
-    take is retried); worker: "host:pid" that ran it.
-    """
-
-    take: str
-    frames: int = 0
-    seconds: float = 0.0
-    cpu_seconds: float = 0.0
-    files: dict[str, str] = field(default_factory=dict)
-    data: dict[str, bytes] | None = None
-    error: str | None = None
-    warning: str | None = None
-    attempts: int = 1
-    worker: str = ""
-    skipped: bool = False
-
-
 def staging_folder(root: Path, job: Job) -> Path:
     """The worker's private folder for a take: ``root/<take name>.<pid>`` (a retry gets its own)."""
     folder = root / f"{job.name}.{os.getpid()}"
@@ -89,7 +65,8 @@ def staging_folder(root: Path, job: Job) -> Path:
 def run_take(job: Job, shared: Shared, staging: Path) -> TakeResult:
     """Solve ``job``'s take on the shared rig and write its outputs into ``staging``.
 
-    A bad take (corrupt, foreign, empty) is a result with ``error`` set, never an exception.
+    A bad take (corrupt, foreign, empty) is a row in state failed with the reason, never an
+    exception.
     """
     from puppet.export import ExportWriters, Outputs, export_take
     from puppet.export.run import take_frames
@@ -103,7 +80,7 @@ def run_take(job: Job, shared: Shared, staging: Path) -> TakeResult:
     try:
         rig, reader = open_take(job.take, shared.rig, default_rig=shared.default_rig)
         if reader.recovery is not None:
-            result.warning = str(reader.recovery)
+            result.warnings.append(str(reader.recovery))
         exports = Outputs(**{fmt: staging / names[fmt] for fmt in EXPORT_FORMATS if fmt in names})
         if "mp4" not in names:
             report = export_take(rig, reader, exports, fps=settings.fps, up=settings.up,
@@ -126,7 +103,7 @@ def run_take(job: Job, shared: Shared, staging: Path) -> TakeResult:
             result.frames = summary.frames
         result.files = {fmt: str(staging / name) for fmt, name in names.items()}
     except (PuppetError, OSError) as err:
-        result.error = str(err) if isinstance(err, PuppetError) else _os_message(err)
+        result.fail(str(err) if isinstance(err, PuppetError) else _os_message(err))
     result.seconds = time.perf_counter() - start
     result.cpu_seconds = time.process_time() - cpu
     return result

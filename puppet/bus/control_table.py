@@ -1,38 +1,17 @@
 """The X-series control-table items and servo models this bus uses, declared as data.
 
-Addresses and sizes are Protocol 2.0, shared by every model of ``puppet.servo_models.MODELS``
-(X330, X430 and X540 series; ROBOTIS e-manual). Nothing else in ``puppet.bus`` writes a bare
-address.
+The constants below are the X-series addresses (Protocol 2.0; X330, X430, X540 and MX(2.0)):
+every model's own addresses, Protocol 1.0 and XL-320 included, are
+``puppet.servo_models.MODELS[name].items`` (``Item`` is defined there). Nothing else in
+``puppet.bus`` writes a bare address.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 # The servo models and ticks per turn are one table shared with the rig (puppet.servo_models);
 # re-exported here so the bus reads every servo fact from this module.
 from puppet.servo_models import (MODELS, MODELS_BY_NUMBER, TICKS_PER_TURN,  # noqa: F401
-                                 ServoModel, model_named)
-
-
-@dataclass(frozen=True)
-class Item:
-    """One control-table item: name, address (byte offset), size in bytes, signedness."""
-
-    name: str
-    address: int
-    size: int
-    signed: bool = False
-    eeprom: bool = False
-
-    def decode(self, data: bytes | bytearray | list[int]) -> int:
-        """Little-endian bytes -> int (two's complement when ``signed``)."""
-        return int.from_bytes(bytes(data[: self.size]), "little", signed=self.signed)
-
-    def encode(self, value: int) -> list[int]:
-        """int -> little-endian byte list of ``size`` bytes."""
-        return list(int(value).to_bytes(self.size, "little", signed=self.signed and value < 0))
-
+                                 Item, ServoModel, model_named)
 
 MODEL_NUMBER = Item("Model Number", 0, 2, eeprom=True)
 FIRMWARE_VERSION = Item("Firmware Version", 6, 1, eeprom=True)

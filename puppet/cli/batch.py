@@ -55,16 +55,25 @@ def batch(takes: tuple[str, ...], out: str, rig_path: str | None, formats: str, 
         raise BatchError("no takes given: name take files, folders or patterns (session/*.mcap)")
     rig = load_rig(rig_path)
     bar = None
+    total = finished = 0
+    lines = not sys.stderr.isatty()  # a log, not a terminal: one line per finished take
 
     def on_start(count: int) -> None:
-        nonlocal bar
-        bar = click.progressbar(length=count, label="takes", file=sys.stderr)
-        bar.__enter__()
+        nonlocal bar, total
+        total = count
+        if not lines:
+            bar = click.progressbar(length=count, label="takes", file=sys.stderr)
+            bar.__enter__()
 
     def on_result(result) -> None:
-        bar.update(1)
-        if result.warning:  # e.g. a damaged take, or gaps cut: said where a user looks
-            click.echo(f"\nwarning: {result.take}: {result.warning}", err=True)
+        nonlocal finished
+        finished += 1
+        if lines:
+            click.echo(result.progress_line(finished, total), err=True)
+        else:
+            bar.update(1)
+        for warning in result.warnings:  # e.g. a damaged take, or gaps cut: where a user looks
+            click.echo(f"{'' if lines else chr(10)}warning: {result.take}: {warning}", err=True)
 
     try:
         report = run_batch(list(takes), out, rig=rig, rig_inputs=rig_files(rig),

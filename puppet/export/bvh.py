@@ -5,6 +5,11 @@ MOTION section (Frames, Frame Time, then one line of channel values per frame). 
 world transform is parent_world @ translate(OFFSET) @ R, with R = R_axis1 @ R_axis2 @ R_axis3
 for the channel order axis1 axis2 axis3 (degrees). The root also has X/Y/Zposition channels:
 its position in the world, which replaces its OFFSET while the motion plays.
+
+Joint names are the rig's, under the ``"bvh"`` rule of ``puppet.export.names`` (whitespace and
+control characters -> ``_``, accents dropped; dots, ``.L``/``.R`` and other punctuation kept, as
+Blender's importer keeps them), so the BVH drives a mesh through its vertex groups unrenamed.
+A leaf joint's End Site takes its length from the mesh (``mesh_end_sites``).
 """
 
 from __future__ import annotations
@@ -16,16 +21,44 @@ import numpy as np
 
 from puppet.export.errors import ExportError
 from puppet.export.euler import ORDERS, matrix_to_euler
+from puppet.export.names import safe_name
 from puppet.export.writer import CountPatchedWriter
 
 _FRAMES_FIELD = 12  # "Frames:" is padded to this width so close() can patch the count in place
+
+
+def mesh_end_sites(heads, tails, frames, parents, V, W) -> np.ndarray:
+    """(b, 3) End Site offsets of the leaf joints, measured on the mesh (other rows: tails - heads).
+
+    heads, tails: (b, 3) rest pivots and tips; frames: (b, 3, 3) rest frames (column 1: the
+    bone's local +Y); parents: (b,) int; V: (n, 3) rest vertices; W: (n, >= b) weights, column j
+    = bone j. A leaf's End Site points along its bone (tail - head, or the frame's +Y for a bone
+    of no length) and reaches the farthest vertex along that direction among the vertices whose
+    largest weight is that bone: its length is max((v - head) · direction). A leaf that no vertex
+    follows most (or whose vertices all lie behind its pivot) keeps the rig's tail - head.
+    """
+    heads = np.asarray(heads, np.float64)
+    out = np.asarray(tails, np.float64) - heads
+    parents = np.asarray(parents)
+    V = np.asarray(V, np.float64)
+    W = np.asarray(W, np.float64)
+    dominant = np.argmax(W, axis=1) if len(V) else np.empty(0, np.int64)
+    leaves = sorted(set(range(len(heads))) - set(parents[parents >= 0].tolist()))
+    for j in leaves:
+        length = float(np.linalg.norm(out[j]))
+        direction = out[j] / length if length > 1e-12 else np.asarray(frames[j], np.float64)[:, 1]
+        mine = V[dominant == j]
+        reach = float(((mine - heads[j]) @ direction).max()) if len(mine) else 0.0
+        if reach > 1e-12:
+            out[j] = reach * direction
+    return out
 
 
 class BvhWriter(CountPatchedWriter):
     """Writes a skeleton's hierarchy, then one frame of joint rotations at a time.
 
     path:      output .bvh file.
-    names:     b joint names (unique, no whitespace).
+    names:     b joint names, unique, each unchanged by ``safe_name(name, "bvh")``.
     parents:   (b,) int, parent joint index, -1 for the one root.
     offsets:   (b, 3) float, each joint's rest position relative to its parent's joint (the
                root's: its rest position in the world), in the skeleton's length unit.
@@ -87,9 +120,9 @@ class BvhWriter(CountPatchedWriter):
         if self.b == 0:
             raise ExportError(p, "skeleton has no joints")
         for i, n in enumerate(self.names):
-            if not n or any(ch.isspace() for ch in n) or not n.isascii():
+            if safe_name(n, "bvh") != n:
                 raise ExportError(p, f"joint {i} name {n!r}: BVH names must be non-empty ASCII "
-                                     "without whitespace")
+                                     "without whitespace or control characters")
         dup = sorted({n for n in self.names if self.names.count(n) > 1})
         if dup:
             raise ExportError(p, f"duplicate joint names {dup}")

@@ -6,9 +6,18 @@ Layout of the file written:
   skin 0         joints 0..b-1; inverseBindMatrices = inverse rest world transform of each joint.
   mesh 0         one triangle primitive: POSITION, NORMAL, indices, JOINTS_n / WEIGHTS_n
                  (``influences`` per vertex, 4 per set; the largest weights, renormalized).
-  animation 0    per joint one translation and one rotation channel (LINEAR), all sharing one
-                 key-time accessor: frame k (k = 1..N) at k / fps seconds, so Blender's importer
-                 (frame = time · scene fps) puts frame 1 on scene frame 1.
+  animation 0    per joint one translation and one rotation channel (LINEAR): frame k (k = 1..N)
+                 at k / fps seconds, so Blender's importer (frame = time · scene fps) puts frame 1
+                 on scene frame 1 when the scene runs at fps. A key on every frame (one shared
+                 key-time accessor), or with a key tolerance the keys that reproduce each channel
+                 within it (``puppet.export.key_reduction``; LINEAR, which Blender plays as written).
+  extras         the scene's and the animation's: {"puppet_fps", "puppet_frame_start": 1,
+                 "puppet_frame_end": N}. Blender 5.0's importer turns the scene's into custom
+                 properties of the scene (``import_scene_extras``, on by default) and changes
+                 neither the scene's rate nor its range: set the scene's fps before importing,
+                 then the range, e.g. (Python console) ``s = bpy.context.scene; s.frame_start,
+                 s.frame_end = s["puppet_frame_start"], s["puppet_frame_end"]`` (or the action's
+                 ``frame_range``, which is 1..N at the right fps).
 
 Keys are the joints' parent-relative transforms of the rigid world maps P_j given per frame
 (see ``puppet.export.joint_transforms``): posed world of joint j = P_j ∘ G_j (G_j its rest world).
@@ -23,6 +32,7 @@ import numpy as np
 import pygltflib
 
 from puppet.export.errors import ExportError
+from puppet.export.key_reduction import reduce_curve
 from puppet.export.joint_transforms import (compose, local_transforms, matrix_to_quaternion,
                                             rest_globals, rigid_inverse)
 from puppet.export.writer import ExportWriter
@@ -118,13 +128,18 @@ class GltfWriter(ExportWriter):
     fps:        frames per second of the keys.
     influences: weights kept per vertex (a multiple of 4: one JOINTS_n/WEIGHTS_n set per 4).
     name:       name of the mesh, its node and the animation.
-    Fields: joints (n, influences) int64 and weights (n, influences) float32: the skin as written.
+    keys_deg:   None: a key on every frame; else rotation keys reduced to this tolerance, degrees
+                (``puppet.export.key_reduction``). keys_units: the same for translations, model
+                units (None: every frame).
+    Fields: joints (n, influences) int64 and weights (n, influences) float32: the skin as written;
+    keys_kept {joint name: {"translation": keys, "rotation": keys}} once closed.
     """
 
     close_on_error = False  # the .glb is written in one piece: an error inside `with` writes none
 
     def __init__(self, path, *, names, parents, heads, frames, V, F, W, fps: float,
-                 influences: int = 4, name: str = "character"):
+                 influences: int = 4, name: str = "character", keys_deg: float | None = None,
+                 keys_units: float | None = None):
         self.path = Path(path)
         if influences < 4 or influences % 4:
             raise ExportError(self.path, f"influences must be a multiple of 4, got {influences}")
@@ -138,6 +153,8 @@ class GltfWriter(ExportWriter):
         self.F = np.asarray(F, np.int64)
         self.fps = float(fps)
         self.name = name
+        self.keys_deg, self.keys_units = keys_deg, keys_units
+        self.keys_kept: dict[str, dict[str, int]] = {}
         self.joints, self.weights = top_weights(W, influences)
         self._translations: list[np.ndarray] = []
         self._rotations: list[np.ndarray] = []
@@ -160,6 +177,15 @@ class GltfWriter(ExportWriter):
         self._previous_q = q
         self._translations.append(local[:, :, 3].astype(np.float32))
         self._rotations.append(q.astype(np.float32))
+
+    def timing(self) -> dict:
+        """The take's rate and frame range as written in the scene's and the animation's extras:
+        {"puppet_fps": frames per second, "puppet_frame_start": 1, "puppet_frame_end": N}.
+        Blender's glTF importer (``import_scene_extras``, on by default) makes the scene's extras
+        custom properties of the scene it imports into; it does not change the scene's rate or
+        range itself, and places key time t on frame t × the scene's fps."""
+        return {"puppet_fps": self.fps, "puppet_frame_start": 1,
+                "puppet_frame_end": self.num_frames}
 
     def skin(self, world: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
         """(n, 3) linear blend skinning of the written skin for world (b, 3, 4): what a viewer shows.
@@ -240,27 +266,43 @@ class GltfWriter(ExportWriter):
         gltf.nodes.append(pygltflib.Node(name=self.name, mesh=0, skin=0))
         gltf.scenes.append(pygltflib.Scene(name=self.name, nodes=roots + [b]))
         gltf.scene = 0
-        # Animation: shared key times, a translation and a rotation sampler per joint.
-        N = self.num_frames
-        times = (np.arange(1, N + 1) / self.fps).astype(np.float32)
-        t_acc = blob.add(times, FLOAT, "SCALAR", minmax=True)
-        translations = np.stack(self._translations, 1)  # (b, N, 3)
-        rotations = np.stack(self._rotations, 1)        # (b, N, 4)
-        samplers, channels = [], []
-        for j in range(b):
-            for path, values, kind in (("translation", translations[j], "VEC3"),
-                                       ("rotation", rotations[j], "VEC4")):
-                out = blob.add(values, FLOAT, kind)
-                samplers.append(pygltflib.AnimationSampler(input=t_acc, output=out,
-                                                           interpolation="LINEAR"))
-                channels.append(pygltflib.AnimationChannel(
-                    sampler=len(samplers) - 1,
-                    target=pygltflib.AnimationChannelTarget(node=j, path=path)))
-        gltf.animations.append(pygltflib.Animation(
-            name=self.name, samplers=samplers, channels=channels,
-            extras={"fps": self.fps, "frames": N, "first_frame": 1,
-                    "note": "frame k is at k/fps seconds; frame 1 is the take's first reading"}))
+        self._animation(gltf, blob)
         data = blob.bytes()
         gltf.buffers.append(pygltflib.Buffer(byteLength=len(data)))
         gltf.set_binary_blob(data)
         return gltf
+
+    def _animation(self, gltf: pygltflib.GLTF2, blob: _Blob) -> None:
+        """Animation 0: a translation and a rotation channel per joint (LINEAR), every frame a key
+        or, with a key tolerance, the keys ``reduce_curve`` keeps (channels with the same kept
+        frames share one key-time accessor); the timing in the scene's and animation's extras."""
+        N = self.num_frames
+        times = (np.arange(1, N + 1) / self.fps).astype(np.float32)
+        translations = np.stack(self._translations, 1)  # (b, N, 3)
+        rotations = np.stack(self._rotations, 1)        # (b, N, 4)
+        time_accessors: dict[tuple[int, ...], int] = {}
+        samplers, channels = [], []
+        self.keys_kept = {}
+        for j in range(self.b):
+            kept = {}
+            for path, values, kind, tol in (("translation", translations[j], "VEC3", self.keys_units),
+                                            ("rotation", rotations[j], "VEC4", self.keys_deg)):
+                keys = (np.arange(N) if tol is None else
+                        reduce_curve(times, values.astype(np.float64), path, tol))
+                kept[path] = len(keys)
+                key_tuple = tuple(int(k) for k in keys)
+                if key_tuple not in time_accessors:
+                    time_accessors[key_tuple] = blob.add(times[keys], FLOAT, "SCALAR", minmax=True)
+                out = blob.add(values[keys], FLOAT, kind)
+                samplers.append(pygltflib.AnimationSampler(input=time_accessors[key_tuple], output=out,
+                                                           interpolation="LINEAR"))
+                channels.append(pygltflib.AnimationChannel(
+                    sampler=len(samplers) - 1,
+                    target=pygltflib.AnimationChannelTarget(node=j, path=path)))
+            self.keys_kept[self.names[j]] = kept
+        timing = self.timing()
+        gltf.animations.append(pygltflib.Animation(
+            name=self.name, samplers=samplers, channels=channels,
+            extras={**timing, "note": "frame k is at k/fps seconds; frame 1 is the take's first "
+                                      "reading"}))
+        gltf.scenes[gltf.scene].extras = {**(gltf.scenes[gltf.scene].extras or {}), **timing}

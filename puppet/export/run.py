@@ -15,6 +15,7 @@ complete (``puppet.atomic``): a failed export leaves no half file and keeps an e
 from __future__ import annotations
 
 import contextlib
+import math
 import sys
 import time
 from collections.abc import Callable, Iterator
@@ -23,8 +24,9 @@ from pathlib import Path
 
 import numpy as np
 
+from puppet import limits
 from puppet.atomic import atomic_output, check_distinct, check_output
-from puppet.export.bvh import BvhWriter
+from puppet.export.bvh import BvhWriter, mesh_end_sites
 from puppet.export.errors import ExportError
 from puppet.export.gltf import GltfWriter
 from puppet.export.joint_transforms import JointTransforms
@@ -61,7 +63,8 @@ class ExportReport:
 
     frames: frames per file; fps: their rate; take_seconds: first to last reading, as recorded;
     cuts: the gaps between readings cut to MAX_GAP_S (puppet.take.Cut), the same in every output.
-    files: {format: (path, bytes)}. renamed: {joint name: safe name} for BVH/USD joints.
+    files: {format: (path, bytes)}. renamed: {format: {joint name: its name in that file}} for
+        the joints a format's naming rule changed (``puppet.export.names``: BVH, USD paths).
     lbs_rms_pct, lbs_max_pct: linear blend skinning of the glTF's skeleton with the file's own
         weights against the FAST mesh, over every vertex of every frame, % of the rest bounding
         box diagonal (None without --gltf).
@@ -69,6 +72,10 @@ class ExportReport:
         the largest distance between a pivot and where rotations and rest offsets alone would put
         it, % of the diagonal (None without --bvh). The BVH carries a position channel on every
         joint for this, so its joints land on the solved pivots all the same.
+    keys: None (a glTF key on every frame) or the glTF's key reduction: {"rotation_deg",
+        "translation_units": the tolerances, "kept": keys written, "every_frame": keys a key on
+        every frame would take, "kept_pct", "joints": {joint name: {"translation": keys,
+        "rotation": keys}}}.
     seconds: wall time of the export.
     """
 
@@ -77,10 +84,11 @@ class ExportReport:
     take_seconds: float
     cuts: list = field(default_factory=list)
     files: dict[str, tuple[Path, int]] = field(default_factory=dict)
-    renamed: dict[str, str] = field(default_factory=dict)
+    renamed: dict[str, dict[str, str]] = field(default_factory=dict)
     lbs_rms_pct: float | None = None
     lbs_max_pct: float | None = None
     bvh_stretch_max_pct: float | None = None
+    keys: dict | None = None
     seconds: float = 0.0
 
     def as_dict(self) -> dict:
@@ -88,8 +96,8 @@ class ExportReport:
                 "take_seconds": round(self.take_seconds, 6),
                 "gaps_cut": [{"at_s": c.at_ns * 1e-9, "gap_s": c.gap_ns * 1e-9} for c in self.cuts],
                 "files": {f: {"path": str(p), "bytes": b} for f, (p, b) in self.files.items()},
-                "renamed_joints": dict(self.renamed), "lbs_rms_pct": self.lbs_rms_pct,
-                "lbs_max_pct": self.lbs_max_pct, "bvh_stretch_max_pct": self.bvh_stretch_max_pct,
+                "renamed_joints": {f: dict(m) for f, m in self.renamed.items()},
+                "keys": self.keys, "lbs_rms_pct": self.lbs_rms_pct, "lbs_max_pct": self.lbs_max_pct, "bvh_stretch_max_pct": self.bvh_stretch_max_pct,
                 "seconds": round(self.seconds, 3)}
 
     def text(self) -> str:
@@ -106,8 +114,15 @@ class ExportReport:
         if self.bvh_stretch_max_pct is not None:
             lines.append(f"bvh: every joint has position channels (the solve moves pivots up to "
                          f"{self.bvh_stretch_max_pct:.3f} % of the bbox diagonal off rest offsets)")
-        for old, new in self.renamed.items():
-            lines.append(f"joint renamed for BVH/USD: {old!r} -> {new!r}")
+        if self.keys is not None:
+            k = self.keys
+            lines.append(f"gltf keys within {k['rotation_deg']:g}° and {k['translation_units']:.4g} "
+                         f"model units: {k['kept']} of {k['every_frame']} ({k['kept_pct']:.1f} %)")
+            lines.extend(f"  {name}: {c['rotation']} rotation, {c['translation']} translation"
+                         for name, c in k["joints"].items())
+        for fmt, renamed in self.renamed.items():
+            for old, new in renamed.items():
+                lines.append(f"{fmt}: joint {old!r} is named {new!r} (the format's naming rule)")
         return "\n".join(lines)
 
 
@@ -136,7 +151,36 @@ def _bvh_skeleton(rig):
         raise ExportError("--bvh", f"a BVH file has one root joint; the rig's skeleton has "
                                    f"{len(roots)}: {[sk.names[r] for r in roots]}")
     offsets = sk.heads - np.where(sk.parents[:, None] >= 0, sk.heads[sk.parents], 0.0)
-    return offsets, sk.tails - sk.heads
+    return offsets, mesh_end_sites(sk.heads, sk.tails, sk.frames, sk.parents, rig.V, rig.W)
+
+
+def default_keys_units(rig, degrees: float) -> float:
+    """Translation tolerance (model units) that goes with a rotation tolerance of ``degrees``:
+    how far that turn moves a point one rest bounding-box diagonal from its pivot
+    (radians(degrees) × diagonal; 0.5° on the built-in critter: 0.016 units, 0.87 % of it)."""
+    diagonal = float(np.linalg.norm(rig.V.max(0) - rig.V.min(0))) or 1.0
+    return math.radians(degrees) * diagonal
+
+
+def _key_tolerances(rig, outputs: Outputs, keys, keys_units) -> tuple[float | None, float | None]:
+    """(degrees, model units) of glTF key reduction, or (None, None) for a key on every frame;
+    each checked against its Range in puppet.limits, errors naming the option."""
+    if keys is None:
+        if keys_units is not None:
+            raise ExportError("--keys-units", "needs --keys (the rotation tolerance, degrees)")
+        return None, None
+    problem = limits.KEYS_DEG.problem(keys)
+    if problem:
+        raise ExportError("--keys", problem)
+    if not outputs.gltf:
+        raise ExportError("--keys", "reduces the glTF's keys: give --gltf FILE (BVH, USD and PC2 "
+                                    "keep every frame)")
+    if keys_units is None:
+        keys_units = default_keys_units(rig, keys)
+    problem = limits.KEYS_UNITS.problem(keys_units)
+    if problem:
+        raise ExportError("--keys-units", problem)
+    return float(keys), float(keys_units)
 
 
 def check_fps(fps, where: str = "--fps") -> float:
@@ -146,6 +190,7 @@ def check_fps(fps, where: str = "--fps") -> float:
 
 def export_take(rig, reader, outputs: Outputs, *, fps: float = 30.0, up: str = "y",
                 iterations: int = 8, influences: int = 4, meters_per_unit: float = 1.0,
+                keys: float | None = None, keys_units: float | None = None,
                 progress: Callable[[int, int], None] | None = None,
                 precompute=None) -> ExportReport:
     """Export a take (TakeReader) solved on ``rig`` into every file named in ``outputs``.
@@ -154,6 +199,10 @@ def export_take(rig, reader, outputs: Outputs, *, fps: float = 30.0, up: str = "
     up:         'y' (the model's frame) or 'z' (Blender: (x, y, z) -> (x, −z, y)), PC2 only:
                 glTF is Y-up by its spec, USD says its upAxis, BVH importers convert Y-up.
     iterations: FAST iterations per frame. influences: glTF weights per vertex (multiple of 4).
+    keys:       None: a glTF key on every frame; else the glTF's rotation keys reproduce each
+                joint's solved curve within ``keys`` degrees, its translation keys within
+                ``keys_units`` model units (None: ``default_keys_units``), LINEAR
+                (``puppet.export.key_reduction``). BVH, USD and PC2 stay per frame.
     progress:   called with (frames done, frames in all) after each frame.
     precompute: a shared ``puppet.loop.RigPrecompute`` of ``rig`` (batch), None: built here.
     Raises ExportError (or the take's TakeRigMismatch) naming the file at fault.
@@ -161,7 +210,7 @@ def export_take(rig, reader, outputs: Outputs, *, fps: float = 30.0, up: str = "
     start = time.monotonic()
     frames = take_frames(rig, reader, fps)
     with ExportWriters(rig, reader, outputs, frames, up=up, influences=influences,
-                       meters_per_unit=meters_per_unit) as exports:
+                       meters_per_unit=meters_per_unit, keys=keys, keys_units=keys_units) as exports:
         from puppet.loop import Pipeline, run_frames  # the solver's native module: only here
 
         with Pipeline(rig, render=False, iterations=iterations, precompute=precompute) as pipeline:
@@ -200,12 +249,14 @@ class ExportWriters:
     """
 
     def __init__(self, rig, reader, outputs: Outputs, frames: Playback, *, up: str = "y",
-                 influences: int = 4, meters_per_unit: float = 1.0):
+                 influences: int = 4, meters_per_unit: float = 1.0, keys: float | None = None,
+                 keys_units: float | None = None):
         if up not in UP_AXES:
             raise ExportError("--up", f"up axis must be one of {UP_AXES}, got {up!r}")
         items = outputs.items()
         if not items:
             raise ExportError("export", "nothing to write: give --gltf, --usd, --pc2 and/or --bvh FILE")
+        self.keys_deg, self.keys_units = _key_tolerances(rig, outputs, keys, keys_units)
         from puppet.rig.rig_file import loaded_files
 
         self.inputs = [Path(reader.path), *loaded_files(rig)]
@@ -232,7 +283,8 @@ class ExportWriters:
     def __enter__(self) -> "ExportWriters":
         rig, sk, order, fps = self.rig, self.rig.skeleton, self.order, self.fps
         V_out = order.take(rig.V)
-        self._safe, self.renamed = safe_names(sk.names)
+        self._bvh_names, bvh_renamed = safe_names(sk.names, "bvh")
+        self.renamed = {"bvh": bvh_renamed} if bvh_renamed and "bvh" in self.targets else {}
         stack = self._stack.__enter__()
         try:
             for fmt, target in self.items:
@@ -244,7 +296,9 @@ class ExportWriters:
                         self.writers[fmt] = GltfWriter(temporary, names=sk.names, parents=sk.parents,
                                                        heads=sk.heads, frames=sk.frames, V=V_out,
                                                        F=order.F, W=order.take(rig.W), fps=fps,
-                                                       influences=self.influences, name=rig.name)
+                                                       influences=self.influences, name=rig.name,
+                                                       keys_deg=self.keys_deg,
+                                                       keys_units=self.keys_units)
                     elif fmt == "usd":
                         from puppet.export.usd import UsdWriter
 
@@ -252,12 +306,13 @@ class ExportWriters:
                                                       heads=sk.heads, frames=sk.frames, V=V_out,
                                                       F=order.F, fps=fps, name=rig.name,
                                                       meters_per_unit=self.meters_per_unit)
-                        self.renamed.update(self.writers[fmt].renamed)
+                        if self.writers[fmt].renamed:
+                            self.renamed["usd"] = dict(self.writers[fmt].renamed)
                     elif fmt == "pc2":
                         self.writers[fmt] = Pc2Writer(temporary, order.n_out,
                                                       start_frame=float(FIRST_FRAME), sample_rate=1.0)
                     else:
-                        self.writers[fmt] = BvhWriter(temporary, names=self._safe, parents=sk.parents,
+                        self.writers[fmt] = BvhWriter(temporary, names=self._bvh_names, parents=sk.parents,
                                                       offsets=self._bvh_offsets,
                                                       end_sites=self._end_sites,
                                                       frame_time=1.0 / fps, positions="all")
@@ -287,8 +342,7 @@ class ExportWriters:
         report.frames = self.frames
         for fmt, target in self.items:
             report.files[fmt] = (target, target.stat().st_size)
-        if "bvh" in self.targets or "usd" in self.targets:
-            report.renamed = self.renamed
+        report.renamed = self.renamed
         rig = self.rig
         diagonal = float(np.linalg.norm(rig.V.max(0) - rig.V.min(0))) or 1.0
         if "gltf" in self.writers:
@@ -296,6 +350,13 @@ class ExportWriters:
             count = max(b["count"], 1) if b else 1
             report.lbs_rms_pct = 100.0 * float(np.sqrt((b["squares"] if b else 0.0) / count)) / diagonal
             report.lbs_max_pct = 100.0 * (b["worst"] if b else 0.0) / diagonal
+            if self.keys_deg is not None:
+                joints = self.writers["gltf"].keys_kept
+                kept = sum(sum(c.values()) for c in joints.values())
+                every = 2 * len(joints) * self.frames
+                report.keys = {"rotation_deg": self.keys_deg, "translation_units": self.keys_units,
+                               "kept": kept, "every_frame": every,
+                               "kept_pct": 100.0 * kept / max(every, 1), "joints": joints}
         if "bvh" in self.writers:
             report.bvh_stretch_max_pct = 100.0 * (self._buffers["drift"] if self._buffers else 0.0) / diagonal
 

@@ -43,13 +43,19 @@ def test_a_corrupt_and_a_foreign_take_are_reported_and_the_others_finish(tmp_pat
     assert "Error: 2 of 4 takes failed" in result.stderr
     assert "Traceback" not in result.stderr
     rows = {Path(r["take"]).name: r for r in report_of(result)["takes"]}
-    assert str(corrupt) in rows["corrupt.mcap"]["error"]
-    assert "another rig" in rows["foreign.mcap"]["error"]
-    assert "'other'" in rows["foreign.mcap"]["error"]
+    assert rows["corrupt.mcap"]["state"] == "failed"
+    assert str(corrupt) in rows["corrupt.mcap"]["reason"]
+    assert rows["foreign.mcap"]["state"] == "failed"
+    assert "another rig" in rows["foreign.mcap"]["reason"]
+    assert "'other'" in rows["foreign.mcap"]["reason"]
+    assert rows["foreign.mcap"]["outputs"] == []
     for take in session[:2]:
-        assert rows[take.name]["error"] is None
+        assert rows[take.name]["state"] == "done"
+        assert rows[take.name]["outputs"] == [str(out / f"{take.stem}.pc2")]
         assert (out / f"{take.stem}.pc2").read_bytes() == serial_outputs[take.stem]["pc2"]
-    assert sorted(p.name for p in out.iterdir()) == ["take00.pc2", "take01.pc2"]
+    assert sorted(p.name for p in out.iterdir() if p.suffix != ".log") == ["take00.pc2",
+                                                                          "take01.pc2"]
+    assert "another rig" in (out / "foreign.log").read_text()
 
 
 def test_a_worker_killed_during_a_take_is_retried_and_every_output_is_complete(tmp_path, critter,
@@ -75,8 +81,8 @@ def test_a_worker_killed_during_a_take_is_retried_and_every_output_is_complete(t
     assert killed is not None, "the long take never started"
     assert process.returncode == 0, stderr
     rows = {Path(r["take"]).name: r for r in json.loads(stdout.splitlines()[0])["takes"]}
-    assert rows["long.mcap"]["attempts"] == 2
-    assert all(r["error"] is None for r in rows.values())
+    assert rows["long.mcap"]["retries"] == 1
+    assert all(r["state"] == "done" for r in rows.values())
     expected = tools.serial(long_take, tmp_path / "serial", formats)
     suffix = {"gltf": ".glb", "pc2": ".pc2", "bvh": ".bvh"}
     for fmt in formats:
@@ -93,11 +99,11 @@ def test_resume_skips_takes_whose_outputs_are_newer(tmp_path, critter, tools):
     first = subprocess.run(batch_command(*args), capture_output=True, text=True, timeout=600)
     assert first.returncode == 0, first.stderr
     stamps = {p.name: p.stat().st_mtime_ns for p in out.iterdir()}
-    assert len(stamps) == 4
+    assert len(stamps) == 6  # 2 takes: pc2, bvh and log
     again = subprocess.run(batch_command(*args, "--resume"), capture_output=True, text=True,
                            timeout=600)
     assert again.returncode == 0, again.stderr
-    assert [r["skipped"] for r in report_of(again)["takes"]] == [True, True]
+    assert [r["state"] for r in report_of(again)["takes"]] == ["skipped", "skipped"]
     assert {p.name: p.stat().st_mtime_ns for p in out.iterdir()} == stamps
     # a take re-recorded after its outputs, and a missing output: both are made again
     later = max(stamps.values()) + 1_000_000_000
@@ -106,6 +112,6 @@ def test_resume_skips_takes_whose_outputs_are_newer(tmp_path, critter, tools):
     third = subprocess.run(batch_command(*args, "--resume"), capture_output=True, text=True,
                            timeout=600)
     assert third.returncode == 0, third.stderr
-    assert [r["skipped"] for r in report_of(third)["takes"]] == [False, False]
+    assert [r["state"] for r in report_of(third)["takes"]] == ["done", "done"]
     assert (out / "t0.pc2").stat().st_mtime_ns > later
     assert (out / "t1.bvh").exists()

@@ -259,6 +259,8 @@ OPTIONS = [
     (["batch"], "--workers", ["t.mcap", "--out", "o"], 1),
     (["rig", "init"], "--skin", ["c.glb"], 1),
     (["rig", "axes"], "--angle", ["r.toml"], 1),
+    (["export"], "--keys", ["take.mcap", "--gltf", "a.glb"], 1),
+    (["export"], "--keys-units", ["take.mcap", "--gltf", "a.glb", "--keys", "1"], 1),
 ]
 # Options whose value is checked when the command runs (a string until then).
 RUN_CHECKED = {("export", "--fps"), ("batch", "--fps")}

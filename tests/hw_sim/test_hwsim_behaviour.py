@@ -104,7 +104,7 @@ def test_control_tables_are_consistent():
                 assert f.lo <= f.default <= f.hi or f.name in ("Goal Current",), (model.name, f.name)
     assert get_model("XL430-W250").field("Present Load").addr == 126
     with pytest.raises(UnknownModelError, match="XL330-M288"):
-        get_model("AX-12A")
+        get_model("AX-99Z")
 
 
 def test_timing_model_delays_replies(open_sdk):

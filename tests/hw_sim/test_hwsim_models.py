@@ -22,32 +22,79 @@ from hw_sim.rig_servos import RigFileError, RigServo, read_rig_servos
 from puppet.servo_models import MODELS, TICKS_PER_TURN, ServoModel
 
 PRESENT_POSITION = 132
+SERVED_BY_THE_BUS = [name for name, m in MODELS.items() if m.items.present_position.address == 132]
+"""The models the host bus reads today (X-series addresses, Protocol 2.0)."""
+ITEM_NAMES = sorted({item.name for m in MODELS.values() for item in vars(m.items).values() if item})
+"""Every control-table item the host names, on any model."""
 
 
 def _device_facts(spec) -> dict:
-    """One hw_sim model row as puppet.servo_models.ServoModel names its fields."""
+    """One hw_sim model row as puppet.servo_models.ServoModel names its scalar fields."""
     return dict(name=spec.name, number=spec.number,
                 fast_sync_read_firmware=spec.fast_sync_read_firmware,
                 current_unit_ma=spec.current_unit_ma, current_limit=spec.current_limit,
                 temperature_limit_c=spec.temp_limit,
-                bus_watchdog_firmware=spec.bus_watchdog_firmware,
-                ticks_per_turn=spec.ticks_per_turn, velocity_unit_rpm=spec.velocity_unit_rpm)
+                bus_watchdog_firmware=spec.bus_watchdog_firmware, protocol=spec.protocol,
+                position_ticks=spec.position_ticks, position_range_deg=spec.position_range_deg,
+                velocity_unit_rpm=spec.velocity_unit_rpm, sync_read=spec.sync_read,
+                bulk_read=spec.bulk_read, baud_rates=spec.baud_rates)
+
+
+def _host_facts(model: ServoModel) -> dict:
+    facts = {f.name: getattr(model, f.name) for f in dataclasses.fields(ServoModel)}
+    del facts["items"]
+    return facts
 
 
 def test_the_device_side_table_agrees_with_puppets():
-    # Every field of puppet's model table, for every model, equals hw_sim's own copy.
-    fields = [f.name for f in dataclasses.fields(ServoModel)]
+    # Every per-model fact of puppet's model table, for every model, equals hw_sim's own copy.
+    fields = [f.name for f in dataclasses.fields(ServoModel) if f.name != "items"]
     assert sorted(_device_facts(SIM_MODELS["XL330-M288"].spec)) == sorted(fields)
     assert {m.spec.name: _device_facts(m.spec) for m in SIM_MODELS.values()} == \
-        {m.name: dataclasses.asdict(m) for m in MODELS.values()}
+        {m.name: _host_facts(m) for m in MODELS.values()}
     assert SIM_TICKS_PER_TURN == TICKS_PER_TURN
-    for model in SIM_MODELS.values():  # the items puppet reads sit where puppet reads them
-        assert (model.field("Model Number").addr, model.field("Present Position").addr,
-                model.field("Present Position").size) == (0, 132, 4)
-        senses = "Present Current" if MODELS[model.name].current_unit_ma else "Present Load"
-        assert model.by_addr[126].name == senses
-        assert ("Current Limit" in model.by_name) == (MODELS[model.name].current_limit is not None)
-        assert model.field("Temperature Limit").default == MODELS[model.name].temperature_limit_c
+    for model in SIM_MODELS.values():
+        host = MODELS[model.name]
+        assert model.protocol == host.protocol
+        assert model.spec.ticks_per_turn == host.ticks_per_turn
+        assert model.field("Model Number").default == host.number
+        assert model.field("Temperature Limit").default == host.temperature_limit_c
+        if host.current_limit is not None:
+            assert model.field("Current Limit").default == host.current_limit
+
+
+def test_every_item_the_host_names_sits_where_the_device_keeps_it():
+    # Item by item: the host's address, size, signedness and area of each item it uses are the
+    # simulator's, and the simulator has none of the host's items the model lacks.
+    for model in SIM_MODELS.values():
+        host = {item.name: (item.address, item.size, item.signed, item.eeprom)
+                for item in vars(MODELS[model.name].items).values() if item}
+        device = {name: (f.addr, f.size, f.signed, f.eeprom)
+                  for name in ITEM_NAMES if (f := model.by_name.get(name))}
+        assert device == host, model.name
+
+
+def test_the_per_model_position_facts():
+    ax, mx, xl320, x = MODELS["AX-12A"], MODELS["MX-28"], MODELS["XL-320"], MODELS["XL430-W250"]
+    assert (ax.protocol, ax.position_ticks, ax.position_range_deg, ax.dead_zone_deg,
+            ax.max_position, ax.ticks_per_turn) == (1.0, 1024, 300.0, 60.0, 1023, 1228.8)
+    assert (mx.protocol, mx.ticks_per_turn, mx.dead_zone_deg, mx.items.present_position.address,
+            mx.items.present_position.size) == (1.0, 4096, 0.0, 36, 2)
+    assert (xl320.protocol, xl320.ticks_per_turn, xl320.items.present_position.address,
+            xl320.items.present_position.size) == (2.0, 1228.8, 37, 2)
+    assert (x.ticks_per_turn, x.items.present_position.address, x.items.present_position.size) \
+        == (TICKS_PER_TURN, 132, 4)
+    speed = ax.items.present_speed  # sign-magnitude: bit 10 is the direction (CW negative)
+    assert (speed.decode([0x2C, 0x01]), speed.decode([0x2C, 0x05]), speed.encode(-300)) \
+        == (300, -300, [0x2C, 0x05])
+    current = MODELS["MX-64"].items.present_current  # 2048 = 0 A, 4.5 mA per unit
+    assert (current.decode((2148).to_bytes(2, "little")), current.encode(-100)) \
+        == (100, list((1948).to_bytes(2, "little")))
+    assert {m.protocol for m in MODELS.values()} == {1.0, 2.0}
+    assert [n for n, m in MODELS.items() if m.protocol == 1.0] == [
+        "AX-12A", "AX-12W", "AX-18A", "RX-24F", "RX-28", "RX-64", "MX-12W", "MX-28", "MX-64", "MX-106"]
+    assert [n for n, m in MODELS.items() if m.bulk_read and m.protocol == 1.0] == [
+        "MX-12W", "MX-28", "MX-64", "MX-106"]
 
 
 def test_hw_sim_imports_nothing_of_puppet():
@@ -60,7 +107,7 @@ def test_hw_sim_imports_nothing_of_puppet():
 def test_every_model_is_served_and_read_by_the_bus():
     from puppet.bus import ServoReader
 
-    servos = {k + 1: name for k, name in enumerate(MODELS)}
+    servos = {k + 1: name for k, name in enumerate(SERVED_BY_THE_BUS)}
     with hw_sim.serve(servos) as bus:
         reader = ServoReader(bus.port, servos)
         try:
@@ -77,7 +124,7 @@ def test_every_model_reports_a_load_in_its_own_current_unit(open_sdk, wait_until
     # A load of half the motor's current (plus the idle current) reads back, through the SDK,
     # as that current in the model's Present Current unit, or as Present Load (0.1 % of the
     # motor's current) on a model that senses no current.
-    servos = {k + 1: name for k, name in enumerate(MODELS)}
+    servos = {k + 1: name for k, name in enumerate(SERVED_BY_THE_BUS)}
     with hw_sim.serve(servos) as bus:
         sdk = open_sdk(bus.port)
         expected = {}

@@ -1,0 +1,140 @@
+"""BVH joints keep the rig's names (dots, .L/.R, punctuation; whitespace -> _) and leaf End
+Sites reach the mesh: checked on the file and in Blender 5.0 itself (``bpy``, in a subprocess)."""
+
+import importlib.util
+import json
+import math
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pygltflib
+import pytest
+
+from puppet.export import BvhWriter, Outputs, export_take
+from puppet.export.names import safe_name, safe_names
+from puppet.rig import load_rig
+from puppet.rig.init_file import write_rig_init
+from puppet.take import TakeReader
+
+
+def load_module(relative: str):
+    """A test helper module by path (pytest runs with --import-mode=importlib: no packages)."""
+    path = Path(__file__).parents[1] / relative
+    spec = importlib.util.spec_from_file_location("export_names_" + path.stem, path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+parse_bvh = load_module("export/test_export_bvh.py").parse_bvh
+write_take = load_module("export/conftest.py").write_take
+
+HAS_BPY = importlib.util.find_spec("bpy") is not None
+needs_bpy = pytest.mark.skipif(not HAS_BPY, reason="bpy (Blender as a Python module: "
+                                                   "pip install bpy, Python 3.11) is not installed")
+
+#: Names Blender's BVH importer must keep exactly: mirroring suffixes, punctuation, and the
+#: BVH format's own words and braces as joint names.
+KEPT = ["hips", "leg.L", "leg.R", "foot.L", "foot.R", "spine.001", "a{b}", "}", "{", "End",
+        "Site", "MOTION", "Frames:", "x#y", 'q"uote', "a/b", "a\\b", "a,b;c", "[0]", "-1"]
+
+
+def run_bpy(script: str, *args) -> dict:
+    """Run ``script`` in a fresh Python with bpy; it prints one JSON line after 'RESULT '."""
+    done = subprocess.run([sys.executable, "-c", script, *map(str, args)], capture_output=True,
+                          text=True, timeout=600)
+    assert done.returncode == 0, done.stderr[-3000:]
+    line = next(x for x in done.stdout.splitlines() if x.startswith("RESULT "))
+    return json.loads(line[len("RESULT "):])
+
+
+IMPORT_BVH = """
+import bpy, json, sys
+bpy.ops.wm.read_factory_settings(use_empty=True)
+bpy.ops.import_anim.bvh(filepath=sys.argv[1])
+arm = next(o for o in bpy.data.objects if o.type == "ARMATURE")
+bones = {b.name: b.length for b in arm.data.bones}
+groups = []
+if len(sys.argv) > 2:
+    bpy.ops.import_scene.gltf(filepath=sys.argv[2])
+    body = next(o for o in bpy.data.objects if o.type == "MESH")
+    groups = [g.name for g in body.vertex_groups]
+print("RESULT " + json.dumps({"bones": bones, "groups": groups}))
+"""
+
+
+def test_the_bvh_rule_keeps_everything_but_whitespace():
+    assert [safe_name(n, "bvh") for n in KEPT] == KEPT
+    assert safe_names(["tail base", "tail_base", "a\tb", "ünter", "日本", ""], "bvh") == (
+        ["tail_base_2", "tail_base", "a_b", "unter", "__", "_"],
+        {"tail base": "tail_base_2", "a\tb": "a_b", "ünter": "unter", "日本": "__", "": "_"})
+    # USD paths: identifiers only (a second rule of the same module).
+    assert safe_names(["leg.L", "1st"], "usd") == (["leg_L", "_1st"], {"leg.L": "leg_L", "1st": "_1st"})
+
+
+@needs_bpy
+def test_blender_imports_every_kept_name_unchanged(tmp_path):
+    path = tmp_path / "names.bvh"
+    b = len(KEPT)
+    offsets = np.tile([0.0, 1.0, 0.0], (b, 1))
+    with BvhWriter(path, names=KEPT, parents=np.arange(b) - 1, offsets=offsets,
+                   frame_time=1 / 24) as writer:
+        writer.write(np.tile(np.eye(3), (b, 1, 1)))
+    assert [j[0] for j in parse_bvh(path.read_text())[0]] == KEPT
+    bones = run_bpy(IMPORT_BVH, path)["bones"]
+    assert sorted(bones) == sorted(KEPT)
+
+
+@pytest.fixture(scope="module")
+def beast(tmp_path_factory):
+    """The glTF character with three servos, a take of it, and its glTF + BVH export."""
+    character = load_module("rig/character.py")  # leg.L, foot.L, 'tail base'...
+    folder = tmp_path_factory.mktemp("beast")
+    glb = character.write_glb(folder / "beast.glb")
+    rig_path, _ = write_rig_init(glb)
+    servos = {"neck": {"id": 4}, "tail base": {"id": 5, "axis": '"z"'}, "leg.L": {"id": 9}}
+    rig_path.write_text(character.enable_servos(rig_path.read_text(), servos))
+    rig = load_rig(rig_path)
+    take = write_take(folder / "beast.mcap", rig, readings=12)
+    out = {"gltf": folder / "out.glb", "bvh": folder / "out.bvh"}
+    report = export_take(rig, TakeReader(take), Outputs(**out), fps=24)
+    return character, glb, out, report
+
+
+def test_bvh_joint_names_are_the_gltf_joint_names(beast):
+    character, _, out, report = beast
+    joints, end_sites, _, _ = parse_bvh(out["bvh"].read_text())
+    gltf = pygltflib.GLTF2().load_binary(str(out["gltf"]))
+    gltf_names = [gltf.nodes[j].name for j in gltf.skins[0].joints]
+    assert sorted(gltf_names) == sorted(character.NAMES)
+    bvh_names = [j[0] for j in joints]
+    assert sorted(bvh_names) == sorted(n.replace(" ", "_") for n in gltf_names)
+    assert {"leg.L", "foot.L", "hips"} <= set(bvh_names)
+    assert report.renamed == {"bvh": {"tail base": "tail_base", "tail tip": "tail_tip"}}
+
+
+def test_end_sites_reach_the_farthest_vertex_of_each_leaf(beast):
+    _, _, out, _ = beast
+    _, end_sites, _, _ = parse_bvh(out["bvh"].read_text())
+    # The character's geometry (tests/rig/character.py): the body tube runs from z = -0.7 to 1.8,
+    # the leg tube down to y = -0.7; each leaf's pivot and bone direction are known.
+    expected = {"head": (0.0, 0.0, 1.8 - 1.4), "tail_tip": (0.0, 0.0, -0.7 + 0.5),
+                "foot.L": (0.0, -0.7 + 0.35, 0.0)}
+    assert sorted(end_sites) == sorted(expected)
+    for name, offset in expected.items():
+        np.testing.assert_allclose(end_sites[name], offset, atol=1e-5)
+
+
+@needs_bpy
+def test_blender_bones_match_the_vertex_groups_and_the_mesh(beast):
+    _, _, out, _ = beast
+    got = run_bpy(IMPORT_BVH, out["bvh"], out["gltf"])
+    bvh_names = [j[0] for j in parse_bvh(out["bvh"].read_text())[0]]
+    assert sorted(got["bones"]) == sorted(bvh_names)
+    # Every joint without whitespace drives the vertex group of the same name, unrenamed.
+    unchanged = {n for n in got["groups"] if " " not in n}
+    assert unchanged and unchanged <= set(got["bones"])
+    for leaf, length in (("head", 0.4), ("tail_tip", 0.2), ("foot.L", 0.35)):
+        assert math.isclose(got["bones"][leaf], length, abs_tol=1e-5)
