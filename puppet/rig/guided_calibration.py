@@ -272,6 +272,7 @@ class GuidedCalibration:
         self.models = dict(models or {})
         assigned: dict[int, str] = {}
         found: list[Found] = []
+        settled = np.zeros(len(ids), np.int64)   # |ticks - zero| when the last wait for rest ended
         for k, step in enumerate(self.steps):
             claims = {s.file_id: s.joint for s in self.steps[k + 1:] if s.file_id is not None
                       and s.file_id != step.file_id}
@@ -286,8 +287,8 @@ class GuidedCalibration:
                 say(f"[{k + 1}/{len(self.steps)}] move {step.joint!r} in its {side} direction "
                     f"(about {step.axis_text}{hint}{room}) and hold it{again}")
                 try:
-                    servo, ticks_side = self._detect(read, ids, zero, step, assigned, claims, insisted,
-                                                     threshold_ticks, timeout_s)
+                    servo, ticks_side = self._detect(read, ids, zero, settled, step, assigned, claims,
+                                                     insisted, threshold_ticks, timeout_s)
                     break
                 except _Unsure as unsure:
                     if attempt == TRIES:
@@ -296,25 +297,26 @@ class GuidedCalibration:
                                        field=self._where(step)) from None
                     insisted = unsure.claimed
                     say(f"  not sure, asking again: {unsure.reason}; back to the rest pose first")
-                    self._wait_rest(read, ids, zero, step, threshold_ticks, timeout_s)
+                    settled = self._wait_rest(read, ids, zero, step, threshold_ticks, timeout_s)
             sign = step.direction * ticks_side
             assigned[servo] = step.joint
             found.append(Found(step, servo, sign, int(zero[ids.index(servo)])))
             say(f"  {step.joint!r}: servo {servo}, sign {sign:+d}; now back to the rest pose")
-            self._wait_rest(read, ids, zero, step, threshold_ticks, timeout_s)
+            settled = self._wait_rest(read, ids, zero, step, threshold_ticks, timeout_s)
         return found
 
-    def _detect(self, read, ids, zero, step, assigned, claims, insisted, threshold,
+    def _detect(self, read, ids, zero, settled, step, assigned, claims, insisted, threshold,
                 timeout_s) -> tuple[int, int]:
         """(bus id, +1/-1 side its ticks went) of the one servo that left its zero by more than
         ``threshold`` ticks (the same side in CONFIRM readings in a row) and was held there for
-        HELD readings; _Unsure with the reason when that servo cannot be this step's."""
+        HELD readings; _Unsure with the reason when that servo cannot be this step's.
+
+        settled: (k,) |ticks − zero| when the puppet was last found at rest, before this ask (a
+        joint still easing back from there is not a new move)."""
         deadline = time.monotonic() + timeout_s
         notice = max(threshold // 3, 8)       # a move, though too small to count
         recent: deque = deque(maxlen=CONFIRM)  # the last readings' deviations from the zero, ticks
         peak = np.zeros(len(ids), np.int64)    # per servo: the largest steady deviation, ticks
-        base = None                            # per servo: the first steady deviation (a joint
-        #                                        still settling from the last step is no new move)
         moved, anchor, still = None, 0, 0      # the candidate's index, its extent, readings held
         while time.monotonic() < deadline:
             reading = read()
@@ -324,7 +326,6 @@ class GuidedCalibration:
                 same_side = (np.sign(rows) == np.sign(rows[-1])).all(axis=0)
                 steady = np.where(same_side, np.abs(rows).min(axis=0), 0)   # reached in every one
                 peak = np.maximum(peak, steady)
-                base = steady.copy() if base is None else base
                 over = np.flatnonzero(steady >= threshold)
                 if len(over) > 1:
                     names = " and ".join(str(ids[i]) for i in over)
@@ -341,7 +342,7 @@ class GuidedCalibration:
                     if still >= HELD:
                         self._check(ids[moved], int(peak[moved]), step, assigned, claims, insisted)
                         return ids[moved], side
-                small = ((peak - base >= notice) & (peak < threshold)
+                small = ((peak - settled >= notice) & (peak < threshold)
                          & (steady <= np.minimum(threshold // 2, peak // 2)))
                 if moved is None and small.any():
                     i = int(np.argmax(np.where(small, peak, -1)))
@@ -372,14 +373,15 @@ class GuidedCalibration:
                           f"{step.joint!r}, or move servo {servo} again if that id is wrong",
                           claimed=servo)
 
-    def _wait_rest(self, read, ids, zero, step, threshold, timeout_s) -> None:
+    def _wait_rest(self, read, ids, zero, step, threshold, timeout_s) -> np.ndarray:
+        """Wait until every servo is within threshold/2 of its zero; (k,) |ticks − zero| then."""
         deadline = time.monotonic() + timeout_s
         away = {}
         while time.monotonic() < deadline:
             reading = read()
             dev = np.abs(np.asarray(reading.ticks, np.int64) - zero)
             if reading.ok.all() and dev.max() <= threshold // 2:
-                return
+                return dev
             away = {ids[k]: int(dev[k]) for k in np.flatnonzero(dev > threshold // 2)}
             time.sleep(POLL_S)
         where = ", ".join(f"servo {i} {d} ticks" for i, d in away.items()) or "a servo not answering"

@@ -268,7 +268,7 @@ def test_unsure_moves_are_asked_again_with_the_reason(tmp_path, character, wait_
 
     def small(hand):  # 100 ticks (8.8°) out and back: below the 150-tick threshold
         hand.set({21: ZERO[21] + 100})
-        hand.hold(CONFIRM + 4)
+        hand.hold(CONFIRM + HELD)
         hand.rest()
 
     def leg(hand):    # servo 7: the id leg.L's block names
