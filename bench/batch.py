@@ -75,7 +75,7 @@ def cost_model(rig, take: Path, folder: Path, fps: float, size: tuple[int, int])
     from puppet.take import Playback, TakeReader
 
     precompute = RigPrecompute.for_rig(rig)
-    replay_rig, reader = open_take(take, rig, default_rig=True)
+    replay_rig, reader = open_take(take, rig)
     ids = replay_rig.servo_map.ids
     frames = list(Playback.of_take(TakeReader(take), ids, fps=fps))
     with Pipeline(replay_rig, render=True, width=size[0], height=size[1], antialias="msaa",
@@ -111,7 +111,7 @@ def cost_model(rig, take: Path, folder: Path, fps: float, size: tuple[int, int])
 
 def run_case(engine: str, workers: int, takes: list[Path], out: Path, rig, formats: str,
              fps: float, size, precompute_cold_s: float) -> dict:
-    report = run_batch([str(t) for t in takes], out, rig=rig, default_rig=True, formats=formats,
+    report = run_batch([str(t) for t in takes], out, rig=rig, formats=formats,
                        fps=fps, size=size, engine=engine, workers=workers)
     if report.failed:
         sys.exit(f"bench: {engine} case failed: {report.failed[0].take}: {report.failed[0].error}")

@@ -1,12 +1,21 @@
-"""hw_sim: a simulated Dynamixel Protocol 2.0 bus on a pseudo-terminal.
+"""hw_sim: a simulated Dynamixel bus on a pseudo-terminal, Protocol 2.0 or Protocol 1.0.
 
 The real ``dynamixel_sdk`` opens the bus's port path like a serial port. This package
 imports nothing from ``puppet``.
 
+Models (``hw_sim.control_table.MODEL_SPECS``, the same table as ``puppet.servo_models``):
+X-series (XL330, XC330, XL430, 2XL430, XC430, XM430, XH430, XM540), MX-28(2.0), MX-64(2.0),
+MX-106(2.0) and the XL-320 (its own table: Present Position at 37, 2 bytes) on Protocol 2.0;
+AX-12A, AX-12W, AX-18A, RX-24F, RX-28, RX-64, MX-12W, MX-28, MX-64, MX-106 on Protocol 1.0
+(PING, READ, WRITE, REG_WRITE / ACTION, RESET, SYNC_WRITE, BULK_READ on MX; status error bits:
+input voltage, angle limit, overheating, range, checksum, overload, instruction). One bus
+carries one protocol: ``serve`` refuses servos of both, naming them (open the port with
+``dynamixel_sdk.PacketHandler(1.0)`` for a Protocol 1.0 bus). Every fault kind works on both.
+
 In-process API (tests, demos)::
 
     from hw_sim import serve
-    with serve(range(1, 4), motion="wave") as bus:          # or {id: "XL430-W250", ...}
+    with serve(range(1, 4), motion="wave") as bus:          # or {id: "XL430-W250", ...}, {1: "AX-12A"}
         port = dynamixel_sdk.PortHandler(bus.port)          # bus.port: '/dev/pts/N'
         port.openPort(); port.setBaudRate(1_000_000)
         ...
@@ -35,9 +44,10 @@ The bus server runs in a forked child process (the SDK busy-polls while holding 
 responder thread in the same process would compete with it); ``SimBus`` talks to it over a pipe.
 Pass ``process=False`` to run it in a thread instead.
 
-Modules: ``codec`` (packet bytes, CRC-16, stuffing, device-side parser), ``control_table``
-(X-series tables as data), ``servo`` (one servo's state and behaviour), ``device_bus``
-(instruction dispatch for the servos on a bus), ``motion`` (motion sources), ``faults`` (fault
+Modules: ``codec`` (Protocol 2.0 packet bytes, CRC-16, stuffing, device-side parser),
+``codec1`` (Protocol 1.0: checksum, parser, status packets, error bits), ``control_table``
+(every model's table as data), ``servo`` (one servo's state and behaviour, any layout),
+``device_bus`` (instruction dispatch for the servos on a bus, either protocol), ``motion`` (motion sources), ``faults`` (fault
 kinds, schedules, the fault file), ``server`` (the pty server, ``serve`` and ``SimBus``),
 ``cli`` (``hw-sim``).
 """

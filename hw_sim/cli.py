@@ -7,7 +7,9 @@ import faulthandler
 import signal
 import sys
 
-from hw_sim.control_table import MODELS
+from dataclasses import replace
+
+from hw_sim.control_table import MODELS, to_shaft
 from hw_sim.errors import HwSimError
 from hw_sim.faults import parse_ids
 from hw_sim.motion import BUILTIN, OneAtATime, WithinLimits
@@ -58,8 +60,10 @@ def build_parser() -> argparse.ArgumentParser:
         description="Simulated Dynamixel bus on a pseudo-terminal; prints the port to open.",
     )
     parser.add_argument("--servos", default=None,
-                        help="servo ids and models, e.g. 1-14, 1,2,5 or 1-3:XL330-M288,4-9:XL430-W250 "
-                             "(ids without a model get --model; default 1-14)")
+                        help="servo ids and models, e.g. 1-14, 1,2,5, 1-3:XL330-M288,4-9:XL430-W250 "
+                             "or 1-6:AX-12A,7-10:MX-28 (ids without a model get --model; default "
+                             "1-14); one bus carries one protocol: Protocol 1.0 models (AX, RX, "
+                             "MX) and 2.0 models (X, MX(2.0), XL-320) are not mixed")
     parser.add_argument("--rig", default=None, metavar="RIG",
                         help="a puppet rig file (TOML): serve exactly its servos (ids and models); "
                              "the default motion then swings each joint across its own range "
@@ -99,6 +103,10 @@ def main(argv: list[str] | None = None) -> int:
             print(f"hw-sim: --rig: {exc}", file=sys.stderr)
             return 2
         servos = {s.id: s.model for s in rig_servos}
+        # The rig's ticks are each servo's own; the motion sources speak shaft counts (4096 a
+        # turn, 2048 the middle): the same on 4096-tick models, rescaled on 300° ones.
+        rig_servos = [replace(s, zero_ticks=to_shaft(MODELS[s.model].spec, s.zero_ticks))
+                      for s in rig_servos]
         if motion is None:
             motion = WithinLimits(rig_servos)
     else:

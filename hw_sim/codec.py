@@ -171,3 +171,12 @@ class InstructionParser:
             crc = crc16(pkt[:-2])
             crc_ok = (pkt[-2] | (pkt[-1] << 8)) == crc
             out.append(Instruction(pkt[4], pkt[7], unstuff(pkt[8:-2]), total, crc_ok))
+
+
+PROTOCOL = 2.0
+
+
+def error_byte(number: int, hardware_error: int) -> int:
+    """The status error byte: the error number, with the alert bit while a hardware error is
+    latched (the servo's Hardware Error Status bits)."""
+    return number | (ALERT if hardware_error else 0)

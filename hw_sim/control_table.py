@@ -532,6 +532,17 @@ IDLE_TEMPERATURE = 31
 OPERATING_MODES = {spec.name: set(spec.modes) for spec in MODEL_SPECS}
 
 
+def to_shaft(spec: ModelSpec, ticks: float) -> float:
+    """A model's own position ticks -> shaft counts (4096 per turn, the motion sources' unit),
+    the middles matched: 2048 -> 2048 on 4096-tick models, 512 -> 2048 on 300° models."""
+    return TICKS_PER_TURN / 2 + (ticks - spec.position_ticks // 2) * TICKS_PER_TURN / spec.ticks_per_turn
+
+
+def from_shaft(spec: ModelSpec, shaft: float) -> float:
+    """Shaft counts -> the model's own position ticks (the inverse of :func:`to_shaft`)."""
+    return spec.position_ticks // 2 + (shaft - TICKS_PER_TURN / 2) * spec.ticks_per_turn / TICKS_PER_TURN
+
+
 def get_model(name: str) -> ServoModel:
     """The model named ``name`` (e.g. "XL330-M288"); UnknownModelError lists the known ones."""
     try:

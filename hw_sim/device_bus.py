@@ -2,6 +2,12 @@
 broadcast rules, reply order, and the per-reply faults (drop, bad CRC, truncation, error status,
 duplicate-id collision).
 
+One bus speaks one protocol: its ``codec`` is ``hw_sim.codec`` (Protocol 2.0) or
+``hw_sim.codec1`` (Protocol 1.0: PING with an empty status, READ / WRITE / REG_WRITE with a
+1-byte address and length, ACTION, RESET, SYNC_WRITE, BULK_READ answered by MX models only, no
+status for any broadcast but Bulk Read's). The servos answer in Protocol 2.0 error numbers; the
+codec's ``error_byte`` turns them into its status byte.
+
 ``DeviceBus.handle(instruction, now)`` returns the replies as ``[(bytes, return_delay_s), ...]``
 in wire order; the server adds the timing model and writes them.
 """
@@ -10,7 +16,7 @@ from __future__ import annotations
 
 import random
 
-from hw_sim import codec
+from hw_sim import codec, codec1
 from hw_sim.codec import Instruction
 from hw_sim.faults import Fault
 from hw_sim.servo import Servo
@@ -37,7 +43,9 @@ class DeviceBus:
     """servos: the simulated servos (ids may change through writes); twins: extra servos
     sharing an id with a real one (duplicate_id fault)."""
 
-    def __init__(self, servos: list[Servo], rng: random.Random | None = None) -> None:
+    def __init__(self, servos: list[Servo], rng: random.Random | None = None,
+                 protocol: float = codec.PROTOCOL) -> None:
+        self.codec = codec1 if protocol == codec1.PROTOCOL else codec
         self.servos = list(servos)
         self.twins: list[Servo] = []
         self.reply_faults: list[Fault] = []
@@ -46,6 +54,13 @@ class DeviceBus:
         self.port_baud: int | None = None
         self.rng = rng or random.Random(1)
         self._reindex()
+        if self.codec is codec1:
+            self._handlers = {
+                codec1.PING: self._ping, codec1.READ: self._read, codec1.WRITE: self._write,
+                codec1.REG_WRITE: self._reg_write, codec1.ACTION: self._action,
+                codec1.RESET: self._factory_reset, codec1.SYNC_WRITE: self._sync_write,
+                codec1.BULK_READ: self._bulk_read}
+            return
         self._handlers = {
             codec.PING: self._ping, codec.READ: self._read, codec.WRITE: self._write,
             codec.REG_WRITE: self._reg_write, codec.ACTION: self._action,
@@ -61,7 +76,7 @@ class DeviceBus:
         self.by_id: dict[int, list[Servo]] = {}
         for s in self.servos + self.twins:
             self.by_id.setdefault(s.dxl_id, []).append(s)
-        self._secondary = any(s.mem[12] <= 252 for s in self.servos)
+        self._secondary = any(s.secondary_id is not None for s in self.servos)
 
     def servo(self, dxl_id: int) -> Servo:
         """The (first) servo answering to ``dxl_id``; KeyError names the id."""
@@ -72,7 +87,7 @@ class DeviceBus:
 
     def _listening(self, s: Servo) -> bool:
         return s.powered and (self.port_baud is None
-                              or s.model.baud_rates.get(s.mem[8]) == self.port_baud)
+                              or s.model.baud_rates.get(s.baud_index) == self.port_baud)
 
     def _targets(self, dxl_id: int) -> list[Servo]:
         return [s for s in self.by_id.get(dxl_id, ()) if self._listening(s)]
@@ -82,7 +97,7 @@ class DeviceBus:
         if not self._secondary:
             return []
         return [s for s in self.servos
-                if self._listening(s) and s.mem[12] == dxl_id and s.dxl_id != dxl_id]
+                if self._listening(s) and s.secondary_id == dxl_id and s.dxl_id != dxl_id]
 
     # ---- faults on replies -------------------------------------------------------------------
     def _reply_fault(self, dxl_id: int) -> Fault | None:
@@ -107,7 +122,7 @@ class DeviceBus:
                     keep = f.params["keep"]
                     return pkt[:len(pkt) // 2 if keep is None else keep]
                 if f.kind == "error_status":
-                    return codec.status_packet(dxl_id, f.params["error"] | error)
+                    return self.codec.status_packet(dxl_id, f.params["error"] | error)
         return pkt
 
     # ---- dispatch ------------------------------------------------------------------------
@@ -137,11 +152,12 @@ class DeviceBus:
             return []
         packets, delay, alert = [], 0.0, 0
         for s in self._targets(dxl_id):
-            level = s.mem[68]  # the level the instruction arrived under
+            level = s.status_return_level  # the level the instruction arrived under
             err, data = fn(s)
             if level >= need:
-                alert = s.alert
-                packets.append(codec.status_packet(dxl_id, err | alert, data))
+                alert = self.codec.error_byte(0, s.hardware_error)
+                packets.append(self.codec.status_packet(
+                    dxl_id, self.codec.error_byte(err, s.hardware_error), data))
                 delay = s.return_delay_s
             if after:
                 after(s)
@@ -156,46 +172,59 @@ class DeviceBus:
     def _ping(self, ins: Instruction, now: float) -> Replies:
         if ins.dxl_id != codec.BROADCAST_ID:
             return self._each(ins.dxl_id, self._ping_data, need=0)
+        if self.codec is codec1:
+            return []  # Protocol 1.0: no status for a broadcast
         out = []
         for dxl_id in sorted(self.by_id):
-            packets = [codec.status_packet(dxl_id, s.alert, self._ping_data(s)[1])
+            packets = [codec.status_packet(dxl_id, codec.error_byte(0, s.hardware_error),
+                                           self._ping_data(s)[1])
                        for s in self._targets(dxl_id)]
             pkt = self._finish(dxl_id, packets)
             if pkt:
                 out.append((pkt, self.servo(dxl_id).return_delay_s))
         return out
 
-    @staticmethod
-    def _ping_data(s: Servo) -> tuple[int, bytes]:
-        return 0, bytes(s.mem[0:2]) + bytes([s.mem[6]])
+    def _ping_data(self, s: Servo) -> tuple[int, bytes]:
+        """Protocol 2.0: model number and firmware; Protocol 1.0: an empty status."""
+        if self.codec is codec1:
+            return 0, b""
+        return 0, bytes(s.mem[0:2]) + bytes([s.firmware])
+
+    def _address(self, p: bytes) -> tuple[int, bytes]:
+        """(address, rest) of a Read / Write's parameters: 1 address byte on Protocol 1.0."""
+        if self.codec is codec1:
+            return p[0], p[1:]
+        return p[0] | p[1] << 8, p[2:]
 
     def _read(self, ins: Instruction, now: float) -> Replies:
         p = ins.params
         if ins.dxl_id == codec.BROADCAST_ID:
             return []  # a broadcast Read is not executed at all
-        if len(p) != 4:
+        if len(p) != (2 if self.codec is codec1 else 4):
             return self._each(ins.dxl_id, lambda s: (codec.ERR_DATA_LENGTH, b""), need=1)
-        addr, length = p[0] | p[1] << 8, p[2] | p[3] << 8
+        addr, rest = self._address(p)
+        length = rest[0] if self.codec is codec1 else rest[0] | rest[1] << 8
         return self._each(ins.dxl_id, lambda s: s.read(addr, length, now), need=1)
 
     def _write(self, ins: Instruction, now: float) -> Replies:
         p = ins.params
-        if len(p) < 3:
+        if len(p) < (2 if self.codec is codec1 else 3):
             return self._each(ins.dxl_id, lambda s: (codec.ERR_DATA_LENGTH, b""), need=2)
-        addr, data = p[0] | p[1] << 8, p[2:]
+        addr, data = self._address(p)
         return self._each(ins.dxl_id, lambda s: (s.write(addr, data, now), b""), need=2)
 
     def _reg_write(self, ins: Instruction, now: float) -> Replies:
         p = ins.params
-        if len(p) < 3:
+        if len(p) < (2 if self.codec is codec1 else 3):
             return self._each(ins.dxl_id, lambda s: (codec.ERR_DATA_LENGTH, b""), need=2)
-        addr, data = p[0] | p[1] << 8, bytes(p[2:])
+        addr, data = self._address(p)
+        data = bytes(data)
 
         def reg(s: Servo):
             err = s.check_write(addr, data)
             if not err:
                 s.registered = (addr, data)
-                s.mem[69] = 1
+                s.registered_flag = 1
             return err, b""
         return self._each(ins.dxl_id, reg, need=2)
 
@@ -204,11 +233,14 @@ class DeviceBus:
             if s.registered is None:
                 return codec.ERR_INSTRUCTION, b""
             addr, data = s.registered
-            s.registered, s.mem[69] = None, 0
+            s.registered, s.registered_flag = None, 0
             return s.write(addr, data, now), b""
         return self._each(ins.dxl_id, act, need=2)
 
     def _factory_reset(self, ins: Instruction, now: float) -> Replies:
+        if self.codec is codec1:  # Protocol 1.0 RESET: everything, the ID included
+            return self._each(ins.dxl_id, lambda s: (0, b""), need=2,
+                              after=lambda s: s.factory_reset(0xFF, now))
         option = ins.params[0] if len(ins.params) == 1 else None
         if option not in (0xFF, 0x01, 0x02):
             if ins.dxl_id == codec.BROADCAST_ID:
@@ -240,17 +272,20 @@ class DeviceBus:
                           lambda s: ((codec.ERR_RESULT_FAIL if s.torque else 0), b""), need=2)
 
     # ---- group instructions ----------------------------------------------------------------
-    def _group_read(self, requests: list[tuple[int, int, int]], fast: bool, now: float) -> Replies:
-        """requests: [(id, addr, length)] in listed order -> one status per id, or one fast packet."""
+    def _group_read(self, requests: list[tuple[int, int, int]], fast: bool, now: float,
+                    bulk: bool = False) -> Replies:
+        """requests: [(id, addr, length)] in listed order -> one status per id, or one fast
+        packet. bulk: a Bulk Read (answered only by models that have it)."""
         if not fast:
             out = []
             for dxl_id, addr, length in requests:
                 packets, delay, alert = [], 0.0, 0
                 for s in self._targets(dxl_id):
-                    if s.mem[68] >= 1:
+                    if s.status_return_level >= 1 and (s.model.spec.bulk_read or not bulk):
                         err, data = s.read(addr, length, now)
-                        alert = s.alert
-                        packets.append(codec.status_packet(dxl_id, err | alert, data))
+                        alert = self.codec.error_byte(0, s.hardware_error)
+                        packets.append(self.codec.status_packet(
+                            dxl_id, self.codec.error_byte(err, s.hardware_error), data))
                         delay = s.return_delay_s
                 pkt = self._finish(dxl_id, packets, alert)
                 if pkt:
@@ -263,9 +298,9 @@ class DeviceBus:
         for dxl_id, addr, length in requests:
             segs = []
             for s in self._targets(dxl_id):
-                if s.mem[68] >= 1:
+                if s.status_return_level >= 1:
                     err, data = s.read(addr, length, now)
-                    segs.append(bytes((err | s.alert, dxl_id)) + data)
+                    segs.append(bytes((codec.error_byte(err, s.hardware_error), dxl_id)) + data)
                     delay = s.return_delay_s if delay is None else delay
             if not segs:
                 continue  # a missing servo leaves a hole: the packet comes up short
@@ -300,18 +335,25 @@ class DeviceBus:
 
     def _bulk_read(self, ins: Instruction, now: float) -> Replies:
         p = ins.params
+        if self.codec is codec1:  # 00, then (length, id, address) per servo
+            if ins.dxl_id != codec1.BROADCAST_ID or len(p) < 4 or (len(p) - 1) % 3:
+                return []
+            reqs = [(p[k + 1], p[k + 2], p[k]) for k in range(1, len(p), 3)]
+            return self._group_read(reqs, False, now, bulk=True)
         if ins.dxl_id != codec.BROADCAST_ID or not p or len(p) % 5:
             return []
         reqs = [(p[k], p[k + 1] | p[k + 2] << 8, p[k + 3] | p[k + 4] << 8)
                 for k in range(0, len(p), 5)]
-        return self._group_read(reqs, ins.inst == codec.FAST_BULK_READ, now)
+        return self._group_read(reqs, ins.inst == codec.FAST_BULK_READ, now, bulk=True)
 
     def _sync_write(self, ins: Instruction, now: float) -> Replies:
         p = ins.params
-        if ins.dxl_id != codec.BROADCAST_ID or len(p) < 4:
+        if ins.dxl_id != codec.BROADCAST_ID or len(p) < (2 if self.codec is codec1 else 4):
             return []
-        addr, length = p[0] | p[1] << 8, p[2] | p[3] << 8
-        body = p[4:]
+        if self.codec is codec1:
+            addr, length, body = p[0], p[1], p[2:]
+        else:
+            addr, length, body = p[0] | p[1] << 8, p[2] | p[3] << 8, p[4:]
         if length == 0 or len(body) % (length + 1):
             return []
         for k in range(0, len(body), length + 1):

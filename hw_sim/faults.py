@@ -7,7 +7,8 @@ the bus started), how long it lasts (None = until cleared) and its parameters. K
 drop               the servo does not reply. params: p (probability per reply, default 1)
 bad_crc            the reply's CRC is corrupted. params: p
 truncate           the reply is cut short. params: p, keep (bytes kept, default half)
-error_status       the reply carries an error number and no data. params: p, error (default 1)
+error_status       the reply carries an error number and no data. params: p, error (default 1;
+                   on a Protocol 1.0 bus the status packet's error bits)
 power_cycle        power off for the duration (default 0.2 s), then on: the servo reboots
 power_off          power off (silent) until ``power_on`` or the end of the duration
 power_on           power back on: the servo boots (RAM defaults, re-based position)

@@ -24,7 +24,7 @@ import tty
 from contextlib import contextmanager
 from typing import Iterator
 
-from hw_sim.codec import InstructionParser
+from hw_sim import codec, codec1
 from hw_sim.control_table import get_model
 from hw_sim.device_bus import DeviceBus
 from hw_sim.errors import HwSimError
@@ -34,6 +34,28 @@ from hw_sim.servo import Servo
 
 INTER_BYTE_GAP_S = 0.0015  # a servo drops a partial instruction after this silence
 BITS_PER_BYTE = 10  # 8N1
+
+
+def bus_protocol(servos: dict[int, str]) -> float:
+    """The one protocol the servos ``{id: model_name}`` speak (1.0 or 2.0); HwSimError naming
+    the servos of each protocol when they differ: a simulated bus carries one protocol, as a
+    real one does (a 2.0 packet is noise to a 1.0 servo and the other way round)."""
+    by_protocol: dict[float, list[str]] = {}
+    for dxl_id, name in sorted(servos.items()):
+        by_protocol.setdefault(get_model(name).protocol, []).append(f"{dxl_id} ({name})")
+    if len(by_protocol) > 1:
+        parts = "; ".join(f"Protocol {p}: servos {', '.join(ids)}"
+                          for p, ids in sorted(by_protocol.items()))
+        raise HwSimError(f"one bus carries one protocol, these servos mix two: {parts}")
+    return next(iter(by_protocol), codec.PROTOCOL)
+
+
+def _baud_index(model, dxl_id: int, baud: int) -> int:
+    """The model's Baud Rate value for ``baud``; HwSimError naming the servo if it has none."""
+    try:
+        return model.baud_index(baud)
+    except ValueError as exc:
+        raise HwSimError(f"servo {dxl_id}: {exc}") from None
 
 
 class _Offset:
@@ -77,17 +99,18 @@ class Server:
         rd = None if return_delay_us is None else int(return_delay_us) // 2
         if rd is not None and not 0 <= rd <= 254:
             raise HwSimError(f"return_delay_us={return_delay_us} is outside 0..508")
+        self.protocol = bus_protocol(servos)
+        self.codec = codec1 if self.protocol == codec1.PROTOCOL else codec
         servo_list = []
         for dxl_id, model_name in servos.items():
-            if not 0 <= int(dxl_id) <= 252:
-                raise HwSimError(f"servo id {dxl_id} is outside 0..252")
+            top = codec1.MAX_ID if self.protocol == codec1.PROTOCOL else codec.MAX_ID
+            if not 0 <= int(dxl_id) <= top:
+                raise HwSimError(f"servo id {dxl_id} is outside 0..{top}")
             model = get_model(model_name)
-            if model.spec.family not in ("X330", "X430", "X540", "MX2"):  # until P1 / XL-320
-                raise HwSimError(f"servo {dxl_id}: hw_sim does not serve {model_name} yet")
             servo_list.append(Servo(model, int(dxl_id), motion=self.motion, now=0.0,
-                                    baud_index=model.baud_index(baud), return_delay=rd,
+                                    baud_index=_baud_index(model, dxl_id, baud), return_delay=rd,
                                     rng=random.Random(rng.random())))
-        self.bus = DeviceBus(servo_list, rng=random.Random(rng.random()))
+        self.bus = DeviceBus(servo_list, rng=random.Random(rng.random()), protocol=self.protocol)
         self.windows: list[tuple[float | None, Fault, list]] = []  # (end_s, fault, undo state)
         self.traffic: collections.deque = collections.deque(maxlen=1024)
         self.counts = collections.Counter()
@@ -104,7 +127,7 @@ class Server:
         tty.setraw(self.slave)
         os.set_blocking(self.master, False)
         self.path = os.ttyname(self.slave)
-        self.parser = InstructionParser()
+        self.parser = self.codec.InstructionParser()
         self._last_rx = 0.0
         tmp = self.link + ".tmp"
         if os.path.lexists(tmp):
@@ -168,7 +191,7 @@ class Server:
         elif kind == "duplicate_id":
             for s in self._hit(fault):
                 twin = Servo(s.model, s.dxl_id, motion=_Offset(self.motion, fault.params["offset"]),
-                             now=now, baud_index=s.mem[8], return_delay=s.mem[9])
+                             now=now, baud_index=s.baud_index, return_delay=s.return_delay)
                 twin.joint = s.joint
                 self.bus.twins.append(twin)
                 undo.append(twin)
@@ -557,8 +580,9 @@ def serve(servos, *, model: str = "XL330-M288", motion=None, faults=None, timing
           strict_baud: bool = False, process: bool = True, seed: int = 0) -> Iterator[SimBus]:
     """Run a simulated bus for the duration of the block.
 
-    servos: iterable of ids, or {id: model_name}. model: model for plain ids ("XL330-M288",
-    "XL430-W250", "XM430-W350"). motion: None (hold still at 2048), a built-in name ("wave",
+    servos: iterable of ids, or {id: model_name}. model: model for plain ids (any of
+    ``hw_sim.control_table.MODELS``: "XL330-M288", "XL430-W250", "AX-12A", "MX-28", "XL-320"...);
+    all of one protocol (HwSimError naming the servos otherwise). motion: None (hold still at 2048), a built-in name ("wave",
     "walk", "spin", "hold"), "replay:PATH", a keyframe file path, or an object with
     ``position(joint, t) -> counts``. faults: None, a fault file path, a FaultSchedule or a list
     of Faults (times in seconds from the start). timing: delay replies by return delay + byte

@@ -54,6 +54,10 @@ def file_kind(path: str | os.PathLike) -> str:
               (b"POINTCACHE2\0", "pc2"), (b"PXR-USDC", "usd"), (b"#usda", "usd"),
               (b"HIERARCHY", "bvh"), (b"PK\x03\x04", "npz"), (b"\x1aE\xdf\xa3", "video"),
               (b"ply\n", "mesh"), (b"ply\r\n", "mesh"))
+    if head.startswith(b"PK\x03\x04") and len(head) >= 30:  # a .usdz: a zip whose first file is a layer
+        name_length = int.from_bytes(head[26:28], "little")
+        if head[30:30 + name_length].lower().endswith((b".usdc", b".usda", b".usd")):
+            return "usd"
     for magic, kind in magics:
         if head.startswith(magic):
             return kind

@@ -17,9 +17,13 @@ class Reading:
     ticks: (k,) int32: signed, continuous encoder counts (4096 per turn); a failed servo
            holds its last good value.
     ok:    (k,) bool: False where this read failed for that servo.
+    rotations: None, or (b, 3, 3) float64 model-space joint rotations of every bone that stand
+           for the ticks' (a shot's in-between frame, ``puppet.take.Playback``): the solve's
+           sensed-joint constraints come from them instead of the angles.
     """
 
     t_ns: int
     ids: np.ndarray
     ticks: np.ndarray
     ok: np.ndarray
+    rotations: np.ndarray | None = None

@@ -24,6 +24,15 @@ relative to it). A TOML comment: the stored text parses as the rig file did, sam
 takes without it (older ones) still play."""
 
 
+def recorded_rig_file(meta) -> str | None:
+    """Where the rig file was when the take was recorded (RIG_SOURCE_MARK); None when the take
+    does not say (a take of a rig made in memory, or an older take)."""
+    last = meta.rig_map_text.splitlines()[-1:]
+    if last and last[0].startswith(RIG_SOURCE_MARK):
+        return last[0][len(RIG_SOURCE_MARK):].strip()
+    return None
+
+
 def rig_from_take(take, meta) -> Rig:
     """The rig a take was recorded with, from the rig map text it stores.
 
@@ -40,23 +49,21 @@ def rig_from_take(take, meta) -> Rig:
             return builtin()
         raise TakeError(take, f"the take stores no rig map (recorded with rig {meta.rig_name!r} "
                               "loaded from a character file); pass --rig with that rig's file")
-    bases = [Path(line[len(RIG_SOURCE_MARK):].strip()).parent
-             for line in text.splitlines()[-1:] if line.startswith(RIG_SOURCE_MARK)]
+    recorded = recorded_rig_file(meta)
+    bases = [Path(recorded).parent] if recorded else []
     bases.append(Path(take).resolve().parent)
     if meta.rig_name == builtin_name():
         bases.append(BUILTIN_RIG.parent)
+    where = f"recorded with rig file {recorded}" if recorded else "recorded with a rig file"
     return load_rig_text(text, label=f"{take} (rig map)", bases=bases,
-                         hint="pass --rig with the rig file")
+                         hint=f"{where}; pass --rig with that rig file")
 
 
-def open_take(take, rig: Rig | str | Path | None, *,
-              default_rig: bool = False) -> tuple[Rig, TakeReader]:
+def open_take(take, rig: Rig | str | Path | None) -> tuple[Rig, TakeReader]:
     """(rig, TakeReader) for a take, the rig's servos checked against the take's.
 
     rig: None for the rig the take stores (``rig_from_take``), a rig file to load, or a loaded
          Rig (a copy is calibrated and returned; the argument is left untouched).
-    default_rig: the given Rig is the built-in one chosen because no rig was named: the take must
-         have been recorded on it, as with None.
     The returned rig carries the calibration the take was recorded with (its zero ticks).
     Raises TakeError (empty take, take from another rig) or RigError (the rig's, or the take's
     unreadable calibration record), each naming the file.
@@ -73,9 +80,6 @@ def open_take(take, rig: Rig | str | Path | None, *,
         rig = copy.deepcopy(rig)  # the calibration below is this take's own
     else:
         rig = load_rig(rig)
-    if default_rig and meta.rig_name != rig.name:
-        raise TakeError(take, f"take from another rig: recorded with rig {meta.rig_name!r}, not "
-                              f"the built-in rig {rig.name!r}; pass --rig with that rig's file")
     reader.check_rig([int(i) for i in rig.servo_map.ids], dict(rig.servo_map.models),
                      rig_name=rig.name)
     recorded = Calibration.from_record(meta.calibration_text, take)
@@ -103,7 +107,7 @@ def play_take(rig: Rig, reader: TakeReader, sinks: Iterable, *, fps: float = 30.
     from puppet.take import Playback
 
     if frames is None:
-        frames = Playback.of_take(reader, rig.servo_map.ids, fps=fps, speed=speed)
+        frames = Playback.of_take(reader, rig.servo_map.ids, fps=fps, speed=speed, rig=rig)
     solved = list(solved)
     with Pipeline(rig, overlay=True, antialias=antialias, width=size[0], height=size[1],
                   precompute=precompute) as pipeline:

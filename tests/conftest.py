@@ -120,16 +120,17 @@ SDK_RETRIES = 5
 
 
 class Sdk:
-    """The unmodified SDK on a simulated bus: ``port`` (PortHandler), ``packet`` (Protocol 2.0).
+    """The unmodified SDK on a simulated bus: ``port`` (PortHandler), ``packet``
+    (``PacketHandler(protocol)``, Protocol 2.0 unless told).
 
     write/read_status/read4 retry a transaction whose reply was lost SDK_RETRIES times (the
     deadline is the SDK's LATENCY_TIMER, which each folder's conftest sets)."""
 
-    def __init__(self, path: str) -> None:
+    def __init__(self, path: str, protocol: float = 2.0) -> None:
         self.port = dynamixel_sdk.PortHandler(path)
         assert self.port.openPort() is True
         assert self.port.setBaudRate(SDK_BAUD) is True
-        self.packet = dynamixel_sdk.PacketHandler(2.0)
+        self.packet = dynamixel_sdk.PacketHandler(protocol)
 
     def _answered(self, call, what: str) -> tuple:
         """call() -> an SDK result tuple (..., result code, status error byte), tried up to
@@ -157,6 +158,12 @@ class Sdk:
                                      f"read of servo {dxl_id} address {addr}")
         return error
 
+    def read2(self, dxl_id: int, addr: int) -> int:
+        """A 2-byte value, retried like write."""
+        value, _, _ = self._answered(lambda: self.packet.read2ByteTxRx(self.port, dxl_id, addr),
+                                     f"read of servo {dxl_id} address {addr}")
+        return value
+
     def read4(self, dxl_id: int, addr: int) -> int:
         """A 4-byte value, retried like write."""
         value, _, _ = self._answered(lambda: self.packet.read4ByteTxRx(self.port, dxl_id, addr),
@@ -170,11 +177,12 @@ class Sdk:
 
 @pytest.fixture
 def open_sdk():
-    """Factory: ``open_sdk(path)`` -> Sdk opened on that port; all closed after the test."""
+    """Factory: ``open_sdk(path, protocol=2.0)`` -> Sdk opened on that port; all closed after
+    the test."""
     opened = []
 
-    def make(path: str) -> Sdk:
-        sdk = Sdk(path)
+    def make(path: str, protocol: float = 2.0) -> Sdk:
+        sdk = Sdk(path, protocol)
         opened.append(sdk)
         return sdk
 

@@ -19,6 +19,10 @@ STATES = (DONE, SKIPPED, FAILED, CANCELLED, TIMED_OUT)
 date), failed (the reason says why; its outputs untouched), cancelled (SIGINT/SIGTERM before or
 while it ran), timed out (ran past ``--take-timeout``)."""
 
+TO_DO = "to do"
+"""The state of a row in a dry run (``--dry-run``) for a take that would be made; its reason
+says why (new, or what changed). A dry run's other rows are skipped and failed (refused)."""
+
 UNFINISHED = (FAILED, CANCELLED, TIMED_OUT)
 """States of a take whose outputs were not written."""
 
@@ -106,10 +110,8 @@ class TakeResult:
     def progress_line(self, index: int, total: int) -> str:
         """One line for a finished take: '[3/8] take02.mcap done 1.2 s on host:123 (reason)'."""
         line = f"[{index}/{total}] {self.take} {self.state}"
-        if self.state != SKIPPED:
-            line += f" {self.seconds:.1f} s"
         if self.worker:
-            line += f" on {self.worker}"
+            line += f" {self.seconds:.1f} s on {self.worker}"
         if self.retries:
             line += f" after {self.retries} {'retry' if self.retries == 1 else 'retries'}"
         return line + (f": {self.reason}" if self.reason else "")

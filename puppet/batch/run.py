@@ -1,16 +1,22 @@
-"""Running a batch: check everything, precompute the rig once, run the takes, write, report.
+"""Running a batch: check everything, find each take's rig, decide what to make, precompute
+each rig once, run the takes, write, report.
 
-    report = run_batch(["session/*.mcap"], "exports", rig=rig, formats=("gltf", "pc2"))
+    report = run_batch(["session/*.mcap"], "exports", formats=("gltf", "pc2"))
     print(report.table())
 
 Order of work: formats, rates and sizes are checked, the takes expanded, the output folder
-made and tried, output names planned and the engine started (Ray imported and reached) before
-the rig's precompute and any take: bad input fails fast with a BatchError and nothing written.
-A take that fails (corrupt, foreign, empty) is reported in its row and the others go on.
+made and tried, output names planned, the engine named; then per take (in the driver) its
+checksum and its rig (``plan.RigFinder``), and what its manifest says (``manifest.changes``:
+why it is made, or that it is up to date). A dry run stops here and writes nothing. Then the
+engine is started (Ray imported and reached) before each rig's precompute and any take: bad
+input fails fast with a BatchError and nothing written. A take that fails (corrupt, foreign,
+empty, its rig not found) is reported in its row and the others go on. A finished take's
+outputs are renamed into place, then its manifest and its log are written.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import os
 import pickle
 import shutil
@@ -19,14 +25,18 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from puppet.atomic import OutputError, atomic_output, check_output
+from puppet.atomic import OutputError, atomic_output, check_folder_output, check_output
 from puppet.batch.errors import BatchError
 from puppet.batch.local import LocalEngine
-from puppet.batch.plan import (DEFAULT_FORMATS, KINDS, Job, expand_takes, is_done, parse_formats,
-                               plan_jobs, prepare_out)
+from puppet.batch.manifest import Made, changes, file_sha256, shaping_settings
+from puppet.batch.manifest import read as read_manifest
+from puppet.batch.manifest import write as write_manifest
+from puppet.batch.plan import (DEFAULT_FORMATS, KINDS, Job, RigFinder, expand_takes,
+                               parse_formats, plan_jobs, prepare_out)
 from puppet.batch.ray_engine import RayEngine
-from puppet.batch.row import SKIPPED, STATES, UNFINISHED, TakeResult
+from puppet.batch.row import DONE, FAILED, SKIPPED, STATES, TO_DO, UNFINISHED, TakeResult
 from puppet.batch.task import Settings, Shared
+from puppet.errors import PuppetError
 from puppet.loop import RigPrecompute
 from puppet.rig import Rig
 
@@ -51,6 +61,7 @@ class BatchReport:
     precompute_bytes: int = 0
     shared_bytes: int = 0
     seconds: float = 0.0
+    dry_run: bool = False
 
     @property
     def failed(self) -> list[TakeResult]:
@@ -58,11 +69,13 @@ class BatchReport:
         return [r for r in self.rows if r.state in UNFINISHED]
 
     def counts(self) -> dict[str, int]:
-        """{state: number of rows}, every state of row.STATES."""
-        return {state: sum(1 for r in self.rows if r.state == state) for state in STATES}
+        """{state: number of rows}, every state of row.STATES (and "to do" in a dry run)."""
+        states = (TO_DO, *STATES) if self.dry_run else STATES
+        return {state: sum(1 for r in self.rows if r.state == state) for state in states}
 
     def as_dict(self) -> dict:
         return {"engine": self.engine, "workers": self.workers, "out": self.out,
+                "dry_run": self.dry_run,
                 "precompute_s": round(self.precompute_s, 3),
                 "precompute_bytes": self.precompute_bytes, "shared_bytes": self.shared_bytes,
                 "seconds": round(self.seconds, 3), "counts": self.counts(),
@@ -84,6 +97,9 @@ class BatchReport:
         lines = ["  ".join(c.ljust(w) for c, w in zip(row[:-1], widths)) + "  " + row[-1]
                  for row in [head, *body]]
         counts = ", ".join(f"{n} {state}" for state, n in self.counts().items() if n)
+        if self.dry_run:
+            lines.append(f"dry run: {counts or 'no takes'}; nothing written in {self.out}")
+            return "\n".join(line.rstrip() for line in lines)
         lines.append(f"{counts or 'no takes'} in {self.seconds:.1f} s on {self.engine} "
                      f"({self.workers or 'auto'} workers), outputs and logs in {self.out}; "
                      f"rig precompute {self.precompute_s:.2f} s, {self.precompute_bytes} bytes, "
@@ -104,6 +120,31 @@ def _check_settings(fps, up: str, size) -> tuple[float, tuple[int, int]]:
     return fps_value, (width, height)
 
 
+def _check_space(space: str) -> None:
+    from puppet.export.run import SPACES
+
+    if space not in SPACES:
+        raise BatchError(f"--space: must be one of {SPACES}, got {space!r}")
+
+
+def _check_keys(keys, keys_units, formats) -> None:
+    """--keys / --keys-units as ``puppet export`` takes them, for a batch's formats."""
+    from puppet import limits
+
+    if keys is None:
+        if keys_units is not None:
+            raise BatchError("--keys-units: needs --keys (the rotation tolerance, degrees)")
+        return
+    for option, value, bound in (("--keys", keys, limits.KEYS_DEG),
+                                 ("--keys-units", keys_units, limits.KEYS_UNITS)):
+        problem = None if value is None else bound.problem(value)
+        if problem:
+            raise BatchError(f"{option}: {problem}")
+    if "gltf" not in formats:
+        raise BatchError("--keys: reduces the glTF's keys: add gltf to --formats (BVH, USD and "
+                         "PC2 keep every frame)")
+
+
 def make_engine(engine: str, workers: int | None, address: str | None):
     if engine == "local":
         if address:
@@ -114,62 +155,106 @@ def make_engine(engine: str, workers: int | None, address: str | None):
     raise BatchError(f"--engine: {engine!r} is not one of {ENGINES}")
 
 
-def run_batch(takes: list[str], out: str | os.PathLike, *, rig: Rig, rig_inputs: list[Path] = (),
-              default_rig: bool = False, formats=DEFAULT_FORMATS, fps=30.0, up: str = "y",
-              size=(640, 480), engine: str = "local", workers: int | None = None,
-              address: str | None = None, resume: bool = False, force: bool = False,
-              on_start: Callable[[int], None] | None = None,
+def run_batch(takes: list[str], out: str | os.PathLike, *, rig: Rig | None = None,
+              rig_inputs: list[Path] = (), formats=DEFAULT_FORMATS, fps=30.0, up: str = "y",
+              space: str = "object", size=(640, 480), keys: float | None = None,
+              keys_units: float | None = None,
+              engine: str = "local", workers: int | None = None,
+              address: str | None = None, resume: bool = False, dry_run: bool = False,
+              force: bool = False, on_start: Callable[[int], None] | None = None,
               on_result: Callable[[TakeResult], None] | None = None) -> BatchReport:
     """Solve and write every take; see the module docstring for the order of checks.
 
-    takes: files, folders or glob patterns; out: the output folder (created); rig: the loaded
-    rig every take is solved on; rig_inputs: the rig's files (never overwritten; --resume
-    compares times with them); default_rig: no rig was named (takes must be the built-in's).
-    formats: of plan.FORMATS; fps, up, size: as ``puppet export`` / ``puppet play``.
+    takes: files, folders or glob patterns; out: the output folder (created); rig: the rig
+    every take is solved on (--rig; a take of other servos is refused in its row), or None for
+    each take's own (``plan.RigFinder``); rig_inputs: the rig's files (never overwritten).
+    formats: of plan.FORMATS; fps, up, space, size, keys, keys_units: as ``puppet export`` /
+    ``puppet play``.
     engine: 'local' or 'ray'; workers: processes (local) or CPUs of a local Ray (default: cores);
-    address: a Ray cluster. resume: skip takes whose outputs are all newer than their inputs.
-    on_start(number of takes to run) and on_result(result) drive a progress bar.
+    address: a Ray cluster. resume: skip takes whose manifest says their outputs are up to date
+    (``manifest.changes``; a redone take's row says why). dry_run: decide and report, per take,
+    what would be done and why (rows "to do", "skipped", "failed"), writing nothing.
+    on_start(number of takes to run) and on_result(row) as each ends drive the progress.
     """
     start = time.perf_counter()
     formats = parse_formats(formats)
     fps, size = _check_settings(fps, up, size)
+    _check_keys(keys, keys_units, formats)
     if workers is not None and workers < 1:
         raise BatchError(f"--workers: {workers} must be >= 1")
     inputs = [Path(p) for p in rig_inputs]
-    paths = expand_takes(takes)
-    folder = prepare_out(out)
-    jobs = plan_jobs(paths, folder, formats, inputs, force=force)
+    found = expand_takes(takes)
+    paths = [take for take, _ in found]
+    folder = check_folder_output(out, what="output folder") if dry_run else prepare_out(out)
+    jobs = plan_jobs(found, folder, formats, inputs, force=force, dry_run=dry_run)
     runner = make_engine(engine, workers, address)
     report = BatchReport(engine=engine, workers=workers or getattr(runner, "workers", None),
-                         out=str(folder))
+                         out=str(folder), dry_run=dry_run)
+    _check_space(space)
+    settings = Settings(formats=formats, fps=fps, up=up, space=space, size=size, keys=keys,
+                        keys_units=keys_units)
+    shaping = shaping_settings(settings)
     rows: dict[Path, TakeResult] = {}
+    made: dict[Path, Made] = {}
     todo: list[Job] = []
-    for job in jobs:
-        if resume and is_done(job, inputs):
+    finder = RigFinder(rig)
+    for i, job in enumerate(jobs):
+        try:
+            take_rig = finder.for_take(job.take)
+            made[job.take] = Made(str(job.take), file_sha256(job.take), take_rig.rig.name,
+                                  take_rig.file, take_rig.rig_sha256, take_rig.character, shaping)
+        except (PuppetError, OSError) as err:  # unreadable take, its rig not found or not fitting
+            rows[job.take] = TakeResult.failed(job.take, _message(err, job.take),
+                                               files={}, log=str(job.log))
+            continue
+        jobs[i] = job = dataclasses.replace(job, rig_key=take_rig.key)
+        why = changes(read_manifest(job.manifest), made[job.take], job.outputs)
+        if resume and not why:
             rows[job.take] = TakeResult(take=str(job.take), state=SKIPPED, reason="up to date",
                                         files={f: str(p) for f, p in job.outputs.items()},
                                         log=str(job.log))
-        else:
-            todo.append(job)
+            continue
+        if not why:
+            why = ["up to date; made again (no --resume)"]
+        rows[job.take] = TakeResult(take=str(job.take), state=TO_DO, reason="; ".join(why),
+                                    files={f: str(p) for f, p in job.outputs.items()})
+        todo.append(job)
+    if dry_run:
+        runner.close()
+        report.rows = [rows[job.take] for job in jobs]
+        report.seconds = time.perf_counter() - start
+        return report
+    refused = [job for job in jobs if rows[job.take].state == FAILED]
     if todo:
         runner.check()  # Ray imported and reached before the precompute and any take
     try:
+        if on_start is not None and (todo or refused):
+            on_start(len(todo) + len(refused))
+        for job in refused:  # before running: its rig not found, or not fitting
+            _write_log(job, rows[job.take], [*paths, *inputs], force)
+            if on_result is not None:
+                on_result(rows[job.take])
         if todo:
-            precompute = RigPrecompute.for_rig(rig)
-            report.precompute_s = precompute.seconds
-            report.precompute_bytes = precompute.nbytes()
-            shared = Shared(rig=rig, default_rig=default_rig, precompute=precompute,
-                            settings=Settings(formats=formats, fps=fps, up=up, size=size))
+            keys = {job.rig_key for job in todo}
+            rigs = {}
+            for take_rig in finder.rigs():
+                if take_rig.key in keys:
+                    precompute = RigPrecompute.for_rig(take_rig.rig)
+                    report.precompute_s += precompute.seconds
+                    report.precompute_bytes += precompute.nbytes()
+                    rigs[take_rig.key] = (take_rig.rig, precompute)
+            shared = Shared(rigs=rigs, settings=settings)
             blob = pickle.dumps(shared, protocol=pickle.HIGHEST_PROTOCOL)
             report.shared_bytes = len(blob)
-            if on_start is not None:
-                on_start(len(todo))
 
             def finished(job: Job, result: TakeResult) -> None:
+                planned = rows[job.take]
                 if result.error is None:
-                    _commit(job, result, [*paths, *inputs], force)
+                    _commit(job, result, made[job.take], [*paths, *inputs], force)
                 else:
                     result.files, result.data = {}, None
+                if result.state == DONE and not result.reason:
+                    result.reason = planned.reason  # why it was made: new, or what changed
                 _write_log(job, result, [*paths, *inputs], force)
                 rows[job.take] = result
                 if on_result is not None:
@@ -191,9 +276,16 @@ def run_batch(takes: list[str], out: str | os.PathLike, *, rig: Rig, rig_inputs:
     return report
 
 
-def _commit(job: Job, result: TakeResult, inputs: list[Path], force: bool) -> None:
+def _message(err: Exception, take: Path) -> str:
+    if isinstance(err, PuppetError):
+        return str(err)
+    return f"{err.filename or take}: {err.strerror or err}"
+
+
+def _commit(job: Job, result: TakeResult, made: Made, inputs: list[Path], force: bool) -> None:
     """Put a finished take's files in place: rename from staging (local) or write the bytes a
-    remote worker sent (Ray), each atomically; a failure here is the take's error."""
+    remote worker sent (Ray), each atomically, then its manifest; a failure here is the take's
+    error (its manifest then describes none of the new files: the take is redone)."""
     try:
         for fmt, target in job.outputs.items():
             rule = dict(kind=KINDS[fmt], inputs=inputs, force=force)
@@ -204,6 +296,7 @@ def _commit(job: Job, result: TakeResult, inputs: list[Path], force: bool) -> No
                 check_output(target, **rule)  # again: the folder may have changed meanwhile
                 os.replace(result.files[fmt], target)
         result.files = {fmt: str(target) for fmt, target in job.outputs.items()}
+        write_manifest(job.manifest, made, job.outputs, inputs=inputs, force=force)
     except OutputError as err:
         result.fail(str(err))
     except OSError as err:

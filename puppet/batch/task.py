@@ -31,27 +31,31 @@ EXPORT_FORMATS = ("gltf", "usd", "pc2", "bvh")
 class Settings:
     """What every take is made with. formats: of plan.FORMATS; fps: frames per second of every
     output; up: PC2 up axis ('y' or 'z'); size: (width, height) pixels of the mp4; antialias:
-    as ``puppet play --antialias`` (msaa by default, offline quality)."""
+    as ``puppet play --antialias`` (msaa by default, offline quality); space: the PC2's points'
+    space as ``puppet export --space``; keys, keys_units: glTF key reduction as ``puppet export
+    --keys/--keys-units`` (None: a key on every frame)."""
 
     formats: tuple[str, ...]
     fps: float = 30.0
     up: str = "y"
+    space: str = "object"
     size: tuple[int, int] = (640, 480)
     antialias: str = "msaa"
+    keys: float | None = None
+    keys_units: float | None = None
 
 
 @dataclass
 class Shared:
     """Sent once to every worker (pickled; on Ray put once in the object store).
 
-    rig: the loaded rig (uncalibrated: each take applies its own recorded calibration to a copy);
-    default_rig: no --rig was given (a take must name the built-in rig); precompute: the rig's
-    FastModel and factorization, never recomputed per take; settings: see Settings.
+    rigs: {``plan.TakeRig.key``: (rig, precompute)}: every rig the batch's takes are solved on
+    (``Job.rig_key`` picks one), uncalibrated (each take applies its own recorded calibration to
+    a copy), with its FastModel and factorization, never recomputed per take; settings: see
+    Settings.
     """
 
-    rig: Rig
-    default_rig: bool
-    precompute: RigPrecompute
+    rigs: dict[str, tuple[Rig, RigPrecompute]]
     settings: Settings
 
 
@@ -78,26 +82,31 @@ def run_take(job: Job, shared: Shared, staging: Path) -> TakeResult:
     settings = shared.settings
     names = {fmt: target.name for fmt, target in job.outputs.items()}
     try:
-        rig, reader = open_take(job.take, shared.rig, default_rig=shared.default_rig)
+        rig, precompute = shared.rigs[job.rig_key]
+        rig, reader = open_take(job.take, rig)
         if reader.recovery is not None:
             result.warnings.append(str(reader.recovery))
         exports = Outputs(**{fmt: staging / names[fmt] for fmt in EXPORT_FORMATS if fmt in names})
         if "mp4" not in names:
             report = export_take(rig, reader, exports, fps=settings.fps, up=settings.up,
-                                 precompute=shared.precompute)
+                                 space=settings.space, keys=settings.keys,
+                                 keys_units=settings.keys_units,
+                                 precompute=precompute)
             result.frames = report.frames
         else:  # one solve of every frame: the video and every export from the same T
             frames = take_frames(rig, reader, settings.fps)
             with contextlib.ExitStack() as stack:
-                writers = [stack.enter_context(ExportWriters(rig, reader, exports, frames,
-                                                             up=settings.up))
+                writers = [stack.enter_context(ExportWriters(
+                    rig, reader, exports, frames, up=settings.up, space=settings.space,
+                    keys=settings.keys,
+                    keys_units=settings.keys_units))
                            ] if exports.items() else []
                 with atomic_output(staging / names["mp4"], kind="video") as temporary:
                     sink = VideoSink(temporary, settings.fps)
                     try:
                         summary = play_take(rig, reader, [sink], frames=frames, solved=writers,
                                             antialias=settings.antialias, size=settings.size,
-                                            precompute=shared.precompute)
+                                            precompute=precompute)
                     finally:
                         sink.close()
             result.frames = summary.frames

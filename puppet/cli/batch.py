@@ -8,13 +8,19 @@ import sys
 import click
 
 from puppet import limits
-from puppet.cli.common import InRange, force_option, load_rig, rig_files
+from puppet.cli.common import (InRange, force_option, keys_option, keys_units_option, load_rig,
+                               rig_files, space_option)
 
 
 @click.command()
 @click.argument("takes", nargs=-1)
-@click.option("--out", "out", required=True, help="Output folder (created): OUT/<take>.<ext>.")
-@click.option("--rig", "rig_path", default=None, help="Rig to solve on (default: the built-in).")
+@click.option("--out", "out", required=True,
+              help="Output folder (created): OUT/<take>.<ext>, a log OUT/<take>.log and a "
+                   "manifest OUT/<take>.batch.json per take; takes in folders below the one an "
+                   "argument names (shoot/*/*.mcap) go to the same folders below OUT.")
+@click.option("--rig", "rig_path", default=None,
+              help="Rig to solve every take on (a take of other servos is refused) [default: "
+                   "each take's own, as puppet export].")
 @click.option("--formats", default="gltf,usd,pc2,bvh", show_default=True,
               help="Comma-separated, of mp4 (as puppet play), gltf, usd, pc2, bvh (as puppet "
                    "export).")
@@ -25,6 +31,9 @@ from puppet.cli.common import InRange, force_option, load_rig, rig_files
               help=f"Video size in pixels (mp4), each {limits.FRAME_SIZE}.")
 @click.option("--up", type=click.Choice(["y", "z"]), default="y", show_default=True,
               help="Up axis of the PC2 points: z for Blender's Mesh Cache.")
+@space_option
+@keys_option
+@keys_units_option
 @click.option("--engine", type=click.Choice(["local", "ray"]), default="local", show_default=True,
               help="local: a process pool on this machine; ray: Ray tasks (pip install "
                    "'puppet[ray]').")
@@ -35,25 +44,32 @@ from puppet.cli.common import InRange, force_option, load_rig, rig_files
               help=f"Worker processes (local) or CPUs of a Ray started here ({limits.WORKERS}) "
                    "[default: cores].")
 @click.option("--resume", is_flag=True,
-              help="Skip takes whose outputs all exist and are newer than the take and the rig.")
+              help="Skip takes whose manifest says their outputs are up to date (same take, rig, "
+                   "character, settings and puppet version, outputs unchanged); each redone "
+                   "take's row says why.")
+@click.option("--dry-run", is_flag=True,
+              help="Print what would be done for each take and why; write nothing.")
 @click.option("--json", "as_json", is_flag=True, help="Print the report as one JSON line.")
 @force_option
 def batch(takes: tuple[str, ...], out: str, rig_path: str | None, formats: str, fps: str,
-          size: tuple[int, int], up: str, engine: str, address: str | None, workers: int | None,
-          resume: bool, as_json: bool, force: bool) -> None:
+          size: tuple[int, int], up: str, space: str, keys: float | None,
+          keys_units: float | None,
+          engine: str, address: str | None, workers: int | None,
+          resume: bool, dry_run: bool, as_json: bool, force: bool) -> None:
     """Solve and write every take; a failed take is reported and the others go on.
 
     \b
     Examples:
       puppet batch session/*.mcap --out exports/ --formats gltf,usd
       puppet batch session/ --out videos/ --formats mp4 --size 1280 720 --resume
+      puppet batch 'shoot/*/*.mcap' --out exports/ --fps 24 --resume --dry-run
       puppet batch session/*.mcap --out exports/ --engine ray --address 10.0.0.5:6379
     """
     from puppet.batch import BatchError, run_batch
 
     if not takes:
         raise BatchError("no takes given: name take files, folders or patterns (session/*.mcap)")
-    rig = load_rig(rig_path)
+    rig = None if rig_path is None else load_rig(rig_path)
     bar = None
     total = finished = 0
     lines = not sys.stderr.isatty()  # a log, not a terminal: one line per finished take
@@ -76,14 +92,19 @@ def batch(takes: tuple[str, ...], out: str, rig_path: str | None, formats: str, 
             click.echo(f"{'' if lines else chr(10)}warning: {result.take}: {warning}", err=True)
 
     try:
-        report = run_batch(list(takes), out, rig=rig, rig_inputs=rig_files(rig),
-                           default_rig=rig_path is None, formats=formats, fps=fps, up=up,
-                           size=size, engine=engine, workers=workers, address=address,
-                           resume=resume, force=force, on_start=on_start, on_result=on_result)
+        report = run_batch(list(takes), out, rig=rig,
+                           rig_inputs=rig_files(rig) if rig is not None else [],
+                           formats=formats, fps=fps, up=up, space=space, size=size, keys=keys,
+                           keys_units=keys_units, engine=engine,
+                           workers=workers, address=address, resume=resume, dry_run=dry_run,
+                           force=force, on_start=on_start, on_result=on_result)
     finally:
         if bar is not None:
             bar.__exit__(None, None, None)
     click.echo(json.dumps(report.as_dict()) if as_json else report.table())
+    if report.failed and dry_run:
+        raise click.ClickException(f"{len(report.failed)} of {len(report.rows)} takes would fail "
+                                   "(see the table); nothing written")
     if report.failed:
         raise click.ClickException(f"{len(report.failed)} of {len(report.rows)} takes failed "
                                    "(see the table); the others are written")

@@ -10,6 +10,7 @@ from pathlib import Path
 
 import click
 
+from puppet import limits
 from puppet.errors import PuppetError
 
 
@@ -116,6 +117,21 @@ def make_sinks(out: str | None, frames: str | None, fps: float, inputs=(), *,
     return sinks
 
 
+space_option = click.option(
+    "--space", type=click.Choice(["object", "model"]), default="object", show_default=True,
+    help="Space of the PC2 points: object = the mesh object's local space, as Blender's "
+         "glTF importer places the character (the Mesh Cache lands it on a moved or "
+         "scaled character); model = the model frame (the file's world).")
+keys_option = click.option(
+    "--keys", default=None, type=InRange(limits.KEYS_DEG), metavar="DEG",
+    help="glTF: per channel only the keys that reproduce the solved curve within DEG "
+         f"degrees (rotations; {limits.KEYS_DEG}), LINEAR as Blender plays it; the "
+         "report lists the keys kept per joint. Default: a key on every frame. BVH, USD "
+         "and PC2 keep every frame.")
+keys_units_option = click.option(
+    "--keys-units", default=None, type=InRange(limits.KEYS_UNITS), metavar="UNITS",
+    help=f"With --keys: translations within UNITS model units ({limits.KEYS_UNITS}; "
+         "default: the distance a DEG turn moves a point one bounding-box diagonal away).")
 force_option = click.option(
     "--force", is_flag=True,
     help="Overwrite an existing output of another kind (an input, a device or a FIFO never).")

@@ -8,7 +8,8 @@ import sys
 import click
 
 from puppet import limits
-from puppet.cli.common import InRange, force_option, open_take
+from puppet.cli.common import (force_option, keys_option, keys_units_option, open_take,
+                               space_option)
 
 
 @click.command()
@@ -18,8 +19,10 @@ from puppet.cli.common import InRange, force_option, open_take
                                            "joint animated; its scene extras puppet_fps, "
                                            "puppet_frame_start, puppet_frame_end give the take's "
                                            "rate and range (Blender: scene custom properties).")
-@click.option("--usd", default=None, help="USD (.usdc/.usda): exact mesh points per frame and the "
-                                          "skeleton (UsdSkel).")
+@click.option("--usd", default=None, help="USD (.usdc/.usda; .usdz: packaged with its textures): "
+                                          "exact mesh points per frame, the skeleton (UsdSkel) and, "
+                                          "for a glTF character, its UVs, colours, materials "
+                                          "(textures in <name>_textures/ beside it) and nodes.")
 @click.option("--pc2", default=None, help="Point cache of the deformed mesh in the character "
                                           "file's vertex order (Blender Mesh Cache).")
 @click.option("--bvh", default=None, help="Every joint as BVH, named as in the rig (whitespace and "
@@ -29,19 +32,14 @@ from puppet.cli.common import InRange, force_option, open_take
               help=f"Frames per second, resampled from the reading times ({limits.FPS}).")
 @click.option("--up", type=click.Choice(["y", "z"]), default="y", show_default=True,
               help="Up axis of the PC2 points: z for Blender's Mesh Cache.")
-@click.option("--keys", default=None, type=InRange(limits.KEYS_DEG), metavar="DEG",
-              help="glTF: per channel only the keys that reproduce the solved curve within DEG "
-                   f"degrees (rotations; {limits.KEYS_DEG}), LINEAR as Blender plays it; the "
-                   "report lists the keys kept per joint. Default: a key on every frame. BVH, USD "
-                   "and PC2 keep every frame.")
-@click.option("--keys-units", default=None, type=InRange(limits.KEYS_UNITS), metavar="UNITS",
-              help=f"With --keys: translations within UNITS model units ({limits.KEYS_UNITS}; "
-                   "default: the distance a DEG turn moves a point one bounding-box diagonal away).")
+@space_option
+@keys_option
+@keys_units_option
 @click.option("--json", "as_json", is_flag=True, help="Print the report as one JSON line.")
 @force_option
 def export(take: str, rig_path: str | None, gltf: str | None, usd: str | None, pc2: str | None,
-           bvh: str | None, fps: str, up: str, keys: float | None, keys_units: float | None,
-           as_json: bool, force: bool) -> None:
+           bvh: str | None, fps: str, up: str, space: str, keys: float | None,
+           keys_units: float | None, as_json: bool, force: bool) -> None:
     """Export a take; frame 1 is the take's first reading in every format.
 
     \b
@@ -68,11 +66,13 @@ def export(take: str, rig_path: str | None, gltf: str | None, usd: str | None, p
         bar.update(1)
 
     try:
-        report = export_take(rig, reader, outputs, fps=fps_value, up=up, keys=keys,
+        report = export_take(rig, reader, outputs, fps=fps_value, up=up, space=space, keys=keys,
                              keys_units=keys_units, progress=progress)
     finally:
         if bar is not None:
             bar.__exit__(None, None, None)
+    for warning in report.warnings:
+        click.echo(f"warning: {warning}", err=True)
     click.echo(json.dumps(report.as_dict()) if as_json else report.text())
 
 

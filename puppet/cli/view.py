@@ -96,7 +96,7 @@ def play_in_view(take: str, rig_path: str | None, out: str | None, frames: str |
     stop = StopFlag()  # before the page is served: a Ctrl-C from then on ends the run cleanly
     try:
         rig, reader = open_take(take, rig_path)
-        playback = Playback.of_take(reader, rig.servo_map.ids)
+        playback = Playback.of_take(reader, rig.servo_map.ids, rig=rig)
         marks = [(playback.play_s(t), name) for t, name in read_markers(take)]
         source = TakeSource(playback, speed=speed, markers=marks)
         sinks = make_sinks(out, frames, fps, inputs=[take, *rig_files(rig)], force=force)

@@ -3,9 +3,12 @@
 
 - glTF 2.0 (.glb): the character with its skin and one animation of every joint (solved ones too),
   a key on every frame or, with ``keys``, per channel the keys that stay within a tolerance
-  (``puppet.export.key_reduction``);
+  (``puppet.export.key_reduction``); for a glTF character, the file's own vertices, attributes,
+  materials, images and nodes;
 - USD: the exact deformed mesh as time-sampled points, and the skeleton as UsdSkel;
-- PC2 point cache of the deformed mesh in the character file's own vertex order;
+- PC2 point cache of the deformed mesh in the character file's own vertex order, in the mesh
+  object's local space (``space="object"``, where Blender's glTF importer puts the mesh) or the
+  model frame (``space="model"``);
 - BVH with every joint, named as in the rig (whitespace -> ``_``: ``puppet.export.names``),
   End Sites measured on the mesh.
 

@@ -37,9 +37,10 @@ from puppet.take.playback import MAX_GAP_S, Playback, check_rate
 
 FORMATS = ("gltf", "usd", "pc2", "bvh")
 UP_AXES = ("y", "z")
+SPACES = ("object", "model")  # where point caches' points are: see point_space()
 FIRST_FRAME = 1  # frame number of the take's first reading, in every format
 KINDS = {"gltf": "glb", "usd": "usd", "pc2": "pc2", "bvh": "bvh"}  # puppet.atomic's file kinds
-SUFFIXES = {"gltf": (".glb",), "usd": (".usdc", ".usda", ".usd")}  # the format follows the name
+SUFFIXES = {"gltf": (".glb",), "usd": (".usdc", ".usda", ".usd", ".usdz")}  # the format follows the name
 
 
 @dataclass
@@ -72,6 +73,10 @@ class ExportReport:
         the largest distance between a pivot and where rotations and rest offsets alone would put
         it, % of the diagonal (None without --bvh). The BVH carries a position channel on every
         joint for this, so its joints land on the solved pivots all the same.
+    pc2_space: where the PC2's points are: 'model' or 'object' (the mesh object's local space,
+        ``point_space``); None without --pc2.
+    warnings: what of the character file could not be carried (a missing image file...), in
+        words naming the file.
     keys: None (a glTF key on every frame) or the glTF's key reduction: {"rotation_deg",
         "translation_units": the tolerances, "kept": keys written, "every_frame": keys a key on
         every frame would take, "kept_pct", "joints": {joint name: {"translation": keys,
@@ -88,6 +93,8 @@ class ExportReport:
     lbs_rms_pct: float | None = None
     lbs_max_pct: float | None = None
     bvh_stretch_max_pct: float | None = None
+    pc2_space: str | None = None
+    warnings: list[str] = field(default_factory=list)
     keys: dict | None = None
     seconds: float = 0.0
 
@@ -97,7 +104,9 @@ class ExportReport:
                 "gaps_cut": [{"at_s": c.at_ns * 1e-9, "gap_s": c.gap_ns * 1e-9} for c in self.cuts],
                 "files": {f: {"path": str(p), "bytes": b} for f, (p, b) in self.files.items()},
                 "renamed_joints": {f: dict(m) for f, m in self.renamed.items()},
-                "keys": self.keys, "lbs_rms_pct": self.lbs_rms_pct, "lbs_max_pct": self.lbs_max_pct, "bvh_stretch_max_pct": self.bvh_stretch_max_pct,
+                "keys": self.keys, "lbs_rms_pct": self.lbs_rms_pct, "lbs_max_pct": self.lbs_max_pct,
+                "bvh_stretch_max_pct": self.bvh_stretch_max_pct,
+                "pc2_space": self.pc2_space, "warnings": list(self.warnings),
                 "seconds": round(self.seconds, 3)}
 
     def text(self) -> str:
@@ -108,6 +117,9 @@ class ExportReport:
                          f"{max(c.gap_ns for c in self.cuts) * 1e-9:.3f} s)")
         for fmt, (path, size) in self.files.items():
             lines.append(f"{fmt}: {path} ({size} bytes)")
+        if self.pc2_space == "object":
+            lines.append("pc2: points in the mesh object's local space (where Blender's glTF importer "
+                         "puts the character's mesh; --space model: the model frame)")
         if self.lbs_rms_pct is not None:
             lines.append(f"gltf skeleton vs FAST mesh (LBS with the file's weights): RMS "
                          f"{self.lbs_rms_pct:.3f} %, max {self.lbs_max_pct:.3f} % of the bbox diagonal")
@@ -154,6 +166,24 @@ def _bvh_skeleton(rig):
     return offsets, mesh_end_sites(sk.heads, sk.tails, sk.frames, sk.parents, rig.V, rig.W)
 
 
+def point_space(rig, space: str = "object") -> np.ndarray | None:
+    """(3, 4) map from model-frame points to the space a point cache is written in, or None
+    where that is the model frame itself.
+
+    space 'object': the local space of the mesh object that Blender's glTF importer makes from
+    the character file (``SourceScene.object_world``: the armature object's, which the skinned mesh
+    is parented to with an identity transform), so the Mesh Cache modifier lands the points on a
+    moved, turned or scaled character. 'model': the model frame (the file's world). The two
+    are the same for a character that is not glTF or whose armature has no transform.
+    """
+    if space not in SPACES:
+        raise ExportError("--space", f"must be one of {SPACES}, got {space!r}")
+    source = rig.source
+    if space == "model" or source is None or np.allclose(source.object_world, np.eye(4), atol=0):
+        return None
+    return np.linalg.inv(source.object_world)[:3]
+
+
 def default_keys_units(rig, degrees: float) -> float:
     """Translation tolerance (model units) that goes with a rotation tolerance of ``degrees``:
     how far that turn moves a point one rest bounding-box diagonal from its pivot
@@ -189,8 +219,9 @@ def check_fps(fps, where: str = "--fps") -> float:
 
 
 def export_take(rig, reader, outputs: Outputs, *, fps: float = 30.0, up: str = "y",
-                iterations: int = 8, influences: int = 4, meters_per_unit: float = 1.0,
-                keys: float | None = None, keys_units: float | None = None,
+                space: str = "object", iterations: int = 8, influences: int = 4,
+                meters_per_unit: float = 1.0, keys: float | None = None,
+                keys_units: float | None = None,
                 progress: Callable[[int, int], None] | None = None,
                 precompute=None) -> ExportReport:
     """Export a take (TakeReader) solved on ``rig`` into every file named in ``outputs``.
@@ -198,6 +229,7 @@ def export_take(rig, reader, outputs: Outputs, *, fps: float = 30.0, up: str = "
     fps:        output frames per second (> 0); frames by ``puppet.take.Playback``.
     up:         'y' (the model's frame) or 'z' (Blender: (x, y, z) -> (x, −z, y)), PC2 only:
                 glTF is Y-up by its spec, USD says its upAxis, BVH importers convert Y-up.
+    space:      'object' or 'model': the space of the PC2 points (``point_space``), before ``up``.
     iterations: FAST iterations per frame. influences: glTF weights per vertex (multiple of 4).
     keys:       None: a glTF key on every frame; else the glTF's rotation keys reproduce each
                 joint's solved curve within ``keys`` degrees, its translation keys within
@@ -209,7 +241,7 @@ def export_take(rig, reader, outputs: Outputs, *, fps: float = 30.0, up: str = "
     """
     start = time.monotonic()
     frames = take_frames(rig, reader, fps)
-    with ExportWriters(rig, reader, outputs, frames, up=up, influences=influences,
+    with ExportWriters(rig, reader, outputs, frames, up=up, space=space, influences=influences,
                        meters_per_unit=meters_per_unit, keys=keys, keys_units=keys_units) as exports:
         from puppet.loop import Pipeline, run_frames  # the solver's native module: only here
 
@@ -231,7 +263,7 @@ def take_frames(rig, reader, fps: float) -> Playback:
     if len(reader) == 0:
         raise ExportError(reader.path, "the take holds no readings")
     reader.check_rig(ids, dict(rig.servo_map.models), rig_name=rig.name)
-    return Playback.of_take(reader, ids, fps=fps)
+    return Playback.of_take(reader, ids, fps=fps, rig=rig)
 
 
 class ExportWriters:
@@ -244,15 +276,16 @@ class ExportWriters:
 
     rig, reader: the rig solved on and the take (TakeReader, its path: the take is an input no
     output may overwrite). frames: the Playback the frames come from (its fps, count, cuts).
-    up, influences, meters_per_unit: as export_take. Fields: report (ExportReport), frames
-    (written so far).
+    up, space, influences, meters_per_unit, keys, keys_units: as export_take. Fields: report
+    (ExportReport), frames (written so far).
     """
 
     def __init__(self, rig, reader, outputs: Outputs, frames: Playback, *, up: str = "y",
-                 influences: int = 4, meters_per_unit: float = 1.0, keys: float | None = None,
-                 keys_units: float | None = None):
+                 space: str = "object", influences: int = 4, meters_per_unit: float = 1.0,
+                 keys: float | None = None, keys_units: float | None = None):
         if up not in UP_AXES:
             raise ExportError("--up", f"up axis must be one of {UP_AXES}, got {up!r}")
+        self.to_space = point_space(rig, space)
         items = outputs.items()
         if not items:
             raise ExportError("export", "nothing to write: give --gltf, --usd, --pc2 and/or --bvh FILE")
@@ -275,6 +308,10 @@ class ExportWriters:
         self.order = SourceOrder(rig)
         self.report = ExportReport(frames=len(frames), fps=frames.fps, cuts=list(frames.cuts),
                                    take_seconds=(frames.t_ns[-1] - frames.t_ns[0]) * 1e-9)
+        if "pc2" in self.targets:
+            self.report.pc2_space = space
+        if rig.source is not None and any(f in self.targets for f in ("gltf", "usd")):
+            self.report.warnings += rig.source.warnings
         self.writers: dict[str, object] = {}
         self.frames = 0
         self._stack = contextlib.ExitStack()
@@ -298,22 +335,27 @@ class ExportWriters:
                                                        F=order.F, W=order.take(rig.W), fps=fps,
                                                        influences=self.influences, name=rig.name,
                                                        keys_deg=self.keys_deg,
-                                                       keys_units=self.keys_units)
+                                                       keys_units=self.keys_units,
+                                                       source=rig.source)
                     elif fmt == "usd":
                         from puppet.export.usd import UsdWriter
 
                         self.writers[fmt] = UsdWriter(temporary, names=sk.names, parents=sk.parents,
                                                       heads=sk.heads, frames=sk.frames, V=V_out,
                                                       F=order.F, fps=fps, name=rig.name,
-                                                      meters_per_unit=self.meters_per_unit)
+                                                      meters_per_unit=self.meters_per_unit,
+                                                      source=rig.source, weld=order.index,
+                                                      textures=target.with_name(
+                                                          f"{target.stem}_textures"),
+                                                      inputs=self.inputs)
                         if self.writers[fmt].renamed:
                             self.renamed["usd"] = dict(self.writers[fmt].renamed)
                     elif fmt == "pc2":
                         self.writers[fmt] = Pc2Writer(temporary, order.n_out,
                                                       start_frame=float(FIRST_FRAME), sample_rate=1.0)
                     else:
-                        self.writers[fmt] = BvhWriter(temporary, names=self._bvh_names, parents=sk.parents,
-                                                      offsets=self._bvh_offsets,
+                        self.writers[fmt] = BvhWriter(temporary, names=self._bvh_names,
+                                                      parents=sk.parents, offsets=self._bvh_offsets,
                                                       end_sites=self._end_sites,
                                                       frame_time=1.0 / fps, positions="all")
         except BaseException:
@@ -342,6 +384,8 @@ class ExportWriters:
         report.frames = self.frames
         for fmt, target in self.items:
             report.files[fmt] = (target, target.stat().st_size)
+        for writer in self.writers.values():
+            report.warnings += getattr(writer, "warnings", [])
         report.renamed = self.renamed
         rig = self.rig
         diagonal = float(np.linalg.norm(rig.V.max(0) - rig.V.min(0))) or 1.0
@@ -371,6 +415,7 @@ class ExportWriters:
             "deformed": np.empty((len(rig.V), 3)),
             "points": np.empty((order.n_out, 3)),
             "pc2_points": np.empty((order.n_out, 3), np.float32),
+            "in_space": np.empty((order.n_out, 3)),
             "joints": JointTransforms(sk.heads),
             "rotations": np.empty((sk.bone_count, 3, 3)),
             "offsets": sk.heads - np.where(parents[:, None] >= 0, sk.heads[parents], 0.0),
@@ -396,13 +441,17 @@ class ExportWriters:
             np.matmul(b["M"], b["T"], out=b["deformed"])
             order.take(b["deformed"], out=points)
         if pc2 is not None:
-            pc2_points = b["pc2_points"]
+            pc2_points, cache = b["pc2_points"], points
+            if self.to_space is not None:  # into the mesh object's local space
+                cache = b["in_space"]
+                np.matmul(points, self.to_space[:, :3].T, out=cache)
+                cache += self.to_space[:, 3]
             if up == "z":
-                pc2_points[:, 0] = points[:, 0]
-                pc2_points[:, 1] = -points[:, 2]
-                pc2_points[:, 2] = points[:, 1]
+                pc2_points[:, 0] = cache[:, 0]
+                pc2_points[:, 1] = -cache[:, 2]
+                pc2_points[:, 2] = cache[:, 1]
             else:
-                pc2_points[...] = points
+                pc2_points[...] = cache
             with _blame(targets["pc2"], "pc2"):
                 pc2.write(pc2_points)
         if usd is not None:
@@ -411,7 +460,7 @@ class ExportWriters:
         if gltf is not None:
             skinned = b["skinned"]
             gltf.write(joints.world)
-            gltf.skin(joints.world, out=skinned)
+            gltf.skin(gltf.written, out=skinned)  # what the file's keys reproduce
             skinned -= points
             error = np.sqrt(np.einsum("ij,ij->i", skinned, skinned))
             b["squares"] += float(np.dot(error, error))

@@ -3,7 +3,9 @@
 A loader may weld copies of a vertex that the file split (UV seams, split normals); the rig then
 records ``source_index`` (n_source,): for each vertex of the file, in the file's order, its index
 in the welded ``rig.V``. Outputs list vertices in the file's order: ``deformed[source_index]``.
-Triangles, which index welded vertices, use the first file vertex of each welded one.
+Triangles are the file's own (every primitive's indices, in order) when the rig came from a
+glTF file (``Rig.source``); otherwise the rig's triangles, which index welded vertices, use the
+first file vertex of each welded one.
 """
 
 from __future__ import annotations
@@ -17,7 +19,8 @@ class SourceOrder:
     """Maps welded rig vertices to the character file's vertex order.
 
     index: (n_out,) int64 rig vertex of each output vertex (identity when the rig has no map).
-    F:     (f, 3) int64 the rig's triangles as indices into the output vertices.
+    F:     (f, 3) int64 triangles as indices into the output vertices: the file's own, or the
+           rig's mapped onto the first file copy of each vertex.
     n_out: number of output vertices (the file's vertex count).
     """
 
@@ -45,6 +48,13 @@ class SourceOrder:
             self.identity = False
             self.F = first[F]
         self.n_out = len(self.index)
+        source = rig.source
+        if source is not None:
+            counts = sum(p.count for prims in source.primitives for p in prims)
+            if counts != self.n_out:
+                raise ExportError(rig.path or rig.name, f"the character file's primitives hold "
+                                  f"{counts} vertices, the rig maps {self.n_out}")
+            self.F = source.triangles
 
     def take(self, values: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
         """Rows of values (n, ...) in the file's order: values[index]."""

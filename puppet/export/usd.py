@@ -1,22 +1,42 @@
-"""USD (.usdc/.usda/.usd) with usd-core: the exact deformed mesh and the animated skeleton.
+"""USD (.usdc/.usda/.usd, or a packaged .usdz) with usd-core: the exact deformed mesh, its look
+and the animated skeleton.
 
 Stage layout (default prim ``/<name>``):
   /<name>            Xform
   /<name>/Mesh       Mesh: faceVertexCounts/Indices, rest points as the default value, and one
                      points (and extent) time sample per frame: the FAST result itself.
   /<name>/Rig        SkelRoot
-  /<name>/Rig/Skeleton  Skeleton: every joint (BVH-safe names as paths), bind and rest transforms;
-                     skel:animationSource -> Anim. No mesh is bound to it (the mesh's points are
-                     already deformed), so nothing is skinned twice.
+  /<name>/Rig/Skeleton  Skeleton: every joint (identifier-safe names as paths), bind and rest
+                     transforms; skel:animationSource -> Anim. No mesh is bound to it (the mesh's
+                     points are already deformed), so nothing is skinned twice.
   /<name>/Rig/Anim   SkelAnimation: translations, rotations (time-sampled), scales (ones).
+For a rig read from a glTF file (``Rig.source``), the stage also carries the file's look and place:
+  /<name>/<node>/... Xforms of the file's nodes that are not joints and not under one (their
+                     names, hierarchy and transforms as written: translate/orient/scale ops, or
+                     a matrix op).
+  .../<armature>/<mesh>  the Mesh, named as the file's mesh node, under the Xform of the node that
+                     Blender's glTF importer makes the armature object, with an identity transform:
+                     its points are in that object's local space (the PC2's ``space="object"``),
+                     its world is the model frame's points exactly. Its triangles are the file's;
+                     primvars: ``st`` / ``st<k>`` from TEXCOORD_0 / TEXCOORD_k (t = 1 − v),
+                     displayColor (+ displayOpacity) from COLOR_0, ``COLOR_<k>`` for k > 0; normals
+                     per frame, smooth across the seams the loader welded; each primitive's
+                     material bound (GeomSubsets when there are several).
+  /<name>/Materials  UsdPreviewSurface materials (``puppet.export.usd_materials``); their images
+                     are written next to the layer in ``<stem>_textures/`` and referenced from it,
+                     or packaged inside a .usdz.
+The Rig stays in the model frame (the skeleton's world, as the solve has it).
 Stage metadata: upAxis, metersPerUnit, timeCodesPerSecond = framesPerSecond = fps,
 startTimeCode 1, endTimeCode N: frame k is time code k, frame 1 the take's first reading.
 The layer is saved every ``save_every`` frames, so memory stays bounded on long takes.
+A .usdz is written as a .usdc layer and its textures in a temporary folder, packaged at close().
 """
 
 from __future__ import annotations
 
 import re
+import shutil
+import tempfile
 from pathlib import Path
 
 import numpy as np
@@ -24,7 +44,8 @@ import numpy as np
 from puppet.export.errors import ExportError
 from puppet.export.joint_transforms import (compose, local_transforms, matrix_to_quaternion,
                                             rest_globals)
-from puppet.export.names import safe_names
+from puppet.export.names import safe_name, safe_names
+from puppet.export.usd_materials import primvar_name, write_materials, write_textures
 from puppet.export.writer import ExportWriter
 
 UP_AXES = ("Y", "Z")
@@ -32,7 +53,7 @@ UP_AXES = ("Y", "Z")
 
 def _usd():
     try:
-        from pxr import Tf, Usd, UsdGeom, UsdSkel, Vt
+        from pxr import Tf, Usd, UsdGeom, UsdSkel, Vt  # noqa: F401 (UsdShade, UsdUtils below)
     except ImportError as e:  # usd-core is a dependency; say so if an install lost it
         raise ExportError("--usd", f"USD export needs the usd-core package ({e})") from e
     return Tf, Usd, UsdGeom, UsdSkel, Vt
@@ -56,24 +77,42 @@ def _usd_matrices(M: np.ndarray) -> np.ndarray:
 class UsdWriter(ExportWriter):
     """Writes one time sample of points and joint transforms per frame.
 
-    path:     output file (.usdc binary, .usda text or .usd).
+    path:     output file (.usdc binary, .usda text or .usd; .usdz: packaged with its textures).
     names:    b joint names; parents (b,) int; heads (b, 3) rest pivots; frames (b, 3, 3) rest frames.
-    V:        (n, 3) rest vertices (output order); F (f, 3) triangles into V.
+    V:        (n, 3) rest vertices (output order, model frame); F (f, 3) triangles into V.
     fps:      frames per second (timeCodesPerSecond).
     up:       'Y' or 'Z': the stage's upAxis (the data is written as given).
     meters_per_unit: the stage's metersPerUnit (model units in metres).
-    Fields: joint_paths (b,) the Skeleton's joint tokens; renamed {name: safe name}.
+    source:   the character file's SourceScene (``Rig.source``) or None (module docstring);
+              V must then be in its vertex order.
+    weld:     (n,) int: the welded vertex of each vertex (``SourceOrder.index``), so per-frame
+              normals are smooth across seams; None: every vertex its own.
+    textures: the folder the images go to (default ``<stem>_textures`` next to path; a .usdz
+              packages them); inputs: files no texture may overwrite.
+    Fields: joint_paths (b,) the Skeleton's joint tokens; renamed {name: safe name}; mesh_path;
+    warnings: what could not be written (an image that cannot be read).
     """
 
     close_on_error = False  # an error inside `with` releases the stage without saving more
 
     def __init__(self, path, *, names, parents, heads, frames, V, F, fps: float, up: str = "Y",
-                 meters_per_unit: float = 1.0, name: str = "character", save_every: int = 64):
+                 meters_per_unit: float = 1.0, name: str = "character", save_every: int = 64,
+                 source=None, weld=None, textures=None, inputs=()):
         Tf, Usd, UsdGeom, UsdSkel, Vt = _usd()
         self._Tf, self._Vt, self._Usd = Tf, Vt, Usd
         self.path = Path(path)
         if up not in UP_AXES:
             raise ExportError(self.path, f"up axis must be one of {UP_AXES}, got {up!r}")
+        self.warnings: list[str] = []
+        self._package = None  # a .usdz: (temporary folder, layer inside it)
+        layer = self.path
+        if self.path.suffix.lower() == ".usdz":
+            folder = Path(tempfile.mkdtemp(prefix=".puppet-usdz-", dir=self.path.parent))
+            layer = folder / f"{safe_names([name])[0][0]}.usdc"
+            self._package = (folder, layer)
+            textures = folder / "textures"
+        elif textures is None:
+            textures = self.path.with_name(f"{self.path.stem}_textures")
         self.fps = float(fps)
         self.parents = np.asarray(parents, np.int64)
         self.rest = rest_globals(np.asarray(heads, np.float64), np.asarray(frames, np.float64))
@@ -87,9 +126,11 @@ class UsdWriter(ExportWriter):
         self.joint_paths = paths
         root = "/" + safe_names([name])[0][0]
         try:
-            stage = Usd.Stage.CreateNew(str(self.path))
+            stage = Usd.Stage.CreateNew(str(layer))
         except Tf.ErrorException as e:
+            self._drop_package()
             raise ExportError(self.path, f"cannot create USD stage: {_usd_reason(e)}") from e
+        self.layer = layer
         self.stage = stage
         UsdGeom.SetStageUpAxis(stage, UsdGeom.Tokens.y if up == "Y" else UsdGeom.Tokens.z)
         UsdGeom.SetStageMetersPerUnit(stage, float(meters_per_unit))
@@ -100,14 +141,37 @@ class UsdWriter(ExportWriter):
         top = UsdGeom.Xform.Define(stage, root)
         stage.SetDefaultPrim(top.GetPrim())
 
-        V = np.asarray(V, np.float32)
+        self._to_object = None  # (3, 4) model frame -> the mesh's local space
+        self._normals = None
+        mesh_path = f"{root}/Mesh"
+        if source is not None:
+            mesh_path, self._to_object = _source_xforms(stage, root, source)
+        self.mesh_path = mesh_path
+        V = np.asarray(V, np.float64)
+        if self._to_object is not None:
+            V = V @ self._to_object[:, :3].T + self._to_object[:, 3]
+        V = V.astype(np.float32)
         F = np.asarray(F, np.int32)
-        mesh = UsdGeom.Mesh.Define(stage, f"{root}/Mesh")
+        mesh = UsdGeom.Mesh.Define(stage, mesh_path)
         mesh.CreateSubdivisionSchemeAttr(UsdGeom.Tokens.none)
         mesh.CreateFaceVertexCountsAttr(Vt.IntArray.FromNumpy(np.full(len(F), 3, np.int32)))
         mesh.CreateFaceVertexIndicesAttr(Vt.IntArray.FromNumpy(np.ascontiguousarray(F.reshape(-1))))
         self._points = mesh.CreatePointsAttr(Vt.Vec3fArray.FromNumpy(V))
         self._extent = mesh.CreateExtentAttr(Vt.Vec3fArray.FromNumpy(np.stack([V.min(0), V.max(0)])))
+        self._local = np.empty(V.shape, np.float32)
+        if source is not None:
+            self._normals = _SmoothNormals(F, np.arange(len(V)) if weld is None else weld)
+            self._normals_attr = mesh.CreateNormalsAttr()
+            mesh.SetNormalsInterpolation(UsdGeom.Tokens.vertex)
+            self._normals_attr.Set(Vt.Vec3fArray.FromNumpy(self._normals(V)))
+            _primvars(mesh, source)
+            try:
+                files, self.warnings = write_textures(source, Path(textures), inputs=inputs)
+            except OSError as e:
+                self._drop_package()
+                raise ExportError(Path(textures), f"cannot write the textures: {e.strerror or e}") from e
+            materials = write_materials(stage, root, source, files, layer.parent)
+            _bind(mesh, source, materials)
 
         skel_root = UsdSkel.Root.Define(stage, f"{root}/Rig")
         skeleton = UsdSkel.Skeleton.Define(stage, f"{root}/Rig/Skeleton")
@@ -134,10 +198,17 @@ class UsdWriter(ExportWriter):
         Vt, Usd = self._Vt, self._Usd
         self.num_frames += 1
         time = Usd.TimeCode(self.num_frames)
-        pts = np.ascontiguousarray(points, np.float32)
+        if self._to_object is not None:
+            np.matmul(points, self._to_object[:, :3].T, out=self._local, casting="same_kind")
+            self._local += self._to_object[:, 3]
+            pts = self._local
+        else:
+            pts = np.ascontiguousarray(points, np.float32)
         if not np.isfinite(pts).all():
             raise ExportError(self.path, f"frame {self.num_frames}: points are not finite")
         self._points.Set(Vt.Vec3fArray.FromNumpy(pts), time)
+        if self._normals is not None:
+            self._normals_attr.Set(Vt.Vec3fArray.FromNumpy(self._normals(pts)), time)
         np.min(pts, axis=0, out=self._bounds[0])
         np.max(pts, axis=0, out=self._bounds[1])
         self._extent.Set(Vt.Vec3fArray.FromNumpy(self._bounds), time)
@@ -154,11 +225,18 @@ class UsdWriter(ExportWriter):
             saved = self.stage.GetRootLayer().Save()
         except self._Tf.ErrorException as e:
             raise ExportError(self.path, f"cannot write USD: {_usd_reason(e)}") from e
-        if not saved or not self.path.exists():
+        if not saved or not self.layer.exists():
             raise ExportError(self.path, "cannot write USD: the layer was not saved (disk full?)")
 
+    def _drop_package(self) -> None:
+        """Remove a .usdz's temporary folder (its layer and textures)."""
+        if self._package is not None:
+            shutil.rmtree(self._package[0], ignore_errors=True)
+            self._package = None
+
     def close(self) -> None:
-        """Set the end time code, save and release the stage. Safe to call twice."""
+        """Set the end time code, save and release the stage (a .usdz: package the layer and its
+        textures into path). Safe to call twice."""
         if self._closed:
             return
         self._closed = True
@@ -167,13 +245,173 @@ class UsdWriter(ExportWriter):
                 raise ExportError(self.path, "no frames to write")
             self.stage.SetEndTimeCode(self.num_frames)
             self._save()
+            if self._package is not None:
+                from pxr import Sdf, UsdUtils
+
+                self.stage = None
+                try:
+                    packed = UsdUtils.CreateNewUsdzPackage(Sdf.AssetPath(str(self.layer)), str(self.path))
+                except self._Tf.ErrorException as e:
+                    raise ExportError(self.path, f"cannot write the .usdz: {_usd_reason(e)}") from e
+                if not packed or not self.path.exists():
+                    raise ExportError(self.path, "cannot write the .usdz: the package was not written "
+                                                 "(disk full?)")
         finally:
             self.stage = self._points = self._extent = None
             self._translations = self._rotations = None
+            self._drop_package()
 
     def abort(self) -> None:
         """Release the stage without saving more."""
         self._closed = True
         self.stage = self._points = self._extent = None
         self._translations = self._rotations = None
+        self._drop_package()
 
+
+class _SmoothNormals:
+    """Per-frame unit vertex normals, area weighted, shared by the copies of a welded vertex
+    (so a UV seam shades smooth). F: (f, 3) triangles; weld: (n,) welded index of each vertex."""
+
+    def __init__(self, F: np.ndarray, weld: np.ndarray):
+        from scipy.sparse import csr_matrix
+
+        self.F = np.asarray(F, np.int64)
+        self.weld = np.asarray(weld, np.int64)
+        k = int(self.weld.max()) + 1 if len(self.weld) else 0
+        rows = self.weld[self.F].reshape(-1)
+        cols = np.repeat(np.arange(len(self.F)), 3)
+        self.gather = csr_matrix((np.ones(len(rows)), (rows, cols)), shape=(k, len(self.F)))
+
+    def __call__(self, points: np.ndarray) -> np.ndarray:
+        """(n, 3) float32 normals of points (n, 3) (+Y where no triangle gives one)."""
+        P = np.asarray(points, np.float64)
+        F = self.F
+        cross = np.cross(P[F[:, 1]] - P[F[:, 0]], P[F[:, 2]] - P[F[:, 0]])
+        N = (self.gather @ cross)[self.weld]
+        length = np.linalg.norm(N, axis=1, keepdims=True)
+        N = np.where(length > 0, N / np.where(length > 0, length, 1.0), [0.0, 1.0, 0.0])
+        return N.astype(np.float32)
+
+
+def _xform_ops(xform, node) -> None:
+    """A node's local transform as written: translate/orient/scale ops, or one matrix op."""
+    from pxr import Gf
+
+    if node.matrix is not None:
+        xform.AddTransformOp().Set(Gf.Matrix4d(np.ascontiguousarray(node.local.T).tolist()))
+        return
+    if node.translation is not None:
+        xform.AddTranslateOp().Set(Gf.Vec3d(*node.translation))
+    if node.rotation is not None:
+        x, y, z, w = node.rotation
+        xform.AddOrientOp().Set(Gf.Quatf(float(w), float(x), float(y), float(z)))
+    if node.scale is not None:
+        xform.AddScaleOp().Set(Gf.Vec3f(*node.scale))
+
+
+def _source_xforms(stage, root: str, source) -> tuple[str, np.ndarray | None]:
+    """Xforms of the file's nodes that are not joints, not under one and not the skinned mesh
+    node; returns (the Mesh's path: under the armature's Xform, named as the mesh node, and
+    the (3, 4) map of model-frame points into its space, None for the identity)."""
+    from pxr import UsdGeom
+
+    nodes = source.nodes
+    static = {}
+    for i, node in enumerate(nodes):
+        k, ok = i, True
+        while k >= 0:  # the skinned mesh node itself becomes the Mesh (an Xform if it has children)
+            if nodes[k].joint >= 0 or (k == i and node.mesh >= 0 and not node.children):
+                ok = False
+                break
+            k = nodes[k].parent
+        if ok:
+            static[i] = None
+    taken: dict[str, set] = {}
+
+    def path_of(i):
+        if static[i] is None:
+            parent = nodes[i].parent
+            above = root if parent < 0 else path_of(parent)
+            siblings = taken.setdefault(above, {"Mesh", "Rig", "Materials"} if above == root else set())
+            base = safe_name(nodes[i].name or f"node{i}")
+            name, n = base, 2
+            while name in siblings:
+                name, n = f"{base}_{n}", n + 1
+            siblings.add(name)
+            static[i] = f"{above}/{name}"
+            _xform_ops(UsdGeom.Xform.Define(stage, static[i]), nodes[i])
+        return static[i]
+
+    for i in sorted(static, key=lambda i: 0 if nodes[i].parent < 0 else 1):
+        path_of(i)
+    mesh_node = nodes[source.mesh_nodes[0]]
+    name = safe_name(mesh_node.name or source.mesh_names[0] or "Mesh")
+    armature = source.armature
+    to_object = None if np.allclose(source.object_world, np.eye(4), atol=0) else \
+        np.linalg.inv(source.object_world)[:3]
+    if armature is not None and armature in static:
+        above = static[armature]
+    else:
+        above = root
+        if to_object is not None:  # the armature sits under a joint: its world as one matrix op
+            holder = UsdGeom.Xform.Define(stage, f"{root}/{name}_space")
+            from pxr import Gf
+            holder.AddTransformOp().Set(Gf.Matrix4d(np.ascontiguousarray(source.object_world.T).tolist()))
+            above = f"{root}/{name}_space"
+    siblings = taken.setdefault(above, {"Mesh", "Rig", "Materials"} if above == root else set())
+    base, n = name, 2
+    while name in siblings:
+        name, n = f"{base}_{n}", n + 1
+    return f"{above}/{name}", to_object
+
+
+def _primvars(mesh, source) -> None:
+    """The file's UV sets (st, st<k>; t = 1 - v), vertex colours (displayColor/displayOpacity
+    from COLOR_0, COLOR_<k>) on the mesh, per vertex."""
+    from pxr import Sdf, UsdGeom, Vt
+
+    api = UsdGeom.PrimvarsAPI(mesh)
+    for name, values in sorted(source.attributes.items()):
+        if name.startswith("TEXCOORD_"):
+            st = np.ascontiguousarray(np.column_stack([values[:, 0], 1.0 - values[:, 1]]), np.float32)
+            api.CreatePrimvar(primvar_name(int(name.split("_")[1])), Sdf.ValueTypeNames.TexCoord2fArray,
+                              UsdGeom.Tokens.vertex).Set(Vt.Vec2fArray.FromNumpy(st))
+        elif name == "COLOR_0":
+            rgb = np.ascontiguousarray(values[:, :3], np.float32)
+            mesh.CreateDisplayColorPrimvar(UsdGeom.Tokens.vertex).Set(Vt.Vec3fArray.FromNumpy(rgb))
+            if values.shape[1] == 4:
+                mesh.CreateDisplayOpacityPrimvar(UsdGeom.Tokens.vertex).Set(
+                    Vt.FloatArray.FromNumpy(np.ascontiguousarray(values[:, 3], np.float32)))
+        elif name.startswith("COLOR_"):
+            kind = Sdf.ValueTypeNames.Color4fArray if values.shape[1] == 4 else Sdf.ValueTypeNames.Color3fArray
+            array = (Vt.Vec4fArray if values.shape[1] == 4 else Vt.Vec3fArray).FromNumpy(
+                np.ascontiguousarray(values, np.float32))
+            api.CreatePrimvar(name, kind, UsdGeom.Tokens.vertex).Set(array)
+
+
+def _bind(mesh, source, materials: list) -> None:
+    """Bind each primitive's material: the whole mesh when one primitive, else a GeomSubset of
+    each primitive's triangles."""
+    from pxr import UsdGeom, UsdShade, Vt
+
+    prims = [p for group in source.primitives for p in group]
+    if not materials:
+        return
+    if len(prims) == 1:
+        if prims[0].material is not None:
+            UsdShade.MaterialBindingAPI.Apply(mesh.GetPrim()).Bind(materials[prims[0].material])
+        return
+    UsdShade.MaterialBindingAPI.Apply(mesh.GetPrim())
+    first = 0
+    for k, prim in enumerate(prims):
+        count = len(prim.indices) // 3
+        faces = np.arange(first, first + count, dtype=np.int32)
+        first += count
+        if prim.material is None:
+            continue
+        subset = UsdGeom.Subset.Define(mesh.GetPrim().GetStage(), mesh.GetPath().AppendChild(f"primitive{k}"))
+        subset.CreateElementTypeAttr(UsdGeom.Tokens.face)
+        subset.CreateFamilyNameAttr(UsdShade.Tokens.materialBind)
+        subset.CreateIndicesAttr(Vt.IntArray.FromNumpy(faces))
+        UsdShade.MaterialBindingAPI.Apply(subset.GetPrim()).Bind(materials[prim.material])

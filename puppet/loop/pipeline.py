@@ -184,7 +184,8 @@ class Pipeline:
 
         A servo flagged not ok keeps the tick value the reader held for it (its last good one);
         with the rig option ``on_dropout = "free"`` its bones are solved instead once it has been
-        silent long enough (puppet.loop.dropout); dynamics step by the readings' times. The
+        silent long enough (puppet.loop.dropout); dynamics step by the readings' times. A
+        reading with ``rotations`` (a shot's frame) is posed from them, not from its angles. The
         first frame is iterated to convergence (puppet.fast.live_solve.COLD_TOL).
         """
         start = time.perf_counter_ns()
@@ -192,7 +193,11 @@ class Pipeline:
         rig.servo_map.angles(reading.ticks, out=self.angles)
         free = self.dropout.update(reading)
         steps = self.steps.update(reading.t_ns)
-        rig.skeleton.pose(self.angles, out=self._pose, rotations=self._rot)  # one native call
+        if reading.rotations is None:
+            rig.skeleton.pose(self.angles, out=self._pose, rotations=self._rot)  # one native call
+        else:  # a shot's frame: the joints' rotations interpolated between keys
+            np.copyto(self._rot, reading.rotations)
+            rig.skeleton.pose_from_rotations(self._rot, out=self._pose)
         stats = self.live.solve(free, self._rot, self._pose, self.T, self.iterations, steps)
         self.solve_ns += time.perf_counter_ns() - start
         self.iterate_ns += stats.iterate_ns

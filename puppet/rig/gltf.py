@@ -4,7 +4,9 @@ What is read: one skin (the only one the meshes use, or the one chosen with ``sk
 node that has a mesh and that skin; every triangle primitive of those meshes (POSITION, indices,
 all JOINTS_n/WEIGHTS_n sets); accessors with byteStride, normalized integers and sparse
 substitution; the skin's joints, their node hierarchy and rest pose, and inverse bind matrices
-(identity when absent).
+(identity when absent). The rest of what the file holds for exports (vertex attributes,
+primitives, materials and images, every node) is read into ``GltfCharacter.source``
+(``puppet.rig.source_scene``).
 
 Rest geometry: the rig's rest vertices are the glTF skinning formula evaluated at the nodes'
 rest pose, ``v = Σ_j w_j G_j IBM_j v_mesh`` (equal to the mesh positions when the file's rest
@@ -36,6 +38,7 @@ import numpy as np
 from puppet.rig.errors import RigError
 from puppet.rig.skeleton import Skeleton
 from puppet.rig.solve_options import COORD
+from puppet.rig.source_scene import SourceScene, read_source_scene
 from puppet.rig.weight_check import normalize_weights
 from puppet.rig.weld import weld_index, weld_mesh
 
@@ -68,6 +71,8 @@ class GltfCharacter:
     file_vertices:  vertex count in the file (before welding).
     skin:           index of the skin read.
     unused_joints:  names of bones that no vertex follows (weight <= UNUSED_WEIGHT everywhere).
+    source:         the file's look and place (``puppet.rig.source_scene.SourceScene``): vertex
+                    attributes, primitives, materials, images, nodes; exports carry it.
     """
 
     V: np.ndarray
@@ -79,6 +84,7 @@ class GltfCharacter:
     file_vertices: int = 0
     skin: int = 0
     unused_joints: tuple[str, ...] = ()
+    source: SourceScene | None = None
 
 
 class _Accessors:
@@ -412,8 +418,15 @@ def read_gltf(path, skin: int | None = None) -> GltfCharacter:
     else:
         source_index = None
     unused = tuple(name for name, w in zip(skeleton.names, W.max(axis=0)) if w <= UNUSED_WEIGHT)
-    return GltfCharacter(V, F.astype(np.int32), W, skeleton, np.array([joints[k] for k in order]),
-                         source_index, file_vertices, skin_index, unused)
+    joint_nodes = np.array([joints[k] for k in order])
+    worlds = _rest_globals(nodes, parent_node, list(range(len(nodes))), path)  # checks every node
+    source = read_source_scene(
+        gltf, acc, path, locals_=np.array([_node_local(n) for n in nodes]), worlds=worlds,
+        parent_node=parent_node,
+        mesh_nodes=mesh_nodes, joints=joints,
+        bone_of_joint={int(node): bone for bone, node in enumerate(joint_nodes)}, skin_index=skin_index)
+    return GltfCharacter(V, F.astype(np.int32), W, skeleton, joint_nodes, source_index,
+                         file_vertices, skin_index, unused, source)
 
 
 def _joint_name(name, k: int, node: int, path: Path) -> str:

@@ -65,8 +65,8 @@ def read_character_npz(path):
 
 
 def _read_character(spec):
-    """(V, F, W, skeleton, source_index) for a rig file's mesh/skeleton/weights entries
-    (source_index: see ``Rig.source_index``)."""
+    """(V, F, W, skeleton, source_index, source) for a rig file's mesh/skeleton/weights entries
+    (source_index, source: see ``Rig``)."""
     from puppet.rig.tgf_dmat import read_dmat, read_tgf
 
     for what, path in (("mesh", spec.mesh), ("skeleton", spec.skeleton), ("weights", spec.weights),
@@ -75,12 +75,13 @@ def _read_character(spec):
             check_regular_file(path, f"{what} file")
     suffix = spec.mesh.suffix.lower()
     if suffix == ".npz":
-        return (*read_character_npz(spec.mesh), None)
+        return (*read_character_npz(spec.mesh), None, None)
     if suffix in (".glb", ".gltf"):
         from puppet.rig.gltf import read_gltf
 
         character = read_gltf(spec.mesh, skin=spec.skin)
-        return character.V, character.F, character.W, character.skeleton, character.source_index
+        return (character.V, character.F, character.W, character.skeleton, character.source_index,
+                character.source)
     if suffix in (".obj", ".ply"):
         from puppet.rig.mesh_io import read_mesh
 
@@ -99,7 +100,7 @@ def _read_character(spec):
             from puppet.rig.bbw import bbw_weights
 
             W = bbw_weights(V, F, skeleton, path=spec.mesh)
-        return V, F, W, skeleton, None
+        return V, F, W, skeleton, None, None
     raise RigError(f"unknown character format {suffix!r} (known: .npz, .glb, .gltf, .obj, .ply)",
                    path=spec.path, field="mesh", line=spec.lines.top("mesh") if spec.lines else None)
 
@@ -114,7 +115,7 @@ def load_rig(path) -> Rig:
 
         c = read_gltf(path)
         return Rig(path.stem, c.V, c.F, c.skeleton, c.W, ServoMap([], path=path), path=path,
-                   source_index=c.source_index)
+                   source_index=c.source_index, source=c.source)
     if suffix == ".npz":
         V, F, W, skeleton = read_character_npz(path)
         return Rig(path.stem, V, F, skeleton, W, ServoMap([], path=path), path=path)
@@ -154,7 +155,7 @@ def rig_from_spec(spec: RigFile) -> Rig:
     clusters than vertices, nothing holding the character in space) name the rig file's line.
     """
     path, lines = spec.path, spec.lines
-    V, F, W, skeleton, source_index = _read_character(spec)
+    V, F, W, skeleton, source_index, source = _read_character(spec)
     n = len(V)
 
     def fail(message, field_name, line):
@@ -199,7 +200,7 @@ def rig_from_spec(spec: RigFile) -> Rig:
         calibration = Calibration(path=spec.calibration)
     # Joint errors (unknown joint, >3 servos, repeated order) name the rig file's line.
     rig = Rig(spec.name, V, F, skeleton, W, spec.servo_map, calibration, spec.solver,
-              np.array(pins, np.int64), spec.fixed, path, source_index)
+              np.array(pins, np.int64), spec.fixed, path, source_index, source=source)
     rig.set_extras(spec.extras)
     problem = rig.anchor_problem()
     if problem is not None:

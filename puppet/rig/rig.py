@@ -22,6 +22,7 @@ from puppet.rig.errors import RigError
 from puppet.rig.servo_map import ServoMap
 from puppet.rig.skeleton import Skeleton
 from puppet.rig.solve_options import SolveExtras
+from puppet.rig.source_scene import SourceScene
 from puppet.rig.weight_check import WeightReport, check_weights
 
 
@@ -61,6 +62,9 @@ class Rig:
                     file's own order, its index in ``V`` (the loader welds copies that the file
                     split at UV seams). None means the file's order is ``V``'s. Exports that must
                     match the source file (PC2) write ``deformed[source_index]``.
+    source:         the glTF character file's look and place (``puppet.rig.source_scene.
+                    SourceScene``: attributes, materials, nodes), carried by exports; None for
+                    characters that are not glTF.
     """
 
     name: str
@@ -77,6 +81,7 @@ class Rig:
     source_index: np.ndarray | None = None
     extras: SolveExtras = field(default_factory=SolveExtras)
     contacts: tuple[tuple[int, str, tuple[float, float, float]], ...] = ()
+    source: SourceScene | None = None
 
     def __post_init__(self) -> None:
         self.V = np.ascontiguousarray(self.V, np.float64)

@@ -17,6 +17,14 @@ is a wrap, never a fast spin; ``puppet.servo_models.HALF_TURN``), and rounded to
 ticks. ``ok`` is both neighbours' ok (a flagged servo's ticks are what the reader recorded: its
 last good value); a time on a reading is that reading. Nothing here reads a clock: the frames
 are a pure function of the take's timestamps and ticks.
+
+Shots. A shot (a take with keys, ``puppet.take.keys``) plays its keys: key i is at
+``(frame_i − 1) / shot fps`` seconds, no gap is cut (the animator spaced them), and each frame
+also carries every joint's rotation (``Reading.rotations``), interpolated in rotation space by
+the key's rule (``puppet.take.inbetween``): the sensed joints' constraints of that frame, from
+which the FAST solve fills in the free bones. Ticks between keys are interpolated linearly (held
+after a "step" key): they are what servos are driven to (``perform``), not what the solve uses.
+At the shot's fps and speed 1 frame f is shot frame f + 1, so the frames are the last key's frame.
 """
 
 from __future__ import annotations
@@ -110,7 +118,7 @@ class Playback:
     """
 
     def __init__(self, t_ns, ticks, ok, ids, *, fps: float = 30.0, speed: float = 1.0,
-                 source="take"):
+                 source="take", interpolation=None, joint_rotations=None):
         self.fps = check_rate(fps, "frames per second", source)
         self.speed = check_rate(speed, "speed", source, SPEED)
         t = np.asarray(t_ns, np.int64)
@@ -129,7 +137,16 @@ class Playback:
         self.ids = np.asarray(ids)
         self.t_ns = t
         self.t_first_ns = int(t[0])
-        self.play_ns, self.cuts = play_times_ns(t)
+        self.interpolation = None if interpolation is None else tuple(interpolation)
+        if self.interpolation is None:
+            self.play_ns, self.cuts = play_times_ns(t)
+        else:  # a shot: keys at their frames, nothing cut
+            if len(self.interpolation) != len(t):
+                raise TakeError(source, f"{len(self.interpolation)} interpolations for "
+                                        f"{len(t)} keys")
+            self.play_ns, self.cuts = t - t[0], []
+        self._hold = (None if self.interpolation is None else
+                      np.array([kind == "step" for kind in self.interpolation]))
         self.duration_ns = int(self.play_ns[-1])
         self.duration_s = self.duration_ns * 1e-9
         self._step_ns = self.speed * 1e9 / self.fps
@@ -142,15 +159,46 @@ class Playback:
         k = self.ticks.shape[1]
         self._step = np.empty(k, np.int64)  # scratch of sample()
         self._part = np.empty(k, np.float64)
+        self._key_rot = self._frame_rot = None
+        if self.interpolation is not None and joint_rotations is not None:
+            self._key_rot = np.stack([joint_rotations(row) for row in self.ticks])  # (K, b, 3, 3)
+            self._frame_rot = self._rotations(self.frame_times_ns())  # (N, b, 3, 3)
 
     @classmethod
-    def of_take(cls, reader, ids, *, fps: float = 30.0, speed: float = 1.0) -> "Playback":
-        """The frames of an open TakeReader for the rig servos ``ids`` (its bus order)."""
+    def of_take(cls, reader, ids, *, fps: float = 30.0, speed: float = 1.0,
+                rig=None) -> "Playback":
+        """The frames of an open TakeReader for the rig servos ``ids`` (its bus order).
+
+        A shot plays its keys (the module docstring); rig (a ``puppet.rig.Rig``, calibrated as
+        the take: its servo map and skeleton) makes its frames carry the joint rotations.
+        """
         ids = [int(i) for i in ids]
+        keys = reader.keys()
+        if keys is not None and keys.keys:
+            where = {int(i): n for n, i in enumerate(reader.metadata.ids)}
+            reader.check_rig(ids)
+            order = np.array([where[i] for i in ids], np.int64)
+            rotations = None
+            if rig is not None:
+                def rotations(ticks):
+                    return rig.skeleton.joint_rotations(rig.servo_map.angles(ticks.astype(np.int32)))
+            return cls(keys.times_ns(reader.t_first_ns or 0),
+                       np.stack([k.ticks[order] for k in keys.keys]),
+                       np.stack([k.ok[order] for k in keys.keys]), np.asarray(ids), fps=fps,
+                       speed=speed, source=reader.path,
+                       interpolation=[k.interpolation for k in keys.keys],
+                       joint_rotations=rotations)
         if len(reader) == 0:
             raise TakeError(reader.path, "the take holds no readings")
         return cls(*reader.arrays(ids=ids), np.asarray(ids), fps=fps, speed=speed,
                    source=reader.path)
+
+    def _rotations(self, play_ns) -> np.ndarray:
+        """(N, b, 3, 3) joint rotations of a shot at play times (N,) ns."""
+        from puppet.take.inbetween import inbetween_rotations
+
+        return inbetween_rotations(self.play_ns, self._key_rot, self.interpolation,
+                                   np.asarray(play_ns, np.float64))
 
     def __len__(self) -> int:
         return self._count
@@ -180,7 +228,7 @@ class Playback:
         i = int(np.searchsorted(play, play_ns, side="right")) - 1
         if i < 0:
             i = 0
-        if i >= len(play) - 1 or play_ns <= play[i]:
+        if i >= len(play) - 1 or play_ns <= play[i] or (self._hold is not None and self._hold[i]):
             ticks[...] = self.ticks[i]
             ok[...] = self.ok[i]
             return
@@ -199,19 +247,23 @@ class Playback:
     def at(self, seconds: float) -> Reading:
         """The take at play time ``seconds`` as a Reading (fresh arrays), stamped t_first_ns +
         that play time."""
-        return self._reading(int(round(seconds * 1e9)))
+        play_ns = int(round(seconds * 1e9))
+        rotations = None if self._key_rot is None else self._rotations([play_ns])[0]
+        return self._reading(play_ns, rotations)
 
     def reading(self, f: int) -> Reading:
         """Frame f (0-based) as a Reading."""
         if not 0 <= f < self._count:
             raise IndexError(f"frame {f} of {self._count}")
-        return self._reading(self.frame_ns(f))
+        return self._reading(self.frame_ns(f),
+                             None if self._frame_rot is None else self._frame_rot[f])
 
-    def _reading(self, play_ns: int) -> Reading:
+    def _reading(self, play_ns: int, rotations=None) -> Reading:
         k = len(self.ids)
         ticks, ok = np.empty(k, np.int32), np.empty(k, bool)
         self.sample(play_ns, ticks, ok)
-        return Reading(t_ns=self.t_first_ns + play_ns, ids=self.ids, ticks=ticks, ok=ok)
+        return Reading(t_ns=self.t_first_ns + play_ns, ids=self.ids, ticks=ticks, ok=ok,
+                       rotations=rotations)
 
     def __iter__(self) -> Iterator[Reading]:
         for f in range(self._count):

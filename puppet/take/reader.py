@@ -177,6 +177,7 @@ class TakeReader:
     def __init__(self, path):
         self.path = Path(path)
         self.truncated = False
+        self.topics: set[str] = set()  # channels beside the readings (/puppet/markers, /puppet/keys)
         self.report = RecoveryReport()
         self._offsets = array("Q")
         self._times = array("q")
@@ -186,7 +187,9 @@ class TakeReader:
         with self._open_map(first=True) as mm:
             self.file_bytes = len(mm)
             self._scan(mm)
-        self._note_gaps()
+        self._keys = self._read_keys()
+        if self._keys is None:
+            self._note_gaps()  # a shot's keys are spaced by the animator: nothing is cut
         self.recovery: str | None = self.report.text()
 
     # ---- opening and scanning ----
@@ -554,6 +557,7 @@ class TakeReader:
     def _channel(self, s: "_ScanState", ch: Channel) -> None:
         if ch.topic != fmt.TOPIC:
             s.other_channels.add(ch.id)
+            self.topics.add(ch.topic)
             return
         version = s.version
         if version is None:  # the take metadata is damaged: the schema tells the version
@@ -713,6 +717,22 @@ class TakeReader:
         if order is not None:
             ticks, ok = ticks[:, order], ok[:, order]
         return t_ns.astype(np.int64), ticks, ok
+
+    def keys(self):
+        """The shot's keys (``puppet.take.keys.Keys``, in the take's ids order), or None for a
+        take without a keys channel; damaged keys it skipped are in ``recovery``."""
+        return self._keys
+
+    def _read_keys(self):
+        from puppet.take.keys import KEY_TOPIC, read_keys
+
+        if KEY_TOPIC not in self.topics:
+            return None
+        keys = read_keys(self.path, len(self.metadata.ids))
+        if keys.skipped:
+            self.report.notes.append(f"skipped {len(keys.skipped)} damaged key(s): "
+                                     + "; ".join(keys.skipped[:5]))
+        return keys
 
     def check_rig(self, ids, models: dict[int, str] | None = None, rig_name: str | None = None):
         """Raise TakeRigMismatch unless this take's servos are the rig's (see check_take_rig)."""

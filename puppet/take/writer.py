@@ -68,6 +68,7 @@ class TakeWriter:
         self._codec = fmt.ReadingCodec(self.k)
         self._ids_checked = None
         self._last_t_ns: int | None = None
+        self._first_t_ns: int | None = None
         self._closed = False
         try:
             self._file = open(self.path, "wb" if overwrite else "xb")
@@ -147,6 +148,8 @@ class TakeWriter:
         except OSError as e:
             self._fail(e, f"cannot write reading {self.count}")
         self._last_t_ns = t_ns
+        if self._first_t_ns is None:
+            self._first_t_ns = t_ns
         self.count += 1
         if self.fsync_interval_s is not None:
             now = time.monotonic()
@@ -187,6 +190,32 @@ class TakeWriter:
         self._mcap.add_message(self._marker_channel, log_time=int(t_ns), data=payload,
                                publish_time=int(t_ns), sequence=self._marker_count)
         self._marker_count += 1
+        self._mcap.flush()
+        self._file.flush()
+
+    def keys(self, keys) -> None:
+        """Store a shot's keys (``puppet.take.keys.Keys``) on their own channel, each at its
+        time ``t_ns`` of the first reading + (frame − 1) / fps (see puppet.take.keys); call it
+        after writing the readings, before close()."""
+        from puppet.take import keys as key_format
+
+        if self._closed:
+            raise TakeError(self.path, "keys() after close()")
+        key_format.check_frames([k.frame for k in keys.keys], self.path)
+        schema = self._mcap.register_schema(key_format.KEY_SCHEMA_NAME,
+                                            key_format.KEY_SCHEMA_ENCODING,
+                                            key_format.KEY_SCHEMA.encode())
+        channel = self._mcap.register_channel(key_format.KEY_TOPIC,
+                                              key_format.KEY_MESSAGE_ENCODING, schema,
+                                              {"fps": repr(float(keys.fps))})
+        t0 = self._first_t_ns if self._first_t_ns is not None else 0
+        for index, (key, t_ns) in enumerate(zip(keys.keys, keys.times_ns(t0))):
+            if key.ticks.shape != (self.k,) or key.ok.shape != (self.k,):
+                raise TakeError(self.path, f"key {index}: ticks {key.ticks.shape} / ok "
+                                           f"{key.ok.shape}, the take has {self.k} servos")
+            self._mcap.add_message(channel, log_time=int(t_ns),
+                                   data=key_format.encode_key(index, key),
+                                   publish_time=int(t_ns), sequence=index)
         self._mcap.flush()
         self._file.flush()
 

@@ -130,7 +130,7 @@ class TakeSource(_PacedSource):
             self._advance()
             position = self._position_s
         shown = self._frames.at(position)
-        return Reading(time.monotonic_ns(), self.ids, shown.ticks, shown.ok)
+        return Reading(time.monotonic_ns(), self.ids, shown.ticks, shown.ok, shown.rotations)
 
     def state(self) -> dict:
         return {"position_s": round(self._position_s, 3), "duration_s": round(self.duration_s, 3),

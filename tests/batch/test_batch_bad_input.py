@@ -49,14 +49,6 @@ def test_bad_formats_and_sizes(tmp_path, session):
     assert list(tmp_path.iterdir()) == []
 
 
-def test_two_takes_with_one_name_would_collide(tmp_path, critter, tools):
-    for name in ("a", "b"):
-        (tmp_path / name).mkdir()
-    a = tools.write_take(tmp_path / "a" / "take.mcap", critter)
-    b = tools.write_take(tmp_path / "b" / "take.mcap", critter)
-    assert_clean_error(run(a, b, "--out", tmp_path / "out"), "same name", str(a))
-
-
 def test_ray_missing_is_named_with_its_install_command(tmp_path, session):
     hide_ray = "import sys; sys.modules['ray'] = None\n"  # `import ray` raises ImportError
     result = run(session[0], "--out", tmp_path / "out", "--engine", "ray", python_prefix=hide_ray)

@@ -66,7 +66,8 @@ def test_rows_progress_lines_and_log_files(tmp_path, critter, tools):
     corrupt_log = (out / "corrupt.log").read_text()
     assert "state: failed" in corrupt_log and f"error: {corrupt}" in corrupt_log
     assert sorted(p.name for p in out.iterdir()) == sorted(
-        ["good.pc2", "good.bvh", "good.log", "gap.pc2", "gap.bvh", "gap.log", "corrupt.log"])
+        ["good.pc2", "good.bvh", "good.log", "good.batch.json", "gap.pc2", "gap.bvh", "gap.log",
+         "gap.batch.json", "corrupt.log"])
 
 
 def test_the_summary_table_shows_every_row(tmp_path):

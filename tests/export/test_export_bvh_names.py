@@ -12,7 +12,7 @@ import numpy as np
 import pygltflib
 import pytest
 
-from puppet.export import BvhWriter, Outputs, export_take
+from puppet.export import BvhWriter, Outputs, export_take, mesh_end_sites
 from puppet.export.names import safe_name, safe_names
 from puppet.rig import load_rig
 from puppet.rig.init_file import write_rig_init
@@ -85,6 +85,20 @@ def test_blender_imports_every_kept_name_unchanged(tmp_path):
     assert [j[0] for j in parse_bvh(path.read_text())[0]] == KEPT
     bones = run_bpy(IMPORT_BVH, path)["bones"]
     assert sorted(bones) == sorted(KEPT)
+
+
+def test_end_sites_follow_the_vertices_each_leaf_moves_most():
+    """A chain root -> a (leaf along +x) and root -> b (leaf of no length, frame +Y = +z) and
+    c (a leaf no vertex follows most): a reaches its farthest vertex along the bone, not the
+    farthest from its pivot; b's points along its frame's +Y; c keeps the rig's tail."""
+    heads = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, -1, 0]], float)
+    tails = np.array([[0, 0.5, 0], [1.2, 0, 0], [0, 1, 0], [0, -1.3, 0]], float)
+    frames = np.tile(np.eye(3), (4, 1, 1))
+    frames[2] = [[1, 0, 0], [0, 0, -1], [0, 1, 0]]  # columns x, y = +z, z
+    V = np.array([[1.7, 0.0, 0.0], [1.5, 0.9, 0.0], [0.1, 1.0, 0.6], [0.0, 1.0, -0.2], [0.2, 0.0, 0.0]])
+    W = np.array([[0.1, 0.9, 0, 0], [0.2, 0.8, 0, 0], [0, 0, 1, 0], [0.3, 0, 0.7, 0], [1, 0, 0, 0]])
+    ends = mesh_end_sites(heads, tails, frames, np.array([-1, 0, 0, 0]), V, W)
+    np.testing.assert_allclose(ends, [[0, 0.5, 0], [0.7, 0, 0], [0, 0, 0.6], [0, -0.3, 0]])
 
 
 @pytest.fixture(scope="module")

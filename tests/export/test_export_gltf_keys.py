@@ -161,7 +161,8 @@ def test_blender_plays_the_reduced_keys_within_the_tolerance(exports):
             b = np.array(reduced[bone])
             a = np.array(a)
             qa, qb = a[:4] / np.linalg.norm(a[:4]), b[:4] / np.linalg.norm(b[:4])  # Blender normalizes
-            angle = np.degrees(4 * np.arcsin(min(1.0, min(np.linalg.norm(qa - qb), np.linalg.norm(qa + qb)) / 2)))
+            chord = min(np.linalg.norm(qa - qb), np.linalg.norm(qa + qb))  # either sign
+            angle = np.degrees(4 * np.arcsin(min(1.0, chord / 2)))
             worst_deg = max(worst_deg, angle)
             worst_units = max(worst_units, float(np.linalg.norm(a[4:] - b[4:])))
     print(f"\nBlender: reduced vs every-frame keys, worst {worst_deg:.3f}° and {worst_units:.2e} units")

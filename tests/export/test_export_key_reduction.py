@@ -12,7 +12,7 @@ TIMES = np.arange(1, 121) / 30.0  # 120 frames at 30 fps, frame k at k/30 s
 
 
 def hemisphere(q):
-    """(N, 4) quaternions with each one on the hemisphere of the one before (as the writer keeps them)."""
+    """(N, 4) quaternions, each on the hemisphere of the one before (as the writer keeps them)."""
     q = np.array(q, float)
     for i in range(1, len(q)):
         if q[i] @ q[i - 1] < 0:
@@ -48,7 +48,8 @@ def test_a_polyline_keeps_exactly_its_corners():
 
 def test_a_steady_turn_needs_two_keys_and_a_still_channel_too():
     angles = np.radians(np.linspace(0.0, 20.0, 120))
-    q = Rotation.from_rotvec(np.outer(angles, [0.3, 0.8, -0.52] / np.linalg.norm([0.3, 0.8, -0.52]))).as_quat()
+    axis = np.array([0.3, 0.8, -0.52]) / np.linalg.norm([0.3, 0.8, -0.52])
+    q = Rotation.from_rotvec(np.outer(angles, axis)).as_quat()
     assert reduce_curve(TIMES, hemisphere(q), "rotation", 0.1).tolist() == [0, 119]
     still = np.tile([0.0, 0.0, 0.0, 1.0], (120, 1))
     assert reduce_curve(TIMES, still, "rotation", 0.1).tolist() == [0, 119]
@@ -58,7 +59,8 @@ def test_a_steady_turn_needs_two_keys_and_a_still_channel_too():
 def test_every_frame_stays_within_the_tolerance_for_both_readers(tol):
     rng = np.random.default_rng(4)
     t = np.arange(120) / 30.0
-    rotvec = np.stack([0.9 * np.sin(1.7 * t + 0.3), 0.5 * np.sin(3.1 * t), 1.2 * np.sin(0.8 * t + 1.0)], 1)
+    rotvec = np.stack([0.9 * np.sin(1.7 * t + 0.3), 0.5 * np.sin(3.1 * t),
+                       1.2 * np.sin(0.8 * t + 1.0)], 1)
     rotvec += rng.normal(0.0, 0.002, rotvec.shape)  # a solve's small wobble
     values = hemisphere(Rotation.from_rotvec(rotvec).as_quat())
     keys = reduce_curve(TIMES, values, "rotation", tol)

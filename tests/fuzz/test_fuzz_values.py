@@ -261,6 +261,8 @@ OPTIONS = [
     (["rig", "axes"], "--angle", ["r.toml"], 1),
     (["export"], "--keys", ["take.mcap", "--gltf", "a.glb"], 1),
     (["export"], "--keys-units", ["take.mcap", "--gltf", "a.glb", "--keys", "1"], 1),
+    (["batch"], "--keys", ["t.mcap", "--out", "o", "--formats", "gltf"], 1),
+    (["batch"], "--keys-units", ["t.mcap", "--out", "o", "--formats", "gltf", "--keys", "1"], 1),
 ]
 # Options whose value is checked when the command runs (a string until then).
 RUN_CHECKED = {("export", "--fps"), ("batch", "--fps")}

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import subprocess
+import sys
 from contextlib import contextmanager
 
 import dynamixel_sdk.port_handler as sdk_port_handler
@@ -53,3 +55,37 @@ def bus():
 def sdk(bus, open_sdk):
     """The SDK opened on ``bus``'s pty (closed after the test, before the bus stops)."""
     return open_sdk(bus.port)
+
+
+class HwSim:
+    """``hw-sim ARGS`` as a user runs it: the port it prints, stopped with Ctrl-C."""
+
+    def __init__(self, interrupt_and_wait, *args: str) -> None:
+        self.interrupt_and_wait = interrupt_and_wait
+        self.proc = subprocess.Popen([sys.executable, "-m", "hw_sim.cli", *args],
+                                     stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        self.port = self.proc.stdout.readline().strip()
+
+    def stop(self) -> str:
+        """Ctrl-C; its stderr (AssertionError unless it exited 0)."""
+        code = self.interrupt_and_wait(self.proc)
+        err = self.proc.stderr.read()
+        assert code == 0, err
+        return err
+
+
+@pytest.fixture
+def hw_sim_command(interrupt_and_wait):
+    """Factory: ``hw_sim_command(*args)`` -> a running ``hw-sim ARGS`` (HwSim); the test stops it
+    (``stop()``), and any left running is stopped after the test."""
+    started = []
+
+    def start(*args: str) -> HwSim:
+        sim = HwSim(interrupt_and_wait, *args)
+        started.append(sim)
+        return sim
+
+    yield start
+    for sim in started:
+        if sim.proc.poll() is None:
+            interrupt_and_wait(sim.proc)

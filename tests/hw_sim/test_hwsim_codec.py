@@ -55,3 +55,41 @@ def test_parser_flags_bad_crc():
     bad = PING_1[:-1] + b"\x00"
     (ins,) = InstructionParser().feed(bad)
     assert ins.crc_ok is False
+
+
+# ---- Protocol 1.0 (hw_sim.codec1) --------------------------------------------------------------
+def test_p1_packets_match_emanual():
+    from hw_sim import codec1
+
+    # e-manual Protocol 1.0 example: write 100 and 170 at address 12 of servo 1.
+    assert codec1.packet(1, codec1.WRITE, bytes((0x0C, 0x64, 0xAA))) == \
+        bytes.fromhex("ff ff 01 05 03 0c 64 aa dc")
+    assert codec1.status_packet(1, 0) == bytes.fromhex("ff ff 01 02 00 fc")
+    assert codec1.status_packet(1, 0x20, b"\x00\x02") == bytes.fromhex("ff ff 01 04 20 00 02 d8")
+
+
+def test_p1_parser_skips_garbage_splits_and_flags_bad_checksums():
+    from hw_sim import codec1
+
+    read = codec1.packet(3, codec1.READ, bytes((36, 2)))
+    parser = codec1.InstructionParser()
+    assert parser.feed(b"\x00\x12\xff" + read[:5]) == []  # garbage, a lone FF, half a packet
+    (ins,) = parser.feed(read[5:])
+    assert (ins.dxl_id, ins.inst, ins.params, ins.raw_len, ins.crc_ok) == (3, 0x02, b"\x24\x02", 8, True)
+    (shifted,) = parser.feed(b"\xff" + read)  # FF FF FF: the header starts one byte later
+    assert (shifted.dxl_id, shifted.crc_ok) == (3, True)
+    (bad,) = parser.feed(read[:-1] + bytes((read[-1] ^ 0xFF,)))
+    assert (bad.dxl_id, bad.crc_ok) == (3, False)
+    assert parser.pending == 0
+
+
+def test_p1_error_byte_maps_errors_and_keeps_hardware_bits():
+    from hw_sim import codec, codec1
+
+    assert codec1.error_byte(codec.ERR_DATA_LIMIT, 0) == codec1.ERR_ANGLE
+    assert codec1.error_byte(codec.ERR_ACCESS, 0) == codec1.ERR_RANGE
+    assert codec1.error_byte(codec.ERR_CRC, 0) == codec1.ERR_CHECKSUM
+    assert codec1.error_byte(codec.ERR_INSTRUCTION, 0) == codec1.ERR_INSTRUCTION
+    # overheating and overload sit at the same bits; encoder / electrical shock have none.
+    assert codec1.error_byte(0, 0x04 | 0x20 | 0x08 | 0x10) == codec1.ERR_OVERHEAT | codec1.ERR_OVERLOAD
+    assert codec.error_byte(codec.ERR_ACCESS, 0x20) == codec.ERR_ACCESS | codec.ALERT

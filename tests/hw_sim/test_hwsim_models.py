@@ -120,6 +120,35 @@ def test_every_model_is_served_and_read_by_the_bus():
             reader.close()
 
 
+def test_every_model_is_served_and_read_through_the_sdk_at_its_own_addresses(open_sdk):
+    # One bus per protocol; each servo pinged (model number) and read with the SDK of its
+    # protocol where puppet's table says its items are: Present Position (the middle of its
+    # range, held still), Present Temperature, Torque Enable; then turned on and sent a goal.
+    for protocol in (1.0, 2.0):
+        names = [name for name, m in MODELS.items() if m.protocol == protocol]
+        servos = {k + 1: name for k, name in enumerate(names)}
+        with hw_sim.serve(servos) as bus:
+            sdk = open_sdk(bus.port, protocol=protocol)
+            ph, port = sdk.packet, sdk.port
+            read = {1: ph.read1ByteTxRx, 2: ph.read2ByteTxRx, 4: ph.read4ByteTxRx}
+            write = {1: ph.write1ByteTxRx, 2: ph.write2ByteTxRx, 4: ph.write4ByteTxRx}
+            for i, name in servos.items():
+                items = MODELS[name].items
+                assert ph.ping(port, i)[:2] == (MODELS[name].number, 0), name
+                position = items.present_position
+                assert read[position.size](port, i, position.address)[:2] == \
+                    (MODELS[name].position_ticks // 2, 0), name
+                temperature = items.present_temperature
+                assert read[temperature.size](port, i, temperature.address)[:2] == \
+                    (bus.servo(i).get("Present Temperature"), 0), name
+                assert write[1](port, i, items.torque_enable.address, 1) == (0, 0), name
+                goal = MODELS[name].position_ticks // 2 + 10
+                assert write[items.goal_position.size](port, i, items.goal_position.address,
+                                                        goal) == (0, 0), name
+                assert read[1](port, i, items.torque_enable.address)[:2] == (1, 0), name
+                assert bus.servo(i).get("Goal Position") == goal, name
+
+
 def test_every_model_reports_a_load_in_its_own_current_unit(open_sdk, wait_until):
     # A load of half the motor's current (plus the idle current) reads back, through the SDK,
     # as that current in the model's Present Current unit, or as Present Load (0.1 % of the
@@ -204,22 +233,6 @@ def test_servos_option_parses_mixed_models():
             hw_sim.cli.parse_servos(bad, "XL330-M288")
 
 
-class HwSim:
-    """``hw-sim ARGS`` as a user runs it: the port it prints, stopped with Ctrl-C."""
-
-    def __init__(self, interrupt_and_wait, *args: str) -> None:
-        self.interrupt_and_wait = interrupt_and_wait
-        self.proc = subprocess.Popen([sys.executable, "-m", "hw_sim.cli", *args],
-                                     stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-        self.port = self.proc.stdout.readline().strip()
-
-    def stop(self) -> str:
-        code = self.interrupt_and_wait(self.proc)
-        err = self.proc.stderr.read()
-        assert code == 0, err
-        return err
-
-
 def served(open_sdk, short, port: str, expected: dict[int, int], ids) -> dict[int, int]:
     """{id: model number} of the ids in ``ids`` that answer a ping: those in ``expected`` are
     pinged with the patient deadline, the others (which must stay silent) with a short one."""
@@ -237,9 +250,9 @@ def served(open_sdk, short, port: str, expected: dict[int, int], ids) -> dict[in
 
 
 def test_hw_sim_rig_serves_exactly_the_rigs_servos_within_limits(tmp_path, open_sdk, short,
-                                                                  interrupt_and_wait):
+                                                                  hw_sim_command):
     path = rig_file(tmp_path)
-    sim = HwSim(interrupt_and_wait, "--rig", str(path))
+    sim = hw_sim_command("--rig", str(path))
     try:
         assert sim.port.startswith("/dev/pts/")
         expected = {3: 1220, 7: 1120, 20: 1090}
@@ -264,8 +277,8 @@ def test_hw_sim_rig_serves_exactly_the_rigs_servos_within_limits(tmp_path, open_
     assert "motion within the rig's limits" in err
 
 
-def test_hw_sim_servos_serves_mixed_models_without_a_rig(open_sdk, short, interrupt_and_wait):
-    sim = HwSim(interrupt_and_wait, "--servos", "1-3:XL330-M288,4-9:XL430-W250", "--motion", "wave")
+def test_hw_sim_servos_serves_mixed_models_without_a_rig(open_sdk, short, hw_sim_command):
+    sim = hw_sim_command("--servos", "1-3:XL330-M288,4-9:XL430-W250", "--motion", "wave")
     try:
         expected = {**{i: 1200 for i in (1, 2, 3)}, **{i: 1060 for i in range(4, 10)}}
         assert served(open_sdk, short, sim.port, expected, range(1, 11)) == expected

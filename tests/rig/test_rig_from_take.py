@@ -85,7 +85,8 @@ def test_the_character_next_to_the_take_is_used_when_the_rig_folder_is_gone(tmp_
     error = result.stderr.strip().splitlines()[-1]
     assert error.startswith(f"Error: {take} (rig map):3: mesh: character file not found: looked at "
                             f"{tmp_path / 'studio' / 'critter.npz'} and {take.parent / 'critter.npz'}")
-    assert error.endswith("pass --rig with the rig file")
+    assert error.endswith(f"recorded with rig file {rig_path.resolve()}; pass --rig with that "
+                          "rig file")
     shutil.copy(tmp_path / "moved" / "critter.npz", take.parent / "critter.npz")
     result, bvh = export(take, tmp_path)
     assert result.exit_code == 0, result.output

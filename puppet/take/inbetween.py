@@ -1,0 +1,52 @@
+"""In-betweens of key poses in rotation space: each joint's rotation between two keys.
+
+Per key, the frames from it to the next key are filled by its interpolation
+(``puppet.take.keys.INTERPOLATIONS``): "linear" is the slerp of each joint's rotation (constant
+angular speed along the shortest arc), "smooth" a C2 cubic spline in rotation space through all
+the shot's keys (scipy's RotationSpline, per joint), "step" holds the key. These rotations are
+the sensed joints' constraints of the in-between frames; the FAST solve fills in the free
+bones from them (``Playback`` hands them on with each frame, ``Pipeline.solve`` uses them).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+def inbetween_rotations(key_ns: np.ndarray, key_rot: np.ndarray, interpolation,
+                        play_ns: np.ndarray) -> np.ndarray:
+    """Each joint's rotation at play times, from the keys'.
+
+    key_ns: (K,) int64 key times, strictly increasing, ns. key_rot: (K, b, 3, 3) float64
+    model-space joint rotations of every key. interpolation: (K,) str, one per key.
+    play_ns: (N,) times, ns (before the first key: the first key; after the last: the last).
+    Returns (N, b, 3, 3) float64 (a time on a key is that key's rotations, exactly).
+    """
+    from scipy.spatial.transform import Rotation, RotationSpline
+
+    key_ns = np.asarray(key_ns, np.int64)
+    key_rot = np.asarray(key_rot, np.float64)
+    t = np.asarray(play_ns, np.float64)
+    K, b = key_rot.shape[:2]
+    i = np.clip(np.searchsorted(key_ns, t, side="right") - 1, 0, K - 1)
+    out = key_rot[i].copy()  # held: "step", on a key, outside the keys
+    if K < 2:
+        return out
+    nxt = np.minimum(i + 1, K - 1)
+    inside = (t > key_ns[i]) & (i < K - 1)
+    span = np.maximum(key_ns[nxt] - key_ns[i], 1).astype(np.float64)
+    a = (t - key_ns[i]) / span
+    kinds = np.asarray(interpolation)[i]
+    linear = inside & (kinds == "linear")
+    if linear.any():
+        r0 = Rotation.from_matrix(key_rot[i[linear]].reshape(-1, 3, 3))
+        r1 = Rotation.from_matrix(key_rot[nxt[linear]].reshape(-1, 3, 3))
+        turn = (r0.inv() * r1).as_rotvec() * np.repeat(a[linear], b)[:, None]
+        out[linear] = (r0 * Rotation.from_rotvec(turn)).as_matrix().reshape(-1, b, 3, 3)
+    smooth = inside & (kinds == "smooth")
+    if smooth.any():
+        seconds = key_ns * 1e-9
+        for bone in range(b):
+            spline = RotationSpline(seconds, Rotation.from_matrix(key_rot[:, bone]))
+            out[smooth, bone] = spline(t[smooth] * 1e-9).as_matrix()
+    return out

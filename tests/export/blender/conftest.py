@@ -1,0 +1,213 @@
+"""Takes of two characters exported as docs/blender.md says, and what Blender shows of them.
+
+Blender runs as the ``bpy`` module (Blender as a Python module, from PyPI; the test extras list
+it) in a subprocess: ``docs/blender_check.py`` does every step of docs/blender.md and saves what
+each step shows. The characters:
+
+- critter: the built-in character (its mesh comes from an .npz, so the PC2 and the BVH go on the
+  mesh of the exported .glb), the shared 24 fps export of tests/export/conftest.py's take;
+- mare: the seamed, textured character of ``character.py``, its armature and mesh nodes moved,
+  turned and scaled unevenly, exported at 30 fps (so a scene left at Blender's 24 fps would show).
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import json
+import subprocess
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+HERE = Path(__file__).resolve().parent
+CHECK_SCRIPT = HERE.parents[2] / "docs" / "blender_check.py"
+#: Blender's importers turn puppet's +Y-up model frame to Blender's +Z up: (x, y, z) -> (x, -z, y).
+Y_UP_TO_BLENDER = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])
+BLENDER_TIMEOUT_S = 900  # one subprocess does every step; about 10 s on a quiet machine
+
+
+def load_module(name: str, path: Path):
+    """A test helper module by path (pytest runs with --import-mode=importlib)."""
+    spec = importlib.util.spec_from_file_location(name, path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+character = load_module("blender_test_character", HERE / "character.py")
+export_data = load_module("blender_test_export_data", HERE.parent / "conftest.py")
+
+
+def bpy_missing() -> str | None:
+    """Why ``bpy`` cannot run here, or None."""
+    if importlib.util.find_spec("bpy") is not None:
+        return None
+    version = f"{sys.version_info.major}.{sys.version_info.minor}"
+    if version != "3.11":
+        return (f"bpy (Blender 5.0 as a Python module) cannot install here: PyPI has its wheels "
+                f"for Python 3.11 only and this is Python {version}; the test extras install it "
+                f"under Python 3.11 (pip install '.[test]', as CI does)")
+    return ("bpy (Blender 5.0 as a Python module) is not installed: pip install '.[test]' "
+            "installs it (as CI does), or pip install bpy")
+
+
+@pytest.fixture(scope="session", autouse=True)
+def needs_bpy():
+    """Every test here runs Blender: skipped, saying why, where bpy is not installed."""
+    reason = bpy_missing()
+    if reason:
+        pytest.skip(reason)
+
+
+@dataclass
+class Shown:
+    """One character's export and what Blender showed of it.
+
+    expected: (N, n_file, 3) the solver's vertices of every frame, in the character file's vertex
+        order, in Blender's world axes (what every step should show, up to skinning);
+        rest_expected (n_file, 3) the rig's rest vertices the same way; rigid_skinning
+        (N, n_file, 3) the same way, linear blend skinning with the file's 4 largest weights of
+        the joints' rigid maps (rotation part and pivot of each FAST handle: what a BVH drives).
+    diagonal: rest bounding-box diagonal (model units), the yardstick of every % below.
+    fps, frames: the export's rate and frame count; report: ``puppet export --json``'s report.
+    steps: {step: {"vertices": (frames, n, 3) world vertices, "fps", "frame_start",
+        "frame_end", ...}} as docs/blender_check.py saved them.
+    joint_names: the rig's joint names (the character file's); blender_output: what
+        docs/blender_check.py printed (one line per step).
+    """
+
+    name: str
+    expected: np.ndarray
+    rest_expected: np.ndarray
+    rigid_skinning: np.ndarray
+    diagonal: float
+    fps: float
+    frames: int
+    report: dict
+    steps: dict
+    joint_names: tuple
+    blender_output: str
+
+
+STEP_FILES = {"gltf": "--glb", "pc2": "--pc2", "bvh": "--bvh", "usd": "--usd"}
+
+
+def run_blender_check(folder: Path, fps: float, frames: int, files: dict, character_file=None) -> tuple[dict, str]:
+    """Run docs/blender_check.py on the files of an export ({format: path}, any of them):
+    ({step: shown}, what it printed)."""
+    saved = folder / "shown.npz"
+    argv = [sys.executable, str(CHECK_SCRIPT), "--fps", f"{fps:g}", "--frames", str(frames),
+            "--save", str(saved)]
+    argv += [arg for fmt, path in files.items() for arg in (STEP_FILES[fmt], str(path))]
+    if character_file is not None:
+        argv += ["--character", str(character_file)]
+    result = subprocess.run(argv, cwd=folder, capture_output=True, text=True, timeout=BLENDER_TIMEOUT_S)
+    assert result.returncode == 0, result.stdout[-4000:] + result.stderr[-4000:]
+    with np.load(saved) as data:
+        meta = json.loads(str(data["meta"]))
+        for key in data.files:
+            if key != "meta":
+                step, field = key.split(".")
+                meta[step][field] = data[key]
+    return meta, result.stdout
+
+
+DOCS_FILES = {"gltf": "anim.glb", "usd": "anim.usdc", "bvh": "skeleton.bvh", "pc2": "mesh.pc2"}
+
+
+def export(folder: Path, take: Path, fps: float, rig_file=None, formats=tuple(DOCS_FILES),
+           options=("--up", "z")) -> tuple[dict, dict]:
+    """``puppet export`` as docs/blender.md writes it: ({format: path}, its --json report)."""
+    files = {fmt: folder / DOCS_FILES[fmt] for fmt in formats}
+    argv = ["puppet", "export", str(take), "--fps", f"{fps:g}", *options, "--json"]
+    argv += [arg for fmt, path in files.items() for arg in (f"--{fmt}", str(path))]
+    if rig_file is not None:
+        argv += ["--rig", str(rig_file)]
+    result = subprocess.run(argv, capture_output=True, text=True, timeout=600)
+    assert result.returncode == 0, result.stderr
+    return files, json.loads(result.stdout.strip().splitlines()[-1])
+
+
+def rigid_skinning(rig, Ts: np.ndarray) -> np.ndarray:
+    """(N, n, 3) model-space linear blend skinning of the rig's rest vertices by each joint's
+    rigid map P_j (``puppet.export.JointTransforms``) for every frame's T (N, 4m, 3), with each
+    vertex's 4 largest weights renormalized (what a glTF skin holds)."""
+    from puppet.export import JointTransforms
+    from puppet.export.gltf import top_weights
+
+    joints, weights = top_weights(rig.W, 4)
+    maps = JointTransforms(rig.skeleton.heads)
+    Vh = np.hstack([rig.V, np.ones((len(rig.V), 1))])
+    out = []
+    for T in Ts:
+        P = maps.update(T).world  # (b, 3, 4)
+        posed = np.einsum("bij,nj->nbi", P, Vh)  # every vertex by every joint
+        out.append(np.einsum("nk,nki->ni", weights, np.take_along_axis(posed, joints[:, :, None], 1)))
+    return np.array(out)
+
+
+def shown_for(name, rig, take, folder, fps, reference, rig_file=None, character_file=None) -> Shown:
+    files, report = export(folder, take, fps, rig_file)
+    order = np.arange(len(rig.V)) if rig.source_index is None else np.asarray(rig.source_index)
+    expected = reference.deformed[:, order] @ Y_UP_TO_BLENDER.T
+    steps, output = run_blender_check(folder, fps, len(expected), files, character_file)
+    rest = rig.V[order] @ Y_UP_TO_BLENDER.T
+    rigid = rigid_skinning(rig, reference.T)[:, order] @ Y_UP_TO_BLENDER.T
+    return Shown(name, expected, rest, rigid, float(np.linalg.norm(rig.V.max(0) - rig.V.min(0))), fps,
+                 len(expected), report, steps, tuple(rig.skeleton.names), output)
+
+
+@pytest.fixture(scope="session")
+def critter_shown(tmp_path_factory, critter, take30, fps, reference) -> Shown:
+    return shown_for("critter", critter, take30, tmp_path_factory.mktemp("critter_blender"), fps,
+                     reference)
+
+
+@pytest.fixture(scope="session")
+def mare_files(tmp_path_factory):
+    """(folder, character .glb, rig file, take) of the transformed, seamed character."""
+    folder = tmp_path_factory.mktemp("mare")
+    glb = character.write_glb(folder / "mare.glb")
+    rig_file = folder / "mare.toml"
+    rig_file.write_text(character.rig_text(glb.name))
+    from puppet.rig import load_rig
+
+    rig = load_rig(rig_file)
+    take = export_data.write_take(folder / "mare.mcap", rig, readings=40)
+    return folder, glb, rig_file, take
+
+
+@pytest.fixture(scope="session")
+def mare_shown(mare_files) -> Shown:
+    from puppet.rig import load_rig
+
+    folder, glb, rig_file, take = mare_files
+    rig = load_rig(rig_file)
+    reference = export_data.reference_solve(rig, take, fps=30.0)
+    return shown_for("mare", rig, take, folder, 30.0, reference, rig_file, glb)
+
+
+@dataclass
+class Keyed:
+    """A glTF exported with ``--keys``: its report, and the glTF steps in Blender."""
+
+    report: dict
+    gltf: dict
+
+
+@pytest.fixture(scope="session")
+def critter_keyed(tmp_path_factory, critter_shown, take30, fps) -> Keyed:
+    """The critter's take exported with --keys 0.5 (glTF only) and imported into Blender."""
+    folder = tmp_path_factory.mktemp("critter_keys")
+    files, report = export(folder, take30, fps, formats=("gltf",), options=("--keys", "0.5"))
+    steps, _ = run_blender_check(folder, fps, critter_shown.frames, files)
+    return Keyed(report, steps["gltf"])
+
+
+@pytest.fixture(params=["critter", "mare"])
+def shown(request) -> Shown:
+    """Each character in turn."""
+    return request.getfixturevalue(f"{request.param}_shown")

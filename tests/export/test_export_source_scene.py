@@ -1,0 +1,317 @@
+"""Exports carry the character file's look and place: a glTF character whose armature and mesh
+nodes are moved, turned and non-uniformly scaled, with a UV seam, two UV sets, vertex colours
+and an embedded texture (``dressed_character.py``). The PC2 lands on it in the mesh object's
+local space; the .glb keeps the file's vertices, attributes, material, image and nodes."""
+
+import importlib.util
+import struct
+import subprocess
+from pathlib import Path
+
+import numpy as np
+import pygltflib
+import pytest
+
+from puppet.export import Outputs, export_take
+from puppet.export.joint_transforms import JointTransforms
+from puppet.rig import load_rig
+from puppet.take import TakeReader
+
+DTYPES = {5121: np.uint8, 5123: np.uint16, 5125: np.uint32, 5126: np.float32}
+WIDTHS = {"SCALAR": 1, "VEC2": 2, "VEC3": 3, "VEC4": 4, "MAT4": 16}
+RIG = """name = "pillar"
+mesh = "{mesh}"
+fixed = ["root"]
+
+[solver]
+clusters = 8
+
+[[servo]]
+id = 2
+model = "XL330-M288"
+joint = "mid"
+axis = "x"
+zero_ticks = 2048
+limits_deg = [-90, 90]
+
+[[servo]]
+id = 3
+model = "XL330-M288"
+joint = "top"
+axis = "z"
+zero_ticks = 2048
+limits_deg = [-90, 90]
+"""
+
+
+def _module(name):
+    spec = importlib.util.spec_from_file_location(f"export_{name}", Path(__file__).with_name(f"{name}.py"))
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+dressed = _module("dressed_character")
+shared = _module("conftest")
+
+
+def accessor(gltf, index):
+    a = gltf.accessors[index]
+    view = gltf.bufferViews[a.bufferView]
+    width = WIDTHS[a.type]
+    data = np.frombuffer(gltf.binary_blob(), DTYPES[a.componentType], count=a.count * width,
+                         offset=view.byteOffset + (a.byteOffset or 0))
+    return data.reshape(a.count, width) if width > 1 else data
+
+
+def read_pc2(path):
+    data = Path(path).read_bytes()
+    _, _, n, _, _, samples = struct.unpack("<12siiffi", data[:32])
+    return np.frombuffer(data, np.float32, offset=32).reshape(samples, n, 3)
+
+
+def node_matrix(node):
+    if node.matrix:
+        return np.array(node.matrix).reshape(4, 4).T
+    return dressed.trs_matrix((node.translation or [0, 0, 0], node.rotation or [0, 0, 0, 1],
+                               node.scale or [1, 1, 1]))
+
+
+def node_worlds(gltf, locals_):
+    """{node: world 4x4} from {node: local 4x4} over the file's hierarchy."""
+    parent = {c: i for i, n in enumerate(gltf.nodes) for c in (n.children or [])}
+    out = {}
+    for i in range(len(gltf.nodes)):
+        chain = [i]
+        while chain[-1] in parent:
+            chain.append(parent[chain[-1]])
+        M = np.eye(4)
+        for k in reversed(chain):
+            M = M @ locals_[k]
+        out[i] = M
+    return out
+
+
+@pytest.fixture(scope="module")
+def pillar(tmp_path_factory):
+    """(rig, take path, reference solve, folder) of the moved, textured pillar."""
+    folder = tmp_path_factory.mktemp("pillar")
+    dressed.build(folder / "pillar.glb")
+    (folder / "pillar.toml").write_text(RIG.format(mesh="pillar.glb"))
+    rig = load_rig(folder / "pillar.toml")
+    take = shared.write_take(folder / "take.mcap", rig)
+    return rig, take, shared.reference_solve(rig, take), folder
+
+
+def test_pc2_lands_on_the_moved_turned_and_scaled_mesh_object(pillar):
+    rig, take, reference, folder = pillar
+    solved = reference.deformed[:, rig.source_index]  # the file's vertex order, model frame
+    assert solved.shape[1] == len(dressed.geometry()[0]) > len(rig.V)  # seam copies are kept
+    # Blender's glTF importer parents the skinned mesh to the armature object with an identity
+    # transform: the mesh object's local space is the Armature node's world.
+    np.testing.assert_allclose(rig.source.object_world, dressed.armature_world(), atol=1e-12)
+
+    export_take(rig, TakeReader(take), Outputs(pc2=folder / "object.pc2"), fps=shared.FPS)
+    export_take(rig, TakeReader(take), Outputs(pc2=folder / "model.pc2"), fps=shared.FPS,
+                space="model")
+    export_take(rig, TakeReader(take), Outputs(pc2=folder / "z.pc2"), fps=shared.FPS, up="z")
+    local = read_pc2(folder / "object.pc2").astype(np.float64)
+    A = dressed.armature_world()
+    np.testing.assert_allclose(local @ A[:3, :3].T + A[:3, 3], solved, atol=2e-5)
+    np.testing.assert_allclose(read_pc2(folder / "model.pc2"), solved, atol=2e-5)
+    np.testing.assert_allclose(read_pc2(folder / "z.pc2"),
+                               np.stack([local[..., 0], -local[..., 2], local[..., 1]], -1), atol=1e-6)
+
+
+def test_glb_keeps_the_files_vertices_attributes_material_and_nodes(pillar):
+    rig, take, reference, folder = pillar
+    out = folder / "anim.glb"
+    report = export_take(rig, TakeReader(take), Outputs(gltf=out), fps=shared.FPS)
+    assert report.warnings == []
+    gltf = pygltflib.GLTF2().load_binary(str(out))
+    source = pygltflib.GLTF2().load_binary(str(folder / "pillar.glb"))
+
+    # Nodes: same order, names, hierarchy and rest transforms.
+    assert [n.name for n in gltf.nodes] == [n.name for n in source.nodes]
+    assert [n.children or [] for n in gltf.nodes] == [n.children or [] for n in source.nodes]
+    assert [gltf.nodes[i].name for i in gltf.scenes[gltf.scene].nodes] == ["Armature"]
+    for ours, theirs in zip(gltf.nodes, source.nodes):
+        np.testing.assert_allclose(node_matrix(ours), node_matrix(theirs), atol=1e-6)
+    armature = gltf.nodes[0]
+    np.testing.assert_allclose(armature.translation, dressed.ARMATURE_TRS[0])
+    np.testing.assert_allclose(armature.scale, dressed.ARMATURE_TRS[2])
+    mesh_node = next(n for n in gltf.nodes if n.mesh is not None)
+    assert mesh_node.name == "pillar" and mesh_node.skin == 0
+    np.testing.assert_allclose(mesh_node.scale, dressed.MESH_TRS[2])
+
+    # The mesh: the file's vertex count and order, its triangles, every attribute.
+    V, F, N, uv0, uv1, colours, _ = dressed.geometry()
+    (prim,) = gltf.meshes[mesh_node.mesh].primitives
+    a = prim.attributes
+    np.testing.assert_allclose(accessor(gltf, a.POSITION), V, atol=1e-5)
+    np.testing.assert_array_equal(accessor(gltf, prim.indices).reshape(-1, 3), F)
+    np.testing.assert_allclose(accessor(gltf, a.NORMAL), N, atol=1e-6)
+    np.testing.assert_array_equal(accessor(gltf, a.TEXCOORD_0), uv0)
+    np.testing.assert_array_equal(accessor(gltf, a.TEXCOORD_1), uv1)
+    np.testing.assert_array_equal(accessor(gltf, a.COLOR_0), colours)
+
+    # The material and its texture, the image embedded byte for byte.
+    (material,) = gltf.materials
+    assert material.name == "skin"
+    assert material.pbrMetallicRoughness.baseColorFactor == [1.0, 0.9, 0.8, 1.0]
+    texture = gltf.textures[material.pbrMetallicRoughness.baseColorTexture.index]
+    image = gltf.images[texture.source]
+    assert image.mimeType == "image/png" and image.uri is None
+    view = gltf.bufferViews[image.bufferView]
+    assert gltf.binary_blob()[view.byteOffset:view.byteOffset + view.byteLength] == dressed.png_bytes()
+    assert gltf.samplers[texture.sampler].magFilter == 9728
+
+    # The skin skins the rest mesh at rest (inverse bind matrices include the mesh node's world),
+    # and every frame puts each joint's pivot where the solve puts it.
+    skin = gltf.skins[0]
+    assert [gltf.nodes[j].name for j in skin.joints] == list(rig.skeleton.names)
+    ibm = accessor(gltf, skin.inverseBindMatrices).reshape(-1, 4, 4).transpose(0, 2, 1)
+    rest = node_worlds(gltf, {i: node_matrix(n) for i, n in enumerate(gltf.nodes)})
+    for k, j in enumerate(skin.joints):
+        np.testing.assert_allclose(rest[j] @ ibm[k], dressed.mesh_world(), atol=1e-5)
+    anim = gltf.animations[0]
+    keys = {(c.target.node, c.target.path): accessor(gltf, anim.samplers[c.sampler].output)
+            for c in anim.channels}
+    joints = JointTransforms(rig.skeleton.heads)
+    for f in (0, len(reference.T) // 2, len(reference.T) - 1):
+        joints.update(reference.T[f])
+        locals_ = {i: node_matrix(n) for i, n in enumerate(gltf.nodes)}
+        for j in skin.joints:
+            scale = gltf.nodes[j].scale or [1, 1, 1]
+            locals_[j] = dressed.trs_matrix((keys[(j, "translation")][f], keys[(j, "rotation")][f], scale))
+        world = node_worlds(gltf, locals_)
+        pivots = np.array([world[j][:3, 3] for j in skin.joints])
+        np.testing.assert_allclose(pivots, joints.pivot, atol=1e-5)
+
+
+def test_rig_without_transforms_writes_the_same_points_in_both_spaces(tmp_path):
+    dressed.build(tmp_path / "flat.glb", moved=False)
+    (tmp_path / "flat.toml").write_text(RIG.format(mesh="flat.glb"))
+    rig = load_rig(tmp_path / "flat.toml")
+    take = shared.write_take(tmp_path / "take.mcap", rig, readings=8)
+    for space in ("object", "model"):
+        export_take(rig, TakeReader(take), Outputs(pc2=tmp_path / f"{space}.pc2"), fps=10, space=space)
+    assert (tmp_path / "object.pc2").read_bytes() == (tmp_path / "model.pc2").read_bytes()
+
+
+def test_missing_image_file_warns_and_exports_a_plain_material(tmp_path):
+    dressed.build(tmp_path / "pillar.gltf", image_file=False)
+    assert not (tmp_path / dressed.IMAGE).exists()
+    (tmp_path / "pillar.toml").write_text(RIG.format(mesh="pillar.gltf"))
+    rig = load_rig(tmp_path / "pillar.toml")  # the rig loads all the same
+    missing = str(tmp_path / dressed.IMAGE)
+    assert len(rig.source.warnings) == 1 and missing in rig.source.warnings[0]
+    take = shared.write_take(tmp_path / "take.mcap", rig, readings=8)
+    result = subprocess.run(["puppet", "export", str(take), "--rig", str(tmp_path / "pillar.toml"),
+                             "--gltf", str(tmp_path / "anim.glb"), "--fps", "10"],
+                            capture_output=True, text=True, timeout=300)
+    assert result.returncode == 0, result.stderr
+    assert "Traceback" not in result.stderr
+    assert f"warning: {tmp_path / 'pillar.gltf'}: image file {missing!r}" in result.stderr
+    gltf = pygltflib.GLTF2().load_binary(str(tmp_path / "anim.glb"))
+    (material,) = gltf.materials
+    assert material.name == "skin"
+    assert material.pbrMetallicRoughness.baseColorTexture is None  # plain: its factors only
+    assert material.pbrMetallicRoughness.baseColorFactor == [1.0, 0.9, 0.8, 1.0]
+    assert gltf.images == [] and gltf.textures == []
+    # With the image next to the .gltf, it is embedded.
+    (tmp_path / dressed.IMAGE).write_bytes(dressed.png_bytes())
+    rig = load_rig(tmp_path / "pillar.toml")
+    assert rig.source.warnings == []
+    export_take(rig, TakeReader(take), Outputs(gltf=tmp_path / "with.glb"), fps=10)
+    gltf = pygltflib.GLTF2().load_binary(str(tmp_path / "with.glb"))
+    assert len(gltf.images) == 1 and gltf.materials[0].pbrMetallicRoughness.baseColorTexture.index == 0
+
+
+def _usd_mesh(stage):
+    from pxr import UsdGeom
+
+    meshes = [p for p in stage.Traverse() if p.IsA(UsdGeom.Mesh)]
+    assert len(meshes) == 1
+    return UsdGeom.Mesh(meshes[0])
+
+
+@pytest.mark.parametrize("suffix", [".usda", ".usdz"])
+def test_usd_carries_the_files_place_uvs_colours_and_textured_material(pillar, suffix):
+    from pxr import Usd, UsdGeom, UsdShade
+
+    rig, take, reference, folder = pillar
+    out = folder / f"anim{suffix}"
+    report = export_take(rig, TakeReader(take), Outputs(usd=out), fps=shared.FPS)
+    assert report.warnings == []
+    stage = Usd.Stage.Open(str(out))
+    mesh = _usd_mesh(stage)
+    # The mesh sits under the Armature node's Xform (its TRS as written), as Blender's glTF
+    # importer parents it; its points there, moved by its world transform, are the solve's.
+    assert str(mesh.GetPath()) == "/pillar/Armature/pillar"
+    armature = UsdGeom.Xformable(stage.GetPrimAtPath("/pillar/Armature"))
+    assert [op.GetOpName() for op in armature.GetOrderedXformOps()] == [
+        "xformOp:translate", "xformOp:orient", "xformOp:scale"]
+    solved = reference.deformed[:, rig.source_index]
+    for frame in (1, len(solved) // 2, len(solved)):
+        time = Usd.TimeCode(frame)
+        world = np.array(UsdGeom.XformCache(time).GetLocalToWorldTransform(mesh.GetPrim())).T
+        np.testing.assert_allclose(world, dressed.armature_world(), atol=1e-6)
+        local = np.array(mesh.GetPointsAttr().Get(time), np.float64)
+        np.testing.assert_allclose(local @ world[:3, :3].T + world[:3, 3], solved[frame - 1], atol=2e-5)
+        normals = np.array(mesh.GetNormalsAttr().Get(time))
+        np.testing.assert_allclose(np.linalg.norm(normals, axis=1), 1.0, atol=1e-5)
+        seam = np.arange(0, len(dressed.geometry()[0]) - 2, dressed.SIDES + 1)  # u = 0 copies
+        np.testing.assert_allclose(normals[seam], normals[seam + dressed.SIDES], atol=1e-6)  # smooth
+    # The file's triangles, UV sets (t = 1 - v), colours.
+    V, F, N, uv0, uv1, colours, _ = dressed.geometry()
+    np.testing.assert_array_equal(np.array(mesh.GetFaceVertexIndicesAttr().Get()).reshape(-1, 3), F)
+    primvars = UsdGeom.PrimvarsAPI(mesh)
+    for name, uv in (("st", uv0), ("st1", uv1)):
+        st = np.array(primvars.GetPrimvar(name).Get())
+        assert primvars.GetPrimvar(name).GetInterpolation() == "vertex"
+        np.testing.assert_allclose(st, np.column_stack([uv[:, 0], 1 - uv[:, 1]]), atol=1e-7)
+    np.testing.assert_allclose(np.array(mesh.GetDisplayColorPrimvar().Get()), colours[:, :3])
+    np.testing.assert_allclose(np.array(mesh.GetDisplayOpacityPrimvar().Get()), colours[:, 3])
+    # The material: a UsdPreviewSurface whose diffuse colour is the texture, the image beside
+    # the layer (or inside the .usdz) byte for byte.
+    material, _ = UsdShade.MaterialBindingAPI(mesh.GetPrim()).ComputeBoundMaterial()
+    assert material.GetPath().name == "skin"
+    surface = material.ComputeSurfaceSource()[0]
+    assert surface.GetIdAttr().Get() == "UsdPreviewSurface"
+    (source,) = surface.GetInput("diffuseColor").GetConnectedSources()[0]
+    texture = UsdShade.Shader(source.source.GetPrim())
+    assert texture.GetIdAttr().Get() == "UsdUVTexture"
+    np.testing.assert_allclose(texture.GetInput("scale").Get(), [1.0, 0.9, 0.8, 1.0])
+    asset = texture.GetInput("file").Get()
+    assert asset.resolvedPath != ""
+    if suffix == ".usdz":
+        import zipfile
+
+        with zipfile.ZipFile(out) as package:
+            names = package.namelist()
+            assert names[0].endswith(".usdc")
+            (image,) = [n for n in names if n.endswith(".png")]
+            assert package.read(image) == dressed.png_bytes()
+    else:
+        assert Path(asset.resolvedPath).read_bytes() == dressed.png_bytes()
+        assert Path(asset.resolvedPath).parent == folder / "anim_textures"
+    assert surface.GetInput("roughness").Get() == pytest.approx(0.7)
+    assert surface.GetInput("metallic").Get() == pytest.approx(0.0)
+
+
+def test_usd_of_a_missing_image_has_a_plain_material(tmp_path):
+    from pxr import Usd, UsdShade
+
+    dressed.build(tmp_path / "pillar.gltf", image_file=False)
+    (tmp_path / "pillar.toml").write_text(RIG.format(mesh="pillar.gltf"))
+    rig = load_rig(tmp_path / "pillar.toml")
+    take = shared.write_take(tmp_path / "take.mcap", rig, readings=8)
+    report = export_take(rig, TakeReader(take), Outputs(usd=tmp_path / "anim.usdc"), fps=10)
+    assert len(report.warnings) == 1 and str(tmp_path / dressed.IMAGE) in report.warnings[0]
+    stage = Usd.Stage.Open(str(tmp_path / "anim.usdc"))
+    material, _ = UsdShade.MaterialBindingAPI(_usd_mesh(stage).GetPrim()).ComputeBoundMaterial()
+    surface = material.ComputeSurfaceSource()[0]
+    assert not surface.GetInput("diffuseColor").HasConnectedSource()
+    np.testing.assert_allclose(surface.GetInput("diffuseColor").Get(), [1.0, 0.9, 0.8])
+    assert not (tmp_path / "anim_textures").exists()
