@@ -31,7 +31,6 @@ The bus is not imported here: ``run`` takes a ``read()`` callable returning a re
 from __future__ import annotations
 
 import time
-from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -315,15 +314,19 @@ class GuidedCalibration:
         joint still easing back from there is not a new move)."""
         deadline = time.monotonic() + timeout_s
         notice = max(threshold // 3, 8)       # a move, though too small to count
-        recent: deque = deque(maxlen=CONFIRM)  # the last readings' deviations from the zero, ticks
+        rows = np.zeros((CONFIRM, len(ids)), np.int64)  # per servo: its last good deviations, ticks
+        good = np.zeros(len(ids), np.int64)    # per servo: good readings so far (a servo whose
+        #                                        reply was lost keeps its last good ones)
         peak = np.zeros(len(ids), np.int64)    # per servo: the largest steady deviation, ticks
         moved, anchor, still = None, 0, 0      # the candidate's index, its extent, readings held
         while time.monotonic() < deadline:
             reading = read()
-            recent.append(np.where(reading.ok, np.asarray(reading.ticks, np.int64) - zero, 0))
-            if len(recent) == CONFIRM:
-                rows = np.array(recent)
-                same_side = (np.sign(rows) == np.sign(rows[-1])).all(axis=0)
+            ok = np.asarray(reading.ok, bool)
+            rows[:, ok] = np.roll(rows[:, ok], -1, axis=0)
+            rows[-1, ok] = np.asarray(reading.ticks, np.int64)[ok] - zero[ok]
+            good[ok] += 1
+            if good.max() >= CONFIRM:
+                same_side = (np.sign(rows) == np.sign(rows[-1])).all(axis=0) & (good >= CONFIRM)
                 steady = np.where(same_side, np.abs(rows).min(axis=0), 0)   # reached in every one
                 peak = np.maximum(peak, steady)
                 over = np.flatnonzero(steady >= threshold)

@@ -268,7 +268,7 @@ def test_unsure_moves_are_asked_again_with_the_reason(tmp_path, character, wait_
 
     def small(hand):  # 100 ticks (8.8°) out and back: below the 150-tick threshold
         hand.set({21: ZERO[21] + 100})
-        hand.hold(CONFIRM + HELD)
+        hand.hold(2 * (CONFIRM + HELD))
         hand.rest()
 
     def leg(hand):    # servo 7: the id leg.L's block names
@@ -451,3 +451,28 @@ def test_a_joint_whose_limits_leave_no_room_for_a_move_is_refused_before_reading
     assert "one counts from 150 ticks (13.2° of joint turn); widen the limits or lower --threshold" in \
         info.value.message
     assert read.k == 1
+
+
+def test_lost_replies_neither_hide_a_move_nor_make_one(tmp_path, character):
+    """Every other reading loses servo 21's reply (ok False, ticks 0): its move is still found
+    from the good readings, and the lost ones are not read as a return to rest or a move."""
+    from puppet.bus import Reading
+    from puppet.rig.guided_calibration import GuidedCalibration
+
+    rig = _rig_with(tmp_path, character, {"hips": {"axis": '"x"'}})
+    session = GuidedCalibration(rig)
+    rest = {21: 2000, 3: 2000}
+    script = _Script(list(rest), [rest] + [{**rest, 21: 2300}] * (2 * HOLD) + [rest] * 4)
+
+    def read():
+        reading = script()
+        if script.k % 2:
+            ticks, ok = reading.ticks.copy(), reading.ok.copy()
+            ticks[0], ok[0] = 0, False
+            return Reading(reading.t_ns, reading.ids, ticks, ok)
+        return reading
+
+    said: list[str] = []
+    found = session.run(read, script(), say=said.append, timeout_s=30)
+    assert [(f.step.joint, f.id, f.sign) for f in found] == [("hips", 21, 1)]
+    assert not any("not sure" in line for line in said)
