@@ -361,7 +361,7 @@ def test_a_joint_with_little_room_positive_is_asked_the_other_way_and_gets_its_o
     assert prompts[1].startswith("[2/3] move 'tail base' in its positive direction")
     doc = tomllib.loads(rig.read_text())
     got = {s["joint"]: (s["id"], s["sign"], s["zero_ticks"], s["model"]) for s in doc["servo"]}
-    assert got == truth
+    assert got == truth, log
     loaded = load_rig(rig)   # the calibrated rig reads the person's turns with the right sign
     for servo in loaded.servo_map.servos:
         _, sign, zero, _ = truth[servo.joint]
