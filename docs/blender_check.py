@@ -50,6 +50,14 @@ def skinned_mesh():
     return found[0]
 
 
+def rest_vertices(obj) -> np.ndarray:
+    """(n, 3) the mesh's own vertices (no modifier: its rest pose) in world space."""
+    co = np.empty(3 * len(obj.data.vertices))
+    obj.data.vertices.foreach_get("co", co)
+    M = np.array(obj.matrix_world)
+    return co.reshape(-1, 3) @ M[:3, :3].T + M[:3, 3]
+
+
 def world_vertices(obj) -> np.ndarray:
     """(n, 3) the evaluated mesh (every modifier applied) in world space."""
     evaluated = obj.evaluated_get(bpy.context.evaluated_depsgraph_get())
@@ -69,29 +77,31 @@ def scene_state(frames_of=None) -> dict:
     return state
 
 
+def look(mesh) -> dict:
+    """The mesh's UV maps, colour attributes and materials, and the images loaded (with pixels)."""
+    return {"uv_layers": [uv.name for uv in mesh.data.uv_layers],
+            "color_attributes": [c.name for c in mesh.data.color_attributes],
+            "materials": [m.name for m in mesh.data.materials if m],
+            "images": sorted(i.name for i in bpy.data.images if i.has_data or i.size[0])}
+
+
 def placement(mesh) -> dict:
-    """(4, 4) world matrices of a skinned mesh object and of its armature object."""
-    armature = next(m.object for m in mesh.modifiers if m.type == "ARMATURE")
-    return {"mesh_world": np.array(mesh.matrix_world), "armature_world": np.array(armature.matrix_world)}
+    """(4, 4) world matrices of a mesh object and of the armature object of its Armature modifier."""
+    armature = next((m.object for m in mesh.modifiers if m.type == "ARMATURE"), None)
+    out = {"mesh_world": np.array(mesh.matrix_world)}
+    if armature is not None:
+        out["armature_world"] = np.array(armature.matrix_world)
+    return out
 
 
-def play(obj, armature=None) -> dict:
-    """{"vertices": (frames, n, 3) world vertices of ``obj`` on every frame of the scene's range}
-    and, with an armature, "pose_rotations" (frames, bones, 4) w, x, y, z and "pose_locations"
-    (frames, bones, 3): each pose bone's own (parent-relative) transform, as its F-curves play."""
+def play(obj) -> dict:
+    """{"vertices": (frames, n, 3) world vertices of ``obj`` on every frame of the scene's range}."""
     scene = bpy.context.scene
-    vertices, rotations, locations = [], [], []
+    vertices = []
     for frame in range(scene.frame_start, scene.frame_end + 1):
         scene.frame_set(frame)
         vertices.append(world_vertices(obj))
-        if armature is not None:
-            basis = [b.matrix_basis.decompose() for b in armature.pose.bones]
-            rotations.append([tuple(r) for _, r, _ in basis])
-            locations.append([tuple(t) for t, _, _ in basis])
-    out = {"vertices": np.array(vertices)}
-    if armature is not None:
-        out.update(pose_rotations=np.array(rotations), pose_locations=np.array(locations))
-    return out
+    return {"vertices": np.array(vertices)}
 
 
 def import_gltf(path, fps=None, frames=None):
@@ -148,24 +158,20 @@ def run_steps(fps, frames, glb, pc2, bvh, usd, character=None) -> dict:
         body = import_gltf(glb, fps, frames)
         armature = next(m.object for m in body.modifiers if m.type == "ARMATURE")
         action = armature.animation_data.action
-        shown["gltf"] = {**scene_state(armature), **play(body, armature),
+        shown["gltf"] = {**scene_state(armature), **play(body), "rest": rest_vertices(body),
                          "keys": sum(len(c.keyframe_points) for layer in action.layers
                                      for strip in layer.strips for bag in strip.channelbags
                                      for c in bag.fcurves),
                          "scene_properties": {k: v for k, v in bpy.context.scene.items()
                                               if k.startswith("puppet_")},
                          "bones": [b.name for b in armature.data.bones],
-                         "uv_layers": [uv.name for uv in body.data.uv_layers],
-                         "color_attributes": [c.name for c in body.data.color_attributes],
-                         "materials": [m.name for m in body.data.materials if m],
-                         "images": sorted(i.name for i in bpy.data.images if i.size[0]),
-                         **placement(body)}
+                         **look(body), **placement(body)}
         if pc2:
             add_mesh_cache(body, pc2)
             shown["pc2_glb"] = {**scene_state(), **play(body)}
     if pc2 and character:
         body = import_gltf(character, fps, frames)
-        rest = world_vertices(body)  # the character as its file has it (no animation)
+        rest = rest_vertices(body)
         add_mesh_cache(body, pc2)
         shown["pc2_source"] = {**scene_state(), **play(body), "rest": rest, **placement(body)}
     if bvh and (character or glb):
@@ -178,13 +184,15 @@ def run_steps(fps, frames, glb, pc2, bvh, usd, character=None) -> dict:
                         "vertex_groups": [g.name for g in body.vertex_groups]}
     if usd:
         body = import_usd(usd, fps)
-        shown["usd"] = {**scene_state(), **play(body)}
+        shown["usd"] = {**scene_state(), **play(body), **look(body), **placement(body)}
     return shown
 
 
 def report(shown) -> str:
-    """One line per step; distances from the PC2 step's mesh (the exact FAST mesh)."""
+    """One line per step; distances from the PC2 step's mesh (the exact FAST mesh), % of the
+    diagonal of the character's rest bounding box (as ``puppet export`` prints them)."""
     reference = next((shown[k]["vertices"] for k in ("pc2_source", "pc2_glb") if k in shown), None)
+    rest = next((shown[k]["rest"] for k in ("pc2_source", "gltf") if k in shown), None)
     lines = []
     for step, s in shown.items():
         V = s["vertices"]
@@ -192,10 +200,12 @@ def report(shown) -> str:
                 f"{s['frame_start']}..{s['frame_end']}")
         if "action_range" in s:
             line += f", keys on {s['action_range'][0]:g}..{s['action_range'][1]:g}"
+        if "keys" in s:
+            line += f" ({s['keys']} key values)"
         if reference is not None and V.shape == reference.shape:
-            diagonal = np.linalg.norm(reference[0].max(0) - reference[0].min(0))
+            diagonal = np.linalg.norm(rest.max(0) - rest.min(0))
             d = np.linalg.norm(V - reference, axis=2) / diagonal * 100
-            line += f"; from the PC2 mesh: max {d.max():.2e} %, RMS {np.sqrt((d ** 2).mean()):.2e} %"
+            line += f"; from the PC2 mesh: max {d.max():.3g} %, RMS {np.sqrt((d ** 2).mean()):.3g} %"
         elif reference is not None:
             line += f"; cannot compare with the PC2 mesh: shape {V.shape} vs {reference.shape}"
         lines.append(line)

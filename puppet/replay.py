@@ -24,13 +24,30 @@ relative to it). A TOML comment: the stored text parses as the rig file did, sam
 takes without it (older ones) still play."""
 
 
+RIG_CHARACTER_MARK = "# puppet: recorded on character sha256 "
+"""Line added before RIG_SOURCE_MARK: the checksum of the character the take was recorded on
+(``puppet.checksum.character_sha256``), so a take replayed without ``--rig`` is never solved on
+a character changed since (its rig file's character edited or replaced). Older takes lack it."""
+
+
+def _mark(meta, mark: str) -> str | None:
+    """The value of the last line of the stored rig map starting with ``mark``; None if none."""
+    found = None
+    for line in meta.rig_map_text.splitlines():
+        if line.startswith(mark):
+            found = line[len(mark):].strip()
+    return found
+
+
 def recorded_rig_file(meta) -> str | None:
     """Where the rig file was when the take was recorded (RIG_SOURCE_MARK); None when the take
     does not say (a take of a rig made in memory, or an older take)."""
-    last = meta.rig_map_text.splitlines()[-1:]
-    if last and last[0].startswith(RIG_SOURCE_MARK):
-        return last[0][len(RIG_SOURCE_MARK):].strip()
-    return None
+    return _mark(meta, RIG_SOURCE_MARK)
+
+
+def recorded_character(meta) -> str | None:
+    """The sha256 of the character the take was recorded on (RIG_CHARACTER_MARK), or None."""
+    return _mark(meta, RIG_CHARACTER_MARK)
 
 
 def rig_from_take(take, meta) -> Rig:
@@ -38,8 +55,11 @@ def rig_from_take(take, meta) -> Rig:
 
     Its character files are looked for relative to where the rig file was when recording began
     (RIG_SOURCE_MARK), then next to the take, then (for a take of the built-in rig) in the
-    built-in rig's folder; the error names the missing file and the --rig option.
+    built-in rig's folder; the error names the missing file and the --rig option. A take that
+    recorded its character's checksum (RIG_CHARACTER_MARK) is refused (TakeError) when the
+    character found is another one.
     """
+    from puppet.checksum import character_sha256
     from puppet.rig import builtin
     from puppet.rig.load import BUILTIN_RIG, builtin_name, load_rig_text
 
@@ -55,8 +75,16 @@ def rig_from_take(take, meta) -> Rig:
     if meta.rig_name == builtin_name():
         bases.append(BUILTIN_RIG.parent)
     where = f"recorded with rig file {recorded}" if recorded else "recorded with a rig file"
-    return load_rig_text(text, label=f"{take} (rig map)", bases=bases,
-                         hint=f"{where}; pass --rig with that rig file")
+    rig = load_rig_text(text, label=f"{take} (rig map)", bases=bases,
+                        hint=f"{where}; pass --rig with that rig file")
+    character = recorded_character(meta)
+    if character is not None and character != character_sha256(rig):
+        found = rig.source.path if getattr(rig, "source", None) is not None else None
+        raise TakeError(take, f"the character found for its rig ({where}) is not the one it was "
+                              "recorded on: its vertices, weights, skeleton or file changed since"
+                              f"{f' ({found})' if found else ''}; pass --rig to solve it on a "
+                              "rig of your choosing")
+    return rig
 
 
 def open_take(take, rig: Rig | str | Path | None) -> tuple[Rig, TakeReader]:

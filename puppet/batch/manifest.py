@@ -18,59 +18,17 @@ never makes a take look up to date.
 
 from __future__ import annotations
 
-import hashlib
 import json
-import os
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
 
-import numpy as np
-
 import puppet
 from puppet.atomic import atomic_output
+from puppet.checksum import file_sha256
 
 MANIFEST_SUFFIX = ".batch.json"
 MANIFEST_VERSION = 1
-_CHUNK = 1 << 20
-
-
-def file_sha256(path: str | os.PathLike) -> str:
-    """sha256 (hex) of a file's bytes."""
-    h = hashlib.sha256()
-    with open(path, "rb") as handle:
-        while chunk := handle.read(_CHUNK):
-            h.update(chunk)
-    return h.hexdigest()
-
-
-def bytes_sha256(data: bytes | str) -> str:
-    """sha256 (hex) of bytes (a str as UTF-8)."""
-    return hashlib.sha256(data.encode("utf-8") if isinstance(data, str) else data).hexdigest()
-
-
-def character_sha256(rig) -> str:
-    """sha256 (hex) of the character a rig solves, as loaded: rest vertices, triangles, weights,
-    the skeleton (names, parents, heads, tails, frames) and the source vertex order; for a glTF
-    character, also the bytes of its file and of the buffers and images it names (its look and
-    place, which exports carry: ``Rig.source``). The same character gives the same checksum
-    whichever folder it was read from."""
-    from puppet.rig.gltf import external_files
-
-    h = hashlib.sha256()
-    source = getattr(rig, "source", None)
-    if source is not None:
-        for path in [Path(source.path), *external_files(source.path)]:
-            h.update(file_sha256(path).encode() if path.is_file() else b"missing")
-    skeleton = rig.skeleton
-    arrays = [rig.V, rig.F, rig.W, skeleton.parents, skeleton.heads, skeleton.tails,
-              skeleton.frames, rig.source_index if rig.source_index is not None else np.zeros(0)]
-    for array in arrays:
-        array = np.ascontiguousarray(array)
-        h.update(f"{array.dtype.str}{array.shape}".encode())
-        h.update(array.tobytes())
-    h.update("\0".join(skeleton.names).encode("utf-8"))
-    return h.hexdigest()
 
 
 def shaping_settings(settings) -> dict:
@@ -97,7 +55,8 @@ class Made:
 
     take: the take file; take_sha256: its bytes; rig_name, rig_file: the rig (file as the user
     knows it: the --rig file, or the rig file the take was recorded with); rig_sha256: the rig's
-    text (the --rig file's bytes, or the rig map the take stores); character: character_sha256;
+    text (the --rig file's bytes, or the rig map the take stores); character:
+    ``puppet.checksum.character_sha256``;
     settings: shaping_settings; version: puppet's version."""
 
     take: str

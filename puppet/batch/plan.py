@@ -25,7 +25,8 @@ from pathlib import Path
 
 from puppet.atomic import check_folder_output, check_output
 from puppet.batch.errors import BatchError
-from puppet.batch.manifest import MANIFEST_SUFFIX, bytes_sha256, character_sha256, file_sha256
+from puppet.batch.manifest import MANIFEST_SUFFIX
+from puppet.checksum import bytes_sha256, character_sha256, file_sha256
 from puppet.rig import Rig
 
 FORMATS = ("mp4", "gltf", "usd", "pc2", "bvh")
@@ -174,13 +175,15 @@ def _below(folder: Path, base: Path) -> Path:
 
 
 def _make_folder(folder: Path, out: Path) -> None:
+    """Make a folder below OUT for mirrored takes; BatchError naming it when it cannot be."""
+    if folder.exists() and not folder.is_dir():
+        raise BatchError(f"{folder}: exists in the output folder {out} and is not a folder; "
+                         "it is where takes of that folder write")
     try:
         folder.mkdir(parents=True, exist_ok=True)
     except OSError as err:
         raise BatchError(f"{folder}: cannot create this folder of the output folder {out}: "
                          f"{err.strerror or err}") from None
-    if not folder.is_dir():
-        raise BatchError(f"{folder}: exists in the output folder {out} and is not a folder")
 
 
 @dataclass(frozen=True)
@@ -191,7 +194,7 @@ class TakeRig:
     rig: the loaded rig (uncalibrated: each take applies its own recorded calibration to a
     copy); file: the rig file in words (the --rig file, or the file the take was recorded
     with); rig_sha256: the rig's text (the --rig file's bytes, or the rig map the take stores);
-    character: ``manifest.character_sha256``."""
+    character: ``puppet.checksum.character_sha256``."""
 
     key: str
     rig: Rig

@@ -28,7 +28,7 @@ from pathlib import Path
 from puppet.atomic import OutputError, atomic_output, check_folder_output, check_output
 from puppet.batch.errors import BatchError
 from puppet.batch.local import LocalEngine
-from puppet.batch.manifest import Made, changes, file_sha256, shaping_settings
+from puppet.batch.manifest import Made, changes, shaping_settings
 from puppet.batch.manifest import read as read_manifest
 from puppet.batch.manifest import write as write_manifest
 from puppet.batch.plan import (DEFAULT_FORMATS, KINDS, Job, RigFinder, expand_takes,
@@ -36,6 +36,7 @@ from puppet.batch.plan import (DEFAULT_FORMATS, KINDS, Job, RigFinder, expand_ta
 from puppet.batch.ray_engine import RayEngine
 from puppet.batch.row import DONE, FAILED, SKIPPED, STATES, TO_DO, UNFINISHED, TakeResult
 from puppet.batch.task import Settings, Shared
+from puppet.checksum import file_sha256
 from puppet.errors import PuppetError
 from puppet.loop import RigPrecompute
 from puppet.rig import Rig

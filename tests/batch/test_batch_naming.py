@@ -49,3 +49,16 @@ def test_two_takes_that_would_write_the_same_files_are_refused_naming_both(tmp_p
     assert (f"Error: {b}: same name as {a}: both would write {out / 'take'}.*; name their "
             "folders with one pattern") in result.stderr
     assert list(out.iterdir()) == []
+
+
+def test_a_file_where_a_mirrored_folder_goes_is_refused_naming_it(tmp_path, critter, tools):
+    (tmp_path / "shoot" / "day1").mkdir(parents=True)
+    tools.write_take(tmp_path / "shoot" / "day1" / "take.mcap", critter)
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "day1").write_text("not a folder")
+    result = batch("shoot/*/*.mcap", "--out", out, "--formats", "pc2", cwd=tmp_path)
+    assert result.returncode == 1 and "Traceback" not in result.stderr
+    assert f"Error: {out / 'day1'}: exists in the output folder {out} and is not a folder" in (
+        result.stderr)
+    assert (out / "day1").read_text() == "not a folder"

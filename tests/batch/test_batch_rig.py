@@ -99,3 +99,28 @@ def test_a_given_rig_of_other_servos_is_refused_naming_both_rig_files(tmp_path, 
     assert rows[0]["reason"].endswith(f"recorded with rig file {TAIL_RIG}, given --rig "
                                       f"{BUILTIN_RIG}")
     assert not (out / "tail.bvh").exists()
+
+
+def test_a_take_whose_character_changed_since_recording_is_refused_without_rig(tmp_path):
+    studio = tmp_path / "studio"
+    studio.mkdir()
+    shutil.copy(BUILTIN_RIG.parent / "critter.npz", studio / "critter.npz")
+    rig_path = studio / "my.toml"
+    rig_path.write_text(BUILTIN_RIG.read_text())
+    take = record(tmp_path / "take.mcap", rig_path)
+    with np.load(studio / "critter.npz") as data:
+        arrays = dict(data)
+    arrays["V"] = arrays["V"] * 1.05  # the character edited after the take was recorded
+    np.savez(studio / "critter.npz", **arrays)
+    out = tmp_path / "out"
+    result = batch(take, "--out", out, "--formats", "bvh", "--workers", 1)
+    assert result.returncode == 1
+    row = json.loads(result.stdout)["takes"][0]
+    message = (f"the character found for its rig (recorded with rig file {rig_path.resolve()}) is "
+               "not the one it was recorded on")
+    assert row["state"] == "failed" and message in row["reason"]
+    alone = subprocess.run(["puppet", "export", take, "--bvh", tmp_path / "a.bvh"],
+                           capture_output=True, text=True, timeout=300)
+    assert alone.returncode == 1 and message in alone.stderr  # the one rule of export and batch
+    given = batch(take, "--out", out, "--formats", "bvh", "--workers", 1, "--rig", rig_path)
+    assert given.returncode == 0, given.stderr  # named explicitly, the edited rig is used

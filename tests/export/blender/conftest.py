@@ -15,7 +15,6 @@ from __future__ import annotations
 import importlib.util
 import json
 import subprocess
-import sys
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -26,7 +25,6 @@ HERE = Path(__file__).resolve().parent
 CHECK_SCRIPT = HERE.parents[2] / "docs" / "blender_check.py"
 #: Blender's importers turn puppet's +Y-up model frame to Blender's +Z up: (x, y, z) -> (x, -z, y).
 Y_UP_TO_BLENDER = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])
-BLENDER_TIMEOUT_S = 900  # one subprocess does every step; about 10 s on a quiet machine
 
 
 def load_module(name: str, path: Path):
@@ -38,26 +36,14 @@ def load_module(name: str, path: Path):
 
 
 character = load_module("blender_test_character", HERE / "character.py")
+blender = load_module("blender_test_run_bpy", HERE / "run_bpy.py")
 export_data = load_module("blender_test_export_data", HERE.parent / "conftest.py")
-
-
-def bpy_missing() -> str | None:
-    """Why ``bpy`` cannot run here, or None."""
-    if importlib.util.find_spec("bpy") is not None:
-        return None
-    version = f"{sys.version_info.major}.{sys.version_info.minor}"
-    if version != "3.11":
-        return (f"bpy (Blender 5.0 as a Python module) cannot install here: PyPI has its wheels "
-                f"for Python 3.11 only and this is Python {version}; the test extras install it "
-                f"under Python 3.11 (pip install '.[test]', as CI does)")
-    return ("bpy (Blender 5.0 as a Python module) is not installed: pip install '.[test]' "
-            "installs it (as CI does), or pip install bpy")
 
 
 @pytest.fixture(scope="session", autouse=True)
 def needs_bpy():
     """Every test here runs Blender: skipped, saying why, where bpy is not installed."""
-    reason = bpy_missing()
+    reason = blender.bpy_missing()
     if reason:
         pytest.skip(reason)
 
@@ -99,29 +85,29 @@ def run_blender_check(folder: Path, fps: float, frames: int, files: dict, charac
     """Run docs/blender_check.py on the files of an export ({format: path}, any of them):
     ({step: shown}, what it printed)."""
     saved = folder / "shown.npz"
-    argv = [sys.executable, str(CHECK_SCRIPT), "--fps", f"{fps:g}", "--frames", str(frames),
+    argv = [CHECK_SCRIPT, "--fps", f"{fps:g}", "--frames", str(frames),
             "--save", str(saved)]
     argv += [arg for fmt, path in files.items() for arg in (STEP_FILES[fmt], str(path))]
     if character_file is not None:
         argv += ["--character", str(character_file)]
-    result = subprocess.run(argv, cwd=folder, capture_output=True, text=True, timeout=BLENDER_TIMEOUT_S)
-    assert result.returncode == 0, result.stdout[-4000:] + result.stderr[-4000:]
+    output = blender.run_bpy(*argv, cwd=folder)
     with np.load(saved) as data:
         meta = json.loads(str(data["meta"]))
         for key in data.files:
             if key != "meta":
                 step, field = key.split(".")
                 meta[step][field] = data[key]
-    return meta, result.stdout
+    return meta, output
 
 
 DOCS_FILES = {"gltf": "anim.glb", "usd": "anim.usdc", "bvh": "skeleton.bvh", "pc2": "mesh.pc2"}
 
 
-def export(folder: Path, take: Path, fps: float, rig_file=None, formats=tuple(DOCS_FILES),
+def export(folder: Path, take: Path, fps: float, rig_file=None, names=DOCS_FILES,
            options=("--up", "z")) -> tuple[dict, dict]:
-    """``puppet export`` as docs/blender.md writes it: ({format: path}, its --json report)."""
-    files = {fmt: folder / DOCS_FILES[fmt] for fmt in formats}
+    """``puppet export`` as docs/blender.md writes it (names: {format: file name}): ({format:
+    path}, its --json report)."""
+    files = {fmt: folder / name for fmt, name in names.items()}
     argv = ["puppet", "export", str(take), "--fps", f"{fps:g}", *options, "--json"]
     argv += [arg for fmt, path in files.items() for arg in (f"--{fmt}", str(path))]
     if rig_file is not None:
@@ -190,21 +176,15 @@ def mare_shown(mare_files) -> Shown:
     return shown_for("mare", rig, take, folder, 30.0, reference, rig_file, glb)
 
 
-@dataclass
-class Keyed:
-    """A glTF exported with ``--keys``: its report, and the glTF steps in Blender."""
-
-    report: dict
-    gltf: dict
-
-
 @pytest.fixture(scope="session")
-def critter_keyed(tmp_path_factory, critter_shown, take30, fps) -> Keyed:
-    """The critter's take exported with --keys 0.5 (glTF only) and imported into Blender."""
-    folder = tmp_path_factory.mktemp("critter_keys")
-    files, report = export(folder, take30, fps, formats=("gltf",), options=("--keys", "0.5"))
-    steps, _ = run_blender_check(folder, fps, critter_shown.frames, files)
-    return Keyed(report, steps["gltf"])
+def mare_usdz(mare_files, mare_shown) -> dict:
+    """The USD step on the transformed character exported as a packaged .usdz."""
+    folder, _, rig_file, take = mare_files
+    folder = folder / "usdz"
+    folder.mkdir()
+    files, _ = export(folder, take, mare_shown.fps, rig_file, names={"usd": "anim.usdz"})
+    steps, _ = run_blender_check(folder, mare_shown.fps, mare_shown.frames, files)
+    return steps["usd"]
 
 
 @pytest.fixture(params=["critter", "mare"])

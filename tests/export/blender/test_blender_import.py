@@ -118,21 +118,19 @@ def test_gltf_puts_the_character_where_its_file_does(mare_shown):
     np.testing.assert_allclose(gltf["mesh_world"], source["mesh_world"], atol=1e-6)
 
 
-def test_reduced_keys_play_in_blender_within_the_tolerance(critter_shown, critter_keyed):
-    """``--keys 0.5``: Blender's own evaluation of the reduced glTF, every bone on every frame,
-    stays within the tolerances of the key-per-frame glTF (the solved curve), with the keys
-    that the report lists and far fewer than one per frame."""
-    keys, full, reduced = critter_keyed.report["keys"], critter_shown.steps["gltf"], critter_keyed.gltf
-    assert (reduced["fps"], reduced["frame_start"], reduced["frame_end"]) == (
-        critter_shown.fps, 1, critter_shown.frames)
-    assert tuple(reduced["action_range"]) == (1.0, float(critter_shown.frames))
-    dot = np.abs(np.einsum("fbi,fbi->fb", full["pose_rotations"], reduced["pose_rotations"]))
-    angle = np.degrees(2 * np.arccos(np.clip(dot, 0.0, 1.0)))
-    moved = np.linalg.norm(full["pose_locations"] - reduced["pose_locations"], axis=2)
-    print(f"--keys 0.5: Blender holds {reduced['keys']} of {full['keys']} key values; worst "
-          f"{angle.max():.3f}° and {moved.max():.3g} units off the solved curves")
-    assert angle.max() <= keys["rotation_deg"] + 1e-3
-    assert moved.max() <= keys["translation_units"] + 1e-6
-    per_joint = keys["joints"].values()
-    assert reduced["keys"] == sum(4 * j["rotation"] + 3 * j["translation"] for j in per_joint)
-    assert reduced["keys"] < full["keys"] / 2
+def test_usd_keeps_the_characters_look(mare_shown):
+    """The USD comes back with the file's UV sets, vertex colours, materials and texture."""
+    usd = mare_shown.steps["usd"]
+    assert (len(usd["uv_layers"]), len(usd["color_attributes"])) == (2, 1)
+    assert usd["materials"] == ["coat", "hoof"]
+    assert len(usd["images"]) == 1
+
+
+def test_usdz_is_the_solve_with_its_texture_inside(mare_shown, mare_usdz):
+    """``--usd anim.usdz``: one file with the texture packaged, imported the same way."""
+    assert (mare_usdz["fps"], mare_usdz["frame_start"], mare_usdz["frame_end"]) == (
+        mare_shown.fps, 1, mare_shown.frames)
+    assert distances_pct(mare_shown, mare_usdz["vertices"]).max() < EXACT_PCT
+    assert mare_usdz["materials"] == ["coat", "hoof"]
+    assert len(mare_usdz["images"]) == 1
+
