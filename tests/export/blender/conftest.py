@@ -187,6 +187,18 @@ def mare_usdz(mare_files, mare_shown) -> dict:
     return steps["usd"]
 
 
+@pytest.fixture(scope="session")
+def mare_model_space(mare_files, mare_shown) -> dict:
+    """The PC2 step on the character's own import with a PC2 written ``--space model``."""
+    folder, glb, rig_file, take = mare_files
+    folder = folder / "model_space"
+    folder.mkdir()
+    files, _ = export(folder, take, mare_shown.fps, rig_file, names={"pc2": "model.pc2"},
+                      options=("--up", "z", "--space", "model"))
+    steps, _ = run_blender_check(folder, mare_shown.fps, mare_shown.frames, files, glb)
+    return steps["pc2_source"]
+
+
 @pytest.fixture(params=["critter", "mare"])
 def shown(request) -> Shown:
     """Each character in turn."""
