@@ -62,14 +62,18 @@ class TakeGoals:
         self._angles, self._out = np.empty(k), np.empty(k)
 
     @classmethod
-    def from_take(cls, reader, servo_map) -> "TakeGoals":
+    def from_take(cls, reader, servo_map, key: int | None = None) -> "TakeGoals":
         """Goals for ``servo_map``'s servos from an open TakeReader (refused, TakeRigMismatch,
         when the take's servos or models are not the rig's; RigError naming the take when its
-        calibration record is unreadable)."""
+        calibration record is unreadable). key: only that key of a shot (puppet.take.keys),
+        one pose held (DriveError naming the take when it is no shot or has no such key)."""
         from puppet.rig.calibration import Calibration  # the parent's side only
         ids = [int(i) for i in servo_map.ids]
         reader.check_rig(ids, dict(servo_map.models))
-        t_ns, ticks, ok = reader.arrays(ids=ids)
+        if key is None:
+            t_ns, ticks, ok = reader.arrays(ids=ids)
+        else:
+            t_ns, ticks, ok = _key_pose(reader, ids, key)
         if len(t_ns) == 0:
             raise DriveError(f"{reader.path}: the take holds no readings")
         return cls(servo_map.servos, t_ns, ticks, ok,
@@ -90,6 +94,21 @@ class TakeGoals:
         out = self.units.ticks(self._angles, out=self._out)
         out[self._never] = np.nan
         return out
+
+
+def _key_pose(reader, ids: list[int], key: int):
+    """(t_ns (1,), ticks (1, k), ok (1, k)) of key ``key`` of the shot open in ``reader``."""
+    keys = reader.keys()
+    if keys is None:
+        raise DriveError(f"{reader.path}: not a shot (no keys channel): no key {key} to go to")
+    if not 0 <= key < len(keys.keys):
+        raise DriveError(f"{reader.path}: no key {key}: the shot has "
+                         + (f"keys 0..{len(keys.keys) - 1}" if keys.keys else "no keys"))
+    where = {int(i): n for n, i in enumerate(reader.metadata.ids)}
+    order = np.array([where[i] for i in ids], np.int64)
+    chosen = keys.keys[key]
+    return (np.zeros(1, np.int64), chosen.ticks[order][None, :].astype(np.int32),
+            chosen.ok[order][None, :])
 
 
 class GoalShaper:
