@@ -95,3 +95,24 @@ def test_goto_refuses_a_take_without_keys_and_a_missing_key(tmp_path):
                           capture_output=True, text=True, timeout=300)
     assert gone.returncode == 1 and "Traceback" not in gone.stderr
     assert f"{shot}: no key 9: the shot has keys 0..3" in gone.stderr
+
+
+def test_performing_a_shot_follows_its_time_line(tmp_path):
+    """perform's goals of a shot: the keys at their frames (40 frames apart at 24 fps: longer
+    than a take's cut gaps), held after a "step" key."""
+    from puppet.drive.goals import TakeGoals
+    from puppet.keys import retime
+
+    rig = builtin()
+    shot, keys = make_shot(tmp_path, rig)
+    keys = retime(keys, {1: 41, 2: 81, 3: 121})
+    keys.keys[1].interpolation = "step"
+    header_shot = tmp_path / "timed.mcap"
+    from puppet.keys import read_shot
+
+    header, _, _ = read_shot(shot)
+    write_shot(header_shot, header, keys)
+    goals = TakeGoals.from_take(TakeReader(header_shot), rig.servo_map)
+    assert goals.duration_s == 120 / 24
+    for f, k in ((0, 0), (40, 1), (60, 1), (79, 1), (80, 2), (120, 3)):
+        np.testing.assert_allclose(goals.at(f / 24).copy(), keys.keys[k].ticks, atol=0.5)
