@@ -94,23 +94,14 @@ def placement(mesh) -> dict:
     return out
 
 
-def play(obj, armature=None) -> dict:
-    """{"vertices": (frames, n, 3) world vertices of ``obj`` on every frame of the scene's range}
-    and, with an armature, "pose_rotations" (frames, bones, 4) w, x, y, z and "pose_locations"
-    (frames, bones, 3): each pose bone's own (parent-relative) transform, as its F-curves play."""
+def play(obj) -> dict:
+    """{"vertices": (frames, n, 3) world vertices of ``obj`` on every frame of the scene's range}."""
     scene = bpy.context.scene
-    vertices, rotations, locations = [], [], []
+    vertices = []
     for frame in range(scene.frame_start, scene.frame_end + 1):
         scene.frame_set(frame)
         vertices.append(world_vertices(obj))
-        if armature is not None:
-            basis = [b.matrix_basis.decompose() for b in armature.pose.bones]
-            rotations.append([tuple(r) for _, r, _ in basis])
-            locations.append([tuple(t) for t, _, _ in basis])
-    out = {"vertices": np.array(vertices)}
-    if armature is not None:
-        out.update(pose_rotations=np.array(rotations), pose_locations=np.array(locations))
-    return out
+    return {"vertices": np.array(vertices)}
 
 
 def import_gltf(path, fps=None, frames=None):
@@ -167,7 +158,7 @@ def run_steps(fps, frames, glb, pc2, bvh, usd, character=None) -> dict:
         body = import_gltf(glb, fps, frames)
         armature = next(m.object for m in body.modifiers if m.type == "ARMATURE")
         action = armature.animation_data.action
-        shown["gltf"] = {**scene_state(armature), **play(body, armature), "rest": rest_vertices(body),
+        shown["gltf"] = {**scene_state(armature), **play(body), "rest": rest_vertices(body),
                          "keys": sum(len(c.keyframe_points) for layer in action.layers
                                      for strip in layer.strips for bag in strip.channelbags
                                      for c in bag.fcurves),
@@ -209,6 +200,8 @@ def report(shown) -> str:
                 f"{s['frame_start']}..{s['frame_end']}")
         if "action_range" in s:
             line += f", keys on {s['action_range'][0]:g}..{s['action_range'][1]:g}"
+        if "keys" in s:
+            line += f" ({s['keys']} key values)"
         if reference is not None and V.shape == reference.shape:
             diagonal = np.linalg.norm(rest.max(0) - rest.min(0))
             d = np.linalg.norm(V - reference, axis=2) / diagonal * 100
