@@ -77,6 +77,15 @@ def scene_state(frames_of=None) -> dict:
     return state
 
 
+def fcurves(action) -> list:
+    """Every F-curve of an action: in its layers' channel bags (Blender 4.4 and later), else
+    the action's own list."""
+    if not hasattr(action, "layers"):
+        return list(action.fcurves)
+    return [c for layer in action.layers for strip in layer.strips for bag in strip.channelbags
+            for c in bag.fcurves]
+
+
 def look(mesh) -> dict:
     """The mesh's UV maps, colour attributes and materials, and the images loaded (with pixels)."""
     return {"uv_layers": [uv.name for uv in mesh.data.uv_layers],
@@ -159,9 +168,7 @@ def run_steps(fps, frames, glb, pc2, bvh, usd, character=None) -> dict:
         armature = next(m.object for m in body.modifiers if m.type == "ARMATURE")
         action = armature.animation_data.action
         shown["gltf"] = {**scene_state(armature), **play(body), "rest": rest_vertices(body),
-                         "keys": sum(len(c.keyframe_points) for layer in action.layers
-                                     for strip in layer.strips for bag in strip.channelbags
-                                     for c in bag.fcurves),
+                         "keys": sum(len(c.keyframe_points) for c in fcurves(action)),
                          "scene_properties": {k: v for k, v in bpy.context.scene.items()
                                               if k.startswith("puppet_")},
                          "bones": [b.name for b in armature.data.bones],
