@@ -20,7 +20,7 @@ is that reading. Nothing here reads a clock: the frames
 are a pure function of the take's timestamps and ticks.
 
 Shots. A shot (a take with keys, ``puppet.take.keys``) plays its keys: key i is at
-``(frame_i − 1) / shot fps`` seconds, no gap is cut (the animator spaced them), and each frame
+``(frame_i − 1) / shot fps`` seconds (frames before the first key hold it), no gap is cut (the animator spaced them), and each frame
 also carries every joint's rotation (``Reading.rotations``), interpolated in rotation space by
 the key's rule (``puppet.take.inbetween``): the sensed joints' constraints of that frame, from
 which the FAST solve fills in the free bones. Ticks between keys are interpolated linearly (held
@@ -150,11 +150,14 @@ class Playback:
         self.interpolation = None if interpolation is None else tuple(interpolation)
         if self.interpolation is None:
             self.play_ns, self.cuts = play_times_ns(t)
-        else:  # a shot: keys at their frames, nothing cut
+        else:  # a shot: keys at their frames (t_ns: shot time, frame 1 at 0), nothing cut
             if len(self.interpolation) != len(t):
                 raise TakeError(source, f"{len(self.interpolation)} interpolations for "
                                         f"{len(t)} keys")
-            self.play_ns, self.cuts = t - t[0], []
+            if t[0] < 0:
+                raise TakeError(source, f"key 0 is timed before frame 1 ({t[0]} ns)")
+            self.t_first_ns = 0
+            self.play_ns, self.cuts = t.copy(), []
         self._hold = (None if self.interpolation is None else
                       np.array([kind == "step" for kind in self.interpolation]))
         self.duration_ns = int(self.play_ns[-1])
@@ -196,7 +199,7 @@ class Playback:
             if rig is not None:
                 def rotations(ticks):
                     return rig.skeleton.joint_rotations(rig.servo_map.angles(ticks.astype(np.int32)))
-            return cls(keys.times_ns(reader.t_first_ns or 0),
+            return cls(keys.times_ns(),
                        np.stack([k.ticks[order] for k in keys.keys]),
                        np.stack([k.ok[order] for k in keys.keys]), np.asarray(ids), fps=fps,
                        speed=speed, source=reader.path,

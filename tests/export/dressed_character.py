@@ -49,13 +49,23 @@ def trs_matrix(trs) -> np.ndarray:
     return m
 
 
-def armature_world(moved: bool = True) -> np.ndarray:
-    return trs_matrix(ARMATURE_TRS if moved else IDENTITY_TRS)
+def _trs(moved, armature: bool):
+    """The Armature's (or the mesh node's) TRS: ``moved`` True: ARMATURE_TRS / MESH_TRS; False:
+    identity; or a (translation, quaternion, scale) of the Armature itself (mesh: MESH_TRS)."""
+    if moved is True:
+        return ARMATURE_TRS if armature else MESH_TRS
+    if moved is False:
+        return IDENTITY_TRS
+    return moved if armature else MESH_TRS
 
 
-def mesh_world(moved: bool = True) -> np.ndarray:
+def armature_world(moved=True) -> np.ndarray:
+    return trs_matrix(_trs(moved, True))
+
+
+def mesh_world(moved=True) -> np.ndarray:
     """(4, 4) world transform of the mesh node."""
-    return armature_world(moved) @ trs_matrix(MESH_TRS if moved else IDENTITY_TRS)
+    return armature_world(moved) @ trs_matrix(_trs(moved, False))
 
 
 def geometry():
@@ -115,10 +125,11 @@ def png_bytes() -> bytes:
     return out.getvalue()
 
 
-def build(path, *, moved: bool = True, binary: bool | None = None, image_file: bool = True):
+def build(path, *, moved=True, binary: bool | None = None, image_file: bool = True):
     """Write the character to ``path`` (.glb: the image embedded; .gltf: the buffer as a data
     uri and the image as ``IMAGE`` next to it, written unless ``image_file`` is False).
-    Returns the path."""
+    moved: True (ARMATURE_TRS, MESH_TRS), False (no transforms) or the Armature's own
+    (translation, quaternion, scale) with MESH_TRS. Returns the path."""
     path = Path(path)
     binary = path.suffix.lower() == ".glb" if binary is None else binary
     blob = bytearray()
@@ -143,8 +154,7 @@ def build(path, *, moved: bool = True, binary: bool | None = None, image_file: b
     V, F, N, uv0, uv1, colours, W = geometry()
     A = armature_world(moved)
     Mw = mesh_world(moved)
-    arm_trs = ARMATURE_TRS if moved else IDENTITY_TRS
-    mesh_trs = MESH_TRS if moved else IDENTITY_TRS
+    arm_trs, mesh_trs = _trs(moved, True), _trs(moved, False)
     # Joints: frames along the mesh's +Y, placed in the mesh's space, then into the armature's.
     nodes = [g.Node(name="Armature", translation=list(arm_trs[0]), rotation=list(arm_trs[1]),
                     scale=list(arm_trs[2]), children=[])]
@@ -214,7 +224,7 @@ def build(path, *, moved: bool = True, binary: bool | None = None, image_file: b
     return path
 
 
-def rest_vertices(moved: bool = True) -> np.ndarray:
+def rest_vertices(moved=True) -> np.ndarray:
     """(n, 3) model-frame (glTF world) rest positions of every file vertex, in file order."""
     V = geometry()[0].astype(np.float64)
     Mw = mesh_world(moved)

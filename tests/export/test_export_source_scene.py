@@ -11,6 +11,7 @@ from pathlib import Path
 import numpy as np
 import pygltflib
 import pytest
+from scipy.spatial.transform import Rotation
 
 from puppet.export import Outputs, export_take
 from puppet.export.joint_transforms import JointTransforms
@@ -174,10 +175,22 @@ def test_glb_keeps_the_files_vertices_attributes_material_and_nodes(pillar):
     rest = node_worlds(gltf, {i: node_matrix(n) for i, n in enumerate(gltf.nodes)})
     for k, j in enumerate(skin.joints):
         np.testing.assert_allclose(rest[j] @ ibm[k], dressed.mesh_world(), atol=1e-5)
+    # Under the Armature's rotation and non-uniform scale the rotation keys are the nearest ones;
+    # the pivots are exact all the same.
+    joint_worlds_follow_the_solve(gltf, rig, reference)
+
+
+def joint_worlds_follow_the_solve(gltf, rig, reference) -> float:
+    """Evaluate the file's joints (its nodes, keys and hierarchy) at three frames: their pivots
+    are where the solve puts them; returns the largest difference of their linear parts from
+    the solve's rigid maps applied to the rest joints (0 where the keys are exact)."""
+    skin = gltf.skins[0]
     anim = gltf.animations[0]
     keys = {(c.target.node, c.target.path): accessor(gltf, anim.samplers[c.sampler].output)
             for c in anim.channels}
+    rest = node_worlds(gltf, {i: node_matrix(n) for i, n in enumerate(gltf.nodes)})
     joints = JointTransforms(rig.skeleton.heads)
+    worst = 0.0
     for f in (0, len(reference.T) // 2, len(reference.T) - 1):
         joints.update(reference.T[f])
         locals_ = {i: node_matrix(n) for i, n in enumerate(gltf.nodes)}
@@ -187,6 +200,29 @@ def test_glb_keeps_the_files_vertices_attributes_material_and_nodes(pillar):
         world = node_worlds(gltf, locals_)
         pivots = np.array([world[j][:3, 3] for j in skin.joints])
         np.testing.assert_allclose(pivots, joints.pivot, atol=1e-5)
+        for k, j in enumerate(skin.joints):
+            expected = joints.world[k][:, :3] @ rest[j][:3, :3]
+            worst = max(worst, float(np.abs(world[j][:3, :3] - expected).max()))
+    return worst
+
+
+def test_glb_keys_are_exact_under_a_uniformly_scaled_turned_armature(tmp_path):
+    turned = ((0.4, -1.0, 2.5), tuple(Rotation.from_euler("xyz", [30, 50, -20], degrees=True).as_quat()),
+              (1.5, 1.5, 1.5))
+    dressed.build(tmp_path / "pillar.glb", moved=turned)
+    (tmp_path / "pillar.toml").write_text(RIG.format(mesh="pillar.glb"))
+    rig = load_rig(tmp_path / "pillar.toml")
+    take = shared.write_take(tmp_path / "take.mcap", rig, readings=12)
+    reference = shared.reference_solve(rig, take)
+    report = export_take(rig, TakeReader(take), Outputs(gltf=tmp_path / "anim.glb",
+                                                        pc2=tmp_path / "mesh.pc2"), fps=shared.FPS)
+    gltf = pygltflib.GLTF2().load_binary(str(tmp_path / "anim.glb"))
+    assert joint_worlds_follow_the_solve(gltf, rig, reference) < 1e-5
+    assert report.lbs_max_pct < 1e-3  # the file's skin is the solve (rigid pillar, exact keys)
+    A = dressed.armature_world(turned)
+    local = read_pc2(tmp_path / "mesh.pc2").astype(np.float64)
+    np.testing.assert_allclose(local @ A[:3, :3].T + A[:3, 3], reference.deformed[:, rig.source_index],
+                               atol=2e-5)
 
 
 def test_rig_without_transforms_writes_the_same_points_in_both_spaces(tmp_path):
