@@ -19,9 +19,11 @@ document says, through the operators that the File > Import menus call, in a fre
   usd        USD import of anim.usdc.
 
 It prints one line per step: the mesh's vertex count, the scene's rate and range, and how far
-the mesh is from the PC2 step's (the exact FAST mesh) over every frame, in % of the bounding box
-diagonal. ``--save`` writes what each step showed (world-space vertices of every frame, the
-scene's rate and range, bone and vertex group names) to an .npz file, which the tests read.
+the mesh is from the PC2 step's (the exact FAST mesh) over every frame, in % of the diagonal of
+the character's rest bounding box (as ``puppet export`` prints its figures). ``--save`` writes
+what each step showed (world-space vertices of every frame, the scene's rate and range, bone and
+vertex group names, UV maps, materials, images, object placement) to an .npz file, which the
+tests (tests/export/blender) read.
 """
 
 import argparse
@@ -34,11 +36,11 @@ import numpy as np
 
 def fresh_scene(fps=None):
     """An empty scene (Blender's defaults: 24 fps, frames 1..250), at ``fps`` when given (docs:
-    "Set the scene's frame rate to the export's first")."""
+    "Set the scene's frame rate to the export's")."""
     bpy.ops.wm.read_factory_settings(use_empty=True)
-    if fps is not None:
-        bpy.context.scene.render.fps = round(fps)
-        bpy.context.scene.render.fps_base = round(fps) / fps
+    if fps is not None:  # fps / fps_base is the rate: any rate, 23.976 or 0.5 alike
+        bpy.context.scene.render.fps = max(1, round(fps))
+        bpy.context.scene.render.fps_base = max(1, round(fps)) / fps
 
 
 def skinned_mesh():
@@ -75,6 +77,15 @@ def scene_state(frames_of=None) -> dict:
     if frames_of is not None and frames_of.animation_data and frames_of.animation_data.action:
         state["action_range"] = tuple(frames_of.animation_data.action.frame_range)
     return state
+
+
+def fcurves(action) -> list:
+    """Every F-curve of an action: in its layers' channel bags (Blender 4.4 and later), else
+    the action's own list."""
+    if not hasattr(action, "layers"):
+        return list(action.fcurves)
+    return [c for layer in action.layers for strip in layer.strips for bag in strip.channelbags
+            for c in bag.fcurves]
 
 
 def look(mesh) -> dict:
@@ -159,9 +170,7 @@ def run_steps(fps, frames, glb, pc2, bvh, usd, character=None) -> dict:
         armature = next(m.object for m in body.modifiers if m.type == "ARMATURE")
         action = armature.animation_data.action
         shown["gltf"] = {**scene_state(armature), **play(body), "rest": rest_vertices(body),
-                         "keys": sum(len(c.keyframe_points) for layer in action.layers
-                                     for strip in layer.strips for bag in strip.channelbags
-                                     for c in bag.fcurves),
+                         "keys": sum(len(c.keyframe_points) for c in fcurves(action)),
                          "scene_properties": {k: v for k, v in bpy.context.scene.items()
                                               if k.startswith("puppet_")},
                          "bones": [b.name for b in armature.data.bones],

@@ -5,7 +5,7 @@ it) in a subprocess: ``docs/blender_check.py`` does every step of docs/blender.m
 each step shows. The characters:
 
 - critter: the built-in character (its mesh comes from an .npz, so the PC2 and the BVH go on the
-  mesh of the exported .glb), the shared 24 fps export of tests/export/conftest.py's take;
+  mesh of the exported .glb): tests/export/conftest.py's take and reference solve, at 24 fps;
 - mare: the seamed, textured character of ``character.py``, its armature and mesh nodes moved,
   turned and scaled unevenly, exported at 30 fps (so a scene left at Blender's 24 fps would show).
 """
@@ -20,6 +20,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+
+from puppet.rig import load_rig
 
 HERE = Path(__file__).resolve().parent
 CHECK_SCRIPT = HERE.parents[2] / "docs" / "blender_check.py"
@@ -81,12 +83,12 @@ class Shown:
 STEP_FILES = {"gltf": "--glb", "pc2": "--pc2", "bvh": "--bvh", "usd": "--usd"}
 
 
-def run_blender_check(folder: Path, fps: float, frames: int, files: dict, character_file=None) -> tuple[dict, str]:
+def run_blender_check(folder: Path, fps: float, frames: int, files: dict,
+                      character_file=None) -> tuple[dict, str]:
     """Run docs/blender_check.py on the files of an export ({format: path}, any of them):
     ({step: shown}, what it printed)."""
     saved = folder / "shown.npz"
-    argv = [CHECK_SCRIPT, "--fps", f"{fps:g}", "--frames", str(frames),
-            "--save", str(saved)]
+    argv = [CHECK_SCRIPT, "--fps", f"{fps:g}", "--frames", str(frames), "--save", str(saved)]
     argv += [arg for fmt, path in files.items() for arg in (STEP_FILES[fmt], str(path))]
     if character_file is not None:
         argv += ["--character", str(character_file)]
@@ -142,8 +144,9 @@ def shown_for(name, rig, take, folder, fps, reference, rig_file=None, character_
     steps, output = run_blender_check(folder, fps, len(expected), files, character_file)
     rest = rig.V[order] @ Y_UP_TO_BLENDER.T
     rigid = rigid_skinning(rig, reference.T)[:, order] @ Y_UP_TO_BLENDER.T
-    return Shown(name, expected, rest, rigid, float(np.linalg.norm(rig.V.max(0) - rig.V.min(0))), fps,
-                 len(expected), report, steps, tuple(rig.skeleton.names), output)
+    diagonal = float(np.linalg.norm(rig.V.max(0) - rig.V.min(0)))
+    return Shown(name, expected, rest, rigid, diagonal, fps, len(expected), report, steps,
+                 tuple(rig.skeleton.names), output)
 
 
 @pytest.fixture(scope="session")
@@ -159,8 +162,6 @@ def mare_files(tmp_path_factory):
     glb = character.write_glb(folder / "mare.glb")
     rig_file = folder / "mare.toml"
     rig_file.write_text(character.rig_text(glb.name))
-    from puppet.rig import load_rig
-
     rig = load_rig(rig_file)
     take = export_data.write_take(folder / "mare.mcap", rig, readings=40)
     return folder, glb, rig_file, take
@@ -168,8 +169,6 @@ def mare_files(tmp_path_factory):
 
 @pytest.fixture(scope="session")
 def mare_shown(mare_files) -> Shown:
-    from puppet.rig import load_rig
-
     folder, glb, rig_file, take = mare_files
     rig = load_rig(rig_file)
     reference = export_data.reference_solve(rig, take, fps=30.0)
@@ -185,6 +184,18 @@ def mare_usdz(mare_files, mare_shown) -> dict:
     files, _ = export(folder, take, mare_shown.fps, rig_file, names={"usd": "anim.usdz"})
     steps, _ = run_blender_check(folder, mare_shown.fps, mare_shown.frames, files)
     return steps["usd"]
+
+
+@pytest.fixture(scope="session")
+def mare_model_space(mare_files, mare_shown) -> dict:
+    """The PC2 step on the character's own import with a PC2 written ``--space model``."""
+    folder, glb, rig_file, take = mare_files
+    folder = folder / "model_space"
+    folder.mkdir()
+    files, _ = export(folder, take, mare_shown.fps, rig_file, names={"pc2": "model.pc2"},
+                      options=("--up", "z", "--space", "model"))
+    steps, _ = run_blender_check(folder, mare_shown.fps, mare_shown.frames, files, glb)
+    return steps["pc2_source"]
 
 
 @pytest.fixture(params=["critter", "mare"])

@@ -100,6 +100,17 @@ def test_pc2_on_the_characters_own_import_is_the_solve(mare_shown):
     assert worst < EXACT_PCT
 
 
+def test_pc2_in_model_space_lands_as_on_an_object_without_transform(mare_shown, mare_model_space):
+    """``--space model``: the points are the model frame's, so Blender's Mesh Cache puts them
+    through the mesh object's transform once more: off by the armature's place on this
+    character, exactly that transform applied to the solve."""
+    M = mare_model_space["mesh_world"]
+    placed_twice = mare_shown.expected @ M[:3, :3].T + M[:3, 3]
+    off = np.linalg.norm(mare_model_space["vertices"] - placed_twice, axis=2) / mare_shown.diagonal * 100
+    assert off.max() < EXACT_PCT
+    assert distances_pct(mare_shown, mare_model_space["vertices"]).min() > 10.0
+
+
 def test_gltf_keeps_the_characters_vertices_and_look(mare_shown):
     """The exported .glb comes back with the file's vertices (seam copies too), its UV sets,
     vertex colours, materials and texture."""
