@@ -53,6 +53,7 @@ def keys(ctx, rig_path, port, out, fps, step, interpolation, baud, force) -> Non
       puppet keys --rig my.toml --port /dev/ttyUSB0 --out shot.mcap --fps 24 --step 12
       puppet keys retime shot.mcap 3=40 4=52 --out retimed.mcap
       puppet keys delete shot.mcap 2 --out fewer.mcap
+      puppet keys goto shot.mcap 3 --rig my.toml --port /dev/ttyUSB0   (motorised puppets)
     """
     if ctx.invoked_subcommand is not None:
         return
@@ -63,7 +64,7 @@ def keys(ctx, rig_path, port, out, fps, step, interpolation, baud, force) -> Non
     missing = [name for name, value in (("--rig", rig_path), ("--port", port), ("--out", out))
                if value is None]
     if missing:
-        raise click.UsageError(f"missing {', '.join(missing)} (or a command: retime, delete)")
+        raise click.UsageError(f"missing {', '.join(missing)} (or a command: retime, delete, goto)")
     rig = load_rig(rig_path)
     check_take_path(out, rig, force=force)  # before the port: a mistake costs nothing
     session = KeySession(out, take_header(rig), fps=fps, step=step, interpolation=interpolation)
@@ -159,6 +160,50 @@ def delete(shot: str, index: int, out: str, force: bool) -> None:
     from puppet.keys import remove_key
 
     _edit(shot, out, force, lambda k: remove_key(k, index, shot))
+
+
+@keys.command()
+@click.argument("shot")
+@click.argument("index", type=click.IntRange(0, None))
+@click.option("--rig", "rig_path", default=None, help="Rig file of the puppet (default: built-in).")
+@click.option("--port", required=True, help="Serial port of the bus.")
+@click.option("--baud", default=1_000_000, show_default=True, type=InRange(limits.BAUD),
+              help=f"Bus speed: {limits.BAUD}.")
+@click.option("--yes", is_flag=True, help="No countdown before the move.")
+@click.option("--no-watchdog", is_flag=True,
+              help="Move servos without the Bus Watchdog (a host crash leaves them driving).")
+@click.option("--watchdog-ms", default=100.0, show_default=True, type=InRange(limits.WATCHDOG_MS),
+              help=f"Bus Watchdog period ({limits.WATCHDOG_MS}).")
+@click.option("--latency-ms", default=None, type=InRange(limits.LATENCY_MS),
+              help=f"Adapter latency the SDK timeouts assume ({limits.LATENCY_MS}).")
+def goto(shot: str, index: int, rig_path: str | None, port: str, baud: int, yes: bool,
+         no_watchdog: bool, watchdog_ms: float, latency_ms: int | None) -> None:
+    """Motorised puppets: ease the servos to key INDEX, then torque off to adjust by hand.
+
+    Torque goes on with goal = present, the servos ease to the key at the slow start speed
+    (clamped to the rig's limits, Bus Watchdog on), and torque goes off once they are there,
+    or on any stop (Ctrl-C, a fault): ``puppet perform``'s start, for one pose.
+
+    \b
+    Example:
+      puppet keys goto shot.mcap 3 --rig my.toml --port /dev/ttyUSB0
+    """
+    from puppet.drive import DriveError, PerformOptions, perform
+    from puppet.take import TakeReader
+
+    rig = load_rig(rig_path)
+    reader = TakeReader(shot)
+    options = PerformOptions(key=index, yes=yes, watchdog=not no_watchdog,
+                             watchdog_ms=watchdog_ms, baud=baud, latency_ms=latency_ms)
+    try:
+        report = perform(rig, reader, port, options, log=lambda line: click.echo(line, err=True))
+    except DriveError as err:
+        if err.report is not None:
+            click.echo(err.report.text(), err=True)
+        raise
+    off = sorted(i for i, v in report.torque_after.items() if v == 0)
+    click.echo(f"key {index}: {'reached' if report.stop_reason == 'end of take' else report.stop_reason}"
+               f"; torque off on {len(off)} of {len(report.torque_after)} servos")
 
 
 COMMANDS = (keys,)

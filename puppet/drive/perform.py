@@ -92,6 +92,8 @@ class PerformOptions:
     load), see ``puppet.drive.health``.
     countdown_s: seconds of countdown. arrive_timeout_s: extra time allowed to arrive.
     baud, latency_ms: the link (see BusLink).
+    key: perform only this key of a shot (``puppet keys goto``): the start eases the servos to
+    it and waits until they are there, then torque goes off (a one-pose take).
     """
 
     speed: float = 1.0
@@ -111,6 +113,7 @@ class PerformOptions:
     arrive_timeout_s: float = 10.0
     baud: int = 1_000_000
     latency_ms: int | None = None
+    key: int | None = None
 
 
 @dataclass
@@ -217,7 +220,7 @@ def perform(rig, reader, port: str, options: PerformOptions | None = None,
         from puppet.rig.servo_map import check_bus_watchdogs
 
         check_bus_watchdogs(rig.servo_map.servos, rig.servo_map.path)
-    goals = TakeGoals.from_take(reader, rig.servo_map)
+    goals = TakeGoals.from_take(reader, rig.servo_map, key=opts.key)
     report.flagged = dict(goals.flagged)
     # Everything wrong with the take is said before the port opens (torque on comes later).
     report.take_damage = reader.recovery
