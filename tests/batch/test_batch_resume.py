@@ -147,6 +147,8 @@ def test_keys_shape_the_gltf_as_in_export_and_a_change_redoes_it(tmp_path, critt
     subprocess.run(["puppet", "export", take, "--gltf", tmp_path / "alone.glb", "--keys", "0.5"],
                    check=True, capture_output=True, timeout=300)
     assert (out / "t.glb").read_bytes() == (tmp_path / "alone.glb").read_bytes()
+    log = (out / "t.log").read_text()  # the export's report: keys kept per joint
+    assert "  gltf keys within 0.5° and " in log and f"  gltf: {out / 't.glb'} (" in log
     assert rows_of(batch(*args, "--resume", "--keys", "0.5"))[0][1] == "skipped"
     for bad, words in ((["--keys-units", "0.1"], "--keys-units: needs --keys"),
                        (["--keys", "0.5", "--formats", "bvh"], "--keys: reduces the glTF's keys")):
