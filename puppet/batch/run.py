@@ -316,6 +316,7 @@ def _commit(job: Job, result: TakeResult, made: Made, inputs: list[Path], force:
             else:
                 check_output(target, **rule)  # again: the folder may have changed meanwhile
                 os.replace(result.files[fmt], target)
+            result.moved(result.files[fmt], str(target))
         result.files = {fmt: str(target) for fmt, target in job.outputs.items()}
         write_manifest(job.manifest, made, job.outputs, inputs=inputs, force=force)
     except OutputError as err:

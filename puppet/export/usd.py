@@ -20,8 +20,8 @@ For a rig read from a glTF file (``Rig.source``), the stage also carries the fil
                      its world is the model frame's points exactly. Its triangles are the file's;
                      primvars: ``st`` / ``st<k>`` from TEXCOORD_0 / TEXCOORD_k (t = 1 − v),
                      displayColor (+ displayOpacity) from COLOR_0, ``COLOR_<k>`` for k > 0; normals
-                     per frame, smooth across the seams the loader welded; each primitive's
-                     material bound (GeomSubsets when there are several).
+                     per frame, smooth across UV seams, hard edges kept as the file has them; each
+                     primitive's material bound (GeomSubsets when there are several).
   /<name>/Materials  UsdPreviewSurface materials (``puppet.export.usd_materials``); their images
                      are written next to the layer in ``<stem>_textures/`` and referenced from it,
                      or packaged inside a .usdz.
@@ -85,8 +85,9 @@ class UsdWriter(ExportWriter):
     meters_per_unit: the stage's metersPerUnit (model units in metres).
     source:   the character file's SourceScene (``Rig.source``) or None (module docstring);
               V must then be in its vertex order.
-    weld:     (n,) int: the welded vertex of each vertex (``SourceOrder.index``), so per-frame
-              normals are smooth across seams; None: every vertex its own.
+    weld:     (n,) int: the welded vertex of each vertex (``SourceOrder.index``): copies that the
+              file gave the same normal share their per-frame normal (a UV seam shades smooth),
+              copies with different normals keep theirs apart (a hard edge stays hard).
     textures: the folder the images go to (default ``<stem>_textures`` next to path; a .usdz
               packages them); inputs: files no texture may overwrite.
     Fields: joint_paths (b,) the Skeleton's joint tokens; renamed {name: safe name}; mesh_path;
@@ -160,7 +161,11 @@ class UsdWriter(ExportWriter):
         self._extent = mesh.CreateExtentAttr(Vt.Vec3fArray.FromNumpy(np.stack([V.min(0), V.max(0)])))
         self._local = np.empty(V.shape, np.float32)
         if source is not None:
-            self._normals = _SmoothNormals(F, np.arange(len(V)) if weld is None else weld)
+            groups = np.arange(len(V)) if weld is None else np.asarray(weld, np.int64)
+            if "NORMAL" in source.attributes:  # copies with the file's same normal: a UV seam,
+                key = np.column_stack([groups, np.round(source.attributes["NORMAL"] * 1000)])
+                groups = np.unique(key, axis=0, return_inverse=True)[1].reshape(-1)  # else a hard edge
+            self._normals = _SmoothNormals(F, groups)
             self._normals_attr = mesh.CreateNormalsAttr()
             mesh.SetNormalsInterpolation(UsdGeom.Tokens.vertex)
             self._normals_attr.Set(Vt.Vec3fArray.FromNumpy(self._normals(V)))

@@ -107,7 +107,7 @@ def pillar(tmp_path_factory):
 def test_pc2_lands_on_the_moved_turned_and_scaled_mesh_object(pillar):
     rig, take, reference, folder = pillar
     solved = reference.deformed[:, rig.source_index]  # the file's vertex order, model frame
-    assert solved.shape[1] == len(dressed.geometry()[0]) > len(rig.V)  # seam copies are kept
+    assert solved.shape[1] == len(dressed.file_vertices()) > len(rig.V)  # seam copies are kept
     # Blender's glTF importer parents the skinned mesh to the armature object with an identity
     # transform: the mesh object's local space is the Armature node's world.
     np.testing.assert_allclose(rig.source.object_world, dressed.armature_world(), atol=1e-12)
@@ -145,20 +145,29 @@ def test_glb_keeps_the_files_vertices_attributes_material_and_nodes(pillar):
     assert mesh_node.name == "pillar" and mesh_node.skin == 0
     np.testing.assert_allclose(mesh_node.scale, dressed.MESH_TRS[2])
 
-    # The mesh: the file's vertex count and order, its triangles, every attribute.
-    V, F, N, uv0, uv1, colours, _ = dressed.geometry()
-    (prim,) = gltf.meshes[mesh_node.mesh].primitives
-    a = prim.attributes
-    np.testing.assert_allclose(accessor(gltf, a.POSITION), V, atol=1e-5)
-    np.testing.assert_array_equal(accessor(gltf, prim.indices).reshape(-1, 3), F)
-    np.testing.assert_allclose(accessor(gltf, a.NORMAL), N, atol=1e-6)
-    np.testing.assert_array_equal(accessor(gltf, a.TEXCOORD_0), uv0)
-    np.testing.assert_array_equal(accessor(gltf, a.TEXCOORD_1), uv1)
-    np.testing.assert_array_equal(accessor(gltf, a.COLOR_0), colours)
+    # The mesh: the file's primitives, vertex count and order, triangles, every attribute each
+    # primitive had (and no other), its material.
+    prims = dressed.primitives()
+    written = gltf.meshes[mesh_node.mesh].primitives
+    assert [p.material for p in written] == [0, 1]
+    for p, theirs in zip(written, prims):
+        a = p.attributes
+        np.testing.assert_allclose(accessor(gltf, a.POSITION), theirs["V"], atol=1e-5)
+        np.testing.assert_array_equal(accessor(gltf, p.indices).reshape(-1, 3), theirs["F"])
+        np.testing.assert_allclose(accessor(gltf, a.NORMAL), theirs["N"], atol=1e-6)
+        np.testing.assert_array_equal(accessor(gltf, a.TEXCOORD_0), theirs["uv0"])
+        for attribute, key in (("TEXCOORD_1", "uv1"), ("COLOR_0", "colours")):
+            if theirs[key] is None:
+                assert getattr(a, attribute) is None
+            else:
+                np.testing.assert_array_equal(accessor(gltf, getattr(a, attribute)), theirs[key])
 
-    # The material and its texture, the image embedded byte for byte.
-    (material,) = gltf.materials
-    assert material.name == "skin"
+    # The materials and the texture, the image embedded byte for byte.
+    skin_material, cap = gltf.materials
+    assert (skin_material.name, cap.name) == ("skin", "cap")
+    assert cap.pbrMetallicRoughness.baseColorFactor == [0.2, 0.3, 0.9, 1.0]
+    assert cap.pbrMetallicRoughness.baseColorTexture is None
+    material = skin_material
     assert material.pbrMetallicRoughness.baseColorFactor == [1.0, 0.9, 0.8, 1.0]
     texture = gltf.textures[material.pbrMetallicRoughness.baseColorTexture.index]
     image = gltf.images[texture.source]
@@ -250,7 +259,7 @@ def test_missing_image_file_warns_and_exports_a_plain_material(tmp_path):
     assert "Traceback" not in result.stderr
     assert f"warning: {tmp_path / 'pillar.gltf'}: image file {missing!r}" in result.stderr
     gltf = pygltflib.GLTF2().load_binary(str(tmp_path / "anim.glb"))
-    (material,) = gltf.materials
+    material, _ = gltf.materials
     assert material.name == "skin"
     assert material.pbrMetallicRoughness.baseColorTexture is None  # plain: its factors only
     assert material.pbrMetallicRoughness.baseColorFactor == [1.0, 0.9, 0.8, 1.0]
@@ -297,22 +306,35 @@ def test_usd_carries_the_files_place_uvs_colours_and_textured_material(pillar, s
         np.testing.assert_allclose(local @ world[:3, :3].T + world[:3, 3], solved[frame - 1], atol=2e-5)
         normals = np.array(mesh.GetNormalsAttr().Get(time))
         np.testing.assert_allclose(np.linalg.norm(normals, axis=1), 1.0, atol=1e-5)
-        seam = np.arange(0, len(dressed.geometry()[0]) - 2, dressed.SIDES + 1)  # u = 0 copies
-        np.testing.assert_allclose(normals[seam], normals[seam + dressed.SIDES], atol=1e-6)  # smooth
-    # The file's triangles, UV sets (t = 1 - v), colours.
-    V, F, N, uv0, uv1, colours, _ = dressed.geometry()
-    np.testing.assert_array_equal(np.array(mesh.GetFaceVertexIndicesAttr().Get()).reshape(-1, 3), F)
+        ring = np.arange(0, dressed.RINGS * (dressed.SIDES + 1), dressed.SIDES + 1)  # u = 0
+        np.testing.assert_allclose(normals[ring], normals[ring + dressed.SIDES], atol=1e-6)  # smooth
+        caps = len(dressed.primitives()[0]["V"]) + np.arange(dressed.SIDES)  # the bottom cap's ring
+        assert np.abs(np.einsum("ij,ij->i", normals[caps], normals[:dressed.SIDES])).max() < 0.9  # hard
+    # The file's triangles (its primitives in order), UV sets (t = 1 - v), colours.
+    prims = dressed.primitives()
+    sides = len(prims[0]["V"])
+    np.testing.assert_array_equal(np.array(mesh.GetFaceVertexIndicesAttr().Get()).reshape(-1, 3),
+                                  np.concatenate([prims[0]["F"], prims[1]["F"] + sides]))
     primvars = UsdGeom.PrimvarsAPI(mesh)
-    for name, uv in (("st", uv0), ("st1", uv1)):
+    for name, uv in (("st", np.concatenate([prims[0]["uv0"], prims[1]["uv0"]])), ("st1", prims[0]["uv1"])):
         st = np.array(primvars.GetPrimvar(name).Get())
         assert primvars.GetPrimvar(name).GetInterpolation() == "vertex"
-        np.testing.assert_allclose(st, np.column_stack([uv[:, 0], 1 - uv[:, 1]]), atol=1e-7)
-    np.testing.assert_allclose(np.array(mesh.GetDisplayColorPrimvar().Get()), colours[:, :3])
-    np.testing.assert_allclose(np.array(mesh.GetDisplayOpacityPrimvar().Get()), colours[:, 3])
+        np.testing.assert_allclose(st[:len(uv)], np.column_stack([uv[:, 0], 1 - uv[:, 1]]), atol=1e-7)
+    colours = prims[0]["colours"]
+    np.testing.assert_allclose(np.array(mesh.GetDisplayColorPrimvar().Get())[:sides], colours[:, :3])
+    np.testing.assert_allclose(np.array(mesh.GetDisplayOpacityPrimvar().Get())[:sides], colours[:, 3])
+    # Each primitive's material on its triangles (GeomSubsets).
+    subsets = UsdShade.MaterialBindingAPI(mesh.GetPrim()).GetMaterialBindSubsets()
+    bound = {UsdShade.MaterialBindingAPI(s.GetPrim()).ComputeBoundMaterial()[0].GetPath().name:
+             np.array(s.GetIndicesAttr().Get()) for s in subsets}
+    assert sorted(bound) == ["cap", "skin"]
+    np.testing.assert_array_equal(bound["skin"], np.arange(len(prims[0]["F"])))
+    np.testing.assert_array_equal(bound["cap"], len(prims[0]["F"]) + np.arange(len(prims[1]["F"])))
+    cap = UsdShade.Material(stage.GetPrimAtPath("/pillar/Materials/cap")).ComputeSurfaceSource()[0]
+    np.testing.assert_allclose(cap.GetInput("diffuseColor").Get(), [0.2, 0.3, 0.9])
     # The material: a UsdPreviewSurface whose diffuse colour is the texture, the image beside
     # the layer (or inside the .usdz) byte for byte.
-    material, _ = UsdShade.MaterialBindingAPI(mesh.GetPrim()).ComputeBoundMaterial()
-    assert material.GetPath().name == "skin"
+    material = UsdShade.Material(stage.GetPrimAtPath("/pillar/Materials/skin"))
     surface = material.ComputeSurfaceSource()[0]
     assert surface.GetIdAttr().Get() == "UsdPreviewSurface"
     (source,) = surface.GetInput("diffuseColor").GetConnectedSources()[0]
@@ -346,8 +368,7 @@ def test_usd_of_a_missing_image_has_a_plain_material(tmp_path):
     report = export_take(rig, TakeReader(take), Outputs(usd=tmp_path / "anim.usdc"), fps=10)
     assert len(report.warnings) == 1 and str(tmp_path / dressed.IMAGE) in report.warnings[0]
     stage = Usd.Stage.Open(str(tmp_path / "anim.usdc"))
-    material, _ = UsdShade.MaterialBindingAPI(_usd_mesh(stage).GetPrim()).ComputeBoundMaterial()
-    surface = material.ComputeSurfaceSource()[0]
+    surface = UsdShade.Material(stage.GetPrimAtPath("/pillar/Materials/skin")).ComputeSurfaceSource()[0]
     assert not surface.GetInput("diffuseColor").HasConnectedSource()
     np.testing.assert_allclose(surface.GetInput("diffuseColor").Get(), [1.0, 0.9, 0.8])
     assert not (tmp_path / "anim_textures").exists()
