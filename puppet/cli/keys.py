@@ -53,6 +53,7 @@ def keys(ctx, rig_path, port, out, fps, step, interpolation, baud, force) -> Non
       puppet keys --rig my.toml --port /dev/ttyUSB0 --out shot.mcap --fps 24 --step 12
       puppet keys retime shot.mcap 3=40 4=52 --out retimed.mcap
       puppet keys delete shot.mcap 2 --out fewer.mcap
+      puppet keys interpolation shot.mcap 0=smooth 2=step --out smooth.mcap
       puppet keys goto shot.mcap 3 --rig my.toml --port /dev/ttyUSB0   (motorised puppets)
     """
     if ctx.invoked_subcommand is not None:
@@ -64,7 +65,7 @@ def keys(ctx, rig_path, port, out, fps, step, interpolation, baud, force) -> Non
     missing = [name for name, value in (("--rig", rig_path), ("--port", port), ("--out", out))
                if value is None]
     if missing:
-        raise click.UsageError(f"missing {', '.join(missing)} (or a command: retime, delete, goto)")
+        raise click.UsageError(f"missing {', '.join(missing)} (or a command: retime, delete, interpolation, goto)")
     rig = load_rig(rig_path)
     check_take_path(out, rig, force=force)  # before the port: a mistake costs nothing
     session = KeySession(out, take_header(rig), fps=fps, step=step, interpolation=interpolation)
@@ -118,7 +119,8 @@ def _edit(shot: str, out: str, force: bool, change) -> None:
                           what="shot")
     new = change(keys)
     write_shot(target, header, new)
-    click.echo(f"shot: {out}\nkeys: " + ", ".join(f"{i}@{k.frame}" for i, k in enumerate(new.keys)))
+    click.echo(f"shot: {out}\nkeys: " + ", ".join(f"{i}@{k.frame} {k.interpolation}"
+                                                 for i, k in enumerate(new.keys)))
 
 
 @keys.command()
@@ -136,13 +138,42 @@ def retime(shot: str, moves: tuple[str, ...], out: str, force: bool) -> None:
     from puppet.keys import retime as retime_keys
 
     frames = {}
-    for move in moves:
-        index, _, frame = move.partition("=")
-        if not (index.strip().isdigit() and frame.strip().isdigit()):
-            raise click.BadParameter(f"{move!r}: expected INDEX=FRAME, e.g. 3=40",
-                                     param_hint="MOVES")
-        frames[int(index)] = int(frame)
+    for index, frame in _pairs(moves, "FRAME", "3=40").items():
+        if not frame.isdigit():
+            raise click.BadParameter(f"{index}={frame}: FRAME is a whole number, e.g. 3=40")
+        frames[index] = int(frame)
     _edit(shot, out, force, lambda k: retime_keys(k, frames, shot))
+
+
+def _pairs(items: tuple[str, ...], right: str, example: str) -> dict[int, str]:
+    """{index: value} of INDEX=VALUE arguments; BadParameter naming a malformed one."""
+    pairs = {}
+    for item in items:
+        index, _, value = item.partition("=")
+        if not index.strip().isdigit() or not value.strip():
+            raise click.BadParameter(f"{item!r}: expected INDEX={right}, e.g. {example}")
+        pairs[int(index)] = value.strip()
+    return pairs
+
+
+@keys.command()
+@click.argument("shot")
+@click.argument("kinds", nargs=-1, required=True)
+@click.option("--out", required=True, help="The shot with new interpolations (.mcap; not the input).")
+@click.option("--force", is_flag=True, help="Replace an existing file at --out.")
+def interpolation(shot: str, kinds: tuple[str, ...], out: str, force: bool) -> None:
+    """How the frames after a key are filled: INDEX=linear|smooth|step ...
+
+    \b
+    linear: slerp of each joint's rotation; smooth: a spline in rotation space through the
+    keys; step: hold the key until the next.
+    Example:
+      puppet keys interpolation shot.mcap 0=smooth 2=step --out smooth.mcap
+    """
+    from puppet.keys import interpolate
+
+    chosen = _pairs(kinds, "KIND", "2=smooth")
+    _edit(shot, out, force, lambda k: interpolate(k, chosen, shot))
 
 
 @keys.command()

@@ -42,6 +42,8 @@ from puppet.take.errors import TakeError
 MAX_GAP_S = 1.0
 """Longest gap between two readings played as recorded, seconds; a longer one plays as this."""
 MAX_GAP_NS = int(MAX_GAP_S * 1e9)
+ROTATION_BLOCK = 256
+"""A shot's frames' joint rotations are interpolated this many frames at a time."""
 
 
 class Cut(NamedTuple):
@@ -162,10 +164,14 @@ class Playback:
         k = self.ticks.shape[1]
         self._step = np.empty(k, np.int64)  # scratch of sample()
         self._part = np.empty(k, np.float64)
-        self._key_rot = self._frame_rot = None
+        self._inbetweens = None
         if self.interpolation is not None and joint_rotations is not None:
-            self._key_rot = np.stack([joint_rotations(row) for row in self.ticks])  # (K, b, 3, 3)
-            self._frame_rot = self._rotations(self.frame_times_ns())  # (N, b, 3, 3)
+            from puppet.take.inbetween import Inbetweens
+
+            key_rot = np.stack([joint_rotations(row) for row in self.ticks])  # (K, b, 3, 3)
+            self._inbetweens = Inbetweens(self.play_ns, key_rot, self.interpolation)
+            self._block_start = 0  # frames [start, start + ROTATION_BLOCK) interpolated ahead
+            self._block = None
 
     @classmethod
     def of_take(cls, reader, ids, *, fps: float = 30.0, speed: float = 1.0,
@@ -196,12 +202,15 @@ class Playback:
         return cls(*reader.arrays(ids=ids), np.asarray(ids), fps=fps, speed=speed,
                    source=reader.path)
 
-    def _rotations(self, play_ns) -> np.ndarray:
-        """(N, b, 3, 3) joint rotations of a shot at play times (N,) ns."""
-        from puppet.take.inbetween import inbetween_rotations
-
-        return inbetween_rotations(self.play_ns, self._key_rot, self.interpolation,
-                                   np.asarray(play_ns, np.float64))
+    def _frame_rotations(self, f: int) -> np.ndarray:
+        """(b, 3, 3) joint rotations of frame f of a shot: interpolated ROTATION_BLOCK frames at
+        a time (bounded memory whatever the shot's length; no allocation on most frames)."""
+        if self._block is None or not self._block_start <= f < self._block_start + ROTATION_BLOCK:
+            self._block_start = f
+            last = min(f + ROTATION_BLOCK, self._count)
+            times = np.rint(np.arange(f, last) * self._step_ns)
+            self._block = self._inbetweens.at(times)
+        return self._block[f - self._block_start]
 
     def __len__(self) -> int:
         return self._count
@@ -251,7 +260,7 @@ class Playback:
         """The take at play time ``seconds`` as a Reading (fresh arrays), stamped t_first_ns +
         that play time."""
         play_ns = int(round(seconds * 1e9))
-        rotations = None if self._key_rot is None else self._rotations([play_ns])[0]
+        rotations = None if self._inbetweens is None else self._inbetweens.at([play_ns])[0]
         return self._reading(play_ns, rotations)
 
     def reading(self, f: int) -> Reading:
@@ -259,7 +268,7 @@ class Playback:
         if not 0 <= f < self._count:
             raise IndexError(f"frame {f} of {self._count}")
         return self._reading(self.frame_ns(f),
-                             None if self._frame_rot is None else self._frame_rot[f])
+                             None if self._inbetweens is None else self._frame_rotations(f))
 
     def _reading(self, play_ns: int, rotations=None) -> Reading:
         k = len(self.ids)

@@ -132,6 +132,14 @@ def test_keys_captured_with_enter_edited_and_retimed(tmp_path, wait_until, inter
     gone = run("keys", "delete", retimed, "1", "--out", tmp_path / "fewer.mcap")
     assert gone.returncode == 0, gone.stderr
     assert [k.frame for k in TakeReader(tmp_path / "fewer.mcap").keys().keys] == [1, 25, 40, 52]
+    smooth = tmp_path / "smooth.mcap"
+    chosen = run("keys", "interpolation", retimed, "0=smooth", "2=step", "--out", smooth)
+    assert chosen.returncode == 0, chosen.stderr
+    assert [k.interpolation for k in TakeReader(smooth).keys().keys] == [
+        "smooth", "linear", "step", "linear", "linear"]
+    wrong = run("keys", "interpolation", retimed, "1=cubic", "--out", tmp_path / "no.mcap")
+    assert wrong.returncode == 1 and "interpolation 'cubic' is not one of linear, smooth, step" in wrong.stderr
+    assert not (tmp_path / "no.mcap").exists()
     assert shot.read_bytes() == before
 
     # the shot exports like any take: one BVH frame per shot frame
