@@ -19,9 +19,11 @@ document says, through the operators that the File > Import menus call, in a fre
   usd        USD import of anim.usdc.
 
 It prints one line per step: the mesh's vertex count, the scene's rate and range, and how far
-the mesh is from the PC2 step's (the exact FAST mesh) over every frame, in % of the bounding box
-diagonal. ``--save`` writes what each step showed (world-space vertices of every frame, the
-scene's rate and range, bone and vertex group names) to an .npz file, which the tests read.
+the mesh is from the PC2 step's (the exact FAST mesh) over every frame, in % of the diagonal of
+the character's rest bounding box (as ``puppet export`` prints its figures). ``--save`` writes
+what each step showed (world-space vertices of every frame, the scene's rate and range, bone and
+vertex group names, UV maps, materials, images, object placement) to an .npz file, which the
+tests (tests/export/blender) read.
 """
 
 import argparse
@@ -34,11 +36,11 @@ import numpy as np
 
 def fresh_scene(fps=None):
     """An empty scene (Blender's defaults: 24 fps, frames 1..250), at ``fps`` when given (docs:
-    "Set the scene's frame rate to the export's first")."""
+    "Set the scene's frame rate to the export's")."""
     bpy.ops.wm.read_factory_settings(use_empty=True)
-    if fps is not None:
-        bpy.context.scene.render.fps = round(fps)
-        bpy.context.scene.render.fps_base = round(fps) / fps
+    if fps is not None:  # fps / fps_base is the rate: any rate, 23.976 or 0.5 alike
+        bpy.context.scene.render.fps = max(1, round(fps))
+        bpy.context.scene.render.fps_base = max(1, round(fps)) / fps
 
 
 def skinned_mesh():
@@ -77,6 +79,15 @@ def scene_state(frames_of=None) -> dict:
     return state
 
 
+def fcurves(action) -> list:
+    """Every F-curve of an action: in its layers' channel bags (Blender 4.4 and later), else
+    the action's own list."""
+    if not hasattr(action, "layers"):
+        return list(action.fcurves)
+    return [c for layer in action.layers for strip in layer.strips for bag in strip.channelbags
+            for c in bag.fcurves]
+
+
 def look(mesh) -> dict:
     """The mesh's UV maps, colour attributes and materials, and the images loaded (with pixels)."""
     return {"uv_layers": [uv.name for uv in mesh.data.uv_layers],
@@ -94,23 +105,14 @@ def placement(mesh) -> dict:
     return out
 
 
-def play(obj, armature=None) -> dict:
-    """{"vertices": (frames, n, 3) world vertices of ``obj`` on every frame of the scene's range}
-    and, with an armature, "pose_rotations" (frames, bones, 4) w, x, y, z and "pose_locations"
-    (frames, bones, 3): each pose bone's own (parent-relative) transform, as its F-curves play."""
+def play(obj) -> dict:
+    """{"vertices": (frames, n, 3) world vertices of ``obj`` on every frame of the scene's range}."""
     scene = bpy.context.scene
-    vertices, rotations, locations = [], [], []
+    vertices = []
     for frame in range(scene.frame_start, scene.frame_end + 1):
         scene.frame_set(frame)
         vertices.append(world_vertices(obj))
-        if armature is not None:
-            basis = [b.matrix_basis.decompose() for b in armature.pose.bones]
-            rotations.append([tuple(r) for _, r, _ in basis])
-            locations.append([tuple(t) for t, _, _ in basis])
-    out = {"vertices": np.array(vertices)}
-    if armature is not None:
-        out.update(pose_rotations=np.array(rotations), pose_locations=np.array(locations))
-    return out
+    return {"vertices": np.array(vertices)}
 
 
 def import_gltf(path, fps=None, frames=None):
@@ -167,10 +169,8 @@ def run_steps(fps, frames, glb, pc2, bvh, usd, character=None) -> dict:
         body = import_gltf(glb, fps, frames)
         armature = next(m.object for m in body.modifiers if m.type == "ARMATURE")
         action = armature.animation_data.action
-        shown["gltf"] = {**scene_state(armature), **play(body, armature), "rest": rest_vertices(body),
-                         "keys": sum(len(c.keyframe_points) for layer in action.layers
-                                     for strip in layer.strips for bag in strip.channelbags
-                                     for c in bag.fcurves),
+        shown["gltf"] = {**scene_state(armature), **play(body), "rest": rest_vertices(body),
+                         "keys": sum(len(c.keyframe_points) for c in fcurves(action)),
                          "scene_properties": {k: v for k, v in bpy.context.scene.items()
                                               if k.startswith("puppet_")},
                          "bones": [b.name for b in armature.data.bones],
@@ -209,6 +209,8 @@ def report(shown) -> str:
                 f"{s['frame_start']}..{s['frame_end']}")
         if "action_range" in s:
             line += f", keys on {s['action_range'][0]:g}..{s['action_range'][1]:g}"
+        if "keys" in s:
+            line += f" ({s['keys']} key values)"
         if reference is not None and V.shape == reference.shape:
             diagonal = np.linalg.norm(rest.max(0) - rest.min(0))
             d = np.linalg.norm(V - reference, axis=2) / diagonal * 100

@@ -66,13 +66,15 @@ def build_parser() -> argparse.ArgumentParser:
                              "MX) and 2.0 models (X, MX(2.0), XL-320) are not mixed")
     parser.add_argument("--rig", default=None, metavar="RIG",
                         help="a puppet rig file (TOML): serve exactly its servos (ids and models); "
-                             "the default motion then swings each joint inside its limits")
+                             "the default motion then swings each joint across its own range "
+                             "(the middle of its limits +- 0.35 x their span)")
     parser.add_argument("--model", default="XL330-M288", choices=sorted(MODELS),
                         help="servo model for ids given without one")
     parser.add_argument("--motion", default=None,
                         help=f"motion source: {', '.join(sorted(BUILTIN))}, {GUIDED} (each servo in "
-                             "turn, in the rig file's order, turned 30 degrees positive and back, as "
-                             "a person following 'puppet calibrate --guided'), a keyframe CSV "
+                             "turn, in the rig file's order, turned 30 degrees and back the way "
+                             "'puppet calibrate --guided' asks: positive, or negative where the "
+                             "limits leave more room), a keyframe CSV "
                              "path, or replay:PATH (CSV, NPZ or a take of recorded ticks); "
                              "default: wave, or with --rig a swing within the rig's limits")
     parser.add_argument("--faults", default=None, help="fault schedule file")

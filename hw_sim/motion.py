@@ -7,10 +7,11 @@ started, ``joint`` the id the servo was created with. Positions are continuous c
 - ``Hold``: every joint still (2048 unless told otherwise).
 - ``Programmatic``: positions set by tests (``SimBus.set_positions``).
 - ``Wave`` / ``Walk`` / ``Spin``: built-in performances.
-- ``WithinLimits``: every servo of a rig swings about its zero ticks inside its joint limits
+- ``WithinLimits``: every servo of a rig swings across its own joint range, centre ± 0.35 × span
   (``hw-sim --rig``'s default motion).
 - ``OneAtATime``: a person following ``puppet calibrate --guided``: each servo in turn is turned
-  in its joint's positive direction, held and brought back (``hw-sim --motion guided``).
+  the way calibrate asks (its joint's positive direction, or the negative one when the limits
+  leave more room there), held and brought back (``hw-sim --motion guided``).
 - ``Keyframes``: linear interpolation of a keyframe file, looping.
 - ``Replay``: sample-and-hold replay of recorded ticks: a puppet take (.mcap), or CSV / NPZ.
 
@@ -107,24 +108,25 @@ class Spin:
 
 
 class WithinLimits:
-    """A performance fitted to a rig: each servo swings sinusoidally inside its joint limits,
+    """A performance fitted to a rig: each servo swings sinusoidally across its own joint range,
     each a little behind the one before.
 
-    The swing is centred on the rest pose (``zero_ticks``) when the rest pose lies inside the
-    limits, with an amplitude of ``reach`` times the nearer limit; otherwise on the middle of the
-    limits, with ``reach`` times half their span. Amplitudes are capped at ``max_deg``.
+    Joint angle ``centre + reach · span · sin(2π t / period_s + phase)`` with ``centre`` the
+    middle of ``limits_deg`` and ``span`` their width, degrees: with the default ``reach`` of
+    0.35 a knee with limits [-5, 120] swings 13.75°..101.25°, bending only the way it bends.
     servos: objects with ``id``, ``zero_ticks``, ``sign``, ``gear`` (servo turns per joint turn)
     and ``limits_deg`` (low, high), e.g. ``hw_sim.rig_servos.RigServo``. Ids it does not name
     hold 2048.
     """
 
-    def __init__(self, servos, period_s: float = 2.4, reach: float = 0.7, max_deg: float = 50.0):
+    def __init__(self, servos, period_s: float = 2.4, reach: float = 0.35):
+        if not 0.0 <= reach <= 0.5:
+            raise ValueError(f"reach must be 0..0.5 of the span (0.5 touches the limits), got {reach}")
         self.period_s = period_s
         self.params: dict[int, tuple[float, float, float]] = {}
         for k, s in enumerate(servos):
             low, high = s.limits_deg
-            centre_deg = 0.0 if low < 0.0 < high else 0.5 * (low + high)
-            amplitude_deg = min(reach * min(centre_deg - low, high - centre_deg), max_deg)
+            centre_deg, amplitude_deg = 0.5 * (low + high), reach * (high - low)
             ticks_per_deg = s.sign * s.gear * TICKS_PER_TURN / 360.0
             self.params[int(s.id)] = (s.zero_ticks + centre_deg * ticks_per_deg,
                                       amplitude_deg * ticks_per_deg, 0.6 * k)
@@ -134,30 +136,48 @@ class WithinLimits:
         return centre + amplitude * math.sin(2.0 * math.pi * t / self.period_s + phase)
 
 
+#: Degrees a person following ``puppet calibrate --guided`` turns each joint, toward the side
+#: ``guided_direction`` picks. Device-side copy of ``puppet.rig.guided_calibration.TURN_DEG``
+#: (hw_sim imports nothing of puppet; tests/hw_sim/test_hwsim_guided_motion.py checks they agree).
+GUIDED_TURN_DEG = 30.0
+
+
+def guided_direction(limits_deg) -> int:
+    """+1 or -1: the side ``calibrate --guided`` asks a joint with ``limits_deg`` (low, high) to
+    turn toward: positive unless the upper limit is below GUIDED_TURN_DEG and the lower side has
+    more room (a knee with limits [-90, 10] bends negative). Device-side copy of
+    ``puppet.rig.guided_calibration.turn_direction``."""
+    low, high = (float(x) for x in limits_deg)
+    return 1 if high >= GUIDED_TURN_DEG or high >= -low else -1
+
+
 class OneAtATime:
     """A person following ``puppet calibrate --guided``: the puppet rests, then each servo in turn
-    (in the order given: the rig file's) is turned in its joint's positive direction, held, and
-    brought back to rest; every other servo stays at rest. Once the last is back, all rest.
+    (in the order given: the rig file's) is turned the way calibrate asks (``guided_direction``:
+    positive, or negative when the joint's limits leave more room that way), held, and brought
+    back to rest; every other servo stays at rest. Once the last is back, all rest.
 
     A sequence starts when the host first asks for positions after the bus has been quiet for
     ``quiet_s`` seconds (so each run of the calibration gets the whole sequence, whenever it is
     started): ``settle_s`` at rest (the host reads the rest pose), then per servo ``ramp_s`` out
-    to ``reach_deg`` of joint turn (0.9 of the upper limit when that is nearer), ``hold_s`` held,
-    ``ramp_s`` back, ``rest_s`` at rest.
+    to ``reach_deg`` of joint turn (0.9 of the limit on that side when that is nearer),
+    ``hold_s`` held, ``ramp_s`` back, ``rest_s`` at rest.
     servos: objects with ``id``, ``zero_ticks``, ``sign``, ``gear`` (servo turns per joint turn)
     and ``limits_deg`` (low, high), e.g. ``hw_sim.rig_servos.RigServo``. Ids it does not name
     hold 2048. The boot-time position (t = 0) is not a host asking.
     """
 
-    def __init__(self, servos, reach_deg: float = 30.0, settle_s: float = 5.0, ramp_s: float = 0.4,
-                 hold_s: float = 3.0, rest_s: float = 1.2, quiet_s: float = 2.0):
+    def __init__(self, servos, reach_deg: float = GUIDED_TURN_DEG, settle_s: float = 5.0,
+                 ramp_s: float = 0.4, hold_s: float = 3.0, rest_s: float = 1.2, quiet_s: float = 2.0):
         self.settle_s, self.ramp_s, self.hold_s, self.rest_s = settle_s, ramp_s, hold_s, rest_s
         self.quiet_s = quiet_s
         self.period_s = 2.0 * ramp_s + hold_s + rest_s   # one servo's turn, s
         self.params: dict[int, tuple[float, float, int]] = {}   # id -> (rest, reach ticks, turn)
         for k, s in enumerate(servos):
-            high = s.limits_deg[1]
-            reach = min(reach_deg, 0.9 * high) if high > 0.0 else reach_deg
+            low, high = s.limits_deg
+            direction = guided_direction(s.limits_deg)
+            room = high if direction > 0 else -low
+            reach = direction * (min(reach_deg, 0.9 * room) if room > 0.0 else reach_deg)
             self.params[int(s.id)] = (float(s.zero_ticks),
                                       reach * s.sign * s.gear * TICKS_PER_TURN / 360.0, k)
         self.start: float | None = None    # when the current sequence began, s

@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import glob
 import os
+import stat
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -216,11 +217,15 @@ class RigFinder:
 
     def for_take(self, take: Path) -> TakeRig:
         """The take's rig; TakeError / RigError naming the take and the rig file(s) when the
-        take's rig is neither found nor given, or the given rig does not fit the take."""
+        take is not a regular file or cannot be read, its rig is neither found nor given, or
+        the given rig does not fit it."""
         from puppet.replay import recorded_rig_file, rig_from_take
         from puppet.take import TakeError, TakeReader
         from puppet.take.reader import check_take_rig
 
+        if not stat.S_ISREG(os.stat(take).st_mode):  # a FIFO would block the driver
+            raise TakeError(take, "not a regular file (a folder, FIFO or device): a take is an "
+                                  "MCAP file")
         meta = TakeReader(take).metadata
         recorded = recorded_rig_file(meta)
         if self.given is not None:
@@ -258,10 +263,14 @@ def _rig_file(rig: Rig) -> str:
 
 
 def _rig_text_sha256(rig: Rig) -> str:
-    """sha256 of the rig file's bytes; of its name for a rig made in memory."""
-    if rig.path is not None and Path(rig.path).is_file():
+    """sha256 of the rig file's bytes and of its calibration file's (its zero ticks shape a take
+    that recorded none); of its name for a rig made in memory."""
+    if rig.path is None or not Path(rig.path).is_file():
+        return bytes_sha256(f"rig {rig.name}")
+    calibration = getattr(rig.calibration, "path", None)
+    if calibration is None or not Path(calibration).is_file():
         return file_sha256(rig.path)
-    return bytes_sha256(f"rig {rig.name}")
+    return bytes_sha256(file_sha256(rig.path) + file_sha256(calibration))
 
 
 def _builtin_text() -> str:

@@ -54,7 +54,10 @@ class TakeResult:
     files:       {format: path}: in the worker, the finished file in its staging folder; in the
                  report, the file in the output folder.
     data:        {format: bytes} when a remote worker sends its files back (Ray); None after.
-    warnings:    the take's warnings (a damaged take's recovery report, gaps cut).
+    warnings:    the take's warnings (a damaged take's recovery report, gaps cut, what of the
+                 character file its exports could not carry).
+    notes:       the exports' report, as ``puppet export`` prints it (frames, keys kept per
+                 joint, fits), its file paths the final ones once the driver moved them.
     log_lines:   the engine's own lines for this take (colour codes removed), MAX_LOG_LINES.
     log:         path of the take's log file in the output folder ("" before it is written).
     """
@@ -70,6 +73,7 @@ class TakeResult:
     files: dict[str, str] = field(default_factory=dict)
     data: dict[str, bytes] | None = None
     warnings: list[str] = field(default_factory=list)
+    notes: list[str] = field(default_factory=list)
     log_lines: list[str] = field(default_factory=list)
     log: str = ""
 
@@ -91,6 +95,17 @@ class TakeResult:
     def attempts(self) -> int:
         """Tries it took: 1 + retries."""
         return 1 + self.retries
+
+    def add_report(self, report) -> None:
+        """Keep an export's report (``puppet.export.ExportReport``): its text as notes, its
+        warnings as the take's."""
+        self.notes.extend(report.text().splitlines())
+        self.warnings.extend(w for w in report.warnings if w not in self.warnings)
+
+    def moved(self, source: str, target: str) -> None:
+        """A file of this take moved from ``source`` (the worker's) to ``target``: said so in
+        the notes."""
+        self.notes = [note.replace(source, target) for note in self.notes]
 
     def add_log(self, line: str) -> None:
         """Keep one of the engine's lines for this take (colour codes removed; bounded)."""
@@ -128,6 +143,9 @@ class TakeResult:
         lines += [f"warning: {w}" for w in self.warnings]
         if self.error is not None:
             lines.append(f"error: {self.error}")
+        if self.notes:
+            lines.append("export report:")
+            lines += [f"  {note}" for note in self.notes]
         if self.log_lines:
             lines.append("engine:")
             lines += [f"  {line}" for line in self.log_lines]

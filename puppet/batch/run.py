@@ -192,6 +192,7 @@ def run_batch(takes: list[str], out: str | os.PathLike, *, rig: Rig | None = Non
     formats = parse_formats(formats)
     fps, size = _check_settings(fps, up, size)
     _check_keys(keys, keys_units, formats)
+    _check_space(space)
     if workers is not None and workers < 1:
         raise BatchError(f"--workers: {workers} must be >= 1")
     inputs = [Path(p) for p in rig_inputs]
@@ -204,35 +205,11 @@ def run_batch(takes: list[str], out: str | os.PathLike, *, rig: Rig | None = Non
     runner = make_engine(engine, workers, address, retries=retries, take_timeout=take_timeout)
     report = BatchReport(engine=engine, workers=workers or getattr(runner, "workers", None),
                          out=str(folder), dry_run=dry_run)
-    _check_space(space)
     settings = Settings(formats=formats, fps=fps, up=up, space=space, size=size, keys=keys,
                         keys_units=keys_units)
-    shaping = shaping_settings(settings)
-    rows: dict[Path, TakeResult] = {}
-    made: dict[Path, Made] = {}
-    todo: list[Job] = []
     finder = RigFinder(rig)
-    for i, job in enumerate(jobs):
-        try:
-            take_rig = finder.for_take(job.take)
-            made[job.take] = Made(str(job.take), file_sha256(job.take), take_rig.rig.name,
-                                  take_rig.file, take_rig.rig_sha256, take_rig.character, shaping)
-        except (PuppetError, OSError) as err:  # unreadable take, its rig not found or not fitting
-            rows[job.take] = TakeResult.failed(job.take, _message(err, job.take),
-                                               files={}, log=str(job.log))
-            continue
-        jobs[i] = job = dataclasses.replace(job, rig_key=take_rig.key)
-        why = changes(read_manifest(job.manifest), made[job.take], job.outputs)
-        if resume and not why:
-            rows[job.take] = TakeResult(take=str(job.take), state=SKIPPED, reason="up to date",
-                                        files={f: str(p) for f, p in job.outputs.items()},
-                                        log=str(job.log))
-            continue
-        if not why:
-            why = ["up to date; made again (no --resume)"]
-        rows[job.take] = TakeResult(take=str(job.take), state=TO_DO, reason="; ".join(why),
-                                    files={f: str(p) for f, p in job.outputs.items()})
-        todo.append(job)
+    jobs, rows, made = _decide(jobs, finder, shaping_settings(settings), resume)
+    todo = [job for job in jobs if rows[job.take].state == TO_DO]
     if dry_run:
         runner.close()
         report.rows = [rows[job.take] for job in jobs]
@@ -250,7 +227,7 @@ def run_batch(takes: list[str], out: str | os.PathLike, *, rig: Rig | None = Non
     except KeyboardInterrupt as stop:  # BatchCancelled, or a Ctrl-C off the main thread
         name = (getattr(stop, "signal_name", None) or getattr(received, "signal_name", None)
                 or "SIGINT")
-        for job in jobs:
+        for job in todo:
             if rows[job.take].state == TO_DO:
                 rows[job.take] = TakeResult.failed(job.take, f"cancelled by {name}",
                                                    state=CANCELLED)
@@ -258,6 +235,10 @@ def run_batch(takes: list[str], out: str | os.PathLike, *, rig: Rig | None = Non
         report.rows = [rows[job.take] for job in jobs]
         report.seconds = time.perf_counter() - start
         raise BatchCancelled(name, report) from None
+    for job in todo:  # never reported by the engine (it stopped first): not run, not written
+        if rows[job.take].state == TO_DO:
+            rows[job.take].fail("not run: the batch stopped before this take", CANCELLED)
+            rows[job.take].files = {}
     report.rows = [rows[job.take] for job in jobs]
     report.seconds = time.perf_counter() - start
     return report
@@ -279,15 +260,7 @@ def _run(todo: list[Job], refused: list[Job], runner, finder: RigFinder, setting
             on_result(rows[job.take])
     if not todo:
         return
-    keys = {job.rig_key for job in todo}
-    rigs = {}
-    for take_rig in finder.rigs():
-        if take_rig.key in keys:
-            precompute = RigPrecompute.for_rig(take_rig.rig)
-            report.precompute_s += precompute.seconds
-            report.precompute_bytes += precompute.nbytes()
-            rigs[take_rig.key] = (take_rig.rig, precompute)
-    shared = Shared(rigs=rigs, settings=settings)
+    shared = Shared(rigs=_precompute(finder, todo, report), settings=settings)
     blob = pickle.dumps(shared, protocol=pickle.HIGHEST_PROTOCOL)
     report.shared_bytes = len(blob)
 
@@ -317,6 +290,52 @@ def _run(todo: list[Job], refused: list[Job], runner, finder: RigFinder, setting
             staging.remove()  # also what stopped or dead workers left
 
 
+def _decide(jobs: list[Job], finder: RigFinder, shaping: dict, resume: bool
+            ) -> tuple[list[Job], dict[Path, TakeResult], dict[Path, Made]]:
+    """For every take, in the driver: its checksum and rig, and what its manifest says.
+
+    Returns the jobs (each with its rig_key), a row per take (failed: unreadable take, its rig
+    not found or not fitting; skipped: up to date with ``resume``; "to do": the reason says
+    why, new or what changed) and what each take to do is made from (its manifest's record).
+    """
+    planned, rows, made = [], {}, {}
+    for job in jobs:
+        try:
+            take_rig = finder.for_take(job.take)
+            made[job.take] = Made(str(job.take), file_sha256(job.take), take_rig.rig.name,
+                                  take_rig.file, take_rig.rig_sha256, take_rig.character, shaping)
+        except (PuppetError, OSError) as err:
+            rows[job.take] = TakeResult.failed(job.take, _message(err, job.take), log=str(job.log))
+            planned.append(job)
+            continue
+        job = dataclasses.replace(job, rig_key=take_rig.key)
+        planned.append(job)
+        files = {fmt: str(path) for fmt, path in job.outputs.items()}
+        why = changes(read_manifest(job.manifest), made[job.take], job.outputs)
+        if resume and not why:
+            rows[job.take] = TakeResult(take=str(job.take), state=SKIPPED, reason="up to date",
+                                        files=files, log=str(job.log))
+        else:
+            rows[job.take] = TakeResult(take=str(job.take), state=TO_DO, files=files,
+                                        reason="; ".join(why or ["up to date; made again "
+                                                                 "(no --resume)"]))
+    return planned, rows, made
+
+
+def _precompute(finder: RigFinder, todo: list[Job], report: BatchReport) -> dict:
+    """{rig key: (rig, precompute)} of every rig a take to do is solved on, each built once;
+    their time and size are added to the report."""
+    used = {job.rig_key for job in todo}
+    rigs = {}
+    for take_rig in finder.rigs():
+        if take_rig.key in used:
+            precompute = RigPrecompute.for_rig(take_rig.rig)
+            report.precompute_s += precompute.seconds
+            report.precompute_bytes += precompute.nbytes()
+            rigs[take_rig.key] = (take_rig.rig, precompute)
+    return rigs
+
+
 def _message(err: Exception, take: Path) -> str:
     if isinstance(err, PuppetError):
         return str(err)
@@ -336,6 +355,7 @@ def _commit(job: Job, result: TakeResult, made: Made, inputs: list[Path], force:
             else:
                 check_output(target, **rule)  # again: the folder may have changed meanwhile
                 os.replace(result.files[fmt], target)
+            result.moved(result.files[fmt], str(target))
         result.files = {fmt: str(target) for fmt, target in job.outputs.items()}
         write_manifest(job.manifest, made, job.outputs, inputs=inputs, force=force)
     except OutputError as err:

@@ -118,6 +118,7 @@ def run_take(job: Job, shared: Shared, staging: Path) -> TakeResult:
                                  keys_units=settings.keys_units,
                                  precompute=precompute)
             result.frames = report.frames
+            result.add_report(report)
         else:  # one solve of every frame: the video and every export from the same T
             frames = take_frames(rig, reader, settings.fps)
             with contextlib.ExitStack() as stack:
@@ -137,6 +138,8 @@ def run_take(job: Job, shared: Shared, staging: Path) -> TakeResult:
                         raise
                     sink.close()
             result.frames = summary.frames
+            for writer in writers:  # the exports' report: keys kept, fits, what was not carried
+                result.add_report(writer.report)
         result.files = {fmt: str(staging / name) for fmt, name in names.items()}
     except (PuppetError, OSError) as err:
         result.fail(str(err) if isinstance(err, PuppetError) else _os_message(err))

@@ -213,12 +213,19 @@ def take_writer(take_path: str, rig, *, force: bool = False):
 
     An existing file at take_path is replaced only with force (--force); a rig file never.
     """
-    from puppet.checksum import character_sha256
-    from puppet.replay import RIG_CHARACTER_MARK, RIG_SOURCE_MARK
-    from puppet.rig.calibration import Calibration
     from puppet.take import TakeWriter
 
     check_take_path(take_path, rig, force=force)
+    return TakeWriter(take_path, **take_header(rig), overwrite=force)
+
+
+def take_header(rig) -> dict:
+    """What a take (or shot) of ``rig`` is written with: TakeWriter's ids, models, rig_map_text
+    (the rig file, and where it was), calibration_text and rig_name."""
+    from puppet.checksum import character_sha256
+    from puppet.replay import RIG_CHARACTER_MARK, RIG_SOURCE_MARK
+    from puppet.rig.calibration import Calibration
+
     map_text = ""
     if rig.path is not None and rig.path.suffix == ".toml":
         map_text = rig.path.read_text(encoding="utf-8")
@@ -226,10 +233,9 @@ def take_writer(take_path: str, rig, *, force: bool = False):
         map_text += f"{RIG_CHARACTER_MARK}{character_sha256(rig)}\n"
         map_text += f"{RIG_SOURCE_MARK}{rig.path.resolve()}\n"
     calibration = Calibration.capture(rig.servo_map.ids, rig.servo_map.zero)
-    return TakeWriter(take_path, ids=[int(i) for i in rig.servo_map.ids],
-                      models=dict(rig.servo_map.models), rig_map_text=map_text,
-                      calibration_text=calibration.to_record(),
-                      rig_name=rig.name, overwrite=force)
+    return {"ids": [int(i) for i in rig.servo_map.ids], "models": dict(rig.servo_map.models),
+            "rig_map_text": map_text, "calibration_text": calibration.to_record(),
+            "rig_name": rig.name}
 
 
 def open_take(take: str, rig_path: str | None):

@@ -52,7 +52,9 @@ def rig_init(character: str, out: str | None, skin: int | None, force: bool) -> 
 def rig_axes(rig_path: str, out: str, every_joint: bool, angle: float, force: bool) -> None:
     """Render each servo's joint turned -ANGLE and +ANGLE: pick axis and sign by looking.
 
-    One pair of panels per servo (per joint axis with --all), the positive side framed green.
+    One pair of panels per servo (per joint axis with --all), the positive side framed green,
+    each pair seen along its turn's axis and framed on what the joint moves, with the axis, an
+    arrow the way it turns and the turn in rig init's words.
     A rig without [[servo]] blocks yet (fresh from `rig init`) shows every joint, as --all.
 
     \b

@@ -1,6 +1,7 @@
 """Goal positions from a take: recorded ticks at a time (the take's one time rule,
-``puppet.take.Playback``: interpolated, long gaps cut) -> joint angles (the take's calibration)
--> goal ticks (the performing rig's calibration), clamped, rate-limited.
+``puppet.take.Playback``: interpolated, long gaps cut; a shot's keys on its time line) -> joint
+angles (the take's calibration) -> goal ticks (the performing rig's calibration), clamped,
+rate-limited.
 
 A take recorded on one puppet plays on another with its own calibration: the joint angle is
 what carries over, ticks -> radians through the take's zero ticks and back to goal ticks through
@@ -31,7 +32,7 @@ class TakeGoals:
     """
 
     def __init__(self, servos, t_ns: np.ndarray, ticks: np.ndarray, ok: np.ndarray,
-                 take_zero: dict[int, int], rig_zero: np.ndarray) -> None:
+                 take_zero: dict[int, int], rig_zero: np.ndarray, interpolation=None) -> None:
         self.ids = np.array([s.id for s in servos], np.int64)
         k = len(self.ids)
         if ticks.shape != (len(t_ns), k) or len(t_ns) == 0:
@@ -56,25 +57,34 @@ class TakeGoals:
         self.goals = self.units.ticks(self._take_units.angles(held, clamp=False))  # (N, k) float
         self.goals[:, self._never] = np.nan  # NaN: hold
         self.lo, self.hi = self.units.tick_limits()
-        self._frames = Playback(t_ns, held, ok, self.ids)
+        self._frames = Playback(t_ns, held, ok, self.ids, interpolation=interpolation,
+                                ticks_per_turn=self.units.ticks_per_turn)
         self.duration_s = self._frames.duration_s
         self._ticks, self._ok = np.empty(k, np.int32), np.empty(k, bool)
         self._angles, self._out = np.empty(k), np.empty(k)
 
     @classmethod
-    def from_take(cls, reader, servo_map) -> "TakeGoals":
+    def from_take(cls, reader, servo_map, key: int | None = None) -> "TakeGoals":
         """Goals for ``servo_map``'s servos from an open TakeReader (refused, TakeRigMismatch,
         when the take's servos or models are not the rig's; RigError naming the take when its
-        calibration record is unreadable)."""
+        calibration record is unreadable). key: only that key of a shot (puppet.take.keys),
+        one pose held (DriveError naming the take when it is no shot or has no such key)."""
         from puppet.rig.calibration import Calibration  # the parent's side only
         ids = [int(i) for i in servo_map.ids]
         reader.check_rig(ids, dict(servo_map.models))
-        t_ns, ticks, ok = reader.arrays(ids=ids)
+        interpolation = None
+        if key is not None:
+            t_ns, ticks, ok = _key_pose(reader, ids, key)
+        elif reader.keys() is not None and reader.keys().keys:  # a shot: on its time line
+            t_ns, ticks, ok = _key_pose(reader, ids, None)
+            interpolation = [k.interpolation for k in reader.keys().keys]
+        else:
+            t_ns, ticks, ok = reader.arrays(ids=ids)
         if len(t_ns) == 0:
             raise DriveError(f"{reader.path}: the take holds no readings")
         return cls(servo_map.servos, t_ns, ticks, ok,
                    Calibration.from_record(reader.metadata.calibration_text, reader.path).zero_ticks,
-                   servo_map.zero)
+                   servo_map.zero, interpolation)
 
     def degrees(self, ticks) -> np.ndarray:
         """(k,) tick differences -> joint degrees (absolute value)."""
@@ -90,6 +100,23 @@ class TakeGoals:
         out = self.units.ticks(self._angles, out=self._out)
         out[self._never] = np.nan
         return out
+
+
+def _key_pose(reader, ids: list[int], key: int | None):
+    """(t_ns (K,), ticks (K, k), ok (K, k)) of the keys of the shot open in ``reader`` at their
+    times (puppet.take.keys), rig order; key: only that one (K = 1, at 0)."""
+    keys = reader.keys()
+    if keys is None:
+        raise DriveError(f"{reader.path}: not a shot (no keys channel): no key {key} to go to")
+    if key is not None and not 0 <= key < len(keys.keys):
+        raise DriveError(f"{reader.path}: no key {key}: the shot has "
+                         + (f"keys 0..{len(keys.keys) - 1}" if keys.keys else "no keys"))
+    where = {int(i): n for n, i in enumerate(reader.metadata.ids)}
+    order = np.array([where[i] for i in ids], np.int64)
+    chosen = keys.keys if key is None else [keys.keys[key]]
+    t_ns = keys.times_ns() if key is None else np.zeros(1, np.int64)
+    return (t_ns, np.stack([k.ticks[order] for k in chosen]).astype(np.int32),
+            np.stack([k.ok[order] for k in chosen]))
 
 
 class GoalShaper:

@@ -206,6 +206,13 @@ def _extension_names(value, found: set[str]) -> set[str]:
     return found
 
 
+def _similarity(M: np.ndarray, tolerance: float = 1e-9) -> bool:
+    """Whether a (3, 3) linear map is a rotation times a uniform scale (Mᵀ M = c² I)."""
+    G = M.T @ M
+    c2 = float(np.trace(G)) / 3.0
+    return c2 > 0 and bool(np.abs(G - c2 * np.eye(3)).max() <= tolerance * c2)
+
+
 class GltfWriter(ExportWriter):
     """Collects one animation key per frame; ``close()`` writes the .glb in one piece.
 
@@ -270,7 +277,9 @@ class GltfWriter(ExportWriter):
         (first) mesh node's world. up_joint (b,): the nearest joint above its node (-1: none);
         above (b, 4, 4): its parent node's rest world relative to that joint (or the parent
         node's world; identity for a root node). node_scale (b, 3): the node's own scale.
-        levels: joints grouped by depth below the first joint above them (parents first).
+        exact: every joint's parent node is a similarity at rest (its keys can follow any rigid
+        motion exactly). levels: the joints in one group when exact, else grouped by depth below
+        the first joint above them (parents first).
         """
         scene, b = self.scene, self.b
         by_bone = {n.joint: i for i, n in enumerate(scene.nodes) if n.joint >= 0}
@@ -300,8 +309,14 @@ class GltfWriter(ExportWriter):
                 depth[j] = depth[up] + 1
             else:
                 self.above[j] = scene.nodes[parent].world
-        self.levels = [np.flatnonzero(depth == d) for d in range(int(depth.max()) + 1)]
+        parent_linear = [np.eye(3) if scene.nodes[n].parent < 0 else
+                         scene.nodes[scene.nodes[n].parent].world[:3, :3] for n in self.node_of_joint]
+        self.exact = all(_similarity(M) for M in parent_linear)
+        self.levels = ([np.arange(b)] if self.exact else
+                       [np.flatnonzero(depth == d) for d in range(int(depth.max()) + 1)])
         self._world4 = np.tile(np.eye(4), (b, 1, 1))
+        self._posed = np.tile(np.eye(4), (b, 1, 1))
+        self._keys = np.empty((b, 3, 4))
         self._unbind = np.linalg.inv(self.bind)
 
     @property
@@ -310,11 +325,15 @@ class GltfWriter(ExportWriter):
 
     def _local_keys(self, world: np.ndarray) -> np.ndarray:
         """(b, 3, 4) keys (translation column, rotation block) of each joint node for rigid maps
-        world (b, 3, 4) of rest points; fills ``written``. Parents' keys come first, so each
-        translation puts the pivot where the world puts it."""
-        posed = np.tile(np.eye(4), (self.b, 1, 1))
+        world (b, 3, 4) of rest points; fills ``written``. Where every joint's parent node is a
+        similarity at rest (no non-uniform scale above it: the usual case) the keys reproduce the
+        world exactly, in one pass; otherwise parents' keys come first, level by level, so each
+        translation still puts the pivot where the world puts it."""
+        posed = self._posed
         posed[:, :3] = compose(world, self.bind[:, :3])  # the joints' posed world transforms
-        W, keys = self._world4, np.empty((self.b, 3, 4))
+        W, keys = self._world4, self._keys
+        if self.exact:
+            W[...] = posed
         for level in self.levels:
             up = self.up_joint[level]
             Wp = self.above[level].copy()
@@ -324,11 +343,15 @@ class GltfWriter(ExportWriter):
             keys[level, :, 3] = local[:, :3, 3]
             scale = self.node_scale[level]
             keys[level, :, :3] = polar_rotations(local[:, :3, :3] / scale[:, None, :])
-            node = np.tile(np.eye(4), (len(level), 1, 1))
-            node[:, :3, :3] = keys[level, :, :3] * scale[:, None, :]
-            node[:, :3, 3] = keys[level, :, 3]
-            W[level] = Wp @ node
-        self.written[...] = (W @ self._unbind)[:, :3]
+            if not self.exact:
+                node = np.tile(np.eye(4), (len(level), 1, 1))
+                node[:, :3, :3] = keys[level, :, :3] * scale[:, None, :]
+                node[:, :3, 3] = keys[level, :, 3]
+                W[level] = Wp @ node
+        if self.exact:
+            self.written[...] = world
+        else:
+            self.written[...] = (W @ self._unbind)[:, :3]
         return keys
 
     def write(self, world: np.ndarray) -> None:

@@ -6,7 +6,8 @@ format); ``play``, ``export``, ``batch`` and ``play --view`` show it through
 interpolated between the keys (``puppet.take.inbetween``).
 """
 
-from puppet.keys.shot import (insert_key, read_shot, remove_key, replace_key, retime,
-                              write_shot)
+from puppet.keys.shot import (insert_key, interpolate, read_shot, remove_key, replace_key,
+                              retime, write_shot)
 
-__all__ = ["insert_key", "read_shot", "remove_key", "replace_key", "retime", "write_shot"]
+__all__ = ["insert_key", "interpolate", "read_shot", "remove_key", "replace_key", "retime",
+           "write_shot"]

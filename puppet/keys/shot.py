@@ -1,5 +1,5 @@
 """A shot on disk, and its edits: write it whole (atomically), read it, and replace, insert,
-remove or retime keys (each edit returns new Keys; the file is written by write_shot).
+remove, retime or re-interpolate keys (each edit returns new Keys; the file is written by write_shot).
 
 header: the TakeWriter keywords a shot is written with (ids, models, rig_map_text,
 calibration_text, rig_name): ``cli.common.take_header(rig)`` for a new shot, ``read_shot``'s
@@ -16,7 +16,7 @@ import numpy as np
 from puppet.atomic import commit, temporary_sibling
 from puppet.reading import Reading
 from puppet.take import TakeError, TakeReader, TakeWriter
-from puppet.take.keys import Key, Keys, check_frames
+from puppet.take.keys import Key, Keys, check_frames, check_interpolation
 
 
 def write_shot(path, header: dict, keys: Keys) -> None:
@@ -90,4 +90,14 @@ def retime(keys: Keys, frames: dict[int, int], source="shot") -> Keys:
         i = _index(keys, index, source)
         new[i] = replace(new[i], frame=int(frame))
     check_frames([k.frame for k in new], source)
+    return Keys(keys.fps, new)
+
+
+def interpolate(keys: Keys, kinds: dict[int, str], source="shot") -> Keys:
+    """Keys with new interpolations ({index: "linear" | "smooth" | "step"}: how the frames after
+    each of those keys are filled)."""
+    new = list(keys.keys)
+    for index, kind in kinds.items():
+        i = _index(keys, index, source)
+        new[i] = replace(new[i], interpolation=check_interpolation(kind, source))
     return Keys(keys.fps, new)

@@ -51,11 +51,14 @@ class Camera:
         up=(0.0, 1.0, 0.0),
         direction=(0.45, 0.3, 1.0),
         margin: float = 1.1,
+        view=None,
     ) -> "Camera":
         """A camera that sees the whole bounding box of points (n, 3) from direction.
 
         direction: (3,) from the target toward the eye, in the frame (right, up, front) where
-        front is +z turned to be perpendicular to up; aspect: width / height; margin: >= 1.
+        front is +z turned to be perpendicular to up; view: (3,) the same in world coordinates,
+        used instead of direction when given (it must not be parallel to up); aspect: width /
+        height; margin: >= 1.
         """
         points = np.asarray(points, dtype=np.float64)
         if points.ndim != 2 or points.shape[1] != 3 or len(points) == 0:
@@ -66,8 +69,11 @@ class Camera:
         front = np.array([0.0, 0.0, 1.0]) if abs(up[2]) < 0.9 else np.array([0.0, -1.0, 0.0])
         front = _unit(front - up * (front @ up), "front")
         right = np.cross(up, front)
-        d = np.asarray(direction, dtype=np.float64)
-        back = _unit(d[0] * right + d[1] * up + d[2] * front, "direction")
+        if view is not None:
+            back = _unit(np.asarray(view, dtype=np.float64), "view")
+        else:
+            d = np.asarray(direction, dtype=np.float64)
+            back = _unit(d[0] * right + d[1] * up + d[2] * front, "direction")
         # Camera axes for the bounding-box fit.
         cam_right = _unit(np.cross(up, back), "up x direction")
         cam_up = np.cross(back, cam_right)
@@ -93,6 +99,16 @@ class Camera:
         view[0, :3], view[1, :3], view[2, :3] = right, up, back
         view[:3, 3] = -view[:3, :3] @ self.eye
         return view.astype(np.float32)
+
+    def to_pixels(self, points, width: int, height: int) -> np.ndarray:
+        """(n, 2) float pixel coordinates (x right, y down, from the image's top left corner)
+        of world points (n, 3) in a width x height image drawn with this camera."""
+        points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+        clip = (self.projection_matrix(width / height).astype(np.float64)
+                @ self.view_matrix().astype(np.float64)
+                @ np.hstack([points, np.ones((len(points), 1))]).T)
+        ndc = clip[:2] / clip[3]
+        return np.stack([(ndc[0] + 1) * 0.5 * width, (1 - ndc[1]) * 0.5 * height], axis=1)
 
     def clip_range(self, scene_radius: float) -> tuple[float, float]:
         """(near, far) [scene units]: the set values, else from the distance and scene_radius."""

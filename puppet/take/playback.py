@@ -13,13 +13,14 @@ frame 0 is the first reading. At speed 0.5 a take gives twice the frames.
 
 Ticks. Each servo's ticks are interpolated linearly between the two readings around the time,
 along the shorter way round the encoder (a step of more than half a turn between two readings
-is a wrap, never a fast spin; ``puppet.servo_models.HALF_TURN``), and rounded to whole
-ticks. ``ok`` is both neighbours' ok (a flagged servo's ticks are what the reader recorded: its
-last good value); a time on a reading is that reading. Nothing here reads a clock: the frames
+is a wrap, never a fast spin; half of each servo's model's ``ticks_per_turn``: 4096 on X and
+MX, 1228.8 on AX / RX / XL-320), and rounded to whole ticks. ``ok`` is both neighbours' ok (a
+flagged servo's ticks are what the reader recorded: its last good value); a time on a reading
+is that reading. Nothing here reads a clock: the frames
 are a pure function of the take's timestamps and ticks.
 
 Shots. A shot (a take with keys, ``puppet.take.keys``) plays its keys: key i is at
-``(frame_i − 1) / shot fps`` seconds, no gap is cut (the animator spaced them), and each frame
+``(frame_i − 1) / shot fps`` seconds (frames before the first key hold it), no gap is cut (the animator spaced them), and each frame
 also carries every joint's rotation (``Reading.rotations``), interpolated in rotation space by
 the key's rule (``puppet.take.inbetween``): the sensed joints' constraints of that frame, from
 which the FAST solve fills in the free bones. Ticks between keys are interpolated linearly (held
@@ -36,12 +37,14 @@ import numpy as np
 
 from puppet.limits import FPS, SPEED, Range
 from puppet.reading import Reading
-from puppet.servo_models import HALF_TURN, TICKS_PER_TURN
+from puppet.servo_models import MODELS, TICKS_PER_TURN
 from puppet.take.errors import TakeError
 
 MAX_GAP_S = 1.0
 """Longest gap between two readings played as recorded, seconds; a longer one plays as this."""
 MAX_GAP_NS = int(MAX_GAP_S * 1e9)
+ROTATION_BLOCK = 256
+"""A shot's frames' joint rotations are interpolated this many frames at a time."""
 
 
 class Cut(NamedTuple):
@@ -53,6 +56,13 @@ class Cut(NamedTuple):
 
     at_ns: int
     gap_ns: int
+
+
+def turns_of(models: dict, ids) -> np.ndarray:
+    """(k,) ticks per turn of servos ``ids`` by their model names ({id: name}); 4096 for a
+    servo whose model is not known."""
+    return np.array([getattr(MODELS.get(models.get(int(i))), "ticks_per_turn", TICKS_PER_TURN)
+                     for i in ids], float)
 
 
 def play_times_ns(t_ns: np.ndarray, max_gap_ns: int = MAX_GAP_NS) -> tuple[np.ndarray, list[Cut]]:
@@ -107,6 +117,7 @@ class Playback:
     ticks: (R, k) int32 continuous encoder counts, one column per servo.
     ok:    (R, k) bool, False where a servo's read failed (its ticks hold the last good value).
     ids:   (k,) servo ids, shared by every Reading made.
+    ticks_per_turn: (k,) or scalar, each servo's model's (``ServoModel.ticks_per_turn``).
     fps:   frames per second (> 0); speed: take seconds per output second (> 0).
     source: the take file, named in errors.
 
@@ -118,7 +129,8 @@ class Playback:
     """
 
     def __init__(self, t_ns, ticks, ok, ids, *, fps: float = 30.0, speed: float = 1.0,
-                 source="take", interpolation=None, joint_rotations=None):
+                 source="take", interpolation=None, joint_rotations=None,
+                 ticks_per_turn=TICKS_PER_TURN):
         self.fps = check_rate(fps, "frames per second", source)
         self.speed = check_rate(speed, "speed", source, SPEED)
         t = np.asarray(t_ns, np.int64)
@@ -140,11 +152,14 @@ class Playback:
         self.interpolation = None if interpolation is None else tuple(interpolation)
         if self.interpolation is None:
             self.play_ns, self.cuts = play_times_ns(t)
-        else:  # a shot: keys at their frames, nothing cut
+        else:  # a shot: keys at their frames (t_ns: shot time, frame 1 at 0), nothing cut
             if len(self.interpolation) != len(t):
                 raise TakeError(source, f"{len(self.interpolation)} interpolations for "
                                         f"{len(t)} keys")
-            self.play_ns, self.cuts = t - t[0], []
+            if t[0] < 0:
+                raise TakeError(source, f"key 0 is timed before frame 1 ({t[0]} ns)")
+            self.t_first_ns = 0
+            self.play_ns, self.cuts = t.copy(), []
         self._hold = (None if self.interpolation is None else
                       np.array([kind == "step" for kind in self.interpolation]))
         self.duration_ns = int(self.play_ns[-1])
@@ -157,17 +172,25 @@ class Playback:
             count -= 1
         self._count = count
         k = self.ticks.shape[1]
-        self._step = np.empty(k, np.int64)  # scratch of sample()
+        self._turn = np.broadcast_to(np.asarray(ticks_per_turn, float), (k,)).copy()
+        self._half = self._turn / 2.0
+        self._step = np.empty(k, np.float64)  # scratch of sample()
         self._part = np.empty(k, np.float64)
-        self._key_rot = self._frame_rot = None
+        self._inbetweens = None
         if self.interpolation is not None and joint_rotations is not None:
-            self._key_rot = np.stack([joint_rotations(row) for row in self.ticks])  # (K, b, 3, 3)
-            self._frame_rot = self._rotations(self.frame_times_ns())  # (N, b, 3, 3)
+            from puppet.take.inbetween import Inbetweens
+
+            key_rot = np.stack([joint_rotations(row) for row in self.ticks])  # (K, b, 3, 3)
+            self._inbetweens = Inbetweens(self.play_ns, key_rot, self.interpolation)
+            self._block_start = 0  # frames [start, start + ROTATION_BLOCK) interpolated ahead
+            self._block = None
 
     @classmethod
     def of_take(cls, reader, ids, *, fps: float = 30.0, speed: float = 1.0,
                 rig=None) -> "Playback":
-        """The frames of an open TakeReader for the rig servos ``ids`` (its bus order).
+        """The frames of an open TakeReader for the rig servos ``ids`` (its bus order), each
+        servo's ticks the short way round its model's turn (the take's models; 4096 where a
+        damaged take lost them).
 
         A shot plays its keys (the module docstring); rig (a ``puppet.rig.Rig``, calibrated as
         the take: its servo map and skeleton) makes its frames carry the joint rotations.
@@ -182,23 +205,27 @@ class Playback:
             if rig is not None:
                 def rotations(ticks):
                     return rig.skeleton.joint_rotations(rig.servo_map.angles(ticks.astype(np.int32)))
-            return cls(keys.times_ns(reader.t_first_ns or 0),
+            return cls(keys.times_ns(),
                        np.stack([k.ticks[order] for k in keys.keys]),
                        np.stack([k.ok[order] for k in keys.keys]), np.asarray(ids), fps=fps,
                        speed=speed, source=reader.path,
                        interpolation=[k.interpolation for k in keys.keys],
-                       joint_rotations=rotations)
+                       joint_rotations=rotations,
+                       ticks_per_turn=turns_of(reader.metadata.models, ids))
         if len(reader) == 0:
             raise TakeError(reader.path, "the take holds no readings")
         return cls(*reader.arrays(ids=ids), np.asarray(ids), fps=fps, speed=speed,
-                   source=reader.path)
+                   source=reader.path, ticks_per_turn=turns_of(reader.metadata.models, ids))
 
-    def _rotations(self, play_ns) -> np.ndarray:
-        """(N, b, 3, 3) joint rotations of a shot at play times (N,) ns."""
-        from puppet.take.inbetween import inbetween_rotations
-
-        return inbetween_rotations(self.play_ns, self._key_rot, self.interpolation,
-                                   np.asarray(play_ns, np.float64))
+    def _frame_rotations(self, f: int) -> np.ndarray:
+        """(b, 3, 3) joint rotations of frame f of a shot: interpolated ROTATION_BLOCK frames at
+        a time (bounded memory whatever the shot's length; no allocation on most frames)."""
+        if self._block is None or not self._block_start <= f < self._block_start + ROTATION_BLOCK:
+            self._block_start = f
+            last = min(f + ROTATION_BLOCK, self._count)
+            times = np.rint(np.arange(f, last) * self._step_ns)
+            self._block = self._inbetweens.at(times)
+        return self._block[f - self._block_start]
 
     def __len__(self) -> int:
         return self._count
@@ -235,9 +262,9 @@ class Playback:
         a = float(play_ns - play[i]) / float(play[i + 1] - play[i])
         step, part = self._step, self._part
         np.subtract(self.ticks[i + 1], self.ticks[i], out=step)  # the short way round
-        step += HALF_TURN
-        np.remainder(step, TICKS_PER_TURN, out=step)
-        step -= HALF_TURN
+        step += self._half
+        np.remainder(step, self._turn, out=step)
+        step -= self._half
         np.multiply(step, a, out=part)
         part += 0.5
         np.floor(part, out=part)
@@ -248,7 +275,7 @@ class Playback:
         """The take at play time ``seconds`` as a Reading (fresh arrays), stamped t_first_ns +
         that play time."""
         play_ns = int(round(seconds * 1e9))
-        rotations = None if self._key_rot is None else self._rotations([play_ns])[0]
+        rotations = None if self._inbetweens is None else self._inbetweens.at([play_ns])[0]
         return self._reading(play_ns, rotations)
 
     def reading(self, f: int) -> Reading:
@@ -256,7 +283,7 @@ class Playback:
         if not 0 <= f < self._count:
             raise IndexError(f"frame {f} of {self._count}")
         return self._reading(self.frame_ns(f),
-                             None if self._frame_rot is None else self._frame_rot[f])
+                             None if self._inbetweens is None else self._frame_rotations(f))
 
     def _reading(self, play_ns: int, rotations=None) -> Reading:
         k = len(self.ids)

@@ -68,7 +68,6 @@ class TakeWriter:
         self._codec = fmt.ReadingCodec(self.k)
         self._ids_checked = None
         self._last_t_ns: int | None = None
-        self._first_t_ns: int | None = None
         self._closed = False
         try:
             self._file = open(self.path, "wb" if overwrite else "xb")
@@ -148,8 +147,6 @@ class TakeWriter:
         except OSError as e:
             self._fail(e, f"cannot write reading {self.count}")
         self._last_t_ns = t_ns
-        if self._first_t_ns is None:
-            self._first_t_ns = t_ns
         self.count += 1
         if self.fsync_interval_s is not None:
             now = time.monotonic()
@@ -195,8 +192,8 @@ class TakeWriter:
 
     def keys(self, keys) -> None:
         """Store a shot's keys (``puppet.take.keys.Keys``) on their own channel, each at its
-        time ``t_ns`` of the first reading + (frame − 1) / fps (see puppet.take.keys); call it
-        after writing the readings, before close()."""
+        time on the shot's time line, (frame − 1) / fps (see puppet.take.keys); call it after
+        writing the readings (the keys, at the same times), before close()."""
         from puppet.take import keys as key_format
 
         if self._closed:
@@ -208,8 +205,7 @@ class TakeWriter:
         channel = self._mcap.register_channel(key_format.KEY_TOPIC,
                                               key_format.KEY_MESSAGE_ENCODING, schema,
                                               {"fps": repr(float(keys.fps))})
-        t0 = self._first_t_ns if self._first_t_ns is not None else 0
-        for index, (key, t_ns) in enumerate(zip(keys.keys, keys.times_ns(t0))):
+        for index, (key, t_ns) in enumerate(zip(keys.keys, keys.times_ns())):
             if key.ticks.shape != (self.k,) or key.ok.shape != (self.k,):
                 raise TakeError(self.path, f"key {index}: ticks {key.ticks.shape} / ok "
                                            f"{key.ok.shape}, the take has {self.k} servos")

@@ -64,3 +64,26 @@ def test_an_unreachable_ray_address_fails_before_any_work(tmp_path, session):
     assert list((tmp_path / "out").iterdir()) == []
     assert_clean_error(run(session[0], "--out", tmp_path / "out", "--address", "127.0.0.1:9"),
                        "--address is for --engine ray")
+
+
+def test_a_fifo_or_folder_named_like_a_take_is_a_failed_row_not_a_hang(tmp_path, session):
+    import json
+    import os
+
+    folder = tmp_path / "takes"
+    folder.mkdir()
+    os.mkfifo(folder / "pipe.mcap")
+    (folder / "folder.mcap").mkdir()
+    (folder / "good.mcap").write_bytes(session[0].read_bytes())
+    out = tmp_path / "out"
+    result = subprocess.run(["puppet", "batch", str(folder), "--out", str(out), "--formats",
+                             "bvh", "--workers", "1", "--json"], capture_output=True, text=True,
+                            timeout=300)
+    assert result.returncode == 1 and "Traceback" not in result.stderr
+    rows = {r["take"]: r for r in json.loads(result.stdout)["takes"]}
+    for name in ("pipe.mcap", "folder.mcap"):
+        assert rows[str(folder / name)]["state"] == "failed"
+        assert rows[str(folder / name)]["reason"] == (
+            f"{folder / name}: not a regular file (a folder, FIFO or device): a take is an MCAP "
+            "file")
+    assert rows[str(folder / "good.mcap")]["state"] == "done"

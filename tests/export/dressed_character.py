@@ -1,14 +1,16 @@
 """A skinned glTF character with a look and a place, as Blender exports one (export tests).
 
-"pillar": an open tube along the mesh's +Y with a UV seam (each ring repeats its first vertex
-at its end: same position and weights, its own UV), capped by a centre vertex at each end.
+"pillar": a tube along the mesh's +Y with a UV seam (each ring repeats its first vertex at its
+end: same position and weights, its own UV), and caps in a second primitive with its own copies
+of the end rings (a hard edge) and a second, plain material.
 Three joints along it (root, mid, top) under an "Armature" node that is not a joint; the mesh
 node "pillar" is a child of "Armature"; a "Marker" empty is a child of the top joint's parent.
 Armature and mesh nodes carry a translation, a rotation and a non-uniform scale (``moved``).
 
-Attributes: POSITION, NORMAL, TEXCOORD_0 (the seam's u = 0 and u = 1), TEXCOORD_1 (a second
-set), COLOR_0 (RGBA float), JOINTS_0/WEIGHTS_0. One material "skin" whose base colour is a
-4x4 PNG texture read through TEXCOORD_0: embedded in a .glb, a file next to a .gltf.
+Attributes: POSITION, NORMAL, TEXCOORD_0 (the seam's u = 0 and u = 1), JOINTS_0/WEIGHTS_0, and
+on the sides TEXCOORD_1 (a second set) and COLOR_0 (RGBA float). Material "skin" (the sides):
+its base colour a 4x4 PNG texture read through TEXCOORD_0, embedded in a .glb, a file next to
+a .gltf; material "cap": colour factors only.
 
 Positions are in the mesh node's space; inverse bind matrices are inverse(joint world) times
 the mesh node's world (Blender's way), so the rest pose is the bind pose and the model-frame
@@ -49,18 +51,39 @@ def trs_matrix(trs) -> np.ndarray:
     return m
 
 
-def armature_world(moved: bool = True) -> np.ndarray:
-    return trs_matrix(ARMATURE_TRS if moved else IDENTITY_TRS)
+def _trs(moved, armature: bool):
+    """The Armature's (or the mesh node's) TRS: ``moved`` True: ARMATURE_TRS / MESH_TRS; False:
+    identity; or a (translation, quaternion, scale) of the Armature itself (mesh: MESH_TRS)."""
+    if moved is True:
+        return ARMATURE_TRS if armature else MESH_TRS
+    if moved is False:
+        return IDENTITY_TRS
+    return moved if armature else MESH_TRS
 
 
-def mesh_world(moved: bool = True) -> np.ndarray:
+def armature_world(moved=True) -> np.ndarray:
+    return trs_matrix(_trs(moved, True))
+
+
+def mesh_world(moved=True) -> np.ndarray:
     """(4, 4) world transform of the mesh node."""
-    return armature_world(moved) @ trs_matrix(MESH_TRS if moved else IDENTITY_TRS)
+    return armature_world(moved) @ trs_matrix(_trs(moved, False))
 
 
-def geometry():
-    """Mesh-space arrays of every file vertex: V (n, 3) float32, F (f, 3) int64, normals (n, 3),
-    uv0 (n, 2), uv1 (n, 2), colours (n, 4) float32, weights (n, 3) over NAMES."""
+def _weights(V: np.ndarray) -> np.ndarray:
+    """(n, 3) weights over NAMES: hat functions of the mesh-space height."""
+    heads = np.array([y for _, _, y in JOINTS])
+    W = np.clip(1.0 - np.abs(V[:, 1:2] - (heads + 0.35)[None, :]) / 0.7, 0.0, None)
+    W[W.sum(1) == 0, 0] = 1.0
+    return W / W.sum(1, keepdims=True)
+
+
+def primitives():
+    """The two primitives, mesh space, as dicts of V (n, 3) float32, F (f, 3) int64 (local
+    indices), N (n, 3), uv0 (n, 2), uv1 (n, 2) or None, colours (n, 4) float32 or None, W (n, 3):
+    "sides" (material 0: the textured skin; a UV seam: each ring repeats its first vertex) and
+    "caps" (material 1: plain; each cap its own copies of the end rings, hard edged, centre
+    vertices; no TEXCOORD_1 or COLOR_0)."""
     cols = SIDES + 1
     V, N, uv0 = [], [], []
     for i in range(RINGS):
@@ -75,29 +98,37 @@ def geometry():
         for j in range(SIDES):
             a, b = i * cols + j, i * cols + j + 1
             c, d = a + cols, b + cols
-            F += [[a, b, c], [b, d, c]]
-    for end, ring in ((0, 0), (1, RINGS - 1)):  # caps: a centre vertex, the ring's first copies
-        V.append([0.0, HEIGHT * ring / (RINGS - 1), 0.0])
-        N.append([0.0, -1.0 if end == 0 else 1.0, 0.0])
-        uv0.append([0.5, 0.5])
-        centre = len(V) - 1
-        for j in range(SIDES):
-            tri = [centre, ring * cols + j, ring * cols + (j + 1) % SIDES]
-            F.append(tri if end == 1 else tri[::-1])
+            F += [[a, c, b], [b, c, d]]
     V, N, uv0 = np.array(V, np.float32), np.array(N, np.float32), np.array(uv0, np.float32)
-    F = np.array(F, np.int64)
-    a, b, c = V[F[:, 0]], V[F[:, 1]], V[F[:, 2]]  # outward: positive signed volume
-    centre = V.mean(0)
-    if np.einsum("ij,ij->i", a - centre, np.cross(b - a, c - a)).sum() < 0:
-        F = F[:, ::-1].copy()
-    uv1 = (0.25 + 0.5 * uv0[:, ::-1]).astype(np.float32)
-    colours = np.column_stack([0.5 + 0.5 * np.cos(3 * V[:, 1]), V[:, 1] / HEIGHT,
-                               0.5 + V[:, 0], np.ones(len(V))]).astype(np.float32)
-    heads = np.array([y for _, _, y in JOINTS])
-    W = np.clip(1.0 - np.abs(V[:, 1:2] - (heads + 0.35)[None, :]) / 0.7, 0.0, None)
-    W[W.sum(1) == 0, 0] = 1.0
-    W /= W.sum(1, keepdims=True)
-    return V, F, N, uv0, uv1, colours, W
+    sides = {"V": V, "F": np.array(F, np.int64), "N": N, "uv0": uv0,
+             "uv1": (0.25 + 0.5 * uv0[:, ::-1]).astype(np.float32),
+             "colours": np.column_stack([0.5 + 0.5 * np.cos(3 * V[:, 1]), V[:, 1] / HEIGHT,
+                                         0.5 + V[:, 0], np.ones(len(V))]).astype(np.float32)}
+    cV, cN, cuv, cF = [], [], [], []
+    for end in (0, 1):
+        y = HEIGHT * end
+        start = len(cV)
+        for j in range(SIDES):
+            a = 2 * np.pi * j / SIDES
+            cV.append([RADIUS * np.cos(a), y, RADIUS * np.sin(a)])
+            cuv.append([0.5 + 0.5 * np.cos(a), 0.5 + 0.5 * np.sin(a)])
+        cV.append([0.0, y, 0.0])
+        cuv.append([0.5, 0.5])
+        cN += [[0.0, 1.0 if end else -1.0, 0.0]] * (SIDES + 1)
+        centre = len(cV) - 1
+        for j in range(SIDES):
+            tri = [centre, start + (j + 1) % SIDES, start + j]
+            cF.append(tri if end else tri[::-1])
+    caps = {"V": np.array(cV, np.float32), "F": np.array(cF, np.int64), "N": np.array(cN, np.float32),
+            "uv0": np.array(cuv, np.float32), "uv1": None, "colours": None}
+    for prim in (sides, caps):
+        prim["W"] = _weights(prim["V"])
+    return [sides, caps]
+
+
+def file_vertices() -> np.ndarray:
+    """(n, 3) float32 mesh-space positions of every file vertex, primitives in order."""
+    return np.concatenate([p["V"] for p in primitives()])
 
 
 def png_bytes() -> bytes:
@@ -115,10 +146,11 @@ def png_bytes() -> bytes:
     return out.getvalue()
 
 
-def build(path, *, moved: bool = True, binary: bool | None = None, image_file: bool = True):
+def build(path, *, moved=True, binary: bool | None = None, image_file: bool = True):
     """Write the character to ``path`` (.glb: the image embedded; .gltf: the buffer as a data
     uri and the image as ``IMAGE`` next to it, written unless ``image_file`` is False).
-    Returns the path."""
+    moved: True (ARMATURE_TRS, MESH_TRS), False (no transforms) or the Armature's own
+    (translation, quaternion, scale) with MESH_TRS. Returns the path."""
     path = Path(path)
     binary = path.suffix.lower() == ".glb" if binary is None else binary
     blob = bytearray()
@@ -140,11 +172,10 @@ def build(path, *, moved: bool = True, binary: bool | None = None, image_file: b
                                     count=len(array), type=kind, **kw))
         return len(accessors) - 1
 
-    V, F, N, uv0, uv1, colours, W = geometry()
+    prims = primitives()
     A = armature_world(moved)
     Mw = mesh_world(moved)
-    arm_trs = ARMATURE_TRS if moved else IDENTITY_TRS
-    mesh_trs = MESH_TRS if moved else IDENTITY_TRS
+    arm_trs, mesh_trs = _trs(moved, True), _trs(moved, False)
     # Joints: frames along the mesh's +Y, placed in the mesh's space, then into the armature's.
     nodes = [g.Node(name="Armature", translation=list(arm_trs[0]), rotation=list(arm_trs[1]),
                     scale=list(arm_trs[2]), children=[])]
@@ -164,20 +195,26 @@ def build(path, *, moved: bool = True, binary: bool | None = None, image_file: b
         (nodes[0] if parent is None else nodes[node_of[parent]]).children.append(node_of[name])
     nodes.append(g.Node(name="Marker", translation=[0.0, 0.2, 0.0], children=None))
     nodes[node_of["mid"]].children.append(len(nodes) - 1)
-    order = np.argsort(-W, axis=1)
-    joints = np.zeros((len(V), 4), np.uint8)
-    weights = np.zeros((len(V), 4), np.float32)
-    joints[:, :3] = order
-    weights[:, :3] = np.take_along_axis(W, order, axis=1)
-    attributes = g.Attributes(
-        POSITION=accessor(V, g.FLOAT, g.VEC3, minmax=True),
-        NORMAL=accessor(N, g.FLOAT, g.VEC3),
-        TEXCOORD_0=accessor(uv0, g.FLOAT, g.VEC2),
-        TEXCOORD_1=accessor(uv1, g.FLOAT, g.VEC2),
-        COLOR_0=accessor(colours, g.FLOAT, g.VEC4),
-        JOINTS_0=accessor(joints, g.UNSIGNED_BYTE, g.VEC4),
-        WEIGHTS_0=accessor(weights, g.FLOAT, g.VEC4))
-    indices = accessor(F.reshape(-1).astype(np.uint16), g.UNSIGNED_SHORT, g.SCALAR)
+    written = []
+    for material, prim in enumerate(prims):
+        W = prim["W"]
+        order = np.argsort(-W, axis=1)
+        joints = np.zeros((len(W), 4), np.uint8)
+        weights = np.zeros((len(W), 4), np.float32)
+        joints[:, :3] = order
+        weights[:, :3] = np.take_along_axis(W, order, axis=1)
+        attributes = g.Attributes(
+            POSITION=accessor(prim["V"], g.FLOAT, g.VEC3, minmax=True),
+            NORMAL=accessor(prim["N"], g.FLOAT, g.VEC3),
+            TEXCOORD_0=accessor(prim["uv0"], g.FLOAT, g.VEC2),
+            JOINTS_0=accessor(joints, g.UNSIGNED_BYTE, g.VEC4),
+            WEIGHTS_0=accessor(weights, g.FLOAT, g.VEC4))
+        if prim["uv1"] is not None:
+            attributes.TEXCOORD_1 = accessor(prim["uv1"], g.FLOAT, g.VEC2)
+        if prim["colours"] is not None:
+            attributes.COLOR_0 = accessor(prim["colours"], g.FLOAT, g.VEC4)
+        written.append(g.Primitive(attributes=attributes, material=material, indices=accessor(
+            prim["F"].reshape(-1).astype(np.uint16), g.UNSIGNED_SHORT, g.SCALAR)))
     ibm = np.array([(np.linalg.inv(world_of[n]) @ Mw).T.reshape(-1) for n in NAMES], np.float32)
     png = png_bytes()
     if binary:
@@ -194,11 +231,12 @@ def build(path, *, moved: bool = True, binary: bool | None = None, image_file: b
         scenes=[g.Scene(name="Scene", nodes=[0])], nodes=nodes,
         skins=[g.Skin(name="Armature", joints=[node_of[n] for n in NAMES],
                       inverseBindMatrices=accessor(ibm, g.FLOAT, g.MAT4))],
-        meshes=[g.Mesh(name="pillar", primitives=[g.Primitive(attributes=attributes, indices=indices,
-                                                              material=0)])],
+        meshes=[g.Mesh(name="pillar", primitives=written)],
         materials=[g.Material(name="skin", doubleSided=False, pbrMetallicRoughness=g.PbrMetallicRoughness(
             baseColorTexture=g.TextureInfo(index=0), baseColorFactor=[1.0, 0.9, 0.8, 1.0],
-            metallicFactor=0.0, roughnessFactor=0.7))],
+            metallicFactor=0.0, roughnessFactor=0.7)),
+                   g.Material(name="cap", pbrMetallicRoughness=g.PbrMetallicRoughness(
+                       baseColorFactor=[0.2, 0.3, 0.9, 1.0], metallicFactor=0.5, roughnessFactor=0.4))],
         textures=[g.Texture(sampler=0, source=0)],
         samplers=[g.Sampler(magFilter=9728, minFilter=9728, wrapS=10497, wrapT=10497)],
         images=[image], accessors=accessors, bufferViews=views,
@@ -214,8 +252,8 @@ def build(path, *, moved: bool = True, binary: bool | None = None, image_file: b
     return path
 
 
-def rest_vertices(moved: bool = True) -> np.ndarray:
+def rest_vertices(moved=True) -> np.ndarray:
     """(n, 3) model-frame (glTF world) rest positions of every file vertex, in file order."""
-    V = geometry()[0].astype(np.float64)
+    V = file_vertices().astype(np.float64)
     Mw = mesh_world(moved)
     return V @ Mw[:3, :3].T + Mw[:3, 3]

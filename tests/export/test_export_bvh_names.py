@@ -2,10 +2,7 @@
 Sites reach the mesh: checked on the file and in Blender 5.0 itself (``bpy``, in a subprocess)."""
 
 import importlib.util
-import json
 import math
-import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -31,23 +28,13 @@ def load_module(relative: str):
 parse_bvh = load_module("export/test_export_bvh.py").parse_bvh
 write_take = load_module("export/conftest.py").write_take
 
-HAS_BPY = importlib.util.find_spec("bpy") is not None
-needs_bpy = pytest.mark.skipif(not HAS_BPY, reason="bpy (Blender as a Python module: "
-                                                   "pip install bpy, Python 3.11) is not installed")
+blender = load_module("export/blender/run_bpy.py")  # Blender (bpy) in a subprocess
+needs_bpy = pytest.mark.skipif(blender.bpy_missing() is not None, reason=str(blender.bpy_missing()))
 
 #: Names Blender's BVH importer must keep exactly: mirroring suffixes, punctuation, and the
 #: BVH format's own words and braces as joint names.
 KEPT = ["hips", "leg.L", "leg.R", "foot.L", "foot.R", "spine.001", "a{b}", "}", "{", "End",
         "Site", "MOTION", "Frames:", "x#y", 'q"uote', "a/b", "a\\b", "a,b;c", "[0]", "-1"]
-
-
-def run_bpy(script: str, *args) -> dict:
-    """Run ``script`` in a fresh Python with bpy; it prints one JSON line after 'RESULT '."""
-    done = subprocess.run([sys.executable, "-c", script, *map(str, args)], capture_output=True,
-                          text=True, timeout=600)
-    assert done.returncode == 0, done.stderr[-3000:]
-    line = next(x for x in done.stdout.splitlines() if x.startswith("RESULT "))
-    return json.loads(line[len("RESULT "):])
 
 
 IMPORT_BVH = """
@@ -83,7 +70,7 @@ def test_blender_imports_every_kept_name_unchanged(tmp_path):
                    frame_time=1 / 24) as writer:
         writer.write(np.tile(np.eye(3), (b, 1, 1)))
     assert [j[0] for j in parse_bvh(path.read_text())[0]] == KEPT
-    bones = run_bpy(IMPORT_BVH, path)["bones"]
+    bones = blender.run_bpy_result(IMPORT_BVH, path)["bones"]
     assert sorted(bones) == sorted(KEPT)
 
 
@@ -144,7 +131,7 @@ def test_end_sites_reach_the_farthest_vertex_of_each_leaf(beast):
 @needs_bpy
 def test_blender_bones_match_the_vertex_groups_and_the_mesh(beast):
     _, _, out, _ = beast
-    got = run_bpy(IMPORT_BVH, out["bvh"], out["gltf"])
+    got = blender.run_bpy_result(IMPORT_BVH, out["bvh"], out["gltf"])
     bvh_names = [j[0] for j in parse_bvh(out["bvh"].read_text())[0]]
     assert sorted(got["bones"]) == sorted(bvh_names)
     # Every joint without whitespace drives the vertex group of the same name, unrenamed.

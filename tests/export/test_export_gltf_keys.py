@@ -7,7 +7,6 @@ import importlib.util
 import json
 import math
 import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -35,7 +34,7 @@ def load_module(relative: str):
 
 
 accessor = load_module("export/test_export_gltf.py").accessor
-HAS_BPY = importlib.util.find_spec("bpy") is not None
+blender = load_module("export/blender/run_bpy.py")  # Blender (bpy) in a subprocess
 
 
 def demo_take(path, rig):
@@ -142,14 +141,10 @@ print("RESULT " + json.dumps(out))
 """
 
 
-@pytest.mark.skipif(not HAS_BPY, reason="bpy (Blender as a Python module: pip install bpy, "
-                                        "Python 3.11) is not installed")
+@pytest.mark.skipif(blender.bpy_missing() is not None, reason=str(blender.bpy_missing()))
 def test_blender_plays_the_reduced_keys_within_the_tolerance(exports):
     full_path, reduced_path, report = exports
-    done = subprocess.run([sys.executable, "-c", BLENDER_POSES, str(full_path), str(reduced_path),
-                           str(int(FPS))], capture_output=True, text=True, timeout=900)
-    assert done.returncode == 0, done.stderr[-3000:]
-    got = json.loads(next(x for x in done.stdout.splitlines() if x.startswith("RESULT "))[7:])
+    got = blender.run_bpy_result(BLENDER_POSES, full_path, reduced_path, int(FPS))
     N = report["frames"]
     for label in ("full", "reduced"):
         assert got[label]["range"] == [1.0, float(N)]

@@ -11,6 +11,7 @@ from pathlib import Path
 import numpy as np
 import pygltflib
 import pytest
+from scipy.spatial.transform import Rotation
 
 from puppet.export import Outputs, export_take
 from puppet.export.joint_transforms import JointTransforms
@@ -106,7 +107,7 @@ def pillar(tmp_path_factory):
 def test_pc2_lands_on_the_moved_turned_and_scaled_mesh_object(pillar):
     rig, take, reference, folder = pillar
     solved = reference.deformed[:, rig.source_index]  # the file's vertex order, model frame
-    assert solved.shape[1] == len(dressed.geometry()[0]) > len(rig.V)  # seam copies are kept
+    assert solved.shape[1] == len(dressed.file_vertices()) > len(rig.V)  # seam copies are kept
     # Blender's glTF importer parents the skinned mesh to the armature object with an identity
     # transform: the mesh object's local space is the Armature node's world.
     np.testing.assert_allclose(rig.source.object_world, dressed.armature_world(), atol=1e-12)
@@ -144,20 +145,29 @@ def test_glb_keeps_the_files_vertices_attributes_material_and_nodes(pillar):
     assert mesh_node.name == "pillar" and mesh_node.skin == 0
     np.testing.assert_allclose(mesh_node.scale, dressed.MESH_TRS[2])
 
-    # The mesh: the file's vertex count and order, its triangles, every attribute.
-    V, F, N, uv0, uv1, colours, _ = dressed.geometry()
-    (prim,) = gltf.meshes[mesh_node.mesh].primitives
-    a = prim.attributes
-    np.testing.assert_allclose(accessor(gltf, a.POSITION), V, atol=1e-5)
-    np.testing.assert_array_equal(accessor(gltf, prim.indices).reshape(-1, 3), F)
-    np.testing.assert_allclose(accessor(gltf, a.NORMAL), N, atol=1e-6)
-    np.testing.assert_array_equal(accessor(gltf, a.TEXCOORD_0), uv0)
-    np.testing.assert_array_equal(accessor(gltf, a.TEXCOORD_1), uv1)
-    np.testing.assert_array_equal(accessor(gltf, a.COLOR_0), colours)
+    # The mesh: the file's primitives, vertex count and order, triangles, every attribute each
+    # primitive had (and no other), its material.
+    prims = dressed.primitives()
+    written = gltf.meshes[mesh_node.mesh].primitives
+    assert [p.material for p in written] == [0, 1]
+    for p, theirs in zip(written, prims):
+        a = p.attributes
+        np.testing.assert_allclose(accessor(gltf, a.POSITION), theirs["V"], atol=1e-5)
+        np.testing.assert_array_equal(accessor(gltf, p.indices).reshape(-1, 3), theirs["F"])
+        np.testing.assert_allclose(accessor(gltf, a.NORMAL), theirs["N"], atol=1e-6)
+        np.testing.assert_array_equal(accessor(gltf, a.TEXCOORD_0), theirs["uv0"])
+        for attribute, key in (("TEXCOORD_1", "uv1"), ("COLOR_0", "colours")):
+            if theirs[key] is None:
+                assert getattr(a, attribute) is None
+            else:
+                np.testing.assert_array_equal(accessor(gltf, getattr(a, attribute)), theirs[key])
 
-    # The material and its texture, the image embedded byte for byte.
-    (material,) = gltf.materials
-    assert material.name == "skin"
+    # The materials and the texture, the image embedded byte for byte.
+    skin_material, cap = gltf.materials
+    assert (skin_material.name, cap.name) == ("skin", "cap")
+    assert cap.pbrMetallicRoughness.baseColorFactor == [0.2, 0.3, 0.9, 1.0]
+    assert cap.pbrMetallicRoughness.baseColorTexture is None
+    material = skin_material
     assert material.pbrMetallicRoughness.baseColorFactor == [1.0, 0.9, 0.8, 1.0]
     texture = gltf.textures[material.pbrMetallicRoughness.baseColorTexture.index]
     image = gltf.images[texture.source]
@@ -174,10 +184,22 @@ def test_glb_keeps_the_files_vertices_attributes_material_and_nodes(pillar):
     rest = node_worlds(gltf, {i: node_matrix(n) for i, n in enumerate(gltf.nodes)})
     for k, j in enumerate(skin.joints):
         np.testing.assert_allclose(rest[j] @ ibm[k], dressed.mesh_world(), atol=1e-5)
+    # Under the Armature's rotation and non-uniform scale the rotation keys are the nearest ones;
+    # the pivots are exact all the same.
+    joint_worlds_follow_the_solve(gltf, rig, reference)
+
+
+def joint_worlds_follow_the_solve(gltf, rig, reference) -> float:
+    """Evaluate the file's joints (its nodes, keys and hierarchy) at three frames: their pivots
+    are where the solve puts them; returns the largest difference of their linear parts from
+    the solve's rigid maps applied to the rest joints (0 where the keys are exact)."""
+    skin = gltf.skins[0]
     anim = gltf.animations[0]
     keys = {(c.target.node, c.target.path): accessor(gltf, anim.samplers[c.sampler].output)
             for c in anim.channels}
+    rest = node_worlds(gltf, {i: node_matrix(n) for i, n in enumerate(gltf.nodes)})
     joints = JointTransforms(rig.skeleton.heads)
+    worst = 0.0
     for f in (0, len(reference.T) // 2, len(reference.T) - 1):
         joints.update(reference.T[f])
         locals_ = {i: node_matrix(n) for i, n in enumerate(gltf.nodes)}
@@ -187,6 +209,29 @@ def test_glb_keeps_the_files_vertices_attributes_material_and_nodes(pillar):
         world = node_worlds(gltf, locals_)
         pivots = np.array([world[j][:3, 3] for j in skin.joints])
         np.testing.assert_allclose(pivots, joints.pivot, atol=1e-5)
+        for k, j in enumerate(skin.joints):
+            expected = joints.world[k][:, :3] @ rest[j][:3, :3]
+            worst = max(worst, float(np.abs(world[j][:3, :3] - expected).max()))
+    return worst
+
+
+def test_glb_keys_are_exact_under_a_uniformly_scaled_turned_armature(tmp_path):
+    turned = ((0.4, -1.0, 2.5), tuple(Rotation.from_euler("xyz", [30, 50, -20], degrees=True).as_quat()),
+              (1.5, 1.5, 1.5))
+    dressed.build(tmp_path / "pillar.glb", moved=turned)
+    (tmp_path / "pillar.toml").write_text(RIG.format(mesh="pillar.glb"))
+    rig = load_rig(tmp_path / "pillar.toml")
+    take = shared.write_take(tmp_path / "take.mcap", rig, readings=12)
+    reference = shared.reference_solve(rig, take)
+    report = export_take(rig, TakeReader(take), Outputs(gltf=tmp_path / "anim.glb",
+                                                        pc2=tmp_path / "mesh.pc2"), fps=shared.FPS)
+    gltf = pygltflib.GLTF2().load_binary(str(tmp_path / "anim.glb"))
+    assert joint_worlds_follow_the_solve(gltf, rig, reference) < 1e-5
+    assert report.lbs_max_pct < 1e-3  # the file's skin is the solve (rigid pillar, exact keys)
+    A = dressed.armature_world(turned)
+    local = read_pc2(tmp_path / "mesh.pc2").astype(np.float64)
+    np.testing.assert_allclose(local @ A[:3, :3].T + A[:3, 3], reference.deformed[:, rig.source_index],
+                               atol=2e-5)
 
 
 def test_rig_without_transforms_writes_the_same_points_in_both_spaces(tmp_path):
@@ -214,7 +259,7 @@ def test_missing_image_file_warns_and_exports_a_plain_material(tmp_path):
     assert "Traceback" not in result.stderr
     assert f"warning: {tmp_path / 'pillar.gltf'}: image file {missing!r}" in result.stderr
     gltf = pygltflib.GLTF2().load_binary(str(tmp_path / "anim.glb"))
-    (material,) = gltf.materials
+    material, _ = gltf.materials
     assert material.name == "skin"
     assert material.pbrMetallicRoughness.baseColorTexture is None  # plain: its factors only
     assert material.pbrMetallicRoughness.baseColorFactor == [1.0, 0.9, 0.8, 1.0]
@@ -261,22 +306,35 @@ def test_usd_carries_the_files_place_uvs_colours_and_textured_material(pillar, s
         np.testing.assert_allclose(local @ world[:3, :3].T + world[:3, 3], solved[frame - 1], atol=2e-5)
         normals = np.array(mesh.GetNormalsAttr().Get(time))
         np.testing.assert_allclose(np.linalg.norm(normals, axis=1), 1.0, atol=1e-5)
-        seam = np.arange(0, len(dressed.geometry()[0]) - 2, dressed.SIDES + 1)  # u = 0 copies
-        np.testing.assert_allclose(normals[seam], normals[seam + dressed.SIDES], atol=1e-6)  # smooth
-    # The file's triangles, UV sets (t = 1 - v), colours.
-    V, F, N, uv0, uv1, colours, _ = dressed.geometry()
-    np.testing.assert_array_equal(np.array(mesh.GetFaceVertexIndicesAttr().Get()).reshape(-1, 3), F)
+        ring = np.arange(0, dressed.RINGS * (dressed.SIDES + 1), dressed.SIDES + 1)  # u = 0
+        np.testing.assert_allclose(normals[ring], normals[ring + dressed.SIDES], atol=1e-6)  # smooth
+        caps = len(dressed.primitives()[0]["V"]) + np.arange(dressed.SIDES)  # the bottom cap's ring
+        assert np.abs(np.einsum("ij,ij->i", normals[caps], normals[:dressed.SIDES])).max() < 0.9  # hard
+    # The file's triangles (its primitives in order), UV sets (t = 1 - v), colours.
+    prims = dressed.primitives()
+    sides = len(prims[0]["V"])
+    np.testing.assert_array_equal(np.array(mesh.GetFaceVertexIndicesAttr().Get()).reshape(-1, 3),
+                                  np.concatenate([prims[0]["F"], prims[1]["F"] + sides]))
     primvars = UsdGeom.PrimvarsAPI(mesh)
-    for name, uv in (("st", uv0), ("st1", uv1)):
+    for name, uv in (("st", np.concatenate([prims[0]["uv0"], prims[1]["uv0"]])), ("st1", prims[0]["uv1"])):
         st = np.array(primvars.GetPrimvar(name).Get())
         assert primvars.GetPrimvar(name).GetInterpolation() == "vertex"
-        np.testing.assert_allclose(st, np.column_stack([uv[:, 0], 1 - uv[:, 1]]), atol=1e-7)
-    np.testing.assert_allclose(np.array(mesh.GetDisplayColorPrimvar().Get()), colours[:, :3])
-    np.testing.assert_allclose(np.array(mesh.GetDisplayOpacityPrimvar().Get()), colours[:, 3])
+        np.testing.assert_allclose(st[:len(uv)], np.column_stack([uv[:, 0], 1 - uv[:, 1]]), atol=1e-7)
+    colours = prims[0]["colours"]
+    np.testing.assert_allclose(np.array(mesh.GetDisplayColorPrimvar().Get())[:sides], colours[:, :3])
+    np.testing.assert_allclose(np.array(mesh.GetDisplayOpacityPrimvar().Get())[:sides], colours[:, 3])
+    # Each primitive's material on its triangles (GeomSubsets).
+    subsets = UsdShade.MaterialBindingAPI(mesh.GetPrim()).GetMaterialBindSubsets()
+    bound = {UsdShade.MaterialBindingAPI(s.GetPrim()).ComputeBoundMaterial()[0].GetPath().name:
+             np.array(s.GetIndicesAttr().Get()) for s in subsets}
+    assert sorted(bound) == ["cap", "skin"]
+    np.testing.assert_array_equal(bound["skin"], np.arange(len(prims[0]["F"])))
+    np.testing.assert_array_equal(bound["cap"], len(prims[0]["F"]) + np.arange(len(prims[1]["F"])))
+    cap = UsdShade.Material(stage.GetPrimAtPath("/pillar/Materials/cap")).ComputeSurfaceSource()[0]
+    np.testing.assert_allclose(cap.GetInput("diffuseColor").Get(), [0.2, 0.3, 0.9])
     # The material: a UsdPreviewSurface whose diffuse colour is the texture, the image beside
     # the layer (or inside the .usdz) byte for byte.
-    material, _ = UsdShade.MaterialBindingAPI(mesh.GetPrim()).ComputeBoundMaterial()
-    assert material.GetPath().name == "skin"
+    material = UsdShade.Material(stage.GetPrimAtPath("/pillar/Materials/skin"))
     surface = material.ComputeSurfaceSource()[0]
     assert surface.GetIdAttr().Get() == "UsdPreviewSurface"
     (source,) = surface.GetInput("diffuseColor").GetConnectedSources()[0]
@@ -310,8 +368,29 @@ def test_usd_of_a_missing_image_has_a_plain_material(tmp_path):
     report = export_take(rig, TakeReader(take), Outputs(usd=tmp_path / "anim.usdc"), fps=10)
     assert len(report.warnings) == 1 and str(tmp_path / dressed.IMAGE) in report.warnings[0]
     stage = Usd.Stage.Open(str(tmp_path / "anim.usdc"))
-    material, _ = UsdShade.MaterialBindingAPI(_usd_mesh(stage).GetPrim()).ComputeBoundMaterial()
-    surface = material.ComputeSurfaceSource()[0]
+    surface = UsdShade.Material(stage.GetPrimAtPath("/pillar/Materials/skin")).ComputeSurfaceSource()[0]
     assert not surface.GetInput("diffuseColor").HasConnectedSource()
     np.testing.assert_allclose(surface.GetInput("diffuseColor").Get(), [1.0, 0.9, 0.8])
     assert not (tmp_path / "anim_textures").exists()
+
+
+def test_unusable_attribute_is_left_out_with_a_warning(tmp_path):
+    path = dressed.build(tmp_path / "pillar.gltf")
+    doc = pygltflib.GLTF2().load(str(path))
+    sides = doc.meshes[0].primitives[0].attributes
+    sides.TEXCOORD_1 = sides.NORMAL  # three components: not a UV set
+    doc.meshes[0].primitives[0].attributes.COLOR_0 = len(doc.accessors) + 5  # no such accessor
+    doc.save_json(str(path))
+    (tmp_path / "pillar.toml").write_text(RIG.format(mesh="pillar.gltf"))
+    rig = load_rig(tmp_path / "pillar.toml")  # the rig needs neither: it loads
+    texcoord, colour = sorted(rig.source.warnings, key=lambda w: "TEXCOORD_1" not in w)
+    n = len(dressed.primitives()[0]["V"])
+    assert f"primitives[0].TEXCOORD_1: {n} values of 3 for {n} vertices" in texcoord
+    assert "COLOR_0" in colour and "does not exist" in colour and str(path) in colour
+    assert set(rig.source.attributes) == {"NORMAL", "TEXCOORD_0"}
+    take = shared.write_take(tmp_path / "take.mcap", rig, readings=6)
+    report = export_take(rig, TakeReader(take), Outputs(gltf=tmp_path / "anim.glb"), fps=10)
+    assert report.warnings == rig.source.warnings
+    gltf = pygltflib.GLTF2().load_binary(str(tmp_path / "anim.glb"))
+    written = gltf.meshes[0].primitives[0].attributes
+    assert written.TEXCOORD_1 is None and written.COLOR_0 is None and written.TEXCOORD_0 is not None

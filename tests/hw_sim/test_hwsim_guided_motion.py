@@ -40,9 +40,9 @@ model = "XM430-W350"
 joint = "leg"
 """
 TICKS_PER_DEG = TICKS_PER_TURN / 360.0
-# id: (rest ticks, ticks away at full reach): 30° positive, sign and gear applied; servo 2's upper
-# limit (20°) is nearer, so it goes 0.9 x 20° = 18°.
-EXPECTED = {4: (1000, -30 * TICKS_PER_DEG), 2: (3000, 2.0 * 18 * TICKS_PER_DEG), 9: (2048, 30 * TICKS_PER_DEG)}
+# id: (rest ticks, ticks away at full reach): 30° the way calibrate asks, sign and gear applied;
+# servo 2's upper limit (20°) leaves less room than its lower one, so it turns 30° negative.
+EXPECTED = {4: (1000, -30 * TICKS_PER_DEG), 2: (3000, -2.0 * 30 * TICKS_PER_DEG), 9: (2048, 30 * TICKS_PER_DEG)}
 
 
 def _servos(tmp_path):
@@ -118,7 +118,7 @@ def test_on_the_bus_one_servo_at_a_time_read_with_the_sdk(tmp_path, open_sdk):
             away = [i for i, v in ticks.items() if abs(v - EXPECTED[i][0]) > 2]
             assert len(away) <= 1, ticks
             for i in away:
-                assert (ticks[i] - EXPECTED[i][0]) * EXPECTED[i][1] > 0, ticks   # the positive side
+                assert (ticks[i] - EXPECTED[i][0]) * EXPECTED[i][1] > 0, ticks   # the side asked
                 assert abs(ticks[i] - EXPECTED[i][0]) <= abs(EXPECTED[i][1]) + 1, ticks
                 if not moved or moved[-1] != i:
                     moved.append(i)
@@ -146,3 +146,28 @@ def test_cli_names_the_motion_and_its_servos(tmp_path):
         proc.terminate()
         proc.wait(timeout=60)
     assert proc.returncode == 0
+
+
+def test_the_simulated_person_turns_the_way_calibrate_asks():
+    """hw_sim's device-side copy of the rule (it imports nothing of puppet) agrees with
+    calibrate's: positive, or negative where the limits leave more room that way; the turn stays
+    inside the limits on that side."""
+    from hw_sim.motion import GUIDED_TURN_DEG, guided_direction
+    from puppet.rig.guided_calibration import TURN_DEG, turn_direction
+
+    assert GUIDED_TURN_DEG == TURN_DEG
+    cases = [(-90, 10), (-90, 20), (-5, 120), (-60, 60), (-20, 12), (-10, 12), (-180, 180), (10, 80),
+             (-100, -10), (-30, 29.9), (-29.9, 29.9), (-45, 30)]
+    for limits in cases:
+        assert guided_direction(limits) == turn_direction(limits), limits
+    examples = [(-90, 10), (-90, 20), (-5, 120), (-20, 12), (-10, 12)]
+    assert [turn_direction(c) for c in examples] == [-1, -1, 1, -1, 1]
+    servos = [RigServo(k + 1, "XL330-M288", 2048, 1, 1.0, (float(lo), float(hi)))
+              for k, (lo, hi) in enumerate(cases)]
+    motion = OneAtATime(servos, settle_s=0.0, ramp_s=0.1, hold_s=0.5, rest_s=0.1)
+    motion.position(1, 1e-3)  # the host's first ask starts the sequence
+    for k, s in enumerate(servos):
+        held = (motion.position(s.id, k * motion.period_s + 0.3) - 2048) / TICKS_PER_DEG
+        low, high = s.limits_deg
+        assert held * turn_direction(s.limits_deg) > 0, s
+        assert low <= held <= high, s

@@ -200,18 +200,26 @@ def test_a_rig_files_servos_are_read_device_side(tmp_path):
         read_rig_servos(bad)
 
 
-def test_the_fitted_motion_stays_inside_every_joint_limit():
+def test_the_fitted_motion_swings_each_joint_across_its_own_range():
+    """Centre ± 0.35 × span of each joint's limits over one period: a knee with limits [-5, 120]
+    bends 13.75°..101.25°, never backwards; geared and reversed servos alike."""
     servos = [RigServo(3, "XC330-T288", 1000, 1, 1.0, (-20.0, 60.0)),
               RigServo(7, "XM540-W270", 3100, -1, 2.0, (-45.0, 45.0)),
-              RigServo(20, "2XL430-W250", 2048, 1, 1.0, (10.0, 80.0))]
+              RigServo(20, "2XL430-W250", 2048, 1, 1.0, (10.0, 80.0)),
+              RigServo(5, "XL430-W250", 500, -1, 1.0, (-5.0, 120.0))]
     motion = WithinLimits(servos)
+    steps = 2400  # one period (2.4 s) in 1 ms steps
     for s in servos:
-        angles = [s.sign * (motion.position(s.id, t / 100) - s.zero_ticks) * 360 / TICKS_PER_TURN / s.gear
-                  for t in range(0, 480)]
-        assert s.limits_deg[0] <= min(angles) and max(angles) <= s.limits_deg[1]
+        angles = [s.sign * (motion.position(s.id, motion.period_s * k / steps) - s.zero_ticks) * 360
+                  / TICKS_PER_TURN / s.gear for k in range(steps + 1)]
         low, high = s.limits_deg
-        centre = 0.0 if low < 0 < high else (low + high) / 2  # the rest pose when it is inside
-        assert max(angles) - min(angles) > 1.3 * 0.7 * min(centre - low, high - centre)
+        centre, half = (low + high) / 2, 0.35 * (high - low)
+        assert low <= min(angles) and max(angles) <= high
+        assert min(angles) == pytest.approx(centre - half, abs=1e-3)
+        assert max(angles) == pytest.approx(centre + half, abs=1e-3)
+    knee = [motion.position(5, motion.period_s * k / steps) for k in range(steps)]
+    assert max(knee) < 500  # sign -1: a bent knee reads below its zero, never above (backwards)
+    assert min(knee) == pytest.approx(500 - 101.25 * TICKS_PER_TURN / 360, abs=0.1)
     assert motion.position(99, 1.0) == 2048.0
 
 

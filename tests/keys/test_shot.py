@@ -160,3 +160,33 @@ def test_a_take_without_keys_is_not_a_shot(tmp_path, critter):
     with pytest.raises(TakeError) as err:
         read_shot(path)
     assert "not a shot" in str(err.value) and "take.mcap" in str(err.value)
+
+
+def test_frames_before_the_first_key_hold_it(tmp_path, critter):
+    keys = retime(critter_keys(critter, step=12), {0: 5})
+    shot = tmp_path / "shot.mcap"
+    write_shot(shot, header_of(critter), keys)
+    frames = Playback.of_take(TakeReader(shot), critter.servo_map.ids, fps=24, rig=critter)
+    assert len(frames) == 37  # frame 1 .. the last key's frame
+    first = fk_rotations(critter, keys.keys[0].ticks)
+    for f in range(5):
+        np.testing.assert_allclose(frames.reading(f).rotations, first, atol=1e-12)
+        assert frames.reading(f).ticks.tolist() == keys.keys[0].ticks.tolist()
+    assert frames.reading(5).ticks.tolist() != keys.keys[0].ticks.tolist()
+
+
+def test_long_shots_are_interpolated_in_bounded_blocks(tmp_path, critter):
+    """Frames past ROTATION_BLOCK, in any order, give the rotations of one whole evaluation."""
+    from puppet.take.inbetween import Inbetweens
+    from puppet.take.playback import ROTATION_BLOCK
+
+    keys = critter_keys(critter, step=100, fps=24)
+    keys.keys[1].interpolation = "smooth"
+    shot = tmp_path / "shot.mcap"
+    write_shot(shot, header_of(critter), keys)
+    frames = Playback.of_take(TakeReader(shot), critter.servo_map.ids, fps=24, rig=critter)
+    assert len(frames) == 301 > ROTATION_BLOCK
+    whole = Inbetweens(keys.times_ns(), [fk_rotations(critter, k.ticks) for k in keys.keys],
+                       [k.interpolation for k in keys.keys]).at(frames.frame_times_ns())
+    for f in (300, 0, 255, 256, 150, 299):
+        np.testing.assert_allclose(frames.reading(f).rotations, whole[f], atol=1e-12)

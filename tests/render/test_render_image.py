@@ -13,12 +13,10 @@ BLACK = (0.0, 0.0, 0.0)
 
 
 def pixel_of(renderer: Renderer, point) -> tuple[int, int]:
-    """(row, column) of a world point in renderer's images (top row first)."""
-    cam = renderer.camera
-    projection = cam.projection_matrix(renderer.width / renderer.height, renderer._radius)
-    clip = projection @ cam.view_matrix() @ np.append(point, 1.0)
-    ndc = clip[:3] / clip[3]
-    return int((1 - ndc[1]) / 2 * renderer.height), int((ndc[0] + 1) / 2 * renderer.width)
+    """(row, column) of a world point in renderer's images (top row first): Camera.to_pixels,
+    checked here against what the renderer draws."""
+    x, y = renderer.camera.to_pixels(point, renderer.width, renderer.height)[0]
+    return int(y), int(x)
 
 
 def front_camera() -> Camera:
@@ -92,6 +90,22 @@ def test_automatic_framing_shows_the_whole_rest_pose(gl_context, bar, helpers):
         assert np.abs(ndc).max() > 0.75  # and fills the frame
         image = renderer.draw(helpers.handle_T([helpers.IDENTITY, helpers.IDENTITY]))
     assert image.shape == (160, 120, 3) and image.dtype == np.uint8
+
+
+def test_framing_along_a_given_view_shows_the_character_where_to_pixels_says(gl_context, bar, helpers):
+    """Camera.framing(view=...) looks from exactly that direction, and the drawn silhouette lies
+    in the box Camera.to_pixels gives for the vertices (a pixel of antialiasing either way)."""
+    V, F, W = bar
+    view = np.array([0.3, -0.2, 1.0])
+    camera = Camera.framing(V, aspect=160 / 120, up=(0.0, 1.0, 0.0), view=view, margin=1.2)
+    np.testing.assert_allclose(camera.basis()[2], view / np.linalg.norm(view), atol=1e-12)
+    with Renderer(V, F, W, width=160, height=120, camera=camera, ground=False, background=BLACK,
+                  context=gl_context) as renderer:
+        mask = renderer.draw(helpers.handle_T([helpers.IDENTITY, helpers.IDENTITY])).max(axis=2) > 20
+    rows, cols = np.nonzero(mask)
+    pixels = camera.to_pixels(V, 160, 120)
+    assert abs(cols.min() - pixels[:, 0].min()) <= 1.5 and abs(cols.max() + 1 - pixels[:, 0].max()) <= 1.5
+    assert abs(rows.min() - pixels[:, 1].min()) <= 1.5 and abs(rows.max() + 1 - pixels[:, 1].max()) <= 1.5
 
 
 def test_draw_reads_into_out_and_reuses_its_own_buffer(gl_context, bar, helpers):

@@ -5,7 +5,7 @@ it) in a subprocess: ``docs/blender_check.py`` does every step of docs/blender.m
 each step shows. The characters:
 
 - critter: the built-in character (its mesh comes from an .npz, so the PC2 and the BVH go on the
-  mesh of the exported .glb), the shared 24 fps export of tests/export/conftest.py's take;
+  mesh of the exported .glb): tests/export/conftest.py's take and reference solve, at 24 fps;
 - mare: the seamed, textured character of ``character.py``, its armature and mesh nodes moved,
   turned and scaled unevenly, exported at 30 fps (so a scene left at Blender's 24 fps would show).
 """
@@ -15,18 +15,18 @@ from __future__ import annotations
 import importlib.util
 import json
 import subprocess
-import sys
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 import pytest
 
+from puppet.rig import load_rig
+
 HERE = Path(__file__).resolve().parent
 CHECK_SCRIPT = HERE.parents[2] / "docs" / "blender_check.py"
 #: Blender's importers turn puppet's +Y-up model frame to Blender's +Z up: (x, y, z) -> (x, -z, y).
 Y_UP_TO_BLENDER = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])
-BLENDER_TIMEOUT_S = 900  # one subprocess does every step; about 10 s on a quiet machine
 
 
 def load_module(name: str, path: Path):
@@ -38,26 +38,14 @@ def load_module(name: str, path: Path):
 
 
 character = load_module("blender_test_character", HERE / "character.py")
+blender = load_module("blender_test_run_bpy", HERE / "run_bpy.py")
 export_data = load_module("blender_test_export_data", HERE.parent / "conftest.py")
-
-
-def bpy_missing() -> str | None:
-    """Why ``bpy`` cannot run here, or None."""
-    if importlib.util.find_spec("bpy") is not None:
-        return None
-    version = f"{sys.version_info.major}.{sys.version_info.minor}"
-    if version != "3.11":
-        return (f"bpy (Blender 5.0 as a Python module) cannot install here: PyPI has its wheels "
-                f"for Python 3.11 only and this is Python {version}; the test extras install it "
-                f"under Python 3.11 (pip install '.[test]', as CI does)")
-    return ("bpy (Blender 5.0 as a Python module) is not installed: pip install '.[test]' "
-            "installs it (as CI does), or pip install bpy")
 
 
 @pytest.fixture(scope="session", autouse=True)
 def needs_bpy():
     """Every test here runs Blender: skipped, saying why, where bpy is not installed."""
-    reason = bpy_missing()
+    reason = blender.bpy_missing()
     if reason:
         pytest.skip(reason)
 
@@ -95,24 +83,23 @@ class Shown:
 STEP_FILES = {"gltf": "--glb", "pc2": "--pc2", "bvh": "--bvh", "usd": "--usd"}
 
 
-def run_blender_check(folder: Path, fps: float, frames: int, files: dict, character_file=None) -> tuple[dict, str]:
+def run_blender_check(folder: Path, fps: float, frames: int, files: dict,
+                      character_file=None) -> tuple[dict, str]:
     """Run docs/blender_check.py on the files of an export ({format: path}, any of them):
     ({step: shown}, what it printed)."""
     saved = folder / "shown.npz"
-    argv = [sys.executable, str(CHECK_SCRIPT), "--fps", f"{fps:g}", "--frames", str(frames),
-            "--save", str(saved)]
+    argv = [CHECK_SCRIPT, "--fps", f"{fps:g}", "--frames", str(frames), "--save", str(saved)]
     argv += [arg for fmt, path in files.items() for arg in (STEP_FILES[fmt], str(path))]
     if character_file is not None:
         argv += ["--character", str(character_file)]
-    result = subprocess.run(argv, cwd=folder, capture_output=True, text=True, timeout=BLENDER_TIMEOUT_S)
-    assert result.returncode == 0, result.stdout[-4000:] + result.stderr[-4000:]
+    output = blender.run_bpy(*argv, cwd=folder)
     with np.load(saved) as data:
         meta = json.loads(str(data["meta"]))
         for key in data.files:
             if key != "meta":
                 step, field = key.split(".")
                 meta[step][field] = data[key]
-    return meta, result.stdout
+    return meta, output
 
 
 DOCS_FILES = {"gltf": "anim.glb", "usd": "anim.usdc", "bvh": "skeleton.bvh", "pc2": "mesh.pc2"}
@@ -157,8 +144,9 @@ def shown_for(name, rig, take, folder, fps, reference, rig_file=None, character_
     steps, output = run_blender_check(folder, fps, len(expected), files, character_file)
     rest = rig.V[order] @ Y_UP_TO_BLENDER.T
     rigid = rigid_skinning(rig, reference.T)[:, order] @ Y_UP_TO_BLENDER.T
-    return Shown(name, expected, rest, rigid, float(np.linalg.norm(rig.V.max(0) - rig.V.min(0))), fps,
-                 len(expected), report, steps, tuple(rig.skeleton.names), output)
+    diagonal = float(np.linalg.norm(rig.V.max(0) - rig.V.min(0)))
+    return Shown(name, expected, rest, rigid, diagonal, fps, len(expected), report, steps,
+                 tuple(rig.skeleton.names), output)
 
 
 @pytest.fixture(scope="session")
@@ -174,8 +162,6 @@ def mare_files(tmp_path_factory):
     glb = character.write_glb(folder / "mare.glb")
     rig_file = folder / "mare.toml"
     rig_file.write_text(character.rig_text(glb.name))
-    from puppet.rig import load_rig
-
     rig = load_rig(rig_file)
     take = export_data.write_take(folder / "mare.mcap", rig, readings=40)
     return folder, glb, rig_file, take
@@ -183,29 +169,10 @@ def mare_files(tmp_path_factory):
 
 @pytest.fixture(scope="session")
 def mare_shown(mare_files) -> Shown:
-    from puppet.rig import load_rig
-
     folder, glb, rig_file, take = mare_files
     rig = load_rig(rig_file)
     reference = export_data.reference_solve(rig, take, fps=30.0)
     return shown_for("mare", rig, take, folder, 30.0, reference, rig_file, glb)
-
-
-@dataclass
-class Keyed:
-    """A glTF exported with ``--keys``: its report, and the glTF steps in Blender."""
-
-    report: dict
-    gltf: dict
-
-
-@pytest.fixture(scope="session")
-def critter_keyed(tmp_path_factory, critter_shown, take30, fps) -> Keyed:
-    """The critter's take exported with --keys 0.5 (glTF only) and imported into Blender."""
-    folder = tmp_path_factory.mktemp("critter_keys")
-    files, report = export(folder, take30, fps, names={"gltf": "anim.glb"}, options=("--keys", "0.5"))
-    steps, _ = run_blender_check(folder, fps, critter_shown.frames, files)
-    return Keyed(report, steps["gltf"])
 
 
 @pytest.fixture(scope="session")
@@ -217,6 +184,18 @@ def mare_usdz(mare_files, mare_shown) -> dict:
     files, _ = export(folder, take, mare_shown.fps, rig_file, names={"usd": "anim.usdz"})
     steps, _ = run_blender_check(folder, mare_shown.fps, mare_shown.frames, files)
     return steps["usd"]
+
+
+@pytest.fixture(scope="session")
+def mare_model_space(mare_files, mare_shown) -> dict:
+    """The PC2 step on the character's own import with a PC2 written ``--space model``."""
+    folder, glb, rig_file, take = mare_files
+    folder = folder / "model_space"
+    folder.mkdir()
+    files, _ = export(folder, take, mare_shown.fps, rig_file, names={"pc2": "model.pc2"},
+                      options=("--up", "z", "--space", "model"))
+    steps, _ = run_blender_check(folder, mare_shown.fps, mare_shown.frames, files, glb)
+    return steps["pc2_source"]
 
 
 @pytest.fixture(params=["critter", "mare"])

@@ -1,0 +1,115 @@
+"""Capturing key poses from the puppet: a key is the median of the readings over a hold window.
+
+The puppeteer holds a pose and presses Enter; the key is taken from the readings of the next
+``HOLD_S`` seconds (keep holding still that long): each servo's ticks are the median of its
+readings there (servo jitter does not enter the key), rounded to whole ticks. A key pressed
+while a servo is flagged in that window (silent, out of range) is refused, naming the servo.
+
+KeySession holds the shot being made and applies the puppeteer's commands (one line each):
+    (empty)   a new key, ``step`` frames after the last one (the first lands on frame 1)
+    r N       replace key N with the held pose (its frame and interpolation kept)
+    d N       delete key N
+    i F       insert a key with the held pose at frame F
+    q         finish (end of input and Ctrl-C too)
+After every change the shot is written whole (``puppet.keys.shot.write_shot``): a crash keeps
+every key made before it.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+
+import numpy as np
+
+from puppet.errors import PuppetError
+from puppet.keys.shot import insert_key, remove_key, replace_key, write_shot
+from puppet.take import TakeError
+from puppet.take.keys import Key, Keys
+
+HOLD_S = 0.2
+"""Hold window after the key press, seconds: the key is the median of its readings."""
+HOLD_NS = int(HOLD_S * 1e9)
+KEPT_READINGS = 4096
+"""Readings kept while waiting for a hold window to end (a bound, not a tuning)."""
+
+
+class KeyRefused(PuppetError):
+    """A key that cannot be taken (a flagged servo) or a command that cannot be applied."""
+
+
+def held_pose(readings, press_ns: int, ids) -> tuple[np.ndarray, np.ndarray, int]:
+    """(ticks (k,) int32 median over the window, ok (k,) bool, readings used) of the readings
+    with press_ns <= t_ns <= press_ns + HOLD_NS; KeyRefused naming the servos flagged there."""
+    window = [r for r in readings if press_ns <= r.t_ns <= press_ns + HOLD_NS]
+    if not window:
+        raise KeyRefused("no reading in the hold window: is the bus reading?")
+    ok = np.logical_and.reduce([r.ok for r in window])
+    if not ok.all():
+        # a failed group read flags every servo until the reader finds the silent one: name
+        # the servos flagged in every flagged reading
+        flagged = np.logical_and.reduce([~r.ok for r in window if not r.ok.all()])
+        bad = [int(i) for i in np.asarray(ids)[flagged if flagged.any() else ~ok]]
+        raise KeyRefused(f"servo(s) {bad} flagged (silent or out of range) while holding: key "
+                        "refused; check them and press again")
+    ticks = np.rint(np.median(np.stack([r.ticks for r in window]), axis=0)).astype(np.int32)
+    return ticks, ok, len(window)
+
+
+class KeySession:
+    """A shot being captured into ``path``.
+
+    header: the shot's TakeWriter keywords (``cli.common.take_header``). fps: the shot's frames
+    per second; step: frames between a key and the next; interpolation: of every new key.
+    keys: the shot's Keys so far.
+    """
+
+    def __init__(self, path, header: dict, *, fps: float, step: int,
+                 interpolation: str = "linear"):
+        self.path, self.header, self.step = path, header, int(step)
+        self.interpolation = interpolation
+        self.ids = np.asarray(header["ids"])
+        self.keys = Keys(float(fps), [])
+        self.readings: deque = deque(maxlen=KEPT_READINGS)
+
+    def needs_pose(self, command: str) -> bool:
+        """Whether ``command`` takes the held pose (a new, replaced or inserted key)."""
+        word = command.split()[:1]
+        return not word or word[0] in ("r", "i")
+
+    def apply(self, command: str, press_ns: int | None = None) -> str:
+        """Apply one command line (press_ns: when it was given, for those that take the pose);
+        the shot is written; returns what happened, in words. KeyRefused / TakeError: refused,
+        nothing changed."""
+        parts = command.split()
+        try:
+            if not parts:
+                ticks, ok, used = held_pose(self.readings, press_ns, self.ids)
+                frame = self.keys.keys[-1].frame + self.step if self.keys.keys else 1
+                new = insert_key(self.keys, Key(frame, ticks, ok, self.interpolation), self.path)
+                said = f"key {len(self.keys.keys)}: frame {frame} ({used} readings held)"
+            elif parts[0] == "r" and len(parts) == 2:
+                ticks, ok, used = held_pose(self.readings, press_ns, self.ids)
+                index = int(parts[1])
+                new = replace_key(self.keys, index, Key(0, ticks, ok), self.path)
+                said = f"key {index}: replaced ({used} readings held)"
+            elif parts[0] == "d" and len(parts) == 2:
+                index = int(parts[1])
+                new = remove_key(self.keys, index, self.path)
+                said = f"key {index}: deleted ({len(new.keys)} keys left)"
+            elif parts[0] == "i" and len(parts) == 2:
+                ticks, ok, used = held_pose(self.readings, press_ns, self.ids)
+                frame = int(parts[1])
+                new = insert_key(self.keys, Key(frame, ticks, ok, self.interpolation), self.path)
+                index = [k.frame for k in new.keys].index(frame)
+                said = f"key {index}: inserted at frame {frame} ({used} readings held)"
+            else:
+                raise KeyRefused(f"unknown command {command.strip()!r}: Enter (a key), r N "
+                                "(replace), d N (delete), i FRAME (insert), q (finish)")
+        except ValueError:
+            raise KeyRefused(f"{command.strip()!r}: N and FRAME are whole numbers") from None
+        write_shot(self.path, self.header, new)
+        self.keys = new
+        return said
+
+
+__all__ = ["HOLD_S", "KeyRefused", "KeySession", "TakeError", "held_pose"]
