@@ -79,7 +79,7 @@ def test_a_fifo_or_folder_named_like_a_take_is_a_failed_row_not_a_hang(tmp_path,
     result = subprocess.run(["puppet", "batch", str(folder), "--out", str(out), "--formats",
                              "bvh", "--workers", "1", "--json"], capture_output=True, text=True,
                             timeout=300)
-    assert result.returncode == 1 and "Traceback" not in result.stderr
+    assert result.returncode == 3 and "Traceback" not in result.stderr  # some takes failed
     rows = {r["take"]: r for r in json.loads(result.stdout)["takes"]}
     for name in ("pipe.mcap", "folder.mcap"):
         assert rows[str(folder / name)]["state"] == "failed"
