@@ -49,6 +49,9 @@ EVENT_KINDS: dict[str, EventKind] = {
         True, "garbled replies (loose cable or noise)"),
     "out_of_limits": EventKind("the servo's value fell outside its tick limits and was not taken",
         True, "servo reported a position outside its limits"),
+    "dead_zone": EventKind("the servo read an end of its model's positions (an AX, RX or XL-320 "
+        "shaft in its 60° dead zone reads 0 or 1023, whatever its angle): not taken",
+        True, "servo turned into its blind zone: no angle there"),
     "rebased": EventKind("the servo's raw position jumped (a reboot re-based it): turn offset updated",
         False, "servo restarted: its position was re-based"),
     "noisy": EventKind("the servo's jitter rose above the noise threshold",

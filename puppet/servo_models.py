@@ -486,3 +486,21 @@ class ServoUnits:
         """Absolute degrees of the servo shaft of tick differences ((k,) or (N, k))."""
         return np.abs(np.asarray(ticks, float)) / ticks_per_degree(self.ticks_per_turn)
 
+
+def protocol_of(servos) -> float:
+    """The one protocol of the servos ``servos`` ({id: model name}; 2.0 when empty).
+
+    One bus carries one protocol: a Protocol 1.0 servo ignores Protocol 2.0 packets and the
+    other way round, so one port reads one or the other (ROBOTIS documents no adapter that would
+    do both). ValueError naming the servos of each protocol when they mix; a model not in the
+    table names the table (``model_named``)."""
+    by_protocol: dict[float, list[str]] = {}
+    for dxl_id, name in servos.items():
+        by_protocol.setdefault(model_named(name).protocol, []).append(f"{dxl_id} ({name})")
+    if len(by_protocol) > 1:
+        parts = "; ".join(f"Protocol {p:.1f}: servos {', '.join(ids)}"
+                          for p, ids in sorted(by_protocol.items()))
+        raise ValueError(f"protocols mixed on one bus ({parts}): one bus carries one protocol; "
+                         "put each protocol's servos on a port of their own, or switch the MX "
+                         "firmware's protocol (Dynamixel Wizard)")
+    return next(iter(by_protocol), PROTOCOL_2)

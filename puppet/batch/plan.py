@@ -263,10 +263,14 @@ def _rig_file(rig: Rig) -> str:
 
 
 def _rig_text_sha256(rig: Rig) -> str:
-    """sha256 of the rig file's bytes; of its name for a rig made in memory."""
-    if rig.path is not None and Path(rig.path).is_file():
+    """sha256 of the rig file's bytes and of its calibration file's (its zero ticks shape a take
+    that recorded none); of its name for a rig made in memory."""
+    if rig.path is None or not Path(rig.path).is_file():
+        return bytes_sha256(f"rig {rig.name}")
+    calibration = getattr(rig.calibration, "path", None)
+    if calibration is None or not Path(calibration).is_file():
         return file_sha256(rig.path)
-    return bytes_sha256(f"rig {rig.name}")
+    return bytes_sha256(file_sha256(rig.path) + file_sha256(calibration))
 
 
 def _builtin_text() -> str:

@@ -6,8 +6,9 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 
 from puppet.bus import control_table as ct
-from puppet.bus.errors import ServoError, ServoModelMismatch, ServoStatusError, ServoTimeout
+from puppet.bus.errors import BusError, ServoError, ServoModelMismatch, ServoStatusError, ServoTimeout
 from puppet.bus.link import SILENT, BusLink
+from puppet.servo_models import X_ITEMS, ControlItems, protocol_of
 
 
 @dataclass(frozen=True)
@@ -39,7 +40,8 @@ class SetupReport:
                 (only filled when a broadcast ping was asked for).
     changes:    every write made (torque off, return delay 0, ...).
     hardware_errors: {id: Hardware Error Status bits} for servos with a latched error.
-    read_mode:  'fast_sync_read' or 'sync_read'.
+    read_mode:  'fast_sync_read' or 'sync_read' (Protocol 2.0); 'bulk_read', 'read' or
+                'bulk_read + read' (Protocol 1.0: see ``p1_read_mode``).
     """
 
     found: dict[int, ServoInfo] = field(default_factory=dict)
@@ -79,20 +81,57 @@ def identify(link: BusLink, servos: Mapping[int, str], report: SetupReport, atte
         raise ServoModelMismatch(mismatched_ids, "ping", "; ".join(mismatched))
 
 
+def bus_protocol(servos: Mapping[int, str], what: str = "the servo map") -> float:
+    """The one protocol of ``servos`` ({id: model name}) -> 1.0 or 2.0 (``servo_models.
+    protocol_of``); ValueError starting with ``what`` naming the servos of each otherwise."""
+    try:
+        return protocol_of(servos)
+    except ValueError as err:
+        raise ValueError(f"{what}: {err}") from None
+
+
+def check_baud(servos: Mapping[int, str], baud: int, port: str = "") -> None:
+    """BusError naming every servo of ``servos`` ({id: model name}) whose model cannot select
+    ``baud`` bit/s (``ServoModel.baud_rates``: 4 Mbit/s on X-series, 1 Mbit/s at most on AX /
+    RX and the XL-320, ...)."""
+    slow = {i: m for i, m in servos.items() if int(baud) not in ct.model_named(m).baud_rates}
+    if slow:
+        names = ", ".join(f"{i} ({m}: {_rates(ct.model_named(m).baud_rates)})" for i, m in slow.items())
+        raise BusError(f"{'port ' + port + ': ' if port else ''}{baud} bit/s is not a rate of "
+                       f"servo{'s' if len(slow) > 1 else ''} {names}")
+
+
+def _rates(bauds) -> str:
+    return "up to " + (f"{max(bauds) / 1e6:g} Mbit/s" if max(bauds) >= 1e6 else f"{max(bauds)} bit/s")
+
+
+def p1_read_mode(servos: Mapping[int, str]) -> str:
+    """How a Protocol 1.0 bus reads ``servos`` ({id: model name}), in words: 'bulk_read' (one
+    Bulk Read, 0x92, of the MX servos: ``ServoModel.bulk_read``), 'read' (one Read per AX / RX
+    servo: they have no Bulk Read, and Protocol 1.0 has no Sync Read) or 'bulk_read + read'."""
+    bulk = [i for i, m in servos.items() if ct.model_named(m).bulk_read]
+    alone = [i for i in servos if i not in bulk]
+    return " + ".join(name for name, ids in (("bulk_read", bulk), ("read", alone)) if ids)
+
+
 def supports_fast_sync_read(servos: Mapping[int, str], found: Mapping[int, ServoInfo]) -> bool:
-    """True when every found servo's firmware has Fast Sync Read (X330 FW >= 46, X430 >= 45)."""
+    """True when every found servo's firmware has Fast Sync Read (X330 FW >= 46, X430 >= 45;
+    no Protocol 1.0 model, XL-320 or MX(2.0))."""
     return bool(found) and all(
         info.firmware >= ct.model_named(servos[i]).fast_sync_read_firmware for i, info in found.items())
 
 
-def ensure_status_return(link: BusLink, dxl_id: int, changes: list[Change]) -> None:
+def ensure_status_return(link: BusLink, dxl_id: int, changes: list[Change],
+                         items: ControlItems = X_ITEMS) -> None:
     """Status Return Level 2 (reply to everything), which the rest of the setup relies on.
+    ``items``: the servo model's (``ServoModel.items``).
 
     At level 1 the servo answers reads but not writes; at level 0 only pings. The level is set
     by a write that expects no reply, then checked by a read. ServoError if it stays silent.
     """
+    srl = items.status_return_level
     try:
-        level = link.read(dxl_id, ct.STATUS_RETURN_LEVEL)
+        level = link.read(dxl_id, srl)
     except ServoTimeout:
         # A pinged servo that ignores reads is at level 0, or its reply is only late (a loaded
         # machine): it answers pings, so a ping tells, by what arrives before its reply.
@@ -101,34 +140,38 @@ def ensure_status_return(link: BusLink, dxl_id: int, changes: list[Change]) -> N
         level = 0
     if level >= 2:
         return
-    link.write_no_reply(dxl_id, ct.STATUS_RETURN_LEVEL, 2)
-    changes.append(Change(dxl_id, ct.STATUS_RETURN_LEVEL.name, level, 2))
-    if link.read(dxl_id, ct.STATUS_RETURN_LEVEL) != 2:
+    link.write_no_reply(dxl_id, srl, 2)
+    changes.append(Change(dxl_id, srl.name, level, 2))
+    if link.read(dxl_id, srl) != 2:
         raise ServoStatusError([dxl_id], "write Status Return Level", "the level did not change")
 
 
-def configure_servo(link: BusLink, dxl_id: int, driven: bool, changes: list[Change]) -> None:
+def configure_servo(link: BusLink, dxl_id: int, driven: bool, changes: list[Change],
+                    items: ControlItems = X_ITEMS) -> None:
     """Status Return Level 2 and Return Delay Time 0 on one servo; a sensor's torque off.
 
     driven: the servo is an actuator that a driver owns (``ServoReader(driven=...)``): its
     torque is never changed here, and its return delay (an EEPROM item, writable only with
     torque off) only while its torque is off; the driver's own setup makes it safe to drive.
+    ``items``: the servo model's (``ServoModel.items``: the addresses differ by protocol).
     Appends every write to ``changes``. Raises ServoError/PortError on a failed transaction.
     """
-    ensure_status_return(link, dxl_id, changes)
-    torque = link.read(dxl_id, ct.TORQUE_ENABLE)
-    delay = link.read(dxl_id, ct.RETURN_DELAY_TIME)
+    ensure_status_return(link, dxl_id, changes, items)
+    torque_item, delay_item = items.torque_enable, items.return_delay_time
+    torque = link.read(dxl_id, torque_item)
+    delay = link.read(dxl_id, delay_item)
     if delay != 0 and not (driven and torque):
         if torque:  # EEPROM is locked while torque is on
-            link.write(dxl_id, ct.TORQUE_ENABLE, 0)
-            changes.append(Change(dxl_id, ct.TORQUE_ENABLE.name, torque, 0))
+            link.write(dxl_id, torque_item, 0)
+            changes.append(Change(dxl_id, torque_item.name, torque, 0))
             torque = 0
-        link.write(dxl_id, ct.RETURN_DELAY_TIME, 0)
-        changes.append(Change(dxl_id, ct.RETURN_DELAY_TIME.name, delay, 0))
+        link.write(dxl_id, delay_item, 0)
+        changes.append(Change(dxl_id, delay_item.name, delay, 0))
     if not driven and torque:
-        link.write(dxl_id, ct.TORQUE_ENABLE, 0)
-        changes.append(Change(dxl_id, ct.TORQUE_ENABLE.name, torque, 0))
+        link.write(dxl_id, torque_item, 0)
+        changes.append(Change(dxl_id, torque_item.name, torque, 0))
 
 
 __all__ = ["Change", "ServoInfo", "SetupReport", "identify", "supports_fast_sync_read",
+           "bus_protocol", "p1_read_mode", "check_baud",
            "configure_servo", "ensure_status_return"]

@@ -27,6 +27,8 @@ class ServoHealth:
     hardware_error:    Hardware Error Status bits latched now (0: none).
     alert:             True when its last status packet carried the alert bit.
     out_of_limits:     its last raw value fell outside its tick limits (value not taken).
+    dead_zone:         its last raw value was an end of its model's positions or beyond (an
+                       AX, RX or XL-320 shaft in the 60° dead zone reads an end; not taken).
     reboots, rebases:  reboots detected; turn re-bases applied by the unwrapper.
     jitter:            running mean of |second difference| of its ticks (sensor noise), ticks.
     noisy:             jitter above the reader's noise threshold.
@@ -43,6 +45,7 @@ class ServoHealth:
     hardware_error: int = 0
     alert: bool = False
     out_of_limits: bool = False
+    dead_zone: bool = False
     reboots: int = 0
     rebases: int = 0
     jitter: float = 0.0

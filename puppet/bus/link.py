@@ -1,6 +1,12 @@
-"""One serial link to a Dynamixel Protocol 2.0 bus, through the official dynamixel_sdk.
+"""One serial link to a Dynamixel bus (Protocol 2.0 or 1.0), through the official dynamixel_sdk.
 
-Every SDK call goes through here. The SDK's crash paths are absorbed and turned into typed
+Every SDK call goes through here. One link speaks one protocol (a bus carries one: see
+``puppet.servo_models``): ``Wire`` holds where each protocol's packets keep their fields.
+Protocol 1.0 has no Sync Read, Fast Sync Read, Reboot or broadcast ping, and no alert bit: its
+status error byte carries the servo's hardware conditions (input voltage, overheating,
+overload: the bits X-series Hardware Error Status uses) beside the instruction's own errors;
+the link turns it into the Protocol 2.0 form (alert bit + error number) and keeps the hardware
+bits per servo (``hardware_bits``), so everything above reads one form. The SDK's crash paths are absorbed and turned into typed
 errors: ``SerialException``/``OSError`` (USB unplug) -> ``PortError``; ``IndexError`` on
 short or error-only replies -> ``ServoCorrupt``/``ServoStatusError``; result codes ->
 ``ServoTimeout``/``ServoCorrupt``. The SDK's ``port.is_using`` flag, left True when a call
@@ -12,13 +18,14 @@ from __future__ import annotations
 import contextlib
 import os
 import time
-from collections.abc import Iterable, Iterator, Mapping
+from collections.abc import Collection, Iterable, Iterator, Mapping
 from dataclasses import dataclass, field
 
 import dynamixel_sdk
 import dynamixel_sdk.port_handler as sdk_port_handler
 import serial
 import termios
+from dynamixel_sdk import protocol1_packet_handler as p1
 from dynamixel_sdk import protocol2_packet_handler as p2
 from dynamixel_sdk import robotis_def as rd
 
@@ -28,6 +35,8 @@ from puppet.bus.errors import PortError, ServoCorrupt, ServoError, ServoStatusEr
 from puppet.bus.port_lock import PortInUse
 
 PROTOCOL = 2.0
+"""The protocol a link speaks unless told (every X-series servo)."""
+PROTOCOLS = (1.0, 2.0)
 PORT_ERRORS = (serial.SerialException, OSError, termios.error)
 """What pyserial raises when the adapter vanishes: SerialException ('device reports readiness to
 read but returned no data'), OSError (EIO on write), termios.error (EIO from tcflush)."""
@@ -82,40 +91,137 @@ each outstanding witness of a servo reads a size of its own, so a late reply to 
 witness is never taken for this one's. Sizes below 5 are left to the reader's own reads and to
 ping replies (3 data bytes)."""
 
-
-def _ping_packet(dxl_id: int) -> bytes:
-    """The Protocol 2.0 Ping instruction packet for one id (10 bytes, CRC included); its status
-    carries 3 data bytes (model number, firmware)."""
-    packet = [0xFF, 0xFF, 0xFD, 0x00, dxl_id, 3, 0, rd.INST_PING]
-    crc = dynamixel_sdk.PacketHandler(PROTOCOL).updateCRC(0, packet, len(packet))
-    return bytes(packet + [crc & 0xFF, crc >> 8])
-
-
-def _read_packet(dxl_id: int, address: int, size: int) -> bytes:
-    """The Protocol 2.0 Read instruction packet (14 bytes, CRC included)."""
-    packet = [0xFF, 0xFF, 0xFD, 0x00, dxl_id, 7, 0, rd.INST_READ,
-              address & 0xFF, address >> 8, size & 0xFF, size >> 8]
-    crc = dynamixel_sdk.PacketHandler(PROTOCOL).updateCRC(0, packet, len(packet))
-    return bytes(packet + [crc & 0xFF, crc >> 8])
+P1_HARDWARE_BITS = 0x25
+"""Protocol 1.0 status error bits that are the servo's hardware conditions: input voltage (0),
+overheating (2), overload (5): the same bits as X-series Hardware Error Status (70)."""
+P1_ERROR_NUMBERS = ((0x40, 0x02), (0x10, 0x03), (0x08, 0x04), (0x02, 0x06))
+"""Protocol 1.0 status error bits that fail the instruction -> the Protocol 2.0 error number:
+instruction (6) -> Instruction Error, checksum (4) -> CRC Error, range (3) -> Data Range Error,
+angle limit (1) -> Data Limit Error."""
 
 
-def _status_start(dxl_id: int, size: int) -> bytes:
-    """How a status packet from ``dxl_id`` carrying ``size`` data bytes begins."""
-    length = size + 4
-    return bytes((0xFF, 0xFF, 0xFD, 0x00, dxl_id, length & 0xFF, length >> 8, 0x55))
+class Wire:
+    """Where one protocol's packets keep their fields (a status packet ``rx`` as a byte list).
 
+    Protocol 2.0: ``FF FF FD 00 ID LEN_L LEN_H 55 ERR data CRC_L CRC_H`` (CRC-16);
+    Protocol 1.0: ``FF FF ID LEN ERR data CHK`` (checksum ``~(ID + LEN + ... ) & 0xFF``).
+    """
 
-def _stale(rx: list, size: int) -> bool:
-    """A clean status packet whose data count is not ``size``: a late reply to another
-    instruction (a reply carrying an error number may have no data: it is not stale)."""
-    return not rx[p2.PKT_ERROR] & 0x7F and len(_status_data(rx)) != size
+    def __init__(self, protocol: float) -> None:
+        if protocol not in PROTOCOLS:
+            raise ValueError(f"protocol {protocol!r}: not one of {PROTOCOLS}")
+        self.protocol = float(protocol)
+        self.p1 = self.protocol == 1.0
+        self.ph = dynamixel_sdk.PacketHandler(self.protocol)
+        self.id_at = p1.PKT_ID if self.p1 else p2.PKT_ID
+        self.error_at = p1.PKT_ERROR if self.p1 else p2.PKT_ERROR
+        self.data_at = p1.PKT_PARAMETER0 if self.p1 else p2.PKT_PARAMETER0 + 1
+        self.overhead = 6 if self.p1 else 11
+        """Bytes of a status packet around its data."""
 
+    def data(self, rx: list) -> list:
+        """The data bytes of a status packet (all of them: the SDK would slice the asked-for
+        count and take the checksum for data when a shorter reply, e.g. a late one to another
+        read, comes)."""
+        if self.p1:
+            return rx[self.data_at: self.data_at + max(0, rx[p1.PKT_LENGTH] - 2)]
+        length = rx[p2.PKT_LENGTH_L] | (rx[p2.PKT_LENGTH_H] << 8)  # instruction, error, data, CRC
+        return rx[self.data_at: self.data_at + max(0, length - 4)]
 
-def _status_data(rx: list) -> list:
-    """The data bytes of a status packet (all of them: the SDK would slice the asked-for count
-    and take the CRC for data when a shorter reply, e.g. a late one to another read, comes)."""
-    length = rx[p2.PKT_LENGTH_L] | (rx[p2.PKT_LENGTH_H] << 8)  # instruction, error, data, CRC
-    return rx[p2.PKT_PARAMETER0 + 1: p2.PKT_PARAMETER0 + 1 + max(0, length - 4)]
+    def error(self, rx: list) -> int:
+        """The status error byte in the Protocol 2.0 form: bit 7 alert (Protocol 1.0: a
+        hardware condition bit is set), bits 0..6 the error number."""
+        raw = rx[self.error_at]
+        if not self.p1:
+            return raw
+        number = next((n for bit, n in P1_ERROR_NUMBERS if raw & bit), 0)
+        return (0x80 if raw & P1_HARDWARE_BITS else 0) | number
+
+    def hardware_bits(self, rx: list) -> int:
+        """Protocol 1.0: the hardware condition bits of a status packet (X-series Hardware
+        Error Status numbering); 0 on Protocol 2.0 (read Hardware Error Status instead)."""
+        return rx[self.error_at] & P1_HARDWARE_BITS if self.p1 else 0
+
+    def stale(self, rx: list, size: int) -> bool:
+        """A clean status packet whose data count is not ``size``: a late reply to another
+        instruction (a reply carrying an error number may have no data: it is not stale)."""
+        return not self.error(rx) & 0x7F and len(self.data(rx)) != size
+
+    def _packet(self, body: list) -> bytes:
+        """An instruction packet from its body (ID, length, instruction, parameters) with the
+        header and the checksum (Protocol 1.0) or CRC-16 (Protocol 2.0) added."""
+        if self.p1:
+            return bytes([0xFF, 0xFF, *body, ~sum(body) & 0xFF])
+        packet = [0xFF, 0xFF, 0xFD, 0x00, *body]
+        crc = self.ph.updateCRC(0, packet, len(packet))
+        return bytes(packet + [crc & 0xFF, crc >> 8])
+
+    def ping_packet(self, dxl_id: int) -> bytes:
+        """The Ping instruction packet for one id; its status carries 3 data bytes (Protocol
+        2.0: model number, firmware) or none (Protocol 1.0)."""
+        if self.p1:
+            return self._packet([dxl_id, 2, rd.INST_PING])
+        return self._packet([dxl_id, 3, 0, rd.INST_PING])
+
+    def ping_size(self) -> int:
+        """Data bytes of a ping's status."""
+        return 0 if self.p1 else 3
+
+    def read_packet(self, dxl_id: int, address: int, size: int) -> bytes:
+        """The Read instruction packet."""
+        if self.p1:
+            return self._packet([dxl_id, 4, rd.INST_READ, address, size])
+        return self._packet([dxl_id, 7, 0, rd.INST_READ, address & 0xFF, address >> 8,
+                             size & 0xFF, size >> 8])
+
+    def status_start(self, dxl_id: int, size: int) -> bytes:
+        """How a status packet from ``dxl_id`` carrying ``size`` data bytes begins."""
+        if self.p1:
+            return bytes((0xFF, 0xFF, dxl_id, size + 2))
+        length = size + 4
+        return bytes((0xFF, 0xFF, 0xFD, 0x00, dxl_id, length & 0xFF, length >> 8, 0x55))
+
+    def read_tx(self, dxl_id: int, address: int, size: int) -> list:
+        """The SDK's txRxPacket list of a Read (header and checksum filled in by the SDK)."""
+        if self.p1:
+            tx = [0] * 8
+            tx[p1.PKT_ID], tx[p1.PKT_LENGTH], tx[p1.PKT_INSTRUCTION] = dxl_id, 4, rd.INST_READ
+            tx[p1.PKT_PARAMETER0: p1.PKT_PARAMETER0 + 2] = [address, size]
+            return tx
+        tx = [0] * 14
+        tx[p2.PKT_ID], tx[p2.PKT_LENGTH_L], tx[p2.PKT_INSTRUCTION] = dxl_id, 7, rd.INST_READ
+        tx[p2.PKT_PARAMETER0: p2.PKT_PARAMETER0 + 4] = [
+            address & 0xFF, address >> 8, size & 0xFF, size >> 8]
+        return tx
+
+    def write_tx(self, dxl_id: int, address: int, data: list[int]) -> list:
+        """The SDK's txRxPacket list of a Protocol 1.0 Write."""
+        tx = [0] * (len(data) + 7)
+        tx[p1.PKT_ID], tx[p1.PKT_LENGTH], tx[p1.PKT_INSTRUCTION] = dxl_id, len(data) + 3, rd.INST_WRITE
+        tx[p1.PKT_PARAMETER0] = address
+        tx[p1.PKT_PARAMETER0 + 1: p1.PKT_PARAMETER0 + 1 + len(data)] = data
+        return tx
+
+    def sent(self, tx: list) -> list:
+        """The whole packet of a txRxPacket list after the SDK sent it (it fills in the header
+        and checksum in place)."""
+        if self.p1:
+            return tx[: tx[p1.PKT_LENGTH] + 4]
+        return tx[: (tx[p2.PKT_LENGTH_L] | tx[p2.PKT_LENGTH_H] << 8) + 7]
+
+    def ping_tx(self, dxl_id: int) -> list:
+        """The SDK's txRxPacket list of a Ping."""
+        if self.p1:
+            tx = [0] * 6
+            tx[p1.PKT_ID], tx[p1.PKT_LENGTH], tx[p1.PKT_INSTRUCTION] = dxl_id, 2, rd.INST_PING
+            return tx
+        tx = [0] * 10
+        tx[p2.PKT_ID], tx[p2.PKT_LENGTH_L], tx[p2.PKT_INSTRUCTION] = dxl_id, 3, rd.INST_PING
+        return tx
+
+    def rx(self, port) -> tuple[list, int]:
+        """One status packet (the SDK's rxPacket) -> (packet, result code)."""
+        return self.ph.rxPacket(port) if self.p1 else self.ph.rxPacket(port, False)
 
 
 @dataclass
@@ -125,15 +231,24 @@ class GroupRead:
     values: {id: decoded value} for every servo that answered cleanly.
     errors: {id: status error byte} for every servo that answered (0 = clean; bit 7 = alert).
     failed: {id: ServoError} for every servo without a usable value.
+    alone:  ids read by a Read of their own (``BusLink.group_read`` on Protocol 1.0).
     """
 
     values: dict[int, int] = field(default_factory=dict)
     errors: dict[int, int] = field(default_factory=dict)
     failed: dict[int, ServoError] = field(default_factory=dict)
+    alone: set[int] = field(default_factory=set)
+
+    def merge(self, other: "GroupRead") -> None:
+        """Take in ``other``'s results (another part of the same read)."""
+        self.values.update(other.values)
+        self.errors.update(other.errors)
+        self.failed.update(other.failed)
+        self.alone |= other.alone
 
 
 class BusLink:
-    """The port plus the Protocol 2.0 packet handler, with narrow error handling.
+    """The port plus one protocol's packet handler, with narrow error handling.
 
     port:  a port name ('/dev/ttyUSB0', '/dev/serial/by-id/...', a pty) or an already-open
            ``dynamixel_sdk.PortHandler``.
@@ -144,6 +259,10 @@ class BusLink:
     poll_block_s: how long one non-blocking SDK serial read may wait in select() for bytes,
            seconds. The SDK busy-polls a ``timeout=0`` serial port; a short blocking read
            releases the GIL instead of spinning. 0 keeps the SDK's spinning.
+    protocol: 2.0 (X-series, XL-320, MX(2.0)) or 1.0 (AX, RX, MX): the bus's one protocol.
+
+    ``hardware_bits`` {id: bits}: Protocol 1.0 only, the hardware condition bits of each
+    servo's latest status (X-series Hardware Error Status numbering; see ``Wire``).
     """
 
     def __init__(
@@ -152,7 +271,11 @@ class BusLink:
         baud: int = 1_000_000,
         latency_ms: int | None = None,
         poll_block_s: float = 0.0002,
+        protocol: float = PROTOCOL,
     ):
+        self.wire = Wire(protocol)
+        self.protocol = self.wire.protocol
+        self.hardware_bits: dict[int, int] = {}
         if isinstance(port, dynamixel_sdk.PortHandler):
             self.port = port
             self.port_name: str = port.getPortName()
@@ -169,7 +292,7 @@ class BusLink:
         self._witness_pending: dict[int, set[int]] = {}  # id -> sizes of unanswered witness reads
         self.baud = int(baud)
         self.poll_block_s = float(poll_block_s)
-        self.ph = dynamixel_sdk.PacketHandler(PROTOCOL)
+        self.ph = self.wire.ph
 
     # ---- port lifetime -------------------------------------------------------------------
     @property
@@ -242,15 +365,16 @@ class BusLink:
 
     def _witness(self, witness_id: int, timeout_s: float | None = None, ping: bool = False) -> str:
         pending = self._witness_pending.setdefault(witness_id, set())
-        size = 3 if ping else next((n for n in WITNESS_SIZES if n not in pending), None)
+        wire = self.wire
+        size = wire.ping_size() if ping else next((n for n in WITNESS_SIZES if n not in pending), None)
         if size is None:  # every size still awaits its reply: the line is stalled
             self._unsettled = True
             return STALLED
-        reply_size = size + 11
+        reply_size = size + wire.overhead
         if timeout_s is None:
             timeout_s = (2.0 * sdk_port_handler.LATENCY_TIMER + 2.0 + 0.01 * reply_size) / 1e3
-        tx = _ping_packet(witness_id) if ping else _read_packet(witness_id, 0, size)
-        start = _status_start(witness_id, size)
+        tx = wire.ping_packet(witness_id) if ping else wire.read_packet(witness_id, 0, size)
+        start = wire.status_start(witness_id, size)
         got = bytearray()
         got += self.port.ser.read(self.port.ser.in_waiting or 0)
         self.port.ser.write(tx)
@@ -322,13 +446,19 @@ class BusLink:
             self.port.is_using = False
             raise ServoCorrupt(ids, instruction, f"malformed reply ({type(exc).__name__} in the SDK)") from exc
 
-    def _receive(self, dxl_id: int, size: int) -> tuple[list, int]:
+    def _receive(self, dxl_id: int, size: int, echo: list | None = None) -> tuple[list, int]:
         """Status packets until one from ``dxl_id`` that can answer a read of ``size`` bytes
         (or the deadline already set): packets from others and late replies of another
-        size (e.g. to a ping) are skipped. -> (packet, SDK result code)."""
+        size (e.g. to a ping) are skipped, and ``echo`` (the instruction just sent, as a
+        half-duplex adapter may echo it). -> (packet, SDK result code)."""
+        wire = self.wire
         while True:
-            rx, code = self.ph.rxPacket(self.port, False)
-            if code != rd.COMM_SUCCESS or rx[p2.PKT_ID] == dxl_id and not _stale(rx, size):
+            rx, code = wire.rx(self.port)
+            if code == rd.COMM_SUCCESS and rx == echo:
+                continue
+            if code != rd.COMM_SUCCESS or rx[wire.id_at] == dxl_id and not wire.stale(rx, size):
+                if code == rd.COMM_SUCCESS and wire.p1:
+                    self.hardware_bits[dxl_id] = wire.hardware_bits(rx)
                 return rx, code
 
     # ---- single-servo instructions -------------------------------------------------------
@@ -336,29 +466,61 @@ class BusLink:
         """Ping one servo -> (model number, firmware version).
 
         The reply's length is checked: the SDK's ``ping`` would take any status from that id
-        (e.g. a late reply to an earlier read) and return its bytes as a model number.
+        (e.g. a late reply to an earlier read) and return its bytes as a model number. A
+        Protocol 1.0 ping answers with no data: Model Number (0, 2 bytes) and Firmware Version
+        (2) are then read (one 3-byte read; the same addresses on every Protocol 1.0 model).
         """
-        tx = [0] * 10
-        tx[p2.PKT_ID] = dxl_id
-        tx[p2.PKT_LENGTH_L] = 3
-        tx[p2.PKT_INSTRUCTION] = rd.INST_PING
+        wire = self.wire
         with self._transaction([dxl_id], "ping"):
-            rx, code, error = self.ph.txRxPacket(self.port, tx)
+            rx, code = self._exchange(wire.ping_tx(dxl_id), dxl_id, wire.ping_size())
         if code != rd.COMM_SUCCESS:
             raise self._fail(code, [dxl_id], "ping")
-        if error & 0x7F or len(rx) != 14:
+        error, data = wire.error(rx), wire.data(rx)
+        if error & 0x7F or len(data) != wire.ping_size():
             raise ServoStatusError([dxl_id], "ping", describe_status_error(error)
-                                   + f", {len(rx)}-byte reply (a ping reply has 14)", error=error)
+                                   + f", {len(data)} data bytes (a ping reply has "
+                                   f"{wire.ping_size()})", error=error)
         self._heard(dxl_id)
-        return rx[9] | (rx[10] << 8), rx[11]
+        if wire.p1:
+            data = self.read_bytes(dxl_id, 0, 3, "read Model Number")
+        return data[0] | (data[1] << 8), data[2]
+
+    def _exchange(self, tx: list, dxl_id: int, size: int) -> tuple[list, int]:
+        """Send ``tx`` and take the status from ``dxl_id`` that can answer it (``size`` data
+        bytes; late replies of another size skipped) -> (packet, SDK result code). On a
+        half-duplex adapter that echoes the host's bytes, a Protocol 1.0 instruction reads like
+        a status from its id (the format is the same): its echo is skipped."""
+        rx, code, _ = self.ph.txRxPacket(self.port, tx)
+        echo = self.wire.sent(tx) if self.wire.p1 else None
+        if code == rd.COMM_SUCCESS and (rx == echo or self.wire.stale(rx, size)):
+            rx, code = self._receive(dxl_id, size, echo)
+        elif code == rd.COMM_SUCCESS and self.wire.p1:
+            self.hardware_bits[dxl_id] = self.wire.hardware_bits(rx)
+        return rx, code
 
     def broadcast_ping(self) -> dict[int, tuple[int, int]]:
-        """Ping every id at once -> {id: (model number, firmware)}. Costs ~0.8 s (the SDK waits)."""
+        """Ping every id at once -> {id: (model number, firmware)}. Costs ~0.8 s (the SDK waits).
+        Protocol 1.0 has no broadcast ping: ``ping_each`` instead."""
+        if self.wire.p1:
+            return self.ping_each(range(rd.BROADCAST_ID))
         with self._transaction([], "broadcast_ping"):
             found, code = self.ph.broadcastPing(self.port)
         if code not in (rd.COMM_SUCCESS, rd.COMM_RX_TIMEOUT):
             raise self._fail(code, [], "broadcast_ping")
         return {int(i): (int(v[0]), int(v[1])) for i, v in found.items()}
+
+    def ping_each(self, ids: Iterable[int]) -> dict[int, tuple[int, int]]:
+        """Ping each of ``ids`` in turn -> {id: (model number, firmware)} of those that
+        answered cleanly (a silent id costs one SDK deadline: ~4 ms with a 1 ms latency timer)."""
+        found = {}
+        for dxl_id in ids:
+            try:
+                found[int(dxl_id)] = self.ping(int(dxl_id))
+            except ServoError:
+                # No settling before the next ping: a late reply carries this id, and the next
+                # ping takes only its own id's status (the SDK drops the others).
+                self._unsettled = False
+        return found
 
     def read(self, dxl_id: int, item: Item) -> int:
         """Read one item of one servo -> value. The reply's length is checked (the SDK does not)."""
@@ -366,32 +528,37 @@ class BusLink:
 
     def read_with_status(self, dxl_id: int, item: Item) -> tuple[int, int]:
         """Read one item -> (value, status error byte with its alert bit)."""
-        instruction = f"read {item.name}"
-        tx = [0] * 14
-        tx[p2.PKT_ID] = dxl_id
-        tx[p2.PKT_LENGTH_L] = 7
-        tx[p2.PKT_INSTRUCTION] = rd.INST_READ
-        tx[p2.PKT_PARAMETER0: p2.PKT_PARAMETER0 + 4] = [
-            item.address & 0xFF, item.address >> 8, item.size & 0xFF, item.size >> 8]
+        data, error = self._read_raw(dxl_id, item.address, item.size, f"read {item.name}")
+        return item.decode(data), error
+
+    def read_bytes(self, dxl_id: int, address: int, size: int, instruction: str = "read") -> list:
+        """Read ``size`` bytes from ``address`` of one servo -> the data bytes."""
+        return self._read_raw(dxl_id, address, size, instruction)[0]
+
+    def _read_raw(self, dxl_id: int, address: int, size: int, instruction: str) -> tuple[list, int]:
+        wire = self.wire
         with self._transaction([dxl_id], instruction):
-            rx, code, error = self.ph.txRxPacket(self.port, tx)
-            if code == rd.COMM_SUCCESS and _stale(rx, item.size):
-                rx, code = self._receive(dxl_id, item.size)
-                error = rx[p2.PKT_ERROR] if code == rd.COMM_SUCCESS else 0
+            rx, code = self._exchange(wire.read_tx(dxl_id, address, size), dxl_id, size)
         if code != rd.COMM_SUCCESS:
             raise self._fail(code, [dxl_id], instruction)
-        data = _status_data(rx)
-        if error & 0x7F or len(data) != item.size:
+        data, error = wire.data(rx), wire.error(rx)
+        if error & 0x7F or len(data) != size:
             raise ServoStatusError([dxl_id], instruction, describe_status_error(error)
-                                   + f", {len(data)} of {item.size} data bytes", error=error)
+                                   + f", {len(data)} of {size} data bytes", error=error)
         self._heard(dxl_id)
-        return item.decode(data), int(error)
+        return data, int(error)
 
     def write(self, dxl_id: int, item: Item, value: int) -> None:
         """Write one item of one servo and wait for its status."""
         instruction = f"write {item.name}"
         with self._transaction([dxl_id], instruction):
-            code, error = self.ph.writeTxRx(self.port, dxl_id, item.address, item.size, item.encode(value))
+            if self.wire.p1:  # through _exchange: an echoed Write reads like its status
+                rx, code = self._exchange(self.wire.write_tx(dxl_id, item.address, item.encode(value)),
+                                          dxl_id, 0)
+                error = self.wire.error(rx) if code == rd.COMM_SUCCESS else 0
+            else:
+                code, error = self.ph.writeTxRx(self.port, dxl_id, item.address, item.size,
+                                                item.encode(value))
         if code != rd.COMM_SUCCESS:
             raise self._fail(code, [dxl_id], instruction)
         if error & 0x7F:
@@ -407,7 +574,9 @@ class BusLink:
             raise self._fail(code, [dxl_id], instruction)
 
     def reboot(self, dxl_id: int) -> None:
-        """Send Reboot to one servo (clears a latched hardware error; RAM returns to defaults)."""
+        """Send Reboot to one servo (clears a latched hardware error; RAM returns to defaults).
+        Protocol 1.0 has no Reboot (ValueError)."""
+        self._not_on_p1("reboot")
         with self._transaction([dxl_id], "reboot"):
             code, error = self.ph.reboot(self.port, dxl_id)
         if code != rd.COMM_SUCCESS:
@@ -446,12 +615,77 @@ class BusLink:
         Unlike ``GroupSyncRead``, every servo that answered keeps its value when another one
         fails, and each status error byte (alert bit) is kept.
         """
-        instruction = "sync_read"
+        self._not_on_p1("sync_read")
         _, failure = self._sync_read_request(ids, item, fast=False)
         if failure is not None:
             return GroupRead(failed=dict.fromkeys(ids, failure))
+        return self._replies(dict.fromkeys(ids, item), "sync_read")
+
+    def group_read(self, items: Mapping[int, Item], *, fast: bool = False,
+                   bulk: Collection[int] = ()) -> GroupRead:
+        """One item per servo ({id: Item}, the servo's own address) by the fastest transactions
+        the bus has: on Protocol 2.0 one Sync Read (``fast``: Fast Sync Read) per distinct
+        item; on Protocol 1.0 (no Sync Read) one Bulk Read of the ``bulk`` servos (MX) and
+        one Read per other servo (AX / RX have no Bulk Read). ``GroupRead.alone``: the ids
+        read by a Read of their own. After a Read not sent because the line stayed stalled,
+        the rest fail with the same error, unsent."""
+        if not self.wire.p1:
+            by_item: dict[Item, list[int]] = {}
+            for dxl_id, item in items.items():
+                by_item.setdefault(item, []).append(dxl_id)
+            read = self.fast_sync_read if fast else self.sync_read
+            if len(by_item) == 1:
+                item, ids = next(iter(by_item.items()))
+                return read(ids, item)
+            out = GroupRead()
+            for item, ids in by_item.items():
+                out.merge(read(ids, item))
+            return out
+        bulk_items = {i: item for i, item in items.items() if i in bulk}
+        out = self.bulk_read(bulk_items) if bulk_items else GroupRead()
+        stalled: ServoError | None = None
+        for dxl_id, item in items.items():
+            if dxl_id in bulk_items:
+                continue
+            out.alone.add(dxl_id)
+            if stalled is not None:
+                out.failed[dxl_id] = stalled
+                continue
+            try:
+                out.values[dxl_id], out.errors[dxl_id] = self.read_with_status(dxl_id, item)
+            except ServoError as exc:
+                out.failed[dxl_id] = exc
+                if exc.line_stalled:
+                    stalled = exc
+        return out
+
+    def bulk_read(self, items: Mapping[int, Item]) -> GroupRead:
+        """Protocol 1.0 Bulk Read (0x92; MX series only) of one item per servo ({id: Item}):
+        one instruction, one status per servo in the listed order -> GroupRead as
+        ``sync_read``'s. (Sent through the packet handler's ``bulkReadTx``: the SDK's
+        Protocol 1.0 ``GroupBulkRead`` raises TypeError in dynamixel-sdk 4.x.)"""
+        if not self.wire.p1:
+            raise ValueError("BusLink.bulk_read: the Protocol 1.0 Bulk Read (use sync_read on 2.0)")
+        ids = list(items)
+        param: list[int] = []
+        for dxl_id, item in items.items():
+            param += [item.size, int(dxl_id), item.address]
+        try:
+            with self._transaction(ids, "bulk_read"):
+                code = self.ph.bulkReadTx(self.port, param, len(param))
+        except ServoTimeout as exc:
+            if not exc.line_stalled:
+                raise
+            return GroupRead(failed=dict.fromkeys(ids, exc))
+        if code != rd.COMM_SUCCESS:
+            return GroupRead(failed=dict.fromkeys(ids, self._fail(code, ids, "bulk_read")))
+        return self._replies(items, "bulk_read")
+
+    def _replies(self, items: Mapping[int, Item], instruction: str) -> GroupRead:
+        """The status packets of a Sync Read or Bulk Read, one per servo in ``items``' order."""
         out = GroupRead()
-        for dxl_id in ids:
+        wire = self.wire
+        for dxl_id, item in items.items():
             # The deadline is shared by all replies; after it expires, each readRx returns at
             # once with whatever is already buffered.
             with self._transaction([dxl_id], instruction, tx=False):
@@ -459,7 +693,7 @@ class BusLink:
             if code != rd.COMM_SUCCESS:
                 out.failed[dxl_id] = self._fail(code, [dxl_id], instruction)
                 continue
-            data, error = _status_data(rx), rx[p2.PKT_ERROR]
+            data, error = wire.data(rx), wire.error(rx)
             out.errors[dxl_id] = int(error)
             if error & 0x7F or len(data) != item.size:
                 out.failed[dxl_id] = ServoStatusError(
@@ -470,6 +704,10 @@ class BusLink:
             self._heard(dxl_id)
         return out
 
+    def _not_on_p1(self, instruction: str) -> None:
+        if self.wire.p1:
+            raise ValueError(f"BusLink.{instruction}: Protocol 1.0 has no {instruction}")
+
     def fast_sync_read(self, ids: list[int], item: Item) -> GroupRead:
         """Fast Sync Read (0x8A) of one item: one reply packet holding every servo's segment.
 
@@ -477,6 +715,7 @@ class BusLink:
         CRCs nor their count). A failed packet fails every servo (there is no partial answer).
         """
         instruction = "fast_sync_read"
+        self._not_on_p1(instruction)
         rx, failure = self._sync_read_request(ids, item, fast=True)
         if failure is not None:
             return GroupRead(failed=dict.fromkeys(ids, failure))
@@ -524,5 +763,5 @@ class BusLink:
             raise self._fail(code, ids, "sync_write")
 
 
-__all__ = ["BusLink", "GroupRead", "set_latency_assumption", "adapter_latency_ms", "DEFAULT_LATENCY_MS",
+__all__ = ["BusLink", "GroupRead", "Wire", "PROTOCOLS", "P1_HARDWARE_BITS", "set_latency_assumption", "adapter_latency_ms", "DEFAULT_LATENCY_MS",
            "PORT_ERRORS", "LATE", "SILENT", "STALLED"]

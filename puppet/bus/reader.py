@@ -2,8 +2,15 @@
 
 Per ``read()``:
 1. If the port is down, try to rebuild it (at most every ``reconnect_period_s``).
-2. One group read (Fast Sync Read where every servo's firmware has it, Sync Read otherwise) of
-   the servos in the group. Servos that answered keep their values even if others failed.
+2. One group read of the servos in the group, the fastest transaction each model has: on
+   Protocol 2.0 Fast Sync Read where every servo's firmware has it, Sync Read otherwise (one
+   per Present Position item: an XL-320 keeps it at 37, 2 bytes, the others at 132, 4 bytes);
+   on Protocol 1.0, which has no Sync Read, one Bulk Read (0x92) of the MX servos and one Read
+   per AX / RX servo (they have no Bulk Read). Servos that answered keep their values even if
+   others failed. On a model with a dead zone (AX, RX, XL-320: 1024 positions over 300°) a
+   value at either end (0 or max_position: what the servo reads anywhere in its 60° dead zone)
+   or beyond is flagged (``dead_zone`` event, ``ServoHealth.dead_zone``), never taken: the
+   joint holds its last good angle (rig load keeps joint limits inside the positions).
 3. Each servo the group read failed for gets one individual read; a servo that still fails
    holds its last good value, is flagged (``ok`` False), and after ``missing_after`` failures
    in a row leaves the group read: it is then probed alone every ``probe_period_s``, so a dead
@@ -17,7 +24,11 @@ Per ``read()``:
 4. Every ``health_period_s`` (and at once when a status packet carries the alert bit): Hardware
    Error Status and Realtime Tick of every servo. A latched hardware error is reported (and the
    servo rebooted when ``auto_reboot`` allows); a Realtime Tick behind its expected value means
-   the servo rebooted: it is reconfigured.
+   the servo rebooted: it is reconfigured. Protocol 1.0 has neither item nor Reboot: the
+   hardware bits of each servo's latest status are reported (input voltage, overheating,
+   overload), nothing is rebooted, and a servo that rebooted needs nothing back (its settings
+   are EEPROM, its position absolute); one that stopped answering meanwhile is reconfigured
+   when it returns, as on Protocol 2.0. The same for the XL-320's missing Realtime Tick.
 A servo that comes back (from missing, a reboot, a rebuilt port) is reconfigured; its turn count
 is unwrapped to stay continuous (see ``unwrap``). Nothing the SDK raises escapes ``read()``.
 A driven servo (an actuator whose driver plugs into the ReaderProcess hook) is read and
@@ -34,10 +45,11 @@ import numpy as np
 
 from puppet.bus import control_table as ct
 from puppet.bus import health as hs
-from puppet.bus.configure import SetupReport, configure_servo, identify, supports_fast_sync_read
+from puppet.bus.configure import (SetupReport, bus_protocol, check_baud, configure_servo,
+                                  identify, p1_read_mode, supports_fast_sync_read)
 from puppet.bus.errors import PortError, ServoCorrupt, ServoError, ServoMissing, ServoTimeout
 from puppet.bus.link import SILENT, STALLED, BusLink, GroupRead
-from puppet.bus.unwrap import TurnUnwrapper
+from puppet.bus.unwrap import TurnUnwrapper, unwrap_period
 from puppet.events import EventLog
 from puppet.reading import Reading
 
@@ -53,11 +65,14 @@ class ServoReader:
 
     port:      port name ('/dev/ttyUSB0', '/dev/serial/by-id/...', a pty) or an open
                ``dynamixel_sdk.PortHandler``.
-    servos:    {id: model name} ('XL330-M288', 'XL430-W250', 'XM430-W350'), in reading order.
-    baud:      bits per second.
+    servos:    {id: model name} ('XL330-M288', 'XL430-W250', 'AX-12A', ...), in reading order;
+               all of one protocol (ValueError naming the servos of each otherwise).
+    baud:      bits per second: one every servo's model can select (BusError naming those
+               that cannot).
     latency_ms: the SDK's latency assumption (module global ``LATENCY_TIMER``), ms; None: the
                adapter's FTDI latency timer from sysfs where there is one, else 1.
-    read_mode: 'auto' (fast sync read if all firmware supports it), 'fast_sync_read', 'sync_read'.
+    read_mode: 'auto' (fast sync read if all firmware supports it), 'fast_sync_read', 'sync_read'
+               (Protocol 2.0; a Protocol 1.0 bus always reads as ``configure.p1_read_mode`` says).
     driven:    ids of actuators a driver owns (puppet.drive, through the ReaderProcess hook):
                read like the others, but setup, reconfiguration, recovery and auto-reboot never
                change their torque or reboot them (see ``configure_servo``).
@@ -68,7 +83,8 @@ class ServoReader:
     exact_within_s: a group read that took longer than this has an uncertain sampling time
                (a starved machine delays replies): its values are not used for the jitter.
     max_jump_ticks, max_speed_ticks_s: a change larger than max_jump + max_speed·dt between two
-               consecutive readings is taken as a corrupt reply (held, flagged, re-read).
+               consecutive readings is taken as a corrupt reply (held, flagged, re-read); in
+               X-series ticks (4096 per turn), scaled to each model's ticks per turn.
     jump_window_s: only a good reading younger than this is a reference for that check.
     stall_limit_s: a servo unheard this long is booked failed even without a witness's proof.
 
@@ -109,12 +125,18 @@ class ServoReader:
                 raise ValueError(f"ServoReader: servo id {dxl_id} outside 0..252")
             ct.model_named(name)
         self.servos = {int(i): str(m) for i, m in servos.items()}
+        self.protocol = bus_protocol(self.servos, "ServoReader: the servo map")
+        check_baud(self.servos, baud, str(port) if isinstance(port, str) else port.getPortName())
+        self.models = {i: ct.model_named(m) for i, m in self.servos.items()}
+        self.items = {i: m.items for i, m in self.models.items()}
+        """{id: ControlItems}: where each servo's model keeps what the reader reads."""
         self.driven = frozenset(int(i) for i in driven)
         unknown = self.driven - set(self.servos)
         if unknown:
             raise ValueError(f"ServoReader: driven servos {sorted(unknown)} are not in the servo map")
         self.limits = {int(i): (int(lo), int(hi)) for i, (lo, hi) in (limits or {}).items()}
-        self.link = BusLink(port, baud=baud, latency_ms=latency_ms, poll_block_s=poll_block_s)
+        self.link = BusLink(port, baud=baud, latency_ms=latency_ms, poll_block_s=poll_block_s,
+                            protocol=self.protocol)
         self.read_mode_requested = read_mode
         self.read_mode = "sync_read"
         self.auto_reboot = auto_reboot
@@ -145,7 +167,10 @@ class ServoReader:
         self._prev_t = [0] * len(self.ids)
         self._prev2_t = [0] * len(self.ids)
         self._run = [0] * len(self.ids)           # good readings in a row
-        self.unwrap = {i: TurnUnwrapper() for i in self.servos}
+        self.unwrap = {i: TurnUnwrapper(unwrap_period(m)) for i, m in self.models.items()}
+        scale = {i: m.ticks_per_turn / ct.TICKS_PER_TURN for i, m in self.models.items()}
+        self._max_jump = {i: self.max_jump_ticks * f for i, f in scale.items()}
+        self._max_speed = {i: self.max_speed_ticks_s * f for i, f in scale.items()}
         self.health = {i: hs.ServoHealth(i, m) for i, m in self.servos.items()}
         self.log = EventLog()
         self.report: SetupReport | None = None
@@ -179,7 +204,9 @@ class ServoReader:
         if report.missing and strict:
             raise ServoMissing(report.missing, "ping", f"on {self.link.port_name}")
         fast_ok = supports_fast_sync_read(self.servos, report.found)
-        if self.read_mode_requested == "auto":
+        if self.link.wire.p1:
+            self.read_mode = p1_read_mode(self.servos)
+        elif self.read_mode_requested == "auto":
             self.read_mode = "fast_sync_read" if fast_ok else "sync_read"
         else:
             self.read_mode = self.read_mode_requested
@@ -205,8 +232,9 @@ class ServoReader:
         tries = 0
         while True:
             try:
-                configure_servo(self.link, dxl_id, dxl_id in self.driven, report.changes)
-                return self.link.read(dxl_id, ct.HARDWARE_ERROR_STATUS)
+                configure_servo(self.link, dxl_id, dxl_id in self.driven, report.changes,
+                                self.items[dxl_id])
+                return self._hardware_bits(dxl_id)
             except ServoError as exc:
                 tries += 1
                 if tries < 3:
@@ -295,15 +323,27 @@ class ServoReader:
     def _reading(self, t_ns: int) -> Reading:
         return Reading(t_ns, self.ids, self._ticks.copy(), self._ok.copy())
 
-    def _group_read(self, ids: list[int], item: ct.Item) -> GroupRead:
-        if self.read_mode == "fast_sync_read":
-            result = self.link.fast_sync_read(ids, item)
-            if self._fast_unsupported(result):
-                self.read_mode = "sync_read"
-                self.log.add("fast_read_disabled", ids, "servos answered Fast Sync Read with an error")
-                result = self.link.sync_read(ids, item)
-            return result
-        return self.link.sync_read(ids, item)
+    def _hardware_bits(self, dxl_id: int) -> int:
+        """Hardware Error Status of one servo (Protocol 1.0: the bits its latest status
+        carried, asked afresh by a read of its Present Position)."""
+        item = self.items[dxl_id].hardware_error_status
+        if item is not None:
+            return self.link.read(dxl_id, item)
+        self.link.read(dxl_id, self.items[dxl_id].present_position)
+        return self.link.hardware_bits.get(dxl_id, 0)
+
+    def _group_read(self, ids: list[int]) -> GroupRead:
+        """Present Position of ``ids`` by the fastest transactions their models have (see the
+        module docstring; ``BusLink.group_read``)."""
+        items = {i: self.items[i].present_position for i in ids}
+        bulk = [i for i in ids if self.models[i].bulk_read]
+        fast = self.read_mode == "fast_sync_read"
+        result = self.link.group_read(items, fast=fast, bulk=bulk)
+        if fast and self._fast_unsupported(result):
+            self.read_mode = "sync_read"
+            self.log.add("fast_read_disabled", ids, "servos answered Fast Sync Read with an error")
+            result = self.link.group_read(items, bulk=bulk)
+        return result
 
     @staticmethod
     def _fast_unsupported(result: GroupRead) -> bool:
@@ -314,7 +354,7 @@ class ServoReader:
     def _read_group(self, now: int) -> None:
         if not self._group:
             return
-        result = self._group_read(self._group, ct.PRESENT_POSITION)
+        result = self._group_read(self._group)
         exact = time.monotonic_ns() - now <= self.exact_within_ns
         for dxl_id, error in result.errors.items():
             self._note_alert(dxl_id, error)
@@ -325,7 +365,10 @@ class ServoReader:
             else:
                 self._read_alone(dxl_id, implausible, now)
         for dxl_id, exc in result.failed.items():
-            self._read_alone(dxl_id, exc, now)
+            if dxl_id in result.alone:
+                self._alone_failed(dxl_id, exc, now)
+            else:
+                self._read_alone(dxl_id, exc, now)
 
     def _read_alone(self, dxl_id: int, group_exc: ServoError, now: int) -> None:
         """Individual read of a servo the group read failed for (skipped, nothing booked, when
@@ -333,11 +376,9 @@ class ServoReader:
         if self._stalled:
             return
         try:
-            raw, error = self.link.read_with_status(dxl_id, ct.PRESENT_POSITION)
+            raw, error = self.link.read_with_status(dxl_id, self.items[dxl_id].present_position)
         except ServoError as exc:
-            if exc.deadline and not self._silence_proven(dxl_id, now, stalled=exc.line_stalled):
-                return
-            self._failed(dxl_id, exc, now)
+            self._alone_failed(dxl_id, exc, now)
             return
         self._note_alert(dxl_id, error)
         implausible = self._implausible(dxl_id, raw, now)
@@ -345,6 +386,14 @@ class ServoReader:
             self._failed(dxl_id, implausible, now)
             return
         self._accept(dxl_id, raw, now)
+
+    def _alone_failed(self, dxl_id: int, exc: ServoError, now: int) -> None:
+        """A servo's own read failed: booked once the failure is certain (see the docstring)."""
+        if self._stalled:
+            return
+        if exc.deadline and not self._silence_proven(dxl_id, now, stalled=exc.line_stalled):
+            return
+        self._failed(dxl_id, exc, now)
 
     def _silence_proven(self, dxl_id: int, now: int, heard=None, stalled: bool = False) -> bool:
         """Whether a timeout of ``dxl_id`` is a proven silence (see the module doc): a witness
@@ -396,7 +445,7 @@ class ServoReader:
         dt_s = max(0.0, (now - h.last_ok_ns) / 1e9)
         if dt_s > self.jump_window_s:
             return None
-        bound = self.max_jump_ticks + self.max_speed_ticks_s * dt_s
+        bound = self._max_jump[dxl_id] + self._max_speed[dxl_id] * dt_s
         if abs(value - last) <= bound:
             return None
         return ServoCorrupt([dxl_id], "read Present Position",
@@ -411,7 +460,7 @@ class ServoReader:
             return
         self._next_probe_ns[dxl_id] = now + self.probe_period_ns
         try:
-            raw, error = self.link.read_with_status(dxl_id, ct.PRESENT_POSITION)
+            raw, error = self.link.read_with_status(dxl_id, self.items[dxl_id].present_position)
         except ServoError as exc:
             self._failed(dxl_id, exc, now)
             return
@@ -424,6 +473,16 @@ class ServoReader:
         """Take ``raw`` as the servo's value at ``now``; ``exact``: that time is known to within
         ``exact_within_s`` (only such values feed the jitter estimate)."""
         h = self.health[dxl_id]
+        if self.models[dxl_id].dead_zone_deg:
+            top = self.models[dxl_id].max_position
+            if not 0 < raw < top:  # no angle: the shaft may be anywhere in the dead zone
+                if not h.dead_zone:
+                    self.log.add("dead_zone", [dxl_id], f"Present Position {raw}: at an end of "
+                                 f"its {self.servos[dxl_id]}'s 0..{top}, where the "
+                                 f"{self.models[dxl_id].dead_zone_deg:.0f}° dead zone reads")
+                h.dead_zone = True
+                return
+            h.dead_zone = False
         unwrapper = self.unwrap[dxl_id]
         value, offset = unwrapper.peek(raw)
         lo_hi = self.limits.get(dxl_id)
@@ -512,7 +571,7 @@ class ServoReader:
             except ServoError:
                 pass
             try:
-                self.link.read_with_status(dxl_id, ct.PRESENT_POSITION)
+                self.link.read_with_status(dxl_id, self.items[dxl_id].present_position)
                 reads += 1
             except ServoError:
                 pass
@@ -540,7 +599,7 @@ class ServoReader:
     def _reconfigure(self, dxl_id: int, why: str) -> None:
         changes: list = []
         try:
-            configure_servo(self.link, dxl_id, dxl_id in self.driven, changes)
+            configure_servo(self.link, dxl_id, dxl_id in self.driven, changes, self.items[dxl_id])
         except ServoError as exc:
             self.health[dxl_id].last_error = exc
             self.log.add("reconfigure_failed", [dxl_id], f"{why}: {exc}")
@@ -562,14 +621,29 @@ class ServoReader:
         ids = list(self._group)
         if not ids:
             return
-        errors = self.link.sync_read(ids, ct.HARDWARE_ERROR_STATUS)
-        for dxl_id, bits in errors.values.items():
-            self._on_hardware_error(dxl_id, bits)
-        t0 = time.monotonic_ns()
-        ticks = self.link.sync_read(ids, ct.REALTIME_TICK)
-        t1 = time.monotonic_ns()
-        for dxl_id, tick in ticks.values.items():
-            self._check_tick(dxl_id, tick, t0, t1)
+        if self.link.wire.p1:  # no such items: the bits of each servo's latest status
+            for dxl_id in ids:
+                self._on_hardware_error(dxl_id, self.link.hardware_bits.get(dxl_id, 0))
+            return
+        for item, some in self._by_item(ids, "hardware_error_status").items():
+            for dxl_id, bits in self.link.sync_read(some, item).values.items():
+                self._on_hardware_error(dxl_id, bits)
+        for item, some in self._by_item(ids, "realtime_tick").items():
+            t0 = time.monotonic_ns()
+            ticks = self.link.sync_read(some, item)
+            t1 = time.monotonic_ns()
+            for dxl_id, tick in ticks.values.items():
+                self._check_tick(dxl_id, tick, t0, t1)
+
+    def _by_item(self, ids: list[int], name: str) -> dict:
+        """{Item: ids} of the servos of ``ids`` whose model has the item ``name`` (a field of
+        ``ControlItems``), one entry per address."""
+        out: dict = {}
+        for dxl_id in ids:
+            item = getattr(self.items[dxl_id], name)
+            if item is not None:
+                out.setdefault(item, []).append(dxl_id)
+        return out
 
     def _on_hardware_error(self, dxl_id: int, bits: int) -> None:
         """Book Hardware Error Status ``bits``; reboot a sensor with a latched error when
@@ -583,8 +657,8 @@ class ServoReader:
                 self.log.add("hardware_error_cleared", [dxl_id],
                              f"was {ct.describe_hardware_error(h.hardware_error)}")
             h.hardware_error = bits
-        if not bits or not self.auto_reboot or dxl_id in self.driven:
-            return
+        if not bits or not self.auto_reboot or dxl_id in self.driven or self.link.wire.p1:
+            return  # (Protocol 1.0 has no Reboot: the bits clear with their cause)
         now = time.monotonic_ns()
         last = self._last_reboot_ns.get(dxl_id)
         if last is None or now - last > self.reboot_holdoff_ns:

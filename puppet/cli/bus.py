@@ -17,39 +17,61 @@ def _on_port(port: str, err) -> str:
 
 
 def _ping_all(port: str, baud: int) -> dict:
-    """Broadcast ping on ``port``: {id: (model number, firmware)}; a bus error is an Error line."""
-    from puppet.bus import BusError, BusLink
+    """The servos on ``port`` at ``baud``: {id: (model number, firmware)} of one protocol (2.0
+    first, then 1.0: a bus carries one; ``puppet.bus.scan``); a bus error is an Error line."""
+    from puppet.bus import BusError
+    from puppet.bus.scan import scan as scan_bus
 
-    link = BusLink(port, baud=baud)
     try:
-        link.open()
-        return link.broadcast_ping()
+        for protocol in (2.0, 1.0):
+            found = scan_bus(port, (baud,), (protocol,))
+            if found:
+                return {f.id: (f.number, f.firmware) for f in found}
     except BusError as err:
         fail(_on_port(port, err))
-    finally:
-        link.close()
+    return {}
+
+
+class BaudOrAll(InRange):
+    """``--baud``: a rate in limits.BAUD, or 'all' (every standard rate, ``scan.SCAN_BAUDS``)."""
+
+    def convert(self, value, param, ctx):
+        if isinstance(value, str) and value.strip().lower() == "all":
+            return "all"
+        return super().convert(value, param, ctx)
 
 
 @click.command()
 @click.option("--port", required=True, help="Serial port.")
-@click.option("--baud", default=1_000_000, show_default=True, type=InRange(limits.BAUD),
-              help=f"Bus speed: {limits.BAUD}.")
-def scan(port: str, baud: int) -> None:
-    """List the servos on a bus (broadcast ping): ids, models, firmware.
+@click.option("--baud", default="1000000", show_default=True, type=BaudOrAll(limits.BAUD),
+              help=f"Bus speed: {limits.BAUD}, or 'all': every standard rate from 9600 to "
+                   "4 Mbit/s in turn (about half a minute).")
+def scan(port: str, baud) -> None:
+    """List the servos on a bus: a Protocol 2.0 broadcast ping and a Protocol 1.0 ping of
+    every id, at one baud rate or at each standard one; prints baud, protocol, id, model and
+    firmware.
 
     \b
     Example:
       puppet scan --port /dev/ttyUSB0
+      puppet scan --port /dev/ttyUSB0 --baud all
     """
-    from puppet.bus.control_table import MODELS_BY_NUMBER
+    from puppet.bus import BusError
+    from puppet.bus.scan import SCAN_BAUDS, scan as scan_bus
 
-    found = _ping_all(port, baud)
+    bauds = SCAN_BAUDS if baud == "all" else (baud,)
+    try:
+        found = scan_bus(port, bauds)
+    except BusError as err:
+        fail(_on_port(port, err))
     if not found:
-        fail(f"port {port}: no servo answered a broadcast ping at {baud} bps")
-    click.echo(f"{'id':>4}  {'model':<12} {'number':>6}  firmware")
-    for dxl_id, (number, firmware) in sorted(found.items()):
-        model = MODELS_BY_NUMBER.get(number)
-        click.echo(f"{dxl_id:>4}  {model.name if model else 'unknown':<12} {number:>6}  {firmware}")
+        at = "any standard rate" if baud == "all" else f"{baud} bps"
+        fail(f"port {port}: no servo answered a ping at {at} (Protocol 1.0 nor 2.0): check the "
+             "power, the cable and the baud rate (--baud all tries each)")
+    click.echo(f"{'baud':>8}  protocol  {'id':>3}  {'model':<12} {'number':>6}  firmware")
+    for f in found:
+        click.echo(f"{f.baud:>8}  {f.protocol:>8.1f}  {f.id:>3}  {f.model or 'unknown':<12} "
+                   f"{f.number:>6}  {f.firmware}")
 
 
 @click.command()

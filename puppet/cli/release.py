@@ -28,8 +28,9 @@ def release(port: str, rig_path: str | None, baud: int) -> None:
     models = None if rig_path is None else dict(load_rig(rig_path).servo_map.models)
     done = run(port, models, baud=baud, log=lambda line: click.echo(line, err=True))
     for dxl_id, torque in done.torque.items():
-        click.echo(f"servo {dxl_id}: Torque Enable {_value(torque)}, "
-                   f"Bus Watchdog {_value(done.watchdog.get(dxl_id))} (read back)")
+        watchdog = (f"Bus Watchdog {_value(done.watchdog[dxl_id])}" if dxl_id in done.watchdog
+                    else "no Bus Watchdog")
+        click.echo(f"servo {dxl_id}: Torque Enable {_value(torque)}, {watchdog} (read back)")
     on = {i: v for i, v in done.torque.items() if v != 0}
     if on:
         fail(f"port {port}: servo{'s' if len(on) > 1 else ''} {sorted(on)}: torque not confirmed "

@@ -48,7 +48,7 @@ from puppet.drive.errors import HealthStop
 from puppet.drive.goals import GoalShaper
 from puppet.drive.health import CurrentTemperatureStop
 from puppet.drive.servos import DriveBus
-from puppet.servo_models import ServoUnits
+from puppet.servo_models import ServoUnits, protocol_of
 
 
 @dataclass(frozen=True)
@@ -139,8 +139,8 @@ class ActuatorHook:
         lo, hi = np.array(plan.lo), np.array(plan.hi)
         present = np.zeros(len(plan.ids))
         for n, dxl_id in enumerate(plan.ids):
-            raw = bus.read(dxl_id, it.PRESENT_POSITION)
-            bus.write(dxl_id, it.GOAL_POSITION, raw)
+            raw = bus.read(dxl_id, "present_position")
+            bus.write(dxl_id, "goal_position", raw)
             self.offsets[n] = reader.unwrap[dxl_id].offset
             present[n] = raw + self.offsets[n]
             info = bus.setup[dxl_id]
@@ -155,9 +155,9 @@ class ActuatorHook:
         self._raw = dict.fromkeys(plan.ids, 0)
         self.torque_on = True  # from here on, stop() turns it off
         self.active[:] = True
-        bus.write_all(it.TORQUE_ENABLE, 1)
+        bus.write_all("torque_enable", 1)
         if plan.watchdog_units:
-            bus.write_all(it.BUS_WATCHDOG, plan.watchdog_units)
+            bus.write_all("bus_watchdog", plan.watchdog_units)
         return list(bus.changes)
 
     def before_read(self, reader, goals: np.ndarray) -> None:
@@ -189,7 +189,8 @@ class ActuatorHook:
     def stop_from_parent(self, port: str, options: dict, note) -> dict[int, int | None] | None:
         """The reader process died with the actuators' torque maybe on: open ``port`` here and
         turn it off (read back); None when the port cannot be opened (noted)."""
-        link = BusLink(port, **{k: v for k, v in options.items() if k in ("baud", "latency_ms")})
+        link = BusLink(port, **{k: v for k, v in options.items() if k in ("baud", "latency_ms")},
+                       protocol=protocol_of(self.plan.models))
         try:
             link.open()
             return DriveBus(link, self.plan.ids, self.plan.models, note).torque_off()
@@ -208,7 +209,7 @@ class ActuatorHook:
         for n, dxl_id in enumerate(self.plan.ids):
             if self.active[n]:
                 raw[dxl_id] = int(round(goals[n] - self.offsets[n]))
-        self.bus.link.sync_write(it.GOAL_POSITION, raw)
+        self.bus.write_goal_table(raw)
         return goals
 
     def _watch(self, reader) -> None:
@@ -239,8 +240,7 @@ class ActuatorHook:
         dt, self._checked_ns = (now - self._checked_ns) * 1e-9, now
         for n in np.flatnonzero(state.alert & self.active):  # its own stop: named as such
             try:
-                what = describe_hardware_error(self.bus.read(self.plan.ids[n],
-                                                             it.HARDWARE_ERROR_STATUS))
+                what = describe_hardware_error(self.bus.hardware_error(self.plan.ids[n]))
             except BusError as err:
                 what = f"unreadable ({err})"
             self._stop_one(int(n), reader, f"hardware error latched: {what}")
@@ -270,8 +270,8 @@ class ActuatorHook:
         self.active[n] = False
         del self._raw[dxl_id]
         try:
-            self.bus.write(dxl_id, it.TORQUE_ENABLE, 0)
-            after = self.bus.read(dxl_id, it.TORQUE_ENABLE)
+            self.bus.write(dxl_id, "torque_enable", 0)
+            after = self.bus.read(dxl_id, "torque_enable")
         except BusError as err:
             after = f"unknown ({err})"
         reader.log.add("actuator_stopped", [dxl_id], f"{why}; stopped, Torque Enable reads {after}")

@@ -57,7 +57,8 @@ class TakeGoals:
         self.goals = self.units.ticks(self._take_units.angles(held, clamp=False))  # (N, k) float
         self.goals[:, self._never] = np.nan  # NaN: hold
         self.lo, self.hi = self.units.tick_limits()
-        self._frames = Playback(t_ns, held, ok, self.ids, interpolation=interpolation)
+        self._frames = Playback(t_ns, held, ok, self.ids, interpolation=interpolation,
+                                ticks_per_turn=self.units.ticks_per_turn)
         self.duration_s = self._frames.duration_s
         self._ticks, self._ok = np.empty(k, np.int32), np.empty(k, bool)
         self._angles, self._out = np.empty(k), np.empty(k)

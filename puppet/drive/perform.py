@@ -50,6 +50,7 @@ from puppet.drive.goals import GoalShaper, TakeGoals
 from puppet.drive.health import (CURRENT_FRACTION, CURRENT_SUSTAIN_S, TEMPERATURE_CAP_C,
                                  TEMPERATURE_MARGIN_C, CurrentTemperatureStop)
 from puppet.drive.servos import DriveBus
+from puppet.servo_models import protocol_of
 
 WATCHDOG_CHECK_CYCLES = 10
 """The Bus Watchdog items are read every this many cycles (the state read is every cycle)."""
@@ -234,7 +235,8 @@ def perform(rig, reader, port: str, options: PerformOptions | None = None,
                          f"{opts.speed:g}, over {MAX_REPLAY_S:.0f} s; give --yes to perform it")
     servo_map = rig.servo_map
     ids = [int(i) for i in servo_map.ids]
-    link = BusLink(port, baud=opts.baud, latency_ms=opts.latency_ms)
+    link = BusLink(port, baud=opts.baud, latency_ms=opts.latency_ms,
+                   protocol=protocol_of(servo_map.models))
     bus = DriveBus(link, ids, dict(servo_map.models), say)
     torque_may_be_on = False
     error: BaseException | None = None
@@ -330,18 +332,18 @@ def _start(bus: DriveBus, goals: TakeGoals, opts, report, say, check_signal, pha
                 f"servo {dxl_id}: present position {present[n]:.0f} is outside the rig's range "
                 f"{lo[n]:.0f}..{hi[n]:.0f} ticks in {it.POSITION_MODES[info.mode]} mode (the turn "
                 "count is lost at power-up): turn the joint into range by hand")
-    bus.write_all(it.GOAL_POSITION, present)
+    bus.write_all("goal_position", present)
     unit = bus.velocity_unit_deg_s
-    start_units = np.maximum(1, np.rint(opts.start_speed_deg_s / unit))
+    start_units = np.clip(np.rint(opts.start_speed_deg_s / unit), 1, bus.speed_max)
     accel_units = max(1, round(opts.start_accel_deg_s2 / it.ACCEL_UNIT_DEG_S2))
     report.start_profile_deg_s = float((start_units * unit).max())
-    bus.write_all(it.PROFILE_VELOCITY, start_units)   # never 0 (= full speed) for the start
-    bus.write_all(it.PROFILE_ACCELERATION, accel_units)
-    bus.write_all(it.TORQUE_ENABLE, 1)
+    bus.write_all("moving_speed", start_units)   # never 0 (= full speed) for the start
+    bus.write_all(it.PROFILE_ACCELERATION, accel_units)  # (X layout only)
+    bus.write_all("torque_enable", 1)
     bus.check_torque(1)
     if opts.watchdog:
         units = _watchdog_units(opts)
-        bus.write_all(it.BUS_WATCHDOG, units)
+        bus.write_all("bus_watchdog", units)
         say(f"Bus Watchdog {units * 20} ms on every servo")
     first = np.clip(np.where(np.isnan(goals.goals[0]), present, goals.goals[0]), lo, hi)
     distance = float(goals.units.servo_degrees(first - present).max())
@@ -351,7 +353,7 @@ def _start(bus: DriveBus, goals: TakeGoals, opts, report, say, check_signal, pha
         for n in range(opts.countdown_s, 0, -1):
             say(f"{n}...")
             _wait(1.0, bus, opts, check_signal)
-    bus.write_all(it.GOAL_POSITION, np.round(first))  # sent again while the line is stalled
+    bus.write_all("goal_position", np.round(first))  # sent again while the line is stalled
     timeout = distance / max(report.start_profile_deg_s, 1e-3) * 3 + opts.arrive_timeout_s
     deadline = time.monotonic() + timeout
     speeds = np.zeros(len(bus.ids))
@@ -360,7 +362,7 @@ def _start(bus: DriveBus, goals: TakeGoals, opts, report, say, check_signal, pha
         dxl_id = bus.ids[n]
         try:
             bus.rearm(dxl_id, _watchdog_units(opts))
-            bus.write(dxl_id, it.GOAL_POSITION, int(round(first[n])))
+            bus.write(dxl_id, "goal_position", int(round(first[n])))
         except (ServoTimeout, ServoCorrupt) as err:  # the next check tries again
             say(f"servo {dxl_id}: re-arming its Bus Watchdog failed ({err})")
             return
@@ -381,9 +383,9 @@ def _start(bus: DriveBus, goals: TakeGoals, opts, report, say, check_signal, pha
             raise DriveError(f"servos {late} did not reach the first pose within {timeout:.0f} s")
         _wait(1.0 / opts.rate_hz, bus, opts, check_signal, keepalive=False)
     report.start_max_speed_deg_s = {i: float(v * u) for i, v, u in zip(bus.ids, speeds, unit)}
-    play_units = np.maximum(1, np.rint(opts.max_speed_deg_s / unit))
+    play_units = np.clip(np.rint(opts.max_speed_deg_s / unit), 1, bus.speed_max)
     bus.write_all(it.PROFILE_ACCELERATION, 0)
-    bus.write_all(it.PROFILE_VELOCITY, play_units)
+    bus.write_all("moving_speed", play_units)
     return first
 
 
@@ -409,7 +411,7 @@ def _rearmed(report: PerformReport, say, dxl_id: int) -> None:
 
 def _read_positions(bus: DriveBus) -> np.ndarray:
     """Present Position of every servo (one read each, so that none is missing)."""
-    return np.array([bus.read(i, it.PRESENT_POSITION) for i in bus.ids], float)
+    return np.array([bus.read(i, "present_position") for i in bus.ids], float)
 
 
 def _limits(bus: DriveBus, goals: TakeGoals) -> tuple[np.ndarray, np.ndarray]:
@@ -448,7 +450,7 @@ class _Health:
         for n in np.flatnonzero(state.alert):
             dxl_id = bus.ids[n]
             try:
-                bits = bus.read(dxl_id, it.HARDWARE_ERROR_STATUS)
+                bits = bus.hardware_error(dxl_id)
                 what = describe_hardware_error(bits)
             except BusError as err:
                 what = f"unreadable ({err})"

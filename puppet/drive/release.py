@@ -2,7 +2,7 @@
 
 What ``puppet release`` does after a program left servos with torque on (an adapter pulled
 during ``perform``, a crash): the servos are the rig's (``models``) or, without a rig, every
-servo that answers a broadcast ping; the stop itself is ``DriveBus.torque_off``.
+servo that answers a ping (``puppet.bus.scan``); the stop itself is ``DriveBus.torque_off``.
 """
 
 from __future__ import annotations
@@ -10,12 +10,11 @@ from __future__ import annotations
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
-from puppet.bus.control_table import MODELS_BY_NUMBER
 from puppet.bus.errors import BusError
 from puppet.bus.link import BusLink
-from puppet.drive import items as it
 from puppet.drive.errors import DriveError
 from puppet.drive.servos import DriveBus
+from puppet.servo_models import protocol_of
 
 
 @dataclass
@@ -30,19 +29,15 @@ class Released:
 
 def release(port: str, models: dict[int, str] | None = None, *, baud: int = 1_000_000,
             log: Callable[[str], None] = lambda _line: None) -> Released:
-    """Torque off and Bus Watchdog 0 on ``models``' servos ({id: model}; None: every servo a
-    broadcast ping finds) at ``port``, read back. DriveError naming the port when nothing
-    answers; PortError (PortInUse) when the port cannot be had."""
-    link = BusLink(port, baud=baud)
+    """Torque off and Bus Watchdog 0 (where the model has one) on ``models``' servos ({id:
+    model}, one protocol; None: every servo a Protocol 2.0 broadcast ping finds, else every
+    servo a Protocol 1.0 ping of each id finds) at ``port``, read back. DriveError naming the
+    port when nothing answers; PortError (PortInUse) when the port cannot be had."""
+    if models is None:
+        models = _found_models(port, baud)
+    link = BusLink(port, baud=baud, protocol=protocol_of(models))
     try:
         link.open()
-        if models is None:
-            found = link.broadcast_ping()
-            if not found:
-                raise DriveError(f"port {port}: no servo answered a broadcast ping at {baud} bps: "
-                                 "nothing to release (check the power, the cable and the baud rate)")
-            models = {i: getattr(MODELS_BY_NUMBER.get(number), "name", "?")
-                      for i, (number, _) in sorted(found.items())}
         out = Released()
         # a read of its own (late replies on a busy host retried) tells who is there
         out.missing = sorted(DriveBus(link, list(models), models, log).unanswered(list(models)))
@@ -52,11 +47,29 @@ def release(port: str, models: dict[int, str] | None = None, *, baud: int = 1_00
         bus = DriveBus(link, ids, {i: models[i] for i in ids}, log)
         out.torque = bus.torque_off()
         for dxl_id in ids:
+            if bus.items[dxl_id].bus_watchdog is None:
+                continue
             try:
-                out.watchdog[dxl_id] = bus.read(dxl_id, it.BUS_WATCHDOG)
+                out.watchdog[dxl_id] = bus.read(dxl_id, "bus_watchdog")
             except BusError as err:
                 log(f"servo {dxl_id}: Bus Watchdog unreadable: {err}")
                 out.watchdog[dxl_id] = None
         return out
     finally:
         link.close()
+
+
+def _found_models(port: str, baud: int) -> dict[int, str]:
+    """{id: model name} of the servos answering on ``port``: Protocol 2.0 first, then 1.0
+    (a bus carries one); a model puppet does not know is left out, with a DriveError when
+    nothing it knows answers."""
+    from puppet.bus.scan import scan
+
+    for protocol in (2.0, 1.0):
+        found = scan(port, (baud,), (protocol,))
+        known = {f.id: f.model for f in found if f.model is not None}
+        if known:
+            return known
+    raise DriveError(f"port {port}: no servo of a known model answered a ping at {baud} bps "
+                     "(Protocol 2.0 nor 1.0): nothing to release (check the power, the cable "
+                     "and the baud rate)")

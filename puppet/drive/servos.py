@@ -4,27 +4,34 @@ and the stop (torque off on every way out).
 Setup writes only what it must (EEPROM items only with torque off, only when they differ) and
 records every change; nothing here runs inside the loop except ``write_goals``,
 ``read_state`` and ``read_watchdogs``.
+
+Every item is the servo's own (``items.resolve``: a ``ControlItems`` field name such as
+"goal_position" is Goal Position 116 on an X-series servo, 30 on an AX), so one bus of one
+protocol drives any mix of its models: group writes are one Sync Write per distinct item
+(Protocol 1.0 has Sync Write too), the state read is ``BusLink.group_read`` (Fast Sync Read or
+Sync Read on 2.0; Bulk Read on MX and one Read per AX / RX on 1.0). Protocol 1.0 has no
+Operating Mode: joint (position) mode is CW / CCW Angle Limit not both 0, and a servo in wheel
+mode is given its whole range (CCW Angle Limit := its top position); the XL-320's Control
+Mode 2 is joint mode. A Protocol 1.0 servo reports a hardware condition in every status
+instead of Hardware Error Status (``BusLink.hardware_bits``).
 """
 
 from __future__ import annotations
 
-import struct
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
 
-from puppet.bus.configure import (Change, SetupReport, ensure_status_return, identify,
-                                  supports_fast_sync_read)
-from puppet.bus.control_table import RETURN_DELAY_TIME, describe_hardware_error
+from puppet.bus.configure import (Change, SetupReport, check_baud, ensure_status_return,
+                                  identify, supports_fast_sync_read)
+from puppet.bus.control_table import describe_hardware_error
 from puppet.bus.errors import BusError, PortError, ServoCorrupt, ServoStatusError, ServoTimeout
 from puppet.bus.link import SILENT, BusLink
 from puppet.drive import items as it
 from puppet.drive.errors import DriveError
-from puppet.servo_models import MODELS
-
-_STATE = struct.Struct("<BBhhiiiiHB")  # Moving .. Present Temperature (25 bytes)
+from puppet.servo_models import MODELS, protocol_of
 ATTEMPTS = 3
 """Tries of a single-servo read or write outside the loop (a reply lost to noise is retried)."""
 SILENCE_PATIENCE_S = 2.0
@@ -85,26 +92,57 @@ class DriveBus:
         self.link = link
         self.ids = [int(i) for i in ids]
         self.models = {int(i): m for i, m in models.items()}
+        if protocol_of(self.models) != link.protocol:
+            raise ValueError(f"DriveBus: servos {self.ids} speak Protocol "
+                             f"{protocol_of(self.models):.1f}, the link {link.protocol:.1f}")
+        check_baud(self.models, link.baud, link.port_name)
         self.log = log
         self.changes: list[Change] = []
         self.recovered: list[int] = []
         self.setup: dict[int, ServoSetup] = {}
         self.fast_read = False  # Fast Sync Read for the state (every servo's firmware has it)
+        self.items = {i: MODELS[self.models[i]].items for i in self.ids}
+        """{id: ControlItems} of each servo's model."""
+        self.layouts = {i: it.StateLayout.of(self.items[i]) for i in self.ids}
+        self._bulk = [i for i in self.ids if MODELS[self.models[i]].bulk_read]
         self.velocity_unit_deg_s = np.array([MODELS[self.models[i]].velocity_unit_deg_s
                                              for i in self.ids])
-        """(k,) degrees/s of the servo shaft per Profile / Present Velocity unit."""
+        """(k,) degrees/s of the servo shaft per Moving Speed / Profile Velocity unit."""
+        self.speed_max = np.array([it.MOVING_SPEED_MAX[self.items[i].moving_speed.size]
+                                   for i in self.ids])
+        """(k,) the largest Moving Speed / Profile Velocity of each servo."""
         k = len(self.ids)
         self.state = State(*(np.zeros(k, bool) for _ in range(2)),
                            *(np.zeros(k, np.int64) for _ in range(6)))
 
-    def read(self, dxl_id: int, item) -> int:
-        """Read one item, tried up to ``ATTEMPTS`` times on a corrupt reply or a timeout the
-        line proves silent, and for up to ``STALL_PATIENCE_S`` while replies are late."""
+    def item(self, dxl_id: int, what):
+        """The item ``what`` (a ControlItems field name or an Item) on servo ``dxl_id``'s model;
+        DriveError naming the servo when its model has none."""
+        item = it.resolve(self.items[dxl_id], what)
+        if item is None:
+            raise DriveError(f"servo {dxl_id} ({self.models[dxl_id]}) has no "
+                             f"{what if isinstance(what, str) else what.name}")
+        return item
+
+    def read(self, dxl_id: int, what) -> int:
+        """Read one item (a ControlItems field name or an Item), tried up to ``ATTEMPTS`` times
+        on a corrupt reply or a timeout the line proves silent, and for up to
+        ``STALL_PATIENCE_S`` while replies are late."""
+        item = self.item(dxl_id, what)
         return self._patient(lambda: self.link.read(dxl_id, item), dxl_id)
 
-    def write(self, dxl_id: int, item, value: int) -> None:
+    def write(self, dxl_id: int, what, value: int) -> None:
         """Write one item (idempotent), tried like ``read``."""
+        item = self.item(dxl_id, what)
         self._patient(lambda: self.link.write(dxl_id, item, value), dxl_id)
+
+    def hardware_error(self, dxl_id: int) -> int:
+        """Hardware Error Status bits of one servo (Protocol 1.0: those its status to a fresh
+        read of Present Position carried)."""
+        if self.items[dxl_id].hardware_error_status is not None:
+            return self.read(dxl_id, "hardware_error_status")
+        self.read(dxl_id, "present_position")
+        return self.link.hardware_bits.get(dxl_id, 0)
 
     def _patient(self, call, dxl_id: int | None = None, attempts: int = ATTEMPTS):
         """call() until it succeeds: tried ``attempts`` times on a corrupt reply or a timeout
@@ -128,7 +166,8 @@ class DriveBus:
                 if tries >= attempts:
                     raise
 
-    def _change(self, dxl_id: int, item, old: int, new: int, why: str = "") -> None:
+    def _change(self, dxl_id: int, what, old: int, new: int, why: str = "") -> None:
+        item = self.item(dxl_id, what)
         self.write(dxl_id, item, new)
         self.changes.append(Change(dxl_id, item.name, old, new))
         self.log(f"servo {dxl_id}: {item.name} {old} -> {new}{' (' + why + ')' if why else ''}")
@@ -155,15 +194,17 @@ class DriveBus:
 
     def _prepare_one(self, dxl_id: int, firmware: int, use_watchdog: bool) -> ServoSetup:
         link, model = self.link, self.models[dxl_id]
+        items = self.items[dxl_id]
         info = ServoSetup(dxl_id, model, firmware)
         for attempt in range(ATTEMPTS):
             try:  # patient while the line is stalled (its writes set absolute values)
-                self._patient(lambda: ensure_status_return(link, dxl_id, self.changes), dxl_id)
+                self._patient(lambda: ensure_status_return(link, dxl_id, self.changes, items),
+                              dxl_id)
                 break
             except (ServoTimeout, ServoCorrupt, ServoStatusError):  # a late reply misread
                 if attempt == ATTEMPTS - 1:
                     raise
-        hw = self.read(dxl_id, it.HARDWARE_ERROR_STATUS)
+        hw = self.hardware_error(dxl_id)
         if hw:
             raise DriveError(f"servo {dxl_id}: hardware error latched ({describe_hardware_error(hw)}); "
                              "let it cool or fix the load, then power-cycle or reboot it")
@@ -176,71 +217,113 @@ class DriveBus:
                 f"servo {dxl_id}: {needs}: if this host died the servo would keep its last "
                 "goal with torque on; update the firmware, or pass --no-watchdog to perform anyway")
         if info.watchdog:
-            wd = self.read(dxl_id, it.BUS_WATCHDOG)
+            wd = self.read(dxl_id, "bus_watchdog")
             if wd == it.WATCHDOG_TRIPPED:
                 self.recovered.append(dxl_id)
-                self._change(dxl_id, it.BUS_WATCHDOG, wd, 0,
+                self._change(dxl_id, "bus_watchdog", wd, 0,
                              "its Bus Watchdog had stopped it: the host fell silent; cleared")
             elif wd != 0:
-                self._change(dxl_id, it.BUS_WATCHDOG, wd, 0, "left set; cleared")
-        torque = self.read(dxl_id, it.TORQUE_ENABLE)
+                self._change(dxl_id, "bus_watchdog", wd, 0, "left set; cleared")
+        torque = self.read(dxl_id, "torque_enable")
         if torque:  # hold where it is before anything else
-            self.write(dxl_id, it.GOAL_POSITION, self.read(dxl_id, it.PRESENT_POSITION))
-        mode = self.read(dxl_id, it.OPERATING_MODE)
-        drive = self.read(dxl_id, it.DRIVE_MODE)
-        delay = self.read(dxl_id, RETURN_DELAY_TIME)
+            self.write(dxl_id, "goal_position", self.read(dxl_id, "present_position"))
+        x = it.x_layout(items)
+        if x:
+            mode = self.read(dxl_id, "operating_mode")
+            joint = mode in it.POSITION_MODES
+            drive = self.read(dxl_id, "drive_mode")
+        elif items.operating_mode is not None:  # XL-320 Control Mode: 2 joint, 1 wheel
+            mode = self.read(dxl_id, "operating_mode")
+            joint, drive = mode == it.XL320_JOINT_MODE, 0
+        else:  # Protocol 1.0: wheel mode is CW and CCW Angle Limit both 0
+            cw, ccw = (self.read(dxl_id, "min_position_limit"),
+                       self.read(dxl_id, "max_position_limit"))
+            mode, joint, drive = None, bool(cw or ccw), 0
+        delay = self.read(dxl_id, "return_delay_time")
         unwanted = it.DRIVE_MODE_TORQUE_ON_BY_GOAL | it.DRIVE_MODE_TIME_PROFILE
-        eeprom = mode not in it.POSITION_MODES or drive & unwanted or delay != 0
+        eeprom = not joint or drive & unwanted or delay != 0
         if eeprom and torque:
-            if mode not in it.POSITION_MODES:
-                self.log(f"servo {dxl_id}: torque is on in operating mode {mode} (not a position "
-                         "mode); turning torque off before changing it")
-            self._change(dxl_id, it.TORQUE_ENABLE, 1, 0, "EEPROM items change only with torque off")
+            if not joint:
+                self.log(f"servo {dxl_id}: torque is on in "
+                         + (f"operating mode {mode}" if mode is not None else "wheel mode")
+                         + " (not a position mode); turning torque off before changing it")
+            self._change(dxl_id, "torque_enable", 1, 0, "EEPROM items change only with torque off")
             torque = 0
-        if mode not in it.POSITION_MODES:
-            self._change(dxl_id, it.OPERATING_MODE, mode, it.POSITION_MODE, "perform drives positions")
-            mode = it.POSITION_MODE
+        if not joint and x:
+            self._change(dxl_id, "operating_mode", mode, it.POSITION_MODE, "perform drives positions")
+        elif not joint and mode is not None:
+            self._change(dxl_id, "operating_mode", mode, it.XL320_JOINT_MODE,
+                         "perform drives positions (joint mode)")
+        elif not joint:
+            top = MODELS[model].max_position
+            self._change(dxl_id, "max_position_limit", 0, top,
+                         "perform drives positions: joint mode, its whole range")
         if drive & unwanted:
-            self._change(dxl_id, it.DRIVE_MODE, drive, drive & ~unwanted,
+            self._change(dxl_id, "drive_mode", drive, drive & ~unwanted,
                          "no torque on by goal update; velocity-based profile")
         if delay != 0:
-            self._change(dxl_id, RETURN_DELAY_TIME, delay, 0)
+            self._change(dxl_id, "return_delay_time", delay, 0)
         if torque:
-            self._change(dxl_id, it.TORQUE_ENABLE, 1, 0, "torque goes on only after the goal is set")
-        info.mode = mode
-        if mode == it.POSITION_MODE:
-            info.lo = self.read(dxl_id, it.MIN_POSITION_LIMIT)
-            info.hi = self.read(dxl_id, it.MAX_POSITION_LIMIT)
-        info.temperature_limit = self.read(dxl_id, it.TEMPERATURE_LIMIT)
-        info.current_unit_ma = unit = MODELS[model].current_unit_ma
-        if unit is not None:
-            info.current_limit_ma = self.read(dxl_id, it.CURRENT_LIMIT) * unit
+            self._change(dxl_id, "torque_enable", 1, 0, "torque goes on only after the goal is set")
+        info.mode = it.POSITION_MODE if not x or not joint else mode
+        if info.mode == it.POSITION_MODE:
+            info.lo = self.read(dxl_id, "min_position_limit")
+            info.hi = self.read(dxl_id, "max_position_limit")
+        info.temperature_limit = self.read(dxl_id, "temperature_limit")
+        if not self.layouts[dxl_id].load:
+            info.current_unit_ma = unit = MODELS[model].current_unit_ma
+            info.current_limit_ma = self.read(dxl_id, "current_limit") * unit
         return info
 
     # ---- group writes ---------------------------------------------------------------------
-    def write_all(self, item, values) -> None:
-        """One Sync Write of ``item``: values (k,) in bus order, or one value for all (sent
-        again while the line is stalled, up to ``STALL_PATIENCE_S``: a Sync Write has no reply,
-        and one not sent changed nothing)."""
-        if np.ndim(values) == 0:
-            table = dict.fromkeys(self.ids, int(values))
-        else:
-            table = {i: int(v) for i, v in zip(self.ids, values)}
-        self._patient(lambda: self.link.sync_write(item, table), attempts=1)
+    def write_all(self, what, values) -> None:
+        """One Sync Write of ``what`` (a ControlItems field name or an Item) per distinct item
+        among the servos whose model has it (the others are skipped): values (k,) in bus order,
+        or one value for all (sent again while the line is stalled, up to ``STALL_PATIENCE_S``:
+        a Sync Write has no reply, and one not sent changed nothing)."""
+        values = np.broadcast_to(np.asarray(values), (len(self.ids),))
+        tables = self._tables(what, values)
+        for item, table in tables.items():
+            self._patient(lambda item=item, table=table: self.link.sync_write(item, table),
+                          attempts=1)
+
+    def _tables(self, what, values) -> dict:
+        """{Item: {id: int value}} of ``what`` for the servos whose model has it."""
+        tables: dict = {}
+        for dxl_id, value in zip(self.ids, values):
+            item = it.resolve(self.items[dxl_id], what)
+            if item is not None:
+                tables.setdefault(item, {})[dxl_id] = int(round(float(value)))
+        return tables
 
     def write_goals(self, goals: np.ndarray) -> None:
-        """One Sync Write of Goal Position: (k,) float ticks, rounded."""
-        self.link.sync_write(it.GOAL_POSITION,
-                             {i: int(round(g)) for i, g in zip(self.ids, goals)})
+        """One Sync Write of Goal Position per goal item (one on a bus of one family): (k,)
+        float ticks, rounded."""
+        for item, table in self._tables("goal_position", goals).items():
+            self.link.sync_write(item, table)
+
+    def write_goal_table(self, table: dict[int, int]) -> None:
+        """Sync Write Goal Position {id: raw ticks} (one write per goal item)."""
+        items = self.items
+        first = items[next(iter(table))].goal_position if table else None
+        if all(items[i].goal_position == first for i in table):
+            if table:
+                self.link.sync_write(first, table)
+            return
+        by_item: dict = {}
+        for dxl_id, value in table.items():
+            by_item.setdefault(items[dxl_id].goal_position, {})[dxl_id] = value
+        for item, part in by_item.items():
+            self.link.sync_write(item, part)
 
     def rearm(self, dxl_id: int, units: int) -> int:
         """A servo its Bus Watchdog stopped (it reads -1, refuses goals; torque stays on):
         clear the watchdog, Goal Position := Present Position, watchdog ``units`` again ->
         that present position, raw ticks."""
-        self.write(dxl_id, it.BUS_WATCHDOG, 0)
-        raw = self.read(dxl_id, it.PRESENT_POSITION)
-        self.write(dxl_id, it.GOAL_POSITION, raw)
-        self.write(dxl_id, it.BUS_WATCHDOG, units)
+        self.write(dxl_id, "bus_watchdog", 0)
+        raw = self.read(dxl_id, "present_position")
+        self.write(dxl_id, "goal_position", raw)
+        self.write(dxl_id, "bus_watchdog", units)
         return raw
 
     def unanswered(self, ids, patience_s: float = SILENCE_PATIENCE_S) -> dict[int, BusError]:
@@ -257,7 +340,7 @@ class DriveBus:
             tries = 0
             while True:
                 try:
-                    self.link.read(dxl_id, it.PRESENT_POSITION)
+                    self.link.read(dxl_id, self.items[dxl_id].present_position)
                     heard.append(dxl_id)
                     break
                 except PortError:
@@ -284,7 +367,7 @@ class DriveBus:
         """Read Torque Enable back from every servo; DriveError naming those that differ."""
         wrong = {}
         for i in self.ids:
-            value = self.read(i, it.TORQUE_ENABLE)
+            value = self.read(i, "torque_enable")
             if value != want:
                 wrong[i] = value
         if wrong:
@@ -292,11 +375,12 @@ class DriveBus:
 
     # ---- the cycle's read -------------------------------------------------------------------
     def read_state(self) -> State:
-        """One Sync Read (Fast Sync Read where every servo has it) of Moving .. Present
-        Temperature (25 bytes) from every servo, with each status error byte kept (the alert
-        bit). Fills and returns ``self.state``."""
-        read = self.link.fast_sync_read if self.fast_read else self.link.sync_read
-        result = read(self.ids, it.STATE)
+        """Each servo's state block (``items.StateLayout``: Moving .. Present Temperature, 25
+        bytes, on the X layout) by ``BusLink.group_read`` (Fast Sync Read where every servo
+        has it, else Sync Read; on Protocol 1.0 Bulk Read on MX, a Read per AX / RX), with each
+        status error byte kept (the alert bit). Fills and returns ``self.state``."""
+        result = self.link.group_read({i: self.layouts[i].block for i in self.ids},
+                                      fast=self.fast_read, bulk=self._bulk)
         s = self.state
         s.failures = result.failed
         for n, dxl_id in enumerate(self.ids):
@@ -305,14 +389,21 @@ class DriveBus:
             s.ok[n] = value is not None
             if value is None:
                 continue
-            (s.moving[n], s.moving_status[n], _pwm, s.current[n], s.velocity[n], s.position[n],
-             _vt, _pt, _volt, s.temperature[n]) = _STATE.unpack(value.to_bytes(25, "little"))
+            f = self.layouts[dxl_id].decode(value)
+            s.moving[n], s.moving_status[n], s.current[n] = f["moving"], f["moving_status"], f["current"]
+            s.velocity[n], s.position[n], s.temperature[n] = f["velocity"], f["position"], f["temperature"]
         return s
 
     def read_watchdogs(self) -> dict[int, int]:
         """Bus Watchdog of every servo that has one (one Sync Read) -> {id: value}."""
-        ids = [i for i in self.ids if self.setup.get(i, ServoSetup(i, "", 0)).watchdog]
-        return self.link.sync_read(ids, it.BUS_WATCHDOG).values if ids else {}
+        ids = [i for i in self.ids if self._has_watchdog(i)]
+        return self.link.group_read({i: self.items[i].bus_watchdog for i in ids}).values if ids else {}
+
+    def _has_watchdog(self, dxl_id: int) -> bool:
+        """The servo has a Bus Watchdog (its model has the item; its firmware, once setup
+        has read it)."""
+        setup = self.setup.get(dxl_id)
+        return self.items[dxl_id].bus_watchdog is not None and (setup is None or setup.watchdog)
 
     # ---- the stop ---------------------------------------------------------------------------
     def torque_off(self) -> dict[int, int | None]:
@@ -320,12 +411,12 @@ class DriveBus:
         servo (failures logged, the rest carried on), then read back -> {id: Torque Enable, or
         None when it could not be read}. Where torque reads 0 the Bus Watchdog is cleared."""
         try:
-            self.write_all(it.TORQUE_ENABLE, 0)
+            self.write_all("torque_enable", 0)
         except BusError as err:
             self.log(f"torque off (group write) failed: {err}")
         for i in self.ids:
             try:
-                self.write(i, it.TORQUE_ENABLE, 0)
+                self.write(i, "torque_enable", 0)
             except PortError as err:
                 self.log(f"servo {i}: torque off failed: {err}")
                 break  # the port is gone: every further call would fail the same way
@@ -334,11 +425,11 @@ class DriveBus:
         after: dict[int, int | None] = {}
         for i in self.ids:
             try:
-                after[i] = _retried(lambda i=i: self.read(i, it.TORQUE_ENABLE))
+                after[i] = _retried(lambda i=i: self.read(i, "torque_enable"))
             except BusError:
                 after[i] = None
         for i, value in after.items():
-            if value == 0 and self.setup.get(i, ServoSetup(i, "", 0)).watchdog:
+            if value == 0 and self._has_watchdog(i):
                 try:
                     _retried(lambda i=i: self._clear_watchdog(i))
                 except BusError as err:
@@ -346,8 +437,8 @@ class DriveBus:
         return after
 
     def _clear_watchdog(self, dxl_id: int) -> None:
-        if self.read(dxl_id, it.BUS_WATCHDOG) != 0:
-            self.write(dxl_id, it.BUS_WATCHDOG, 0)
+        if self.read(dxl_id, "bus_watchdog") != 0:
+            self.write(dxl_id, "bus_watchdog", 0)
 
 
 STOP_ATTEMPTS = 3

@@ -53,7 +53,7 @@ UP_AXES = ("Y", "Z")
 
 def _usd():
     try:
-        from pxr import Tf, Usd, UsdGeom, UsdSkel, Vt  # noqa: F401 (UsdShade, UsdUtils below)
+        from pxr import Tf, Usd, UsdGeom, UsdSkel, Vt
     except ImportError as e:  # usd-core is a dependency; say so if an install lost it
         raise ExportError("--usd", f"USD export needs the usd-core package ({e})") from e
     return Tf, Usd, UsdGeom, UsdSkel, Vt
@@ -317,58 +317,56 @@ def _xform_ops(xform, node) -> None:
 
 def _source_xforms(stage, root: str, source) -> tuple[str, np.ndarray | None]:
     """Xforms of the file's nodes that are not joints, not under one and not the skinned mesh
-    node; returns (the Mesh's path: under the armature's Xform, named as the mesh node, and
-    the (3, 4) map of model-frame points into its space, None for the identity)."""
-    from pxr import UsdGeom
+    node (unless it has children); returns (the Mesh's path: under the armature's Xform, named
+    as the mesh node; the (3, 4) map of model-frame points into its space, None: identity)."""
+    from pxr import Gf, UsdGeom
 
     nodes = source.nodes
-    static = {}
-    for i, node in enumerate(nodes):
-        k, ok = i, True
-        while k >= 0:  # the skinned mesh node itself becomes the Mesh (an Xform if it has children)
-            if nodes[k].joint >= 0 or (k == i and node.mesh >= 0 and not node.children):
-                ok = False
-                break
-            k = nodes[k].parent
-        if ok:
-            static[i] = None
     taken: dict[str, set] = {}
 
-    def path_of(i):
-        if static[i] is None:
-            parent = nodes[i].parent
-            above = root if parent < 0 else path_of(parent)
-            siblings = taken.setdefault(above, {"Mesh", "Rig", "Materials"} if above == root else set())
-            base = safe_name(nodes[i].name or f"node{i}")
-            name, n = base, 2
-            while name in siblings:
-                name, n = f"{base}_{n}", n + 1
-            siblings.add(name)
-            static[i] = f"{above}/{name}"
-            _xform_ops(UsdGeom.Xform.Define(stage, static[i]), nodes[i])
-        return static[i]
+    def child(above: str, base: str) -> str:
+        """A path under ``above`` named ``base`` (made unique among its siblings)."""
+        siblings = taken.setdefault(above, {"Mesh", "Rig", "Materials"} if above == root else set())
+        name, n = base, 2
+        while name in siblings:
+            name, n = f"{base}_{n}", n + 1
+        siblings.add(name)
+        return f"{above}/{name}"
 
-    for i in sorted(static, key=lambda i: 0 if nodes[i].parent < 0 else 1):
-        path_of(i)
+    def static(i: int) -> bool:
+        k = i
+        while k >= 0:
+            if nodes[k].joint >= 0 or (k == i and nodes[i].mesh >= 0 and not nodes[i].children):
+                return False
+            k = nodes[k].parent
+        return True
+
+    paths: dict[int, str] = {}
+    for i in range(len(nodes)):
+        chain = []
+        k = i
+        while k >= 0 and k not in paths and static(k):  # up to a placed node or the root
+            chain.append(k)
+            k = nodes[k].parent
+        if not static(i):
+            continue
+        for k in reversed(chain):
+            parent = nodes[k].parent
+            paths[k] = child(root if parent < 0 else paths[parent], safe_name(nodes[k].name or f"node{k}"))
+            _xform_ops(UsdGeom.Xform.Define(stage, paths[k]), nodes[k])
     mesh_node = nodes[source.mesh_nodes[0]]
     name = safe_name(mesh_node.name or source.mesh_names[0] or "Mesh")
-    armature = source.armature
-    to_object = None if np.allclose(source.object_world, np.eye(4), atol=0) else \
-        np.linalg.inv(source.object_world)[:3]
-    if armature is not None and armature in static:
-        above = static[armature]
-    else:
+    world = source.object_world
+    to_object = None if np.allclose(world, np.eye(4), atol=0) else np.linalg.inv(world)[:3]
+    if source.armature in paths:
+        above = paths[source.armature]
+    elif to_object is None:
         above = root
-        if to_object is not None:  # the armature sits under a joint: its world as one matrix op
-            holder = UsdGeom.Xform.Define(stage, f"{root}/{name}_space")
-            from pxr import Gf
-            holder.AddTransformOp().Set(Gf.Matrix4d(np.ascontiguousarray(source.object_world.T).tolist()))
-            above = f"{root}/{name}_space"
-    siblings = taken.setdefault(above, {"Mesh", "Rig", "Materials"} if above == root else set())
-    base, n = name, 2
-    while name in siblings:
-        name, n = f"{base}_{n}", n + 1
-    return f"{above}/{name}", to_object
+    else:  # the armature node sits under a joint: its world as one matrix op
+        above = child(root, f"{name}_space")
+        UsdGeom.Xform.Define(stage, above).AddTransformOp().Set(
+            Gf.Matrix4d(np.ascontiguousarray(world.T).tolist()))
+    return child(above, name), to_object
 
 
 def _primvars(mesh, source) -> None:
@@ -389,8 +387,9 @@ def _primvars(mesh, source) -> None:
                 mesh.CreateDisplayOpacityPrimvar(UsdGeom.Tokens.vertex).Set(
                     Vt.FloatArray.FromNumpy(np.ascontiguousarray(values[:, 3], np.float32)))
         elif name.startswith("COLOR_"):
-            kind = Sdf.ValueTypeNames.Color4fArray if values.shape[1] == 4 else Sdf.ValueTypeNames.Color3fArray
-            array = (Vt.Vec4fArray if values.shape[1] == 4 else Vt.Vec3fArray).FromNumpy(
+            four = values.shape[1] == 4
+            kind = Sdf.ValueTypeNames.Color4fArray if four else Sdf.ValueTypeNames.Color3fArray
+            array = (Vt.Vec4fArray if four else Vt.Vec3fArray).FromNumpy(
                 np.ascontiguousarray(values, np.float32))
             api.CreatePrimvar(name, kind, UsdGeom.Tokens.vertex).Set(array)
 

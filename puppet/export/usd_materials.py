@@ -16,6 +16,7 @@ KHR texture transforms and other material extensions are not carried.
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 from puppet.export.names import safe_name, safe_names
@@ -56,8 +57,6 @@ def write_materials(stage, root: str, scene, files: dict[int, Path], layer_folde
     """Define every material of ``scene`` under ``<root>/Materials``; returns the
     UsdShade.Material of each glTF material index. files: {image index: texture file};
     layer_folder: the folder of the layer (texture paths are written relative to it)."""
-    import os
-
     from pxr import Gf, Sdf, UsdGeom, UsdShade
 
     names, _ = safe_names([m.get("name") or f"material{k}" for k, m in enumerate(scene.materials)])
@@ -98,8 +97,9 @@ def write_materials(stage, root: str, scene, files: dict[int, Path], layer_folde
             sampler = tex.get("sampler")
             if isinstance(sampler, int) and 0 <= sampler < len(scene.samplers):
                 s = scene.samplers[sampler]
-                for axis, key in (("wrapS", "wrapS"), ("wrapT", "wrapT")):
-                    shader.CreateInput(axis, Sdf.ValueTypeNames.Token).Set(WRAP.get(s.get(key, 10497), "repeat"))
+                for axis in ("wrapS", "wrapT"):
+                    wrap = WRAP.get(s.get(axis, 10497), "repeat")
+                    shader.CreateInput(axis, Sdf.ValueTypeNames.Token).Set(wrap)
             else:
                 for axis in ("wrapS", "wrapT"):
                     shader.CreateInput(axis, Sdf.ValueTypeNames.Token).Set("repeat")

@@ -23,8 +23,10 @@ Example (paths are relative to the rig file)::
     order = 1                     # composition order within the joint
     sign = 1                      # 1 or -1
     gear = 1.0                    # servo turns per joint turn, GEAR_RANGE
-    zero_ticks = 2048             # ticks at the rest pose (int32)
-    limits_deg = [-60, 60]        # low < high, within +-LIMIT_RANGE_DEG
+    zero_ticks = 2048             # ticks at the rest pose (int32; default the middle of the
+                                  # model's positions: 2048, or 512 on AX / RX / XL-320)
+    limits_deg = [-60, 60]        # low < high, within +-LIMIT_RANGE_DEG; on a model with a
+                                  # dead zone (AX / RX / XL-320) inside its 300° (servo_map)
 
     [[pin]]                       # at most 4 per handle (load.PINS_PER_HANDLE), < vertex count
     vertex = 1234                 # or point = [x, y, z] (COORD): the nearest vertex
@@ -332,7 +334,7 @@ def _read_servo(index: int, table: dict, lines: _Lines, fail) -> Servo:
     gear = table.get("gear", 1.0)
     if not GEAR.holds(gear):
         fail(f"gear {GEAR.problem(gear)} (use sign = -1 to reverse)", f"{label} gear", line("gear"))
-    zero = table.get("zero_ticks", 2048)
+    zero = table.get("zero_ticks", getattr(MODELS.get(model), "position_ticks", 4096) // 2)
     if not ZERO_TICKS.holds(zero):
         fail(f"zero_ticks {ZERO_TICKS.problem(zero)}", f"{label} zero_ticks", line("zero_ticks"))
     limits = table.get("limits_deg", [-180.0, 180.0])

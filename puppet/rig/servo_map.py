@@ -15,7 +15,7 @@ from puppet.rig.calibration import INT32, Calibration
 from puppet.rig.errors import RigError
 from puppet.rig.skeleton import Joint, Skeleton
 
-from puppet.servo_models import MODELS, ServoUnits, known_models
+from puppet.servo_models import MODELS, ServoUnits, known_models, protocol_of
 
 GEAR_RANGE = (0.01, 100.0)
 """Servo turns per joint turn: a gear ratio outside this is a typo, not a mechanism."""
@@ -77,6 +77,7 @@ class ServoMap:
             seen[s.id] = s
         self.ids = np.array([s.id for s in self.servos], np.int64)
         self.models = {s.id: s.model for s in self.servos}
+        _check_one_protocol(self.servos, path)
         self.actuator_index = np.array([i for i, s in enumerate(self.servos)
                                         if s.role == "actuator"], np.int64)
         """(a,) indices of the actuator servos, map order (empty: a pure sensor rig)."""
@@ -86,14 +87,18 @@ class ServoMap:
         self.calibration = Calibration()
         if calibration is not None:
             self.calibrate(calibration)
+        else:
+            check_model_ranges(self.servos, self.zero, path)
 
     def __len__(self) -> int:
         return len(self.servos)
 
     def calibrate(self, calibration: Calibration) -> None:
         """Use ``calibration``'s zero ticks (servos it does not name keep the map's zero)."""
+        zero = [calibration.zero_for(s.id, s.zero_ticks) for s in self.servos]
+        check_model_ranges(self.servos, zero, self.path, calibration.path)
         self.calibration = calibration
-        self.zero[:] = [calibration.zero_for(s.id, s.zero_ticks) for s in self.servos]
+        self.zero[:] = zero
 
     def angles(self, ticks: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
         """Joint angles from raw ticks.
@@ -157,6 +162,48 @@ def check_bus_watchdogs(servos, path=None, models=MODELS) -> None:
                            "would hold its last goal with torque on; drive a model that has one, "
                            "or pass --no-watchdog", path=path, line=s.line or None,
                            field=f"servo {s.id} model")
+
+
+def _check_one_protocol(servos, path) -> None:
+    """RigError naming the servos of each protocol (and the line of the first that differs
+    from the first servo's) when the rig mixes Protocol 1.0 and 2.0 models: one bus carries
+    one protocol (``puppet.servo_models.protocol_of``)."""
+    try:
+        protocol_of({s.id: s.model for s in servos})
+    except ValueError as err:
+        first = MODELS[servos[0].model].protocol
+        odd = next(s for s in servos if MODELS[s.model].protocol != first)
+        raise RigError(str(err), path=path, line=odd.line or None,
+                       field=f"servo {odd.id} model") from None
+
+
+def check_model_ranges(servos, zero, path=None, calibration_path=None) -> None:
+    """Refuse joint limits a servo's model cannot measure: RigError naming the servo, its
+    model and its line. On a model whose positions cover less than a turn (AX / RX / XL-320:
+    1024 positions over 300°, a 60° dead zone) the limits, turned into servo ticks through the
+    servo's gear, sign and ``zero`` (ticks in use, (k,)), must lie within its positions
+    0..max_position (a zero from a calibration file names that file too). A model whose
+    positions cover the whole turn takes any limits (X-series count turns; MX on Protocol 1.0
+    is unwrapped by the bus)."""
+    for s, z in zip(servos, zero):
+        model = MODELS[s.model]
+        if not model.dead_zone_deg:
+            continue
+        units = ServoUnits([s.sign], [s.gear], [int(z)], [s.limits], model.ticks_per_turn)
+        lo, hi = (float(t[0]) for t in units.tick_limits())
+        if 0 <= lo and hi <= model.max_position:
+            continue
+        span = float(np.degrees(s.limits[1] - s.limits[0])) * s.gear
+        why = (f"span {span:.0f}° of the servo's shaft, more than the {model.position_range_deg:.0f}° "
+               "it measures" if span > model.position_range_deg else
+               f"from zero_ticks {int(z)}{' (' + str(calibration_path) + ')' if calibration_path else ''}"
+               f" they reach ticks {lo:.0f}..{hi:.0f}")
+        raise RigError(
+            f"limits {np.degrees(s.limits[0]):.0f}..{np.degrees(s.limits[1]):.0f}° outside what its "
+            f"{s.model} measures ({why}; its positions are 0..{model.max_position}, the other "
+            f"{model.dead_zone_deg:.0f}° of the turn are its dead zone): narrow limits_deg, or "
+            "re-mount the horn so the joint's range sits inside the servo's",
+            path=path, line=s.line or None, field=f"servo {s.id} limits_deg")
 
 
 def _check_servo(s: Servo, path) -> None:

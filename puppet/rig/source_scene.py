@@ -29,8 +29,12 @@ from urllib.parse import unquote
 
 import numpy as np
 
+from puppet.rig.errors import RigError
+
 #: Vertex attributes carried per file vertex (besides POSITION and the skin's JOINTS/WEIGHTS).
 CARRIED = ("NORMAL", "TANGENT", "TEXCOORD_", "COLOR_")
+#: Components per vertex the glTF spec allows for each of them.
+WIDTHS = {"NORMAL": (3,), "TANGENT": (4,), "TEXCOORD": (2,), "COLOR": (3, 4)}
 #: Image types a glTF 2.0 file may hold without an extension.
 IMAGE_TYPES = {".png": "image/png", ".jpg": "image/jpeg", ".jpeg": "image/jpeg"}
 
@@ -145,8 +149,6 @@ def _plain(obj) -> dict:
 
 def _image(gltf, acc, index: int, path: Path, warnings: list[str]) -> SourceImage | None:
     """Image ``index`` of the file, or None (a warning says why) when it cannot be carried."""
-    from puppet.rig.errors import RigError
-
     image = gltf.images[index]
     name = image.name
     where = f"images[{index}]"
@@ -259,10 +261,16 @@ def read_source_scene(gltf, acc, path: Path, *, locals_: np.ndarray, worlds: np.
             for name in sorted(attributes):
                 if not name.startswith(CARRIED):
                     continue
-                values = acc.read(attributes[name], f"{where}.{name}").astype(np.float32)
-                if len(values) != n or not np.isfinite(values).all():
-                    warnings.append(f"{path}: {where}.{name}: {len(values)} values for {n} vertices "
-                                    "or not finite; left out")
+                try:
+                    values = acc.read(attributes[name], f"{where}.{name}").astype(np.float32)
+                except RigError as err:  # the rig needs none of these: leave it out, say so
+                    warnings.append(f"{err}; left out of exports")
+                    continue
+                widths = WIDTHS[name.split("_")[0] if "_" in name else name]
+                if len(values) != n or values.shape[1] not in widths or not np.isfinite(values).all():
+                    warnings.append(f"{path}: {where}.{name}: {len(values)} values of {values.shape[1]} "
+                                    f"for {n} vertices (glTF: {' or '.join(map(str, widths))} each, "
+                                    "finite); left out of exports")
                     continue
                 columns.setdefault(name, []).append((start, values))
                 carried.append(name)

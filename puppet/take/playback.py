@@ -13,9 +13,10 @@ frame 0 is the first reading. At speed 0.5 a take gives twice the frames.
 
 Ticks. Each servo's ticks are interpolated linearly between the two readings around the time,
 along the shorter way round the encoder (a step of more than half a turn between two readings
-is a wrap, never a fast spin; ``puppet.servo_models.HALF_TURN``), and rounded to whole
-ticks. ``ok`` is both neighbours' ok (a flagged servo's ticks are what the reader recorded: its
-last good value); a time on a reading is that reading. Nothing here reads a clock: the frames
+is a wrap, never a fast spin; half of each servo's model's ``ticks_per_turn``: 4096 on X and
+MX, 1228.8 on AX / RX / XL-320), and rounded to whole ticks. ``ok`` is both neighbours' ok (a
+flagged servo's ticks are what the reader recorded: its last good value); a time on a reading
+is that reading. Nothing here reads a clock: the frames
 are a pure function of the take's timestamps and ticks.
 
 Shots. A shot (a take with keys, ``puppet.take.keys``) plays its keys: key i is at
@@ -36,7 +37,7 @@ import numpy as np
 
 from puppet.limits import FPS, SPEED, Range
 from puppet.reading import Reading
-from puppet.servo_models import HALF_TURN, TICKS_PER_TURN
+from puppet.servo_models import MODELS, TICKS_PER_TURN
 from puppet.take.errors import TakeError
 
 MAX_GAP_S = 1.0
@@ -55,6 +56,13 @@ class Cut(NamedTuple):
 
     at_ns: int
     gap_ns: int
+
+
+def turns_of(models: dict, ids) -> np.ndarray:
+    """(k,) ticks per turn of servos ``ids`` by their model names ({id: name}); 4096 for a
+    servo whose model is not known."""
+    return np.array([getattr(MODELS.get(models.get(int(i))), "ticks_per_turn", TICKS_PER_TURN)
+                     for i in ids], float)
 
 
 def play_times_ns(t_ns: np.ndarray, max_gap_ns: int = MAX_GAP_NS) -> tuple[np.ndarray, list[Cut]]:
@@ -109,6 +117,7 @@ class Playback:
     ticks: (R, k) int32 continuous encoder counts, one column per servo.
     ok:    (R, k) bool, False where a servo's read failed (its ticks hold the last good value).
     ids:   (k,) servo ids, shared by every Reading made.
+    ticks_per_turn: (k,) or scalar, each servo's model's (``ServoModel.ticks_per_turn``).
     fps:   frames per second (> 0); speed: take seconds per output second (> 0).
     source: the take file, named in errors.
 
@@ -120,7 +129,8 @@ class Playback:
     """
 
     def __init__(self, t_ns, ticks, ok, ids, *, fps: float = 30.0, speed: float = 1.0,
-                 source="take", interpolation=None, joint_rotations=None):
+                 source="take", interpolation=None, joint_rotations=None,
+                 ticks_per_turn=TICKS_PER_TURN):
         self.fps = check_rate(fps, "frames per second", source)
         self.speed = check_rate(speed, "speed", source, SPEED)
         t = np.asarray(t_ns, np.int64)
@@ -162,7 +172,9 @@ class Playback:
             count -= 1
         self._count = count
         k = self.ticks.shape[1]
-        self._step = np.empty(k, np.int64)  # scratch of sample()
+        self._turn = np.broadcast_to(np.asarray(ticks_per_turn, float), (k,)).copy()
+        self._half = self._turn / 2.0
+        self._step = np.empty(k, np.float64)  # scratch of sample()
         self._part = np.empty(k, np.float64)
         self._inbetweens = None
         if self.interpolation is not None and joint_rotations is not None:
@@ -176,7 +188,9 @@ class Playback:
     @classmethod
     def of_take(cls, reader, ids, *, fps: float = 30.0, speed: float = 1.0,
                 rig=None) -> "Playback":
-        """The frames of an open TakeReader for the rig servos ``ids`` (its bus order).
+        """The frames of an open TakeReader for the rig servos ``ids`` (its bus order), each
+        servo's ticks the short way round its model's turn (the take's models; 4096 where a
+        damaged take lost them).
 
         A shot plays its keys (the module docstring); rig (a ``puppet.rig.Rig``, calibrated as
         the take: its servo map and skeleton) makes its frames carry the joint rotations.
@@ -196,11 +210,12 @@ class Playback:
                        np.stack([k.ok[order] for k in keys.keys]), np.asarray(ids), fps=fps,
                        speed=speed, source=reader.path,
                        interpolation=[k.interpolation for k in keys.keys],
-                       joint_rotations=rotations)
+                       joint_rotations=rotations,
+                       ticks_per_turn=turns_of(reader.metadata.models, ids))
         if len(reader) == 0:
             raise TakeError(reader.path, "the take holds no readings")
         return cls(*reader.arrays(ids=ids), np.asarray(ids), fps=fps, speed=speed,
-                   source=reader.path)
+                   source=reader.path, ticks_per_turn=turns_of(reader.metadata.models, ids))
 
     def _frame_rotations(self, f: int) -> np.ndarray:
         """(b, 3, 3) joint rotations of frame f of a shot: interpolated ROTATION_BLOCK frames at
@@ -247,9 +262,9 @@ class Playback:
         a = float(play_ns - play[i]) / float(play[i + 1] - play[i])
         step, part = self._step, self._part
         np.subtract(self.ticks[i + 1], self.ticks[i], out=step)  # the short way round
-        step += HALF_TURN
-        np.remainder(step, TICKS_PER_TURN, out=step)
-        step -= HALF_TURN
+        step += self._half
+        np.remainder(step, self._turn, out=step)
+        step -= self._half
         np.multiply(step, a, out=part)
         part += 0.5
         np.floor(part, out=part)

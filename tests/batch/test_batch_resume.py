@@ -154,3 +154,22 @@ def test_keys_shape_the_gltf_as_in_export_and_a_change_redoes_it(tmp_path, critt
                        (["--keys", "0.5", "--formats", "bvh"], "--keys: reduces the glTF's keys")):
         refused = batch(*args, *bad)
         assert refused.returncode == 1 and f"Error: {words}" in refused.stderr
+
+
+def test_a_given_rig_s_calibration_file_is_part_of_the_rig(tmp_path, critter, tools):
+    take = tools.write_take(tmp_path / "t.mcap", critter)  # records no calibration of its own
+    rig_path = tmp_path / "rig" / "my.toml"
+    rig_path.parent.mkdir()
+    (rig_path.parent / "critter.npz").write_bytes((BUILTIN_RIG.parent / "critter.npz").read_bytes())
+    rig_path.write_text(BUILTIN_RIG.read_text().replace(
+        'fixed = ["hips"]', 'calibration = "my.cal.toml"\nfixed = ["hips"]'))
+    zero = "\n".join(f"{i} = {z}" for i, z in zip(critter.servo_map.ids, critter.servo_map.zero))
+    (rig_path.parent / "my.cal.toml").write_text(f"[zero_ticks]\n{zero}\n")
+    args = [take, "--out", tmp_path / "out", "--formats", "bvh", "--workers", 1, "--rig", rig_path]
+    assert batch(*args).returncode == 0
+    assert rows_of(batch(*args, "--resume"))[0][1] == "skipped"
+    shifted = "\n".join(f"{i} = {z + 40}" for i, z in zip(critter.servo_map.ids,
+                                                         critter.servo_map.zero))
+    (rig_path.parent / "my.cal.toml").write_text(f"[zero_ticks]\n{shifted}\n")
+    again = batch(*args, "--resume")
+    assert rows_of(again) == [("t.mcap", "done", f"the rig changed ({rig_path})")]

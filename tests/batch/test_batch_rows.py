@@ -18,8 +18,8 @@ from puppet.take import TakeWriter
 def write_gap_take(path, rig):
     """A short take with a 2 s pause between two readings: playback cuts it and warns."""
     k = len(rig.servo_map)
-    with TakeWriter(path, ids=[int(i) for i in rig.servo_map.ids], models=dict(rig.servo_map.models),
-                    rig_map_text="", calibration_text="", rig_name=rig.name) as writer:
+    with TakeWriter(path, ids=[int(i) for i in rig.servo_map.ids],
+                    models=dict(rig.servo_map.models), rig_map_text="", calibration_text="", rig_name=rig.name) as writer:
         for i, t in enumerate([0, 33_000_000, 2_033_000_000, 2_066_000_000]):
             ticks = (rig.servo_map.zero + 200 * np.sin(i + np.arange(k))).astype(np.int32)
             writer.write(Reading(t, rig.servo_map.ids, ticks, np.ones(k, bool)))

@@ -43,8 +43,8 @@ def test_release_on_a_port_with_nothing_on_it_says_so():
     assert result.returncode == 1
     assert "Traceback" not in result.stderr
     assert result.stderr.strip().splitlines()[-1] == (
-        f"Error: port {port}: no servo answered a broadcast ping at 1000000 bps: nothing to "
-        "release (check the power, the cable and the baud rate)")
+        f"Error: port {port}: no servo of a known model answered a ping at 1000000 bps "
+        "(Protocol 2.0 nor 1.0): nothing to release (check the power, the cable and the baud rate)")
 
 
 def test_release_of_a_rig_names_the_servo_that_did_not_answer(tmp_path):

@@ -372,3 +372,25 @@ def test_usd_of_a_missing_image_has_a_plain_material(tmp_path):
     assert not surface.GetInput("diffuseColor").HasConnectedSource()
     np.testing.assert_allclose(surface.GetInput("diffuseColor").Get(), [1.0, 0.9, 0.8])
     assert not (tmp_path / "anim_textures").exists()
+
+
+def test_unusable_attribute_is_left_out_with_a_warning(tmp_path):
+    path = dressed.build(tmp_path / "pillar.gltf")
+    doc = pygltflib.GLTF2().load(str(path))
+    sides = doc.meshes[0].primitives[0].attributes
+    sides.TEXCOORD_1 = sides.NORMAL  # three components: not a UV set
+    doc.meshes[0].primitives[0].attributes.COLOR_0 = len(doc.accessors) + 5  # no such accessor
+    doc.save_json(str(path))
+    (tmp_path / "pillar.toml").write_text(RIG.format(mesh="pillar.gltf"))
+    rig = load_rig(tmp_path / "pillar.toml")  # the rig needs neither: it loads
+    texcoord, colour = sorted(rig.source.warnings, key=lambda w: "TEXCOORD_1" not in w)
+    n = len(dressed.primitives()[0]["V"])
+    assert f"primitives[0].TEXCOORD_1: {n} values of 3 for {n} vertices" in texcoord
+    assert "COLOR_0" in colour and "does not exist" in colour and str(path) in colour
+    assert set(rig.source.attributes) == {"NORMAL", "TEXCOORD_0"}
+    take = shared.write_take(tmp_path / "take.mcap", rig, readings=6)
+    report = export_take(rig, TakeReader(take), Outputs(gltf=tmp_path / "anim.glb"), fps=10)
+    assert report.warnings == rig.source.warnings
+    gltf = pygltflib.GLTF2().load_binary(str(tmp_path / "anim.glb"))
+    written = gltf.meshes[0].primitives[0].attributes
+    assert written.TEXCOORD_1 is None and written.COLOR_0 is None and written.TEXCOORD_0 is not None

@@ -77,6 +77,23 @@ def test_interpolation_takes_the_short_way_round_a_wrap():
     assert frames.reading(1).ticks.tolist() == [4090 + 5, 10 - 8]  # +10, -16 halved; never half a turn
 
 
+def test_the_short_way_round_is_each_models_turn(tmp_path):
+    # An AX-12A turns 1228.8 ticks per turn (1024 over 300°): 1000 -> 100 is its short way up
+    # through the dead zone (+328.8), where an X-series servo's is 900 ticks down.
+    from puppet.take import TakeWriter
+
+    path = tmp_path / "turns.mcap"
+    with TakeWriter(path, ids=[1, 2], models={1: "AX-12A", 2: "XL430-W250"}, rig_map_text="",
+                    calibration_text="", rig_name="r") as writer:
+        for t_ns, ticks in ((0, [1000, 1000]), (10_000_000, [100, 100])):
+            writer.write(Reading(t_ns, IDS, np.array(ticks, np.int32), np.ones(2, bool)))
+    frames = Playback.of_take(TakeReader(path), IDS, fps=200)  # 0, 5, 10 ms
+    assert frames.reading(1).ticks.tolist() == [1000 + 164, 1000 - 450]
+    explicit = Playback(np.array([0, 10_000_000]), np.array([[1000, 1000], [100, 100]]),
+                        np.ones((2, 2), bool), IDS, fps=200, ticks_per_turn=[1228.8, 4096])
+    assert explicit.reading(1).ticks.tolist() == [1164, 550]
+
+
 def test_a_failed_servo_flags_the_frames_it_touches():
     t = np.array([0, 10_000_000, 20_000_000], np.int64)
     ok = np.array([[True, True], [True, False], [True, True]])

@@ -1,0 +1,51 @@
+"""``puppet scan`` through the real SDK on hw_sim: both protocols, one baud or several, and
+what it prints (baud, protocol, id, model, firmware)."""
+
+from __future__ import annotations
+
+from click.testing import CliRunner
+
+import hw_sim
+from puppet.bus.scan import SCAN_BAUDS, Found, scan
+from puppet.cli import main
+
+
+def test_scan_prints_protocol_model_and_firmware_of_every_servo():
+    with hw_sim.serve({1: "XL330-M288", 5: "XL430-W250"}) as bus:
+        result = CliRunner().invoke(main, ["scan", "--port", bus.port])
+        firmware = {i: bus.servo(i).get("Firmware Version") for i in (1, 5)}
+    assert result.exit_code == 0, result.output
+    rows = [line.split() for line in result.stdout.splitlines()]
+    assert rows[0] == ["baud", "protocol", "id", "model", "number", "firmware"]
+    assert rows[1:] == [["1000000", "2.0", "1", "XL330-M288", "1200", str(firmware[1])],
+                        ["1000000", "2.0", "5", "XL430-W250", "1060", str(firmware[5])]]
+
+
+def test_scan_finds_servos_only_at_their_own_baud_rate():
+    with hw_sim.serve({3: "XL430-W250", 7: "XM430-W350"}, baud=57600, strict_baud=True) as bus:
+        found = scan(bus.port, (1_000_000, 57600, 4_000_000))
+        firmware = {i: bus.servo(i).get("Firmware Version") for i in (3, 7)}
+    assert found == [Found(57600, 2.0, 3, 1060, firmware[3]), Found(57600, 2.0, 7, 1020, firmware[7])]
+    assert [f.model for f in found] == ["XL430-W250", "XM430-W350"]
+
+
+def test_scan_baud_all_tries_every_standard_rate_the_sdk_opens():
+    assert SCAN_BAUDS[0] == 9600 and SCAN_BAUDS[-1] == 4_000_000
+    assert {57600, 1_000_000, 2_000_000, 3_000_000} <= set(SCAN_BAUDS)
+    assert 4_500_000 not in SCAN_BAUDS  # an X430 rate the SDK's PortHandler refuses
+
+
+def test_scan_of_a_silent_bus_says_what_to_check():
+    with hw_sim.serve({1: "XL330-M288"}) as bus:
+        bus.inject("power_off", ids=[1])
+        port = bus.port
+        result = CliRunner().invoke(main, ["scan", "--port", port, "--baud", "57600"])
+    assert result.exit_code == 1
+    assert (f"Error: port {port}: no servo answered a ping at 57600 bps (Protocol 1.0 nor "
+            "2.0)") in result.output
+
+
+def test_scan_refuses_a_bad_baud_naming_the_option():
+    result = CliRunner().invoke(main, ["scan", "--port", "/dev/null", "--baud", "fast"])
+    assert result.exit_code == 2
+    assert "--baud" in result.output and "'fast'" in result.output
