@@ -154,3 +154,33 @@ def test_keys_captured_with_enter_edited_and_retimed(tmp_path, wait_until, inter
     exported = run("export", retimed, "--fps", "24", "--bvh", bvh)
     assert exported.returncode == 0, exported.stderr
     assert "Frames: 52" in bvh.read_text()
+
+
+def test_ctrl_c_ends_a_capture_with_every_key_kept(tmp_path, wait_until, interrupt_and_wait):
+    rig = builtin()
+    shot = tmp_path / "shot.mcap"
+    with hw_sim.serve(rig.servo_map.models) as bus:
+        bus.set_positions(pose(rig, {4: 30}))
+        proc = subprocess.Popen([str(PUPPET), "keys", "--rig", str(BUILTIN_RIG), "--port",
+                                 bus.port, "--out", str(shot), "--step", "8"],
+                                stdin=subprocess.PIPE, stdout=subprocess.PIPE,
+                                stderr=subprocess.PIPE, text=True, bufsize=1)
+        out, err = Lines(proc.stdout, wait_until), Lines(proc.stderr, wait_until)
+        try:
+            out.wait("press Enter")
+
+            def one_key():
+                proc.stdin.write("\n")
+                proc.stdin.flush()
+                start = len(err.lines)
+                wait_until(lambda: any("key 0:" in x for x in out.lines)
+                           or any("refused" in x for x in err.lines[start:]), what="an answer")
+                return any("key 0:" in x for x in out.lines)
+            wait_until(one_key, what=f"key 0 taken; err {err.lines}")
+        finally:
+            code = interrupt_and_wait(proc, read_stderr=False)
+    assert code == 0, err.lines
+    assert "keys: 1, 1 frames at 24 fps" in "\n".join(out.lines)
+    keys = TakeReader(shot).keys()
+    assert [k.frame for k in keys.keys] == [1]
+    assert keys.keys[0].ticks.tolist() == [pose(rig, {4: 30})[int(i)] for i in rig.servo_map.ids]

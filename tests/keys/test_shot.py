@@ -217,3 +217,19 @@ def test_a_key_is_the_median_of_the_good_readings_in_the_hold_window():
     with pytest.raises(KeyRefused) as err:
         held_pose(readings[:1], press, ids)
     assert "no reading in the hold window" in str(err.value)
+
+
+def test_the_view_shows_a_shot_with_its_rotations(tmp_path, critter):
+    """play --view's source (TakeSource over the shot's Playback) hands on the joint rotations
+    of the position shown: paused at a seek, the in-between's rotations."""
+    from puppet.view import TakeSource
+
+    keys = critter_keys(critter, step=12, fps=24)
+    shot = tmp_path / "shot.mcap"
+    write_shot(shot, header_of(critter), keys)
+    frames = Playback.of_take(TakeReader(shot), critter.servo_map.ids, fps=24, rig=critter)
+    source = TakeSource(frames)
+    source.pause()
+    source.seek(18 / 24)
+    shown = source.latest(timeout=5.0)
+    np.testing.assert_allclose(shown.rotations, frames.reading(18).rotations, atol=1e-9)
