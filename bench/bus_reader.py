@@ -7,6 +7,10 @@ a bare SDK ``GroupSyncRead`` loop (``fastSyncRead`` or ``txRxPacket``, the reade
 no fault handling, no unwrap, no thread); ``ratio`` = reader / baseline.
 Target: reads_per_s >= 300 at 1 Mbps.
 
+Protocol 1.0 cases: 15 AX-12A (one Read per servo) and 15 MX-28 (one Bulk Read) at 1 Mbps; the
+SDK has no group read for them to compare with, so their baseline is the wire ceiling, the
+bytes of one reading on the line (``wire_ceiling``), and ``ratio`` = reader / ceiling.
+
     python bench/bus_reader.py [--seconds 3] [--json FILE]
 
 ``bench/bus.py`` imports ``reader_cases()`` and appends its cases.
@@ -49,13 +53,26 @@ def _baseline(port_name: str, baud: int, seconds: float, fast: bool) -> float:
     return rate
 
 
-def measure(baud: int, seconds: float = 3.0, read_mode: str = "auto") -> dict:
-    """One case: the reader thread on a 14-servo simulated bus with its timing model on."""
+def wire_ceiling(model: str, n: int, baud: int) -> float:
+    """Readings per second the line allows for ``n`` servos of a Protocol 1.0 ``model`` (bits at
+    ``baud``, 10 per byte; no return delay): AX / RX one Read each (8-byte instruction, 8-byte
+    status: 2 bytes of Present Position), MX one Bulk Read (7 + 3n bytes) and n 8-byte statuses."""
+    from puppet.servo_models import MODELS
+
+    wire = 7 + 3 * n + 8 * n if MODELS[model].bulk_read else 16 * n
+    return baud / 10.0 / wire
+
+
+def measure(baud: int, seconds: float = 3.0, read_mode: str = "auto", model: str = MODEL,
+            count: int = SERVOS) -> dict:
+    """One case: the reader thread on a simulated bus of ``count`` ``model`` servos with its
+    timing model on."""
     import hw_sim
 
     from puppet.bus import ReaderThread, ServoReader
+    from puppet.servo_models import MODELS
 
-    servos = {i: MODEL for i in range(1, SERVOS + 1)}
+    servos = {i: model for i in range(1, count + 1)}
     with hw_sim.serve(servos=servos, motion="wave", timing=True, baud=baud) as bus:
         reader = ServoReader(bus.port, servos, baud=baud, read_mode=read_mode)
         reader.open()
@@ -68,15 +85,22 @@ def measure(baud: int, seconds: float = 3.0, read_mode: str = "auto") -> dict:
             readings = thread.drain()
             t1 = time.monotonic_ns()
         reader.close()
-        base_sync = _baseline(bus.port, baud, min(1.0, seconds), fast=False)
-        base_fast = _baseline(bus.port, baud, min(1.0, seconds), fast=True)
-    baseline = base_fast if reader.read_mode == "fast_sync_read" else base_sync
+        p1 = MODELS[model].protocol == 1.0
+        base_sync = None if p1 else _baseline(bus.port, baud, min(1.0, seconds), fast=False)
+        base_fast = None if p1 else _baseline(bus.port, baud, min(1.0, seconds), fast=True)
+    if p1:
+        baseline = wire_ceiling(model, count, baud)
+        what = f"wire ceiling ({reader.read_mode}, {count} {model}, no return delay)"
+    else:
+        baseline = base_fast if reader.read_mode == "fast_sync_read" else base_sync
+        what = f"bare SDK GroupSyncRead loop ({reader.read_mode}), same bus and settings"
     stamps = np.array([r.t_ns for r in readings], dtype=np.int64)
     gaps_ms = np.diff(stamps) / 1e6
     ok = float(np.mean([r.ok.all() for r in readings])) if readings else 0.0
     rate = len(readings) / ((t1 - t0) / 1e9)
     return {
-        "servos": SERVOS,
+        "servos": count,
+        "model": model,
         "read": "reader",
         "read_mode": reader.read_mode,
         "timing": True,
@@ -85,29 +109,31 @@ def measure(baud: int, seconds: float = 3.0, read_mode: str = "auto") -> dict:
         "p99_ms": float(np.percentile(gaps_ms, 99)) if gaps_ms.size else float("nan"),
         "reads_per_s": rate,
         "all_ok_fraction": ok,
-        "baseline": f"bare SDK GroupSyncRead loop ({reader.read_mode}), same bus and settings",
+        "baseline": what,
         "baseline_reads_per_s": baseline,
         "sdk_sync_read_per_s": base_sync,
         "sdk_fast_sync_read_per_s": base_fast,
         "ratio": rate / baseline if baseline else float("nan"),
-        "target_reads_per_s": TARGET_READS_PER_S if baud == 1_000_000 else None,
+        "target_reads_per_s": TARGET_READS_PER_S if baud == 1_000_000 and not p1 else None,
     }
 
 
 def reader_cases(seconds: float = 3.0) -> list[dict]:
-    """The reader-thread cases for bench/bus.py: 14 servos, timing on, 1 Mbps and 4 Mbps."""
-    return [measure(baud, seconds) for baud in (1_000_000, 4_000_000)]
+    """The reader-thread cases for bench/bus.py: 14 servos, timing on, 1 Mbps and 4 Mbps; then
+    Protocol 1.0: 15 AX-12A and 15 MX-28 at 1 Mbps."""
+    return ([measure(baud, seconds) for baud in (1_000_000, 4_000_000)]
+            + [measure(1_000_000, seconds, model=m, count=15) for m in ("AX-12A", "MX-28")])
 
 
 def print_table(cases: list[dict]) -> None:
-    head = f"{'servos':>6} {'baud':>9} {'mode':>15} {'reads/s':>9} {'median ms':>10} {'p99 ms':>8} " \
-           f"{'all ok':>7} {'sdk bare/s':>10} {'ratio':>6} {'target':>7}"
+    head = f"{'servos':>6} {'model':>10} {'baud':>9} {'mode':>16} {'reads/s':>9} {'median ms':>10} {'p99 ms':>8} " \
+           f"{'all ok':>7} {'base/s':>10} {'ratio':>6} {'target':>7}"
     print(head)
     print("-" * len(head))
     for c in cases:
         target = c["target_reads_per_s"]
         verdict = "" if target is None else ("met" if c["reads_per_s"] >= target else "MISSED")
-        print(f"{c['servos']:>6} {c['baud']:>9} {c['read_mode']:>15} {c['reads_per_s']:>9.0f} "
+        print(f"{c['servos']:>6} {c['model']:>10} {c['baud']:>9} {c['read_mode']:>16} {c['reads_per_s']:>9.0f} "
               f"{c['median_ms']:>10.3f} {c['p99_ms']:>8.3f} {c['all_ok_fraction']:>7.3f} "
               f"{c['baseline_reads_per_s']:>10.0f} {c['ratio']:>6.2f} {verdict:>7}")
 

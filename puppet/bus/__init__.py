@@ -1,5 +1,7 @@
-"""Servo IO through dynamixel_sdk: scan, configure, group reads, recovery. Imports nothing of
-puppet.drive: servos that move plug into the reader process's cycle hook.
+"""Servo IO through dynamixel_sdk: scan, configure, group reads, recovery, on a bus of Protocol
+2.0 (X-series, MX(2.0), XL-320) or Protocol 1.0 (AX, RX, MX): one protocol per bus, each
+servo's items from its model (``puppet.servo_models``). Imports nothing of puppet.drive:
+servos that move plug into the reader process's cycle hook.
 
 Public API:
     ServoReader(port | PortHandler, {id: model}, baud=..., latency_ms=None, read_mode="auto",
@@ -12,8 +14,11 @@ Public API:
     ReaderThread(reader, rate_hz, queue_len): .start() .latest() .drain() .call(fn) .stop()
     ReaderProcess(port, {id: model}, rate_hz, hook=CycleHook) (puppet.bus.reader_process): the
         reader in a child process; a hook (puppet.drive plugs in) writes goals each cycle
-    BusLink(port, baud, latency_ms): the SDK with its crash paths absorbed (ping, read, write,
-        sync_read, fast_sync_read, sync_write, reboot, broadcast_ping, rebuild)
+    BusLink(port, baud, latency_ms, protocol=2.0): the SDK with its crash paths absorbed (ping,
+        read, write, group_read, sync_read, fast_sync_read, bulk_read (1.0), sync_write,
+        reboot (2.0), broadcast_ping, ping_each, rebuild)
+    scan(port, bauds, protocols) (puppet.bus.scan): every servo answering at each baud and
+        protocol -> [Found(baud, protocol, id, number, firmware)]
     Reading(t_ns, ids, ticks int32, ok bool)
     errors: BusError > PortError > PortInUse (port_lock: one program per port),
             ServoError > ServoTimeout, ServoCorrupt, ServoStatusError, ServoModelMismatch,

@@ -42,6 +42,7 @@ class SetupReport:
     hardware_errors: {id: Hardware Error Status bits} for servos with a latched error.
     read_mode:  'fast_sync_read' or 'sync_read' (Protocol 2.0); 'bulk_read', 'read' or
                 'bulk_read + read' (Protocol 1.0: see ``p1_read_mode``).
+    notes:      lines for the user about the port (its USB latency timer lowered, or how to).
     """
 
     found: dict[int, ServoInfo] = field(default_factory=dict)
@@ -50,6 +51,7 @@ class SetupReport:
     changes: list[Change] = field(default_factory=list)
     hardware_errors: dict[int, int] = field(default_factory=dict)
     read_mode: str = "sync_read"
+    notes: list[str] = field(default_factory=list)
 
 
 def identify(link: BusLink, servos: Mapping[int, str], report: SetupReport, attempts: int = 3) -> None:

@@ -49,15 +49,43 @@ DEFAULT_LATENCY_MS = 1
 latency_timer set to 1 (udev rule) for this to hold; hw_sim's pty answers at once."""
 
 
-def adapter_latency_ms(port_name: str) -> int | None:
+USB_SERIAL_SYSFS = "/sys/bus/usb-serial/devices"
+"""Where Linux keeps each USB serial adapter's settings (``ttyUSBn/latency_timer``)."""
+UDEV_RULE = 'ACTION=="add", SUBSYSTEM=="usb-serial", DRIVER=="ftdi_sio", ATTR{latency_timer}="1"'
+
+
+def _latency_file(port_name: str, root: str) -> str:
+    return os.path.join(root, os.path.basename(os.path.realpath(port_name)), "latency_timer")
+
+
+def adapter_latency_ms(port_name: str, root: str = USB_SERIAL_SYSFS) -> int | None:
     """The FTDI latency timer (ms) of a USB serial adapter (U2D2, USB2DYNAMIXEL), read from
     ``/sys/bus/usb-serial/devices/ttyUSBn/latency_timer``; None for other ports (pty, ACM)."""
     try:
-        device = os.path.basename(os.path.realpath(port_name))
-        with open(f"/sys/bus/usb-serial/devices/{device}/latency_timer") as f:
+        with open(_latency_file(port_name, root)) as f:
             return int(f.read().strip())
     except (OSError, ValueError):
         return None
+
+
+def lower_latency_timer(port_name: str, root: str = USB_SERIAL_SYSFS) -> str | None:
+    """Set the FTDI latency timer of ``port_name``'s adapter to 1 ms when it is above (the
+    Linux default is 16 ms: every reply waits for it, a silent servo costs ~34 ms) -> a line
+    saying what was done: the change, or, where the file is not writable (no root), the udev
+    rule that sets it; None for a port without the timer or already at 1 ms."""
+    before = adapter_latency_ms(port_name, root)
+    if before is None or before <= 1:
+        return None
+    try:
+        with open(_latency_file(port_name, root), "w") as f:
+            f.write("1")
+    except OSError as err:
+        return (f"port {port_name}: USB latency timer {before} ms (not writable: {err.strerror}); "
+                f"each reply waits up to {before} ms and a silent servo costs about "
+                f"{2 * before + 2} ms. Set it to 1 ms: `echo 1 | sudo tee "
+                f"{_latency_file(port_name, root)}`, or for good a udev rule: {UDEV_RULE}")
+    after = adapter_latency_ms(port_name, root)
+    return f"port {port_name}: USB latency timer {before} -> {after} ms"
 
 
 def set_latency_assumption(ms: int) -> None:
@@ -254,8 +282,9 @@ class BusLink:
            ``dynamixel_sdk.PortHandler``.
     baud:  bits per second (an SDK-supported rate, e.g. 1_000_000 or 4_000_000).
     latency_ms: the SDK's latency assumption (see ``set_latency_assumption``), ms; None: the
-           adapter's own FTDI latency timer when the port has one (a U2D2 left at the
-           driver's 16 ms needs 16 here, or a udev rule setting it to 1), else 1.
+           adapter's own FTDI latency timer when the port has one, first set to 1 ms where
+           it is above and writable (``lower_latency_timer``; ``latency_note`` says what was
+           done), else 1: the SDK's timeouts then follow the real timer, not its 16 ms.
     poll_block_s: how long one non-blocking SDK serial read may wait in select() for bytes,
            seconds. The SDK busy-polls a ``timeout=0`` serial port; a short blocking read
            releases the GIL instead of spinning. 0 keeps the SDK's spinning.
@@ -282,7 +311,10 @@ class BusLink:
         else:
             self.port = dynamixel_sdk.PortHandler(str(port))
             self.port_name = str(port)
+        self.latency_note: str | None = None
+        """What was done about the adapter's latency timer (``lower_latency_timer``), or None."""
         if latency_ms is None:
+            self.latency_note = lower_latency_timer(self.port_name)
             latency_ms = adapter_latency_ms(self.port_name) or DEFAULT_LATENCY_MS
         self.latency_ms = int(latency_ms)
         set_latency_assumption(self.latency_ms)
@@ -763,5 +795,5 @@ class BusLink:
             raise self._fail(code, ids, "sync_write")
 
 
-__all__ = ["BusLink", "GroupRead", "Wire", "PROTOCOLS", "P1_HARDWARE_BITS", "set_latency_assumption", "adapter_latency_ms", "DEFAULT_LATENCY_MS",
+__all__ = ["BusLink", "GroupRead", "Wire", "PROTOCOLS", "P1_HARDWARE_BITS", "lower_latency_timer", "set_latency_assumption", "adapter_latency_ms", "DEFAULT_LATENCY_MS",
            "PORT_ERRORS", "LATE", "SILENT", "STALLED"]

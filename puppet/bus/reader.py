@@ -176,6 +176,7 @@ class ServoReader:
         self.report: SetupReport | None = None
 
         self._group: list[int] = list(self.servos)     # ids in the group read, map order
+        self._plan: tuple | None = None  # (group, {id: Present Position item}, bulk ids)
         self._next_probe_ns: dict[int, int] = {}
         self._tick_seen: dict[int, tuple[int, int]] = {}  # id -> (realtime tick ms, host ns)
         self._next_health_ns = 0
@@ -196,6 +197,8 @@ class ServoReader:
         self.link.open()
         self._port_up = True
         report = SetupReport()
+        if self.link.latency_note:
+            report.notes.append(self.link.latency_note)
         if broadcast_ping:
             found = self.link.broadcast_ping()
             report.unexpected = {i: m for i, (m, _) in found.items() if i not in self.servos}
@@ -333,10 +336,12 @@ class ServoReader:
         return self.link.hardware_bits.get(dxl_id, 0)
 
     def _group_read(self, ids: list[int]) -> GroupRead:
-        """Present Position of ``ids`` by the fastest transactions their models have (see the
-        module docstring; ``BusLink.group_read``)."""
-        items = {i: self.items[i].present_position for i in ids}
-        bulk = [i for i in ids if self.models[i].bulk_read]
+        """Present Position of ``ids`` (the group) by the fastest transactions their models have
+        (see the module docstring; ``BusLink.group_read``). Its plan is made once per group."""
+        if self._plan is None or self._plan[0] != ids:
+            self._plan = (list(ids), {i: self.items[i].present_position for i in ids},
+                          [i for i in ids if self.models[i].bulk_read])
+        _, items, bulk = self._plan
         fast = self.read_mode == "fast_sync_read"
         result = self.link.group_read(items, fast=fast, bulk=bulk)
         if fast and self._fast_unsupported(result):

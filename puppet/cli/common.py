@@ -67,6 +67,8 @@ def start_reader(rig, port: str, baud: int, rate_hz: float = 500.0, hook=None):
 
 def print_setup(report, port: str) -> None:
     """Report what the bus setup found and changed (on stderr)."""
+    for note in report.notes:
+        click.echo(note, err=True)
     if report.missing:
         click.echo(f"warning: servos {report.missing} did not answer on {port}; they are flagged "
                    "and probed until they appear", err=True)

@@ -99,7 +99,8 @@ class SourceScene:
     roots:        the nodes of the file's default scene (all parentless nodes when it has none).
     mesh_nodes:   node indices of the skinned mesh nodes read, in the rig's order; mesh_names
                   their meshes' names; primitives[k]: the primitives of mesh_nodes[k].
-    attributes:   {name: (n_file, width) float32} per file vertex (zeros where a primitive lacks it).
+    attributes:   {name: (n_file, width) float32} per file vertex (where a primitive lacks it:
+                  white for COLOR_n, zeros for the others).
     materials:    glTF material dicts (as in the file); textures, samplers: dicts; images:
                   SourceImage (the texture dicts' "source" index it; None: left out).
     skeleton_node: the skin's ``skeleton`` node or None.
@@ -283,9 +284,9 @@ def read_source_scene(gltf, acc, path: Path, *, locals_: np.ndarray, worlds: np.
     attributes = {}
     for name, parts in columns.items():
         width = max(v.shape[1] for _, v in parts)
-        array = np.zeros((total, width), np.float32)
-        if name.startswith("COLOR_") and width == 4:
-            array[:, 3] = 1.0
+        # A primitive without a colour set is white (glTF multiplies by the colour; Blender's
+        # importer fills white too); other attributes are zero there.
+        array = np.full((total, width), 1.0 if name.startswith("COLOR_") else 0.0, np.float32)
         for at, values in parts:
             array[at:at + len(values), :values.shape[1]] = values
         attributes[name] = array

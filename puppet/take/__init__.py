@@ -4,8 +4,9 @@ TakeWriter records Readings (with the rig map and calibration, every record chec
 that a killed process loses nothing written; TakeReader reads them back, recovering every intact
 reading of a truncated or damaged take and saying what it skipped (RecoveryReport);
 Playback is the one rule that turns a take into timed frames (interpolated ticks, long gaps cut),
-shared by play, export, batch, the view and perform. The on-disk layout is
-described in puppet.take.format. Nothing here imports the bus or the native solver.
+shared by play, export, batch, the view and perform; a shot (a take with key poses,
+puppet.take.keys) plays its keys, each frame carrying its joints' rotations interpolated in
+rotation space (puppet.take.inbetween). The on-disk layout is described in puppet.take.format. Nothing here imports the bus or the native solver.
 """
 
 from puppet.take.background import BackgroundTakeWriter

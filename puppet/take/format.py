@@ -11,6 +11,8 @@ file as soon as it is written (crash safety):
   Schema   "puppet_msgs/msg/ServoReading" (encoding ros2msg, text below)
   Channel  "/puppet/servo_readings" (message encoding cdr; metadata: ids)
   Message* one per Reading, log_time = publish_time = t_ns
+  Channel/Message "/puppet/markers"  optional: named time marks (puppet.take.markers)
+  Channel/Message "/puppet/keys"     optional: a shot's key poses (puppet.take.keys)
   DataEnd, summary, Footer    only when the writer was closed cleanly
 
 Message payload: XCDR1 little endian of the ros2msg schema, which for this schema is a fixed

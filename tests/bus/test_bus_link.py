@@ -103,3 +103,17 @@ def test_old_firmware_falls_back_to_sync_read(sim, read_until):
     assert reader.open().read_mode == "sync_read"
     read_until(reader, lambda r: r.ok.all(), what="a full reading")
     reader.close()
+
+
+def test_an_adapter_latency_timer_above_1_ms_is_set_to_1(tmp_path):
+    from puppet.bus.link import adapter_latency_ms, lower_latency_timer
+
+    (tmp_path / "ttyUSB7").mkdir()
+    timer = tmp_path / "ttyUSB7" / "latency_timer"
+    timer.write_text("16\n")
+    assert adapter_latency_ms("/dev/ttyUSB7", root=str(tmp_path)) == 16
+    assert lower_latency_timer("/dev/ttyUSB7", root=str(tmp_path)) == (
+        "port /dev/ttyUSB7: USB latency timer 16 -> 1 ms")
+    assert timer.read_text() == "1"
+    assert lower_latency_timer("/dev/ttyUSB7", root=str(tmp_path)) is None   # already 1 ms
+    assert lower_latency_timer("/dev/pts/3", root=str(tmp_path)) is None     # no timer: a pty

@@ -49,3 +49,21 @@ def test_scan_refuses_a_bad_baud_naming_the_option():
     result = CliRunner().invoke(main, ["scan", "--port", "/dev/null", "--baud", "fast"])
     assert result.exit_code == 2
     assert "--baud" in result.output and "'fast'" in result.output
+
+
+def test_scan_finds_protocol_1_servos_and_names_their_protocol():
+    with hw_sim.serve({2: "AX-12A", 9: "MX-28"}) as bus:
+        result = CliRunner().invoke(main, ["scan", "--port", bus.port])
+        firmware = {i: bus.servo(i).get("Firmware Version") for i in (2, 9)}
+    assert result.exit_code == 0, result.output
+    rows = [line.split() for line in result.stdout.splitlines()[1:]]
+    assert rows == [["1000000", "1.0", "2", "AX-12A", "12", str(firmware[2])],
+                    ["1000000", "1.0", "9", "MX-28", "29", str(firmware[9])]]
+
+
+def test_scan_across_bauds_finds_protocol_1_servos_at_their_rate_only():
+    with hw_sim.serve({4: "AX-18A"}, baud=57600, strict_baud=True) as bus:
+        found = scan(bus.port, (1_000_000, 57600), protocols=(2.0, 1.0))
+        firmware = bus.servo(4).get("Firmware Version")
+    assert found == [Found(57600, 1.0, 4, 18, firmware)]
+    assert found[0].model == "AX-18A"

@@ -321,8 +321,11 @@ def test_usd_carries_the_files_place_uvs_colours_and_textured_material(pillar, s
         assert primvars.GetPrimvar(name).GetInterpolation() == "vertex"
         np.testing.assert_allclose(st[:len(uv)], np.column_stack([uv[:, 0], 1 - uv[:, 1]]), atol=1e-7)
     colours = prims[0]["colours"]
-    np.testing.assert_allclose(np.array(mesh.GetDisplayColorPrimvar().Get())[:sides], colours[:, :3])
-    np.testing.assert_allclose(np.array(mesh.GetDisplayOpacityPrimvar().Get())[:sides], colours[:, 3])
+    shown = np.array(mesh.GetDisplayColorPrimvar().Get())
+    np.testing.assert_allclose(shown[:sides], colours[:, :3])
+    np.testing.assert_array_equal(shown[sides:], 1.0)  # the caps have no colours: white
+    np.testing.assert_allclose(np.array(mesh.GetDisplayOpacityPrimvar().Get()),
+                               np.concatenate([colours[:, 3], np.ones(len(shown) - sides)]))
     # Each primitive's material on its triangles (GeomSubsets).
     subsets = UsdShade.MaterialBindingAPI(mesh.GetPrim()).GetMaterialBindSubsets()
     bound = {UsdShade.MaterialBindingAPI(s.GetPrim()).ComputeBoundMaterial()[0].GetPath().name:

@@ -190,3 +190,46 @@ def test_long_shots_are_interpolated_in_bounded_blocks(tmp_path, critter):
                        [k.interpolation for k in keys.keys]).at(frames.frame_times_ns())
     for f in (300, 0, 255, 256, 150, 299):
         np.testing.assert_allclose(frames.reading(f).rotations, whole[f], atol=1e-12)
+
+
+def test_a_key_is_the_median_of_the_good_readings_in_the_hold_window():
+    from puppet.keys.capture import HOLD_NS, KeyRefused, held_pose
+    from puppet.reading import Reading
+
+    ids = np.array([1, 2, 3])
+    press = 10_000_000_000
+
+    def reading(dt_ns, ticks, ok=(True, True, True)):
+        return Reading(press + dt_ns, ids, np.array(ticks, np.int32), np.array(ok))
+
+    readings = [reading(-50_000_000, [0, 0, 0]),                    # before the press: not used
+                reading(0, [100, 200, 300]), reading(50_000_000, [102, 199, 301]),
+                reading(100_000_000, [101, 5000, 299], (True, False, True)),  # one late reply
+                reading(150_000_000, [999, 201, 300]),               # a jolt: the median drops it
+                reading(HOLD_NS, [101, 200, 300]),
+                reading(HOLD_NS + 1, [7, 7, 7])]                     # after the window
+    ticks, ok, used = held_pose(readings, press, ids)
+    assert ticks.tolist() == [101, 200, 300] and ok.all() and used == 5
+    silent = [reading(t, [1, 2, 3], (True, True, False)) for t in (0, 60_000_000, 120_000_000)]
+    with pytest.raises(KeyRefused) as err:
+        held_pose(silent, press, ids)
+    assert "servo(s) [3] flagged" in str(err.value)
+    with pytest.raises(KeyRefused) as err:
+        held_pose(readings[:1], press, ids)
+    assert "no reading in the hold window" in str(err.value)
+
+
+def test_the_view_shows_a_shot_with_its_rotations(tmp_path, critter):
+    """play --view's source (TakeSource over the shot's Playback) hands on the joint rotations
+    of the position shown: paused at a seek, the in-between's rotations."""
+    from puppet.view import TakeSource
+
+    keys = critter_keys(critter, step=12, fps=24)
+    shot = tmp_path / "shot.mcap"
+    write_shot(shot, header_of(critter), keys)
+    frames = Playback.of_take(TakeReader(shot), critter.servo_map.ids, fps=24, rig=critter)
+    source = TakeSource(frames)
+    source.pause()
+    source.seek(18 / 24)
+    shown = source.latest(timeout=5.0)
+    np.testing.assert_allclose(shown.rotations, frames.reading(18).rotations, atol=1e-9)
