@@ -181,3 +181,14 @@ def test_sigkill_without_a_watchdog_leaves_torque_on_until_release(p1_rig, p1_ta
         assert result.returncode == 0, result.stderr
         assert result.stdout.splitlines()[0] == "servo 1: Torque Enable 0, no Bus Watchdog (read back)"
         assert set(_torque(bus, p1_rig).values()) == {0}
+
+
+def test_an_ax_in_wheel_mode_is_given_its_range_before_torque(p1_rig, p1_take):
+    with hw_sim.serve(dict(p1_rig.servo_map.models)) as bus:
+        bus.servo(2).set("CW Angle Limit", 0)
+        bus.servo(2).set("CCW Angle Limit", 0)     # both 0: wheel mode, no position control
+        report = _perform(p1_rig, p1_take, bus.port)
+        assert "servo 2: CCW Angle Limit 0 -> 1023" in report.changes
+        assert bus.servo(2).get("CCW Angle Limit") == 1023
+        assert report.stop_reason == "end of take"
+        assert set(_torque(bus, p1_rig).values()) == {0}
