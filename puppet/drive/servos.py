@@ -137,12 +137,9 @@ class DriveBus:
         self._patient(lambda: self.link.write(dxl_id, item, value), dxl_id)
 
     def hardware_error(self, dxl_id: int) -> int:
-        """Hardware Error Status bits of one servo (Protocol 1.0: those its status to a fresh
-        read of Present Position carried)."""
-        if self.items[dxl_id].hardware_error_status is not None:
-            return self.read(dxl_id, "hardware_error_status")
-        self.read(dxl_id, "present_position")
-        return self.link.hardware_bits.get(dxl_id, 0)
+        """Hardware Error Status bits of one servo (``BusLink.hardware_error``), tried like
+        ``read``."""
+        return self._patient(lambda: self.link.hardware_error(dxl_id, self.items[dxl_id]), dxl_id)
 
     def _patient(self, call, dxl_id: int | None = None, attempts: int = ATTEMPTS):
         """call() until it succeeds: tried ``attempts`` times on a corrupt reply or a timeout
