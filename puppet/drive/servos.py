@@ -13,7 +13,7 @@ Sync Read on 2.0; Bulk Read on MX and one Read per AX / RX on 1.0). Protocol 1.0
 Operating Mode: joint (position) mode is CW / CCW Angle Limit not both 0, and a servo in wheel
 mode is given its whole range (CCW Angle Limit := its top position); the XL-320's Control
 Mode 2 is joint mode. A Protocol 1.0 servo reports a hardware condition in every status
-instead of Hardware Error Status (``BusLink.hardware_bits``).
+instead of Hardware Error Status (``BusLink.hardware_error``).
 """
 
 from __future__ import annotations
