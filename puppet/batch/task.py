@@ -59,6 +59,31 @@ class Shared:
     settings: Settings
 
 
+TIMEOUT_BASE_S = 120.0
+TIMEOUT_PER_SECOND = 60.0
+"""The default --take-timeout: TIMEOUT_BASE_S + TIMEOUT_PER_SECOND x the take's length in
+seconds (a 10 s take: 12 min). A video costs about 1 CPU second per second of take here (render
+and encode, docs/scale.md), exports far less: the default is for a machine tens of times slower
+or busier, while a hung take still frees its worker."""
+
+
+def take_timeout_s(take: Path, limit_s: float | None) -> float:
+    """Seconds a take may run: ``limit_s`` (--take-timeout) when given, else the default scaled
+    by the take's length (a take that cannot be read gets the base: it fails at once anyway)."""
+    if limit_s is not None:
+        return float(limit_s)
+    from puppet.take import TakeReader
+
+    try:
+        if not take.is_file():  # a FIFO would block the driver: the task reports it
+            raise OSError
+        with TakeReader(take) as reader:
+            seconds = reader.duration_s()
+    except Exception:  # noqa: BLE001 - a bad take is the task's to report, in its row
+        seconds = 0.0
+    return TIMEOUT_BASE_S + TIMEOUT_PER_SECOND * seconds
+
+
 def staging_folder(root: Path, job: Job) -> Path:
     """The worker's private folder for a take: ``root/<take name>.<pid>`` (a retry gets its own)."""
     folder = root / f"{job.name}.{os.getpid()}"
@@ -108,8 +133,10 @@ def run_take(job: Job, shared: Shared, staging: Path) -> TakeResult:
                         summary = play_take(rig, reader, [sink], frames=frames, solved=writers,
                                             antialias=settings.antialias, size=settings.size,
                                             precompute=precompute)
-                    finally:
-                        sink.close()
+                    except BaseException:  # a failure, or the worker stopped: encoder killed
+                        sink.abort()
+                        raise
+                    sink.close()
             result.frames = summary.frames
             for writer in writers:  # the exports' report: keys kept, fits, what was not carried
                 result.add_report(writer.report)
