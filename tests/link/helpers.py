@@ -60,3 +60,18 @@ def gltf_keys(path: Path, names) -> tuple[np.ndarray, np.ndarray]:
     t = np.stack([channels[(node_of[n], "translation")] for n in names], 1)
     q = np.stack([channels[(node_of[n], "rotation")] for n in names], 1)
     return t.astype(np.float64), q.astype(np.float64)
+
+
+def reference_vertices(rig, take) -> np.ndarray:
+    """(frames, n, 3) the solver's vertices of every frame at 30 fps (model frame, the rig's
+    vertex order), solved here with the pipeline."""
+    from puppet.loop import Pipeline
+    from puppet.take import Playback, TakeReader
+
+    frames = Playback.of_take(TakeReader(take), rig.servo_map.ids, fps=30.0, rig=rig)
+    out = []
+    with Pipeline(rig, render=False) as pipeline:
+        for reading in frames:
+            pipeline.solve(reading)
+            out.append(pipeline.deformed().copy())
+    return np.array(out)
