@@ -13,11 +13,13 @@ from puppet.cli.common import InRange, StopFlag, check_take_path, load_rig, star
 from puppet.cli.view import view_option
 
 
-def _lines(desk) -> None:
-    """Press each stdin line (without its newline) on the KeyDesk, then ``q`` at end of input."""
+def _lines(desk, finish_at_end: bool = True) -> None:
+    """Press each stdin line (without its newline) on the KeyDesk, then ``q`` at end of input
+    (finish_at_end; with --view the page goes on taking keys until q or Ctrl-C)."""
     for line in sys.stdin:
         desk.press(line.rstrip("\r\n"))
-    desk.press("q")
+    if finish_at_end:
+        desk.press("q")
 
 
 def _tell(origin, taken: bool, words: str) -> None:
@@ -50,7 +52,8 @@ def keys(ctx, rig_path, port, out, fps, step, interpolation, baud, force, view_a
     `d N` = delete key N, `i F` = insert a key at frame F, `t N F` = retime key N to frame F,
     `q` (or Ctrl-C, end of input) = done.
     With --view the page takes keys too (Space or its Key button), shows the keys as ticks on a
-    timeline (drag one to retime it) and the previous and next key as onion skins.
+    timeline (drag one to retime it) and the previous and next key as onion skins; end of input
+    then does not finish (the page goes on): q or Ctrl-C does.
     The shot is a take with its keys: play, export and batch take it like any take.
     \b
     Examples:
@@ -112,7 +115,7 @@ def _capture_in_view(rig, port: str, baud: int, desk, address: str):
             source = start_reader(rig, port, baud, rate_hz=200.0)
             try:
                 live_view.attach(pipeline, source=source)
-                threading.Thread(target=_lines, args=(desk,), daemon=True).start()
+                threading.Thread(target=_lines, args=(desk, False), daemon=True).start()
                 click.echo("hold a pose and press Enter here, or Space or Key on the page, for a "
                            "key (r N, d N, i FRAME, t N FRAME, q: see --help)")
                 run_live(pipeline, source, should_stop=lambda: stop() or desk.finished,
