@@ -161,6 +161,8 @@ class KeyDesk:
         words) per command applied (taken False: refused, words say why)."""
         outcomes = []
         session = self.session
+        if self._pending is None and self._commands.empty():
+            return outcomes  # the loop's usual frame: nothing pressed
         while not self.finished:
             if self._pending is None:
                 try:
