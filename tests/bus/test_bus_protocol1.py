@@ -277,3 +277,15 @@ def test_a_baud_the_model_cannot_do_is_refused_naming_the_servo():
         ServoReader("/dev/null", {1: "AX-12A", 3: "MX-28"}, baud=3_000_000)
     assert str(err.value) == ("port /dev/null: 3000000 bit/s is not a rate of servo 1 (AX-12A: up "
                               "to 1 Mbit/s)")
+
+
+def test_a_command_at_a_baud_some_models_cannot_do_names_those_servos(protocol1_rig, tmp_path):
+    import subprocess
+
+    result = subprocess.run(["puppet", "record", "--rig", str(protocol1_rig), "--port", "/dev/null",
+                             "--out", str(tmp_path / "t.mcap"), "--baud", "3000000", "--seconds", "1"],
+                            capture_output=True, text=True, timeout=120)
+    assert result.returncode == 1
+    assert result.stderr.strip().splitlines() == [
+        "Error: port /dev/null: 3000000 bit/s is not a rate of servos 1, 2, 3, 4, 5, 6, 7, 8 "
+        "(AX-12A: up to 1 Mbit/s)"]     # the MX-28 (servos 9..15) run at 3 Mbit/s
