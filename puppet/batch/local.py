@@ -13,6 +13,7 @@ limit (``task.take_timeout_s``) is stopped with its worker (SIGTERM, then SIGKIL
 stops (SIGINT, SIGTERM, an error) every worker is stopped the same way. Workers run with one
 BLAS thread each (environment at start and ``one_blas_thread``), whoever started the batch, and
 die with the driver (``PR_SET_PDEATHSIG``): a killed driver leaves no worker running on.
+What a worker prints while it runs a take goes to that take's log (``task.run_take_logged``).
 """
 
 from __future__ import annotations
@@ -31,7 +32,7 @@ from pathlib import Path
 from puppet.batch.cancel import STOP_GRACE_S
 from puppet.batch.plan import Job
 from puppet.batch.row import TIMED_OUT, TakeResult
-from puppet.batch.task import run_take, staging_folder, take_timeout_s
+from puppet.batch.task import run_take_logged, staging_folder, take_timeout_s
 from puppet.child_signals import children_deaf_to_ctrl_c
 from puppet.fast.blas import children_one_blas_thread
 
@@ -81,7 +82,7 @@ def _worker_main(connection: Connection, blob: bytes, staging_root: str, parent:
             if job is None:
                 return
             try:
-                result = run_take(job, shared, staging_folder(root, job))
+                result = run_take_logged(job, shared, staging_folder(root, job))
             except Exception as err:  # noqa: BLE001 - a bug in one take must not stop the others
                 result = TakeResult.failed(job.take,
                                            f"internal error: {type(err).__name__}: {err}")

@@ -15,7 +15,8 @@ The shared rig and precompute are put once in Ray's object store (each node fetc
 tasks on a node map the same copy). Every task writes into a staging folder on its own node
 (``staging.node_temp()``, named as the driver's) and returns the finished files' bytes; the
 driver writes them into ``--out`` (atomically, through ``puppet.atomic``). The take's bytes
-travel with its task (a take is small: about 35 kB per second of a 15-servo puppet at 30 Hz).
+travel with its task (a take is small: about 35 kB per second of a 15-servo puppet read at
+about 240 Hz).
 So nodes need no shared file system, ``--resume`` and the summary only look at the driver's
 folder, and a task that dies leaves nothing at a final name.
 
@@ -26,8 +27,9 @@ whose worker or node died is submitted again by the driver (Ray's own ``max_retr
 every try is counted in the row) up to ``retries`` times. When the driver stops (SIGINT,
 SIGTERM, an error) every running task is cancelled with force and a private instance is shut
 down with all its processes. Each task's output on stdout and stderr (Ray's worker lines, a
-library's warnings) is kept, colour codes removed, in its row's ``log_lines``: nothing of
-Ray's reaches the terminal.
+library's warnings: ``task.run_take_logged``) and the messages Ray's raylets push to the driver
+while it runs are kept, colour codes removed, in its row's log lines (the take's log file):
+nothing of Ray's reaches the terminal.
 """
 
 from __future__ import annotations
@@ -37,7 +39,6 @@ import logging
 import os
 import shutil
 import socket
-import sys
 import time
 import warnings
 from collections.abc import Callable
@@ -47,9 +48,9 @@ from pathlib import Path
 from puppet.batch.cancel import reclaim_signals
 from puppet.batch.errors import BatchError
 from puppet.batch.plan import Job
-from puppet.batch.staging import node_temp
 from puppet.batch.row import TIMED_OUT, TakeResult, plain
-from puppet.batch.task import Shared, run_take, staging_folder, take_timeout_s
+from puppet.batch.staging import node_temp
+from puppet.batch.task import Shared, run_take_logged, staging_folder, take_timeout_s
 from puppet.fast.blas import children_one_blas_thread
 
 INSTALL_HINT = "pip install 'puppet[ray]'"
@@ -116,34 +117,6 @@ def check_ray_head(address: str, timeout_s: float = CONNECT_TIMEOUT_S) -> None:
         raise BatchError(f"--address {address}: not a Ray head (it answered, but not gRPC)")
 
 
-@contextmanager
-def _captured_output(path: Path):
-    """This process's stdout and stderr (file descriptors 1 and 2) go to ``path`` inside."""
-    for stream in (sys.stdout, sys.stderr):
-        stream.flush()
-    saved = [os.dup(1), os.dup(2)]
-    fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644)
-    try:
-        os.dup2(fd, 1)
-        os.dup2(fd, 2)
-        yield
-    finally:
-        for stream in (sys.stdout, sys.stderr):
-            stream.flush()
-        os.dup2(saved[0], 1)
-        os.dup2(saved[1], 2)
-        for f in (fd, *saved):
-            os.close(f)
-
-
-def _lines(path: Path) -> list[str]:
-    """The non-empty lines of a captured output file."""
-    try:
-        return [line for line in path.read_text(errors="replace").splitlines() if line.strip()]
-    except OSError:
-        return []
-
-
 def _ray_task(job: Job, take_bytes: bytes, shared: Shared, staging_name: str) -> TakeResult:
     """Run in a Ray worker: the take's bytes arrive with the task (no shared file system needed);
     solve and write into a folder on this node, return the files' bytes and the task's lines."""
@@ -154,12 +127,9 @@ def _ray_task(job: Job, take_bytes: bytes, shared: Shared, staging_name: str) ->
         local_take = folder / job.take.name
         local_take.write_bytes(take_bytes)
         local_job = dataclasses.replace(job, take=local_take)
-        log = folder / ".log"
-        with one_blas_thread(), _captured_output(log):
-            result = run_take(local_job, shared, folder)
+        with one_blas_thread():
+            result = run_take_logged(local_job, shared, folder)
         result.take = str(job.take)
-        for line in _lines(log):
-            result.add_log(line)
         # name the user's take, not this node's copy
         result.reason = result.reason.replace(str(local_take), str(job.take))
         result.warnings = [w.replace(str(local_take), str(job.take)) for w in result.warnings]

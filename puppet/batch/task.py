@@ -13,8 +13,9 @@ from __future__ import annotations
 
 import contextlib
 import os
+import sys
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 
 from puppet.atomic import atomic_output
@@ -89,6 +90,43 @@ def staging_folder(root: Path, job: Job) -> Path:
     folder = root / f"{job.name}.{os.getpid()}"
     folder.mkdir(parents=True, exist_ok=True)
     return folder
+
+
+@contextlib.contextmanager
+def captured_output(path: Path):
+    """This process's stdout and stderr (file descriptors 1 and 2: Python's prints and
+    warnings, native libraries, Ray's worker lines) go to the file ``path`` inside."""
+    for stream in (sys.stdout, sys.stderr):
+        stream.flush()
+    saved = [os.dup(1), os.dup(2)]
+    fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644)
+    try:
+        os.dup2(fd, 1)
+        os.dup2(fd, 2)
+        yield
+    finally:
+        for stream in (sys.stdout, sys.stderr):
+            stream.flush()
+        os.dup2(saved[0], 1)
+        os.dup2(saved[1], 2)
+        for f in (fd, *saved):
+            os.close(f)
+
+
+def run_take_logged(job: Job, shared: Shared, staging: Path) -> TakeResult:
+    """``run_take`` with whatever the worker prints meanwhile kept in the row's log lines
+    (colour codes removed), for the take's log file: nothing raw reaches the terminal."""
+    output = staging / ".output"
+    with captured_output(output):
+        result = run_take(job, shared, staging)
+    try:
+        text = output.read_text(errors="replace")
+    except OSError:
+        text = ""
+    for line in text.splitlines():
+        if line.strip():
+            result.add_log(line)
+    return result
 
 
 def run_take(job: Job, shared: Shared, staging: Path) -> TakeResult:
