@@ -191,3 +191,20 @@ def test_key_inputs_from_the_page_are_checked():
     assert check_input({"type": "retime", "index": True, "frame": 4}) == "retime: field 'index' missing or invalid"
     assert check_input({"type": "onion", "on": "yes"}) == "onion: field 'on' missing or invalid"
     assert check_input({"type": "playhead", "frame": 2.5}) == "playhead: field 'frame' missing or invalid"
+
+
+def test_keys_view_on_a_taken_port_fails_before_the_bus(tools, tmp_path):
+    import socket
+
+    with socket.socket() as taken:
+        taken.bind(("127.0.0.1", 0))
+        taken.listen()
+        port = taken.getsockname()[1]
+        result = subprocess.run(tools.PUPPET + ["keys", "--rig", str(BUILTIN_RIG), "--port",
+                                                str(tmp_path / "no-such-port"), "--out",
+                                                str(tmp_path / "shot.mcap"), "--view", str(port)],
+                                capture_output=True, text=True, timeout=300, stdin=subprocess.DEVNULL)
+    assert result.returncode == 1
+    assert f"Error: --view: address 127.0.0.1:{port} is already in use" in result.stderr
+    assert "no-such-port" not in result.stderr and "Traceback" not in result.stderr
+    assert not (tmp_path / "shot.mcap").exists()
