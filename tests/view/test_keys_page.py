@@ -55,9 +55,13 @@ class KeysProcess:
         self.proc.stdin.write(line + "\n")
         self.proc.stdin.flush()
 
-    def stop(self, tools) -> int:
+    def stop(self, tools, quit_line: bool = True) -> int:
+        """``q`` typed (quit_line) or Ctrl-C, then wait; returns the exit status."""
         if self.proc.poll() is None:
-            self.type("q")
+            if quit_line:
+                self.type("q")
+            else:
+                self.proc.send_signal(signal.SIGINT)
             try:
                 self.proc.wait(tools.WAIT_S)
             except subprocess.TimeoutExpired:
@@ -182,6 +186,38 @@ def test_keys_from_the_page_onion_skins_and_timeline(new_page, tools, tmp_path):
     assert status == 0, keys.err_path.read_text()
     assert "Traceback" not in keys.err_path.read_text()
     assert "keys: 2, 20 frames at 24 fps" in keys.out_path.read_text()
+
+
+def test_live_view_takes_keys_into_a_shot_from_the_page(new_page, tools, tmp_path):
+    rig = builtin()
+    ids = [int(i) for i in rig.servo_map.ids]
+    shot, take = tmp_path / "live-shot.mcap", tmp_path / "live.mcap"
+    held = pose(rig, {10: -50, 12: 70, 1: 25})
+    with hw_sim.serve(rig.servo_map.models) as bus:
+        bus.set_positions(held)
+        live = KeysProcess(tools, ["live", "--rig", str(BUILTIN_RIG), "--port", bus.port,
+                                   "--record", str(take), "--keys", str(shot),
+                                   "--view", str(tools.free_port())], tmp_path)
+        try:
+            page = tools.open_view(new_page, live.url)
+            tools.wait_js(page, "puppetView.keys !== null")
+            take_key(tools, page, lambda: page.click("#key"), 1)
+            tools.wait_until(lambda: shot_keys(shot) and len(shot_keys(shot)) == 1, what="the key in the file")
+            assert shot_keys(shot)[0].ticks.tolist() == [held[i] for i in ids]
+            assert shot_keys(shot)[0].frame == 1
+        finally:
+            status = live.stop(tools, quit_line=False)  # live runs until Ctrl-C
+    assert status == 0, live.err_path.read_text()
+    assert "Traceback" not in live.err_path.read_text()
+    assert f"shot: {shot} (1 keys)" in live.out_path.read_text()
+    assert TakeReader(take).metadata is not None  # the take recorded alongside
+
+
+def test_live_keys_needs_the_view(tools, tmp_path):
+    result = subprocess.run(tools.PUPPET + ["live", "--rig", str(BUILTIN_RIG), "--port", "x",
+                                            "--keys", str(tmp_path / "s.mcap")],
+                            capture_output=True, text=True, timeout=300)
+    assert result.returncode == 2 and "--keys takes keys from the page: add --view" in result.stderr
 
 
 def test_key_inputs_from_the_page_are_checked():
