@@ -51,7 +51,8 @@ def test_a_frame_round_trips_through_the_wire_in_any_chunking():
 
 def test_malformed_messages_are_refused_by_name():
     with pytest.raises(ValueError, match="does not hold 2 joints"):
-        wire.decode(wire.FRAME_KIND, wire.encode_frame(1, 0, 0.0, [(0, 0, 0)] * 2, [(0, 0, 0, 1)] * 2)[5:-8])
+        whole = wire.encode_frame(1, 0, 0.0, [(0, 0, 0)] * 2, [(0, 0, 0, 1)] * 2)
+        wire.decode(wire.FRAME_KIND, whole[5:-8])
     with pytest.raises(ValueError, match="unknown message kind"):
         wire.decode(b"Z", b"")
     reader = wire.Reader(max_message=100)
@@ -118,7 +119,8 @@ def test_beyond_loopback_a_token_is_needed(take, wait_until, interrupt_and_wait)
     try:
         assert token
         refused = Client(port, token="wrong")
-        assert refused.first == (wire.ERROR, {"error": "token refused: give the token puppet printed"})
+        assert refused.first == (wire.ERROR,
+                                 {"error": "token refused: give the token puppet printed"})
         assert refused.next() == (None, None)  # closed
         old = Client(port, token=token, protocol=99)
         assert old.first[0] == wire.ERROR and "protocol 99" in old.first[1]["error"]
