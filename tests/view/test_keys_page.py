@@ -1,5 +1,6 @@
 """``puppet keys --view`` in Debian's Chromium against hw_sim over a pty: Space and the Key
-button take a key exactly like Enter (the held pose lands in the shot file), the onion skins
+button take a key exactly like Enter (the held pose lands in the shot file; a silent servo
+refuses it, named on the page), the onion skins
 draw the previous key over the live character (toggling them changes the frame), and dragging
 a key's tick on the timeline retimes it in the file (a reorder is refused, the reason on the
 page, the file unchanged)."""
@@ -121,6 +122,20 @@ def test_keys_from_the_page_onion_skins_and_timeline(new_page, tools, tmp_path):
             assert shot_keys(shot)[1].frame == 13
             assert shot_keys(shot)[1].ticks.tolist() == [poses[1][i] for i in ids]
             assert "key 1: frame 13" in keys.out_path.read_text()  # told on the terminal too
+
+            # a key while a servo is silent is refused on the page, naming it; nothing is taken
+            bus.inject("drop", [3])
+
+            def refused_naming_3():
+                seen = page.evaluate("puppetView.keysUpdates")
+                page.keyboard.press("Space")
+                said = tools.wait_js(page, f"puppetView.keysUpdates > {seen} && puppetView.keys.said")
+                assert not said.startswith("key 2")
+                return "servo(s) [3] flagged" in said
+            tools.wait_until(refused_naming_3, what="a refusal naming servo 3 on the page")
+            assert page.locator("#keys-said.refused").is_visible()
+            assert len(shot_keys(shot)) == 2
+            bus.clear_faults()
 
             # onion skins: the previous key (pose 1) over the live character (pose 2)
             bus.set_positions(poses[2])
