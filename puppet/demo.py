@@ -130,8 +130,8 @@ def run_demo(*, seconds: float | None, sinks_for: Callable[[Pipeline], list], fa
                 try:
                     if view is not None:
                         view.attach(pipeline, source=source)
-                    if link is not None:
-                        link.attach(pipeline)
+                    if link is not None:  # frames at the loop's target rate
+                        link.attach(pipeline, fps=latch_fps or rate_hz)
                     summary = run_live(pipeline, source, seconds=seconds, sinks=sinks,
                                        video_fps=video_fps, should_stop=should_stop,
                                        on_frame=on_frame, started_s=started_s, latch_fps=latch_fps,

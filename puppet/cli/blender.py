@@ -13,12 +13,13 @@ link_option = click.option(
          "host prints a token the add-on needs).")
 
 
-def open_link(address: str | None, rig, *, fps: float = 60.0):
+def open_link(address: str | None, rig, *, fps: float | None = None):
     """Bind the link's address now (a taken port fails before any hardware is touched) and say
-    where it listens; returns the Link (attach it to the pipeline)."""
+    where it listens; returns the Link (attach it to the pipeline). fps: the take's rate (play);
+    live and demo give the loop's when they attach."""
     from puppet.link import Link
 
-    link = Link(address, rig, fps=fps)
+    link = Link(address, rig, fps=fps or 0.0)
     click.echo(f"link: listening on {link.where()}", err=True)
     return link
 

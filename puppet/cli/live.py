@@ -91,6 +91,7 @@ def live(rig_path: str, port: str, baud: int, take_path: str | None, out: str | 
     """
     from puppet.drive.actuators import ActuationPlan, ActuatorHook, LiveActuation
     from puppet.loop import Pipeline, run_live
+    from puppet.loop.run import LIVE_FPS
     from puppet.take import BackgroundTakeWriter
 
     rig = load_rig(rig_path)
@@ -130,8 +131,8 @@ def live(rig_path: str, port: str, baud: int, take_path: str | None, out: str | 
                 try:
                     if live_view is not None:
                         live_view.attach(pipeline, source=source, recorder=recorder)
-                    if link is not None:
-                        link.attach(pipeline)
+                    if link is not None:  # frames at the loop's target rate
+                        link.attach(pipeline, fps=LIVE_FPS)
                     summary = run_live(pipeline, source, seconds=seconds, sinks=sinks, video_fps=fps,
                                        recorder=recorder, should_stop=stop, view=live_view,
                                        after_solve=actuation and actuation.after_solve, link=link)

@@ -20,19 +20,26 @@ class LinkPose:
     """Keys and vertices of one rig's solves, into preallocated arrays.
 
     rig: the Rig; lbs: a callable giving the (n, 4m) LBS matrix (asked for on the first mesh
-    frame only). Fields after ``update(T, mesh)``: translations (b, 3) float64, rotations (b, 4)
-    float64 (x, y, z, w), vertices (n_out, 3) float32 (filled when ``mesh``).
+    frame only). Fields: parents (b,) each joint's nearest joint above in the file's nodes (-1:
+    none), above (b, 4, 4) its parent node's rest transform in that joint's space (or in the
+    armature node's: ``SourceScene.object_world``), armature (4, 4) that node's rest world (see
+    ``puppet.link.wire``). After ``update(T, mesh)``: translations (b, 3) float64, rotations
+    (b, 4) float64 (x, y, z, w), vertices (n_out, 3) float32 (filled when ``mesh``).
     """
 
     def __init__(self, rig, lbs):
         sk = rig.skeleton
         self.order = SourceOrder(rig)
         self.names = [str(n) for n in sk.names]
-        self.parents = [int(p) for p in sk.parents]
         self.keys = GltfWriter(Path(f"{rig.name}.link"), names=sk.names, parents=sk.parents,
                                heads=sk.heads, frames=sk.frames, V=self.order.take(rig.V),
                                F=self.order.F, W=self.order.take(rig.W), fps=30.0, name=rig.name,
                                source=rig.source)
+        self.parents = [int(p) for p in self.keys.up_joint]
+        self.armature = np.array(self.keys.scene.object_world, np.float64)
+        self.above = np.array(self.keys.above)
+        roots = self.keys.up_joint < 0
+        self.above[roots] = np.linalg.solve(self.armature, self.above[roots])
         self.joints = JointTransforms(sk.heads)
         b = len(self.names)
         identity = np.zeros((b, 3, 4))

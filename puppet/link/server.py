@@ -1,7 +1,7 @@
 """The live link's server: streams each solve to every connected client (Blender), latest wins.
 
     link = Link("9100", rig)             # binds now: a taken port fails before any hardware
-    link.attach(pipeline)                # the model's LBS matrix, for clients asking the mesh
+    link.attach(pipeline, fps=60.0)      # the model's LBS matrix; the rate frames come at
     link.frame(pipeline, reading)        # after each solve (run_live's ``link=``): copies T
     link.close(); link.stats()           # reading -> applied in the client, median and p99
 
@@ -63,8 +63,9 @@ class _Client:
 class Link:
     """The link's server on ``[HOST:]PORT`` for ``rig``'s solves (see the module docstring).
 
-    fps: the frame rate announced in the hello (the take's, or the loop's); take_start_ns: the
-    reading time of take time 0 (None: the first frame's). Fields after close: see stats().
+    fps: the frame rate announced in the hello (the take's; ``attach`` may give the loop's);
+    take_start_ns: the reading time of take time 0 (None: the first frame's, or the take's
+    first reading: ``start_take``). Fields after close: see stats().
     """
 
     def __init__(self, address: str | None, rig, *, fps: float = 60.0,
@@ -86,7 +87,7 @@ class Link:
         self._lock = threading.Lock()
         self._T_back = None      # written by the loop
         self._T_front = None     # read by the link's thread
-        self._slot = (-1, 0, 0.0)  # (seq, reading_ns, take_s) of _T_back
+        self._slot = (-1, 0, 0.0, 0)  # (seq, reading_ns, take_s, flags) of _T_back
         self._encoded_seq = -1
         self._bones = bytearray()
         self._mesh = bytearray()
@@ -110,8 +111,11 @@ class Link:
         shown = f"{self.access.host}:{self.access.port}"
         return shown if self.access.token is None else f"{shown} token {self.access.token}"
 
-    def attach(self, pipeline) -> None:
-        """Start serving ``pipeline``'s solves (its model gives the mesh)."""
+    def attach(self, pipeline, fps: float | None = None) -> None:
+        """Start serving ``pipeline``'s solves (its model gives the mesh); fps: the rate they
+        come at, for the hello (None: the one given when made)."""
+        if fps is not None:
+            self.fps = float(fps)
         self._model = pipeline.model
         self.pose = LinkPose(self.rig, pipeline.model.lbs_matrix)
         self._T_back = np.zeros(pipeline.T.shape)
@@ -122,18 +126,26 @@ class Link:
         self._thread = threading.Thread(target=self._serve, name="puppet-link", daemon=True)
         self._thread.start()
 
-    def frame(self, pipeline, reading, take_s: float | None = None) -> None:
+    def start_take(self, t_ns: int) -> None:
+        """Take time 0 is the reading at ``t_ns`` (the first one a recorder wrote), unless a
+        start is already set."""
+        if self.take_start_ns is None:
+            self.take_start_ns = int(t_ns)
+
+    def frame(self, pipeline, reading, take_s: float | None = None,
+              recording: bool = False) -> None:
         """Publish the solve just done for ``reading`` (take_s: its take time; None: seconds
-        since take_start_ns). Copies T (no allocation) and wakes the link's thread."""
+        since take_start_ns; recording: it belongs to a take being recorded, flagged
+        ``wire.RECORDING``). Copies T (no allocation) and wakes the link's thread."""
         if self.pose is None:
             return
-        if self.take_start_ns is None:
-            self.take_start_ns = int(reading.t_ns)
+        self.start_take(reading.t_ns)
         if take_s is None:
             take_s = (reading.t_ns - self.take_start_ns) * 1e-9
+        flags = wire.RECORDING if recording else 0
         with self._lock:
             self._T_back[...] = pipeline.T
-            self._slot = (self.published, int(reading.t_ns), float(take_s))
+            self._slot = (self.published, int(reading.t_ns), float(take_s), flags)
             self.published += 1
         try:
             self._wake_w.send(b"\0")
@@ -144,7 +156,9 @@ class Link:
         pose = self.pose
         return {"protocol": wire.PROTOCOL, "rig": self.rig.name, "joints": pose.names,
                 "parents": pose.parents, "rest_translation": pose.rest_translations.tolist(),
-                "rest_rotation": pose.rest_rotations.tolist(), "vertices": pose.n_vertices,
+                "rest_rotation": pose.rest_rotations.tolist(),
+                "above": pose.above.reshape(-1, 16).tolist(),
+                "armature": pose.armature.reshape(16).tolist(), "vertices": pose.n_vertices,
                 "fps": self.fps, "take_start_ns": self.take_start_ns}
 
     # -- the link's thread --------------------------------------------------------------------
@@ -264,7 +278,7 @@ class Link:
     def _encode(self) -> None:
         """Encode the newest published frame once (keys; the mesh when a client wants it)."""
         with self._lock:
-            seq, reading_ns, take_s = self._slot
+            seq, reading_ns, take_s, flags = self._slot
             if seq <= self._encoded_seq:
                 return
             self._T_front[...] = self._T_back
@@ -275,7 +289,7 @@ class Link:
         for buffer, vertices in ((self._bones, 0), (self._mesh, n)):
             if vertices and not mesh:
                 continue
-            at = wire.pack_frame_header(buffer, seq, reading_ns, take_s, b, vertices)
+            at = wire.pack_frame_header(buffer, seq, reading_ns, take_s, b, vertices, flags)
             np.frombuffer(buffer, np.float64, 3 * b, at)[...] = pose.translations.reshape(-1)
             np.frombuffer(buffer, np.float64, 4 * b, at + 24 * b)[...] = pose.rotations.reshape(-1)
             if vertices:

@@ -1,4 +1,4 @@
-"""The live link's wire protocol, version 1: puppet streams poses to Blender over TCP.
+"""The live link's wire protocol, version 2: puppet streams poses to Blender over TCP.
 
 Standard library only (struct, json): this one file is shipped verbatim inside the Blender add-on
 (``puppet blender addon``) and used by puppet's server, so both ends speak the same bytes.
@@ -13,18 +13,31 @@ body, at most MAX_MESSAGE bytes. Kinds:
   puppet -> client
     b"H" hello    JSON {"protocol", "rig", "joints": [names], "parents": [int],
                   "rest_translation": [[x, y, z]], "rest_rotation": [[x, y, z, w]],
-                  "vertices": n, "fps", "take_start_ns"}
+                  "above": [[16 floats]], "armature": [16 floats], "vertices": n,
+                  "fps", "take_start_ns"}
     b"F" frame    FRAME header: seq (uint64), reading_ns (int64, puppet's monotonic clock),
-                  take_s (float64, seconds into the take), joints b (uint32), vertices n (uint32);
-                  then b × 3 float64 local translations, b × 4 float64 local rotations
-                  (x, y, z, w),
-                  then n × 3 float32 vertices (0 unless the client asked for the mesh)
+                  take_s (float64, seconds into the take), joints b (uint32), vertices n
+                  (uint32), flags (uint32: RECORDING); then b × 3 float64 local translations,
+                  b × 4 float64 local rotations (x, y, z, w), then n × 3 float32 vertices (0
+                  unless the client asked for the mesh)
     b"E" error    JSON {"error": str}: refused (bad token, protocol); puppet closes the connection
     b"B" bye      JSON {"reason": str}: puppet stops streaming
 
 Joint transforms are each joint's glTF node translation and rotation relative to its parent
-node, as ``puppet export --gltf`` writes its keys (Y up, model units); vertices are the solver's
-deformed mesh in the model frame, in the character file's vertex order. Latest wins: puppet
+node, as ``puppet export --gltf`` writes its keys (Y up, model units). The hello places them:
+``parents`` is each joint's nearest joint above (-1: none) and ``above`` (4 × 4, row-major) the
+rest transform of the joint's parent node in that joint's space, or, for a joint with no joint
+above, in the space of the armature node (the node Blender's glTF importer makes the armature
+object; ``armature`` is its rest world, identity when the scene root): so a joint's posed
+transform in the armature's space is ``G_parent · above · (translation, rotation)``. Vertices are
+the solver's deformed mesh in the model frame (the file's world), in the character file's
+vertex order.
+
+Recording: a frame with flags & RECORDING is part of a take being recorded (``puppet live
+--record``); its take_s is its reading's time on the take's time line (seconds after the take's
+first reading), so the client keys it at scene frame start + take_s × scene fps, where
+``puppet export`` of that take puts it. fps in the hello is the rate frames come at: the take's
+(play) or the live loop's target (live, demo). Latest wins: puppet
 keeps at most 2 frames unacknowledged per client and then sends the newest one (a slow client
 skips frames, none queue); the client applies the newest frame it has and acks it (acking only
 that one acks the older ones too).
@@ -35,10 +48,11 @@ from __future__ import annotations
 import json
 import struct
 
-PROTOCOL = 1
+PROTOCOL = 2
 MAX_MESSAGE = 64 << 20  # bytes: a 5-million-vertex mesh frame fits
 LENGTH = struct.Struct(">I")
-FRAME = struct.Struct("<QqdII")
+FRAME = struct.Struct("<QqdIII")
+RECORDING = 1  # frame flag: puppet is recording the take this frame belongs to
 ACK = struct.Struct("<Qd")
 
 CONNECT, MESH, ACK_KIND, HELLO, FRAME_KIND, ERROR, BYE = b"C", b"M", b"A", b"H", b"F", b"E", b"B"
@@ -65,22 +79,22 @@ def encode_ack(seq: int, applied_s: float) -> bytes:
 
 
 def pack_frame_header(buffer, seq: int, reading_ns: int, take_s: float, joints: int,
-                      vertices: int) -> int:
+                      vertices: int, flags: int = 0) -> int:
     """Write a frame's length, kind and header at the start of ``buffer``; the offset where the
     joint translations go."""
     LENGTH.pack_into(buffer, 0, frame_size(joints, vertices) - LENGTH.size)
     buffer[LENGTH.size] = FRAME_KIND[0]
-    FRAME.pack_into(buffer, LENGTH.size + 1, seq, reading_ns, take_s, joints, vertices)
+    FRAME.pack_into(buffer, LENGTH.size + 1, seq, reading_ns, take_s, joints, vertices, flags)
     return LENGTH.size + 1 + FRAME.size
 
 
 def encode_frame(seq: int, reading_ns: int, take_s: float, translations, rotations,
-                 vertices=None) -> bytes:
+                 vertices=None, flags: int = 0) -> bytes:
     """A frame from sequences: translations [(x, y, z)] * b, rotations [(x, y, z, w)] * b,
     vertices None or [(x, y, z)] * n (plain Python; puppet's server fills buffers instead)."""
     b, n = len(translations), 0 if vertices is None else len(vertices)
     out = bytearray(frame_size(b, n))
-    at = pack_frame_header(out, seq, reading_ns, take_s, b, n)
+    at = pack_frame_header(out, seq, reading_ns, take_s, b, n, flags)
     struct.pack_into(f"<{3 * b}d", out, at, *[x for t in translations for x in t])
     struct.pack_into(f"<{4 * b}d", out, at + 24 * b, *[x for q in rotations for x in q])
     if n:
@@ -89,15 +103,17 @@ def encode_frame(seq: int, reading_ns: int, take_s: float, translations, rotatio
 
 
 class Frame:
-    """A decoded frame: seq, reading_ns, take_s, translations (b × 3 floats, flat tuple),
-    rotations (b × 4, flat, x y z w), vertices (a memoryview of n × 3 float32, or None)."""
+    """A decoded frame: seq, reading_ns, take_s, flags, translations (b × 3 floats, flat
+    tuple), rotations (b × 4, flat, x y z w), vertices (a memoryview of n × 3 float32, or None);
+    recording: flags & RECORDING."""
 
-    __slots__ = ("seq", "reading_ns", "take_s", "translations", "rotations", "vertices", "count")
+    __slots__ = ("seq", "reading_ns", "take_s", "flags", "translations", "rotations", "vertices",
+                 "count")
 
     def __init__(self, body: bytes):
         if len(body) < FRAME.size:
             raise ValueError("frame shorter than its header")
-        self.seq, self.reading_ns, self.take_s, b, n = FRAME.unpack_from(body, 0)
+        self.seq, self.reading_ns, self.take_s, b, n, self.flags = FRAME.unpack_from(body, 0)
         if len(body) != FRAME.size + b * 56 + n * 12:
             raise ValueError(f"frame of {len(body)} bytes does not hold {b} joints and "
                              f"{n} vertices")
@@ -105,6 +121,10 @@ class Frame:
         self.translations = struct.unpack_from(f"<{3 * b}d", body, FRAME.size)
         self.rotations = struct.unpack_from(f"<{4 * b}d", body, FRAME.size + 24 * b)
         self.vertices = memoryview(body)[FRAME.size + 56 * b:].cast("f") if n else None
+
+    @property
+    def recording(self) -> bool:
+        return bool(self.flags & RECORDING)
 
 
 def decode(kind: bytes, body: bytes):

@@ -16,6 +16,10 @@ from puppet.loop.summary import Summary, process_age_s
 from puppet.reading import Reading
 
 
+LIVE_FPS = 60.0
+"""The frame rate the live loop keeps by default (late latching's target; the link's hello)."""
+
+
 class VideoClock:
     """Feeds a fixed-rate sink from a free-running loop: ``due(now)`` says how many copies of
     the newest frame the sink needs so that its timeline keeps up with wall time."""
@@ -60,7 +64,7 @@ def run_live(pipeline: Pipeline, source, *, seconds: float | None = None,
              sinks: Iterable = (), video_fps: float = 30.0, recorder=None,
              should_stop: Callable[[], bool] = lambda: False,
              on_frame: Callable[[Summary], None] | None = None,
-             started_s: float | None = None, latch_fps: float | None = 60.0,
+             started_s: float | None = None, latch_fps: float | None = LIVE_FPS,
              view=None, after_solve: Callable[[Pipeline, Reading], None] | None = None,
              link=None) -> Summary:
     """Run the live loop until ``seconds`` pass or ``should_stop()`` (e.g. Ctrl-C).
@@ -79,7 +83,8 @@ def run_live(pipeline: Pipeline, source, *, seconds: float | None = None,
     after_solve: called with (pipeline, reading) right after each solve, before drawing (the
               actuators' goals from ``pipeline.T``).
     link:     a live link (puppet.link.Link) or None: ``link.frame(pipeline, reading)`` after
-              each solve (it copies T; its own thread sends).
+              each solve (it copies T; its own thread sends); with a recorder, take time 0 is
+              the first reading recorded and every frame is flagged recording.
     """
     sinks = list(sinks)
     render = bool(sinks) and pipeline.renderer is not None
@@ -108,6 +113,8 @@ def run_live(pipeline: Pipeline, source, *, seconds: float | None = None,
             batch = latch.top_up(source, batch)
         summary.readings += len(batch)
         if recorder is not None:
+            if link is not None:
+                link.start_take(batch[0].t_ns)
             for reading in batch:
                 recorder.write(reading)
         reading = batch[-1]
@@ -120,7 +127,7 @@ def run_live(pipeline: Pipeline, source, *, seconds: float | None = None,
         if after_solve is not None:
             after_solve(pipeline, reading)
         if link is not None:
-            link.frame(pipeline, reading)
+            link.frame(pipeline, reading, recording=recorder is not None)
         stages.lap("solve")
         if render:
             image = _draw(pipeline, stages, request)

@@ -40,7 +40,7 @@ def test_a_frame_round_trips_through_the_wire_in_any_chunking():
             reader.feed(stream[start:start + chunk])
             got += [wire.decode(k, b) for k, b in reader.messages()]
         hello, frame, ack, bare = got
-        assert hello == {"protocol": 1, "joints": ["a", "b"]}
+        assert hello == {"protocol": 2, "joints": ["a", "b"]}
         assert (frame.seq, frame.reading_ns, frame.take_s, frame.count) == (7, 123456789, 0.25, 2)
         assert frame.translations == tuple(x for p in t for x in p)
         assert frame.rotations == tuple(x for p in q for x in p)

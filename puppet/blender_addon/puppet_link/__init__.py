@@ -8,9 +8,18 @@ the bones at scene frame = start frame + take time x scene fps.
 
 Every tick (``tick()``, on a ``bpy.app.timers`` callback; never blocking) reads what arrived,
 applies the newest frame and acks it. A frame's joint keys are glTF node translations and
-rotations (Y up); the armature's bones get the same rigid motion in Blender's Z-up armature
-space: matrix_basis = B⁻¹ Z Δp⁻¹ Δj Z⁻¹ B, with B the bone's rest matrix, Z the
-glTF-to-Blender axes and Δ = G·G_rest⁻¹ the joint's motion from its rest.
+rotations (Y up) relative to each joint's parent node, as the exported .glb holds them; the
+hello's ``above`` places them in the armature node's space (the node Blender's glTF importer
+makes the armature object, however it is moved, turned or scaled): G = G_parent · above · key.
+The bones get the same rigid motion in Blender's Z-up armature space, as the importer plays the
+file's keys: matrix_basis = B⁻¹ Z Δp⁻¹ Δj Z⁻¹ B, with B the bone's rest matrix, Z the
+glTF-to-Blender axes, Δ = G·G_rest⁻¹ a joint's motion from its rest and p the nearest driven
+bone above. Vertices (model frame, the file's world) go into the mesh through its object's
+world: co = mesh world⁻¹ Z v.
+
+Recording: a frame puppet flags recording (``puppet live --record``), or any frame while Record
+is ticked, keys the bones at scene frame start + take time × scene fps (take time: the reading's
+time on the take's time line), where ``puppet export`` of the take puts it.
 """
 
 from __future__ import annotations
@@ -149,17 +158,28 @@ class Link:
 
     # -- the armature ------------------------------------------------------------------------
 
+    def _worlds(self, translations, rotations) -> list:
+        """Each joint's transform in the armature node's space (glTF axes) for its keys."""
+        worlds = []
+        for j, parent in enumerate(self.parents):
+            local = self.above[j] @ _trs(translations[3 * j:3 * j + 3],
+                                         rotations[4 * j:4 * j + 4])
+            worlds.append(local if parent < 0 else worlds[parent] @ local)
+        return worlds
+
     def bind(self, armature) -> None:
         """Match the hello's joints to ``armature``'s bones (saved mapping, else same name)."""
         hello = self.hello
         joints, parents = hello["joints"], hello["parents"]
         saved = mapping(armature)
         self.notes = []
-        rest = []
-        for j, name in enumerate(joints):
-            local = _trs(hello["rest_translation"][j], hello["rest_rotation"][j])
-            rest.append(local if parents[j] < 0 else rest[parents[j]] @ local)
-        self.rest_inv = [m.inverted() for m in rest]
+        self.parents = parents
+        above = hello.get("above") or [None] * len(joints)
+        self.above = [Matrix.Identity(4) if a is None else
+                      Matrix([a[0:4], a[4:8], a[8:12], a[12:16]]) for a in above]
+        flat_t = [x for t in hello["rest_translation"] for x in t]
+        flat_q = [x for q in hello["rest_rotation"] for x in q]
+        self.rest_inv = [m.inverted() for m in self._worlds(flat_t, flat_q)]
         joint_of_bone = {}
         self.bones = []
         for j, name in enumerate(joints):
@@ -173,24 +193,21 @@ class Link:
             pose_bone.rotation_mode = "QUATERNION"
             B = pose_bone.bone.matrix_local.copy()
             self.bones.append([pose_bone, j, -1, B.inverted() @ Z_UP, Z_UP.inverted() @ B])
-        for entry in self.bones:
+        for entry in self.bones:  # the nearest driven bone above (undriven ones stay at rest)
             parent = entry[0].parent
-            entry[2] = joint_of_bone.get(parent.name, -1) if parent is not None else -1
+            while parent is not None and parent.name not in joint_of_bone:
+                parent = parent.parent
+            entry[2] = joint_of_bone[parent.name] if parent is not None else -1
         driven = {e[0].name for e in self.bones}
         extra = [b.name for b in armature.pose.bones if b.name not in driven]
         if extra:
             self.notes.append(f"{len(extra)} bones not driven: {', '.join(extra[:8])}"
                               + (" ..." if len(extra) > 8 else ""))
         self.notes.insert(0, f"{len(self.bones)} of {len(joints)} joints drive bones")
-        self.parents = parents
 
     def apply(self, frame, armature) -> None:
         """Pose the bound bones with ``frame``."""
-        t, q, parents = frame.translations, frame.rotations, self.parents
-        G = []
-        for j in range(frame.count):
-            local = _trs(t[3 * j:3 * j + 3], q[4 * j:4 * j + 4])
-            G.append(local if parents[j] < 0 else G[parents[j]] @ local)
+        G = self._worlds(frame.translations, frame.rotations)
         delta = [G[j] @ self.rest_inv[j] for j in range(frame.count)]
         for pose_bone, j, p, left, right in self.bones:
             motion = delta[j] if p < 0 else delta[p].inverted() @ delta[j]
@@ -211,7 +228,7 @@ class Link:
                 modifier.show_viewport = False
         import numpy as np  # Blender ships numpy; the wire itself needs none
 
-        K = mesh_object.matrix_world.inverted() @ armature.matrix_world @ Z_UP
+        K = mesh_object.matrix_world.inverted() @ Z_UP  # model frame -> the mesh's own
         points = np.frombuffer(frame.vertices, np.float32).reshape(-1, 3).astype(np.float64)
         A = np.array(K, np.float64)
         out = points @ A[:3, :3].T + A[:3, 3]
@@ -256,7 +273,7 @@ def tick():
         for modifier in settings.mesh.modifiers:
             if modifier.type == "ARMATURE":
                 modifier.show_viewport = True
-    if settings.record:
+    if settings.record or frame.recording:
         LINK.record(frame, armature, bpy.context.scene, settings.start_frame)
     LINK.frames_applied += 1
     LINK.last_seq, LINK.last_take_s = frame.seq, frame.take_s
