@@ -55,11 +55,14 @@ result = {"status": link.status, "notes": link.notes, "applied": link.frames_app
 if not use_mesh:
     for f in sorted(set(keyed)):
         scene.frame_set(f)
-        worst = 0.0
+        worst = moved = 0.0
         for bone in target.pose.bones:
             ref = reference.pose.bones[bone.name]
-            for a, b in ((target.matrix_world @ bone.head, reference.matrix_world @ ref.head),
-                         (target.matrix_world @ bone.tail, reference.matrix_world @ ref.tail)):
+            for a, b, rest in ((target.matrix_world @ bone.head, reference.matrix_world @ ref.head,
+                                target.matrix_world @ bone.bone.head_local),
+                               (target.matrix_world @ bone.tail, reference.matrix_world @ ref.tail,
+                                target.matrix_world @ bone.bone.tail_local)):
                 worst = max(worst, (a - b).length)
-        result["frames"].append({"frame": f, "worst": worst})
+                moved = max(moved, (a - rest).length)
+        result["frames"].append({"frame": f, "worst": worst, "moved": moved})
 print("RESULT " + json.dumps(result))

@@ -47,8 +47,9 @@ def addon_zip(tmp_path_factory):
     return out
 
 
-def _blender(addon_zip, glb, take, mesh, wait_until, interrupt_and_wait):
-    puppet = helpers.Puppet(["play", take, "--link", "127.0.0.1:0", "--speed", "0.25"])
+def _blender(addon_zip, glb, take, mesh, wait_until, interrupt_and_wait, rig_file=None):
+    rig = [] if rig_file is None else ["--rig", rig_file]
+    puppet = helpers.Puppet(["play", take, "--link", "127.0.0.1:0", "--speed", "0.25", *rig])
     try:
         port, _ = puppet.listening(wait_until)
         result = run_bpy.run_bpy_result(SCRIPT.read_text(), addon_zip, glb, port, int(mesh))
@@ -73,16 +74,39 @@ def test_recorded_keys_equal_the_gltf_export_frame_by_frame(
     assert any("reading->applied median" in line for line in puppet.out), puppet.out
 
 
-def test_mesh_mode_writes_the_solvers_vertices(addon_zip, exported, take, critter, wait_until,
-                                               interrupt_and_wait):
-    result, _ = _blender(addon_zip, exported["glb"], take, True, wait_until, interrupt_and_wait)
-    reference = helpers.reference_vertices(critter, take)
+def _mesh_mode(addon_zip, glb, take, rig, wait_until, interrupt_and_wait, rig_file=None):
+    result, _ = _blender(addon_zip, glb, take, True, wait_until, interrupt_and_wait, rig_file)
+    reference = helpers.reference_vertices(rig, take)
+    order = np.arange(len(rig.V)) if rig.source_index is None else np.asarray(rig.source_index)
     assert result["meshes"], result
-    diagonal = float(np.linalg.norm(critter.V.max(0) - critter.V.min(0)))
+    diagonal = float(np.linalg.norm(rig.V.max(0) - rig.V.min(0)))
     for shown in result["meshes"]:
         k = round(shown["take_s"] * 30)
-        expected = reference[k] @ Y_UP_TO_BLENDER.T
+        expected = reference[k][order] @ Y_UP_TO_BLENDER.T
         assert np.abs(np.array(shown["world"]) - expected).max() <= 1e-5 * diagonal, k
+
+
+def test_mesh_mode_writes_the_solvers_vertices(addon_zip, exported, take, critter, wait_until,
+                                               interrupt_and_wait):
+    _mesh_mode(addon_zip, exported["glb"], take, critter, wait_until, interrupt_and_wait)
+
+
+def test_a_moved_turned_scaled_armature_is_driven_as_its_gltf_export_plays(
+        addon_zip, mare, wait_until, interrupt_and_wait):
+    """The mare's armature node is moved, turned and scaled unevenly, its mesh node too: the
+    bones follow the export's keys in the importer's space, and the mesh mode's vertices land
+    where the solver puts them in the world."""
+    rig = mare["rig"]
+    result, _ = _blender(addon_zip, mare["glb"], mare["take"], False, wait_until,
+                         interrupt_and_wait, mare["rig_file"])
+    diagonal = float(np.linalg.norm(rig.V.max(0) - rig.V.min(0)))
+    b = len(rig.skeleton.names)
+    assert result["notes"] == [f"{b} of {b} joints drive bones"], result["notes"]
+    assert len(result["frames"]) >= 3, result
+    assert max(f["worst"] for f in result["frames"]) <= 1e-5 * diagonal, result["frames"]
+    assert max(f["moved"] for f in result["frames"]) > 0.01 * diagonal  # the bones did move
+    _mesh_mode(addon_zip, mare["glb"], mare["take"], rig, wait_until, interrupt_and_wait,
+               mare["rig_file"])
 
 
 def _fake_puppet(critter, listener):
