@@ -4,6 +4,7 @@ keys of a .glb's animation. Load by path (pytest runs with --import-mode=importl
 from __future__ import annotations
 
 import subprocess
+import sys
 import threading
 from pathlib import Path
 
@@ -14,13 +15,18 @@ import pygltflib
 class Puppet:
     """A running ``puppet ...`` command; its stderr lines collected on a thread."""
 
-    def __init__(self, argv):
-        self.proc = subprocess.Popen(["puppet", *map(str, argv)], stdout=subprocess.PIPE,
+    def __init__(self, argv, program=("puppet",)):
+        self.proc = subprocess.Popen([*program, *map(str, argv)], stdout=subprocess.PIPE,
                                      stderr=subprocess.PIPE, text=True)
         self.lines: list[str] = []
         self.out: list[str] = []
-        threading.Thread(target=self._collect, args=(self.proc.stderr, self.lines), daemon=True).start()
-        threading.Thread(target=self._collect, args=(self.proc.stdout, self.out), daemon=True).start()
+        for stream, into in ((self.proc.stderr, self.lines), (self.proc.stdout, self.out)):
+            threading.Thread(target=self._collect, args=(stream, into), daemon=True).start()
+
+    @classmethod
+    def python(cls, argv) -> "Puppet":
+        """This Python (bpy's) running ``argv``, its output collected the same way."""
+        return cls(argv, program=(sys.executable,))
 
     @staticmethod
     def _collect(stream, into):
@@ -29,8 +35,9 @@ class Puppet:
 
     def listening(self, wait_until) -> tuple[int, str | None]:
         """(port, token) from 'link: listening on HOST:PORT [token T]'."""
-        line = wait_until(lambda: next((x for x in self.lines if x.startswith("link: listening")),
-                                       None) or (self.proc.poll() is not None and "exited"))
+        line = wait_until(lambda: next((x for x in self.lines
+                                        if x.startswith("link: listening")), None)
+                          or (self.proc.poll() is not None and "exited"))
         assert line != "exited", "\n".join(self.lines)
         words = line.split()
         where = words[3]

@@ -168,3 +168,51 @@ def test_the_addon_reports_refusal_mapping_problems_malformed_frames_and_a_stop(
     assert result["status"] == "puppet stopped streaming; last pose kept"
     assert result["posed"] == result["kept"]
     assert np.abs(np.array(result["posed"]) - np.eye(4)).max() > 0.5  # the 90° turn applied
+
+
+def test_live_record_keys_blender_where_the_takes_export_puts_each_frame(
+        addon_zip, exported, critter, tmp_path, wait_until, interrupt_and_wait):
+    """``puppet live --record TAKE --link`` on hw_sim (the demo's motion) with Blender connected
+    and Record off in the panel: puppet's frames are flagged recording, the add-on keys each at
+    start + (reading time - the take's first reading) x scene fps, and Blender's action at every
+    scene frame between keys agrees with ``puppet export --gltf`` of the take at the scene's
+    fps: each sensed joint's rotation within a tenth of what the export turns it in one frame
+    (an offset of one frame, or a wrong take start, is that whole turn) plus two encoder ticks
+    (the export rounds interpolated ticks). The free bones, which FAST solves warm-started from
+    the frame before (every reading live, every 1/30 s in the export), agree less closely."""
+    import hw_sim
+    from puppet.demo import Performance
+    from puppet.rig.load import BUILTIN_RIG
+
+    take, reference = tmp_path / "take.mcap", tmp_path / "reference.glb"
+    with hw_sim.serve(critter.servo_map.models, motion=Performance(critter)) as bus:
+        puppet = helpers.Puppet(["live", "--rig", BUILTIN_RIG, "--port", bus.port, "--record",
+                                 take, "--link", "127.0.0.1:0"])
+        try:
+            port, _ = puppet.listening(wait_until)
+            sensed = ",".join(s.joint for s in critter.servo_map.servos)
+            blender = helpers.Puppet.python(["-c", (HERE / "blender_record.py").read_text(),
+                                             addon_zip, exported["glb"], port, "20", reference,
+                                             sensed])
+            wait_until(lambda: "RECORDED" in blender.out or blender.proc.poll() is not None,
+                       timeout=600)
+            assert "RECORDED" in blender.out, "\n".join(blender.lines[-30:])
+        finally:
+            interrupt_and_wait(puppet.proc, read_stderr=False)
+    assert puppet.proc.returncode == 0, "\n".join(puppet.lines)
+    staged = tmp_path / "staged.glb"
+    done = subprocess.run(["puppet", "export", str(take), "--gltf", str(staged), "--fps", "30"],
+                          capture_output=True, text=True, timeout=900)
+    assert done.returncode == 0, done.stderr
+    staged.rename(reference)
+    assert blender.proc.wait(timeout=600) == 0, "\n".join(blender.lines[-30:])
+    result = json.loads(next(x for x in blender.out if x.startswith("RESULT "))[len("RESULT "):])
+    assert result["keyed"] == sorted(result["keyed"])
+    frames = result["frames"]
+    assert len(frames) >= 10, result
+    diagonal = float(np.linalg.norm(critter.V.max(0) - critter.V.min(0)))
+    tick_deg = 360.0 / 4096  # the critter's XL330s
+    for f in frames:
+        assert f["worst_deg"] <= 0.1 * f["step_deg"] + 2 * tick_deg, f
+        assert f["worst"] <= 0.1 * diagonal, f
+    assert max(f["step_deg"] for f in frames) > 1.0  # the servos were moving

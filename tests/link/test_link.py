@@ -80,6 +80,8 @@ def test_play_streams_the_gltf_exports_keys_to_two_clients_latest_wins(
         assert (hello["protocol"], hello["joints"], hello["vertices"]) == (
             wire.PROTOCOL, names, len(critter.V))
         assert hello["parents"] == [int(p) for p in critter.skeleton.parents]
+        assert hello["fps"] == 30.0  # the rate play hands out frames at (--fps, the export's)
+        assert hello["armature"] == np.eye(4).reshape(16).tolist()  # the critter: no nodes above
         fast_seqs, slow_seqs = [], []
         slow_first = slow.next()[1]  # then the slow client stops reading (and acking)
         while True:
@@ -93,6 +95,7 @@ def test_play_streams_the_gltf_exports_keys_to_two_clients_latest_wins(
             assert np.abs(t - t_file[k]).max() < 1e-5, k
             same = np.minimum(np.abs(q - q_file[k]).max(1), np.abs(q + q_file[k]).max(1))
             assert same.max() < 1e-5, k  # q and -q: one rotation (the file keeps a hemisphere)
+            assert not frame.recording  # a play records nothing
             fast_seqs.append(frame.seq)
             fast.ack(frame.seq)
         assert kind == wire.BYE and frame["reason"]
@@ -152,6 +155,7 @@ def test_demo_streams_the_live_loop_with_reading_times(tmp_path, critter, wait_u
         live = Client(port)
         assert live.first[0] == wire.HELLO
         assert live.first[1]["joints"] == list(critter.skeleton.names)
+        assert live.first[1]["fps"] == 60.0  # run_demo's loop target (late latching's rate)
         frames = []
         while True:
             kind, frame = live.next()

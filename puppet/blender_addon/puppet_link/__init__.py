@@ -76,6 +76,7 @@ class Link:
         self.last_seq, self.last_take_s = -1, 0.0
         self.bones = []  # (pose bone, joint, parent joint or -1, B⁻¹Z, Z⁻¹B)
         self.recorded = 0
+        self.last_frame = None  # the scene frame keyed last
         self.mesh_on = False
         self.bound_to = None  # the armature bound (name)
 
@@ -246,6 +247,7 @@ class Link:
             pose_bone.keyframe_insert("location", frame=at, group=pose_bone.name)
             pose_bone.keyframe_insert("rotation_quaternion", frame=at, group=pose_bone.name)
         self.recorded += 1
+        self.last_frame = at
         return at
 
 
