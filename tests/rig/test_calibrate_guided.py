@@ -476,3 +476,44 @@ def test_lost_replies_neither_hide_a_move_nor_make_one(tmp_path, character):
     found = session.run(read, script(), say=said.append, timeout_s=30)
     assert [(f.step.joint, f.id, f.sign) for f in found] == [("hips", 21, 1)]
     assert not any("not sure" in line for line in said)
+
+
+def test_guided_calibration_on_an_ax_rig_against_hw_sim_guided_motion(tmp_path, character):
+    """AX-12A servos (1024 positions over 300°: a 30° joint turn is 102 ticks, under the 150
+    ticks an X-series threshold was): ``hw-sim --rig person.toml --motion guided`` turns each
+    joint the way calibrate asks, and ``calibrate --guided`` finds every id, sign, zero and model
+    with no unsure ask, the threshold converted by each servo's own ticks per turn."""
+    truth = {"neck": (12, -1, 400, "AX-12A"), "tail base": (15, 1, 620, "AX-12A"),
+             "leg.L": (17, -1, 512, "AX-12A")}
+    axes = {"neck": '"x"', "tail base": '"z"', "leg.L": '"x"'}
+    limits = {"neck": "[-90, 10]", "tail base": "[-60, 60]", "leg.L": "[-5, 120]"}
+    rig = _rig_with(tmp_path, character, {j: {"axis": axes[j], "limits_deg": limits[j],
+                                              "model": '"AX-12A"'} for j in truth})
+    person = tmp_path / "person.toml"   # what the simulated puppet is: true ids, signs and zeros
+    person.write_text("".join(f'[[servo]]\nid = {i}\nmodel = "{m}"\nsign = {s}\nzero_ticks = {z}\n'
+                              f"limits_deg = {limits[j]}\n" for j, (i, s, z, m) in truth.items()))
+    sim = subprocess.Popen(["hw-sim", "--rig", str(person), "--motion", "guided"], stdout=subprocess.PIPE,
+                           stderr=subprocess.PIPE, text=True)
+    try:
+        port = sim.stdout.readline().strip()
+        assert port.startswith("/dev/"), sim.stderr.read() if sim.poll() is not None else port
+        session = _Calibrate(rig, port, "--timeout", "60")
+        prompts = [line for line in session.lines() if line.startswith("[")]
+        code, stdout = session.finish()
+    finally:
+        sim.send_signal(signal.SIGTERM)
+        sim.wait(timeout=PATIENCE_S)
+    log = "".join(session.log)
+    assert code == 0, log
+    assert "not sure" not in log
+    assert [p.split("'")[1] for p in prompts] == list(truth)
+    doc = tomllib.loads(rig.read_text())
+    got = {s["joint"]: (s["id"], s["sign"], s["zero_ticks"], s["model"]) for s in doc["servo"]}
+    assert got == truth, log
+    loaded = load_rig(rig)   # the calibrated AX rig reads a 30° joint turn (inside its limits) as 30°
+    turn = {"neck": -30.0, "tail base": 30.0, "leg.L": 30.0}
+    servos = loaded.servo_map.servos
+    ticks = np.array([truth[s.joint][2] + truth[s.joint][1] * round(turn[s.joint] * 1024 / 300)
+                      for s in servos], np.int32)
+    np.testing.assert_allclose(np.degrees(loaded.servo_map.angles(ticks)), [turn[s.joint] for s in servos],
+                               atol=0.3)
