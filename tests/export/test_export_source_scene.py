@@ -360,3 +360,27 @@ def test_unusable_attribute_is_left_out_with_a_warning(tmp_path):
     gltf = pygltflib.GLTF2().load_binary(str(tmp_path / "anim.glb"))
     written = gltf.meshes[0].primitives[0].attributes
     assert written.TEXCOORD_1 is None and written.COLOR_0 is None and written.TEXCOORD_0 is not None
+
+
+def test_image_gone_after_the_rig_loaded_is_named_by_both_exporters(tmp_path):
+    """SourceImage.read: the one way an exporter reads a texture; a file deleted since the rig
+    loaded gives each exporter the same warning naming it, and plain materials."""
+    from pxr import Usd, UsdShade
+
+    characters.write(tmp_path / "pillar.gltf", PILLAR)
+    (tmp_path / "pillar.toml").write_text(RIG.format(mesh="pillar.gltf"))
+    rig = load_rig(tmp_path / "pillar.toml")
+    assert rig.source.warnings == []
+    (tmp_path / characters.PILLAR_IMAGE).unlink()
+    take = shared.write_take(tmp_path / "take.mcap", rig, readings=6)
+    missing = str(tmp_path / characters.PILLAR_IMAGE)
+    for outputs in (Outputs(gltf=tmp_path / "anim.glb"), Outputs(usd=tmp_path / "anim.usda")):
+        report = export_take(rig, TakeReader(take), outputs, fps=10)
+        assert len(report.warnings) == 1
+        assert report.warnings[0].startswith(f"{missing}: cannot read the image")
+        assert "left out" in report.warnings[0]
+    gltf = pygltflib.GLTF2().load_binary(str(tmp_path / "anim.glb"))
+    assert gltf.images == [] and gltf.materials[0].pbrMetallicRoughness.baseColorTexture is None
+    stage = Usd.Stage.Open(str(tmp_path / "anim.usda"))
+    surface = UsdShade.Material(stage.GetPrimAtPath("/pillar/Materials/skin")).ComputeSurfaceSource()[0]
+    assert not surface.GetInput("diffuseColor").HasConnectedSource()
