@@ -1,36 +1,35 @@
 """Skinned glTF test characters built from code, as Blender exports them: the one builder of the tests.
 
 A ``Character`` is a description (joints, primitives, node transforms, materials, a texture);
-``document`` / ``write`` turn any of them into a glTF file. Three characters:
+``document`` / ``write`` turn any of them into a glTF file. Two shapes:
 
-- beast (``build``, ``write_glb``, ``mesh``, ``rest_vertices``; rig, loop, fuzz, README tests):
-  a capped tube body along +Z (glTF forward), +Y up, with a leg tube below it (a second
-  primitive), under an "Armature" node that is not a joint and is only moved; the mesh node is a
-  scene root. Joints, nested, Blender-style (each bone's local +Y runs along the bone):
+- the creature (``creature(...)``): a capped tube body along +Z (glTF forward), +Y up, with leg
+  tubes below it (one primitive each), under an "Armature" node that is not a joint. Joints,
+  nested, Blender-style (each bone's local +Y runs along the bone), with puppet's names or
+  (``blender_names``) Blender's dotted ones:
 
       hips (root) ─ spine ─ neck ─ head
-                 ├ tail base ─ tail tip          (a joint name with a space)
-                 └ leg.L ─ foot.L
+                 ├ tail base ─ tail tip          (Blender: tail ─ tail.001)
+                 ├ leg.L ─ foot.L                (Blender: thigh.L ─ shin.L)
+                 └ leg.R ─ foot.R                (with legs=("L", "R"))
 
-  ``split=True`` writes the mesh the way glTF exporters do at UV seams (below); ``split=False``
-  writes the same surface with no copies, so that welding the split file must give exactly the
-  unsplit one. No normals, UVs or materials.
-- mare (``mare()``, ``mare_rig_text``; tests/export/blender): the beast's shape with two legs and
-  Blender's bone names (dots, ``.L``/``.R``, ``.001``: hips, spine, neck, head, tail, tail.001,
-  thigh.L/R, shin.L/R); every primitive has NORMAL, two UV sets and COLOR_0; material "coat"
-  (body) has an embedded PNG texture on TEXCOORD_0, "hoof" (legs) is plain.
-- pillar (``pillar(moved)``; tests/export/test_export_source_scene.py): a tube along the mesh's +Y,
-  three joints (root, mid, top); its sides (material "skin", textured, TEXCOORD_1 and COLOR_0)
-  and its caps (material "cap", colour factors only, no TEXCOORD_1 or COLOR_0) are two
+  Options: ``split`` (UV seams, below; False writes the same surface with no copies, so that
+  welding the split file must give exactly the unsplit one), ``moved`` (Armature and mesh nodes
+  moved, turned, unevenly scaled), ``dressed`` (NORMAL, two UV sets, COLOR_0, a textured and a
+  plain material), ``extra_joint``. Two presets: the beast (``beast``; ``build``, ``write_glb``,
+  ``mesh``, ``rest_vertices``: rig, loop, fuzz, export and README tests) and the mare (``mare``,
+  ``mare_rig_text``: tests/export/blender).
+- the pillar (``pillar(moved)``; tests/export/test_export_source_scene.py): a tube along the mesh's
+  +Y, three joints (root, mid, top); its sides (material "skin", textured, TEXCOORD_1 and
+  COLOR_0) and its caps (material "cap", colour factors only, no TEXCOORD_1 or COLOR_0) are two
   primitives; a "Marker" empty is a child of "mid". Written as .glb (image embedded) or .gltf
   (image ``PILLAR_IMAGE`` next to it).
 
-Mare and pillar: the Armature node and the mesh node (its child) are moved, turned and scaled
-unevenly. Seams: each tube ring repeats its first vertex at its end (u = 0 and u = 1) and each
-cap has its own copies of its ring (a hard edge). Skinning follows Blender's exporter: positions
-are in the mesh node's space and each inverse bind matrix is ``inverse(joint world) @ mesh
-world``, so the rest pose puts every vertex at ``mesh world @ position`` (``rest_vertices()``,
-model space = the glTF scene's world).
+Seams: each tube ring repeats its first vertex at its end (u = 0 and u = 1) and each cap has its
+own copies of its ring (a hard edge). Skinning follows Blender's exporter: positions are in the
+mesh node's space and each inverse bind matrix is ``inverse(joint world) @ mesh world``, so the
+rest pose puts every vertex at ``mesh world @ position`` (``rest_vertices()``, model space = the
+glTF scene's world).
 """
 
 # No ``from __future__ import annotations``: the dataclasses here must work in a module loaded by path.
@@ -347,45 +346,111 @@ def write(path, character: Character, *, image_file: bool = True, **kwargs) -> P
     return path
 
 
-# -- beast -------------------------------------------------------------------------------------
+# -- the creature: beast and mare ---------------------------------------------------------------
 
 SIDES = 10
 ARMATURE_OFFSET = np.array([0.0, 0.6, 0.0])
 
-# name, parent, head (model space), direction of the bone's local +Y
-BONES = (
-    ("hips", None, (0.0, 0.0, 0.0), (0, 0, 1)),
-    ("spine", "hips", (0.0, 0.0, 0.5), (0, 0, 1)),
-    ("neck", "spine", (0.0, 0.0, 1.0), (0, 0, 1)),
-    ("head", "neck", (0.0, 0.0, 1.4), (0, 0, 1)),
-    ("tail base", "hips", (0.0, 0.0, -0.1), (0, 0, -1)),
-    ("tail tip", "tail base", (0.0, 0.0, -0.5), (0, 0, -1)),
-    ("leg.L", "hips", (0.18, 0.0, 0.25), (0, -1, 0)),
-    ("foot.L", "leg.L", (0.18, -0.35, 0.25), (0, -1, 0)),
+# name (puppet's, Blender's), parent, head (armature space), direction of the bone's local +Y;
+# legs: one chain per side (the R side mirrors x).
+_BODY = (
+    ("hips", "hips", None, (0.0, 0.0, 0.0), (0, 0, 1)),
+    ("spine", "spine", "hips", (0.0, 0.0, 0.5), (0, 0, 1)),
+    ("neck", "neck", "spine", (0.0, 0.0, 1.0), (0, 0, 1)),
+    ("head", "head", "neck", (0.0, 0.0, 1.4), (0, 0, 1)),
+    ("tail base", "tail", "hips", (0.0, 0.0, -0.1), (0, 0, -1)),
+    ("tail tip", "tail.001", "tail base", (0.0, 0.0, -0.5), (0, 0, -1)),
 )
+_LEG = (("leg.{}", "thigh.{}", "hips", (0.18, 0.0, 0.25), (0, -1, 0)),
+        ("foot.{}", "shin.{}", "leg.{}", (0.18, -0.35, 0.25), (0, -1, 0)))
+
+
+def creature_bones(legs=("L",), blender_names: bool = False) -> list:
+    """[(name, parent, head, direction)] of the body and one leg per side in ``legs``; names
+    puppet's ("tail base", "leg.L", ...) or Blender's ("tail.001", "thigh.L", ...)."""
+    rename = {}
+    rows = [(ours, theirs, parent, head, direction) for ours, theirs, parent, head, direction in _BODY]
+    for side in legs:
+        x = 1.0 if side == "L" else -1.0
+        rows += [(ours.format(side), theirs.format(side), parent.format(side),
+                  (x * head[0], head[1], head[2]), direction) for ours, theirs, parent, head, direction in _LEG]
+    for ours, theirs, *_ in rows:
+        rename[ours] = theirs if blender_names else ours
+    return [(rename[ours], rename.get(parent), head, direction) for ours, _, parent, head, direction in rows]
+
+
+BONES = tuple(creature_bones())
 NAMES = tuple(b[0] for b in BONES)
+
+
+def _creature_parts(split, legs, names):
+    """[(Tube, W (n, len(names)))] body then each leg, armature space, rest pose."""
+    body = tube((0.0, 0.0, -0.7), (0.0, 0.0, 1.8), 26, 0.25, SIDES, split)
+    parts = [(body, hat_weights(body.V[:, 2], [-0.6, -0.3, 0.15, 0.7, 1.2, 1.6],
+                                [5, 4, 0, 1, 2, 3], len(names)))]  # tail tip, tail base, hips, spine, neck, head
+    for k, side in enumerate(legs):
+        x = 0.18 if side == "L" else -0.18
+        leg = tube((x, -0.05, 0.25), (x, -0.7, 0.25), 8, 0.07, SIDES, split)
+        parts.append((leg, hat_weights(leg.V[:, 1], [-0.15, -0.55], [6 + 2 * k, 7 + 2 * k], len(names))))
+    return parts
 
 
 def mesh(split: bool = True):
     """The beast's primitives [(V (n, 3) float32, F (f, 3), W (n, bones))], model space less
     ARMATURE_OFFSET (rest pose)."""
-    index = {n: i for i, n in enumerate(NAMES)}
-    body = tube((0.0, 0.0, -0.7), (0.0, 0.0, 1.8), 26, 0.25, SIDES, split)
-    body_W = hat_weights(body.V[:, 2], [-0.6, -0.3, 0.15, 0.7, 1.2, 1.6],
-                         [index[n] for n in ("tail tip", "tail base", "hips", "spine", "neck", "head")],
-                         len(NAMES))
-    leg = tube((0.18, -0.05, 0.25), (0.18, -0.7, 0.25), 8, 0.07, SIDES, split)
-    leg_W = hat_weights(leg.V[:, 1], [-0.15, -0.55], [index["leg.L"], index["foot.L"]], len(NAMES))
-    return [(body.V.astype(np.float32), body.F, body_W), (leg.V.astype(np.float32), leg.F, leg_W)]
+    return [(part.V.astype(np.float32), part.F, W) for part, W in _creature_parts(split, ("L",), NAMES)]
+
+
+MOVED_ARMATURE_TRS = ((1.5, 0.3, 2.0), tuple(Rotation.from_euler("y", 25, degrees=True).as_quat()),
+                      (1.2, 1.0, 0.8))
+MOVED_MESH_TRS = ((0.1, -0.05, 0.2), tuple(Rotation.from_euler("x", 10, degrees=True).as_quat()),
+                  (1.0, 1.1, 0.9))
+
+
+def creature(split: bool = True, *, name: str = "beast", legs=("L",), blender_names: bool = False, moved: bool = False,
+             dressed: bool = False, extra_joint: str | None = None) -> Character:
+    """The creature, its mesh named ``name``. split: UV seams (see the module docstring); legs: "L" and/or "R";
+    blender_names: Blender's bone names; moved: the Armature node and the mesh node (its child)
+    moved, turned and unevenly scaled (MOVED_ARMATURE_TRS, MOVED_MESH_TRS; else the Armature only
+    moved by ARMATURE_OFFSET, the mesh node a scene root); dressed: NORMAL, two UV sets, COLOR_0,
+    materials "coat" (body, textured) and "hoof" (legs, plain); extra_joint: the name of one
+    more joint (child of head) that no vertex follows."""
+    bones = creature_bones(legs, blender_names)
+    names = [b[0] for b in bones]
+    bones += [(extra_joint, "head", (0.0, 0.0, 1.7), (0, 0, 1))] if extra_joint else []
+    joints = [(name, parent, frame_at(bone_frame(direction), head)) for name, parent, head, direction in bones]
+    if moved:
+        armature_trs, mesh_trs = MOVED_ARMATURE_TRS, MOVED_MESH_TRS
+    else:
+        armature_trs, mesh_trs = (tuple(ARMATURE_OFFSET), (0.0, 0.0, 0.0, 1.0), (1.0, 1.0, 1.0)), IDENTITY_TRS
+    character = Character(name, joints, [], armature_trs, mesh_trs,
+                          mesh_under_armature=moved)
+    to_mesh = np.linalg.inv(character.mesh_world()) @ character.armature_world()  # armature -> mesh space
+    for k, (part, W) in enumerate(_creature_parts(split, legs, names)):
+        prim = {"V": (part.V @ to_mesh[:3, :3].T + to_mesh[:3, 3]).astype(np.float32), "F": part.F, "W": W}
+        if dressed:
+            N = part.N @ np.linalg.inv(to_mesh[:3, :3])
+            prim.update(N=N / np.linalg.norm(N, axis=1, keepdims=True), uv0=part.UV, uv1=second_uvs(part.UV),
+                        colours=colours(part.UV), material=0 if k == 0 else 1)
+        character.primitives.append(prim)
+    if dressed:
+        character.materials = [
+            g.Material(name="coat", pbrMetallicRoughness=g.PbrMetallicRoughness(
+                baseColorTexture=g.TextureInfo(index=0, texCoord=0), metallicFactor=0.0)),
+            g.Material(name="hoof", pbrMetallicRoughness=g.PbrMetallicRoughness(
+                baseColorFactor=[0.2, 0.15, 0.1, 1.0], metallicFactor=0.0))]
+        character.image = ("coat", "coat.png")
+    return character
 
 
 def beast(split: bool = True, extra_joint: str | None = None) -> Character:
-    """The beast; extra_joint: the name of one more joint (child of head) that no vertex follows."""
-    bones = list(BONES) + ([(extra_joint, "head", (0.0, 0.0, 1.7), (0, 0, 1))] if extra_joint else [])
-    joints = [(name, parent, frame_at(bone_frame(direction), head)) for name, parent, head, direction in bones]
-    prims = [{"V": (V + ARMATURE_OFFSET).astype(np.float32), "F": F, "W": W} for V, F, W in mesh(split)]
-    return Character("beast", joints, prims, armature_trs=(tuple(ARMATURE_OFFSET), (0, 0, 0, 1), (1, 1, 1)),
-                     mesh_under_armature=False)
+    """The beast: the creature with one leg, puppet's names, not moved, undressed."""
+    return creature(split, extra_joint=extra_joint)
+
+
+def mare() -> Character:
+    """The mare: the creature with two legs, Blender's names, moved and dressed."""
+    return creature(name="mare", legs=("L", "R"), blender_names=True, moved=True, dressed=True)
 
 
 def build(split: bool = True, *, skins: int = 1, ibm_override: dict | None = None,
@@ -405,6 +470,20 @@ def write_glb(path, split: bool = True, **kwargs):
 def rest_vertices(split: bool = True) -> np.ndarray:
     """(n, 3) model-space rest positions of every beast file vertex, primitives in order."""
     return beast(split).rest_vertices()
+
+
+# The servos of the mare's rig: joint -> (id, axis); the solve fills in the other joints.
+MARE_SERVOS = {"spine": (1, "x"), "neck": (2, "z"), "tail": (3, "x"), "thigh.L": (4, "x"), "thigh.R": (5, "z")}
+
+
+def mare_rig_text(glb_name: str) -> str:
+    """A rig file for the mare (the mesh next to it): MARE_SERVOS, hips held still."""
+    lines = ['name = "mare"', f'mesh = "{glb_name}"', 'fixed = ["hips"]', "",
+             "[solver]", "clusters = 30", "extra_weights = 0", 'energy = "spokes_and_rims"']
+    for joint, (servo_id, axis) in MARE_SERVOS.items():
+        lines += ["", "[[servo]]", f"id = {servo_id}", 'model = "XL330-M288"', f'joint = "{joint}"',
+                  f'axis = "{axis}"', "zero_ticks = 2048", "limits_deg = [-60, 60]"]
+    return "\n".join(lines) + "\n"
 
 
 def enable_servos(text: str, servos: dict[str, dict]) -> str:
@@ -433,71 +512,6 @@ def enable_servos(text: str, servos: dict[str, dict]) -> str:
         out.append(lines[i])
         i += 1
     return "\n".join(out) + "\n"
-
-
-# -- mare --------------------------------------------------------------------------------------
-
-MARE_SIDES = 12
-MARE_ARMATURE_TRS = ((1.5, 0.3, 2.0), tuple(Rotation.from_euler("y", 25, degrees=True).as_quat()),
-                     (1.2, 1.0, 0.8))
-MARE_MESH_TRS = ((0.1, -0.05, 0.2), tuple(Rotation.from_euler("x", 10, degrees=True).as_quat()),
-                 (1.0, 1.1, 0.9))
-# name, parent, head (armature space), direction of the bone's local +Y
-MARE_BONES = (
-    ("hips", None, (0.0, 0.0, 0.0), (0, 0, 1)),
-    ("spine", "hips", (0.0, 0.0, 0.5), (0, 0, 1)),
-    ("neck", "spine", (0.0, 0.0, 1.0), (0, 0, 1)),
-    ("head", "neck", (0.0, 0.0, 1.4), (0, 0, 1)),
-    ("tail", "hips", (0.0, 0.0, -0.1), (0, 0, -1)),
-    ("tail.001", "tail", (0.0, 0.0, -0.45), (0, 0, -1)),
-    ("thigh.L", "hips", (0.2, 0.0, 0.25), (0, -1, 0)),
-    ("shin.L", "thigh.L", (0.2, -0.35, 0.25), (0, -1, 0)),
-    ("thigh.R", "hips", (-0.2, 0.0, 0.25), (0, -1, 0)),
-    ("shin.R", "thigh.R", (-0.2, -0.35, 0.25), (0, -1, 0)),
-)
-# The servos of its rig: joint -> (id, axis); the solve fills in the other joints.
-MARE_SERVOS = {"spine": (1, "x"), "neck": (2, "z"), "tail": (3, "x"), "thigh.L": (4, "x"), "thigh.R": (5, "z")}
-
-
-def mare() -> Character:
-    """The mare (see the module docstring)."""
-    names = [b[0] for b in MARE_BONES]
-    A, M = trs_matrix(MARE_ARMATURE_TRS), trs_matrix(MARE_ARMATURE_TRS) @ trs_matrix(MARE_MESH_TRS)
-    to_mesh = np.linalg.inv(M) @ A  # armature space -> the mesh node's space
-    body = tube((0, 0, -0.8), (0, 0, 1.8), 27, 0.25, MARE_SIDES)
-    parts = [(body, hat_weights(body.V[:, 2], [-0.6, -0.25, 0.15, 0.7, 1.2, 1.6],
-                                [names.index(n) for n in ("tail.001", "tail", "hips", "spine", "neck", "head")],
-                                len(names)), 0)]
-    for side, x in (("L", 0.2), ("R", -0.2)):
-        leg = tube((x, -0.05, 0.25), (x, -0.7, 0.25), 9, 0.07, MARE_SIDES)
-        parts.append((leg, hat_weights(leg.V[:, 1], [-0.15, -0.55],
-                                       [names.index(f"thigh.{side}"), names.index(f"shin.{side}")],
-                                       len(names)), 1))
-    prims = []
-    for part, W, material in parts:
-        N = part.N @ np.linalg.inv(to_mesh[:3, :3])
-        prims.append({"V": part.V @ to_mesh[:3, :3].T + to_mesh[:3, 3], "F": part.F, "W": W,
-                      "N": N / np.linalg.norm(N, axis=1, keepdims=True), "uv0": part.UV,
-                      "uv1": second_uvs(part.UV), "colours": colours(part.UV), "material": material})
-    materials = [
-        g.Material(name="coat", pbrMetallicRoughness=g.PbrMetallicRoughness(
-            baseColorTexture=g.TextureInfo(index=0, texCoord=0), metallicFactor=0.0)),
-        g.Material(name="hoof", pbrMetallicRoughness=g.PbrMetallicRoughness(
-            baseColorFactor=[0.2, 0.15, 0.1, 1.0], metallicFactor=0.0)),
-    ]
-    joints = [(name, parent, frame_at(bone_frame(direction), head)) for name, parent, head, direction in MARE_BONES]
-    return Character("mare", joints, prims, MARE_ARMATURE_TRS, MARE_MESH_TRS, materials=materials,
-                     image=("coat", "coat.png"))
-
-
-def mare_rig_text(glb_name: str) -> str:
-    """A rig file for the mare (the mesh next to it): MARE_SERVOS, hips held still."""
-    lines = ['name = "mare"', f'mesh = "{glb_name}"', 'fixed = ["hips"]', "",
-             "[solver]", "clusters = 30", "extra_weights = 0", 'energy = "spokes_and_rims"']
-    for joint, (servo_id, axis) in MARE_SERVOS.items():
-        lines += ["", "[[servo]]", f"id = {servo_id}", 'model = "XL330-M288"', f'joint = "{joint}"',
-                  f'axis = "{axis}"', "zero_ticks = 2048", "limits_deg = [-60, 60]"]
-    return "\n".join(lines) + "\n"
 
 
 # -- pillar ------------------------------------------------------------------------------------
