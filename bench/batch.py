@@ -1,7 +1,8 @@
 """Batch benchmark: takes per minute with 1 and 2 workers on each engine, overhead per task, the
 rig precompute shared once against per take, and the per-take cost model of docs/scale.md.
 
-Takes are synthetic takes of the built-in critter (every servo moving, 30 readings per second).
+Takes are synthetic takes of the built-in critter (every servo moving, 240 readings per second
+as `puppet record` gets them: about 35 kB per second of take).
 Each case runs ``puppet.batch.run_batch`` (the driver) over them; outputs go to a temporary
 folder. The FAST precompute cache is pointed at an empty folder, so the rig precompute really
 runs (once per batch: that is what is shared; "per take" is what recomputing it in every task
@@ -20,7 +21,9 @@ solve-heavy formats when nothing else runs; a shared machine lowers it).
 
 JSON: {"cases": [{"engine", "workers", "takes", "formats", "takes_per_min",
 "overhead_ms_per_task", "precompute_s", "precompute_per_take_s", "seconds", "task_seconds_sum",
-"task_cpu_seconds_sum"}], "ratios": [...],
+"task_cpu_seconds_sum", "load_1min": [before, after] (the machine's 1-minute load average:
+2 cores, so above 2 means other work competed), "cpu_share_per_worker": the takes' CPU seconds /
+(wall seconds x workers): 1.0 when each worker had a core to itself}], "ratios": [...],
 "cost": {per-take CPU seconds and bytes}, "ray_start_s", "shared_bytes", "precompute_bytes"}.
 """
 
@@ -30,16 +33,21 @@ import argparse
 import json
 import os
 import resource
+import shutil
 import sys
 import tempfile
 import time
 from pathlib import Path
 
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")  # as the puppet command does
-os.environ["PUPPET_CACHE_DIR"] = tempfile.mkdtemp(prefix="puppet-bench-cache-")  # a cold cache
+# A cold cache: the one cache root (puppet.cache.ENV) in an empty folder, emptied before each
+# case, so every rig precompute below really runs.
+CACHE = Path(tempfile.mkdtemp(prefix="puppet-bench-cache-"))
+os.environ["PUPPET_CACHE"] = str(CACHE)
 
 import numpy as np  # noqa: E402
 
+import puppet.cache  # noqa: E402
 from puppet.batch import run_batch  # noqa: E402
 from puppet.bus import Reading  # noqa: E402
 from puppet.loop import Pipeline, RigPrecompute  # noqa: E402
@@ -47,7 +55,12 @@ from puppet.rig import builtin  # noqa: E402
 from puppet.take import TakeWriter  # noqa: E402
 
 
-def make_take(path: Path, rig, seconds: float, seed: int, rate_hz: float = 30.0) -> Path:
+TAKE_RATE_HZ = 240.0
+"""Readings per second of the bench's takes: what `puppet record` gets from 15 servos on a
+1 Mbit/s bus (about 145 bytes per reading: 35 kB per second of take)."""
+
+
+def make_take(path: Path, rig, seconds: float, seed: int, rate_hz: float = TAKE_RATE_HZ) -> Path:
     """A take of ``rig``: smooth motion of every servo at rate_hz readings per second."""
     k = len(rig.servo_map)
     phase = np.random.default_rng(seed).uniform(0, 2 * np.pi, k)
@@ -59,6 +72,13 @@ def make_take(path: Path, rig, seconds: float, seed: int, rate_hz: float = 30.0)
             w.write(Reading(int(round(s * 1e9)), rig.servo_map.ids, ticks.astype(np.int32),
                             np.ones(k, bool)))
     return path
+
+
+def empty_cache() -> None:
+    """Remove everything cached (the FAST precompute and any other part's files)."""
+    assert puppet.cache.cache_root() == CACHE, "the bench must not touch the user's cache"
+    shutil.rmtree(CACHE, ignore_errors=True)
+    CACHE.mkdir()
 
 
 def cpu_now() -> tuple[float, float]:
@@ -111,6 +131,7 @@ def cost_model(rig, take: Path, folder: Path, fps: float, size: tuple[int, int])
 
 def run_case(engine: str, workers: int, takes: list[Path], out: Path, rig, formats: str,
              fps: float, size, precompute_cold_s: float) -> dict:
+    load_before = os.getloadavg()[0]
     report = run_batch([str(t) for t in takes], out, rig=rig, formats=formats,
                        fps=fps, size=size, engine=engine, workers=workers)
     if report.failed:
@@ -125,7 +146,10 @@ def run_case(engine: str, workers: int, takes: list[Path], out: Path, rig, forma
             "seconds": round(report.seconds, 3), "shared_bytes": report.shared_bytes,
             "task_seconds_sum": round(sum(r.seconds for r in report.rows), 3),
             "task_cpu_seconds_sum": round(sum(r.cpu_seconds for r in report.rows), 3),
-            "precompute_bytes": report.precompute_bytes}
+            "precompute_bytes": report.precompute_bytes,
+            "load_1min": [round(load_before, 2), round(os.getloadavg()[0], 2)],
+            "cpu_share_per_worker": round(sum(r.cpu_seconds for r in report.rows)
+                                          / (report.seconds * workers), 3)}
 
 
 def main() -> None:
@@ -137,24 +161,24 @@ def main() -> None:
     parser.add_argument("--engines", default="local,ray", help="comma-separated: local, ray")
     parser.add_argument("--formats", action="append", default=None,
                         help="a format set per case, e.g. pc2,gltf (repeatable; default: "
-                             "pc2,gltf and mp4)")
+                             "pc2,gltf,bvh and mp4)")
     parser.add_argument("--fps", type=float, default=30.0)
     parser.add_argument("--size", type=int, nargs=2, default=(640, 480), metavar=("W", "H"))
     args = parser.parse_args()
     if args.full:
         args.takes, args.seconds = 8, 10.0
-    format_sets = args.formats or ["pc2,gltf", "mp4"]
+    format_sets = args.formats or ["pc2,gltf,bvh", "mp4"]
     engines = [e.strip() for e in args.engines.split(",") if e.strip()]
     rig = builtin()
     folder = Path(tempfile.mkdtemp(prefix="puppet-bench-batch-"))
     takes = [make_take(folder / f"take{i:02d}.mcap", rig, args.seconds, seed=i)
              for i in range(args.takes)]
 
+    empty_cache()
     start = time.perf_counter()
     cold = RigPrecompute.for_rig(rig)  # the cache is empty: the full precompute
     precompute_cold_s = time.perf_counter() - start
-    for path in Path(os.environ["PUPPET_CACHE_DIR"]).rglob("*.npz"):
-        path.unlink()  # every batch below computes it again, once
+    empty_cache()  # every batch below computes it again, once
     result = {"cases": [], "ratios": [], "takes": args.takes, "seconds_per_take": args.seconds,
               "precompute_cold_s": round(precompute_cold_s, 4),
               "precompute_bytes": cold.nbytes(), "ray_start_s": None,
@@ -171,11 +195,13 @@ def main() -> None:
             for workers in (1, 2):
                 if engine == "ray":
                     t0 = time.perf_counter()
-                    ray.init(num_cpus=workers, include_dashboard=False, log_to_driver=False)
+                    # a private instance, as puppet batch starts (never a running cluster)
+                    os.environ.setdefault("RAY_AUTH_MODE", "disabled")  # as the engine's
+                    ray.init(address="local", num_cpus=workers, include_dashboard=False,
+                             log_to_driver=False, logging_level="ERROR")
                     result["ray_start_s"] = round(time.perf_counter() - t0, 3)
                 try:
-                    for path in Path(os.environ["PUPPET_CACHE_DIR"]).rglob("*.npz"):
-                        path.unlink()
+                    empty_cache()
                     out = folder / f"out-{engine}-{workers}-{formats.replace(',', '-')}"
                     case = run_case(engine, workers, takes, out, rig, formats, args.fps,
                                     tuple(args.size), precompute_cold_s)
@@ -196,7 +222,8 @@ def main() -> None:
     for c in result["cases"]:
         print(f"{c['engine']:6} {c['workers']:>7} {c['formats']:10} {c['takes_per_min']:>9.2f} "
               f"{c['overhead_ms_per_task']:>16.1f} {c['precompute_s']:>12.3f} "
-              f"{c['precompute_per_take_s']:>10.3f}")
+              f"{c['precompute_per_take_s']:>10.3f}  load {c['load_1min'][0]:.1f}-"
+              f"{c['load_1min'][1]:.1f}, each worker had {c['cpu_share_per_worker']:.2f} core")
     for r in result["ratios"]:
         print(f"2 workers / 1 worker, {r['engine']} {r['formats']}: {r['two_over_one']:.2f}")
     cost = result["cost"]

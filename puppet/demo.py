@@ -88,7 +88,7 @@ def run_demo(*, seconds: float | None, sinks_for: Callable[[Pipeline], list], fa
              should_stop: Callable[[], bool] = lambda: False,
              on_frame: Callable[[Summary], None] | None = None,
              started_s: float | None = None, latch_fps: float | None = 60.0, view=None,
-             rig=None) -> tuple[Summary, object]:
+             rig=None, link=None) -> tuple[Summary, object]:
     """Run the built-in character on hw_sim for ``seconds``; returns (summary, setup report).
 
     rig: the built-in character as loaded (default ``builtin()``; e.g. its secondary-motion
@@ -98,6 +98,7 @@ def run_demo(*, seconds: float | None, sinks_for: Callable[[Pipeline], list], fa
     seconds: length of the run (None: until ``should_stop()``).
     faults: a hw_sim fault file (or schedule) to play during the run.
     view: a puppet.view.View (bound, not attached) to watch the run in a browser.
+    link: a puppet.link.Link (bound, not attached) streaming the solves to Blender.
     rate_hz: bus readings per second (the reader process's steady rate; each frame also asks
         for a reading of its own, see puppet.loop.LateLatch).
     latency_ms: the SDK's latency assumption; 3 ms leaves the simulator (a process competing
@@ -129,10 +130,12 @@ def run_demo(*, seconds: float | None, sinks_for: Callable[[Pipeline], list], fa
                 try:
                     if view is not None:
                         view.attach(pipeline, source=source)
+                    if link is not None:
+                        link.attach(pipeline)
                     summary = run_live(pipeline, source, seconds=seconds, sinks=sinks,
                                        video_fps=video_fps, should_stop=should_stop,
                                        on_frame=on_frame, started_s=started_s, latch_fps=latch_fps,
-                                       view=view)
+                                       view=view, link=link)
                 except BaseException:
                     for sink in sinks:  # an error or a second Ctrl-C: keep no half file
                         getattr(sink, "abort", sink.close)()

@@ -84,6 +84,8 @@ LATENCY_MS = Range(1, 255, "ms", integer=True)
 """USB adapter latency timer (the FTDI timer's range)."""
 WORKERS = Range(1, 1024, integer=True)
 """batch: worker processes or CPUs."""
+RETRIES = Range(0, 100, integer=True)
+"""batch: tries of a take after the first, when its worker died under it."""
 FRAME_SIZE = Range(16, 8192, "px", integer=True)
 """Width and height of rendered frames."""
 THRESHOLD_TICKS = Range(8, 2048, "ticks", integer=True)

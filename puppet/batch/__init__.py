@@ -11,10 +11,11 @@ take's rig), manifest (what outputs were made from: ``--resume``), task (the wor
 engines), run (the driver and its report).
 """
 
+from puppet.batch.cancel import BatchCancelled
 from puppet.batch.errors import BatchError
 from puppet.batch.plan import DEFAULT_FORMATS, FORMATS, SUFFIXES
 from puppet.batch.row import STATES, TakeResult
 from puppet.batch.run import ENGINES, BatchReport, run_batch
 
-__all__ = ["BatchError", "BatchReport", "DEFAULT_FORMATS", "ENGINES", "FORMATS", "STATES",
-           "SUFFIXES", "TakeResult", "run_batch"]
+__all__ = ["BatchCancelled", "BatchError", "BatchReport", "DEFAULT_FORMATS", "ENGINES", "FORMATS",
+           "STATES", "SUFFIXES", "TakeResult", "run_batch"]

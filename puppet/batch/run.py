@@ -19,13 +19,13 @@ from __future__ import annotations
 import dataclasses
 import os
 import pickle
-import shutil
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
 from puppet.atomic import OutputError, atomic_output, check_folder_output, check_output
+from puppet.batch.cancel import BatchCancelled, cancel_on_signals, held
 from puppet.batch.errors import BatchError
 from puppet.batch.local import LocalEngine
 from puppet.batch.manifest import Made, changes, shaping_settings
@@ -36,6 +36,7 @@ from puppet.batch.plan import (DEFAULT_FORMATS, KINDS, Job, RigFinder, expand_ta
 from puppet.batch.ray_engine import RayEngine
 from puppet.batch.row import (CANCELLED, DONE, FAILED, SKIPPED, STATES, TO_DO, UNFINISHED,
                               TakeResult)
+from puppet.batch.staging import Staging, node_temp, remove_stale
 from puppet.batch.task import Settings, Shared
 from puppet.checksum import file_sha256
 from puppet.errors import PuppetError
@@ -147,13 +148,17 @@ def _check_keys(keys, keys_units, formats) -> None:
                          "PC2 keep every frame)")
 
 
-def make_engine(engine: str, workers: int | None, address: str | None):
+def make_engine(engine: str, workers: int | None, address: str | None, *,
+                retries: int | None = None, take_timeout: float | None = None):
+    limits = dict(take_timeout=take_timeout)
+    if retries is not None:
+        limits["retries"] = retries
     if engine == "local":
         if address:
             raise BatchError("--address is for --engine ray")
-        return LocalEngine(workers)
+        return LocalEngine(workers, **limits)
     if engine == "ray":
-        return RayEngine(workers, address)
+        return RayEngine(workers, address, **limits)
     raise BatchError(f"--engine: {engine!r} is not one of {ENGINES}")
 
 
@@ -163,7 +168,8 @@ def run_batch(takes: list[str], out: str | os.PathLike, *, rig: Rig | None = Non
               keys_units: float | None = None,
               engine: str = "local", workers: int | None = None,
               address: str | None = None, resume: bool = False, dry_run: bool = False,
-              force: bool = False, on_start: Callable[[int], None] | None = None,
+              force: bool = False, retries: int | None = None,
+              take_timeout: float | None = None, on_start: Callable[[int], None] | None = None,
               on_result: Callable[[TakeResult], None] | None = None) -> BatchReport:
     """Solve and write every take; see the module docstring for the order of checks.
 
@@ -173,10 +179,14 @@ def run_batch(takes: list[str], out: str | os.PathLike, *, rig: Rig | None = Non
     formats: of plan.FORMATS; fps, up, space, size, keys, keys_units: as ``puppet export`` /
     ``puppet play``.
     engine: 'local' or 'ray'; workers: processes (local) or CPUs of a local Ray (default: cores);
-    address: a Ray cluster. resume: skip takes whose manifest says their outputs are up to date
+    address: a Ray cluster (None: a private instance). retries: tries after the first of a take
+    whose worker died (default 2); take_timeout: seconds a take may run (default:
+    ``task.take_timeout_s``'s, scaled by the take's length). resume: skip takes whose manifest says their outputs are up to date
     (``manifest.changes``; a redone take's row says why). dry_run: decide and report, per take,
     what would be done and why (rows "to do", "skipped", "failed"), writing nothing.
     on_start(number of takes to run) and on_result(row) as each ends drive the progress.
+    SIGINT or SIGTERM (on the main thread) stops every worker, removes the staging folders and
+    raises cancel.BatchCancelled with the report so far (takes not finished: cancelled).
     """
     start = time.perf_counter()
     formats = parse_formats(formats)
@@ -189,8 +199,10 @@ def run_batch(takes: list[str], out: str | os.PathLike, *, rig: Rig | None = Non
     found = expand_takes(takes)
     paths = [take for take, _ in found]
     folder = check_folder_output(out, what="output folder") if dry_run else prepare_out(out)
+    if not dry_run:
+        remove_stale(folder)  # what a killed batch left (its lock is free): resume or not
     jobs = plan_jobs(found, folder, formats, inputs, force=force, dry_run=dry_run)
-    runner = make_engine(engine, workers, address)
+    runner = make_engine(engine, workers, address, retries=retries, take_timeout=take_timeout)
     report = BatchReport(engine=engine, workers=workers or getattr(runner, "workers", None),
                          out=str(folder), dry_run=dry_run)
     settings = Settings(formats=formats, fps=fps, up=up, space=space, size=size, keys=keys,
@@ -204,44 +216,25 @@ def run_batch(takes: list[str], out: str | os.PathLike, *, rig: Rig | None = Non
         report.seconds = time.perf_counter() - start
         return report
     refused = [job for job in jobs if rows[job.take].state == FAILED]
-    if todo:
-        runner.check()  # Ray imported and reached before the precompute and any take
+    received = None
     try:
-        if on_start is not None and (todo or refused):
-            on_start(len(todo) + len(refused))
-        for job in refused:  # before running: its rig not found, or not fitting
-            _write_log(job, rows[job.take], [*paths, *inputs], force)
-            if on_result is not None:
-                on_result(rows[job.take])
-        if todo:
-            shared = Shared(rigs=_precompute(finder, todo, report), settings=settings)
-            blob = pickle.dumps(shared, protocol=pickle.HIGHEST_PROTOCOL)
-            report.shared_bytes = len(blob)
-
-            def finished(job: Job, result: TakeResult) -> None:
-                planned = rows[job.take]
-                if result.error is None:
-                    _commit(job, result, made[job.take], [*paths, *inputs], force)
-                else:
-                    result.files, result.data = {}, None
-                if result.state == DONE and not result.reason:
-                    result.reason = planned.reason  # why it was made: new, or what changed
-                _write_log(job, result, [*paths, *inputs], force)
-                rows[job.take] = result
-                if on_result is not None:
-                    on_result(result)
-
-            staging_root = folder / f".puppet-batch.{os.getpid()}.partial"
+        with cancel_on_signals() as received:
             try:
-                if isinstance(runner, RayEngine):
-                    runner.run(todo, shared, finished)
-                else:
-                    staging_root.mkdir(exist_ok=True)
-                    runner.run(todo, blob, staging_root, finished)
+                _run(todo, refused, runner, finder, settings, folder, report, rows, made,
+                     [*paths, *inputs], force, on_start, on_result)
             finally:
-                shutil.rmtree(staging_root, ignore_errors=True)  # what dead workers left
-    finally:
-        runner.close()
+                runner.close()
+    except KeyboardInterrupt as stop:  # BatchCancelled, or a Ctrl-C off the main thread
+        name = (getattr(stop, "signal_name", None) or getattr(received, "signal_name", None)
+                or "SIGINT")
+        for job in todo:
+            if rows[job.take].state == TO_DO:
+                rows[job.take] = TakeResult.failed(job.take, f"cancelled by {name}",
+                                                   state=CANCELLED)
+                _write_log(job, rows[job.take], [*paths, *inputs], force)
+        report.rows = [rows[job.take] for job in jobs]
+        report.seconds = time.perf_counter() - start
+        raise BatchCancelled(name, report) from None
     for job in todo:  # never reported by the engine (it stopped first): not run, not written
         if rows[job.take].state == TO_DO:
             rows[job.take].fail("not run: the batch stopped before this take", CANCELLED)
@@ -249,6 +242,52 @@ def run_batch(takes: list[str], out: str | os.PathLike, *, rig: Rig | None = Non
     report.rows = [rows[job.take] for job in jobs]
     report.seconds = time.perf_counter() - start
     return report
+
+
+def _run(todo: list[Job], refused: list[Job], runner, finder: RigFinder, settings: Settings,
+         folder: Path, report: BatchReport, rows: dict, made: dict, inputs: list[Path],
+         force: bool, on_start, on_result) -> None:
+    """Start the engine, precompute each rig once, run the takes, commit each as it ends."""
+    if todo:
+        runner.check()  # Ray imported and reached before the precompute and any take
+        if isinstance(runner, RayEngine):
+            remove_stale(node_temp())  # what killed batches' tasks left on this machine
+    if on_start is not None and (todo or refused):
+        on_start(len(todo) + len(refused))
+    for job in refused:  # before running: its rig not found, or not fitting
+        _write_log(job, rows[job.take], inputs, force)
+        if on_result is not None:
+            on_result(rows[job.take])
+    if not todo:
+        return
+    shared = Shared(rigs=_precompute(finder, todo, report), settings=settings)
+    blob = pickle.dumps(shared, protocol=pickle.HIGHEST_PROTOCOL)
+    report.shared_bytes = len(blob)
+
+    def finished(job: Job, result: TakeResult) -> None:
+        with held():  # a take's files and manifest go into place whole, or not at all
+            planned = rows[job.take]
+            if result.error is None:
+                _commit(job, result, made[job.take], inputs, force)
+            else:
+                result.files, result.data = {}, None
+            if result.state == DONE and not result.reason:
+                result.reason = planned.reason  # why it was made: new, or what changed
+            _write_log(job, result, inputs, force)
+            rows[job.take] = result
+        if on_result is not None:
+            on_result(result)
+
+    stagings = [Staging(folder)]  # the workers' files (local), the driver's temporaries
+    try:
+        if isinstance(runner, RayEngine):
+            stagings.append(Staging(node_temp()))  # the tasks' files on this machine
+            runner.run(todo, shared, stagings[0].path.name, finished)
+        else:
+            runner.run(todo, blob, stagings[0].path, finished)
+    finally:
+        for staging in stagings:
+            staging.remove()  # also what stopped or dead workers left
 
 
 def _decide(jobs: list[Job], finder: RigFinder, shaping: dict, resume: bool

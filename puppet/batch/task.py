@@ -13,8 +13,9 @@ from __future__ import annotations
 
 import contextlib
 import os
+import sys
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 
 from puppet.atomic import atomic_output
@@ -59,11 +60,73 @@ class Shared:
     settings: Settings
 
 
+TIMEOUT_BASE_S = 120.0
+TIMEOUT_PER_SECOND = 60.0
+"""The default --take-timeout: TIMEOUT_BASE_S + TIMEOUT_PER_SECOND x the take's length in
+seconds (a 10 s take: 12 min). A video costs about 1 CPU second per second of take here (render
+and encode, docs/scale.md), exports far less: the default is for a machine tens of times slower
+or busier, while a hung take still frees its worker."""
+
+
+def take_timeout_s(take: Path, limit_s: float | None) -> float:
+    """Seconds a take may run: ``limit_s`` (--take-timeout) when given, else the default scaled
+    by the take's length (a take that cannot be read gets the base: it fails at once anyway)."""
+    if limit_s is not None:
+        return float(limit_s)
+    from puppet.take import TakeReader
+
+    try:
+        if not take.is_file():  # a FIFO would block the driver: the task reports it
+            raise OSError
+        with TakeReader(take) as reader:
+            seconds = reader.duration_s()
+    except Exception:  # noqa: BLE001 - a bad take is the task's to report, in its row
+        seconds = 0.0
+    return TIMEOUT_BASE_S + TIMEOUT_PER_SECOND * seconds
+
+
 def staging_folder(root: Path, job: Job) -> Path:
     """The worker's private folder for a take: ``root/<take name>.<pid>`` (a retry gets its own)."""
     folder = root / f"{job.name}.{os.getpid()}"
     folder.mkdir(parents=True, exist_ok=True)
     return folder
+
+
+@contextlib.contextmanager
+def captured_output(path: Path):
+    """This process's stdout and stderr (file descriptors 1 and 2: Python's prints and
+    warnings, native libraries, Ray's worker lines) go to the file ``path`` inside."""
+    for stream in (sys.stdout, sys.stderr):
+        stream.flush()
+    saved = [os.dup(1), os.dup(2)]
+    fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644)
+    try:
+        os.dup2(fd, 1)
+        os.dup2(fd, 2)
+        yield
+    finally:
+        for stream in (sys.stdout, sys.stderr):
+            stream.flush()
+        os.dup2(saved[0], 1)
+        os.dup2(saved[1], 2)
+        for f in (fd, *saved):
+            os.close(f)
+
+
+def run_take_logged(job: Job, shared: Shared, staging: Path) -> TakeResult:
+    """``run_take`` with whatever the worker prints meanwhile kept in the row's log lines
+    (colour codes removed), for the take's log file: nothing raw reaches the terminal."""
+    output = staging / ".output"
+    with captured_output(output):
+        result = run_take(job, shared, staging)
+    try:
+        text = output.read_text(errors="replace")
+    except OSError:
+        text = ""
+    for line in text.splitlines():
+        if line.strip():
+            result.add_log(line)
+    return result
 
 
 def run_take(job: Job, shared: Shared, staging: Path) -> TakeResult:
@@ -108,8 +171,10 @@ def run_take(job: Job, shared: Shared, staging: Path) -> TakeResult:
                         summary = play_take(rig, reader, [sink], frames=frames, solved=writers,
                                             antialias=settings.antialias, size=settings.size,
                                             precompute=precompute)
-                    finally:
-                        sink.close()
+                    except BaseException:  # a failure, or the worker stopped: encoder killed
+                        sink.abort()
+                        raise
+                    sink.close()
             result.frames = summary.frames
             for writer in writers:  # the exports' report: keys kept, fits, what was not carried
                 result.add_report(writer.report)

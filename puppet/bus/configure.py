@@ -96,11 +96,15 @@ def check_baud(servos: Mapping[int, str], baud: int, port: str = "") -> None:
     """BusError naming every servo of ``servos`` ({id: model name}) whose model cannot select
     ``baud`` bit/s (``ServoModel.baud_rates``: 4 Mbit/s on X-series, 1 Mbit/s at most on AX /
     RX and the XL-320, ...)."""
-    slow = {i: m for i, m in servos.items() if int(baud) not in ct.model_named(m).baud_rates}
+    slow: dict[str, list[int]] = {}
+    for dxl_id, name in servos.items():
+        if int(baud) not in ct.model_named(name).baud_rates:
+            slow.setdefault(name, []).append(int(dxl_id))
     if slow:
-        names = ", ".join(f"{i} ({m}: {_rates(ct.model_named(m).baud_rates)})" for i, m in slow.items())
+        names = "; ".join(f"servo{'s' if len(ids) > 1 else ''} {', '.join(map(str, ids))} ({m}: "
+                          f"{_rates(ct.model_named(m).baud_rates)})" for m, ids in slow.items())
         raise BusError(f"{'port ' + port + ': ' if port else ''}{baud} bit/s is not a rate of "
-                       f"servo{'s' if len(slow) > 1 else ''} {names}")
+                       f"{names}")
 
 
 def _rates(bauds) -> str:

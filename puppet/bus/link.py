@@ -541,6 +541,15 @@ class BusLink:
             raise self._fail(code, [], "broadcast_ping")
         return {int(i): (int(v[0]), int(v[1])) for i, v in found.items()}
 
+    def hardware_error(self, dxl_id: int, items) -> int:
+        """Hardware Error Status bits of one servo whose model keeps ``items`` (ControlItems):
+        the item where the model has it, else (Protocol 1.0) the bits of the status to a fresh
+        read of its Present Position (``hardware_bits``)."""
+        if items.hardware_error_status is not None:
+            return self.read(dxl_id, items.hardware_error_status)
+        self.read(dxl_id, items.present_position)
+        return self.hardware_bits.get(dxl_id, 0)
+
     def ping_each(self, ids: Iterable[int]) -> dict[int, tuple[int, int]]:
         """Ping each of ``ids`` in turn -> {id: (model number, firmware)} of those that
         answered cleanly (a silent id costs one SDK deadline: ~4 ms with a 1 ms latency timer)."""

@@ -237,7 +237,7 @@ class ServoReader:
             try:
                 configure_servo(self.link, dxl_id, dxl_id in self.driven, report.changes,
                                 self.items[dxl_id])
-                return self._hardware_bits(dxl_id)
+                return self.link.hardware_error(dxl_id, self.items[dxl_id])
             except ServoError as exc:
                 tries += 1
                 if tries < 3:
@@ -325,15 +325,6 @@ class ServoReader:
 
     def _reading(self, t_ns: int) -> Reading:
         return Reading(t_ns, self.ids, self._ticks.copy(), self._ok.copy())
-
-    def _hardware_bits(self, dxl_id: int) -> int:
-        """Hardware Error Status of one servo (Protocol 1.0: the bits its latest status
-        carried, asked afresh by a read of its Present Position)."""
-        item = self.items[dxl_id].hardware_error_status
-        if item is not None:
-            return self.link.read(dxl_id, item)
-        self.link.read(dxl_id, self.items[dxl_id].present_position)
-        return self.link.hardware_bits.get(dxl_id, 0)
 
     def _group_read(self, ids: list[int]) -> GroupRead:
         """Present Position of ``ids`` (the group) by the fastest transactions their models have

@@ -171,8 +171,9 @@ def _child(shm_name, slots, port, servos, options, rate_hz, events, commands,
     if hook is not None:
         signal.signal(signal.SIGTERM, lambda *_: stop.__setitem__(0, 1))
     try:
-        reader = ServoReader(port, servos, driven=hook.ids if hook is not None else (), **options)
         try:
+            # a map or baud its servos cannot do is refused here, as a failed setup
+            reader = ServoReader(port, servos, driven=hook.ids if hook is not None else (), **options)
             report = reader.open()
             if hook is not None:
                 goal_shm = shared_memory.SharedMemory(name=goal_shm_name)

@@ -70,11 +70,11 @@ def main() -> None:
 
 
 def _register() -> None:
-    from puppet.cli import (batch, bus, demo, export, keys, live, perform, play, record,
+    from puppet.cli import (batch, blender, bus, demo, export, keys, live, perform, play, record,
                             release, rig, view)
 
     for module in (demo, live, record, keys, play, export, batch, bus, rig, view, perform,
-                   release):
+                   release, blender):
         for command in module.COMMANDS:
             main.add_command(command)
 

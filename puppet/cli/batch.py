@@ -11,6 +11,11 @@ from puppet import limits
 from puppet.cli.common import (InRange, force_option, keys_option, keys_units_option, load_rig,
                                rig_files, space_option)
 
+EXIT_DONE = 0       # every take done (or up to date with --resume)
+EXIT_SETUP = 1      # nothing done: a setup error (`Error: ...`: an option, the takes, --out, Ray)
+EXIT_FAILED = 3     # some takes failed or timed out (their rows say why); the others are written
+# cancelled by SIGINT or SIGTERM: 128 + the signal's number (130, 143), as a shell reports it
+
 
 @click.command()
 @click.argument("takes", nargs=-1)
@@ -43,6 +48,12 @@ from puppet.cli.common import (InRange, force_option, keys_option, keys_units_op
 @click.option("--workers", type=InRange(limits.WORKERS), default=None,
               help=f"Worker processes (local) or CPUs of a Ray started here ({limits.WORKERS}) "
                    "[default: cores].")
+@click.option("--retries", type=InRange(limits.RETRIES), default=2, show_default=True,
+              help="Tries after the first of a take whose worker died (killed, out of memory).")
+@click.option("--take-timeout", "take_timeout", type=InRange(limits.SECONDS), default=None,
+              metavar="SECONDS",
+              help="Fail a take that runs longer and free its worker [default: 120 s + 60 s "
+                   "per second of take].")
 @click.option("--resume", is_flag=True,
               help="Skip takes whose manifest says their outputs are up to date (same take, rig, "
                    "character, settings and puppet version, outputs unchanged); each redone "
@@ -54,9 +65,15 @@ from puppet.cli.common import (InRange, force_option, keys_option, keys_units_op
 def batch(takes: tuple[str, ...], out: str, rig_path: str | None, formats: str, fps: str,
           size: tuple[int, int], up: str, space: str, keys: float | None,
           keys_units: float | None,
-          engine: str, address: str | None, workers: int | None,
-          resume: bool, dry_run: bool, as_json: bool, force: bool) -> None:
+          engine: str, address: str | None, workers: int | None, retries: int,
+          take_timeout: float | None, resume: bool, dry_run: bool, as_json: bool,
+          force: bool) -> None:
     """Solve and write every take; a failed take is reported and the others go on.
+
+    Exit status: 0 all done; 1 nothing done (setup error); 3 some takes failed or timed out
+    (with --dry-run: would fail);
+    130 / 143 cancelled by SIGINT (Ctrl-C) / SIGTERM: every worker stopped, staging removed,
+    the summary so far printed.
 
     \b
     Examples:
@@ -65,7 +82,7 @@ def batch(takes: tuple[str, ...], out: str, rig_path: str | None, formats: str, 
       puppet batch 'shoot/*/*.mcap' --out exports/ --fps 24 --resume --dry-run
       puppet batch session/*.mcap --out exports/ --engine ray --address 10.0.0.5:6379
     """
-    from puppet.batch import BatchError, run_batch
+    from puppet.batch import BatchCancelled, BatchError, run_batch
 
     if not takes:
         raise BatchError("no takes given: name take files, folders or patterns (session/*.mcap)")
@@ -97,17 +114,28 @@ def batch(takes: tuple[str, ...], out: str, rig_path: str | None, formats: str, 
                            formats=formats, fps=fps, up=up, space=space, size=size, keys=keys,
                            keys_units=keys_units, engine=engine,
                            workers=workers, address=address, resume=resume, dry_run=dry_run,
-                           force=force, on_start=on_start, on_result=on_result)
+                           force=force, retries=retries, take_timeout=take_timeout,
+                           on_start=on_start, on_result=on_result)
+    except BatchCancelled as stop:
+        if bar is not None:
+            bar.__exit__(None, None, None)
+            bar = None
+        report = stop.report
+        click.echo(json.dumps(report.as_dict()) if as_json else report.table())
+        click.echo(f"cancelled by {stop.signal_name}: every worker stopped, staging removed",
+                   err=True)
+        raise click.exceptions.Exit(stop.exit_status) from None
     finally:
         if bar is not None:
             bar.__exit__(None, None, None)
     click.echo(json.dumps(report.as_dict()) if as_json else report.table())
-    if report.failed and dry_run:
-        raise click.ClickException(f"{len(report.failed)} of {len(report.rows)} takes would fail "
-                                   "(see the table); nothing written")
     if report.failed:
-        raise click.ClickException(f"{len(report.failed)} of {len(report.rows)} takes failed "
-                                   "(see the table); the others are written")
+        failed = click.ClickException(
+            f"{len(report.failed)} of {len(report.rows)} takes would fail (see the table); "
+            "nothing written" if dry_run else f"{len(report.failed)} of {len(report.rows)} takes "
+            "failed (see the table); the others are written")
+        failed.exit_code = EXIT_FAILED
+        raise failed
 
 
 COMMANDS = (batch,)

@@ -7,6 +7,7 @@ import click
 from puppet import limits
 from puppet.cli.common import (InRange, Null, StopFlag, fail, force_option, make_sinks,
                                print_summary, progress, rig_files)
+from puppet.cli.blender import link_option, open_link, report_link
 from puppet.cli.view import open_view, take_factory_for, view_option
 
 
@@ -29,10 +30,11 @@ from puppet.cli.view import open_view, take_factory_for, view_option
                    "critter_dynamics.toml).")
 @click.option("--json", "as_json", is_flag=True, help="Print the summary as JSON.")
 @view_option
+@link_option
 @force_option
 def demo(out: str, seconds: float | None, faults: str | None, size: tuple[int, int], fps: float,
          antialias: str, dynamics: bool, as_json: bool, view_address: str | None,
-         force: bool) -> None:
+         link_address: str | None, force: bool) -> None:
     """Run the live loop on the built-in character and a simulated bus, into a video.
 
     \b
@@ -40,6 +42,7 @@ def demo(out: str, seconds: float | None, faults: str | None, size: tuple[int, i
       puppet demo --seconds 5 --out demo.mp4
       puppet demo --view                 watch it at http://127.0.0.1:8765/ (Ctrl-C stops)
       puppet demo --dynamics             ears and tail lag and settle
+      puppet demo --link                 into Blender (the puppet_link add-on)
     """
     from hw_sim.errors import FaultFileError
     from hw_sim.faults import FaultSchedule
@@ -57,10 +60,12 @@ def demo(out: str, seconds: float | None, faults: str | None, size: tuple[int, i
     rig = load_rig(BUILTIN_DYNAMICS_RIG) if dynamics else builtin()
     inputs = [fault_file, *rig_files(rig)]
     check_output(out, kind="video", inputs=inputs, force=force, what="video")  # opened later
-    live_view = None
+    live_view = link = None
+    if link_address is not None:  # bound before the simulated bus starts
+        link = open_link(link_address, rig)
     if view_address is not None:  # bound before the simulated bus starts
         live_view = open_view(view_address, mode="live", take_factory=take_factory_for(rig))
-    elif seconds is None:
+    elif seconds is None and link is None:
         seconds = 10.0
     bar, on_frame = progress(seconds, "demo")
     try:
@@ -69,12 +74,16 @@ def demo(out: str, seconds: float | None, faults: str | None, size: tuple[int, i
                                        video_fps=fps, on_frame=on_frame, antialias=antialias,
                                        sinks_for=lambda _p: make_sinks(out, None, fps, inputs=inputs,
                                                                       force=force),
-                                       view=live_view, should_stop=StopFlag(), rig=rig)
+                                       view=live_view, should_stop=StopFlag(), rig=rig,
+                                       link=link)
     finally:
         if live_view is not None:
             live_view.close()
+        if link is not None:
+            link.close()
     print_summary(summary, as_json, extra={"video": out, "read_mode": report.read_mode,
-                                           "dynamics": rig.extras.dynamics is not None})
+                                           "dynamics": rig.extras.dynamics is not None,
+                                           **(report_link(link) if link is not None else {})})
 
 
 COMMANDS = (demo,)

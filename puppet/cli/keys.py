@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import queue
 import sys
 import threading
 import time
@@ -11,18 +10,21 @@ import click
 
 from puppet import limits
 from puppet.cli.common import InRange, StopFlag, check_take_path, load_rig, start_reader
+from puppet.cli.view import view_option
 
 
-WINDOW_WAIT_NS = 10_000_000_000
-"""Longest wait for a reading after the hold window (a stalled reader), ns; then the key is
-taken from the readings there are (or refused when there are none)."""
-
-
-def _lines(out: queue.Queue) -> None:
-    """Put each stdin line (without its newline) into ``out``, then None at end of input."""
+def _lines(desk, finish_at_end: bool = True) -> None:
+    """Press each stdin line (without its newline) on the KeyDesk, then ``q`` at end of input
+    (finish_at_end; with --view the page goes on taking keys until q or Ctrl-C)."""
     for line in sys.stdin:
-        out.put(line.rstrip("\r\n"))
-    out.put(None)
+        desk.press(line.rstrip("\r\n"))
+    if finish_at_end:
+        desk.press("q")
+
+
+def _tell(origin, taken: bool, words: str) -> None:
+    """A key command's outcome on the terminal (refusals on stderr)."""
+    click.echo(words, err=not taken)
 
 
 @click.group(invoke_without_command=True)
@@ -39,18 +41,24 @@ def _lines(out: queue.Queue) -> None:
 @click.option("--baud", default=1_000_000, show_default=True, type=InRange(limits.BAUD),
               help=f"Bus speed: {limits.BAUD}.")
 @click.option("--force", is_flag=True, help="Replace an existing shot file.")
+@view_option
 @click.pass_context
-def keys(ctx, rig_path, port, out, fps, step, interpolation, baud, force) -> None:
+def keys(ctx, rig_path, port, out, fps, step, interpolation, baud, force, view_address) -> None:
     """Pose to pose: hold a pose and press Enter; each key lands --step frames after the last.
 
     \b
     The key is the median of the readings over the 0.2 s after Enter (keep holding).
     Commands (a line each): Enter = new key, `r N` = replace key N with the held pose,
-    `d N` = delete key N, `i F` = insert a key at frame F, `q` (or Ctrl-C, end of input) = done.
+    `d N` = delete key N, `i F` = insert a key at frame F, `t N F` = retime key N to frame F,
+    `q` (or Ctrl-C, end of input) = done.
+    With --view the page takes keys too (Space or its Key button), shows the keys as ticks on a
+    timeline (drag one to retime it) and the previous and next key as onion skins; end of input
+    then does not finish (the page goes on): q or Ctrl-C does.
     The shot is a take with its keys: play, export and batch take it like any take.
     \b
     Examples:
       puppet keys --rig my.toml --port /dev/ttyUSB0 --out shot.mcap --fps 24 --step 12
+      puppet keys --rig my.toml --port /dev/ttyUSB0 --out shot.mcap --view   (and the page)
       puppet keys retime shot.mcap 3=40 4=52 --out retimed.mcap
       puppet keys delete shot.mcap 2 --out fewer.mcap
       puppet keys interpolation shot.mcap 0=smooth 2=step --out smooth.mcap
@@ -59,8 +67,7 @@ def keys(ctx, rig_path, port, out, fps, step, interpolation, baud, force) -> Non
     if ctx.invoked_subcommand is not None:
         return
     from puppet.cli.common import take_header
-    from puppet.keys.capture import HOLD_NS, KeyRefused, KeySession
-    from puppet.take import TakeError
+    from puppet.keys.capture import KeyDesk, KeySession
 
     missing = [name for name, value in (("--rig", rig_path), ("--port", port), ("--out", out))
                if value is None]
@@ -69,41 +76,56 @@ def keys(ctx, rig_path, port, out, fps, step, interpolation, baud, force) -> Non
     rig = load_rig(rig_path)
     check_take_path(out, rig, force=force)  # before the port: a mistake costs nothing
     session = KeySession(out, take_header(rig), fps=fps, step=step, interpolation=interpolation)
-    source = start_reader(rig, port, baud, rate_hz=200.0)
-    commands: queue.Queue = queue.Queue()
-    threading.Thread(target=_lines, args=(commands,), daemon=True).start()
-    stop = StopFlag()
-    click.echo("hold a pose and press Enter for a key (r N, d N, i FRAME, q: see --help)")
-    pending = None  # (command, press_ns) waiting for its hold window to end
-    try:
-        while not stop():
-            session.readings.extend(source.drain())
-            if pending is None:
-                try:
-                    line = commands.get(timeout=0.01)
-                except queue.Empty:
-                    continue
-                if line is None or line.strip() == "q":
-                    break
-                pending = (line, time.monotonic_ns())
-                if not session.needs_pose(line):
-                    pending = (line, None)
-            command, press_ns = pending
-            latest = session.readings[-1].t_ns if session.readings else 0
-            if press_ns is not None and latest <= press_ns + HOLD_NS:
-                if time.monotonic_ns() - press_ns < WINDOW_WAIT_NS:
-                    time.sleep(0.005)
-                    continue  # the hold window is not over
-            pending = None
-            try:
-                click.echo(session.apply(command, press_ns))
-            except (KeyRefused, TakeError) as err:
-                click.echo(f"refused: {err}", err=True)
-    finally:
-        source.stop()
+    desk = KeyDesk(session, tell=_tell)
+    if view_address is not None:  # bound before the bus is touched: a taken port fails first
+        source = _capture_in_view(rig, port, baud, desk, view_address)
+    else:
+        source = _capture(rig, port, baud, desk)
     frames = session.keys.keys[-1].frame if session.keys.keys else 0
     click.echo(f"shot: {out}\nkeys: {len(session.keys.keys)}, {frames} frames at {fps:g} fps\n"
                f"faults seen: {dict(source.log.counts) or 'none'}")
+
+
+def _capture(rig, port: str, baud: int, desk):
+    """Take the terminal's commands until q, end of input or Ctrl-C; returns the reader."""
+    source = start_reader(rig, port, baud, rate_hz=200.0)
+    threading.Thread(target=_lines, args=(desk,), daemon=True).start()
+    stop = StopFlag()
+    click.echo("hold a pose and press Enter for a key (r N, d N, i FRAME, t N FRAME, q: see --help)")
+    try:
+        while not stop() and not desk.finished:
+            desk.feed(source.drain())
+            desk.step()
+            time.sleep(0.005)
+    finally:
+        source.stop()
+    return source
+
+
+def _capture_in_view(rig, port: str, baud: int, desk, address: str):
+    """The capture inside the live view: the live loop solves and shows the puppet, the view
+    hands the KeyDesk its readings and the page's keys; the terminal's commands work as well."""
+    from puppet.cli.view import open_view
+    from puppet.loop import Pipeline, run_live
+
+    live_view = open_view(address, mode="live", keys=desk)
+    stop = StopFlag()
+    try:
+        with Pipeline(rig, overlay=True, live=True) as pipeline:
+            source = start_reader(rig, port, baud, rate_hz=200.0)
+            try:
+                live_view.attach(pipeline, source=source)
+                threading.Thread(target=_lines, args=(desk, False), daemon=True).start()
+                click.echo("hold a pose and press Enter here, or Space or Key on the page, for a "
+                           "key (r N, d N, i FRAME, t N FRAME, q: see --help)")
+                run_live(pipeline, source, should_stop=lambda: stop() or desk.finished,
+                         view=live_view)
+            finally:
+                live_view.close()
+                source.stop()
+    finally:
+        live_view.close()
+    return source
 
 
 def _edit(shot: str, out: str, force: bool, change) -> None:

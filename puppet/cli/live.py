@@ -9,6 +9,7 @@ import click
 from puppet import limits
 from puppet.cli.common import (InRange, StopFlag, check_take_path, load_rig, make_sinks,
                                print_summary, rig_files, start_reader, take_writer)
+from puppet.cli.blender import link_option, open_link, report_link
 from puppet.cli.view import open_view, take_factory_for, view_option
 
 READ_RATE_HZ = 500.0
@@ -56,9 +57,11 @@ def report_actuators(source) -> None:
               help="Drive actuators without the Bus Watchdog, also on a model that has none "
                    "(a host crash leaves them driving).")
 @view_option
+@link_option
 def live(rig_path: str, port: str, baud: int, take_path: str | None, out: str | None,
          frames: str | None, seconds: float | None, fps: float, antialias: str,
-         force: bool, view_address: str | None, watchdog_ms: float, no_watchdog: bool) -> None:
+         force: bool, view_address: str | None, link_address: str | None, watchdog_ms: float,
+         no_watchdog: bool) -> None:
     """Read the puppet, solve and render live until Ctrl-C.
 
     Servos with role = "actuator" in the rig file are driven to the angle the solve gives
@@ -68,6 +71,7 @@ def live(rig_path: str, port: str, baud: int, take_path: str | None, out: str | 
     Example:
       puppet live --rig my.toml --port /dev/ttyUSB0 --record take.mcap --out live.mp4
       puppet live --rig my.toml --port /dev/ttyUSB0 --view     watch at the printed URL
+      puppet live --rig my.toml --port /dev/ttyUSB0 --link     into Blender (puppet_link add-on)
     """
     from puppet.drive.actuators import ActuationPlan, ActuatorHook, LiveActuation
     from puppet.loop import Pipeline, run_live
@@ -80,7 +84,9 @@ def live(rig_path: str, port: str, baud: int, take_path: str | None, out: str | 
         check_distinct({"--record": take_path, "--out": out})
         check_take_path(take_path, rig, force=force)
     sinks = make_sinks(out, frames, fps, inputs=rig_files(rig), force=force)
-    live_view = None
+    live_view = link = None
+    if link_address is not None:  # bound before the bus is touched: a taken port fails first
+        link = open_link(link_address, rig)
     if view_address is not None:  # bound before the bus is touched: a taken port fails first
         takes = Path(take_path).parent if take_path else Path(".")
         live_view = open_view(view_address, mode="live", take_factory=take_factory_for(rig),
@@ -103,9 +109,11 @@ def live(rig_path: str, port: str, baud: int, take_path: str | None, out: str | 
                 try:
                     if live_view is not None:
                         live_view.attach(pipeline, source=source, recorder=recorder)
+                    if link is not None:
+                        link.attach(pipeline)
                     summary = run_live(pipeline, source, seconds=seconds, sinks=sinks, video_fps=fps,
                                        recorder=recorder, should_stop=stop, view=live_view,
-                                       after_solve=actuation and actuation.after_solve)
+                                       after_solve=actuation and actuation.after_solve, link=link)
                 finally:
                     if live_view is not None:
                         live_view.close()
@@ -120,7 +128,10 @@ def live(rig_path: str, port: str, baud: int, take_path: str | None, out: str | 
     finally:
         if live_view is not None:
             live_view.close()
-    print_summary(summary, False, extra={"take": take_path} if take_path else None)
+        if link is not None:
+            link.close()
+    extra = {"take": take_path} if take_path else {}
+    print_summary(summary, False, extra={**extra, **(report_link(link) if link else {})})
 
 
 COMMANDS = (live,)

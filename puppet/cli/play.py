@@ -9,6 +9,7 @@ import click
 from puppet import limits
 from puppet.cli.common import (InRange, StopFlag, close_sinks, fail, force_option, make_sinks,
                                open_take, print_summary, rig_files)
+from puppet.cli.blender import link_option
 from puppet.cli.view import view_option
 
 
@@ -24,17 +25,29 @@ from puppet.cli.view import view_option
 @click.option("--antialias", type=click.Choice(["msaa", "fxaa", "none"]), default="msaa",
               show_default=True, help="Offline: MSAA by default, whatever the renderer.")
 @view_option
+@link_option
 @force_option
 def play(take: str, rig_path: str | None, out: str | None, frames: str | None, speed: float,
-         fps: float, antialias: str, view_address: str | None, force: bool) -> None:
+         fps: float, antialias: str, view_address: str | None, link_address: str | None,
+         force: bool) -> None:
     """Replay a take through the solver and renderer (deterministic).
 
     \b
     Example:
       puppet play take.mcap --out take.mp4 --speed 0.5
       puppet play take.mcap --view       pause, scrub and change speed in the browser
+      puppet play take.mcap --link       into Blender (the puppet_link add-on), on the clock
     """
     from puppet.replay import play_take
+
+    if view_address is not None and link_address is not None:
+        fail("--view and --link: pick one for a play (both work on live and demo)")
+    if link_address is not None:
+        from puppet.cli.blender import play_to_link
+
+        play_to_link(take, rig_path, link_address, speed=speed, fps=fps, out=out,
+                     frames_dir=frames, force=force)
+        return
 
     if view_address is not None:
         from puppet.cli.view import play_in_view

@@ -22,12 +22,13 @@ class _ViewLogFormat(logging.Formatter):
         return f"warning: {text}" if record.levelno >= logging.WARNING else text
 
 
-def open_view(address: str | None, *, mode: str, take_factory=None, takes_dir="."):
+def open_view(address: str | None, *, mode: str, take_factory=None, takes_dir=".", keys=None):
     """Bind the live view's address now (a taken port fails before any hardware is touched),
-    route its log to stderr, print its URL; returns the View (attach it to the pipeline)."""
+    route its log to stderr, print its URL; returns the View (attach it to the pipeline).
+    keys: a KeyDesk (``puppet keys --view``)."""
     from puppet.view import View
 
-    view = View(address, mode=mode, take_factory=take_factory, takes_dir=takes_dir)
+    view = View(address, mode=mode, take_factory=take_factory, takes_dir=takes_dir, keys=keys)
     logger = logging.getLogger("puppet.view")
     if not logger.handlers:
         handler = logging.StreamHandler()

@@ -13,7 +13,7 @@ Sync Read on 2.0; Bulk Read on MX and one Read per AX / RX on 1.0). Protocol 1.0
 Operating Mode: joint (position) mode is CW / CCW Angle Limit not both 0, and a servo in wheel
 mode is given its whole range (CCW Angle Limit := its top position); the XL-320's Control
 Mode 2 is joint mode. A Protocol 1.0 servo reports a hardware condition in every status
-instead of Hardware Error Status (``BusLink.hardware_bits``).
+instead of Hardware Error Status (``BusLink.hardware_error``).
 """
 
 from __future__ import annotations
@@ -137,12 +137,9 @@ class DriveBus:
         self._patient(lambda: self.link.write(dxl_id, item, value), dxl_id)
 
     def hardware_error(self, dxl_id: int) -> int:
-        """Hardware Error Status bits of one servo (Protocol 1.0: those its status to a fresh
-        read of Present Position carried)."""
-        if self.items[dxl_id].hardware_error_status is not None:
-            return self.read(dxl_id, "hardware_error_status")
-        self.read(dxl_id, "present_position")
-        return self.link.hardware_bits.get(dxl_id, 0)
+        """Hardware Error Status bits of one servo (``BusLink.hardware_error``), tried like
+        ``read``."""
+        return self._patient(lambda: self.link.hardware_error(dxl_id, self.items[dxl_id]), dxl_id)
 
     def _patient(self, call, dxl_id: int | None = None, attempts: int = ATTEMPTS):
         """call() until it succeeds: tried ``attempts`` times on a corrupt reply or a timeout

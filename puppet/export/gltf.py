@@ -354,6 +354,13 @@ class GltfWriter(ExportWriter):
             self.written[...] = (W @ self._unbind)[:, :3]
         return keys
 
+    def pose_keys(self, world: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """One frame's keys without writing it: (b, 3) translations and (b, 4) rotations
+        (x, y, z, w) of the joint nodes, parent-relative, for rigid maps world (b, 3, 4)
+        (the live link sends exactly what the file would hold)."""
+        local = self._local_keys(np.asarray(world, np.float64))
+        return local[:, :, 3], matrix_to_quaternion(local[:, :, :3])
+
     def write(self, world: np.ndarray) -> None:
         """Append one frame. world: (b, 3, 4) rigid maps of rest points to posed points."""
         self._check_open()

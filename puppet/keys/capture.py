@@ -10,19 +10,26 @@ KeySession holds the shot being made and applies the puppeteer's commands (one l
     r N       replace key N with the held pose (its frame and interpolation kept)
     d N       delete key N
     i F       insert a key with the held pose at frame F
+    t N F     retime key N to frame F (``puppet.keys.shot.retime``: refused if keys would reorder)
     q         finish (end of input and Ctrl-C too)
 After every change the shot is written whole (``puppet.keys.shot.write_shot``): a crash keeps
 every key made before it.
+
+KeyDesk takes those commands from any thread (the terminal's Enter, the live view's Space, Key
+button and timeline) and applies them in order on the loop's thread once each one's hold window
+is over: one capture path whoever pressed.
 """
 
 from __future__ import annotations
 
+import queue
+import time
 from collections import deque
 
 import numpy as np
 
 from puppet.errors import PuppetError
-from puppet.keys.shot import insert_key, remove_key, replace_key, write_shot
+from puppet.keys.shot import insert_key, remove_key, replace_key, retime, write_shot
 from puppet.take import TakeError
 from puppet.take.keys import Key, Keys
 
@@ -31,6 +38,9 @@ HOLD_S = 0.2
 HOLD_NS = int(HOLD_S * 1e9)
 KEPT_READINGS = 4096
 """Readings kept while waiting for a hold window to end (a bound, not a tuning)."""
+WINDOW_WAIT_NS = 10_000_000_000
+"""Longest wait for a reading after the hold window (a stalled reader), ns; then the key is
+taken from the readings there are (or refused when there are none)."""
 
 
 class KeyRefused(PuppetError):
@@ -99,6 +109,10 @@ class KeySession:
                 index = int(parts[1])
                 new = remove_key(self.keys, index, self.path)
                 said = f"key {index}: deleted ({len(new.keys)} keys left)"
+            elif parts[0] == "t" and len(parts) == 3:
+                index, frame = int(parts[1]), int(parts[2])
+                new = retime(self.keys, {index: frame}, self.path)
+                said = f"key {index}: retimed to frame {frame}"
             elif parts[0] == "i" and len(parts) == 2:
                 ticks, ok, used = held_pose(self.readings, press_ns, self.ids)
                 frame = int(parts[1])
@@ -107,7 +121,8 @@ class KeySession:
                 said = f"key {index}: inserted at frame {frame} ({used} readings held)"
             else:
                 raise KeyRefused(f"unknown command {command.strip()!r}: Enter (a key), r N "
-                                "(replace), d N (delete), i FRAME (insert), q (finish)")
+                                "(replace), d N (delete), i FRAME (insert), t N FRAME (retime), "
+                                "q (finish)")
         except ValueError:
             raise KeyRefused(f"{command.strip()!r}: N and FRAME are whole numbers") from None
         write_shot(self.path, self.header, new)
@@ -115,4 +130,68 @@ class KeySession:
         return said
 
 
-__all__ = ["HOLD_S", "KeyRefused", "KeySession", "TakeError", "held_pose"]
+class KeyDesk:
+    """A KeySession's commands from any thread, applied in order on the loop's thread.
+
+    press(command, origin) (any thread) queues a command line stamped with the time it was
+    pressed (its hold window starts there); feed(readings) and step() (the loop's thread) hand
+    the session the readings and apply every command whose hold window is over. tell: called
+    with each outcome's words (the terminal's echo). Fields: session; version (counts changes
+    of the keys); finished (a ``q`` was applied).
+    """
+
+    def __init__(self, session: KeySession, tell=None):
+        self.session = session
+        self.tell = tell
+        self.version = 0
+        self.finished = False
+        self._commands: queue.Queue = queue.Queue()
+        self._pending = None  # (command, press_ns, origin) waiting for its hold window to end
+
+    def press(self, command: str, origin=None) -> None:
+        """Queue one command line (any thread); ``origin`` comes back with its outcome."""
+        self._commands.put((command, time.monotonic_ns(), origin))
+
+    def feed(self, readings) -> None:
+        """The readings the loop drained (oldest first)."""
+        self.session.readings.extend(readings)
+
+    def step(self) -> list[tuple[object, bool, str]]:
+        """Apply the commands whose hold window is over, in order; returns (origin, taken,
+        words) per command applied (taken False: refused, words say why)."""
+        outcomes = []
+        session = self.session
+        if self._pending is None and self._commands.empty():
+            return outcomes  # the loop's usual frame: nothing pressed
+        while not self.finished:
+            if self._pending is None:
+                try:
+                    self._pending = self._commands.get_nowait()
+                except queue.Empty:
+                    break
+            command, press_ns, origin = self._pending
+            if command.strip() == "q":
+                self._pending, self.finished = None, True
+                break
+            if session.needs_pose(command):
+                latest = session.readings[-1].t_ns if session.readings else 0
+                if latest <= press_ns + HOLD_NS and time.monotonic_ns() - press_ns < WINDOW_WAIT_NS:
+                    break  # the hold window is not over
+            self._pending = None
+            try:
+                outcome = (origin, True, session.apply(command, press_ns))
+                self.version += 1
+            except (KeyRefused, TakeError) as err:
+                outcome = (origin, False, f"refused: {err}")
+            if self.tell is not None:
+                self.tell(*outcome)
+            outcomes.append(outcome)
+        return outcomes
+
+    @property
+    def busy(self) -> bool:
+        """A command waits (queued or in its hold window)."""
+        return self._pending is not None or not self._commands.empty()
+
+
+__all__ = ["HOLD_S", "KeyDesk", "KeyRefused", "KeySession", "TakeError", "held_pose"]

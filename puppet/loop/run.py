@@ -61,7 +61,8 @@ def run_live(pipeline: Pipeline, source, *, seconds: float | None = None,
              should_stop: Callable[[], bool] = lambda: False,
              on_frame: Callable[[Summary], None] | None = None,
              started_s: float | None = None, latch_fps: float | None = 60.0,
-             view=None, after_solve: Callable[[Pipeline, Reading], None] | None = None) -> Summary:
+             view=None, after_solve: Callable[[Pipeline, Reading], None] | None = None,
+             link=None) -> Summary:
     """Run the live loop until ``seconds`` pass or ``should_stop()`` (e.g. Ctrl-C).
 
     source:   a started ReaderProcess or ReaderThread: ``drain()``, ``latest(timeout)`` and
@@ -77,6 +78,8 @@ def run_live(pipeline: Pipeline, source, *, seconds: float | None = None,
               after it (it renders for its viewers only when they can take a frame).
     after_solve: called with (pipeline, reading) right after each solve, before drawing (the
               actuators' goals from ``pipeline.T``).
+    link:     a live link (puppet.link.Link) or None: ``link.frame(pipeline, reading)`` after
+              each solve (it copies T; its own thread sends).
     """
     sinks = list(sinks)
     render = bool(sinks) and pipeline.renderer is not None
@@ -116,6 +119,8 @@ def run_live(pipeline: Pipeline, source, *, seconds: float | None = None,
         pipeline.solve(reading)
         if after_solve is not None:
             after_solve(pipeline, reading)
+        if link is not None:
+            link.frame(pipeline, reading)
         stages.lap("solve")
         if render:
             image = _draw(pipeline, stages, request)

@@ -117,6 +117,27 @@ class Picker:
         bary /= max(bary.sum(), 1e-12)
         return Pick(triangle, (float(bary[0]), float(bary[1]), float(bary[2])))
 
+    def coverage(self, T: np.ndarray, camera: Camera, out: np.ndarray) -> np.ndarray:
+        """Where the character drawn with T (4m, 3) and camera covers the frame: ``out``
+        (height, width) float32, top row first, filled with triangle index + 1 (0: background)."""
+        ctx = self._ctx
+        r = self.renderer
+        r._upload(T)
+        r._skin(every_vertex=True)
+        self._prog["u_view_proj"].write(np.ascontiguousarray(self.view_proj(camera).T, np.float32))
+        self._fbo.use()
+        self._fbo.clear(0.0, 0.0, 0.0, 0.0, depth=1.0)
+        ctx.enable(moderngl.DEPTH_TEST)
+        if r.cull_back_faces:
+            ctx.enable(moderngl.CULL_FACE)
+        ctx.front_face = "cw"
+        self._vao.render(moderngl.TRIANGLES)
+        ctx.front_face = "ccw"
+        ctx.disable(moderngl.CULL_FACE)
+        ctx.disable(moderngl.DEPTH_TEST)
+        self._fbo.read_into(out, components=1, dtype="f4")
+        return out
+
     def release(self) -> None:
         if self._released:
             return

@@ -6,8 +6,8 @@
 
 Modules: address (``[HOST:]PORT``, socket, token), protocol (frame header, limits), orbit
 (camera), handles (point handles, drag geometry), encoder (JPEG thread, latest-wins slot),
-server (aiohttp: page, sockets, credit), sources (rest pose, take playback), view (the loop's
-side). The page and its script are in ``static/`` (no CDN, no build step).
+server (aiohttp: page, sockets, credit), sources (rest pose, take playback), onion (ghosts of a
+shot's keys over the frames), view (the loop's side). The page and its script are in ``static/`` (no CDN, no build step).
 """
 
 from puppet.view.address import DEFAULT_HOST, DEFAULT_PORT, parse_address

@@ -42,6 +42,8 @@ PANEL_HZ = 5.0
 INPUT_RATE_HZ, INPUT_BURST = 120.0, 240
 #: Picks (a press on the character: a GPU pick and a solver refactor) per second, and at once.
 PICK_RATE_HZ, PICK_BURST = 4.0, 8
+#: Key edits (a key, a retime: each rewrites the shot file) per second, and at once.
+EDIT_RATE_HZ, EDIT_BURST = 4.0, 8
 #: Handles the view holds at most; a pick beyond them is refused with a notice.
 MAX_HANDLES = 16
 #: A viewer whose socket takes no data (a send waits) for this long is dropped, with a note.

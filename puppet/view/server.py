@@ -28,11 +28,13 @@ from importlib import resources
 
 from aiohttp import WSMsgType, web
 
+from puppet.take.keys import MAX_FRAME
 from puppet.view.address import Access
 from puppet.view.encoder import EncodedFrame
 from puppet.view.guard import RateLimit, Throttle, parse_message
-from puppet.view.protocol import (CREDIT, FLAG_DRAFT, INPUT_BURST, INPUT_RATE_HZ, MAX_CLIENT_MESSAGE,
-                                  CONTROL_SNDBUF, NOTICE_EVERY_S, OUTBOX_MESSAGES, PANEL_HZ, PICK_BURST, PICK_RATE_HZ,
+from puppet.view.protocol import (CREDIT, EDIT_BURST, EDIT_RATE_HZ, FLAG_DRAFT, INPUT_BURST, INPUT_RATE_HZ,
+                                  MAX_CLIENT_MESSAGE, CONTROL_SNDBUF, NOTICE_EVERY_S, OUTBOX_MESSAGES,
+                                  PANEL_HZ, PICK_BURST, PICK_RATE_HZ,
                                   STALL_DROP_S, frame_header)
 
 log = logging.getLogger("puppet.view")
@@ -101,6 +103,7 @@ class Viewer:
     frame_writes: dict = field(default_factory=dict)  # seq -> when its send began (monotonic s)
     notices: Throttle = field(default_factory=lambda: Throttle(NOTICE_EVERY_S))
     picks: RateLimit = field(default_factory=lambda: RateLimit(PICK_RATE_HZ, PICK_BURST))
+    edits: RateLimit = field(default_factory=lambda: RateLimit(EDIT_RATE_HZ, EDIT_BURST))
     ignored: int = 0        # malformed messages and messages of kinds the page never sends
     limited: int = 0        # messages over the rate limits (dropped unread)
     camera: int = 0
@@ -456,6 +459,11 @@ class ViewServer:
             if viewer.outbox is not None:  # the page's pending drag turns the camera instead
                 viewer.outbox.put(json.dumps({"type": "pick_miss", "key": message["key"]}))
             return
+        if message["type"] in ("key", "retime") and not viewer.edits.take(time.monotonic()):
+            viewer.limited += 1
+            self._refused_input(viewer, "edits", f"too many key edits: dropped (at most "
+                                f"{EDIT_RATE_HZ:.0f} per second)")
+            return
         if message["type"] == "camera_mode":
             viewer.camera = viewer.number if message["own"] else 0
             message = {**message, "camera": viewer.camera}
@@ -579,6 +587,10 @@ def _notice(text: str) -> str:
     return json.dumps({"type": "notice", "level": "warning", "text": text})
 
 
+def _whole(value) -> bool:
+    return isinstance(value, int) and not isinstance(value, bool)
+
+
 def _number(value) -> bool:
     return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
 
@@ -600,6 +612,11 @@ INPUTS = {
     "record": {"on": lambda v: isinstance(v, bool)},
     "marker": {"name": lambda v: isinstance(v, str) and 0 < len(v) <= 80},
     "playback": {"action": lambda v: v in ("pause", "play", "seek", "speed"), "value": _number},
+    "key": {},
+    "retime": {"index": lambda v: _whole(v) and 0 <= v <= MAX_FRAME,
+               "frame": lambda v: _whole(v) and 1 <= v <= MAX_FRAME},
+    "onion": {"on": lambda v: isinstance(v, bool)},
+    "playhead": {"frame": lambda v: _whole(v) and 1 <= v <= MAX_FRAME},
 }
 
 

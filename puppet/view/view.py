@@ -69,10 +69,13 @@ class View:
                   button is refused).
     takes_dir:    folder for takes recorded from the page.
     max_fps:      most frames per second sent per camera.
+    keys:         a ``puppet.keys.capture.KeyDesk`` (``puppet keys --view``): the page's Space,
+                  Key button and timeline go to it, and the page shows the shot's keys as ticks
+                  and the previous and next key as onion skins; None: no keys.
     """
 
     def __init__(self, address: str | None = None, *, mode: str = "live", take_factory=None,
-                 takes_dir=".", max_fps: float = 40.0):
+                 takes_dir=".", max_fps: float = 40.0, keys=None):
         if mode not in MODES:
             raise ValueError(f"mode: {mode!r} is not one of {MODES}")
         host, port = parse_address(address)
@@ -85,6 +88,9 @@ class View:
         self.takes_dir = Path(takes_dir)
         self.max_fps = float(max_fps)
         self.overlay = True
+        self.keys = keys
+        self.onion = keys is not None
+        self.playhead: int | None = None   # the onion skins' frame; None: where the next key lands
         self.server: ViewServer | None = None
         self.refactor_ms: list[float] = []
         self._commands: deque = deque()
@@ -148,6 +154,14 @@ class View:
         self._angles_deg = np.zeros(len(self._servo_ids))
         self.frames_rendered = 0
         self.frames_reused = 0
+        self._onion_version = 0   # counts changes of what the onion skins show
+        self._said = None         # the last key command's outcome: (taken, words)
+        self._onion = None
+        if self.keys is not None:
+            from puppet.view.onion import OnionSkins
+
+            self._onion = OnionSkins(rig, self.width, self.height)
+        self._ghosts = (-1, None, [])  # (onion version, what they show, [(T, rgb)])
         self._encoder = FrameEncoder(self.width, self.height, self._publish)
         self.server = ViewServer(self._sock, self.access, self)
         self.server.start()
@@ -173,7 +187,8 @@ class View:
                 "bones": self._bone_names, "handles": handles, "faults": faults,
                 "markers": markers, "overlay": self.overlay, "recording": self._recording_state(),
                 "legend": bone_legend(),
-                "panel": panel, "playback": self._playback_state()}
+                "panel": panel, "playback": self._playback_state(),
+                "keys": self._keys_state() if self.keys is not None else None}
 
     def panel(self, camera: int) -> dict:
         """The newest panel, with the handles and bones as seen by ``camera``."""
@@ -229,6 +244,8 @@ class View:
                 elif kind == "left":
                     if msg["camera"] != 0:
                         self._cameras.pop(msg["camera"], None)
+                        if self._onion is not None:
+                            self._onion.drop_camera(msg["camera"])
                     self._keys = {k: v for k, v in self._keys.items() if k[0] != client}
                 elif kind == "overlay":
                     self.overlay = msg["on"]
@@ -239,6 +256,8 @@ class View:
                     self._mark(msg["name"])
                 elif kind == "playback":
                     self._playback(msg["action"], msg["value"])
+                elif kind in ("key", "retime", "onion", "playhead"):
+                    self._keys_input(client, kind, msg)
             except PuppetError as err:  # told to the page that asked
                 self._warn(f"{kind}: {err}", client, kind=f"{kind} refused")
                 if kind == "pick":  # the page's pending drag becomes an orbit
@@ -411,6 +430,88 @@ class View:
         else:
             source.set_speed(value)
 
+    # ---- keys (puppet keys --view) --------------------------------------------------------------
+    def _keys_state(self) -> dict:
+        """The shot's keys for the page's timeline and its key controls."""
+        session = self.keys.session
+        keys = session.keys.keys
+        next_frame = keys[-1].frame + session.step if keys else 1
+        said = self._said
+        return {"fps": session.keys.fps, "step": session.step, "next_frame": next_frame,
+                "keys": [{"index": i, "frame": k.frame, "interpolation": k.interpolation}
+                         for i, k in enumerate(keys)],
+                "playhead": self.playhead if self.playhead is not None else next_frame,
+                "onion": self.onion, "path": str(session.path),
+                "said": said[1] if said else None, "taken": said[0] if said else None}
+
+    def _send_keys(self) -> None:
+        self._onion_version += 1
+        self.server.send_to(None, {"type": "keys", **self._keys_state()})
+
+    def _keys_input(self, client: str, kind: str, msg: dict) -> None:
+        """Page input for the keys: a key (Space, Key button) or a retime (a dragged tick) go to
+        the KeyDesk as the terminal's lines do; onion skins and their frame stay in the view."""
+        if self.keys is None:
+            raise PuppetError("keys need 'puppet keys ... --view'")
+        if kind == "key":
+            self.keys.press("", client)
+        elif kind == "retime":
+            self.keys.press(f"t {msg['index']} {msg['frame']}", client)
+        elif kind == "onion":
+            self.onion = msg["on"]
+            self._send_keys()
+        else:
+            self.playhead = msg["frame"]
+            self._send_keys()
+
+    def _keys_frame(self, batch) -> None:
+        """The loop's readings to the KeyDesk, and the outcome of the commands it applied told
+        to every page (a refusal also as a notice to the page that asked)."""
+        desk = self.keys
+        desk.feed(batch)
+        version = desk.version
+        outcomes = desk.step()
+        if not outcomes:
+            return
+        for origin, taken, words in outcomes:
+            self._said = (taken, words)
+            if not taken and isinstance(origin, str):
+                self._warn(words, origin, kind="key refused")
+        if desk.version != version and self._onion is not None:
+            self._onion.forget(desk.session.keys.keys)
+        self._send_keys()
+
+    def _onion_over(self, buffer, camera_id: int, orbit, camera) -> None:
+        """Draw the previous and next key's ghosts (around the playhead) over ``buffer``."""
+        from puppet.view.onion import NEXT_RGB, PREVIOUS_RGB, neighbours, pose_id
+
+        onion = self._onion
+        if self._ghosts[0] != self._onion_version:  # once per change: solved, cached by pose
+            state = self._keys_state()
+            previous, following = neighbours(self.keys.session.keys.keys, state["playhead"])
+            chosen = [(key, rgb) for key, rgb in ((previous, PREVIOUS_RGB), (following, NEXT_RGB))
+                      if key is not None]
+            self._ghosts = (self._onion_version, tuple((pose_id(k), rgb) for k, rgb in chosen),
+                            [(onion.ghost_T(k), rgb) for k, rgb in chosen])
+        _, shown, ghosts = self._ghosts
+        if not ghosts:
+            return
+        renderer = self._pipeline.renderer
+
+        def draw(T):
+            own = renderer.camera
+            if camera is not own:
+                renderer.camera = camera
+            try:
+                renderer.draw(T, out=onion.shade)
+            finally:
+                if camera is not own:
+                    renderer.camera = own
+            return onion.shade, self._picker.coverage(T, camera, onion.cover)
+
+        layer = onion.layer(camera_id, (orbit.version, shown), ghosts, draw)
+        onion.apply(buffer, layer)
+
     # ---- per frame ----------------------------------------------------------------------------
     def frame(self, pipeline, batch, image, log_source=None) -> None:
         """After the loop solved the newest reading of ``batch`` (and drew ``image`` for its own
@@ -429,6 +530,8 @@ class View:
                 self._recorder = None
         if log_source is not None:
             self._take_events(log_source)
+        if self.keys is not None:
+            self._keys_frame(batch)
         if now >= self._next_panel and self.server.viewers:
             self._next_panel = now + 1.0 / PANEL_HZ
             self._update_panel(pipeline, reading, now)
@@ -460,9 +563,10 @@ class View:
         last = self._last.get(camera_id)
         if last is None:
             return True
-        T, version, overlay, states, draft = last
+        T, version, overlay, states, draft, onion = last
         camera = self._cameras.get(camera_id)
         if (draft and now - self._last_interaction >= INTERACTION_S) or overlay != self.overlay \
+                or onion != self._onion_version \
                 or camera is None or version != camera.version or states != pipeline.bone_states:
             return True
         # A still pose: the solver's answer still settles by far less than a pixel per solve.
@@ -498,6 +602,8 @@ class View:
             end = time.monotonic()
             self._next_render_s = end + (end - start) * (1.0 / VIEW_SHARE - 1.0)
             self.frames_rendered += 1
+        if self.onion and self._onion is not None:
+            self._onion_over(buffer, camera_id, orbit, camera)
         self._seq += 1
         seq = self._seq
         slot = seq % RING
@@ -508,7 +614,8 @@ class View:
         previous = self._last.get(camera_id)
         T_copy = previous[0] if previous is not None else np.empty_like(pipeline.T)
         np.copyto(T_copy, pipeline.T)
-        self._last[camera_id] = (T_copy, orbit.version, self.overlay, list(pipeline.bone_states), draft)
+        self._last[camera_id] = (T_copy, orbit.version, self.overlay, list(pipeline.bone_states), draft,
+                                 self._onion_version)
         self._last_render_s[camera_id] = now
         self.server.force.discard(camera_id)
         self._encoder.submit(buffer, seq, camera_id, int(reading.t_ns), draft)
@@ -607,6 +714,8 @@ class View:
         finally:
             if self._attached:
                 self._encoder.close()
+                if self._onion is not None:
+                    self._onion.close()
                 self.server.stop()
                 if self._pipeline.renderer is not None:  # else its context took the pass's objects
                     self._picker.release()

@@ -60,7 +60,7 @@ def test_an_unreachable_ray_address_fails_before_any_work(tmp_path, session):
     pytest.importorskip("ray", reason="ray is not installed (pip install 'puppet[ray]')")
     result = run(session[0], "--out", tmp_path / "out", "--engine", "ray", "--address",
                  "127.0.0.1:9")
-    assert_clean_error(result, "--address 127.0.0.1:9", "no Ray cluster answers there")
+    assert_clean_error(result, "--address 127.0.0.1:9", "no Ray head answers there")
     assert list((tmp_path / "out").iterdir()) == []
     assert_clean_error(run(session[0], "--out", tmp_path / "out", "--address", "127.0.0.1:9"),
                        "--address is for --engine ray")
@@ -79,7 +79,7 @@ def test_a_fifo_or_folder_named_like_a_take_is_a_failed_row_not_a_hang(tmp_path,
     result = subprocess.run(["puppet", "batch", str(folder), "--out", str(out), "--formats",
                              "bvh", "--workers", "1", "--json"], capture_output=True, text=True,
                             timeout=300)
-    assert result.returncode == 1 and "Traceback" not in result.stderr
+    assert result.returncode == 3 and "Traceback" not in result.stderr  # some takes failed
     rows = {r["take"]: r for r in json.loads(result.stdout)["takes"]}
     for name in ("pipe.mcap", "folder.mcap"):
         assert rows[str(folder / name)]["state"] == "failed"

@@ -277,3 +277,35 @@ def test_a_baud_the_model_cannot_do_is_refused_naming_the_servo():
         ServoReader("/dev/null", {1: "AX-12A", 3: "MX-28"}, baud=3_000_000)
     assert str(err.value) == ("port /dev/null: 3000000 bit/s is not a rate of servo 1 (AX-12A: up "
                               "to 1 Mbit/s)")
+
+
+def test_a_command_at_a_baud_some_models_cannot_do_names_those_servos(protocol1_rig, tmp_path):
+    import subprocess
+
+    result = subprocess.run(["puppet", "record", "--rig", str(protocol1_rig), "--port", "/dev/null",
+                             "--out", str(tmp_path / "t.mcap"), "--baud", "3000000", "--seconds", "1"],
+                            capture_output=True, text=True, timeout=120)
+    assert result.returncode == 1
+    assert result.stderr.strip().splitlines() == [
+        "Error: port /dev/null: 3000000 bit/s is not a rate of servos 1, 2, 3, 4, 5, 6, 7, 8 "
+        "(AX-12A: up to 1 Mbit/s)"]     # the MX-28 (servos 9..15) run at 3 Mbit/s
+
+
+def test_calibrate_captures_the_zero_pose_of_a_p1_rig(protocol1_rig, tmp_path):
+    import subprocess
+
+    from puppet.rig import Calibration, load_rig
+
+    models = dict(load_rig(protocol1_rig).servo_map.models)
+    out = tmp_path / "cal.toml"
+    with hw_sim.serve(models) as bus:
+        bus.set_positions({i: 2000 + i for i in models})
+        result = subprocess.run(["puppet", "calibrate", "--rig", str(protocol1_rig), "--port",
+                                 bus.port, "--out", str(out)], capture_output=True, text=True,
+                                timeout=300)
+        present = {i: bus.servo(i).get("Present Position") for i in models}
+    assert result.returncode == 0, result.stderr
+    zero = Calibration.load(out).zero_ticks
+    assert zero == present                                   # each servo's own ticks
+    assert all(0 < zero[i] < 1023 for i, m in models.items() if m == "AX-12A")
+    load_rig(protocol1_rig).servo_map.calibrate(Calibration.load(out))   # limits still inside

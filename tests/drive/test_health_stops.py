@@ -69,7 +69,7 @@ def _expected(model: str, kind: str) -> str:
     m = MODELS[model]
     if kind == "temperature":
         return f"above the host limit {_host_limit(model):.0f} C"
-    if m.current_unit_ma is None:
+    if m.current_unit_ma is None or m.current_limit is None:
         return "Present Load"  # and the cap, checked in the test
     return f"above the host cap {m.current_limit_ma * CURRENT_FRACTION:.0f} mA"
 
@@ -97,6 +97,40 @@ def test_perform_stops_on_current_and_temperature_for_every_family(model, kind, 
         assert info.value.report.torque_after == {1: 0, 2: 0}
         assert [bus.servo(i).get("Torque Enable") for i in (1, 2)] == [0, 0]
         assert bus.servo(2).get("Hardware Error Status") == 0  # the host stopped it first
+
+
+OTHER_FAMILIES = ["AX-12A", "MX-28", "MX-64", "XL-320", "MX-64(2.0)"]
+"""Protocol 1.0 (AX, MX: Present Load; no Bus Watchdog), the XL-320 (Present Load, no Bus
+Watchdog) and MX(2.0) (Present Current, Current Limit, Bus Watchdog)."""
+
+
+@pytest.mark.parametrize("model, kind", [(m, "current") for m in OTHER_FAMILIES] + [
+    ("AX-12A", "temperature"), ("XL-320", "temperature")])
+def test_perform_stops_on_load_and_temperature_for_the_other_families(model, kind, rig, make_take,
+                                                                       tmp_path):
+    m = MODELS[model]
+    servos = [replace(s, model=model, zero_ticks=m.position_ticks // 2)
+              for s in rig.servo_map.servos[:2]]
+    small = SimpleNamespace(name=f"two {model}", servo_map=ServoMap(servos))
+    take = make_take(tmp_path / "still.mcap", small, np.zeros((20, 2)))
+    if kind == "current":
+        fault = dict(current=_load_ma(model))
+    else:
+        current, heat = _heat(model)
+        fault = dict(current=current, heat=heat)
+    options = dict(OPTIONS, watchdog=m.bus_watchdog_firmware is not None)
+    with hw_sim.serve(dict(small.servo_map.models)) as bus:
+        with pytest.raises(HealthStop) as info:
+            perform(small, TakeReader(take), bus.port, PerformOptions(**options),
+                    on_phase=_during_playback(lambda: bus.inject("load", 2, **fault)))
+        message = str(info.value)
+        assert info.value.dxl_id == 2
+        assert _expected(model, kind) in message, message
+        if kind == "current" and m.current_limit is None:   # the load rule: % of the maximum
+            assert f"above the host cap {100 * CURRENT_FRACTION:.0f} %" in message, message
+        assert info.value.report.torque_after == {1: 0, 2: 0}
+        assert [bus.servo(i).get("Torque Enable") for i in (1, 2)] == [0, 0]
+        assert bus.servo(2).hardware_error == 0  # the host stopped it first
 
 
 @pytest.mark.parametrize("model", FAMILIES)

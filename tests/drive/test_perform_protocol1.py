@@ -5,6 +5,8 @@ without a Bus Watchdog unless told."""
 
 from __future__ import annotations
 
+import signal
+import subprocess
 import threading
 
 import numpy as np
@@ -134,4 +136,59 @@ def test_release_finds_p1_servos_and_turns_torque_off(p1_rig):
         done = release(bus.port)                  # no rig: found by Protocol 1.0 pings
         assert done.torque == dict.fromkeys(models, 0)
         assert done.watchdog == {}                # none of them has a Bus Watchdog
+        assert set(_torque(bus, p1_rig).values()) == {0}
+
+
+def _perform_cli(take, rig_path, port, *extra):
+    return subprocess.Popen(["puppet", "perform", str(take), "--rig", str(rig_path), "--port",
+                             str(port), "--yes", "--latency-ms", "20", "--no-watchdog", *extra],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+
+
+def _wait_playback(proc) -> list[str]:
+    seen = []
+    for line in proc.stderr:
+        seen.append(line)
+        if "phase: playback" in line:
+            return seen
+    raise AssertionError(f"perform exited before playback: {''.join(seen)}")
+
+
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
+def test_a_signal_stops_a_p1_performance_with_torque_off(p1_rig, p1_take, protocol1_rig, sig):
+    with hw_sim.serve(dict(p1_rig.servo_map.models)) as bus:
+        proc = _perform_cli(p1_take, protocol1_rig, bus.port, "--loop")
+        _wait_playback(proc)
+        assert set(_torque(bus, p1_rig).values()) == {1}
+        proc.send_signal(sig)
+        out, err = proc.communicate(timeout=120)
+        assert proc.returncode == 0, err
+        assert f"stopped: stopped by {sig.name}" in out
+        assert "Traceback" not in err
+        assert set(_torque(bus, p1_rig).values()) == {0}
+
+
+def test_sigkill_without_a_watchdog_leaves_torque_on_until_release(p1_rig, p1_take, protocol1_rig):
+    # What --no-watchdog means: nothing on an AX or MX stops it when the host dies.
+    with hw_sim.serve(dict(p1_rig.servo_map.models)) as bus:
+        proc = _perform_cli(p1_take, protocol1_rig, bus.port, "--loop")
+        _wait_playback(proc)
+        proc.kill()
+        proc.communicate(timeout=120)
+        assert set(_torque(bus, p1_rig).values()) == {1}
+        result = subprocess.run(["puppet", "release", "--port", bus.port, "--rig",
+                                 str(protocol1_rig)], capture_output=True, text=True, timeout=120)
+        assert result.returncode == 0, result.stderr
+        assert result.stdout.splitlines()[0] == "servo 1: Torque Enable 0, no Bus Watchdog (read back)"
+        assert set(_torque(bus, p1_rig).values()) == {0}
+
+
+def test_an_ax_in_wheel_mode_is_given_its_range_before_torque(p1_rig, p1_take):
+    with hw_sim.serve(dict(p1_rig.servo_map.models)) as bus:
+        bus.servo(2).set("CW Angle Limit", 0)
+        bus.servo(2).set("CCW Angle Limit", 0)     # both 0: wheel mode, no position control
+        report = _perform(p1_rig, p1_take, bus.port)
+        assert "servo 2: CCW Angle Limit 0 -> 1023" in report.changes
+        assert bus.servo(2).get("CCW Angle Limit") == 1023
+        assert report.stop_reason == "end of take"
         assert set(_torque(bus, p1_rig).values()) == {0}

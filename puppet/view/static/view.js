@@ -21,6 +21,7 @@ const state = {
   servos: [], handles: [], handleSpots: [], bones: [], overlay: true, ownCamera: false,
   recording: { on: false }, faults: [], markers: [], notices: [], panel: null, playback: null, takeMarks: [],
   connected: { frames: false, control: false }, lastPick: null,
+  keys: null, keysUpdates: 0,  // the shot's keys (puppet keys --view) and how many updates came
   panels: 0, panelTimes: [],  // panel updates received; arrival times (ms, performance.now), newest 600
 };
 window.puppetView = state;
@@ -121,6 +122,18 @@ const handlers = {
     $("playback").hidden = m.mode !== "play";
     $("record").disabled = m.mode !== "live";  // a take of the rest pose or of a take: nothing new
     if (m.panel && m.panel.servos) handlers.panel(m.panel);
+    $("keys").hidden = !m.keys;
+    if (m.keys) handlers.keys(m.keys);
+  },
+  keys(m) {
+    state.keys = m; state.keysUpdates += 1;
+    $("onion").setAttribute("aria-pressed", String(m.onion));
+    const last = m.keys.length ? m.keys[m.keys.length - 1].frame : 0;
+    $("keys-count").textContent = `${m.keys.length} keys · ${last} frames at ${m.fps} fps · next key at frame ${m.next_frame}`;
+    const said = $("keys-said");
+    said.textContent = m.said || "";
+    said.classList.toggle("refused", m.taken === false);
+    drawTimeline();
   },
   panel(m) {
     state.panel = m;
@@ -395,6 +408,102 @@ marks.addEventListener("wheel", event => {
   event.preventDefault();
   send({ type: "zoom", factor: Math.exp(Math.max(-0.5, Math.min(0.5, event.deltaY * 0.001))) });
 }, { passive: false });
+
+// ---- keys: the Key button and Space, onion skins, the timeline ---------------------------------
+const timeline = $("timeline");
+const timelineCtx = timeline.getContext("2d");
+const TICK_GRAB_PX = 8;     // a press this close to a key's tick (canvas px) grabs it
+let tickDrag = null;        // {index, frame, from} while a tick is dragged
+
+function timelineSpan() {
+  const k = state.keys;
+  const frames = k.keys.map(key => key.frame);
+  return Math.max(k.next_frame, k.playhead, ...frames) + k.step;
+}
+function frameToX(frame) {
+  const pad = 14, span = timelineSpan();
+  return pad + (frame - 1) / Math.max(span - 1, 1) * (timeline.width - 2 * pad);
+}
+function xToFrame(x) {
+  const pad = 14, span = timelineSpan();
+  const f = 1 + (x - pad) / (timeline.width - 2 * pad) * Math.max(span - 1, 1);
+  return Math.max(1, Math.round(f));
+}
+function timelinePoint(event) {
+  const box = timeline.getBoundingClientRect();
+  return (event.clientX - box.left) * timeline.width / box.width;
+}
+function drawTimeline() {
+  const k = state.keys;
+  if (!k) return;
+  const ctx = timelineCtx, h = timeline.height;
+  ctx.clearRect(0, 0, timeline.width, h);
+  ctx.strokeStyle = "#555b66"; ctx.lineWidth = 1;
+  ctx.beginPath(); ctx.moveTo(frameToX(1), h - 12); ctx.lineTo(frameToX(timelineSpan()), h - 12); ctx.stroke();
+  ctx.fillStyle = "#9aa0aa"; ctx.font = "10px system-ui, sans-serif"; ctx.textAlign = "center";
+  for (let f = 1; f <= timelineSpan(); f += k.step) ctx.fillText(String(f), frameToX(f), h - 1);
+  const x = frameToX(k.playhead);
+  ctx.strokeStyle = "#e2574c"; ctx.beginPath(); ctx.moveTo(x, 2); ctx.lineTo(x, h - 12); ctx.stroke();
+  k.keys.forEach((key, i) => {
+    const frame = tickDrag && tickDrag.index === i ? tickDrag.frame : key.frame;
+    const kx = frameToX(frame);
+    ctx.fillStyle = tickDrag && tickDrag.index === i ? "#ffd54a" : "#4c8ee2";
+    ctx.fillRect(kx - 3, 12, 6, h - 26);
+    ctx.fillStyle = "#e6e6e6"; ctx.fillText(String(i), kx, 10);
+  });
+}
+function tickAt(x) {
+  let best = null, bestD = TICK_GRAB_PX;
+  state.keys.keys.forEach((key, i) => {
+    const d = Math.abs(frameToX(key.frame) - x);
+    if (d <= bestD) { best = i; bestD = d; }
+  });
+  return best;
+}
+timeline.addEventListener("pointerdown", event => {
+  if (!state.keys) return;
+  timeline.setPointerCapture(event.pointerId);
+  const x = timelinePoint(event);
+  const index = tickAt(x);
+  if (index === null) { send({ type: "playhead", frame: xToFrame(x) }); return; }
+  const frame = state.keys.keys[index].frame;
+  tickDrag = { index, frame, from: frame };
+  drawTimeline();
+});
+timeline.addEventListener("pointermove", event => {
+  if (!tickDrag) return;
+  tickDrag.frame = xToFrame(timelinePoint(event));
+  drawTimeline();
+});
+function endTickDrag() {
+  if (!tickDrag) return;
+  const { index, frame, from } = tickDrag;
+  tickDrag = null;
+  if (frame !== from) send({ type: "retime", index, frame });  // the file is rewritten by puppet, then the ticks redrawn
+  drawTimeline();
+}
+timeline.addEventListener("pointerup", endTickDrag);
+timeline.addEventListener("pointercancel", endTickDrag);
+// Where a frame lies on the timeline, in page coordinates (tests drag ticks with it).
+state.timelineAt = frame => {
+  const box = timeline.getBoundingClientRect();
+  return { x: box.left + frameToX(frame) * box.width / timeline.width, y: box.top + box.height / 2 - 6 };
+};
+
+$("key").onclick = () => send({ type: "key" });
+$("onion").onclick = () => send({ type: "onion", on: !(state.keys && state.keys.onion) });
+document.addEventListener("keydown", event => {
+  if (event.code !== "Space" || !state.keys || event.repeat) return;
+  const tag = event.target && event.target.tagName;
+  if (tag === "INPUT" || tag === "SELECT" || tag === "TEXTAREA") return;
+  event.preventDefault();  // not a scroll
+  send({ type: "key" });
+});
+document.addEventListener("keyup", event => {  // a focused button would be clicked on Space's keyup
+  if (event.code !== "Space" || !state.keys) return;
+  const tag = event.target && event.target.tagName;
+  if (tag !== "INPUT" && tag !== "SELECT" && tag !== "TEXTAREA") event.preventDefault();
+});
 
 $("overlay").onclick = () => send({ type: "overlay", on: !state.overlay });
 document.querySelectorAll("[data-preset]").forEach(b => { b.onclick = () => send({ type: "preset", name: b.dataset.preset }); });

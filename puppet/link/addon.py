@@ -1,0 +1,31 @@
+"""The Blender add-on's zip: ``puppet/blender_addon/puppet_link/`` plus this package's ``wire``
+module, copied verbatim (both ends of the link speak the same protocol file)."""
+
+from __future__ import annotations
+
+import zipfile
+from pathlib import Path
+
+from puppet.atomic import atomic_output, check_output
+
+ADDON = Path(__file__).resolve().parents[1] / "blender_addon" / "puppet_link"
+WIRE = Path(__file__).resolve().with_name("wire.py")
+NAME = "puppet_link"
+
+
+def addon_files() -> dict[str, bytes]:
+    """{path in the zip: bytes}: the add-on's files and wire.py, under puppet_link/."""
+    files = {f"{NAME}/{p.relative_to(ADDON).as_posix()}": p.read_bytes()
+             for p in sorted(ADDON.rglob("*")) if p.is_file() and "__pycache__" not in p.parts}
+    files[f"{NAME}/wire.py"] = WIRE.read_bytes()
+    return files
+
+
+def write_addon(out, *, force: bool = False) -> Path:
+    """Write the add-on's zip at ``out`` (the one rule for outputs: ``puppet.atomic``)."""
+    target = check_output(out, kind="npz", inputs=[], force=force, what="add-on")
+    with atomic_output(target, kind="npz", inputs=[], force=force, what="add-on") as temporary:
+        with zipfile.ZipFile(temporary, "w", zipfile.ZIP_DEFLATED) as archive:
+            for name, data in addon_files().items():
+                archive.writestr(name, data)
+    return Path(out)

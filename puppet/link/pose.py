@@ -1,0 +1,65 @@
+"""What the link sends of a solve: each joint's glTF keys and, on request, the FAST vertices.
+
+The keys are ``puppet export --gltf``'s own (``GltfWriter.pose_keys`` of ``JointTransforms``'
+rigid maps): a frame applied in Blender equals that frame of the exported file. The vertices are
+``V' = M T`` in the character file's vertex order (``SourceOrder``), as the exports write them.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from puppet.export.gltf import GltfWriter
+from puppet.export.joint_transforms import JointTransforms
+from puppet.export.source_order import SourceOrder
+
+
+class LinkPose:
+    """Keys and vertices of one rig's solves, into preallocated arrays.
+
+    rig: the Rig; lbs: a callable giving the (n, 4m) LBS matrix (asked for on the first mesh
+    frame only). Fields after ``update(T, mesh)``: translations (b, 3) float64, rotations (b, 4)
+    float64 (x, y, z, w), vertices (n_out, 3) float32 (filled when ``mesh``).
+    """
+
+    def __init__(self, rig, lbs):
+        sk = rig.skeleton
+        self.order = SourceOrder(rig)
+        self.names = [str(n) for n in sk.names]
+        self.parents = [int(p) for p in sk.parents]
+        self.keys = GltfWriter(Path(f"{rig.name}.link"), names=sk.names, parents=sk.parents,
+                               heads=sk.heads, frames=sk.frames, V=self.order.take(rig.V),
+                               F=self.order.F, W=self.order.take(rig.W), fps=30.0, name=rig.name,
+                               source=rig.source)
+        self.joints = JointTransforms(sk.heads)
+        b = len(self.names)
+        identity = np.zeros((b, 3, 4))
+        identity[:, :, :3] = np.eye(3)
+        self.rest_translations, self.rest_rotations = (np.array(a) for a in self.keys.pose_keys(identity))
+        self.translations = np.zeros((b, 3))
+        self.rotations = np.zeros((b, 4))
+        self.n_vertices = self.order.n_out
+        self.vertices = np.zeros((self.n_vertices, 3), np.float32)
+        self._lbs = lbs
+        self._M = None
+        self._T = None
+        self._deformed = None
+        self._points = np.zeros((self.n_vertices, 3))
+
+    def update(self, T: np.ndarray, mesh: bool) -> None:
+        """Fill the keys (and the vertices when ``mesh``) from a solve's T (4m, 3)."""
+        self.joints.update(T)
+        t, q = self.keys.pose_keys(self.joints.world)
+        self.translations[...] = t
+        self.rotations[...] = q
+        if mesh:
+            if self._M is None:
+                self._M = np.ascontiguousarray(self._lbs())
+                self._T = np.empty(T.shape)
+                self._deformed = np.empty((self._M.shape[0], 3))
+            self._T[...] = T
+            np.matmul(self._M, self._T, out=self._deformed)
+            self.order.take(self._deformed, out=self._points)
+            self.vertices[...] = self._points

@@ -1,0 +1,155 @@
+"""The live link's wire protocol, version 1: puppet streams poses to Blender over TCP.
+
+Standard library only (struct, json): this one file is shipped verbatim inside the Blender add-on
+(``puppet blender addon``) and used by puppet's server, so both ends speak the same bytes.
+
+Every message is ``length (uint32, big-endian) | kind (1 byte) | body``, length counting kind and
+body, at most MAX_MESSAGE bytes. Kinds:
+
+  client -> puppet
+    b"C" connect  JSON {"protocol": 1, "token": str|null, "mesh": bool, "name": str}
+    b"M" mesh     JSON {"mesh": bool}: start / stop sending the vertices
+    b"A" ack      ACK: seq (uint64), applied_s (float64, the client's clock): a frame applied
+  puppet -> client
+    b"H" hello    JSON {"protocol", "rig", "joints": [names], "parents": [int], "rest_translation":
+                  [[x, y, z]], "rest_rotation": [[x, y, z, w]], "vertices": n, "fps", "take_start_ns"}
+    b"F" frame    FRAME header: seq (uint64), reading_ns (int64, puppet's monotonic clock),
+                  take_s (float64, seconds into the take), joints b (uint32), vertices n (uint32);
+                  then b × 3 float64 local translations, b × 4 float64 local rotations (x, y, z, w),
+                  then n × 3 float32 vertices (0 unless the client asked for the mesh)
+    b"E" error    JSON {"error": str}: refused (bad token, protocol); puppet closes the connection
+    b"B" bye      JSON {"reason": str}: puppet stops streaming
+
+Joint transforms are each joint's glTF node translation and rotation relative to its parent
+node, as ``puppet export --gltf`` writes its keys (Y up, model units); vertices are the solver's
+deformed mesh in the model frame, in the character file's vertex order. Latest wins: puppet
+keeps at most 2 frames unacknowledged per client and then sends the newest one (a slow client
+skips frames, none queue); the client applies the newest frame it has and acks it (acking only
+that one acks the older ones too).
+"""
+
+from __future__ import annotations
+
+import json
+import struct
+
+PROTOCOL = 1
+MAX_MESSAGE = 64 << 20  # bytes: a 5-million-vertex mesh frame fits
+LENGTH = struct.Struct(">I")
+FRAME = struct.Struct("<QqdII")
+ACK = struct.Struct("<Qd")
+
+CONNECT, MESH, ACK_KIND, HELLO, FRAME_KIND, ERROR, BYE = b"C", b"M", b"A", b"H", b"F", b"E", b"B"
+JSON_KINDS = (CONNECT, MESH, HELLO, ERROR, BYE)
+
+
+class WireError(Exception):
+    """A message that breaks the protocol (the stream cannot continue past it)."""
+
+
+def frame_size(joints: int, vertices: int) -> int:
+    """Bytes of a frame message, length prefix included."""
+    return LENGTH.size + 1 + FRAME.size + joints * 7 * 8 + vertices * 3 * 4
+
+
+def encode_json(kind: bytes, obj: dict) -> bytes:
+    """One JSON message."""
+    body = json.dumps(obj, separators=(",", ":")).encode()
+    return LENGTH.pack(1 + len(body)) + kind + body
+
+
+def encode_ack(seq: int, applied_s: float) -> bytes:
+    return LENGTH.pack(1 + ACK.size) + ACK_KIND + ACK.pack(seq, applied_s)
+
+
+def pack_frame_header(buffer, seq: int, reading_ns: int, take_s: float, joints: int,
+                      vertices: int) -> int:
+    """Write a frame's length, kind and header at the start of ``buffer``; the offset where the
+    joint translations go."""
+    LENGTH.pack_into(buffer, 0, frame_size(joints, vertices) - LENGTH.size)
+    buffer[LENGTH.size] = FRAME_KIND[0]
+    FRAME.pack_into(buffer, LENGTH.size + 1, seq, reading_ns, take_s, joints, vertices)
+    return LENGTH.size + 1 + FRAME.size
+
+
+def encode_frame(seq: int, reading_ns: int, take_s: float, translations, rotations,
+                 vertices=None) -> bytes:
+    """A frame from sequences: translations [(x, y, z)] * b, rotations [(x, y, z, w)] * b,
+    vertices None or [(x, y, z)] * n (plain Python; puppet's server fills buffers instead)."""
+    b, n = len(translations), 0 if vertices is None else len(vertices)
+    out = bytearray(frame_size(b, n))
+    at = pack_frame_header(out, seq, reading_ns, take_s, b, n)
+    struct.pack_into(f"<{3 * b}d", out, at, *[x for t in translations for x in t])
+    struct.pack_into(f"<{4 * b}d", out, at + 24 * b, *[x for q in rotations for x in q])
+    if n:
+        struct.pack_into(f"<{3 * n}f", out, at + 56 * b, *[x for v in vertices for x in v])
+    return bytes(out)
+
+
+class Frame:
+    """A decoded frame: seq, reading_ns, take_s, translations (b × 3 floats, flat tuple),
+    rotations (b × 4, flat, x y z w), vertices (a memoryview of n × 3 float32, or None)."""
+
+    __slots__ = ("seq", "reading_ns", "take_s", "translations", "rotations", "vertices", "count")
+
+    def __init__(self, body: bytes):
+        if len(body) < FRAME.size:
+            raise ValueError("frame shorter than its header")
+        self.seq, self.reading_ns, self.take_s, b, n = FRAME.unpack_from(body, 0)
+        if len(body) != FRAME.size + b * 56 + n * 12:
+            raise ValueError(f"frame of {len(body)} bytes does not hold {b} joints and {n} vertices")
+        self.count = b
+        self.translations = struct.unpack_from(f"<{3 * b}d", body, FRAME.size)
+        self.rotations = struct.unpack_from(f"<{4 * b}d", body, FRAME.size + 24 * b)
+        self.vertices = memoryview(body)[FRAME.size + 56 * b:].cast("f") if n else None
+
+
+def decode(kind: bytes, body: bytes):
+    """A message's content: a dict (JSON kinds), a Frame, or (seq, applied_s) for an ack.
+    ValueError for a malformed body (the caller counts it and goes on)."""
+    if kind in JSON_KINDS:
+        try:
+            obj = json.loads(body.decode())
+        except (UnicodeDecodeError, json.JSONDecodeError, RecursionError) as err:
+            raise ValueError(f"bad JSON: {err}") from None
+        if not isinstance(obj, dict):
+            raise ValueError("JSON message is not an object")
+        return obj
+    if kind == FRAME_KIND:
+        return Frame(body)
+    if kind == ACK_KIND:
+        if len(body) != ACK.size:
+            raise ValueError("ack of the wrong size")
+        return ACK.unpack_from(body, 0)
+    raise ValueError(f"unknown message kind {bytes(kind)!r}")
+
+
+class Reader:
+    """Splits a byte stream into messages. ``feed(data)`` then ``messages()`` yields (kind, body
+    bytes) for each complete one. WireError when a length is
+    beyond MAX_MESSAGE or zero: the stream is lost."""
+
+    def __init__(self, max_message: int = MAX_MESSAGE):
+        self.max_message = max_message
+        self._buffer = bytearray()
+        self._start = 0
+
+    def feed(self, data) -> None:
+        if self._start:
+            del self._buffer[:self._start]
+            self._start = 0
+        self._buffer += data
+
+    def messages(self):
+        buffer = self._buffer
+        while len(buffer) - self._start >= LENGTH.size:
+            (length,) = LENGTH.unpack_from(buffer, self._start)
+            if length == 0 or length > self.max_message:
+                raise WireError(f"message length {length} outside 1..{self.max_message}")
+            end = self._start + LENGTH.size + length
+            if len(buffer) < end:
+                return
+            at = self._start + LENGTH.size
+            kind, body = bytes(buffer[at:at + 1]), bytes(buffer[at + 1:end])
+            self._start = end
+            yield kind, body

@@ -1,0 +1,116 @@
+"""Where ``--engine ray`` runs: a private instance unless told otherwise (a cluster already
+running here is never joined, and ``--workers`` works), ``--address auto`` joins that cluster,
+and an address that is not a Ray head fails at once naming it, with nothing raw of Ray's."""
+
+import json
+import os
+import shutil
+import signal
+import socket
+import subprocess
+import sys
+import tempfile
+import threading
+
+import pytest
+
+pytest.importorskip("ray", reason="ray is not installed (pip install 'puppet[ray]')")
+
+
+def batch(*args, timeout=600):
+    return subprocess.run(["puppet", "batch", *map(str, args), "--engine", "ray"],
+                          capture_output=True, text=True, timeout=timeout,
+                          cwd=tempfile.gettempdir())
+
+
+def free_port() -> int:
+    with socket.socket() as sock:
+        sock.bind(("127.0.0.1", 0))
+        return sock.getsockname()[1]
+
+
+def assert_clean_error(result, address, words):
+    assert result.returncode == 1, result.stderr
+    assert result.stdout == ""
+    lines = result.stderr.strip().splitlines()
+    assert lines == [lines[0]], result.stderr  # one line: no raw warnings of Ray's
+    assert lines[0].startswith(f"Error: --address {address}: "), lines[0]
+    assert words in lines[0]
+
+
+def test_an_address_that_accepts_but_is_not_ray_fails_naming_it(tmp_path, session):
+    listener = socket.create_server(("127.0.0.1", 0))
+    address = f"127.0.0.1:{listener.getsockname()[1]}"
+    held = []
+
+    def accept():  # accepts every connection and never answers, like a stuck service
+        while True:
+            try:
+                held.append(listener.accept()[0])
+            except OSError:
+                return
+
+    threading.Thread(target=accept, daemon=True).start()
+    try:
+        # the documented bound is about 10 s; the generous limit is for a loaded machine
+        result = batch(session[0], "--out", tmp_path / "out", "--address", address, timeout=120)
+    finally:
+        listener.close()
+        for connection in held:
+            connection.close()
+    assert held, "the batch never connected"
+    assert_clean_error(result, address, "not a Ray head (no gRPC answer within 10 s)")
+    assert not any((tmp_path / "out").iterdir())
+
+
+def test_an_address_that_is_not_host_and_port_is_refused_naming_it(tmp_path, session):
+    # (nothing listening: tests/batch/test_batch_bad_input.py)
+    result = batch(session[0], "--out", tmp_path / "out", "--address", "nonsense", timeout=120)
+    assert_clean_error(result, "nonsense", "expected host:port")
+
+
+@pytest.fixture
+def running_cluster():
+    """A Ray cluster started on this machine as a user does (``ray start --head``), of one CPU;
+    its address in RAY_ADDRESS as `ray start` suggests. Stopped (its own processes only) after."""
+    port = free_port()
+    temp = tempfile.mkdtemp(prefix="ray-")  # short: Ray's socket paths live under it
+    head = subprocess.Popen([sys.executable, "-m", "ray.scripts.scripts", "start", "--head",
+                             "--block", f"--port={port}", "--num-cpus=1",
+                             "--include-dashboard=false", f"--temp-dir={temp}"],
+                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+                            start_new_session=True, env={**os.environ, "RAY_AUTH_MODE": "disabled"})
+    address = f"127.0.0.1:{port}"
+    try:
+        yield address
+    finally:
+        os.killpg(head.pid, signal.SIGTERM)  # --block: it stops the processes it started
+        try:
+            head.wait(timeout=120)
+        except subprocess.TimeoutExpired:
+            os.killpg(head.pid, signal.SIGKILL)
+            head.wait()
+        shutil.rmtree(temp, ignore_errors=True)
+
+
+def test_a_private_instance_unless_address_auto_joins_the_running_cluster(tmp_path, session,
+                                                                       serial_outputs,
+                                                                       running_cluster,
+                                                                       monkeypatch):
+    monkeypatch.setenv("RAY_ADDRESS", running_cluster)  # what `ray start` asks users to set
+    monkeypatch.setenv("RAY_AUTH_MODE", "disabled")
+    out = tmp_path / "out"
+    result = batch(*session[:2], "--out", out, "--formats", "pc2", "--workers", 2, "--json")
+    assert result.returncode == 0, result.stderr
+    report = json.loads(result.stdout)
+    assert [row["state"] for row in report["takes"]] == ["done", "done"]
+    for take in session[:2]:
+        assert (out / f"{take.stem}.pc2").read_bytes() == serial_outputs[take.stem]["pc2"]
+    assert result.stderr.count("\n") <= 2, result.stderr  # the progress bar, nothing of Ray's
+    # --address auto joins it (its one CPU: --workers only bounds the tasks at once)
+    joined = batch(*session[2:], "--out", out, "--formats", "pc2", "--workers", 2, "--json",
+                   "--address", "auto")
+    assert joined.returncode == 0, joined.stderr
+    assert [row["state"] for row in json.loads(joined.stdout)["takes"]] == ["done", "done"]
+    for take in session[2:]:
+        assert (out / f"{take.stem}.pc2").read_bytes() == serial_outputs[take.stem]["pc2"]

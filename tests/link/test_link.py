@@ -1,0 +1,141 @@
+"""The live link without Blender: the wire protocol, and ``puppet play TAKE --link`` streaming
+the glTF export's keys to plain Python clients (latest wins, tokens, acks, a taken port)."""
+
+from __future__ import annotations
+
+import importlib.util
+import socket
+import subprocess
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from puppet.link import wire
+
+HERE = Path(__file__).resolve().parent
+
+
+def _load(name):
+    spec = importlib.util.spec_from_file_location(f"link_test_{name}", HERE / f"{name}.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+client_module, helpers = _load("client"), _load("helpers")
+Client, Puppet, gltf_keys = client_module.Client, helpers.Puppet, helpers.gltf_keys
+
+
+def test_a_frame_round_trips_through_the_wire_in_any_chunking():
+    t = [(0.5, -1.25, 2.0), (1e-9, 3.0, -4.5)]
+    q = [(0.0, 0.0, 0.0, 1.0), (0.5, 0.5, 0.5, 0.5)]
+    v = [(1.0, 2.0, 3.0), (-1.5, 0.25, 8.0), (0.0, 0.0, 0.0)]
+    stream = (wire.encode_json(wire.HELLO, {"protocol": wire.PROTOCOL, "joints": ["a", "b"]})
+              + wire.encode_frame(7, 123456789, 0.25, t, q, v) + wire.encode_ack(7, 1.5)
+              + wire.encode_frame(8, -5, 1.0, t, q))
+    for chunk in (1, 3, 7, len(stream)):
+        reader, got = wire.Reader(), []
+        for start in range(0, len(stream), chunk):
+            reader.feed(stream[start:start + chunk])
+            got += [wire.decode(k, b) for k, b in reader.messages()]
+        hello, frame, ack, bare = got
+        assert hello == {"protocol": 1, "joints": ["a", "b"]}
+        assert (frame.seq, frame.reading_ns, frame.take_s, frame.count) == (7, 123456789, 0.25, 2)
+        assert frame.translations == tuple(x for p in t for x in p)
+        assert frame.rotations == tuple(x for p in q for x in p)
+        assert frame.vertices.tolist() == [x for p in v for x in p]
+        assert ack == (7, 1.5)
+        assert (bare.seq, bare.reading_ns, bare.vertices) == (8, -5, None)
+
+
+def test_malformed_messages_are_refused_by_name():
+    with pytest.raises(ValueError, match="does not hold 2 joints"):
+        wire.decode(wire.FRAME_KIND, wire.encode_frame(1, 0, 0.0, [(0, 0, 0)] * 2, [(0, 0, 0, 1)] * 2)[5:-8])
+    with pytest.raises(ValueError, match="unknown message kind"):
+        wire.decode(b"Z", b"")
+    reader = wire.Reader(max_message=100)
+    reader.feed(wire.LENGTH.pack(101) + b"F")
+    with pytest.raises(wire.WireError, match="outside 1..100"):
+        list(reader.messages())
+
+
+def _start(take, argv, wait_until):
+    puppet = Puppet(["play", take, "--link", *argv])
+    port, token = puppet.listening(wait_until)
+    return puppet, port, token
+
+
+def test_play_streams_the_gltf_exports_keys_to_two_clients_latest_wins(
+        take, exported, critter, wait_until, interrupt_and_wait):
+    names = list(critter.skeleton.names)
+    t_file, q_file = gltf_keys(exported["glb"], names)
+    puppet, port, _ = _start(take, ["127.0.0.1:0", "--speed", "0.5"], wait_until)
+    try:
+        fast = Client(port)
+        slow = Client(port)
+        assert fast.first[0] == wire.HELLO and slow.first[0] == wire.HELLO
+        hello = fast.first[1]
+        assert (hello["protocol"], hello["joints"], hello["vertices"]) == (
+            wire.PROTOCOL, names, len(critter.V))
+        assert hello["parents"] == [int(p) for p in critter.skeleton.parents]
+        fast_seqs, slow_seqs = [], []
+        slow_first = slow.next()[1]  # then the slow client stops reading (and acking)
+        while True:
+            kind, frame = fast.next()
+            if kind != wire.FRAME_KIND:
+                break
+            k = round(frame.take_s * 30.0)
+            assert abs(frame.take_s * 30.0 - k) < 1e-9
+            t = np.reshape(frame.translations, (-1, 3))
+            q = np.reshape(frame.rotations, (-1, 4))
+            assert np.abs(t - t_file[k]).max() < 1e-5, k
+            same = np.minimum(np.abs(q - q_file[k]).max(1), np.abs(q + q_file[k]).max(1))
+            assert same.max() < 1e-5, k  # q and -q: one rotation (the file keeps a hemisphere)
+            fast_seqs.append(frame.seq)
+            fast.ack(frame.seq)
+        assert kind == wire.BYE and frame["reason"]
+        assert fast_seqs == sorted(set(fast_seqs)) and len(fast_seqs) > 10
+        # The slow client held at most the window of frames while the fast one went on; then
+        # it gets the newest frame, not the backlog.
+        while True:
+            kind, frame = slow.next()
+            if kind != wire.FRAME_KIND:
+                break
+            slow_seqs.append(frame.seq)
+        assert len(slow_seqs) <= 2
+        assert slow_first.seq < fast_seqs[-1]
+        assert len(slow_seqs) + 1 < len(fast_seqs)
+        assert puppet.proc.wait(timeout=120) == 0
+        summary = "\n".join(puppet.out)
+        assert "2 client(s)" in summary and "reading->applied median" in summary, summary
+    finally:
+        interrupt_and_wait(puppet.proc, read_stderr=False)
+
+
+def test_beyond_loopback_a_token_is_needed(take, wait_until, interrupt_and_wait):
+    puppet, port, token = _start(take, ["0.0.0.0:0"], wait_until)
+    try:
+        assert token
+        refused = Client(port, token="wrong")
+        assert refused.first == (wire.ERROR, {"error": "token refused: give the token puppet printed"})
+        assert refused.next() == (None, None)  # closed
+        old = Client(port, token=token, protocol=99)
+        assert old.first[0] == wire.ERROR and "protocol 99" in old.first[1]["error"]
+        good = Client(port, token=token)
+        assert good.first[0] == wire.HELLO
+        kind, frame = good.next()
+        assert kind == wire.FRAME_KIND and frame.seq == 0
+    finally:
+        interrupt_and_wait(puppet.proc, read_stderr=False)
+
+
+def test_a_taken_port_is_an_error_naming_it(take):
+    with socket.socket() as taken:
+        taken.bind(("127.0.0.1", 0))
+        taken.listen(1)
+        port = taken.getsockname()[1]
+        done = subprocess.run(["puppet", "play", str(take), "--link", str(port)],
+                              capture_output=True, text=True, timeout=300)
+    assert done.returncode == 1
+    assert f"Error: --link: address 127.0.0.1:{port} is already in use" in done.stderr

@@ -1,0 +1,193 @@
+"""``puppet keys --view`` in Debian's Chromium against hw_sim over a pty: Space and the Key
+button take a key exactly like Enter (the held pose lands in the shot file; a silent servo
+refuses it, named on the page), the onion skins
+draw the previous key over the live character (toggling them changes the frame), and dragging
+a key's tick on the timeline retimes it in the file (a reorder is refused, the reason on the
+page, the file unchanged)."""
+
+from __future__ import annotations
+
+import os
+import re
+import signal
+import subprocess
+
+import numpy as np
+
+import hw_sim
+from puppet.rig import builtin
+from puppet.rig.load import BUILTIN_RIG
+from puppet.take import TakeReader
+from puppet.view.server import check_input
+
+
+def pose(rig, degrees: dict[int, float]) -> dict[int, int]:
+    """Shaft ticks of every servo for joint angles in degrees (servo id -> angle)."""
+    ids = [int(i) for i in rig.servo_map.ids]
+    ticks = rig.servo_map.ticks_for(np.radians([degrees.get(i, 0.0) for i in ids]))
+    return dict(zip(ids, ticks.tolist()))
+
+
+def shot_keys(path):
+    """The shot's keys as written (None while there is no file)."""
+    return TakeReader(path).keys().keys if path.exists() else None
+
+
+class KeysProcess:
+    """``puppet keys ... --view`` with a stdin to type into; ``url`` once it printed it."""
+
+    def __init__(self, tools, args, cwd):
+        self.err_path, self.out_path = cwd / "stderr.txt", cwd / "stdout.txt"
+        self._err, self._out = open(self.err_path, "w"), open(self.out_path, "w")
+        env = dict(os.environ, OPENBLAS_NUM_THREADS="1", PYTHONUNBUFFERED="1")
+        self.proc = subprocess.Popen(tools.PUPPET + args, cwd=cwd, stdin=subprocess.PIPE,
+                                     stdout=self._out, stderr=self._err, env=env, text=True)
+
+        def url():
+            found = re.search(r"view: (http://\S+)", self.err_path.read_text())
+            if found:
+                return found.group(1)
+            assert self.proc.poll() is None, self.err_path.read_text()
+            return None
+        self.url = tools.wait_until(url, what="the view's URL")
+
+    def type(self, line: str) -> None:
+        self.proc.stdin.write(line + "\n")
+        self.proc.stdin.flush()
+
+    def stop(self, tools) -> int:
+        if self.proc.poll() is None:
+            self.type("q")
+            try:
+                self.proc.wait(tools.WAIT_S)
+            except subprocess.TimeoutExpired:
+                self.proc.send_signal(signal.SIGINT)
+                self.proc.wait(tools.WAIT_S)
+        self._err.close()
+        self._out.close()
+        return self.proc.returncode
+
+
+def take_key(tools, page, press, count: int):
+    """Press (Space or the button) until the page says key ``count - 1`` was taken: a key
+    refused because a read failed on this busy machine is pressed again, as a puppeteer would."""
+    def answer():
+        seen = page.evaluate("puppetView.keysUpdates")
+        press()
+        said = tools.wait_js(page, f"puppetView.keysUpdates > {seen} && puppetView.keys.said")
+        return said.startswith(f"key {count - 1}:")
+    tools.wait_until(answer, what=f"key {count - 1} taken")
+
+
+def changed_pixels(a, b) -> int:
+    """Pixels whose colour differs by more than JPEG noise between two frames."""
+    return int((np.abs(a.astype(int) - b.astype(int)).sum(axis=2) > 60).sum())
+
+
+def settled_frame(tools, page, after_updates: int):
+    """The frame shown once the page has the keys update ``after_updates`` and a few frames
+    rendered after it (the loop re-renders on every change of what the onion skins show)."""
+    tools.wait_js(page, f"puppetView.keysUpdates >= {after_updates}")
+    seq = page.evaluate("puppetView.shownSeq")
+    tools.wait_js(page, f"puppetView.shownSeq > {seq} + 3")
+    return tools.frame_image(page)
+
+
+def test_keys_from_the_page_onion_skins_and_timeline(new_page, tools, tmp_path):
+    rig = builtin()
+    ids = [int(i) for i in rig.servo_map.ids]
+    shot = tmp_path / "shot.mcap"
+    poses = [pose(rig, {4: -60, 5: 40, 1: 20}), pose(rig, {4: 70, 5: -50, 10: -60, 12: 70}),
+             pose(rig, {2: -60, 7: -80, 8: -50, 13: -30, 15: 40})]
+    with hw_sim.serve(rig.servo_map.models) as bus:
+        bus.set_positions(poses[0])
+        keys = KeysProcess(tools, ["keys", "--rig", str(BUILTIN_RIG), "--port", bus.port,
+                                   "--out", str(shot), "--step", "12",
+                                   "--view", str(tools.free_port())], tmp_path)
+        try:
+            page = tools.open_view(new_page, keys.url)
+            tools.wait_js(page, "puppetView.keys !== null")
+            assert page.locator("#keys").is_visible()
+
+            # Space takes a key like Enter: the held pose, in the file
+            take_key(tools, page, lambda: page.keyboard.press("Space"), 1)
+            tools.wait_until(lambda: shot_keys(shot) and len(shot_keys(shot)) == 1, what="key 0 in the file")
+            assert shot_keys(shot)[0].frame == 1
+            assert shot_keys(shot)[0].ticks.tolist() == [poses[0][i] for i in ids]
+
+            # the Key button too, --step frames later
+            bus.set_positions(poses[1])
+            take_key(tools, page, lambda: page.click("#key"), 2)
+            tools.wait_until(lambda: len(shot_keys(shot)) == 2, what="key 1 in the file")
+            assert shot_keys(shot)[1].frame == 13
+            assert shot_keys(shot)[1].ticks.tolist() == [poses[1][i] for i in ids]
+            assert "key 1: frame 13" in keys.out_path.read_text()  # told on the terminal too
+
+            # a key while a servo is silent is refused on the page, naming it; nothing is taken
+            bus.inject("drop", [3])
+
+            def refused_naming_3():
+                seen = page.evaluate("puppetView.keysUpdates")
+                page.keyboard.press("Space")
+                said = tools.wait_js(page, f"puppetView.keysUpdates > {seen} && puppetView.keys.said")
+                assert not said.startswith("key 2")
+                return "servo(s) [3] flagged" in said
+            tools.wait_until(refused_naming_3, what="a refusal naming servo 3 on the page")
+            assert page.locator("#keys-said.refused").is_visible()
+            assert len(shot_keys(shot)) == 2
+            bus.clear_faults()
+
+            # onion skins: the previous key (pose 1) over the live character (pose 2)
+            bus.set_positions(poses[2])
+            tools.wait_js(page, "puppetView.panel && puppetView.panel.servos.find(s => s.id === 7)"
+                                " && Math.abs(puppetView.panel.servos.find(s => s.id === 7).deg + 80) < 2")
+            updates = page.evaluate("puppetView.keysUpdates")
+            assert page.evaluate("puppetView.keys.onion") is True
+            with_onion = settled_frame(tools, page, updates)
+            page.click("#onion")
+            tools.wait_js(page, "puppetView.keys.onion === false")
+            without = settled_frame(tools, page, updates + 1)
+            page.click("#onion")
+            tools.wait_js(page, "puppetView.keys.onion === true")
+            again = settled_frame(tools, page, updates + 2)
+            assert changed_pixels(with_onion, without) > 300  # the ghost of key 1 where pose 2 is not
+            assert changed_pixels(again, without) > 300
+            assert changed_pixels(again, with_onion) < changed_pixels(again, without) / 4
+            ghost = (with_onion.astype(int) - without.astype(int))
+            assert (ghost[..., 2] > ghost[..., 0] + 40).sum() > 100  # tinted blue: the previous key
+
+            # dragging key 1's tick retimes it in the file
+            def drag_tick(start: int, end: int):
+                a = page.evaluate(f"puppetView.timelineAt({start})")
+                b = page.evaluate(f"puppetView.timelineAt({end})")
+                page.mouse.move(a["x"], a["y"])
+                page.mouse.down()
+                page.mouse.move(b["x"], b["y"], steps=10)
+                page.mouse.up()
+
+            drag_tick(13, 20)
+            tools.wait_until(lambda: [k.frame for k in shot_keys(shot)] == [1, 20], what="key 1 at frame 20")
+            tools.wait_js(page, "puppetView.keys.keys[1].frame === 20")
+            assert "key 1: retimed to frame 20" in keys.out_path.read_text()
+            # a drag onto key 0's frame is refused, naming both keys, on the page; the file stays
+            before = shot.read_bytes()
+            drag_tick(20, 1)
+            said = tools.wait_js(page, "puppetView.keys.taken === false && puppetView.keys.said")
+            assert "key 1 (frame 1) would land on the same frame as key 0 (frame 1)" in said
+            assert page.locator("#keys-said.refused").is_visible()
+            assert shot.read_bytes() == before
+            assert page.evaluate("puppetView.keys.keys.map(k => k.frame)") == [1, 20]
+        finally:
+            status = keys.stop(tools)
+    assert status == 0, keys.err_path.read_text()
+    assert "Traceback" not in keys.err_path.read_text()
+    assert "keys: 2, 20 frames at 24 fps" in keys.out_path.read_text()
+
+
+def test_key_inputs_from_the_page_are_checked():
+    assert check_input({"type": "key"}) is None
+    assert check_input({"type": "retime", "index": 1, "frame": 40}) is None
+    assert check_input({"type": "retime", "index": 1, "frame": 0}) == "retime: field 'frame' missing or invalid"
+    assert check_input({"type": "retime", "index": True, "frame": 4}) == "retime: field 'index' missing or invalid"
+    assert check_input({"type": "onion", "on": "yes"}) == "onion: field 'on' missing or invalid"
+    assert check_input({"type": "playhead", "frame": 2.5}) == "playhead: field 'frame' missing or invalid"
