@@ -269,10 +269,11 @@ def test_usd_carries_the_files_place_uvs_colours_and_textured_material(pillar, s
         np.testing.assert_allclose(local @ world[:3, :3].T + world[:3, 3], solved[frame - 1], atol=2e-5)
         normals = np.array(mesh.GetNormalsAttr().Get(time))
         np.testing.assert_allclose(np.linalg.norm(normals, axis=1), 1.0, atol=1e-5)
-        ring = np.arange(0, characters.PILLAR_RINGS * (characters.PILLAR_SIDES + 1), characters.PILLAR_SIDES + 1)  # u = 0
-        np.testing.assert_allclose(normals[ring], normals[ring + characters.PILLAR_SIDES], atol=1e-6)  # smooth
-        caps = len(PILLAR.primitives[0]["V"]) + np.arange(characters.PILLAR_SIDES)  # the bottom cap's ring
-        assert np.abs(np.einsum("ij,ij->i", normals[caps], normals[:characters.PILLAR_SIDES])).max() < 0.9  # hard
+        sides_n, rings_n = characters.PILLAR_SIDES, characters.PILLAR_RINGS
+        ring = np.arange(0, rings_n * (sides_n + 1), sides_n + 1)  # u = 0
+        np.testing.assert_allclose(normals[ring], normals[ring + sides_n], atol=1e-6)  # smooth
+        caps = len(PILLAR.primitives[0]["V"]) + np.arange(sides_n)  # the bottom cap's ring
+        assert np.abs(np.einsum("ij,ij->i", normals[caps], normals[:sides_n])).max() < 0.9  # hard
     # The file's triangles (its primitives in order), UV sets (t = 1 - v), colours.
     prims = PILLAR.primitives
     sides = len(prims[0]["V"])

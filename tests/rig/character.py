@@ -369,7 +369,7 @@ def creature_bones(legs=("L",), blender_names: bool = False) -> list:
     """[(name, parent, head, direction)] of the body and one leg per side in ``legs``; names
     puppet's ("tail base", "leg.L", ...) or Blender's ("tail.001", "thigh.L", ...)."""
     rename = {}
-    rows = [(ours, theirs, parent, head, direction) for ours, theirs, parent, head, direction in _BODY]
+    rows = list(_BODY)
     for side in legs:
         x = 1.0 if side == "L" else -1.0
         rows += [(ours.format(side), theirs.format(side), parent.format(side),
