@@ -43,11 +43,12 @@ EXIT_FAILED = 3     # some takes failed or timed out (their rows say why); the o
               help="local: a process pool on this machine; ray: Ray tasks (pip install "
                    "'puppet[ray]').")
 @click.option("--address", default=None,
-              help="Ray cluster to run on (host:6379, ray://host:10001 or auto); default: a "
-                   "Ray started here.")
+              help="Ray cluster to run on (host:6379, ray://host:10001, or auto: the one "
+                   "running here); default: a private Ray started for this batch. An address "
+                   "that is not a Ray head fails within 10 s.")
 @click.option("--workers", type=InRange(limits.WORKERS), default=None,
-              help=f"Worker processes (local) or CPUs of a Ray started here ({limits.WORKERS}) "
-                   "[default: cores].")
+              help=f"Worker processes (local), CPUs of a private Ray, or tasks at once on a "
+                   f"cluster ({limits.WORKERS}) [default: cores].")
 @click.option("--retries", type=InRange(limits.RETRIES), default=2, show_default=True,
               help="Tries after the first of a take whose worker died (killed, out of memory).")
 @click.option("--take-timeout", "take_timeout", type=InRange(limits.SECONDS), default=None,

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import itertools
 import sys
 import threading
 import time
@@ -16,13 +17,23 @@ from puppet.cli.view import view_option
 def _lines(desk, finish_at_end: bool = True) -> None:
     """Press each stdin line (without its newline) on the KeyDesk, then ``q`` at end of input
     (finish_at_end; with --view the page goes on taking keys until q or Ctrl-C)."""
-    for line in sys.stdin:
-        desk.press(line.rstrip("\r\n"))
-    if finish_at_end:
-        desk.press("q")
+    from puppet.keys.capture import KeyRefused
+
+    lines = (line.rstrip("\r\n") for line in sys.stdin)
+    for line in itertools.chain(lines, ["q"] if finish_at_end else []):  # one at a time, as typed
+        try:
+            desk.press(line)
+        except KeyRefused as err:
+            click.echo(f"refused: {err}", err=True)
 
 
-def _tell(origin, taken: bool, words: str) -> None:
+DEFAULT_FPS = 24.0
+"""A new shot's frames per second (``--fps``; ``live --keys`` too)."""
+DEFAULT_STEP = 12
+"""Frames from a key to the next (``--step``; ``live --keys`` too)."""
+
+
+def say_outcome(origin, taken: bool, words: str) -> None:
     """A key command's outcome on the terminal (refusals on stderr)."""
     click.echo(words, err=not taken)
 
@@ -31,9 +42,9 @@ def _tell(origin, taken: bool, words: str) -> None:
 @click.option("--rig", "rig_path", default=None, help="Rig file (TOML).")
 @click.option("--port", default=None, help="Serial port.")
 @click.option("--out", default=None, help="Shot file to write (.mcap).")
-@click.option("--fps", default=24.0, show_default=True, type=InRange(limits.FPS),
+@click.option("--fps", default=DEFAULT_FPS, show_default=True, type=InRange(limits.FPS),
               help=f"The shot's frames per second ({limits.FPS}).")
-@click.option("--step", default=12, show_default=True, type=click.IntRange(1, 100_000),
+@click.option("--step", default=DEFAULT_STEP, show_default=True, type=click.IntRange(1, 100_000),
               help="Frames from a key to the next.")
 @click.option("--interpolation", default="linear", show_default=True,
               type=click.Choice(["linear", "smooth", "step"]),
@@ -76,7 +87,7 @@ def keys(ctx, rig_path, port, out, fps, step, interpolation, baud, force, view_a
     rig = load_rig(rig_path)
     check_take_path(out, rig, force=force)  # before the port: a mistake costs nothing
     session = KeySession(out, take_header(rig), fps=fps, step=step, interpolation=interpolation)
-    desk = KeyDesk(session, tell=_tell)
+    desk = KeyDesk(session, tell=say_outcome)
     if view_address is not None:  # bound before the bus is touched: a taken port fails first
         source = _capture_in_view(rig, port, baud, desk, view_address)
     else:

@@ -35,6 +35,17 @@ def report_actuators(source) -> None:
         click.echo(f"actuators {sorted(after)}: torque off (read back)", err=True)
 
 
+def _key_desk(rig, shot_path: str):
+    """The KeyDesk of ``live --view --keys``: a new shot at ``puppet keys``' defaults, its
+    outcomes said on the terminal."""
+    from puppet.cli.common import take_header
+    from puppet.cli.keys import DEFAULT_FPS, DEFAULT_STEP, say_outcome
+    from puppet.keys.capture import KeyDesk, KeySession
+
+    session = KeySession(shot_path, take_header(rig), fps=DEFAULT_FPS, step=DEFAULT_STEP)
+    return KeyDesk(session, tell=say_outcome)
+
+
 @click.command()
 @click.option("--rig", "rig_path", required=True, help="Rig file (TOML).")
 @click.option("--port", required=True, help="Serial port, e.g. /dev/ttyUSB0 or hw-sim's pty.")
@@ -56,12 +67,16 @@ def report_actuators(source) -> None:
 @click.option("--no-watchdog", is_flag=True,
               help="Drive actuators without the Bus Watchdog, also on a model that has none "
                    "(a host crash leaves them driving).")
+@click.option("--keys", "shot_path", default=None,
+              help="With --view: take key poses into this shot from the page (Space or its Key "
+                   "button; timeline, onion skins) as `puppet keys --view` does, at its default "
+                   "--fps and --step.")
 @view_option
 @link_option
 def live(rig_path: str, port: str, baud: int, take_path: str | None, out: str | None,
          frames: str | None, seconds: float | None, fps: float, antialias: str,
-         force: bool, view_address: str | None, link_address: str | None, watchdog_ms: float,
-         no_watchdog: bool) -> None:
+         force: bool, shot_path: str | None, view_address: str | None,
+         link_address: str | None, watchdog_ms: float, no_watchdog: bool) -> None:
     """Read the puppet, solve and render live until Ctrl-C.
 
     Servos with role = "actuator" in the rig file are driven to the angle the solve gives
@@ -71,6 +86,7 @@ def live(rig_path: str, port: str, baud: int, take_path: str | None, out: str | 
     Example:
       puppet live --rig my.toml --port /dev/ttyUSB0 --record take.mcap --out live.mp4
       puppet live --rig my.toml --port /dev/ttyUSB0 --view     watch at the printed URL
+      puppet live --rig my.toml --port /dev/ttyUSB0 --view --keys shot.mcap   key poses from the page
       puppet live --rig my.toml --port /dev/ttyUSB0 --link     into Blender (puppet_link add-on)
     """
     from puppet.drive.actuators import ActuationPlan, ActuatorHook, LiveActuation
@@ -78,11 +94,16 @@ def live(rig_path: str, port: str, baud: int, take_path: str | None, out: str | 
     from puppet.take import BackgroundTakeWriter
 
     rig = load_rig(rig_path)
-    if take_path:  # every output checked before the view, the bus or any file is touched
+    if shot_path is not None and view_address is None:
+        raise click.UsageError("--keys takes keys from the page: add --view (or use `puppet keys`)")
+    if take_path or shot_path:  # every output checked before the view, the bus or any file is touched
         from puppet.atomic import check_distinct
 
-        check_distinct({"--record": take_path, "--out": out})
-        check_take_path(take_path, rig, force=force)
+        check_distinct({"--record": take_path, "--out": out, "--keys": shot_path})
+        for path in (take_path, shot_path):
+            if path:
+                check_take_path(path, rig, force=force)
+    desk = _key_desk(rig, shot_path) if shot_path else None
     sinks = make_sinks(out, frames, fps, inputs=rig_files(rig), force=force)
     live_view = link = None
     if link_address is not None:  # bound before the bus is touched: a taken port fails first
@@ -90,7 +111,7 @@ def live(rig_path: str, port: str, baud: int, take_path: str | None, out: str | 
     if view_address is not None:  # bound before the bus is touched: a taken port fails first
         takes = Path(take_path).parent if take_path else Path(".")
         live_view = open_view(view_address, mode="live", take_factory=take_factory_for(rig),
-                              takes_dir=takes)
+                              takes_dir=takes, keys=desk)
     stop = StopFlag()
     try:
         with Pipeline(rig, render=bool(sinks) or live_view is not None, overlay=True,
@@ -131,6 +152,8 @@ def live(rig_path: str, port: str, baud: int, take_path: str | None, out: str | 
         if link is not None:
             link.close()
     extra = {"take": take_path} if take_path else {}
+    if desk is not None:
+        extra["shot"] = f"{shot_path} ({len(desk.session.keys.keys)} keys)"
     print_summary(summary, False, extra={**extra, **(report_link(link) if link else {})})
 
 

@@ -37,7 +37,8 @@ class LinkPose:
         b = len(self.names)
         identity = np.zeros((b, 3, 4))
         identity[:, :, :3] = np.eye(3)
-        self.rest_translations, self.rest_rotations = (np.array(a) for a in self.keys.pose_keys(identity))
+        rest_t, rest_q = self.keys.pose_keys(identity)
+        self.rest_translations, self.rest_rotations = np.array(rest_t), np.array(rest_q)
         self.translations = np.zeros((b, 3))
         self.rotations = np.zeros((b, 4))
         self.n_vertices = self.order.n_out

@@ -225,7 +225,9 @@ class Link:
                 self.latency_ms.add((time.monotonic_ns() - int(self._ring_ns[slot])) / 1e6)
                 client.acked += 1
             return
-        message = parse_message(body.decode("utf-8", "replace")) if kind in (wire.CONNECT, wire.MESH) else None
+        message = None
+        if kind in (wire.CONNECT, wire.MESH):
+            message = parse_message(body.decode("utf-8", "replace"))
         if message is None:
             self.malformed += 1
             return
@@ -277,7 +279,8 @@ class Link:
             np.frombuffer(buffer, np.float64, 3 * b, at)[...] = pose.translations.reshape(-1)
             np.frombuffer(buffer, np.float64, 4 * b, at + 24 * b)[...] = pose.rotations.reshape(-1)
             if vertices:
-                np.frombuffer(buffer, np.float32, 3 * n, at + 56 * b)[...] = pose.vertices.reshape(-1)
+                points = np.frombuffer(buffer, np.float32, 3 * n, at + 56 * b)
+                points[...] = pose.vertices.reshape(-1)
         self._ring_seq[seq % ACK_RING] = seq
         self._ring_ns[seq % ACK_RING] = reading_ns
         self._encoded_seq = seq
@@ -340,8 +343,8 @@ class Link:
         """What the link did: clients, frames published / sent / acked / skipped, reading ->
         applied (ack received) median and p99 in ms, malformed messages, refused tokens."""
         h = self.latency_ms
-        return {"clients": self.clients_seen, "published": self.published,
-                "acked": h.count, "applied_median_ms": round(h.percentile(50), 3) if h.count else None,
+        return {"clients": self.clients_seen, "published": self.published, "acked": h.count,
+                "applied_median_ms": round(h.percentile(50), 3) if h.count else None,
                 "applied_p99_ms": round(h.percentile(99), 3) if h.count else None,
                 "malformed": self.malformed, "refused": self.refused}
 

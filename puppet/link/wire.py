@@ -11,11 +11,13 @@ body, at most MAX_MESSAGE bytes. Kinds:
     b"M" mesh     JSON {"mesh": bool}: start / stop sending the vertices
     b"A" ack      ACK: seq (uint64), applied_s (float64, the client's clock): a frame applied
   puppet -> client
-    b"H" hello    JSON {"protocol", "rig", "joints": [names], "parents": [int], "rest_translation":
-                  [[x, y, z]], "rest_rotation": [[x, y, z, w]], "vertices": n, "fps", "take_start_ns"}
+    b"H" hello    JSON {"protocol", "rig", "joints": [names], "parents": [int],
+                  "rest_translation": [[x, y, z]], "rest_rotation": [[x, y, z, w]],
+                  "vertices": n, "fps", "take_start_ns"}
     b"F" frame    FRAME header: seq (uint64), reading_ns (int64, puppet's monotonic clock),
                   take_s (float64, seconds into the take), joints b (uint32), vertices n (uint32);
-                  then b × 3 float64 local translations, b × 4 float64 local rotations (x, y, z, w),
+                  then b × 3 float64 local translations, b × 4 float64 local rotations
+                  (x, y, z, w),
                   then n × 3 float32 vertices (0 unless the client asked for the mesh)
     b"E" error    JSON {"error": str}: refused (bad token, protocol); puppet closes the connection
     b"B" bye      JSON {"reason": str}: puppet stops streaming
@@ -97,7 +99,8 @@ class Frame:
             raise ValueError("frame shorter than its header")
         self.seq, self.reading_ns, self.take_s, b, n = FRAME.unpack_from(body, 0)
         if len(body) != FRAME.size + b * 56 + n * 12:
-            raise ValueError(f"frame of {len(body)} bytes does not hold {b} joints and {n} vertices")
+            raise ValueError(f"frame of {len(body)} bytes does not hold {b} joints and "
+                             f"{n} vertices")
         self.count = b
         self.translations = struct.unpack_from(f"<{3 * b}d", body, FRAME.size)
         self.rotations = struct.unpack_from(f"<{4 * b}d", body, FRAME.size + 24 * b)

@@ -40,7 +40,7 @@ class OnionSkins:
 
     ghost_T(key) -> (4m, 3) float32 handle transforms of the key's pose (solved once, cached).
     layer(camera_id, key, draw) -> the (W, A) of that camera and ghost pair, drawn by
-    ``draw(W, A)`` when ``key`` changed. apply(image, camera_id): the layer over ``image``.
+    ``draw`` when ``key`` changed. apply(image, layer): the layer over ``image``.
     """
 
     def __init__(self, rig, width: int, height: int):
@@ -81,18 +81,26 @@ class OnionSkins:
         self._layers.pop(camera_id, None)
 
     def layer(self, camera_id: int, key, ghosts, draw) -> tuple:
-        """The camera's layer for ``key`` (any hashable naming camera and ghosts); when it
-        changed, made from ghosts [(T, rgb)] with draw(T) -> the shaded frame (h, w, 3) uint8
-        and cover(T) -> (h, w) float32 (> 0 where the character is)."""
+        """The camera's layer (key, W, A, box) for ``key`` (naming camera pose and ghosts); when
+        it changed, made from ghosts [(T, rgb)] with draw(T) -> (the shaded frame (h, w, 3)
+        uint8, its cover (h, w) float32: > 0 where the character is)."""
         cached = self._layers.get(camera_id)
         if cached is not None and cached[0] == key:
             return cached
         h, w = self.height, self.width
         W = np.ones((h, w, 1), np.float32)
         A = np.zeros((h, w, 3), np.float32)
+        top, bottom, left, right = h, 0, w, 0
         for T, rgb in ghosts:
             shaded, cover = draw(T)
-            inside = cover > 0
+            rows, cols = np.nonzero(cover > 0)
+            if not len(rows):
+                continue
+            # the ghost's box with a pixel of margin: the outline test looks one pixel around
+            y0, y1 = max(rows.min() - 1, 0), min(rows.max() + 2, h)
+            x0, x1 = max(cols.min() - 1, 0), min(cols.max() + 2, w)
+            top, bottom, left, right = min(top, y0), max(bottom, y1), min(left, x0), max(right, x1)
+            inside = cover[y0:y1, x0:x1] > 0
             inner = inside.copy()  # eroded by one pixel: what is left of inside is the outline
             inner[1:, :] &= inside[:-1, :]
             inner[:-1, :] &= inside[1:, :]
@@ -100,17 +108,22 @@ class OnionSkins:
             inner[:, :-1] &= inside[:, 1:]
             alpha = np.where(inside & ~inner, EDGE_ALPHA, np.where(inside, GHOST_ALPHA, 0.0))
             alpha = alpha.astype(np.float32)[..., None]
-            colour = (1.0 - TINT) * shaded.astype(np.float32) + TINT * np.asarray(rgb, np.float32)
-            A = A * (1.0 - alpha) + alpha * colour
-            W = W * (1.0 - alpha)
-        cached = (key, np.rint(W * 256).astype(np.uint16), np.rint(A * 256).astype(np.uint16))
+            colour = ((1.0 - TINT) * shaded[y0:y1, x0:x1].astype(np.float32)
+                      + TINT * np.asarray(rgb, np.float32))
+            A[y0:y1, x0:x1] = A[y0:y1, x0:x1] * (1.0 - alpha) + alpha * colour
+            W[y0:y1, x0:x1] *= 1.0 - alpha
+        box = (slice(top, max(bottom, top)), slice(left, max(right, left)))
+        cached = (key, np.rint(W[box] * 256).astype(np.uint16),
+                  np.rint(A[box] * 256).astype(np.uint16), box)
         self._layers[camera_id] = cached
         return cached
 
     def apply(self, image: np.ndarray, layer: tuple) -> None:
-        """image (h, w, 3) uint8, in place: (image W + A) / 256 (preallocated buffers)."""
-        _, W, A = layer
-        scratch = self._scratch
+        """image (h, w, 3) uint8, in place: (image W + A) / 256 within the layer's box
+        (preallocated buffers)."""
+        _, W, A, box = layer
+        image = image[box]
+        scratch = self._scratch[:W.shape[0], :W.shape[1]]
         np.multiply(image, W, out=scratch)
         np.add(scratch, A, out=scratch)
         np.right_shift(scratch, 8, out=scratch)

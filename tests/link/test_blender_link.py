@@ -83,3 +83,64 @@ def test_mesh_mode_writes_the_solvers_vertices(addon_zip, exported, take, critte
         k = round(shown["take_s"] * 30)
         expected = reference[k] @ Y_UP_TO_BLENDER.T
         assert np.abs(np.array(shown["world"]) - expected).max() <= 1e-5 * diagonal, k
+
+
+def _fake_puppet(critter, listener):
+    """Serve one client as a puppet would, then stop without a bye: a hello whose rig has one
+    joint more than the critter's armature, a malformed frame, then a frame with the second
+    joint turned 90° about x."""
+    from puppet.link import wire
+    from puppet.link.pose import LinkPose
+
+    pose = LinkPose(critter, lbs=None)
+    sock, _ = listener.accept()
+    with sock:
+        reader = wire.Reader()
+        while True:
+            reader.feed(sock.recv(4096))
+            messages = list(reader.messages())
+            if messages:
+                break
+        names = [*pose.names, "extra_joint"]
+        t = [*pose.rest_translations.tolist(), [0.0, 0.1, 0.0]]
+        q = [*pose.rest_rotations.tolist(), [0.0, 0.0, 0.0, 1.0]]
+        sock.sendall(wire.encode_json(wire.HELLO, {
+            "protocol": wire.PROTOCOL, "rig": "critter", "joints": names,
+            "parents": [*pose.parents, 0], "rest_translation": t, "rest_rotation": q,
+            "vertices": pose.n_vertices, "fps": 30.0, "take_start_ns": 0}))
+        good = wire.encode_frame(0, 0, 0.0, t, [q[0], [0.70710678, 0.0, 0.0, 0.70710678], *q[2:]])
+        bad = bytearray(good)
+        wire.LENGTH.pack_into(bad, 0, len(good) - wire.LENGTH.size - 8)  # 8 bytes short
+        sock.sendall(bytes(bad[:-8]) + good)
+        while sock.recv(4096):  # until the add-on acks (then it closes)
+            break
+
+
+def test_the_addon_reports_refusal_mapping_problems_malformed_frames_and_a_stop(
+        addon_zip, exported, take, critter, wait_until, interrupt_and_wait):
+    import socket
+    import threading
+
+    refusing = helpers.Puppet(["play", take, "--link", "0.0.0.0:0"])
+    listener = socket.create_server(("127.0.0.1", 0))
+    server = threading.Thread(target=_fake_puppet, args=(critter, listener), daemon=True)
+    server.start()
+    try:
+        port, token = refusing.listening(wait_until)
+        result = run_bpy.run_bpy_result((HERE / "blender_edges.py").read_text(), addon_zip,
+                                        exported["glb"], port, listener.getsockname()[1])
+    finally:
+        interrupt_and_wait(refusing.proc, read_stderr=False)
+        listener.close()
+    b = len(critter.skeleton.names)
+    assert result["refused_status"] == "refused: token refused: give the token puppet printed"
+    first = result["first_bone"]
+    assert result["notes"][:3] == [
+        f"{b - 1} of {b + 1} joints drive bones",
+        f"joint {first}: no bone 'no_such_bone' (saved mapping); not driven",
+        "joint extra_joint: no bone 'extra_joint' (same name); not driven"], result["notes"]
+    assert result["notes"][3] == f"1 bones not driven: {first}"
+    assert (result["malformed"], result["applied"]) == (1, 1)
+    assert result["status"] == "puppet stopped streaming; last pose kept"
+    assert result["posed"] == result["kept"]
+    assert np.abs(np.array(result["posed"]) - np.eye(4)).max() > 0.5  # the 90° turn applied

@@ -51,7 +51,8 @@ def test_a_frame_round_trips_through_the_wire_in_any_chunking():
 
 def test_malformed_messages_are_refused_by_name():
     with pytest.raises(ValueError, match="does not hold 2 joints"):
-        wire.decode(wire.FRAME_KIND, wire.encode_frame(1, 0, 0.0, [(0, 0, 0)] * 2, [(0, 0, 0, 1)] * 2)[5:-8])
+        whole = wire.encode_frame(1, 0, 0.0, [(0, 0, 0)] * 2, [(0, 0, 0, 1)] * 2)
+        wire.decode(wire.FRAME_KIND, whole[5:-8])
     with pytest.raises(ValueError, match="unknown message kind"):
         wire.decode(b"Z", b"")
     reader = wire.Reader(max_message=100)
@@ -118,7 +119,8 @@ def test_beyond_loopback_a_token_is_needed(take, wait_until, interrupt_and_wait)
     try:
         assert token
         refused = Client(port, token="wrong")
-        assert refused.first == (wire.ERROR, {"error": "token refused: give the token puppet printed"})
+        assert refused.first == (wire.ERROR,
+                                 {"error": "token refused: give the token puppet printed"})
         assert refused.next() == (None, None)  # closed
         old = Client(port, token=token, protocol=99)
         assert old.first[0] == wire.ERROR and "protocol 99" in old.first[1]["error"]
@@ -139,3 +141,33 @@ def test_a_taken_port_is_an_error_naming_it(take):
                               capture_output=True, text=True, timeout=300)
     assert done.returncode == 1
     assert f"Error: --link: address 127.0.0.1:{port} is already in use" in done.stderr
+
+
+def test_demo_streams_the_live_loop_with_reading_times(tmp_path, critter, wait_until,
+                                                      interrupt_and_wait):
+    puppet = Puppet(["demo", "--link", "127.0.0.1:0", "--seconds", "6", "--out",
+                     tmp_path / "demo.mp4", "--size", "160", "120"])
+    try:
+        port, _ = puppet.listening(wait_until)
+        live = Client(port)
+        assert live.first[0] == wire.HELLO
+        assert live.first[1]["joints"] == list(critter.skeleton.names)
+        frames = []
+        while True:
+            kind, frame = live.next()
+            if kind != wire.FRAME_KIND:
+                break
+            frames.append(frame)
+            live.ack(frame.seq)
+        assert kind == wire.BYE
+        assert len(frames) >= 2
+        seqs = [f.seq for f in frames]
+        assert seqs == sorted(set(seqs))
+        # the reading's time and the take time advance together (take time: since the first)
+        reading_s = [(f.reading_ns - frames[0].reading_ns) * 1e-9 for f in frames]
+        take_s = [f.take_s - frames[0].take_s for f in frames]
+        assert np.allclose(reading_s, take_s, atol=1e-6)
+        assert puppet.proc.wait(timeout=300) == 0
+        assert any(line.startswith("link: 1 client(s)") for line in puppet.out), puppet.out
+    finally:
+        interrupt_and_wait(puppet.proc, read_stderr=False)

@@ -1,5 +1,6 @@
 """``puppet keys --view`` in Debian's Chromium against hw_sim over a pty: Space and the Key
-button take a key exactly like Enter (the held pose lands in the shot file), the onion skins
+button take a key exactly like Enter (the held pose lands in the shot file; a silent servo
+refuses it, named on the page), the onion skins
 draw the previous key over the live character (toggling them changes the frame), and dragging
 a key's tick on the timeline retimes it in the file (a reorder is refused, the reason on the
 page, the file unchanged)."""
@@ -54,9 +55,13 @@ class KeysProcess:
         self.proc.stdin.write(line + "\n")
         self.proc.stdin.flush()
 
-    def stop(self, tools) -> int:
+    def stop(self, tools, quit_line: bool = True) -> int:
+        """``q`` typed (quit_line) or Ctrl-C, then wait; returns the exit status."""
         if self.proc.poll() is None:
-            self.type("q")
+            if quit_line:
+                self.type("q")
+            else:
+                self.proc.send_signal(signal.SIGINT)
             try:
                 self.proc.wait(tools.WAIT_S)
             except subprocess.TimeoutExpired:
@@ -122,6 +127,20 @@ def test_keys_from_the_page_onion_skins_and_timeline(new_page, tools, tmp_path):
             assert shot_keys(shot)[1].ticks.tolist() == [poses[1][i] for i in ids]
             assert "key 1: frame 13" in keys.out_path.read_text()  # told on the terminal too
 
+            # a key while a servo is silent is refused on the page, naming it; nothing is taken
+            bus.inject("drop", [3])
+
+            def refused_naming_3():
+                seen = page.evaluate("puppetView.keysUpdates")
+                page.keyboard.press("Space")
+                said = tools.wait_js(page, f"puppetView.keysUpdates > {seen} && puppetView.keys.said")
+                assert not said.startswith("key 2")
+                return "servo(s) [3] flagged" in said
+            tools.wait_until(refused_naming_3, what="a refusal naming servo 3 on the page")
+            assert page.locator("#keys-said.refused").is_visible()
+            assert len(shot_keys(shot)) == 2
+            bus.clear_faults()
+
             # onion skins: the previous key (pose 1) over the live character (pose 2)
             bus.set_positions(poses[2])
             tools.wait_js(page, "puppetView.panel && puppetView.panel.servos.find(s => s.id === 7)"
@@ -169,6 +188,38 @@ def test_keys_from_the_page_onion_skins_and_timeline(new_page, tools, tmp_path):
     assert "keys: 2, 20 frames at 24 fps" in keys.out_path.read_text()
 
 
+def test_live_view_takes_keys_into_a_shot_from_the_page(new_page, tools, tmp_path):
+    rig = builtin()
+    ids = [int(i) for i in rig.servo_map.ids]
+    shot, take = tmp_path / "live-shot.mcap", tmp_path / "live.mcap"
+    held = pose(rig, {10: -50, 12: 70, 1: 25})
+    with hw_sim.serve(rig.servo_map.models) as bus:
+        bus.set_positions(held)
+        live = KeysProcess(tools, ["live", "--rig", str(BUILTIN_RIG), "--port", bus.port,
+                                   "--record", str(take), "--keys", str(shot),
+                                   "--view", str(tools.free_port())], tmp_path)
+        try:
+            page = tools.open_view(new_page, live.url)
+            tools.wait_js(page, "puppetView.keys !== null")
+            take_key(tools, page, lambda: page.click("#key"), 1)
+            tools.wait_until(lambda: shot_keys(shot) and len(shot_keys(shot)) == 1, what="the key in the file")
+            assert shot_keys(shot)[0].ticks.tolist() == [held[i] for i in ids]
+            assert shot_keys(shot)[0].frame == 1
+        finally:
+            status = live.stop(tools, quit_line=False)  # live runs until Ctrl-C
+    assert status == 0, live.err_path.read_text()
+    assert "Traceback" not in live.err_path.read_text()
+    assert f"shot: {shot} (1 keys)" in live.out_path.read_text()
+    assert TakeReader(take).metadata is not None  # the take recorded alongside
+
+
+def test_live_keys_needs_the_view(tools, tmp_path):
+    result = subprocess.run(tools.PUPPET + ["live", "--rig", str(BUILTIN_RIG), "--port", "x",
+                                            "--keys", str(tmp_path / "s.mcap")],
+                            capture_output=True, text=True, timeout=300)
+    assert result.returncode == 2 and "--keys takes keys from the page: add --view" in result.stderr
+
+
 def test_key_inputs_from_the_page_are_checked():
     assert check_input({"type": "key"}) is None
     assert check_input({"type": "retime", "index": 1, "frame": 40}) is None
@@ -176,3 +227,20 @@ def test_key_inputs_from_the_page_are_checked():
     assert check_input({"type": "retime", "index": True, "frame": 4}) == "retime: field 'index' missing or invalid"
     assert check_input({"type": "onion", "on": "yes"}) == "onion: field 'on' missing or invalid"
     assert check_input({"type": "playhead", "frame": 2.5}) == "playhead: field 'frame' missing or invalid"
+
+
+def test_keys_view_on_a_taken_port_fails_before_the_bus(tools, tmp_path):
+    import socket
+
+    with socket.socket() as taken:
+        taken.bind(("127.0.0.1", 0))
+        taken.listen()
+        port = taken.getsockname()[1]
+        result = subprocess.run(tools.PUPPET + ["keys", "--rig", str(BUILTIN_RIG), "--port",
+                                                str(tmp_path / "no-such-port"), "--out",
+                                                str(tmp_path / "shot.mcap"), "--view", str(port)],
+                                capture_output=True, text=True, timeout=300, stdin=subprocess.DEVNULL)
+    assert result.returncode == 1
+    assert f"Error: --view: address 127.0.0.1:{port} is already in use" in result.stderr
+    assert "no-such-port" not in result.stderr and "Traceback" not in result.stderr
+    assert not (tmp_path / "shot.mcap").exists()

@@ -9,8 +9,8 @@ the bones at scene frame = start frame + take time x scene fps.
 Every tick (``tick()``, on a ``bpy.app.timers`` callback; never blocking) reads what arrived,
 applies the newest frame and acks it. A frame's joint keys are glTF node translations and
 rotations (Y up); the armature's bones get the same rigid motion in Blender's Z-up armature
-space: matrix_basis = B⁻¹ Z Δp⁻¹ Δj Z⁻¹ B, with B the bone's rest matrix, Z the glTF-to-Blender
-axes and Δ = G·G_rest⁻¹ the joint's motion from its rest.
+space: matrix_basis = B⁻¹ Z Δp⁻¹ Δj Z⁻¹ B, with B the bone's rest matrix, Z the
+glTF-to-Blender axes and Δ = G·G_rest⁻¹ the joint's motion from its rest.
 """
 
 from __future__ import annotations

@@ -1,0 +1,169 @@
+"""Live link benchmark: reading -> applied in Blender, bones only and with the exact mesh, against
+a plain loopback client in the same run.
+
+A take of the built-in critter (``--seconds`` at ``--fps``, every servo moving) is played with
+``puppet play TAKE --link 127.0.0.1:0 --fps FPS`` (frame k handed out at k / fps on the wall
+clock: its "reading" time) three times, each to one client:
+
+- plain:  a Python client of ``puppet.link.wire`` that acks each frame on receipt (the floor:
+          puppet's own send path and loopback TCP);
+- bones:  Blender (``bpy``, in a subprocess) with the add-on from ``puppet blender addon``
+          installed, posing the critter's glTF import by calling the add-on's own tick in a loop
+          (module mode has no event loop; in Blender a ``bpy.app.timers`` callback does it);
+- mesh:   the same with "Exact mesh" on (the 24 910 FAST vertices written every frame).
+
+Latency is puppet's: from the frame's reading time to the client's ack arriving (so it holds
+the return trip too), median and p99 over every acked frame; fps applied = frames acked /
+the take's length.
+
+    python bench/link.py --json link.json [--seconds 10] [--fps 60]
+
+JSON: {"fps", "seconds", "frames", "plain" | "bones" | "mesh": {"applied", "fps_applied",
+       "median_ms", "p99_ms"}, "machine": {"cpus", "load_1min"}}.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import re
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+from pathlib import Path
+
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")  # as the puppet command does
+
+import numpy as np  # noqa: E402
+
+from puppet.link import wire  # noqa: E402
+from puppet.reading import Reading  # noqa: E402
+from puppet.rig import builtin  # noqa: E402
+from puppet.take import TakeWriter  # noqa: E402
+
+SUMMARY = re.compile(r"(\d+) applied; reading->applied median ([\d.]+) ms, p99 ([\d.]+) ms")
+
+BLENDER = """
+import sys, time, bpy
+zip_path, glb, port, mesh = sys.argv[-4], sys.argv[-3], int(sys.argv[-2]), sys.argv[-1] == "1"
+bpy.ops.wm.read_factory_settings(use_empty=True)
+bpy.ops.preferences.addon_install(filepath=zip_path, overwrite=True)
+bpy.ops.preferences.addon_enable(module="puppet_link")
+import puppet_link
+scene = bpy.context.scene
+scene.render.fps = 60
+bpy.ops.import_scene.gltf(filepath=glb)
+s = scene.puppet_link
+s.port = port
+s.armature = next(o for o in scene.objects if o.type == "ARMATURE")
+s.mesh = next(o for o in scene.objects if o.type == "MESH")
+s.use_mesh = mesh
+bpy.ops.puppet_link.connect()
+while puppet_link.LINK.sock is not None:
+    puppet_link.tick()
+print("APPLIED", puppet_link.LINK.frames_applied, puppet_link.LINK.skipped)
+"""
+
+
+def write_take(path: Path, rig, seconds: float, fps: float) -> None:
+    k = len(rig.servo_map)
+    with TakeWriter(path, ids=[int(i) for i in rig.servo_map.ids], models=dict(rig.servo_map.models),
+                    rig_map_text="", calibration_text="", rig_name=rig.name, overwrite=True) as w:
+        for i in range(int(seconds * fps) + 1):
+            ticks = (rig.servo_map.zero + 380 * np.sin(2.0 * i / fps + np.arange(k))).astype(np.int32)
+            w.write(Reading(5_000_000_000 + round(i * 1e9 / fps), rig.servo_map.ids, ticks,
+                            np.ones(k, bool)))
+
+
+def plain_client(port: int) -> None:
+    """Read frames and ack each on receipt, until puppet says bye."""
+    import socket
+
+    sock = socket.create_connection(("127.0.0.1", port))
+    sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+    sock.sendall(wire.encode_json(wire.CONNECT, {"protocol": wire.PROTOCOL, "mesh": False,
+                                                 "name": "bench"}))
+    reader = wire.Reader()
+    while True:
+        data = sock.recv(1 << 20)
+        if not data:
+            return
+        reader.feed(data)
+        for kind, body in reader.messages():
+            if kind == wire.FRAME_KIND:
+                sock.sendall(wire.encode_ack(wire.decode(kind, body).seq, time.monotonic()))
+            elif kind == wire.BYE:
+                return
+
+
+def play(take: Path, fps: float, client) -> dict:
+    """Play the take to one client; puppet's summary figures."""
+    proc = subprocess.Popen(["puppet", "play", str(take), "--link", "127.0.0.1:0", "--fps",
+                             f"{fps:g}"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    port = None
+    for line in proc.stderr:
+        if line.startswith("link: listening on"):
+            port = int(line.split()[3].rsplit(":", 1)[1])
+            break
+    if port is None:
+        raise SystemExit(f"puppet play did not listen: {proc.stderr.read()}")
+    drain = threading.Thread(target=proc.stderr.read, daemon=True)
+    drain.start()
+    client_out = client(port)
+    out, _ = proc.communicate(timeout=900)
+    found = SUMMARY.search(out)
+    if not found:
+        raise SystemExit(f"no link line in puppet's summary:\n{out}")
+    return {"applied": int(found.group(1)), "median_ms": float(found.group(2)),
+            "p99_ms": float(found.group(3)), "client": client_out}
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--seconds", type=float, default=10.0, help="length of the take")
+    parser.add_argument("--fps", type=float, default=60.0, help="frames per second played")
+    parser.add_argument("--json", default=None, help="write the results here")
+    args = parser.parse_args()
+    rig = builtin()
+    result = {"fps": args.fps, "seconds": args.seconds}
+    with tempfile.TemporaryDirectory() as folder:
+        folder = Path(folder)
+        take, glb, addon = folder / "take.mcap", folder / "critter.glb", folder / "puppet_link.zip"
+        write_take(take, rig, args.seconds, args.fps)
+        subprocess.run(["puppet", "export", str(take), "--gltf", str(glb), "--fps", f"{args.fps:g}"],
+                       check=True, capture_output=True)
+        subprocess.run(["puppet", "blender", "addon", "--out", str(addon)], check=True,
+                       capture_output=True)
+        result["frames"] = int(args.seconds * args.fps) + 1
+
+        def blender(mesh: bool):
+            def run(port: int):
+                done = subprocess.run([sys.executable, "-c", BLENDER, str(addon), str(glb),
+                                       str(port), str(int(mesh))], capture_output=True, text=True)
+                line = next((x for x in done.stdout.splitlines() if x.startswith("APPLIED")), None)
+                if line is None:
+                    raise SystemExit(f"Blender failed:\n{done.stdout[-2000:]}{done.stderr[-2000:]}")
+                return {"applied": int(line.split()[1]), "skipped": int(line.split()[2])}
+            return run
+
+        for name, client in (("plain", plain_client), ("bones", blender(False)),
+                             ("mesh", blender(True))):
+            figures = play(take, args.fps, client)
+            figures["fps_applied"] = round(figures["applied"] / args.seconds, 1)
+            result[name] = figures
+    result["machine"] = {"cpus": os.cpu_count(), "load_1min": round(os.getloadavg()[0], 2)}
+    print(f"critter, {result['frames']} frames at {args.fps:g} fps, loopback "
+          f"({result['machine']['cpus']} cpus, load {result['machine']['load_1min']})")
+    print(f"{'client':<8}{'applied':>9}{'fps':>8}{'median ms':>11}{'p99 ms':>9}")
+    for name in ("plain", "bones", "mesh"):
+        r = result[name]
+        print(f"{name:<8}{r['applied']:>9}{r['fps_applied']:>8}{r['median_ms']:>11}{r['p99_ms']:>9}")
+    if args.json:
+        Path(args.json).write_text(json.dumps(result, indent=2))
+
+
+if __name__ == "__main__":
+    main()
