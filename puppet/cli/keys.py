@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import itertools
 import sys
 import threading
 import time
@@ -16,10 +17,14 @@ from puppet.cli.view import view_option
 def _lines(desk, finish_at_end: bool = True) -> None:
     """Press each stdin line (without its newline) on the KeyDesk, then ``q`` at end of input
     (finish_at_end; with --view the page goes on taking keys until q or Ctrl-C)."""
-    for line in sys.stdin:
-        desk.press(line.rstrip("\r\n"))
-    if finish_at_end:
-        desk.press("q")
+    from puppet.keys.capture import KeyRefused
+
+    lines = (line.rstrip("\r\n") for line in sys.stdin)
+    for line in itertools.chain(lines, ["q"] if finish_at_end else []):  # one at a time, as typed
+        try:
+            desk.press(line)
+        except KeyRefused as err:
+            click.echo(f"refused: {err}", err=True)
 
 
 DEFAULT_FPS = 24.0

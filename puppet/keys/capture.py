@@ -38,6 +38,8 @@ HOLD_S = 0.2
 HOLD_NS = int(HOLD_S * 1e9)
 KEPT_READINGS = 4096
 """Readings kept while waiting for a hold window to end (a bound, not a tuning)."""
+WAITING_COMMANDS = 64
+"""Commands a KeyDesk holds waiting for the loop (a bound: more are refused)."""
 WINDOW_WAIT_NS = 10_000_000_000
 """Longest wait for a reading after the hold window (a stalled reader), ns; then the key is
 taken from the readings there are (or refused when there are none)."""
@@ -145,12 +147,17 @@ class KeyDesk:
         self.tell = tell
         self.version = 0
         self.finished = False
-        self._commands: queue.Queue = queue.Queue()
+        self._commands: queue.Queue = queue.Queue(maxsize=WAITING_COMMANDS)
         self._pending = None  # (command, press_ns, origin) waiting for its hold window to end
 
     def press(self, command: str, origin=None) -> None:
-        """Queue one command line (any thread); ``origin`` comes back with its outcome."""
-        self._commands.put((command, time.monotonic_ns(), origin))
+        """Queue one command line (any thread); ``origin`` comes back with its outcome.
+        KeyRefused when WAITING_COMMANDS wait already (the loop is stalled)."""
+        try:
+            self._commands.put_nowait((command, time.monotonic_ns(), origin))
+        except queue.Full:
+            raise KeyRefused(f"{command.strip() or 'key'!r} refused: {WAITING_COMMANDS} commands "
+                             "wait already (is the bus reading?)") from None
 
     def feed(self, readings) -> None:
         """The readings the loop drained (oldest first)."""

@@ -93,3 +93,17 @@ def test_each_ghost_is_solved_once_and_the_layer_blends_exactly():
     assert np.abs(image[2, 3].astype(float) - body).max() <= 1
     assert np.abs(image[1, 2].astype(float) - edge).max() <= 1
     assert image[0, 0].tolist() == [200, 200, 200]  # outside the ghost: untouched
+
+
+def test_the_desk_holds_a_bounded_number_of_waiting_commands(tmp_path):
+    from puppet.keys.capture import WAITING_COMMANDS, KeyRefused
+
+    desk = KeyDesk(KeySession(tmp_path / "shot.mcap", take_header(builtin()), fps=24, step=10))
+    for _ in range(WAITING_COMMANDS):
+        desk.press("")
+    try:
+        desk.press("", "page")
+        refused = None
+    except KeyRefused as err:
+        refused = str(err)
+    assert refused == f"'key' refused: {WAITING_COMMANDS} commands wait already (is the bus reading?)"
