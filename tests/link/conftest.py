@@ -47,20 +47,20 @@ def exported(tmp_path_factory, take):
     return {"glb": glb, "report": json.loads(done.stdout.strip().splitlines()[-1])}
 
 
-character = load_module("link_test_character", HERE.parent / "export" / "blender" / "character.py")
+character = load_module("link_test_character", HERE.parent / "rig" / "character.py")
 
 
 @pytest.fixture(scope="session")
 def mare(tmp_path_factory):
     """The seamed character whose armature node is moved, turned and scaled unevenly
-    (tests/export/blender/character.py): {'rig', 'rig_file', 'take', 'glb'} (its take's
+    (tests/rig/character.py): {'rig', 'rig_file', 'take', 'glb'} (its take's
     ``puppet export --gltf`` at the take's rate)."""
     from puppet.rig import load_rig
 
     folder = tmp_path_factory.mktemp("link_mare")
-    character.write_glb(folder / "mare.glb")
+    character.write(folder / "mare.glb", character.mare())
     rig_file = folder / "mare.toml"
-    rig_file.write_text(character.rig_text("mare.glb"))
+    rig_file.write_text(character.mare_rig_text("mare.glb"))
     rig = load_rig(rig_file)
     take = export_data.write_take(folder / "mare.mcap", rig, readings=30)
     glb = folder / "anim.glb"

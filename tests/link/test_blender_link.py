@@ -178,8 +178,9 @@ def test_live_record_keys_blender_where_the_takes_export_puts_each_frame(
     scene frame between keys agrees with ``puppet export --gltf`` of the take at the scene's
     fps: each sensed joint's rotation within a tenth of what the export turns it in one frame
     (an offset of one frame, or a wrong take start, is that whole turn) plus two encoder ticks
-    (the export rounds interpolated ticks). The free bones, which FAST solves warm-started from
-    the frame before (every reading live, every 1/30 s in the export), agree less closely."""
+    (the export rounds interpolated ticks). The free bones are not compared: FAST solves them
+    warm-started from the frame before (every reading live, every 1/30 s in the export), so
+    they differ by how far each run's iterations got, not by time."""
     import hw_sim
     from puppet.demo import Performance
     from puppet.rig.load import BUILTIN_RIG
@@ -210,9 +211,7 @@ def test_live_record_keys_blender_where_the_takes_export_puts_each_frame(
     assert result["keyed"] == sorted(result["keyed"])
     frames = result["frames"]
     assert len(frames) >= 10, result
-    diagonal = float(np.linalg.norm(critter.V.max(0) - critter.V.min(0)))
     tick_deg = 360.0 / 4096  # the critter's XL330s
     for f in frames:
-        assert f["worst_deg"] <= 0.1 * f["step_deg"] + 2 * tick_deg, f
-        assert f["worst"] <= 0.1 * diagonal, f
+        assert f["worst_deg"] <= 0.1 * f["step_deg"] + 2 * tick_deg, (f, frames)
     assert max(f["step_deg"] for f in frames) > 1.0  # the servos were moving
