@@ -132,3 +132,53 @@ def test_reduced_gltf_of_a_shot_keys_every_channel_at_the_key_poses(tmp_path):
     print(f"shot of {len(keys.keys)} keys, {frames} frames, {len(kept)} channels: "
           f"{report['kept']} keys of {report['every_frame']} ({report['kept_pct']:.1f} %) within "
           f"{tol}° / {report['translation_units']:.4g} units")
+
+
+def _shot(tmp_path):
+    rig = builtin()
+    keys = critter_keys(rig, step=12, fps=24)
+    shot = tmp_path / "shot.mcap"
+    header = {"ids": [int(i) for i in rig.servo_map.ids], "models": dict(rig.servo_map.models),
+              "rig_map_text": "", "rig_name": rig.name,
+              "calibration_text": Calibration.capture(rig.servo_map.ids,
+                                                      rig.servo_map.zero).to_record()}
+    write_shot(shot, header, keys)
+    return rig, keys, shot
+
+
+def _pc2_samples(path) -> int:
+    import struct
+
+    head = Path(path).read_bytes()[:32]
+    assert head[:12] == b"POINTCACHE2\0"
+    return struct.unpack("<iiffi", head[12:32])[4]
+
+
+def test_every_export_format_and_batch_take_a_shot(tmp_path):
+    """A shot is a take: ``export`` writes glTF, USD, PC2 and BVH of it in one run, and
+    ``batch`` exports it, each with one frame per shot frame (the last key's frame)."""
+    import json
+
+    from pxr import Usd
+
+    rig, keys, shot = _shot(tmp_path)
+    last = keys.keys[-1].frame
+    out = {fmt: tmp_path / f"shot.{ext}" for fmt, ext in
+           (("gltf", "glb"), ("usd", "usdc"), ("pc2", "pc2"), ("bvh", "bvh"))}
+    args = [a for fmt, path in out.items() for a in (f"--{fmt}", str(path))]
+    result = subprocess.run([str(PUPPET), "export", str(shot), "--fps", "24", *args, "--json"],
+                            capture_output=True, text=True, timeout=600)
+    assert result.returncode == 0, result.stderr
+    assert json.loads(result.stdout.splitlines()[-1])["frames"] == last
+    assert len(_channels(out["gltf"])[0, "rotation"][0]) == last
+    stage = Usd.Stage.Open(str(out["usd"]))
+    assert stage.GetEndTimeCode() - stage.GetStartTimeCode() + 1 == last
+    assert _pc2_samples(out["pc2"]) == last
+    assert f"Frames: {last}" in out["bvh"].read_text()
+
+    batch = subprocess.run([str(PUPPET), "batch", str(shot), "--out", str(tmp_path / "batch"),
+                            "--formats", "gltf,pc2", "--fps", "24", "--workers", "1"],
+                           capture_output=True, text=True, timeout=600)
+    assert batch.returncode == 0, batch.stderr + batch.stdout
+    assert _pc2_samples(tmp_path / "batch" / "shot.pc2") == last
+    assert len(_channels(tmp_path / "batch" / "shot.glb")[0, "rotation"][0]) == last

@@ -289,6 +289,42 @@ def test_live_view_takes_keys_into_a_shot_from_the_page(new_page, tools, tmp_pat
     assert TakeReader(take).metadata is not None  # the take recorded alongside
 
 
+def test_play_view_of_a_shot_shows_its_keys_at_their_frames(new_page, tools, tmp_path):
+    """``play SHOT --view``: the shot plays for (last key frame − 1) / fps seconds and, paused
+    on a key's time, the page's servo angles are that key's."""
+    from puppet.cli.common import take_header
+    from puppet.keys import write_shot
+    from puppet.keys.example import critter_keys
+
+    rig = builtin()
+    keys = critter_keys(rig, step=12, fps=24)
+    shot = tmp_path / "shot.mcap"
+    write_shot(shot, take_header(rig), keys)
+    play = tools.PuppetProcess(["play", str(shot), "--fps", "24", "--view",
+                                str(tools.free_port())], tmp_path)
+    try:
+        page = tools.open_view(new_page, play)
+        tools.wait_js(page, "puppetView.playback !== null && puppetView.playback !== undefined")
+        duration = page.evaluate("puppetView.playback.duration_s")
+        assert abs(duration - (keys.keys[-1].frame - 1) / 24) < 1e-6
+        page.click("#pause")
+        tools.wait_js(page, "puppetView.playback.paused")
+        key = keys.keys[2]
+        at = (key.frame - 1) / 24
+        page.evaluate(f"const s = document.getElementById('scrub'); s.value = '{at}';"
+                      "s.dispatchEvent(new Event('input'));")
+        tools.wait_js(page, f"Math.abs(puppetView.playback.position_s - {at}) < 0.01")
+        want = dict(zip([int(i) for i in rig.servo_map.ids],
+                        np.degrees(rig.servo_map.angles(key.ticks)).round(1).tolist()))
+        check = " && ".join(f"Math.abs(puppetView.panel.servos.find(s => s.id === {i}).deg - "
+                            f"({deg})) < 0.15" for i, deg in want.items())
+        tools.wait_js(page, f"puppetView.panel && puppetView.panel.servos && {check}")
+    finally:
+        status = play.stop()
+    assert status == 0, play.stderr()
+    assert "Traceback" not in play.stderr()
+
+
 def test_live_keys_needs_the_view(tools, tmp_path):
     result = subprocess.run(tools.PUPPET + ["live", "--rig", str(BUILTIN_RIG), "--port", "x",
                                             "--keys", str(tmp_path / "s.mcap")],
