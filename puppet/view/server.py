@@ -596,9 +596,10 @@ def _number(value) -> bool:
 
 
 #: The page's key edits (``key_edit``'s action), each the terminal's command line for it:
-#: replace key index with the held pose, delete it, insert a key at frame, set its interpolation.
+#: replace key index with the held pose, delete it, insert a key at frame, set its interpolation
+#: or that of the keys to come.
 KEY_EDITS = {"replace": "r {index}", "delete": "d {index}", "insert": "i {frame}",
-             "interpolation": "m {index} {interpolation}"}
+             "interpolation": "m {index} {interpolation}", "new_interpolation": "m {interpolation}"}
 
 #: Page input: message type -> {field: check}.
 INPUTS = {

@@ -210,6 +210,7 @@ def test_key_edits_from_the_page_go_through_the_terminals_commands(new_page, too
             take_key(tools, page, lambda: page.keyboard.press("Space"), 2)
             tools.wait_until(lambda: shot_keys(shot) and len(shot_keys(shot)) == 2, what="2 keys")
             assert page.locator("#key-replace").is_disabled()  # no key selected yet
+            assert page.locator("#key-delete").is_disabled()
 
             def click_frame(frame: int):
                 at = page.evaluate(f"puppetView.timelineAt({frame})")
@@ -254,6 +255,12 @@ def test_key_edits_from_the_page_go_through_the_terminals_commands(new_page, too
             keys.type("m 1 step")  # the terminal's line for the same edit
             tools.wait_js(page, "puppetView.keys.said === 'key 1: step'")
             assert [k.interpolation for k in shot_keys(shot)] == ["smooth", "step"]
+            # no key selected: the menu sets the interpolation of the keys to come
+            edit(lambda: page.select_option("#key-interpolation", "smooth"), "new keys: smooth")
+            take_key(tools, page, lambda: page.keyboard.press("Space"), 3)
+            tools.wait_until(lambda: len(shot_keys(shot)) == 3, what="key 2 in the file")
+            assert [k.interpolation for k in shot_keys(shot)] == ["smooth", "step", "smooth"]
+            assert [k.frame for k in shot_keys(shot)] == [1, 7, 19]
             terminal = keys.out_path.read_text()
             for said in ("key 0: replaced", "key 0: smooth", "key 1: inserted at frame 7",
                          "key 2: deleted"):
@@ -341,6 +348,7 @@ def test_key_inputs_from_the_page_are_checked():
     assert check_input({"type": "playhead", "frame": 2.5}) == "playhead: field 'frame' missing or invalid"
     edit = {"type": "key_edit", "action": "replace", "index": 0, "frame": 1, "interpolation": "step"}
     assert check_input(edit) is None
+    assert check_input({**edit, "action": "new_interpolation"}) is None
     assert check_input({**edit, "action": "goto"}) == "key_edit: field 'action' missing or invalid"
     assert check_input({**edit, "interpolation": "cubic"}) == "key_edit: field 'interpolation' missing or invalid"
 

@@ -489,7 +489,7 @@ function endTickDrag() {
 function showSelectedKey() {
   const k = state.keys, i = state.selectedKey;
   const key = k && i !== null ? k.keys[i] : null;
-  $("key-replace").disabled = $("key-delete").disabled = $("key-interpolation").disabled = !key;
+  $("key-replace").disabled = $("key-delete").disabled = !key;
   $("key-interpolation").value = key ? key.interpolation : (k ? k.interpolation : "linear");
   drawTimeline();
 }
@@ -512,7 +512,8 @@ $("key").onclick = () => send({ type: "key" });
 $("key-replace").onclick = () => keyEdit("replace");
 $("key-delete").onclick = () => { keyEdit("delete"); state.selectedKey = null; showSelectedKey(); };
 $("key-insert").onclick = () => keyEdit("insert");
-$("key-interpolation").onchange = () => keyEdit("interpolation");
+// With a key selected: its interpolation; without: that of the keys to come.
+$("key-interpolation").onchange = () => keyEdit(state.selectedKey === null ? "new_interpolation" : "interpolation");
 $("onion").onclick = () => send({ type: "onion", on: !(state.keys && state.keys.onion) });
 document.addEventListener("keydown", event => {
   if (event.code !== "Space" || !state.keys || event.repeat) return;
