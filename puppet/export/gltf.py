@@ -451,11 +451,9 @@ class GltfWriter(ExportWriter):
         for i, image in enumerate(scene.images):
             if image is None:
                 continue
-            try:
-                data = image.read()
-            except OSError as e:
-                self.warnings.append(f"{image.path}: cannot read the image ({e.strerror}): its "
-                                     "textures are left out (the materials are exported plain)")
+            data, warning = image.read()
+            if warning:
+                self.warnings.append(warning)
                 continue
             images[i] = len(gltf.images)
             gltf.images.append(pygltflib.Image(name=image.name, mimeType=image.mime_type,

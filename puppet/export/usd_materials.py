@@ -39,11 +39,9 @@ def write_textures(scene, folder: Path, inputs=()) -> tuple[dict[int, Path], lis
     for i, image in enumerate(scene.images):
         if image is None:
             continue
-        try:
-            data = image.read()
-        except OSError as e:
-            warnings.append(f"{image.path}: cannot read the image ({e.strerror}): its textures are "
-                            "left out (the materials are exported plain)")
+        data, warning = image.read()
+        if warning:
+            warnings.append(warning)
             continue
         folder.mkdir(parents=True, exist_ok=True)
         target = folder / f"{i}_{safe_name(image.name or 'image')}{EXTENSIONS.get(image.mime_type, '.png')}"

@@ -85,9 +85,16 @@ class SourceImage:
     data: bytes | None = None
     path: Path | None = None
 
-    def read(self) -> bytes:
-        """The image's bytes (OSError for a file that has gone since the rig loaded)."""
-        return self.data if self.data is not None else Path(self.path).read_bytes()
+    def read(self) -> tuple[bytes | None, str | None]:
+        """(the image's bytes, None), or (None, a warning naming the file) when the file has gone
+        since the rig loaded: an exporter then leaves its textures out (plain materials)."""
+        if self.data is not None:
+            return self.data, None
+        try:
+            return Path(self.path).read_bytes(), None
+        except OSError as e:
+            return None, (f"{self.path}: cannot read the image ({e.strerror}): its textures are "
+                          "left out (the materials are exported plain)")
 
 
 @dataclass

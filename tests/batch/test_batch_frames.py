@@ -2,26 +2,29 @@
 same frames into every format (count and pose), and a take whose readings are hours apart is cut
 and warned about in ``play``, ``export`` and ``batch`` alike."""
 
+import importlib.util
 import json
 import re
-import struct
 import subprocess
 import tempfile
+from pathlib import Path
 
 import imageio_ffmpeg
 import numpy as np
 import pygltflib
 import pytest
-from scipy.spatial.transform import Rotation
 
 from puppet.export import SourceOrder
 from puppet.reading import Reading
 from puppet.take import MAX_GAP_S, Playback, TakeReader, TakeWriter
 
+_spec = importlib.util.spec_from_file_location(
+    "batch_frames_readers", Path(__file__).parents[1] / "export" / "readers.py")
+readers = importlib.util.module_from_spec(_spec)
+_spec.loader.exec_module(readers)  # the tests' readers of the exported files
+
 FPS = 30
 GAP_S = 3.0
-DTYPES = {5126: np.float32}
-WIDTHS = {"SCALAR": 1, "VEC3": 3, "VEC4": 4}
 
 
 def write_gap_take(path, rig, gap_ns, per_side=13):
@@ -42,88 +45,11 @@ def puppet(*args, timeout=600):
                           timeout=timeout, cwd=tempfile.gettempdir())
 
 
-def accessor(gltf, index):
-    a = gltf.accessors[index]
-    view = gltf.bufferViews[a.bufferView]
-    width = WIDTHS[a.type]
-    data = np.frombuffer(gltf.binary_blob(), DTYPES[a.componentType], count=a.count * width,
-                         offset=view.byteOffset + (a.byteOffset or 0))
-    return data.reshape(a.count, width) if width > 1 else data
-
-
-def gltf_pivots(gltf, b):
-    """(N, b, 3) world position of every joint in every frame, from the animation's keys."""
-    anim = gltf.animations[0]
-    keys = {(c.target.node, c.target.path): accessor(gltf, anim.samplers[c.sampler].output)
-            for c in anim.channels}
-    parent = {c: i for i, n in enumerate(gltf.nodes) for c in (n.children or [])}
-    frames = len(keys[0, "translation"])
-    out = np.empty((frames, b, 3))
-    for f in range(frames):
-        world = {}
-        for j in range(b):  # parents come first in the skeleton's order
-            local = np.eye(4)
-            local[:3, :3] = Rotation.from_quat(keys[j, "rotation"][f]).as_matrix()
-            local[:3, 3] = keys[j, "translation"][f]
-            world[j] = local if j not in parent else world[parent[j]] @ local
-            out[f, j] = world[j][:3, 3]
-    return out, [len(accessor(gltf, s.input)) for s in anim.samplers]
-
-
-def bvh_pivots(text):
-    """(file joint names, (N, b, 3) world position of every joint per frame, Frames: count)."""
-    tokens = text.split()
-    names, parents, offsets, channels, stack = [], [], [], [], []
-    i = 1
-    while tokens[i] != "MOTION":
-        t = tokens[i]
-        if t in ("ROOT", "JOINT"):
-            names.append(tokens[i + 1])
-            parents.append(stack[-1] if stack else -1)
-            offsets.append([float(x) for x in tokens[i + 4:i + 7]])
-            count = int(tokens[i + 8])
-            channels.append(tokens[i + 9:i + 9 + count])
-            stack.append(len(names) - 1)
-            i += 9 + count
-        elif t == "End":
-            i += 8
-        elif t == "}":
-            stack.pop()
-            i += 1
-        else:
-            raise AssertionError(f"unexpected {t!r}")
-    count = int(tokens[i + 2])
-    motion = np.array(tokens[i + 6:], float).reshape(count, -1)
-    out = np.empty((count, len(names), 3))
-    for f in range(count):
-        values, at = motion[f], 0
-        rot = {}
-        for j, chans in enumerate(channels):
-            t, r = np.array(offsets[j]), np.eye(3)
-            for name in chans:
-                v = values[at]
-                at += 1
-                if name.endswith("position"):
-                    t["XYZ".index(name[0])] = v
-                else:
-                    r = r @ Rotation.from_euler(name[0].lower(), v, degrees=True).as_matrix()
-            p = parents[j]
-            out[f, j] = t if p < 0 else out[f, p] + rot[p] @ t
-            rot[j] = r if p < 0 else rot[p] @ r
-    return names, out, count
-
-
 def video_frames(path) -> int:
     """Frames an mp4 decodes to (imageio's ffmpeg reader; the first item is its metadata)."""
     reader = imageio_ffmpeg.read_frames(str(path))
     next(reader)
     return sum(1 for _ in reader)
-
-
-def read_pc2(path):
-    data = path.read_bytes()
-    _, _, n, _, _, samples = struct.unpack("<12siiffi", data[:32])
-    return samples, np.frombuffer(data, np.float32, offset=32).reshape(samples, n, 3)
 
 
 @pytest.fixture(scope="module")
@@ -164,13 +90,15 @@ def test_every_format_of_a_gap_take_has_the_same_frames(gap_batch, critter):
     points = UsdGeom.Mesh(stage.GetPrimAtPath(stage.GetDefaultPrim().GetPath().AppendChild("Mesh")))
     points = points.GetPointsAttr()
     assert points.GetTimeSamples() == [float(k) for k in range(1, N + 1)]
-    samples, pc2 = read_pc2(out / "gap.pc2")
+    header, pc2 = readers.read_pc2(out / "gap.pc2")
+    samples = header["num_samples"]
     assert samples == N
     gltf = pygltflib.GLTF2().load_binary(str(out / "gap.glb"))
     b = critter.skeleton.bone_count
-    pivots_gltf, key_counts = gltf_pivots(gltf, b)
+    pivots_gltf, key_counts = readers.key_pivots(gltf, b)
     assert set(key_counts) == {N}
-    names, pivots_bvh, bvh_frames = bvh_pivots((out / "gap.bvh").read_text())
+    bvh = readers.read_bvh((out / "gap.bvh").read_text())
+    names, pivots_bvh, bvh_frames = bvh.names, readers.pivots(bvh), len(bvh.motion)
     assert bvh_frames == N
 
     # Frame k is one pose in every file: the mesh formats bit for bit, the joints at the solve's
@@ -208,7 +136,7 @@ def test_readings_hours_apart_are_cut_and_warned_in_every_command(tmp_path, crit
     assert export.returncode == 0, export.stderr
     warned(export.stderr)
     report = json.loads(export.stdout)
-    assert report["frames"] == expected == read_pc2(tmp_path / "hours.pc2")[0]
+    assert report["frames"] == expected == readers.read_pc2(tmp_path / "hours.pc2")[0]["num_samples"]
     assert [round(c["gap_s"]) for c in report["gaps_cut"]] == [7200]
 
     batch = puppet("batch", take, "--out", tmp_path / "out", "--formats", "mp4,pc2", "--fps", 10,
@@ -216,5 +144,5 @@ def test_readings_hours_apart_are_cut_and_warned_in_every_command(tmp_path, crit
     assert batch.returncode == 0, batch.stderr
     warned(batch.stderr)
     assert json.loads(batch.stdout)["takes"][0]["frames"] == expected
-    assert read_pc2(tmp_path / "out" / "hours.pc2")[0] == expected
+    assert readers.read_pc2(tmp_path / "out" / "hours.pc2")[0]["num_samples"] == expected
     assert video_frames(tmp_path / "out" / "hours.mp4") == expected

@@ -1,5 +1,8 @@
 """BVH export: parsed back by an independent parser; Euler angles rebuild the rotations."""
 
+import importlib.util
+from pathlib import Path
+
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
@@ -7,52 +10,15 @@ from scipy.spatial.transform import Rotation
 from puppet.export import BvhWriter, ExportError, euler_to_matrix, matrix_to_euler, write_bvh
 from puppet.export.euler import ORDERS
 
+_spec = importlib.util.spec_from_file_location("export_bvh_readers", Path(__file__).with_name("readers.py"))
+readers = importlib.util.module_from_spec(_spec)
+_spec.loader.exec_module(readers)
+read_bvh = readers.read_bvh
+
 NAMES = ["hips", "spine", "neck", "head", "arm_l", "hand_l", "arm_r", "leg"]
 PARENTS = [-1, 0, 1, 2, 1, 4, 1, 0]
 OFFSETS = np.array([[0, 1, 0], [0, 0.3, 0], [0, 0.4, 0], [0, 0.1, 0.02], [0.2, 0.35, 0],
                     [0.3, 0, 0], [-0.2, 0.35, 0], [0.1, -0.5, 0]], dtype=float)
-
-
-def parse_bvh(text):
-    """Minimal BVH parser: joints (name, parent name, offset, channels), end sites, motion."""
-    tokens = text.split()
-    pos = 0
-    joints, end_sites, stack = [], {}, []
-
-    def take():
-        nonlocal pos
-        pos += 1
-        return tokens[pos - 1]
-
-    assert take() == "HIERARCHY"
-    while True:
-        t = take()
-        if t in ("ROOT", "JOINT"):
-            name = take()
-            assert take() == "{"
-            assert take() == "OFFSET"
-            off = [float(take()) for _ in range(3)]
-            assert take() == "CHANNELS"
-            channels = [take() for _ in range(int(take()))]
-            joints.append((name, stack[-1] if stack else None, off, channels))
-            stack.append(name)
-        elif t == "End":
-            assert take() == "Site" and take() == "{" and take() == "OFFSET"
-            end_sites[stack[-1]] = [float(take()) for _ in range(3)]
-            assert take() == "}"
-        elif t == "}":
-            stack.pop()
-        elif t == "MOTION":
-            break
-        else:
-            raise AssertionError(f"unexpected token {t!r}")
-    assert not stack
-    assert take() == "Frames:"
-    n = int(take())
-    assert take() == "Frame" and take() == "Time:"
-    frame_time = float(take())
-    values = np.array([float(v) for v in tokens[pos:]]).reshape(n, -1) if n else np.zeros((0, 0))
-    return joints, end_sites, frame_time, values
 
 
 def random_rotations(n_frames, b, seed=0):
@@ -70,23 +36,24 @@ def test_bvh_roundtrip(tmp_path, order):
     n = write_bvh(path, names=NAMES, parents=PARENTS, offsets=OFFSETS, frames=R,
                   frame_time=1 / 60, order=order, root_positions=roots)
     assert n == 25
-    joints, ends, frame_time, values = parse_bvh(path.read_text())
-    assert frame_time == pytest.approx(1 / 60, abs=1e-9)
+    bvh = read_bvh(path.read_text())
+    ends, values = bvh.end_sites, bvh.motion
+    assert bvh.frame_time == pytest.approx(1 / 60, abs=1e-9)
     assert values.shape == (25, 3 + 3 * len(NAMES))
-    by_name = {j[0]: j for j in joints}
-    assert sorted(by_name) == sorted(NAMES)
+    assert sorted(bvh.names) == sorted(NAMES)
     for i, name in enumerate(NAMES):
-        _, parent, off, channels = by_name[name]
-        assert parent == (None if PARENTS[i] < 0 else NAMES[PARENTS[i]])
-        np.testing.assert_allclose(off, OFFSETS[i], atol=1e-6)
+        k = bvh.names.index(name)
+        parent = bvh.parents[k]
+        assert (None if parent < 0 else bvh.names[parent]) == (None if PARENTS[i] < 0 else NAMES[PARENTS[i]])
+        np.testing.assert_allclose(bvh.offsets[k], OFFSETS[i], atol=1e-6)
         rot = [f"{a}rotation" for a in order]
-        assert channels == (["Xposition", "Yposition", "Zposition"] + rot if i == 0 else rot)
+        assert bvh.channels[k] == (["Xposition", "Yposition", "Zposition"] + rot if i == 0 else rot)
     assert sorted(ends) == sorted(["head", "hand_l", "arm_r", "leg"])
     np.testing.assert_allclose(ends["head"], OFFSETS[3], atol=1e-6)
     np.testing.assert_allclose(values[:, :3], roots, atol=1e-6)
     # Rotations rebuilt from the file's Euler angles (scipy, intrinsic = BVH order) match.
     col = 3
-    for name, _, _, channels in joints:
+    for name in bvh.names:
         j = NAMES.index(name)
         deg = values[:, col : col + 3]
         rebuilt = Rotation.from_euler(order, deg, degrees=True).as_matrix()
@@ -103,8 +70,9 @@ def test_euler_curves_are_continuous(tmp_path):
     R = np.tile(np.eye(3), (50, b, 1, 1))
     R[:, 1] = euler_to_matrix(np.stack([angles, 0 * angles, 0 * angles], -1), "ZXY")
     write_bvh(path, names=NAMES, parents=PARENTS, offsets=OFFSETS, frames=R, frame_time=0.04)
-    joints, _, _, values = parse_bvh(path.read_text())
-    col = 3 + 3 * [j[0] for j in joints].index("spine")
+    bvh = read_bvh(path.read_text())
+    values = bvh.motion
+    col = 3 + 3 * bvh.names.index("spine")
     np.testing.assert_allclose(values[:, col], np.degrees(angles), atol=1e-4)
 
 
@@ -115,9 +83,10 @@ def test_euler_input_and_default_root(tmp_path):
     with BvhWriter(path, names=NAMES, parents=PARENTS, offsets=OFFSETS, frame_time=0.5) as w:
         for d in deg:
             w.write(d)
-    joints, _, _, values = parse_bvh(path.read_text())
+    bvh = read_bvh(path.read_text())
+    values = bvh.motion
     np.testing.assert_allclose(values[:, :3], np.tile(OFFSETS[0], (3, 1)))
-    col = 3 + 3 * [j[0] for j in joints].index("arm_l")
+    col = 3 + 3 * bvh.names.index("arm_l")
     np.testing.assert_allclose(values[:, col : col + 3], deg[:, 4])
 
 
@@ -161,4 +130,4 @@ def test_bad_skeletons_and_frames(tmp_path):
             w.write(R)
         with pytest.raises(ExportError, match=r"frame 1: rotations have shape \(8, 3, 3, 1\)"):
             w.write(R[..., None])
-    assert parse_bvh(p.read_text())[3].shape == (1, 27)  # the good frame is kept
+    assert read_bvh(p.read_text()).motion.shape == (1, 27)  # the good frame is kept

@@ -25,7 +25,7 @@ def load_module(relative: str):
     return module
 
 
-parse_bvh = load_module("export/test_export_bvh.py").parse_bvh
+read_bvh = load_module("export/readers.py").read_bvh
 write_take = load_module("export/conftest.py").write_take
 
 blender = load_module("export/blender/run_bpy.py")  # Blender (bpy) in a subprocess
@@ -69,7 +69,7 @@ def test_blender_imports_every_kept_name_unchanged(tmp_path):
     with BvhWriter(path, names=KEPT, parents=np.arange(b) - 1, offsets=offsets,
                    frame_time=1 / 24) as writer:
         writer.write(np.tile(np.eye(3), (b, 1, 1)))
-    assert [j[0] for j in parse_bvh(path.read_text())[0]] == KEPT
+    assert read_bvh(path.read_text()).names == KEPT
     bones = blender.run_bpy_result(IMPORT_BVH, path)["bones"]
     assert sorted(bones) == sorted(KEPT)
 
@@ -106,11 +106,10 @@ def beast(tmp_path_factory):
 
 def test_bvh_joint_names_are_the_gltf_joint_names(beast):
     character, _, out, report = beast
-    joints, end_sites, _, _ = parse_bvh(out["bvh"].read_text())
+    bvh_names = read_bvh(out["bvh"].read_text()).names
     gltf = pygltflib.GLTF2().load_binary(str(out["gltf"]))
     gltf_names = [gltf.nodes[j].name for j in gltf.skins[0].joints]
     assert sorted(gltf_names) == sorted(character.NAMES)
-    bvh_names = [j[0] for j in joints]
     assert sorted(bvh_names) == sorted(n.replace(" ", "_") for n in gltf_names)
     assert {"leg.L", "foot.L", "hips"} <= set(bvh_names)
     assert report.renamed == {"bvh": {"tail base": "tail_base", "tail tip": "tail_tip"}}
@@ -118,7 +117,7 @@ def test_bvh_joint_names_are_the_gltf_joint_names(beast):
 
 def test_end_sites_reach_the_farthest_vertex_of_each_leaf(beast):
     _, _, out, _ = beast
-    _, end_sites, _, _ = parse_bvh(out["bvh"].read_text())
+    end_sites = read_bvh(out["bvh"].read_text()).end_sites
     # The character's geometry (tests/rig/character.py): the body tube runs from z = -0.7 to 1.8,
     # the leg tube down to y = -0.7; each leaf's pivot and bone direction are known.
     expected = {"head": (0.0, 0.0, 1.8 - 1.4), "tail_tip": (0.0, 0.0, -0.7 + 0.5),
@@ -132,7 +131,7 @@ def test_end_sites_reach_the_farthest_vertex_of_each_leaf(beast):
 def test_blender_bones_match_the_vertex_groups_and_the_mesh(beast):
     _, _, out, _ = beast
     got = blender.run_bpy_result(IMPORT_BVH, out["bvh"], out["gltf"])
-    bvh_names = [j[0] for j in parse_bvh(out["bvh"].read_text())[0]]
+    bvh_names = read_bvh(out["bvh"].read_text()).names
     assert sorted(got["bones"]) == sorted(bvh_names)
     # Every joint without whitespace drives the vertex group of the same name, unrenamed.
     unchanged = {n for n in got["groups"] if " " not in n}

@@ -1,43 +1,16 @@
 """glTF export read back with pygltflib: every joint animated, key times, skin, and how far the
 file's own skinning is from the FAST mesh."""
 
+import importlib.util
+from pathlib import Path
+
 import numpy as np
 import pygltflib
-from scipy.spatial.transform import Rotation
 
-DTYPES = {5121: np.uint8, 5123: np.uint16, 5125: np.uint32, 5126: np.float32}
-WIDTHS = {"SCALAR": 1, "VEC3": 3, "VEC4": 4, "MAT4": 16}
-
-
-def accessor(gltf, index):
-    a = gltf.accessors[index]
-    view = gltf.bufferViews[a.bufferView]
-    blob = gltf.binary_blob()
-    width = WIDTHS[a.type]
-    dtype = np.dtype(DTYPES[a.componentType])
-    start = view.byteOffset + (a.byteOffset or 0)
-    data = np.frombuffer(blob, dtype, count=a.count * width, offset=start)
-    return data.reshape(a.count, width) if width > 1 else data
-
-
-def trs(translation, quaternion):
-    M = np.eye(4)
-    M[:3, :3] = Rotation.from_quat(quaternion).as_matrix()
-    M[:3, 3] = translation
-    return M
-
-
-def worlds(gltf, locals_):
-    """World 4x4 of every node from {node: local 4x4} and the node hierarchy."""
-    parent = {c: i for i, n in enumerate(gltf.nodes) for c in (n.children or [])}
-    out = {}
-
-    def world(j):
-        if j not in out:
-            out[j] = locals_[j] if j not in parent else world(parent[j]) @ locals_[j]
-        return out[j]
-
-    return np.array([world(j) for j in sorted(locals_)])
+_spec = importlib.util.spec_from_file_location("export_gltf_readers", Path(__file__).with_name("readers.py"))
+readers = importlib.util.module_from_spec(_spec)
+_spec.loader.exec_module(readers)
+accessor, trs, worlds = readers.accessor, readers.trs, readers.worlds
 
 
 def test_gltf_has_every_joint_animated_and_its_skin(exported, critter, reference, fps):

@@ -33,7 +33,7 @@ def load_module(relative: str):
     return module
 
 
-accessor = load_module("export/test_export_gltf.py").accessor
+accessor = load_module("export/readers.py").accessor
 blender = load_module("export/blender/run_bpy.py")  # Blender (bpy) in a subprocess
 
 

@@ -1,22 +1,17 @@
 """PC2 point caches: header fields and samples read back by an independent reader."""
 
-import struct
+import importlib.util
+from pathlib import Path
 
 import numpy as np
 import pytest
 
 from puppet.export import ExportError, Pc2Writer, write_pc2
 
-
-def read_pc2(path):
-    """A PC2 reader written from the format description: (header dict, (S, n, 3) float32)."""
-    data = open(path, "rb").read()
-    sig, version, n, start, rate, s = struct.unpack_from("<12siiffi", data, 0)
-    header = dict(signature=sig, version=version, num_points=n, start_frame=start,
-                  sample_rate=rate, num_samples=s)
-    body = data[32:]
-    assert len(body) == s * n * 12
-    return header, np.frombuffer(body, dtype="<f4").reshape(s, n, 3)
+_spec = importlib.util.spec_from_file_location("export_pc2_readers", Path(__file__).with_name("readers.py"))
+readers = importlib.util.module_from_spec(_spec)
+_spec.loader.exec_module(readers)
+read_pc2 = readers.read_pc2
 
 
 def motion(num_samples, n=57, seed=3):

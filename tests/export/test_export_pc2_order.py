@@ -1,6 +1,7 @@
 """PC2 of a take in the character file's own vertex order (a seam-split file), and its axes."""
 
-import struct
+import importlib.util
+from pathlib import Path
 
 import numpy as np
 import pygltflib
@@ -10,13 +11,9 @@ from puppet.export import Outputs, export_take
 from puppet.rig import Rig, ServoMap
 from puppet.take import TakeReader, TakeWriter
 
-
-def read_pc2(path):
-    data = path.read_bytes()
-    signature, version, n, start, rate, samples = struct.unpack("<12siiffi", data[:32])
-    assert signature == b"POINTCACHE2\0" and version == 1
-    points = np.frombuffer(data, np.float32, offset=32).reshape(samples, n, 3)
-    return start, rate, points
+_spec = importlib.util.spec_from_file_location("export_pc2_order_readers", Path(__file__).with_name("readers.py"))
+readers = importlib.util.module_from_spec(_spec)
+_spec.loader.exec_module(readers)
 
 
 def seam_split(critter, rng):
@@ -48,7 +45,8 @@ def test_pc2_follows_the_source_files_vertex_order(tmp_path, critter, take30, re
             writer.write(Reading(i * 100_000_000, rig.servo_map.ids, ticks, np.ones(k, bool)))
     out, glb = tmp_path / "rest.pc2", tmp_path / "rest.glb"
     export_take(rig, TakeReader(rest), Outputs(pc2=out, gltf=glb), fps=10)
-    start, rate, points = read_pc2(out)
+    header, points = readers.read_pc2(out)
+    start, rate = header["start_frame"], header["sample_rate"]
     assert (start, rate) == (1.0, 1.0)
     assert points.shape == (3, len(source_index), 3)
     np.testing.assert_allclose(points[0], file_vertices, atol=1e-5)
@@ -63,7 +61,7 @@ def test_pc2_follows_the_source_files_vertex_order(tmp_path, critter, take30, re
     # A moving take: every sample is the solve's mesh, listed in the file's order.
     out = tmp_path / "moving.pc2"
     export_take(rig, TakeReader(take30), Outputs(pc2=out), fps=24)
-    _, _, points = read_pc2(out)
+    _, points = readers.read_pc2(out)
     assert len(points) == len(reference.times_ns)
     np.testing.assert_allclose(points, reference.deformed[:, source_index], atol=2e-6)
 
@@ -71,7 +69,7 @@ def test_pc2_follows_the_source_files_vertex_order(tmp_path, critter, take30, re
 def test_up_z_turns_the_y_up_model_for_blender(tmp_path, critter, take30, reference):
     out = tmp_path / "z.pc2"
     export_take(critter, TakeReader(take30), Outputs(pc2=out), fps=24, up="z")
-    _, _, points = read_pc2(out)
+    _, points = readers.read_pc2(out)
     ref = reference.deformed
     expected = np.stack([ref[..., 0], -ref[..., 2], ref[..., 1]], -1)
     np.testing.assert_allclose(points, expected, atol=2e-6)

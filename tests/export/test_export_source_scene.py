@@ -1,10 +1,9 @@
 """Exports carry the character file's look and place: a glTF character whose armature and mesh
 nodes are moved, turned and non-uniformly scaled, with a UV seam, two UV sets, vertex colours
-and an embedded texture (``dressed_character.py``). The PC2 lands on it in the mesh object's
+and an embedded texture (the pillar of ``tests/rig/character.py``). The PC2 lands on it in the mesh object's
 local space; the .glb keeps the file's vertices, attributes, material, image and nodes."""
 
 import importlib.util
-import struct
 import subprocess
 from pathlib import Path
 
@@ -18,8 +17,6 @@ from puppet.export.joint_transforms import JointTransforms
 from puppet.rig import load_rig
 from puppet.take import TakeReader
 
-DTYPES = {5121: np.uint8, 5123: np.uint16, 5125: np.uint32, 5126: np.float32}
-WIDTHS = {"SCALAR": 1, "VEC2": 2, "VEC3": 3, "VEC4": 4, "MAT4": 16}
 RIG = """name = "pillar"
 mesh = "{mesh}"
 fixed = ["root"]
@@ -45,59 +42,25 @@ limits_deg = [-90, 90]
 """
 
 
-def _module(name):
-    spec = importlib.util.spec_from_file_location(f"export_{name}", Path(__file__).with_name(f"{name}.py"))
+def _module(name, path):
+    spec = importlib.util.spec_from_file_location(f"export_{name}", path)
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)
     return module
 
 
-dressed = _module("dressed_character")
-shared = _module("conftest")
-
-
-def accessor(gltf, index):
-    a = gltf.accessors[index]
-    view = gltf.bufferViews[a.bufferView]
-    width = WIDTHS[a.type]
-    data = np.frombuffer(gltf.binary_blob(), DTYPES[a.componentType], count=a.count * width,
-                         offset=view.byteOffset + (a.byteOffset or 0))
-    return data.reshape(a.count, width) if width > 1 else data
-
-
-def read_pc2(path):
-    data = Path(path).read_bytes()
-    _, _, n, _, _, samples = struct.unpack("<12siiffi", data[:32])
-    return np.frombuffer(data, np.float32, offset=32).reshape(samples, n, 3)
-
-
-def node_matrix(node):
-    if node.matrix:
-        return np.array(node.matrix).reshape(4, 4).T
-    return dressed.trs_matrix((node.translation or [0, 0, 0], node.rotation or [0, 0, 0, 1],
-                               node.scale or [1, 1, 1]))
-
-
-def node_worlds(gltf, locals_):
-    """{node: world 4x4} from {node: local 4x4} over the file's hierarchy."""
-    parent = {c: i for i, n in enumerate(gltf.nodes) for c in (n.children or [])}
-    out = {}
-    for i in range(len(gltf.nodes)):
-        chain = [i]
-        while chain[-1] in parent:
-            chain.append(parent[chain[-1]])
-        M = np.eye(4)
-        for k in reversed(chain):
-            M = M @ locals_[k]
-        out[i] = M
-    return out
+characters = _module("character", Path(__file__).parents[1] / "rig" / "character.py")
+shared = _module("conftest", Path(__file__).with_name("conftest.py"))
+readers = _module("readers", Path(__file__).with_name("readers.py"))
+accessor, node_matrix, node_worlds = readers.accessor, readers.node_matrix, readers.worlds
+PILLAR = characters.pillar()
 
 
 @pytest.fixture(scope="module")
 def pillar(tmp_path_factory):
     """(rig, take path, reference solve, folder) of the moved, textured pillar."""
     folder = tmp_path_factory.mktemp("pillar")
-    dressed.build(folder / "pillar.glb")
+    characters.write(folder / "pillar.glb", PILLAR)
     (folder / "pillar.toml").write_text(RIG.format(mesh="pillar.glb"))
     rig = load_rig(folder / "pillar.toml")
     take = shared.write_take(folder / "take.mcap", rig)
@@ -107,20 +70,20 @@ def pillar(tmp_path_factory):
 def test_pc2_lands_on_the_moved_turned_and_scaled_mesh_object(pillar):
     rig, take, reference, folder = pillar
     solved = reference.deformed[:, rig.source_index]  # the file's vertex order, model frame
-    assert solved.shape[1] == len(dressed.file_vertices()) > len(rig.V)  # seam copies are kept
+    assert solved.shape[1] == len(PILLAR.file_vertices()) > len(rig.V)  # seam copies are kept
     # Blender's glTF importer parents the skinned mesh to the armature object with an identity
     # transform: the mesh object's local space is the Armature node's world.
-    np.testing.assert_allclose(rig.source.object_world, dressed.armature_world(), atol=1e-12)
+    np.testing.assert_allclose(rig.source.object_world, PILLAR.armature_world(), atol=1e-12)
 
     export_take(rig, TakeReader(take), Outputs(pc2=folder / "object.pc2"), fps=shared.FPS)
     export_take(rig, TakeReader(take), Outputs(pc2=folder / "model.pc2"), fps=shared.FPS,
                 space="model")
     export_take(rig, TakeReader(take), Outputs(pc2=folder / "z.pc2"), fps=shared.FPS, up="z")
-    local = read_pc2(folder / "object.pc2").astype(np.float64)
-    A = dressed.armature_world()
+    local = readers.read_pc2(folder / "object.pc2")[1].astype(np.float64)
+    A = PILLAR.armature_world()
     np.testing.assert_allclose(local @ A[:3, :3].T + A[:3, 3], solved, atol=2e-5)
-    np.testing.assert_allclose(read_pc2(folder / "model.pc2"), solved, atol=2e-5)
-    np.testing.assert_allclose(read_pc2(folder / "z.pc2"),
+    np.testing.assert_allclose(readers.read_pc2(folder / "model.pc2")[1], solved, atol=2e-5)
+    np.testing.assert_allclose(readers.read_pc2(folder / "z.pc2")[1],
                                np.stack([local[..., 0], -local[..., 2], local[..., 1]], -1), atol=1e-6)
 
 
@@ -139,15 +102,15 @@ def test_glb_keeps_the_files_vertices_attributes_material_and_nodes(pillar):
     for ours, theirs in zip(gltf.nodes, source.nodes):
         np.testing.assert_allclose(node_matrix(ours), node_matrix(theirs), atol=1e-6)
     armature = gltf.nodes[0]
-    np.testing.assert_allclose(armature.translation, dressed.ARMATURE_TRS[0])
-    np.testing.assert_allclose(armature.scale, dressed.ARMATURE_TRS[2])
+    np.testing.assert_allclose(armature.translation, PILLAR.armature_trs[0])
+    np.testing.assert_allclose(armature.scale, PILLAR.armature_trs[2])
     mesh_node = next(n for n in gltf.nodes if n.mesh is not None)
     assert mesh_node.name == "pillar" and mesh_node.skin == 0
-    np.testing.assert_allclose(mesh_node.scale, dressed.MESH_TRS[2])
+    np.testing.assert_allclose(mesh_node.scale, PILLAR.mesh_trs[2])
 
     # The mesh: the file's primitives, vertex count and order, triangles, every attribute each
     # primitive had (and no other), its material.
-    prims = dressed.primitives()
+    prims = PILLAR.primitives
     written = gltf.meshes[mesh_node.mesh].primitives
     assert [p.material for p in written] == [0, 1]
     for p, theirs in zip(written, prims):
@@ -173,7 +136,7 @@ def test_glb_keeps_the_files_vertices_attributes_material_and_nodes(pillar):
     image = gltf.images[texture.source]
     assert image.mimeType == "image/png" and image.uri is None
     view = gltf.bufferViews[image.bufferView]
-    assert gltf.binary_blob()[view.byteOffset:view.byteOffset + view.byteLength] == dressed.png_bytes()
+    assert gltf.binary_blob()[view.byteOffset:view.byteOffset + view.byteLength] == characters.png_bytes()
     assert gltf.samplers[texture.sampler].magFilter == 9728
 
     # The skin skins the rest mesh at rest (inverse bind matrices include the mesh node's world),
@@ -183,7 +146,7 @@ def test_glb_keeps_the_files_vertices_attributes_material_and_nodes(pillar):
     ibm = accessor(gltf, skin.inverseBindMatrices).reshape(-1, 4, 4).transpose(0, 2, 1)
     rest = node_worlds(gltf, {i: node_matrix(n) for i, n in enumerate(gltf.nodes)})
     for k, j in enumerate(skin.joints):
-        np.testing.assert_allclose(rest[j] @ ibm[k], dressed.mesh_world(), atol=1e-5)
+        np.testing.assert_allclose(rest[j] @ ibm[k], PILLAR.mesh_world(), atol=1e-5)
     # Under the Armature's rotation and non-uniform scale the rotation keys are the nearest ones;
     # the pivots are exact all the same.
     joint_worlds_follow_the_solve(gltf, rig, reference)
@@ -205,7 +168,7 @@ def joint_worlds_follow_the_solve(gltf, rig, reference) -> float:
         locals_ = {i: node_matrix(n) for i, n in enumerate(gltf.nodes)}
         for j in skin.joints:
             scale = gltf.nodes[j].scale or [1, 1, 1]
-            locals_[j] = dressed.trs_matrix((keys[(j, "translation")][f], keys[(j, "rotation")][f], scale))
+            locals_[j] = readers.trs(keys[(j, "translation")][f], keys[(j, "rotation")][f], scale)
         world = node_worlds(gltf, locals_)
         pivots = np.array([world[j][:3, 3] for j in skin.joints])
         np.testing.assert_allclose(pivots, joints.pivot, atol=1e-5)
@@ -218,7 +181,7 @@ def joint_worlds_follow_the_solve(gltf, rig, reference) -> float:
 def test_glb_keys_are_exact_under_a_uniformly_scaled_turned_armature(tmp_path):
     turned = ((0.4, -1.0, 2.5), tuple(Rotation.from_euler("xyz", [30, 50, -20], degrees=True).as_quat()),
               (1.5, 1.5, 1.5))
-    dressed.build(tmp_path / "pillar.glb", moved=turned)
+    characters.write(tmp_path / "pillar.glb", characters.pillar(moved=turned))
     (tmp_path / "pillar.toml").write_text(RIG.format(mesh="pillar.glb"))
     rig = load_rig(tmp_path / "pillar.toml")
     take = shared.write_take(tmp_path / "take.mcap", rig, readings=12)
@@ -228,14 +191,14 @@ def test_glb_keys_are_exact_under_a_uniformly_scaled_turned_armature(tmp_path):
     gltf = pygltflib.GLTF2().load_binary(str(tmp_path / "anim.glb"))
     assert joint_worlds_follow_the_solve(gltf, rig, reference) < 1e-5
     assert report.lbs_max_pct < 1e-3  # the file's skin is the solve (rigid pillar, exact keys)
-    A = dressed.armature_world(turned)
-    local = read_pc2(tmp_path / "mesh.pc2").astype(np.float64)
+    A = characters.pillar(moved=turned).armature_world()
+    local = readers.read_pc2(tmp_path / "mesh.pc2")[1].astype(np.float64)
     np.testing.assert_allclose(local @ A[:3, :3].T + A[:3, 3], reference.deformed[:, rig.source_index],
                                atol=2e-5)
 
 
 def test_rig_without_transforms_writes_the_same_points_in_both_spaces(tmp_path):
-    dressed.build(tmp_path / "flat.glb", moved=False)
+    characters.write(tmp_path / "flat.glb", characters.pillar(moved=False))
     (tmp_path / "flat.toml").write_text(RIG.format(mesh="flat.glb"))
     rig = load_rig(tmp_path / "flat.toml")
     take = shared.write_take(tmp_path / "take.mcap", rig, readings=8)
@@ -245,11 +208,11 @@ def test_rig_without_transforms_writes_the_same_points_in_both_spaces(tmp_path):
 
 
 def test_missing_image_file_warns_and_exports_a_plain_material(tmp_path):
-    dressed.build(tmp_path / "pillar.gltf", image_file=False)
-    assert not (tmp_path / dressed.IMAGE).exists()
+    characters.write(tmp_path / "pillar.gltf", PILLAR, image_file=False)
+    assert not (tmp_path / characters.PILLAR_IMAGE).exists()
     (tmp_path / "pillar.toml").write_text(RIG.format(mesh="pillar.gltf"))
     rig = load_rig(tmp_path / "pillar.toml")  # the rig loads all the same
-    missing = str(tmp_path / dressed.IMAGE)
+    missing = str(tmp_path / characters.PILLAR_IMAGE)
     assert len(rig.source.warnings) == 1 and missing in rig.source.warnings[0]
     take = shared.write_take(tmp_path / "take.mcap", rig, readings=8)
     result = subprocess.run(["puppet", "export", str(take), "--rig", str(tmp_path / "pillar.toml"),
@@ -265,7 +228,7 @@ def test_missing_image_file_warns_and_exports_a_plain_material(tmp_path):
     assert material.pbrMetallicRoughness.baseColorFactor == [1.0, 0.9, 0.8, 1.0]
     assert gltf.images == [] and gltf.textures == []
     # With the image next to the .gltf, it is embedded.
-    (tmp_path / dressed.IMAGE).write_bytes(dressed.png_bytes())
+    (tmp_path / characters.PILLAR_IMAGE).write_bytes(characters.png_bytes())
     rig = load_rig(tmp_path / "pillar.toml")
     assert rig.source.warnings == []
     export_take(rig, TakeReader(take), Outputs(gltf=tmp_path / "with.glb"), fps=10)
@@ -301,17 +264,18 @@ def test_usd_carries_the_files_place_uvs_colours_and_textured_material(pillar, s
     for frame in (1, len(solved) // 2, len(solved)):
         time = Usd.TimeCode(frame)
         world = np.array(UsdGeom.XformCache(time).GetLocalToWorldTransform(mesh.GetPrim())).T
-        np.testing.assert_allclose(world, dressed.armature_world(), atol=1e-6)
+        np.testing.assert_allclose(world, PILLAR.armature_world(), atol=1e-6)
         local = np.array(mesh.GetPointsAttr().Get(time), np.float64)
         np.testing.assert_allclose(local @ world[:3, :3].T + world[:3, 3], solved[frame - 1], atol=2e-5)
         normals = np.array(mesh.GetNormalsAttr().Get(time))
         np.testing.assert_allclose(np.linalg.norm(normals, axis=1), 1.0, atol=1e-5)
-        ring = np.arange(0, dressed.RINGS * (dressed.SIDES + 1), dressed.SIDES + 1)  # u = 0
-        np.testing.assert_allclose(normals[ring], normals[ring + dressed.SIDES], atol=1e-6)  # smooth
-        caps = len(dressed.primitives()[0]["V"]) + np.arange(dressed.SIDES)  # the bottom cap's ring
-        assert np.abs(np.einsum("ij,ij->i", normals[caps], normals[:dressed.SIDES])).max() < 0.9  # hard
+        sides_n, rings_n = characters.PILLAR_SIDES, characters.PILLAR_RINGS
+        ring = np.arange(0, rings_n * (sides_n + 1), sides_n + 1)  # u = 0
+        np.testing.assert_allclose(normals[ring], normals[ring + sides_n], atol=1e-6)  # smooth
+        caps = len(PILLAR.primitives[0]["V"]) + np.arange(sides_n)  # the bottom cap's ring
+        assert np.abs(np.einsum("ij,ij->i", normals[caps], normals[:sides_n])).max() < 0.9  # hard
     # The file's triangles (its primitives in order), UV sets (t = 1 - v), colours.
-    prims = dressed.primitives()
+    prims = PILLAR.primitives
     sides = len(prims[0]["V"])
     np.testing.assert_array_equal(np.array(mesh.GetFaceVertexIndicesAttr().Get()).reshape(-1, 3),
                                   np.concatenate([prims[0]["F"], prims[1]["F"] + sides]))
@@ -353,9 +317,9 @@ def test_usd_carries_the_files_place_uvs_colours_and_textured_material(pillar, s
             names = package.namelist()
             assert names[0].endswith(".usdc")
             (image,) = [n for n in names if n.endswith(".png")]
-            assert package.read(image) == dressed.png_bytes()
+            assert package.read(image) == characters.png_bytes()
     else:
-        assert Path(asset.resolvedPath).read_bytes() == dressed.png_bytes()
+        assert Path(asset.resolvedPath).read_bytes() == characters.png_bytes()
         assert Path(asset.resolvedPath).parent == folder / "anim_textures"
     assert surface.GetInput("roughness").Get() == pytest.approx(0.7)
     assert surface.GetInput("metallic").Get() == pytest.approx(0.0)
@@ -364,12 +328,12 @@ def test_usd_carries_the_files_place_uvs_colours_and_textured_material(pillar, s
 def test_usd_of_a_missing_image_has_a_plain_material(tmp_path):
     from pxr import Usd, UsdShade
 
-    dressed.build(tmp_path / "pillar.gltf", image_file=False)
+    characters.write(tmp_path / "pillar.gltf", PILLAR, image_file=False)
     (tmp_path / "pillar.toml").write_text(RIG.format(mesh="pillar.gltf"))
     rig = load_rig(tmp_path / "pillar.toml")
     take = shared.write_take(tmp_path / "take.mcap", rig, readings=8)
     report = export_take(rig, TakeReader(take), Outputs(usd=tmp_path / "anim.usdc"), fps=10)
-    assert len(report.warnings) == 1 and str(tmp_path / dressed.IMAGE) in report.warnings[0]
+    assert len(report.warnings) == 1 and str(tmp_path / characters.PILLAR_IMAGE) in report.warnings[0]
     stage = Usd.Stage.Open(str(tmp_path / "anim.usdc"))
     surface = UsdShade.Material(stage.GetPrimAtPath("/pillar/Materials/skin")).ComputeSurfaceSource()[0]
     assert not surface.GetInput("diffuseColor").HasConnectedSource()
@@ -378,7 +342,7 @@ def test_usd_of_a_missing_image_has_a_plain_material(tmp_path):
 
 
 def test_unusable_attribute_is_left_out_with_a_warning(tmp_path):
-    path = dressed.build(tmp_path / "pillar.gltf")
+    path = characters.write(tmp_path / "pillar.gltf", PILLAR)
     doc = pygltflib.GLTF2().load(str(path))
     sides = doc.meshes[0].primitives[0].attributes
     sides.TEXCOORD_1 = sides.NORMAL  # three components: not a UV set
@@ -387,7 +351,7 @@ def test_unusable_attribute_is_left_out_with_a_warning(tmp_path):
     (tmp_path / "pillar.toml").write_text(RIG.format(mesh="pillar.gltf"))
     rig = load_rig(tmp_path / "pillar.toml")  # the rig needs neither: it loads
     texcoord, colour = sorted(rig.source.warnings, key=lambda w: "TEXCOORD_1" not in w)
-    n = len(dressed.primitives()[0]["V"])
+    n = len(PILLAR.primitives[0]["V"])
     assert f"primitives[0].TEXCOORD_1: {n} values of 3 for {n} vertices" in texcoord
     assert "COLOR_0" in colour and "does not exist" in colour and str(path) in colour
     assert set(rig.source.attributes) == {"NORMAL", "TEXCOORD_0"}
@@ -397,3 +361,27 @@ def test_unusable_attribute_is_left_out_with_a_warning(tmp_path):
     gltf = pygltflib.GLTF2().load_binary(str(tmp_path / "anim.glb"))
     written = gltf.meshes[0].primitives[0].attributes
     assert written.TEXCOORD_1 is None and written.COLOR_0 is None and written.TEXCOORD_0 is not None
+
+
+def test_image_gone_after_the_rig_loaded_is_named_by_both_exporters(tmp_path):
+    """SourceImage.read: the one way an exporter reads a texture; a file deleted since the rig
+    loaded gives each exporter the same warning naming it, and plain materials."""
+    from pxr import Usd, UsdShade
+
+    characters.write(tmp_path / "pillar.gltf", PILLAR)
+    (tmp_path / "pillar.toml").write_text(RIG.format(mesh="pillar.gltf"))
+    rig = load_rig(tmp_path / "pillar.toml")
+    assert rig.source.warnings == []
+    (tmp_path / characters.PILLAR_IMAGE).unlink()
+    take = shared.write_take(tmp_path / "take.mcap", rig, readings=6)
+    missing = str(tmp_path / characters.PILLAR_IMAGE)
+    for outputs in (Outputs(gltf=tmp_path / "anim.glb"), Outputs(usd=tmp_path / "anim.usda")):
+        report = export_take(rig, TakeReader(take), outputs, fps=10)
+        assert len(report.warnings) == 1
+        assert report.warnings[0].startswith(f"{missing}: cannot read the image")
+        assert "left out" in report.warnings[0]
+    gltf = pygltflib.GLTF2().load_binary(str(tmp_path / "anim.glb"))
+    assert gltf.images == [] and gltf.materials[0].pbrMetallicRoughness.baseColorTexture is None
+    stage = Usd.Stage.Open(str(tmp_path / "anim.usda"))
+    surface = UsdShade.Material(stage.GetPrimAtPath("/pillar/Materials/skin")).ComputeSurfaceSource()[0]
+    assert not surface.GetInput("diffuseColor").HasConnectedSource()

@@ -2,13 +2,13 @@
 exactly on each key's pose at its frame, and the free bones move between keys (the in-betweens
 are solved, not blended)."""
 
+import importlib.util
 import subprocess
 import sys
 from pathlib import Path
 
 import numpy as np
 import pygltflib
-from scipy.spatial.transform import Rotation
 
 from puppet.keys import write_shot
 from puppet.keys.example import critter_keys
@@ -16,36 +16,11 @@ from puppet.rig import builtin
 from puppet.rig.calibration import Calibration
 
 PUPPET = Path(sys.executable).with_name("puppet")
-DTYPES = {5121: np.uint8, 5123: np.uint16, 5125: np.uint32, 5126: np.float32}
-WIDTHS = {"SCALAR": 1, "VEC3": 3, "VEC4": 4, "MAT4": 16}
-
-
-def accessor(gltf, index):
-    a = gltf.accessors[index]
-    view = gltf.bufferViews[a.bufferView]
-    width = WIDTHS[a.type]
-    data = np.frombuffer(gltf.binary_blob(), np.dtype(DTYPES[a.componentType]),
-                         count=a.count * width, offset=view.byteOffset + (a.byteOffset or 0))
-    return data.reshape(a.count, width) if width > 1 else data
-
-
-def trs(translation, quaternion):
-    M = np.eye(4)
-    M[:3, :3] = Rotation.from_quat(quaternion).as_matrix()
-    M[:3, 3] = translation
-    return M
-
-
-def worlds(gltf, locals_):
-    parent = {c: i for i, n in enumerate(gltf.nodes) for c in (n.children or [])}
-    out = {}
-
-    def world(j):
-        if j not in out:
-            out[j] = locals_[j] if j not in parent else world(parent[j]) @ locals_[j]
-        return out[j]
-
-    return np.array([world(j) for j in sorted(locals_)])
+_spec = importlib.util.spec_from_file_location(
+    "keys_export_readers", Path(__file__).parents[1] / "export" / "readers.py")
+readers = importlib.util.module_from_spec(_spec)
+_spec.loader.exec_module(readers)
+accessor, trs, worlds = readers.accessor, readers.trs, readers.worlds
 
 
 def test_gltf_of_a_shot_has_the_key_poses_at_their_frames(tmp_path):

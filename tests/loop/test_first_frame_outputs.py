@@ -18,10 +18,10 @@ from puppet.take import TakeReader, TakeWriter
 TOLERANCE = 1e-4  # of the rest bounding-box diagonal
 
 
-def _frames_module():
-    """tests/batch/test_batch_frames.py, for its readers of the exported files."""
-    path = Path(__file__).resolve().parents[1] / "batch" / "test_batch_frames.py"
-    spec = importlib.util.spec_from_file_location("batch_frames_readers", path)
+def _readers_module():
+    """tests/export/readers.py, the tests' readers of the exported files."""
+    path = Path(__file__).resolve().parents[1] / "export" / "readers.py"
+    spec = importlib.util.spec_from_file_location("first_frame_readers", path)
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)
     return module
@@ -81,7 +81,7 @@ def test_frame_one_of_play_and_every_export_is_converged(tmp_path):
     paths = {"gltf": tmp_path / "a.glb", "usd": tmp_path / "a.usdc", "pc2": tmp_path / "a.pc2",
              "bvh": tmp_path / "a.bvh"}
     export_take(rig, TakeReader(take), Outputs(**paths), fps=24)
-    readers = _frames_module()
+    readers = _readers_module()
     mesh = SourceOrder(rig).take(reference)
     _, pc2 = readers.read_pc2(paths["pc2"])
     assert np.linalg.norm(pc2[0] - mesh, axis=1).max() <= TOLERANCE * diag
@@ -93,8 +93,9 @@ def test_frame_one_of_play_and_every_export_is_converged(tmp_path):
     usd = np.asarray(points.GetPointsAttr().Get(Usd.TimeCode(1)), np.float64)
     assert np.linalg.norm(usd - mesh, axis=1).max() <= TOLERANCE * diag
 
-    gltf_pivots, _ = readers.gltf_pivots(pygltflib.GLTF2().load_binary(str(paths["gltf"])), b)
+    gltf_pivots, _ = readers.key_pivots(pygltflib.GLTF2().load_binary(str(paths["gltf"])), b)
     assert np.linalg.norm(gltf_pivots[0] - pivots, axis=1).max() <= TOLERANCE * diag
-    names, bvh_pivots, _ = readers.bvh_pivots(paths["bvh"].read_text())
+    bvh = readers.read_bvh(paths["bvh"].read_text())
+    names, bvh_pivots = bvh.names, readers.pivots(bvh)
     order = [rig.skeleton.names.index(n) for n in names]
     assert np.linalg.norm(bvh_pivots[0] - pivots[order], axis=1).max() <= TOLERANCE * diag

@@ -6,7 +6,7 @@ each step shows. The characters:
 
 - critter: the built-in character (its mesh comes from an .npz, so the PC2 and the BVH go on the
   mesh of the exported .glb): tests/export/conftest.py's take and reference solve, at 24 fps;
-- mare: the seamed, textured character of ``character.py``, its armature and mesh nodes moved,
+- mare: the seamed, textured character of ``tests/rig/character.py``, its armature and mesh nodes moved,
   turned and scaled unevenly, exported at 30 fps (so a scene left at Blender's 24 fps would show).
 """
 
@@ -37,7 +37,7 @@ def load_module(name: str, path: Path):
     return module
 
 
-character = load_module("blender_test_character", HERE / "character.py")
+character = load_module("blender_test_character", HERE.parents[1] / "rig" / "character.py")
 blender = load_module("blender_test_run_bpy", HERE / "run_bpy.py")
 export_data = load_module("blender_test_export_data", HERE.parent / "conftest.py")
 
@@ -159,9 +159,9 @@ def critter_shown(tmp_path_factory, critter, take30, fps, reference) -> Shown:
 def mare_files(tmp_path_factory):
     """(folder, character .glb, rig file, take) of the transformed, seamed character."""
     folder = tmp_path_factory.mktemp("mare")
-    glb = character.write_glb(folder / "mare.glb")
+    glb = character.write(folder / "mare.glb", character.mare())
     rig_file = folder / "mare.toml"
-    rig_file.write_text(character.rig_text(glb.name))
+    rig_file.write_text(character.mare_rig_text(glb.name))
     rig = load_rig(rig_file)
     take = export_data.write_take(folder / "mare.mcap", rig, readings=40)
     return folder, glb, rig_file, take
