@@ -73,14 +73,7 @@ def test_reduced_gltf_of_a_shot_keys_every_channel_at_the_key_poses(tmp_path):
 
     from puppet.export.key_reduction import curve_error
 
-    rig = builtin()
-    keys = critter_keys(rig, step=12, fps=24)
-    shot = tmp_path / "shot.mcap"
-    header = {"ids": [int(i) for i in rig.servo_map.ids], "models": dict(rig.servo_map.models),
-              "rig_map_text": "", "rig_name": rig.name,
-              "calibration_text": Calibration.capture(rig.servo_map.ids,
-                                                      rig.servo_map.zero).to_record()}
-    write_shot(shot, header, keys)
+    _, keys, shot = _shot(tmp_path)
     full, reduced, tol = tmp_path / "full.glb", tmp_path / "reduced.glb", 0.5
     for out, extra in ((full, []), (reduced, ["--keys", str(tol), "--json"])):
         result = subprocess.run([str(PUPPET), "export", str(shot), "--fps", "24", "--gltf", str(out),
