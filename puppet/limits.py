@@ -88,8 +88,12 @@ RETRIES = Range(0, 100, integer=True)
 """batch: tries of a take after the first, when its worker died under it."""
 FRAME_SIZE = Range(16, 8192, "px", integer=True)
 """Width and height of rendered frames."""
-THRESHOLD_TICKS = Range(8, 2048, "ticks", integer=True)
-"""Guided calibration: ticks a joint must move to count (4096 per turn; at most half a turn)."""
+THRESHOLD_DEG = Range(1.0, 90.0, "degrees")
+"""Guided calibration: degrees of joint turn a move must reach to count (the same on every
+model: each servo's ticks per turn convert it)."""
+THRESHOLD_DEG_DEFAULT = 13.0
+"""Its default: a deliberate move, far above sensor noise (a few ticks: 0.1° on X-series, 0.3°
+on AX), well under the 30° a joint is asked for (``puppet.rig.guided_calibration``)."""
 TIMEOUT_S = Range(0.1, 86_400.0, "s")
 """Guided calibration: seconds to wait for each joint."""
 ANGLE_DEG = Range(0.0, 180.0, "degrees", lo_open=True)

@@ -428,7 +428,9 @@ class ServoUnits:
         span = self.hi - self.lo
         self._wrap = span <= 2.0 * np.pi
         self._any_wrap = bool(self._wrap.any())
-        self._top = np.where(self._wrap, (self.lo + self.hi) / 2.0 + np.pi, 0.0)
+        self._top = np.zeros(k)   # no limits (±inf): no wrap, and no inf − inf computed
+        np.add(self.lo, self.hi, out=self._top, where=self._wrap)
+        self._top = np.where(self._wrap, self._top / 2.0 + np.pi, 0.0)
         self._work = np.empty(k)
 
     @classmethod

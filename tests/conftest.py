@@ -191,29 +191,14 @@ def open_sdk():
         sdk.close()
 
 
-P1_AX_IDS = range(1, 9)
-"""Servos of ``protocol1_rig`` that are AX-12A (the others MX-28)."""
-
-
 @pytest.fixture
 def protocol1_rig(tmp_path):
-    """Path of the built-in critter on a Protocol 1.0 bus: servos 1..8 AX-12A (zero ticks 511..518,
-    about the middle of its 0..1023), 9..15 MX-28; written into the test's folder."""
-    import re
-
-    from puppet.rig.load import BUILTIN_RIG
-
-    text = BUILTIN_RIG.read_text().replace('mesh = "critter.npz"',
-                                           f'mesh = "{BUILTIN_RIG.parent / "critter.npz"}"')
-
-    def servo(match):
-        block, dxl_id = match.group(0), int(match.group(1))
-        block = re.sub(r'model = "[^"]*"',
-                       f'model = "{"AX-12A" if dxl_id in P1_AX_IDS else "MX-28"}"', block)
-        if dxl_id in P1_AX_IDS:
-            block = re.sub(r"zero_ticks = \d+", f"zero_ticks = {510 + dxl_id}", block)
-        return block
+    """Path of the built-in critter on a Protocol 1.0 bus (critter_ax.toml: servos 1..8 AX-12A,
+    zero ticks 511..518, about the middle of its 0..1023; 9..15 MX-28), its mesh made absolute,
+    written into the test's folder."""
+    from puppet.rig.load import BUILTIN_AX_RIG
 
     path = tmp_path / "critter_p1.toml"
-    path.write_text(re.sub(r"\[\[servo\]\]\nid = (\d+)\n(?:(?!\[\[).*\n)*", servo, text))
+    path.write_text(BUILTIN_AX_RIG.read_text().replace(
+        'mesh = "critter.npz"', f'mesh = "{BUILTIN_AX_RIG.parent / "critter.npz"}"'))
     return path

@@ -89,12 +89,13 @@ def scan(port: str, baud) -> None:
               type=InRange(limits.TIMEOUT_S),
               help=f"With --guided: seconds to wait for each joint to move and to come back "
                    f"({limits.TIMEOUT_S}).")
-@click.option("--threshold", default=150, show_default=True, type=InRange(limits.THRESHOLD_TICKS),
-              help=f"With --guided: ticks a servo must move to count (4096 per turn; "
-                   f"{limits.THRESHOLD_TICKS}).")
+@click.option("--threshold", default=limits.THRESHOLD_DEG_DEFAULT, show_default=True,
+              type=InRange(limits.THRESHOLD_DEG),
+              help=f"With --guided: degrees of joint turn a move must reach to count, the same on "
+                   f"every model ({limits.THRESHOLD_DEG}).")
 @force_option
 def calibrate(rig_path: str, port: str, baud: int, out: str | None, guided: bool = False,
-              yes: bool = False, timeout_s: float = 120.0, threshold: int = 150,
+              yes: bool = False, timeout_s: float = 120.0, threshold: float = limits.THRESHOLD_DEG_DEFAULT,
               force: bool = False) -> None:
     """Capture the zero pose: hold the puppet in the rig's rest pose, then run this.
 
@@ -143,7 +144,7 @@ def calibrate(rig_path: str, port: str, baud: int, out: str | None, guided: bool
 
 
 def _calibrate_guided(rig_path: str, port: str, baud: int, out: str | None, yes: bool,
-                      timeout_s: float, threshold: int, force: bool) -> None:
+                      timeout_s: float, threshold: float, force: bool) -> None:
     """``calibrate --guided``: prompts on stderr, results written into the rig file."""
     from puppet.bus import BusError, ServoReader
     from puppet.bus.control_table import MODELS_BY_NUMBER
@@ -170,7 +171,7 @@ def _calibrate_guided(rig_path: str, port: str, baud: int, out: str | None, yes:
         click.echo("rest pose read: " + ", ".join(f"{int(i)}={int(t)}" for i, t in zip(rest.ids, rest.ticks)),
                    err=True)
         results = session.run(reader.read, rest, say=lambda text: click.echo(text, err=True), models=models,
-                              threshold_ticks=threshold, timeout_s=timeout_s)
+                              threshold_deg=threshold, timeout_s=timeout_s)
     except BusError as err:
         fail(_on_port(port, err))
     finally:

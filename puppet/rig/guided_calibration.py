@@ -7,9 +7,9 @@ Steps (``GuidedCalibration.run``):
 2. for each [[servo]] block in file order: "move <joint> in its positive direction" (or its
    negative one when the block's ``limits_deg`` leave the joint less room that way: the side
    with room, ``turn_direction``); the one servo that leaves its zero by more than
-   ``threshold_ticks`` and is held there is the block's servo, and the side it went to is its
+   the threshold and is held there is the block's servo, and the side it went to is its
    sign (``angle = sign · (ticks − zero) ...``, so a positive joint turn reads positive);
-3. "back to the rest pose": every servo returns within ``threshold_ticks / 2`` of its zero;
+3. "back to the rest pose": every servo returns within half the threshold of its zero;
 4. ``id``, ``sign`` and ``zero_ticks`` (and ``model``, from the bus) are written into each block
    with tomlkit, which keeps the user's comments and layout; the result is checked as a rig
    file before it replaces the old one (atomically).
@@ -23,6 +23,13 @@ A servo it is unsure of is never assigned: the joint is asked again, with the re
   may be a placeholder);
 and after ``TRIES`` unsure asks it stops with an error. Nothing is written until every block
 is resolved: an error or Ctrl-C part way leaves the rig file as it was.
+
+The threshold is an angle: degrees of joint turn (``threshold_deg``, default THRESHOLD_DEG),
+the same on every model. Each servo's ticks for it come from the one conversion,
+``puppet.servo_models.ServoUnits`` (the servo's model's ticks per turn, the block's gear): 13°
+is 148 ticks on an X-series or MX servo (4096 per turn) and 44 on an AX-12A (1024 positions over
+300°). The room check (a joint whose limits leave less than the threshold / ROOM_SHARE on the
+asked side is refused before anything is read) uses the same angle.
 
 The bus is not imported here: ``run`` takes a ``read()`` callable returning a reading with
 ``ids`` (k,), ``ticks`` (k,) int32 and ``ok`` (k,) bool (``puppet.bus.Reading``).
@@ -39,10 +46,12 @@ import numpy as np
 
 from puppet import limits
 from puppet.rig.errors import RigError
-from puppet.servo_models import MODELS, TICKS_PER_TURN, ticks_per_degree
+from puppet.servo_models import MODELS, TICKS_PER_TURN, ServoUnits
 
-#: About 13° of servo shaft: a deliberate move, far above sensor noise (a few ticks).
-THRESHOLD_TICKS = 150
+#: Degrees of joint turn a move must reach to count, by default (``--threshold``).
+THRESHOLD_DEG = limits.THRESHOLD_DEG_DEFAULT
+#: Ticks of steady deviation that are sensor noise on any model, never a move too small to count.
+NOISE_TICKS = 3
 #: Readings in a row that must agree on the moved servo (one corrupt reading is not a move).
 CONFIRM = 3
 #: Readings in a row in which the move grows by no more than threshold/8: the joint is held,
@@ -172,10 +181,15 @@ def _character_skeleton(doc: dict, path: Path):
     return None
 
 
-def _ticks_per_joint_degree(model: str | None, gear: float) -> float:
-    """Servo ticks per degree of joint turn (the model's resolution; X-series when unknown)."""
-    turn = MODELS[model].ticks_per_turn if model in MODELS else TICKS_PER_TURN
-    return float(ticks_per_degree(turn)) * gear
+def _units(ids, models: dict[int, str], gear: float) -> ServoUnits:
+    """Units of the servos ``ids`` as one joint of ``gear``: each its model's ticks per turn
+    (X-series when its model is unknown); ``ticks_per_joint_degree`` (k,) is what a guided
+    move's angles convert by."""
+    k = len(ids)
+    turns = [MODELS[models[i]].ticks_per_turn if models.get(i) in MODELS else TICKS_PER_TURN
+             for i in ids]
+    return ServoUnits(np.ones(k), np.full(k, float(gear)), np.zeros(k, np.int64),
+                      ticks_per_turn=turns if k else TICKS_PER_TURN)
 
 
 class GuidedCalibration:
@@ -238,30 +252,31 @@ class GuidedCalibration:
 
     # ---- the session -------------------------------------------------------------------------
     def run(self, read: Callable, zero_reading, *, say: Callable[[str], None],
-            models: dict[int, str] | None = None, threshold_ticks: int = THRESHOLD_TICKS,
+            models: dict[int, str] | None = None, threshold_deg: float = THRESHOLD_DEG,
             timeout_s: float = 60.0) -> list[Found]:
         """Ask for every step and detect its servo; nothing is assigned unless sure.
 
         read: () -> reading (ids, ticks, ok); zero_reading: a clean reading at the rest pose (its
         ids are the servos on the bus); say: prints a prompt (stderr in the command line);
-        models: {id: model name} found on the bus, written into the blocks; timeout_s: per ask.
+        models: {id: model name} found on the bus, written into the blocks and giving each
+        servo's ticks per turn (X-series when absent); threshold_deg: degrees of joint turn a
+        move must reach to count; timeout_s: per ask.
         Raises RigError naming the joint whose limits leave no room for a move of
-        ``threshold_ticks`` (before any reading), or whose servo did not move or return in time,
+        ``threshold_deg`` (before any reading), or whose servo did not move or return in time,
         or that got no sure move in TRIES asks.
         """
-        for name, value, bound in (("threshold_ticks", threshold_ticks, limits.THRESHOLD_TICKS),
+        for name, value, bound in (("threshold_deg", threshold_deg, limits.THRESHOLD_DEG),
                                    ("timeout_s", timeout_s, limits.TIMEOUT_S)):
             if not bound.holds(value):  # 0 would take a still servo for a moved one
                 raise RigError(bound.problem(value), path=self.path, field=name)
+        threshold_deg = float(threshold_deg)
         for step in self.steps:  # a joint that cannot turn far enough is told before anything is read
-            per_degree = _ticks_per_joint_degree(None, step.gear)
-            if step.room_deg * per_degree < threshold_ticks / ROOM_SHARE:
+            if step.room_deg < threshold_deg / ROOM_SHARE:
                 raise RigError(
                     f"{list(step.limits_deg)} leave the joint at most {step.room_deg:g}° of turn from "
                     f"the rest pose on the side it is asked to move toward, too little for a clear "
-                    f"move: one counts from "
-                    f"{threshold_ticks} ticks ({threshold_ticks / per_degree:.1f}° of joint turn); "
-                    f"widen the limits or lower --threshold", path=self.path,
+                    f"move: one counts from {threshold_deg:g}° of joint turn; widen the limits or "
+                    f"lower --threshold", path=self.path,
                     field=f"servo #{step.index + 1} ({step.joint}) limits_deg")
         ids = [int(i) for i in zero_reading.ids]
         zero = np.asarray(zero_reading.ticks, np.int64).copy()
@@ -273,6 +288,8 @@ class GuidedCalibration:
         found: list[Found] = []
         settled = np.zeros(len(ids), np.int64)   # |ticks - zero| when the last wait for rest ended
         for k, step in enumerate(self.steps):
+            units = _units(ids, self.models, step.gear)
+            threshold = threshold_deg * units.ticks_per_joint_degree   # (k,) ticks, per servo
             claims = {s.file_id: s.joint for s in self.steps[k + 1:] if s.file_id is not None
                       and s.file_id != step.file_id}
             side = "positive" if step.direction > 0 else "negative"
@@ -287,7 +304,7 @@ class GuidedCalibration:
                     f"(about {step.axis_text}{hint}{room}) and hold it{again}")
                 try:
                     servo, ticks_side = self._detect(read, ids, zero, settled, step, assigned, claims,
-                                                     insisted, threshold_ticks, timeout_s)
+                                                     insisted, units, threshold_deg, timeout_s)
                     break
                 except _Unsure as unsure:
                     if attempt == TRIES:
@@ -296,24 +313,26 @@ class GuidedCalibration:
                                        field=self._where(step)) from None
                     insisted = unsure.claimed
                     say(f"  not sure, asking again: {unsure.reason}; back to the rest pose first")
-                    settled = self._wait_rest(read, ids, zero, step, threshold_ticks, timeout_s)
+                    settled = self._wait_rest(read, ids, zero, step, threshold, timeout_s)
             sign = step.direction * ticks_side
             assigned[servo] = step.joint
             found.append(Found(step, servo, sign, int(zero[ids.index(servo)])))
             say(f"  {step.joint!r}: servo {servo}, sign {sign:+d}; now back to the rest pose")
-            settled = self._wait_rest(read, ids, zero, step, threshold_ticks, timeout_s)
+            settled = self._wait_rest(read, ids, zero, step, threshold, timeout_s)
         return found
 
-    def _detect(self, read, ids, zero, settled, step, assigned, claims, insisted, threshold,
-                timeout_s) -> tuple[int, int]:
+    def _detect(self, read, ids, zero, settled, step, assigned, claims, insisted, units,
+                threshold_deg, timeout_s) -> tuple[int, int]:
         """(bus id, +1/-1 side its ticks went) of the one servo that left its zero by more than
-        ``threshold`` ticks (the same side in CONFIRM readings in a row) and was held there for
-        HELD readings; _Unsure with the reason when that servo cannot be this step's.
+        ``threshold_deg`` of joint turn (its ticks by ``units``; the same side in CONFIRM
+        readings in a row) and was held there for HELD readings; _Unsure with the reason when
+        that servo cannot be this step's.
 
         settled: (k,) |ticks − zero| when the puppet was last found at rest, before this ask (a
         joint still easing back from there is not a new move)."""
         deadline = time.monotonic() + timeout_s
-        notice = max(threshold // 3, 8)       # a move, though too small to count
+        threshold = threshold_deg * units.ticks_per_joint_degree   # (k,) ticks, per servo
+        notice = np.maximum(threshold / 3, NOISE_TICKS)   # a move, though too small to count
         rows = np.zeros((CONFIRM, len(ids)), np.int64)  # per servo: its last good deviations, ticks
         good = np.zeros(len(ids), np.int64)    # per servo: good readings so far (a servo whose
         #                                        reply was lost keeps its last good ones)
@@ -332,41 +351,42 @@ class GuidedCalibration:
                 over = np.flatnonzero(steady >= threshold)
                 if len(over) > 1:
                     names = " and ".join(str(ids[i]) for i in over)
-                    raise _Unsure(f"servos {names} both moved more than {threshold} ticks: move only "
+                    raise _Unsure(f"servos {names} both moved more than {threshold_deg:g}°: move only "
                                   f"{step.joint!r}")
                 if moved is None and len(over) == 1:
                     moved, still = int(over[0]), 0
                     anchor, side = int(steady[moved]), int(np.sign(rows[-1][moved]))
                 elif moved is not None:
-                    if steady[moved] > anchor + max(threshold // 8, 1):
+                    if steady[moved] > anchor + max(threshold[moved] / 8, 1):
                         anchor, still = int(steady[moved]), 0
                     else:
                         still += 1
                     if still >= HELD:
-                        self._check(ids[moved], int(peak[moved]), step, assigned, claims, insisted)
+                        self._check(ids[moved], float(units.joint_degrees(peak)[moved]), step,
+                                    assigned, claims, insisted)
                         return ids[moved], side
                 small = ((peak - settled >= notice) & (peak < threshold)
-                         & (steady <= np.minimum(threshold // 2, peak // 2)))
+                         & (steady <= np.minimum(threshold / 2, peak / 2)))
                 if moved is None and small.any():
                     i = int(np.argmax(np.where(small, peak, -1)))
-                    per_degree = _ticks_per_joint_degree(self.models.get(ids[i]), step.gear)
-                    raise _Unsure(f"servo {ids[i]} moved only {int(peak[i])} ticks "
-                                  f"({peak[i] / per_degree:.1f}°) and came back; a move counts from "
-                                  f"{threshold} ticks ({threshold / per_degree:.1f}°): move "
+                    raise _Unsure(f"servo {ids[i]} moved only {units.joint_degrees(peak)[i]:.1f}° "
+                                  f"({int(peak[i])} ticks) and came back; a move counts from "
+                                  f"{threshold_deg:g}° ({threshold[i]:.0f} ticks on it): move "
                                   f"{step.joint!r} farther")
             time.sleep(POLL_S)
         largest = int(np.argmax(peak))
-        seen = (f"; the largest move: servo {ids[largest]}, {int(peak[largest])} ticks"
-                if peak[largest] > 0 else "")
-        raise RigError(f"no servo moved more than {threshold} ticks from its zero within {timeout_s:g} s "
-                       f"(servos on the bus: {ids}{seen})", path=self.path, field=self._where(step))
+        seen = (f"; the largest move: servo {ids[largest]}, {units.joint_degrees(peak)[largest]:.1f}° "
+                f"({int(peak[largest])} ticks)" if peak[largest] > 0 else "")
+        raise RigError(f"no servo moved more than {threshold_deg:g}° of joint turn from its zero within "
+                       f"{timeout_s:g} s (servos on the bus: {ids}{seen})", path=self.path,
+                       field=self._where(step))
 
-    def _check(self, servo, extent, step, assigned, claims, insisted) -> None:
-        """_Unsure unless ``servo``, which moved ``extent`` ticks, can be ``step``'s servo."""
+    def _check(self, servo, turned, step, assigned, claims, insisted) -> None:
+        """_Unsure unless ``servo``, which moved ``turned`` degrees of joint turn, can be
+        ``step``'s servo."""
         if servo in assigned:
             raise _Unsure(f"servo {servo} moved, but it is {assigned[servo]!r}'s (found before): move "
                           f"{step.joint!r}, with {assigned[servo]!r} at rest")
-        turned = extent / _ticks_per_joint_degree(self.models.get(servo), step.gear)
         if turned > step.room_deg * ROOM_SLACK + SLACK_DEG:
             raise _Unsure(f"servo {servo} turned {turned:.0f}°, but {step.joint!r} turns at most "
                           f"{step.room_deg:g}° that way (limits_deg {list(step.limits_deg)}): it is "
@@ -377,15 +397,17 @@ class GuidedCalibration:
                           claimed=servo)
 
     def _wait_rest(self, read, ids, zero, step, threshold, timeout_s) -> np.ndarray:
-        """Wait until every servo is within threshold/2 of its zero; (k,) |ticks − zero| then."""
+        """Wait until every servo is within half its ``threshold`` ((k,) ticks) of its zero;
+        (k,) |ticks − zero| then."""
         deadline = time.monotonic() + timeout_s
+        near = threshold / 2
         away = {}
         while time.monotonic() < deadline:
             reading = read()
             dev = np.abs(np.asarray(reading.ticks, np.int64) - zero)
-            if reading.ok.all() and dev.max() <= threshold // 2:
+            if reading.ok.all() and (dev <= near).all():
                 return dev
-            away = {ids[k]: int(dev[k]) for k in np.flatnonzero(dev > threshold // 2)}
+            away = {ids[k]: int(dev[k]) for k in np.flatnonzero(dev > near)}
             time.sleep(POLL_S)
         where = ", ".join(f"servo {i} {d} ticks" for i, d in away.items()) or "a servo not answering"
         raise RigError(f"the puppet did not return to the rest pose within {timeout_s:g} s after moving "

@@ -19,6 +19,8 @@ from puppet.rig.weight_check import normalize_weights
 BUILTIN_RIG = Path(__file__).resolve().parent / "builtin" / "critter.toml"
 BUILTIN_DYNAMICS_RIG = BUILTIN_RIG.with_name("critter_dynamics.toml")
 """The built-in character with secondary motion ([solver.dynamics]: ears and tail lag, settle)."""
+BUILTIN_AX_RIG = BUILTIN_RIG.with_name("critter_ax.toml")
+"""The built-in character on one Protocol 1.0 bus: AX-12A servos (ids 1..8) and MX-28 (9..15)."""
 CHARACTER_KEYS = ("V", "F", "W", "names", "parents", "heads", "tails", "frames")
 
 

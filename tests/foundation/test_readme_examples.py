@@ -8,6 +8,7 @@ Substitutions a reader makes too:
 - ``my.toml`` is the built-in rig copied as the README says (its ``mesh`` pointing at
   ``critter.npz``, plus a calibration file name for ``calibrate``); ``faults.txt`` is a small
   fault file; ``creature.glb`` is the skinned test character of ``tests/rig/character.py``;
+  ``ax.toml`` is the built-in Protocol 1.0 variant (``critter_ax.toml``) copied the same way;
 - the manual step the README describes below the block: once ``rig init`` has written
   ``creature.toml``, before the first line that serves or calibrates it, the test fills in three
   of its commented ``[[servo]]`` blocks (``model``, ``joint``, ``axis``) as a user would;
@@ -36,7 +37,7 @@ from pathlib import Path
 
 import pytest
 
-from puppet.rig.load import BUILTIN_RIG
+from puppet.rig.load import BUILTIN_AX_RIG, BUILTIN_RIG
 
 CHARACTER_MODULE = Path(__file__).resolve().parents[1] / "rig" / "character.py"
 
@@ -80,11 +81,13 @@ def fill_session(folder: Path) -> None:
 
 
 def write_inputs(folder: Path) -> None:
-    """The files the README's commands read: my.toml, faults.txt, creature.glb."""
+    """The files the README's commands read: my.toml, ax.toml, faults.txt, creature.glb."""
     text = BUILTIN_RIG.read_text().replace('mesh = "critter.npz"',
                                            f'mesh = "{BUILTIN_RIG.parent / "critter.npz"}"')
     text = text.replace('fixed = ["hips"]', 'calibration = "my.calibration.toml"\nfixed = ["hips"]')
     (folder / "my.toml").write_text(text)
+    (folder / "ax.toml").write_text(BUILTIN_AX_RIG.read_text().replace(
+        'mesh = "critter.npz"', f'mesh = "{BUILTIN_AX_RIG.parent / "critter.npz"}"'))
     (folder / "faults.txt").write_text("0.5 drop ids=3 for=0.2\n1.0 noise ids=2 amplitude=3 for=0.5\n")
     character_module().write_glb(folder / "creature.glb")
 

@@ -453,7 +453,7 @@ def test_threshold_zero_and_negative_are_refused_before_anything_opens():
                                            "--guided", "--threshold", bad])
         assert result.exit_code == 2
         assert "Invalid value for '--threshold'" in result.output
-        assert "an integer 8..2048 ticks" in result.output
+        assert "a number 1..90 degrees" in result.output
 
 
 if __name__ == "__main__":

@@ -103,7 +103,7 @@ def test_guided_calibration_times_out_naming_the_joint_and_keeps_the_file(tmp_pa
     assert "Traceback" not in result.stderr
     error = result.stderr.strip().splitlines()[-1]
     assert error.startswith("Error: ")
-    assert "servo #1 (hips)" in error and "no servo moved more than 150 ticks" in error
+    assert "servo #1 (hips)" in error and "no servo moved more than 13° of joint turn from its zero" in error
     assert rig.read_bytes() == before
 
 
@@ -185,9 +185,9 @@ def test_a_threshold_of_zero_or_below_is_refused_before_any_reading(tmp_path, ch
     for bad in (0, -5, 1e9, float("nan")):
         read = _Script(list(rest), [rest])
         with pytest.raises(RigError) as info:
-            session.run(read, read(), say=lambda text: None, threshold_ticks=bad)
-        assert info.value.field == "threshold_ticks"
-        assert info.value.message.startswith("must be an integer 8..2048 ticks, got ")
+            session.run(read, read(), say=lambda text: None, threshold_deg=bad)
+        assert info.value.field == "threshold_deg"
+        assert info.value.message.startswith("must be a number 1..90 degrees, got ")
         assert read.k == 1  # only the rest reading given to run(); nothing more was read
 
 
@@ -266,7 +266,7 @@ def test_unsure_moves_are_asked_again_with_the_reason(tmp_path, character, wait_
     def both(hand):   # hips and tail base turned together
         hand.set({21: ZERO[21] + 400, 14: ZERO[14] - 400})
 
-    def small(hand):  # 100 ticks (8.8°) out and back: below the 150-tick threshold
+    def small(hand):  # 100 ticks (8.8°) out and back: below the 13° threshold (148 ticks here)
         hand.set({21: ZERO[21] + 100})
         hand.hold(2 * (CONFIRM + HELD))
         hand.rest()
@@ -298,9 +298,9 @@ def test_unsure_moves_are_asked_again_with_the_reason(tmp_path, character, wait_
     assert asks == ["hips"] * 4 + [n for n in character.NAMES if n in SECRET and n != "hips"]
     reasons = [line.split("asking again: ", 1)[1] for line in session.log if "not sure" in line]
     assert len(reasons) == 3, log
-    assert reasons[0].startswith("servos 14 and 21 both moved more than 150 ticks: move only 'hips'")
-    assert reasons[1].startswith("servo 21 moved only 100 ticks (8.8°) and came back; a move counts from "
-                                 "150 ticks (13.2°): move 'hips' farther")
+    assert reasons[0].startswith("servos 14 and 21 both moved more than 13°: move only 'hips'")
+    assert reasons[1].startswith("servo 21 moved only 8.8° (100 ticks) and came back; a move counts from "
+                                 "13° (148 ticks on it): move 'hips' farther")
     assert reasons[2].startswith("servo 7 is the id the rig file gives 'leg.L': move 'hips', or move "
                                  "servo 7 again if that id is wrong")
     assert "(ask 4 of 5)" in [line for line in session.log if line.startswith("[1/4]")][-1]
@@ -334,7 +334,7 @@ def test_an_interrupted_session_writes_nothing(tmp_path, character, wait_until):
 
 
 def test_a_joint_with_little_room_positive_is_asked_the_other_way_and_gets_its_own_servo(tmp_path, character):
-    """The reported case: a joint with limits [-90, 10] cannot turn 13.2° positive. Driven by
+    """The reported case: a joint with limits [-90, 10] cannot turn 13° positive. Driven by
     hw_sim's simulated person (``hw-sim --motion guided``): calibrate asks it to move negative,
     the side with room, and it gets its own servo and sign, not the next joint's."""
     from hw_sim.motion import OneAtATime
@@ -432,7 +432,7 @@ def test_no_sure_move_in_every_ask_stops_naming_the_joint_and_writes_nothing(tmp
         session.run(read, read(), say=said.append, timeout_s=30)
     assert info.value.field == "servo #1 (hips)"
     assert info.value.message == (f"no sure move in {TRIES} asks (the last: servos 21 and 3 both moved more "
-                                  "than 150 ticks: move only 'hips'); nothing was written")
+                                  "than 13°: move only 'hips'); nothing was written")
     assert sum(line.startswith("[1/4] move 'hips'") for line in said) == TRIES
     assert rig.read_bytes() == before
 
@@ -448,7 +448,7 @@ def test_a_joint_whose_limits_leave_no_room_for_a_move_is_refused_before_reading
         GuidedCalibration(rig).run(read, read(), say=lambda text: None)
     assert info.value.field == "servo #1 (hips) limits_deg"
     assert info.value.message.startswith("[-8.0, 6.0] leave the joint at most 8° of turn from the rest pose")
-    assert "one counts from 150 ticks (13.2° of joint turn); widen the limits or lower --threshold" in \
+    assert "one counts from 13° of joint turn; widen the limits or lower --threshold" in \
         info.value.message
     assert read.k == 1
 
@@ -476,3 +476,44 @@ def test_lost_replies_neither_hide_a_move_nor_make_one(tmp_path, character):
     found = session.run(read, script(), say=said.append, timeout_s=30)
     assert [(f.step.joint, f.id, f.sign) for f in found] == [("hips", 21, 1)]
     assert not any("not sure" in line for line in said)
+
+
+def test_guided_calibration_on_an_ax_rig_against_hw_sim_guided_motion(tmp_path, character):
+    """AX-12A servos (1024 positions over 300°: a 30° joint turn is 102 ticks, under the 150
+    ticks an X-series threshold was): ``hw-sim --rig person.toml --motion guided`` turns each
+    joint the way calibrate asks, and ``calibrate --guided`` finds every id, sign, zero and model
+    with no unsure ask, the threshold converted by each servo's own ticks per turn."""
+    truth = {"neck": (12, -1, 400, "AX-12A"), "tail base": (15, 1, 620, "AX-12A"),
+             "leg.L": (17, -1, 512, "AX-12A")}
+    axes = {"neck": '"x"', "tail base": '"z"', "leg.L": '"x"'}
+    limits = {"neck": "[-90, 10]", "tail base": "[-60, 60]", "leg.L": "[-5, 120]"}
+    rig = _rig_with(tmp_path, character, {j: {"axis": axes[j], "limits_deg": limits[j],
+                                              "model": '"AX-12A"'} for j in truth})
+    person = tmp_path / "person.toml"   # what the simulated puppet is: true ids, signs and zeros
+    person.write_text("".join(f'[[servo]]\nid = {i}\nmodel = "{m}"\nsign = {s}\nzero_ticks = {z}\n'
+                              f"limits_deg = {limits[j]}\n" for j, (i, s, z, m) in truth.items()))
+    sim = subprocess.Popen(["hw-sim", "--rig", str(person), "--motion", "guided"], stdout=subprocess.PIPE,
+                           stderr=subprocess.PIPE, text=True)
+    try:
+        port = sim.stdout.readline().strip()
+        assert port.startswith("/dev/"), sim.stderr.read() if sim.poll() is not None else port
+        session = _Calibrate(rig, port, "--timeout", "60")
+        prompts = [line for line in session.lines() if line.startswith("[")]
+        code, stdout = session.finish()
+    finally:
+        sim.send_signal(signal.SIGTERM)
+        sim.wait(timeout=PATIENCE_S)
+    log = "".join(session.log)
+    assert code == 0, log
+    assert "not sure" not in log
+    assert [p.split("'")[1] for p in prompts] == list(truth)
+    doc = tomllib.loads(rig.read_text())
+    got = {s["joint"]: (s["id"], s["sign"], s["zero_ticks"], s["model"]) for s in doc["servo"]}
+    assert got == truth, log
+    loaded = load_rig(rig)   # the calibrated AX rig reads a 30° joint turn (inside its limits) as 30°
+    turn = {"neck": -30.0, "tail base": 30.0, "leg.L": 30.0}
+    servos = loaded.servo_map.servos
+    ticks = np.array([truth[s.joint][2] + truth[s.joint][1] * round(turn[s.joint] * 1024 / 300)
+                      for s in servos], np.int32)
+    np.testing.assert_allclose(np.degrees(loaded.servo_map.angles(ticks)), [turn[s.joint] for s in servos],
+                               atol=0.3)

@@ -5,7 +5,7 @@ import subprocess
 
 import numpy as np
 
-from puppet.rig import builtin
+from puppet.rig import builtin, load_rig
 from puppet.rig.bbw import check_bbw_input
 from puppet.servo_models import MODELS
 
@@ -82,3 +82,25 @@ def test_rig_info_text_and_bad_rig(tube_rig_dir):
                             capture_output=True, text=True, timeout=60)
     assert result.returncode == 1
     assert "tube.toml:2: servo 1 model: unknown model None" in result.stderr
+
+
+def test_the_protocol1_variant_is_the_critter_on_ax12a_and_mx28_as_generated():
+    """critter_ax.toml is make_character's text (not a hand copy): the critter's joints, axes,
+    signs and limits on one Protocol 1.0 bus, AX-12A on ids 1..8 (zero near 512), MX-28 the rest."""
+    import tomllib
+
+    from puppet.rig.builtin.make_character import AX_IDS, rig_toml
+    from puppet.rig.load import BUILTIN_AX_RIG, BUILTIN_RIG
+    from puppet.servo_models import PROTOCOL_1
+
+    pin = tomllib.loads(BUILTIN_RIG.read_text())["pin"][0]["vertex"]
+    assert BUILTIN_AX_RIG.read_text() == rig_toml(pin, protocol1=True)
+    plain, ax = builtin(), load_rig(BUILTIN_AX_RIG)
+    models = ax.servo_map.models
+    assert {i for i, m in models.items() if m == "AX-12A"} == set(AX_IDS)
+    assert set(models.values()) == {"AX-12A", "MX-28"}
+    assert {MODELS[m].protocol for m in models.values()} == {PROTOCOL_1}
+    assert [(s.joint, s.sign, s.limits) for s in ax.servo_map.servos] == \
+        [(s.joint, s.sign, s.limits) for s in plain.servo_map.servos]
+    assert all(abs(s.zero_ticks - 512) <= 8 for s in ax.servo_map.servos if s.id in AX_IDS)
+    assert ax.V.shape == plain.V.shape

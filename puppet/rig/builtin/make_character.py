@@ -1,6 +1,7 @@
 """Build the built-in character "critter" reproducibly: signed distance fields, marching cubes,
-bounded biharmonic weights. Writes ``critter.npz``, ``critter.toml`` (the demo's rig) and
-``critter_dynamics.toml`` (the same with secondary motion, ``[solver.dynamics]``) next to this file.
+bounded biharmonic weights. Writes ``critter.npz``, ``critter.toml`` (the demo's rig),
+``critter_dynamics.toml`` (the same with secondary motion, ``[solver.dynamics]``) and
+``critter_ax.toml`` (the same joints on Protocol 1.0 servos: AX-12A and MX-28) next to this file.
 
     python -m puppet.rig.builtin.make_character [--voxel 0.0105] [--out DIR]
     python -m puppet.rig.builtin.make_character --toml-only   # rewrite the .toml files only
@@ -62,6 +63,13 @@ SERVOS = [
     (14, "XM430-W350", "thigh_R", "z", 2, -1, 2043, (-45, 45)),
     (15, "XL430-W250", "shin_R", "x", 1, -1, 2050, (-90, 90)),
 ]
+
+# The Protocol 1.0 variant critter_ax.toml: the same joints, axes, signs and limits on a
+# Bioloid-style bus: servos AX_IDS are AX-12A (1024 positions over 300°; zero ticks 510 + id, about
+# the middle of 0..1023 and each its own), the others (the legs and the right forearm) MX-28
+# (Protocol 1.0 firmware, 4096 per turn, critter.toml's zero ticks).
+AX_IDS = range(1, 9)
+AX_MODEL, MX_MODEL = "AX-12A", "MX-28"
 
 SOLVER = {"clusters": 100, "extra_weights": 8, "energy": "spokes_and_rims"}
 # Secondary motion ([solver.dynamics]) of the optional variant critter_dynamics.toml (same mesh and
@@ -156,11 +164,17 @@ def skeleton_arrays():
     return names, parents, heads, tails, frames
 
 
-def rig_toml(pin_vertex: int, dynamics: bool = False) -> str:
-    """The rig file's text; dynamics: the variant with secondary motion ([solver.dynamics])."""
-    title = ('# The built-in character "critter": written by make_character.py, do not edit by hand.' if not dynamics
+def rig_toml(pin_vertex: int, dynamics: bool = False, protocol1: bool = False) -> str:
+    """The rig file's text; dynamics: the variant with secondary motion ([solver.dynamics]);
+    protocol1: the variant on AX-12A and MX-28 servos (AX_IDS)."""
+    title = ('# The built-in character "critter": written by make_character.py, do not edit by hand.'
+             if not dynamics and not protocol1
              else '# The built-in character "critter" with secondary motion (ears and tail lag and settle):\n'
-             '# written by make_character.py, do not edit by hand. Same mesh and servos as critter.toml.')
+             '# written by make_character.py, do not edit by hand. Same mesh and servos as critter.toml.'
+             if dynamics
+             else f'# The built-in character "critter" on one Protocol 1.0 bus: servos {AX_IDS[0]}..{AX_IDS[-1]} '
+             f'{AX_MODEL}, the others {MX_MODEL}:\n'
+             '# written by make_character.py, do not edit by hand. Same mesh, joints and limits as critter.toml.')
     out = [title,
            'name = "critter"', 'mesh = "critter.npz"',
            f"fixed = [{', '.join(repr(f).replace(chr(39), chr(34)) for f in FIXED)}]", "",
@@ -170,6 +184,8 @@ def rig_toml(pin_vertex: int, dynamics: bool = False) -> str:
         out += ["[solver.dynamics]  # secondary motion: the ears and tail lag and settle",
                 *(f"{k} = {v}" for k, v in DYNAMICS.items()), ""]
     for sid, model, joint, axis, order, sign, zero, (lo, hi) in SERVOS:
+        if protocol1:
+            model, zero = (AX_MODEL, 510 + sid) if sid in AX_IDS else (MX_MODEL, zero)
         out += ["[[servo]]", f"id = {sid}", f'model = "{model}"', f'joint = "{joint}"', f'axis = "{axis}"',
                 f"order = {order}", f"sign = {sign}", "gear = 1.0", f"zero_ticks = {zero}",
                 f"limits_deg = [{lo}, {hi}]", ""]
@@ -178,10 +194,11 @@ def rig_toml(pin_vertex: int, dynamics: bool = False) -> str:
 
 
 def write_toml(out: Path, pin_vertex: int) -> None:
-    """Write critter.toml (the demo's rig) and critter_dynamics.toml (the variant with secondary
-    motion) for the tail-tip pin vertex."""
+    """Write critter.toml (the demo's rig), critter_dynamics.toml (the variant with secondary
+    motion) and critter_ax.toml (the Protocol 1.0 variant) for the tail-tip pin vertex."""
     (out / "critter.toml").write_text(rig_toml(pin_vertex))
     (out / "critter_dynamics.toml").write_text(rig_toml(pin_vertex, dynamics=True))
+    (out / "critter_ax.toml").write_text(rig_toml(pin_vertex, protocol1=True))
 
 
 def toml_only(out: Path = HERE) -> None:
@@ -203,7 +220,8 @@ def main(argv=None) -> None:
     args = parser.parse_args(argv)
     if args.toml_only:
         toml_only(args.out)
-        print(f"wrote {args.out / 'critter.toml'} and {args.out / 'critter_dynamics.toml'}")
+        print(f"wrote {args.out / 'critter.toml'}, {args.out / 'critter_dynamics.toml'} and "
+              f"{args.out / 'critter_ax.toml'}")
         return
     from puppet.rig.bbw import bbw_tet, interpolate_in_tets
     from puppet.rig.weight_check import normalize_weights
@@ -232,7 +250,8 @@ def main(argv=None) -> None:
         frames=frames)
     pin = int(np.argmin(np.linalg.norm(V - np.array(PIN_POINT), axis=1)))
     write_toml(args.out, pin)
-    print(f"wrote {args.out / 'critter.npz'}, {args.out / 'critter.toml'} and {args.out / 'critter_dynamics.toml'}")
+    print(f"wrote {args.out / 'critter.npz'}, {args.out / 'critter.toml'}, {args.out / 'critter_dynamics.toml'} "
+          f"and {args.out / 'critter_ax.toml'}")
 
 
 if __name__ == "__main__":
