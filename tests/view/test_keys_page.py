@@ -235,7 +235,8 @@ def test_key_edits_from_the_page_go_through_the_terminals_commands(new_page, too
                              what="key 0 re-posed in the file")
             assert [k.frame for k in shot_keys(shot)] == [1, 13]
 
-            edit(lambda: page.select_option("#key-interpolation", "smooth"), "key 0: smooth")
+            page.select_option("#key-interpolation", "smooth")  # takes no pose: never refused
+            tools.wait_js(page, "puppetView.keys.said === 'key 0: smooth'")
             assert [k.interpolation for k in shot_keys(shot)] == ["smooth", "linear"]
 
             click_frame(7)  # the red line to frame 7, then insert the held pose there
@@ -248,7 +249,8 @@ def test_key_edits_from_the_page_go_through_the_terminals_commands(new_page, too
 
             click_frame(13)  # select key 2 and delete it
             tools.wait_js(page, "puppetView.selectedKey === 2")
-            edit(lambda: page.click("#key-delete"), "key 2: deleted")
+            page.click("#key-delete")  # takes no pose: never refused
+            tools.wait_js(page, "puppetView.keys.said && puppetView.keys.said.startsWith('key 2: deleted')")
             assert [k.frame for k in shot_keys(shot)] == [1, 7]
             tools.wait_js(page, "puppetView.selectedKey === null")
 
@@ -256,7 +258,8 @@ def test_key_edits_from_the_page_go_through_the_terminals_commands(new_page, too
             tools.wait_js(page, "puppetView.keys.said === 'key 1: step'")
             assert [k.interpolation for k in shot_keys(shot)] == ["smooth", "step"]
             # no key selected: the menu sets the interpolation of the keys to come
-            edit(lambda: page.select_option("#key-interpolation", "smooth"), "new keys: smooth")
+            page.select_option("#key-interpolation", "smooth")
+            tools.wait_js(page, "puppetView.keys.said === 'new keys: smooth'")
             take_key(tools, page, lambda: page.keyboard.press("Space"), 3)
             tools.wait_until(lambda: len(shot_keys(shot)) == 3, what="key 2 in the file")
             assert [k.interpolation for k in shot_keys(shot)] == ["smooth", "step", "smooth"]
