@@ -27,23 +27,32 @@ DEMO_READ_RATE_HZ = 120.0
 
 
 class Performance:
-    """A rig-aware motion source for hw_sim: ``position(servo_id, t) -> ticks``.
+    """A rig-aware motion source for hw_sim: ``position(servo_id, t) -> shaft counts``.
 
     Servo i swings sinusoidally about its zero with an amplitude of ``reach`` times the
     smaller of its two joint limits (capped at ``max_angle`` radians); servos on the right
     side ('_R' joints) run half a cycle behind the left. period_s: seconds per cycle.
+    Positions are in hw_sim's motion unit, shaft counts (4096 a turn, 2048 the middle): a
+    servo's own ticks (``ServoUnits``: ticks = zero + angle / radians_per_tick) through
+    ``hw_sim.control_table.to_shaft`` for its model (the same on 4096-tick models; an AX-12A's
+    1024 positions over 300° rescaled).
     """
 
     def __init__(self, rig: Rig, period_s: float = 2.4, reach: float = 0.7, max_angle: float = 0.9):
+        from hw_sim.control_table import MODELS as SIM_MODELS, to_shaft
+
         self.period_s = period_s
         self._params: dict[int, tuple[float, float, float, float]] = {}
-        units = rig.servo_map.units  # ticks = zero + angle / radians_per_tick
+        units = rig.servo_map.units
         for k, servo in enumerate(rig.servo_map.servos):
             lo, hi = servo.limits
             amplitude = min(reach * min(abs(lo), abs(hi)), max_angle)
             phase = (math.pi if servo.joint.endswith("_R") else 0.0) + 0.6 * k
-            self._params[int(servo.id)] = (float(units.zero[k]), amplitude, phase,
-                                           1.0 / float(units.radians_per_tick[k]))
+            spec = SIM_MODELS[servo.model].spec
+            zero = float(units.zero[k])
+            per_radian = 1.0 / float(units.radians_per_tick[k])   # the servo's own ticks
+            self._params[int(servo.id)] = (to_shaft(spec, zero), amplitude, phase,
+                                           to_shaft(spec, zero + per_radian) - to_shaft(spec, zero))
 
     def position(self, servo_id: int, t: float) -> float:
         zero, amplitude, phase, scale = self._params.get(int(servo_id), (2048.0, 0.0, 0.0, 0.0))

@@ -128,7 +128,8 @@ keys_option = click.option(
     "--keys", default=None, type=InRange(limits.KEYS_DEG), metavar="DEG",
     help="glTF: per channel only the keys that reproduce the solved curve within DEG "
          f"degrees (rotations; {limits.KEYS_DEG}), LINEAR as Blender plays it; the "
-         "report lists the keys kept per joint. Default: a key on every frame. BVH, USD "
+         "report lists the keys kept per joint; a shot's key poses are keys on every channel. "
+         "Default: a key on every frame. BVH, USD "
          "and PC2 keep every frame.")
 keys_units_option = click.option(
     "--keys-units", default=None, type=InRange(limits.KEYS_UNITS), metavar="UNITS",

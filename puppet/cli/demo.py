@@ -28,12 +28,15 @@ from puppet.cli.view import open_view, take_factory_for, view_option
 @click.option("--dynamics", is_flag=True,
               help="Secondary motion on: the ears and tail lag and settle (the built-in "
                    "critter_dynamics.toml).")
+@click.option("--ax", is_flag=True,
+              help="The critter on Protocol 1.0 servos: AX-12A and MX-28 on the simulated bus "
+                   "(the built-in critter_ax.toml).")
 @click.option("--json", "as_json", is_flag=True, help="Print the summary as JSON.")
 @view_option
 @link_option
 @force_option
 def demo(out: str, seconds: float | None, faults: str | None, size: tuple[int, int], fps: float,
-         antialias: str, dynamics: bool, as_json: bool, view_address: str | None,
+         antialias: str, dynamics: bool, ax: bool, as_json: bool, view_address: str | None,
          link_address: str | None, force: bool) -> None:
     """Run the live loop on the built-in character and a simulated bus, into a video.
 
@@ -42,6 +45,7 @@ def demo(out: str, seconds: float | None, faults: str | None, size: tuple[int, i
       puppet demo --seconds 5 --out demo.mp4
       puppet demo --view                 watch it at http://127.0.0.1:8765/ (Ctrl-C stops)
       puppet demo --dynamics             ears and tail lag and settle
+      puppet demo --ax                   on AX-12A and MX-28 servos (Protocol 1.0)
       puppet demo --link                 into Blender (the puppet_link add-on)
     """
     from hw_sim.errors import FaultFileError
@@ -49,7 +53,7 @@ def demo(out: str, seconds: float | None, faults: str | None, size: tuple[int, i
 
     from puppet.atomic import check_output
     from puppet.demo import run_demo
-    from puppet.rig.load import BUILTIN_DYNAMICS_RIG, builtin, load_rig
+    from puppet.rig.load import BUILTIN_AX_RIG, BUILTIN_DYNAMICS_RIG, builtin, load_rig
 
     fault_file = faults
     if faults is not None:  # checked before anything starts: a bad file is the user's to fix
@@ -57,7 +61,9 @@ def demo(out: str, seconds: float | None, faults: str | None, size: tuple[int, i
             faults = FaultSchedule.from_file(faults)
         except FaultFileError as err:
             fail(str(err))
-    rig = load_rig(BUILTIN_DYNAMICS_RIG) if dynamics else builtin()
+    if dynamics and ax:
+        fail("--dynamics and --ax are two variants of the critter: choose one")
+    rig = load_rig(BUILTIN_DYNAMICS_RIG) if dynamics else load_rig(BUILTIN_AX_RIG) if ax else builtin()
     inputs = [fault_file, *rig_files(rig)]
     check_output(out, kind="video", inputs=inputs, force=force, what="video")  # opened later
     live_view = link = None

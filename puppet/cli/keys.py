@@ -61,6 +61,7 @@ def keys(ctx, rig_path, port, out, fps, step, interpolation, baud, force, view_a
     The key is the median of the readings over the 0.2 s after Enter (keep holding).
     Commands (a line each): Enter = new key, `r N` = replace key N with the held pose,
     `d N` = delete key N, `i F` = insert a key at frame F, `t N F` = retime key N to frame F,
+    `m N KIND` = key N's interpolation (linear, smooth, step), `m KIND` = that of the keys to come,
     `q` (or Ctrl-C, end of input) = done.
     With --view the page takes keys too (Space or its Key button), shows the keys as ticks on a
     timeline (drag one to retime it) and the previous and next key as onion skins; end of input
@@ -102,7 +103,7 @@ def _capture(rig, port: str, baud: int, desk):
     source = start_reader(rig, port, baud, rate_hz=200.0)
     threading.Thread(target=_lines, args=(desk,), daemon=True).start()
     stop = StopFlag()
-    click.echo("hold a pose and press Enter for a key (r N, d N, i FRAME, t N FRAME, q: see --help)")
+    click.echo("hold a pose and press Enter for a key (r N, d N, i FRAME, t N FRAME, m [N] KIND, q: see --help)")
     try:
         while not stop() and not desk.finished:
             desk.feed(source.drain())
@@ -128,7 +129,7 @@ def _capture_in_view(rig, port: str, baud: int, desk, address: str):
                 live_view.attach(pipeline, source=source)
                 threading.Thread(target=_lines, args=(desk, False), daemon=True).start()
                 click.echo("hold a pose and press Enter here, or Space or Key on the page, for a "
-                           "key (r N, d N, i FRAME, t N FRAME, q: see --help)")
+                           "key (r N, d N, i FRAME, t N FRAME, m [N] KIND, q: see --help)")
                 run_live(pipeline, source, should_stop=lambda: stop() or desk.finished,
                          view=live_view)
             finally:

@@ -229,7 +229,8 @@ class GltfWriter(ExportWriter):
                 plain layout (module docstring).
     keys_deg:   None: a key on every frame; else rotation keys reduced to this tolerance, degrees
                 (``puppet.export.key_reduction``). keys_units: the same for translations, model
-                units (None: every frame).
+                units (None: every frame). forced_frames: (K,) 0-based frames that are keys on every
+                channel whatever the tolerance (a shot's key poses, ``Playback.key_frames``).
     Fields: joints (n, influences) int64 and weights (n, influences) float32: the skin as written;
     keys_kept {joint name: {"translation": keys, "rotation": keys}} once closed; node_of_joint
     (b,) the node of each joint; written (b, 3, 4): after each write(), the rigid maps of rest
@@ -241,7 +242,8 @@ class GltfWriter(ExportWriter):
 
     def __init__(self, path, *, names, parents, heads, frames, V, F, W, fps: float,
                  influences: int = 4, name: str = "character", keys_deg: float | None = None,
-                 keys_units: float | None = None, source: SourceScene | None = None):
+                 keys_units: float | None = None, source: SourceScene | None = None,
+                 forced_frames=()):
         self.path = Path(path)
         if influences < 4 or influences % 4:
             raise ExportError(self.path, f"influences must be a multiple of 4, got {influences}")
@@ -256,6 +258,7 @@ class GltfWriter(ExportWriter):
         self.fps = float(fps)
         self.name = name
         self.keys_deg, self.keys_units = keys_deg, keys_units
+        self.forced_frames = np.asarray(forced_frames, np.int64)
         self.keys_kept: dict[str, dict[str, int]] = {}
         self.joints, self.weights = top_weights(W, influences)
         self.scene = source if source is not None else plain_scene(
@@ -528,7 +531,7 @@ class GltfWriter(ExportWriter):
 
     def _animation(self, gltf: pygltflib.GLTF2, blob: _Blob) -> None:
         """Animation 0: a translation and a rotation channel per joint (LINEAR), every frame a key
-        or, with a key tolerance, the keys ``reduce_curve`` keeps (channels with the same kept
+        or, with a key tolerance, the keys ``reduce_curve`` keeps (forced_frames among them; channels with the same kept
         frames share one key-time accessor); the timing in the scene's and animation's extras."""
         N = self.num_frames
         times = (np.arange(1, N + 1) / self.fps).astype(np.float32)
@@ -542,7 +545,8 @@ class GltfWriter(ExportWriter):
             for path, values, kind, tol in (("translation", translations[j], "VEC3", self.keys_units),
                                             ("rotation", rotations[j], "VEC4", self.keys_deg)):
                 keys = (np.arange(N) if tol is None else
-                        reduce_curve(times, values.astype(np.float64), path, tol))
+                        reduce_curve(times, values.astype(np.float64), path, tol,
+                                     forced=self.forced_frames[self.forced_frames < N]))
                 kept[path] = len(keys)
                 key_tuple = tuple(int(k) for k in keys)
                 if key_tuple not in time_accessors:

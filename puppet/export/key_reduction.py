@@ -11,8 +11,9 @@ the reader does it:
   reach the F-curves unchanged up to one fixed rotation per bone (the rest pose), which leaves
   both errors the same.
 
-``reduce_curve`` keeps the first and the last frame and, from each key, reaches as far as it can
-(a doubling search, then bisection) while every frame in between stays within the tolerance under
+``reduce_curve`` keeps the first and the last frame, and any forced frames (a shot's key poses),
+and from each key reaches as far as it can, never past the next forced frame (a doubling search,
+then bisection) while every frame in between stays within the tolerance under
 *both* evaluations: rotations within ``tol`` degrees (the angle of the rotation between the
 evaluated and the sampled one), translations within ``tol`` model units (Euclidean). The result
 is greedy, not proven minimal; every kept segment is checked frame by frame.
@@ -105,31 +106,46 @@ def _fits(times: np.ndarray, values: np.ndarray, i: int, j: int, kind: str, tol:
                for r in READERS)
 
 
-def reduce_curve(times: np.ndarray, values: np.ndarray, kind: str, tol: float) -> np.ndarray:
-    """(K,) int64 ascending frame indices of the kept keys (first and last frame included) so that
-    ``curve_error(times, values, keys, kind) <= tol`` at every frame.
+def reduce_curve(times: np.ndarray, values: np.ndarray, kind: str, tol: float,
+                 forced=()) -> np.ndarray:
+    """(K,) int64 ascending frame indices of the kept keys (first and last frame, and every frame
+    in ``forced``, included) so that ``curve_error(times, values, keys, kind) <= tol`` at every
+    frame.
 
     times: (N,) increasing seconds; values: (N, 4) unit quaternions on one hemisphere from frame
     to frame (kind "rotation", tol in degrees) or (N, 3) translations (kind "translation", tol in
-    model units)."""
+    model units); forced: frame indices in 0..N-1 that must be keys (any order)."""
     _check(kind, tol)
     times = np.asarray(times, np.float64)
     values = np.asarray(values, np.float64)
     n = len(values)
     if n <= 2:
         return np.arange(n, dtype=np.int64)
-    keys, i = [0], 0
-    while i < n - 1:
+    forced = np.asarray(forced, np.int64).reshape(-1)
+    if forced.size and (forced.min() < 0 or forced.max() > n - 1):
+        raise ValueError(f"forced frames must be within 0..{n - 1}, got {forced.min()}..{forced.max()}")
+    anchors = np.unique(np.concatenate([[0, n - 1], forced]))
+    keys = [0]
+    for start, end in zip(anchors[:-1], anchors[1:]):
+        keys += _reduce_span(times, values, int(start), int(end), kind, tol)
+    return np.asarray(keys, np.int64)
+
+
+def _reduce_span(times, values, start: int, end: int, kind: str, tol: float) -> list[int]:
+    """Kept keys after ``start`` up to and including ``end`` (greedy: from each key as far as the
+    segment fits)."""
+    keys, i = [], start
+    while i < end:
         good, step = i + 1, 1  # a segment with no frame inside always fits
-        while good + step <= n - 1 and _fits(times, values, i, good + step, kind, tol):
+        while good + step <= end and _fits(times, values, i, good + step, kind, tol):
             good, step = good + step, 2 * step
-        bad = min(good + step, n)  # bisect between the last fit and the first miss
+        bad = min(good + step, end + 1)  # bisect between the last fit and the first miss
         while bad - good > 1:
             mid = (good + bad) // 2
-            if mid <= n - 1 and _fits(times, values, i, mid, kind, tol):
+            if _fits(times, values, i, mid, kind, tol):
                 good = mid
             else:
                 bad = mid
         keys.append(good)
         i = good
-    return np.asarray(keys, np.int64)
+    return keys

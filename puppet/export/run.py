@@ -80,7 +80,8 @@ class ExportReport:
     keys: None (a glTF key on every frame) or the glTF's key reduction: {"rotation_deg",
         "translation_units": the tolerances, "kept": keys written, "every_frame": keys a key on
         every frame would take, "kept_pct", "joints": {joint name: {"translation": keys,
-        "rotation": keys}}}.
+        "rotation": keys}}, "key_poses": a shot's key poses, each a key on every channel (0 for a
+        take)}.
     seconds: wall time of the export.
     """
 
@@ -129,7 +130,9 @@ class ExportReport:
         if self.keys is not None:
             k = self.keys
             lines.append(f"gltf keys within {k['rotation_deg']:g}° and {k['translation_units']:.4g} "
-                         f"model units: {k['kept']} of {k['every_frame']} ({k['kept_pct']:.1f} %)")
+                         f"model units: {k['kept']} of {k['every_frame']} ({k['kept_pct']:.1f} %)"
+                         + (f"; every channel keyed at the shot's {k['key_poses']} key poses"
+                            if k["key_poses"] else ""))
             lines.extend(f"  {name}: {c['rotation']} rotation, {c['translation']} translation"
                          for name, c in k["joints"].items())
         for fmt, renamed in self.renamed.items():
@@ -305,6 +308,7 @@ class ExportWriters:
         self.rig, self.items, self.targets = rig, items, dict(items)
         self.up, self.influences, self.meters_per_unit = up, influences, meters_per_unit
         self.fps = frames.fps
+        self.key_frames = frames.key_frames()  # a shot's key poses: glTF keys whatever --keys
         self.order = SourceOrder(rig)
         self.report = ExportReport(frames=len(frames), fps=frames.fps, cuts=list(frames.cuts),
                                    take_seconds=(frames.t_ns[-1] - frames.t_ns[0]) * 1e-9)
@@ -336,7 +340,8 @@ class ExportWriters:
                                                        influences=self.influences, name=rig.name,
                                                        keys_deg=self.keys_deg,
                                                        keys_units=self.keys_units,
-                                                       source=rig.source)
+                                                       source=rig.source,
+                                                       forced_frames=self.key_frames)
                     elif fmt == "usd":
                         from puppet.export.usd import UsdWriter
 
@@ -400,7 +405,8 @@ class ExportWriters:
                 every = 2 * len(joints) * self.frames
                 report.keys = {"rotation_deg": self.keys_deg, "translation_units": self.keys_units,
                                "kept": kept, "every_frame": every,
-                               "kept_pct": 100.0 * kept / max(every, 1), "joints": joints}
+                               "kept_pct": 100.0 * kept / max(every, 1), "joints": joints,
+                               "key_poses": len(self.key_frames)}
         if "bvh" in self.writers:
             report.bvh_stretch_max_pct = 100.0 * (self._buffers["drift"] if self._buffers else 0.0) / diagonal
 

@@ -11,12 +11,14 @@ KeySession holds the shot being made and applies the puppeteer's commands (one l
     d N       delete key N
     i F       insert a key with the held pose at frame F
     t N F     retime key N to frame F (``puppet.keys.shot.retime``: refused if keys would reorder)
+    m N KIND  key N's interpolation (linear, smooth, step: how the frames after it are filled)
+    m KIND    the interpolation of the keys taken from now on
     q         finish (end of input and Ctrl-C too)
 After every change the shot is written whole (``puppet.keys.shot.write_shot``): a crash keeps
 every key made before it.
 
 KeyDesk takes those commands from any thread (the terminal's Enter, the live view's Space, Key
-button and timeline) and applies them in order on the loop's thread once each one's hold window
+button, key buttons and timeline) and applies them in order on the loop's thread once each one's hold window
 is over: one capture path whoever pressed.
 """
 
@@ -29,9 +31,9 @@ from collections import deque
 import numpy as np
 
 from puppet.errors import PuppetError
-from puppet.keys.shot import insert_key, remove_key, replace_key, retime, write_shot
+from puppet.keys.shot import insert_key, interpolate, remove_key, replace_key, retime, write_shot
 from puppet.take import TakeError
-from puppet.take.keys import Key, Keys
+from puppet.take.keys import Key, Keys, check_interpolation
 
 HOLD_S = 0.2
 """Hold window after the key press, seconds: the key is the median of its readings."""
@@ -121,10 +123,18 @@ class KeySession:
                 new = insert_key(self.keys, Key(frame, ticks, ok, self.interpolation), self.path)
                 index = [k.frame for k in new.keys].index(frame)
                 said = f"key {index}: inserted at frame {frame} ({used} readings held)"
+            elif parts[0] == "m" and len(parts) == 3:
+                index = int(parts[1])
+                new = interpolate(self.keys, {index: parts[2]}, self.path)
+                said = f"key {index}: {parts[2]}"
+            elif parts[0] == "m" and len(parts) == 2:
+                self.interpolation = check_interpolation(parts[1], self.path)
+                new = self.keys
+                said = f"new keys: {parts[1]}"
             else:
                 raise KeyRefused(f"unknown command {command.strip()!r}: Enter (a key), r N "
                                 "(replace), d N (delete), i FRAME (insert), t N FRAME (retime), "
-                                "q (finish)")
+                                "m [N] linear|smooth|step (interpolation), q (finish)")
         except ValueError:
             raise KeyRefused(f"{command.strip()!r}: N and FRAME are whole numbers") from None
         write_shot(self.path, self.header, new)

@@ -234,6 +234,13 @@ class Playback:
         """Play time of frame f, ns after the first reading."""
         return int(round(f * self._step_ns))
 
+    def key_frames(self) -> np.ndarray:
+        """(K,) int64 the frame nearest each key of a shot (0-based; on the key exactly when the
+        key's time is a frame's: at the shot's fps and speed 1, key frame − 1); empty for a take."""
+        if self.interpolation is None:
+            return np.zeros(0, np.int64)
+        return np.minimum(np.rint(self.play_ns / self._step_ns).astype(np.int64), self._count - 1)
+
     def frame_times_ns(self) -> np.ndarray:
         """(N,) int64 play time of every frame (what the Readings are stamped, less t_first_ns)."""
         return np.rint(np.arange(self._count) * self._step_ns).astype(np.int64)

@@ -28,7 +28,7 @@ from importlib import resources
 
 from aiohttp import WSMsgType, web
 
-from puppet.take.keys import MAX_FRAME
+from puppet.take.keys import INTERPOLATIONS, MAX_FRAME
 from puppet.view.address import Access
 from puppet.view.encoder import EncodedFrame
 from puppet.view.guard import RateLimit, Throttle, parse_message
@@ -459,7 +459,7 @@ class ViewServer:
             if viewer.outbox is not None:  # the page's pending drag turns the camera instead
                 viewer.outbox.put(json.dumps({"type": "pick_miss", "key": message["key"]}))
             return
-        if message["type"] in ("key", "retime") and not viewer.edits.take(time.monotonic()):
+        if message["type"] in ("key", "key_edit", "retime") and not viewer.edits.take(time.monotonic()):
             viewer.limited += 1
             self._refused_input(viewer, "edits", f"too many key edits: dropped (at most "
                                 f"{EDIT_RATE_HZ:.0f} per second)")
@@ -595,6 +595,12 @@ def _number(value) -> bool:
     return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
 
 
+#: The page's key edits (``key_edit``'s action), each the terminal's command line for it:
+#: replace key index with the held pose, delete it, insert a key at frame, set its interpolation
+#: or that of the keys to come.
+KEY_EDITS = {"replace": "r {index}", "delete": "d {index}", "insert": "i {frame}",
+             "interpolation": "m {index} {interpolation}", "new_interpolation": "m {interpolation}"}
+
 #: Page input: message type -> {field: check}.
 INPUTS = {
     "pick": {"key": lambda v: isinstance(v, int), "seq": lambda v: isinstance(v, int),
@@ -613,6 +619,10 @@ INPUTS = {
     "marker": {"name": lambda v: isinstance(v, str) and 0 < len(v) <= 80},
     "playback": {"action": lambda v: v in ("pause", "play", "seek", "speed"), "value": _number},
     "key": {},
+    "key_edit": {"action": lambda v: v in KEY_EDITS,
+                 "index": lambda v: _whole(v) and 0 <= v <= MAX_FRAME,
+                 "frame": lambda v: _whole(v) and 1 <= v <= MAX_FRAME,
+                 "interpolation": lambda v: v in INTERPOLATIONS},
     "retime": {"index": lambda v: _whole(v) and 0 <= v <= MAX_FRAME,
                "frame": lambda v: _whole(v) and 1 <= v <= MAX_FRAME},
     "onion": {"on": lambda v: isinstance(v, bool)},

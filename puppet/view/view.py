@@ -33,7 +33,7 @@ from puppet.view.encoder import FrameEncoder
 from puppet.view.handles import Handle, drag_target, project, surface_bary, surface_point
 from puppet.view.orbit import OrbitCamera
 from puppet.view.protocol import MAX_HANDLES, PANEL_HZ
-from puppet.view.server import ViewServer
+from puppet.view.server import KEY_EDITS, ViewServer
 
 log = logging.getLogger("puppet.view")
 
@@ -256,7 +256,7 @@ class View:
                     self._mark(msg["name"])
                 elif kind == "playback":
                     self._playback(msg["action"], msg["value"])
-                elif kind in ("key", "retime", "onion", "playhead"):
+                elif kind in ("key", "key_edit", "retime", "onion", "playhead"):
                     self._keys_input(client, kind, msg)
             except PuppetError as err:  # told to the page that asked
                 self._warn(f"{kind}: {err}", client, kind=f"{kind} refused")
@@ -438,6 +438,7 @@ class View:
         next_frame = keys[-1].frame + session.step if keys else 1
         said = self._said
         return {"fps": session.keys.fps, "step": session.step, "next_frame": next_frame,
+                "interpolation": session.interpolation,
                 "keys": [{"index": i, "frame": k.frame, "interpolation": k.interpolation}
                          for i, k in enumerate(keys)],
                 "playhead": self.playhead if self.playhead is not None else next_frame,
@@ -449,12 +450,15 @@ class View:
         self.server.send_to(None, {"type": "keys", **self._keys_state()})
 
     def _keys_input(self, client: str, kind: str, msg: dict) -> None:
-        """Page input for the keys: a key (Space, Key button) or a retime (a dragged tick) go to
-        the KeyDesk as the terminal's lines do; onion skins and their frame stay in the view."""
+        """Page input for the keys: a key (Space, Key button), a key edit (replace, delete,
+        insert, interpolation: ``server.KEY_EDITS``) or a retime (a dragged tick) go to the
+        KeyDesk as the terminal's command lines; onion skins and their frame stay in the view."""
         if self.keys is None:
             raise PuppetError("keys need 'puppet keys ... --view'")
         if kind == "key":
             self.keys.press("", client)
+        elif kind == "key_edit":
+            self.keys.press(KEY_EDITS[msg["action"]].format(**msg), client)
         elif kind == "retime":
             self.keys.press(f"t {msg['index']} {msg['frame']}", client)
         elif kind == "onion":

@@ -84,3 +84,22 @@ def test_a_fast_turn_is_kept_for_blender_too():
     assert len(keys) > 2
     assert angle_deg(nlerp_read(times, keys, values), values).max() <= 0.5 + 1e-6
     assert angle_deg(nlerp_read(times, np.array([0, 10]), values), values).max() > 0.5
+
+
+def test_forced_frames_are_keys_and_the_rest_stays_within_the_tolerance():
+    """A shot's key poses are forced keys: a steady turn that two keys would reproduce keeps
+    them too, and no segment crosses one."""
+    angles = np.radians(np.linspace(0.0, 20.0, 120))
+    values = hemisphere(Rotation.from_rotvec(np.outer(angles, [0, 0, 1])).as_quat())
+    keys = reduce_curve(TIMES, values, "rotation", 0.1, forced=[47, 12, 47, 90])
+    assert keys.tolist() == [0, 12, 47, 90, 119]
+    rotvec = np.stack([np.sin(np.arange(120) / 9.0), np.zeros(120), np.zeros(120)], 1)
+    wavy = hemisphere(Rotation.from_rotvec(rotvec).as_quat())
+    keys = reduce_curve(TIMES, wavy, "rotation", 0.5, forced=[12, 47, 90])
+    assert {0, 12, 47, 90, 119} <= set(keys.tolist()) and len(keys) < 120
+    assert curve_error(TIMES, wavy, keys, "rotation").max() <= 0.5
+
+
+def test_a_forced_frame_outside_the_curve_is_refused():
+    with pytest.raises(ValueError, match=r"forced frames must be within 0\.\.119, got 3\.\.120"):
+        reduce_curve(TIMES, np.zeros((120, 3)), "translation", 0.1, forced=[3, 120])

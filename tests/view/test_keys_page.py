@@ -188,6 +188,92 @@ def test_keys_from_the_page_onion_skins_and_timeline(new_page, tools, tmp_path):
     assert "keys: 2, 20 frames at 24 fps" in keys.out_path.read_text()
 
 
+def test_key_edits_from_the_page_go_through_the_terminals_commands(new_page, tools, tmp_path):
+    """Select a key by clicking its tick; replace re-poses it, the interpolation menu sets how
+    the frames after it are filled, insert adds a key at the red line's frame, delete removes
+    the selected key: each rewrites the shot as the terminal's r, m, i and d lines do (the
+    terminal tells each outcome too)."""
+    rig = builtin()
+    ids = [int(i) for i in rig.servo_map.ids]
+    shot = tmp_path / "shot.mcap"
+    poses = [pose(rig, {4: -60, 5: 40}), pose(rig, {4: 70, 10: -60}), pose(rig, {2: -60, 15: 40})]
+    with hw_sim.serve(rig.servo_map.models) as bus:
+        bus.set_positions(poses[0])
+        keys = KeysProcess(tools, ["keys", "--rig", str(BUILTIN_RIG), "--port", bus.port,
+                                   "--out", str(shot), "--step", "12",
+                                   "--view", str(tools.free_port())], tmp_path)
+        try:
+            page = tools.open_view(new_page, keys.url)
+            tools.wait_js(page, "puppetView.keys !== null")
+            take_key(tools, page, lambda: page.keyboard.press("Space"), 1)
+            bus.set_positions(poses[1])
+            take_key(tools, page, lambda: page.keyboard.press("Space"), 2)
+            tools.wait_until(lambda: shot_keys(shot) and len(shot_keys(shot)) == 2, what="2 keys")
+            assert page.locator("#key-replace").is_disabled()  # no key selected yet
+            assert page.locator("#key-delete").is_disabled()
+
+            def click_frame(frame: int):
+                at = page.evaluate(f"puppetView.timelineAt({frame})")
+                page.mouse.click(at["x"], at["y"])
+
+            def edit(press, said: str):
+                """Press until the page tells ``said`` (a read failing on this busy machine
+                refuses a pose-taking edit: pressed again, as a puppeteer would)."""
+                def answer():
+                    seen = page.evaluate("puppetView.keysUpdates")
+                    press()
+                    return tools.wait_js(page, f"puppetView.keysUpdates > {seen} && "
+                                               "puppetView.keys.said").startswith(said)
+                tools.wait_until(answer, what=said)
+
+            click_frame(1)  # select key 0
+            tools.wait_js(page, "puppetView.selectedKey === 0")
+            assert page.locator("#key-replace").is_enabled()
+            bus.set_positions(poses[2])
+            edit(lambda: page.click("#key-replace"), "key 0: replaced")
+            tools.wait_until(lambda: shot_keys(shot)[0].ticks.tolist() == [poses[2][i] for i in ids],
+                             what="key 0 re-posed in the file")
+            assert [k.frame for k in shot_keys(shot)] == [1, 13]
+
+            page.select_option("#key-interpolation", "smooth")  # takes no pose: never refused
+            tools.wait_js(page, "puppetView.keys.said === 'key 0: smooth'")
+            assert [k.interpolation for k in shot_keys(shot)] == ["smooth", "linear"]
+
+            click_frame(7)  # the red line to frame 7, then insert the held pose there
+            tools.wait_js(page, "puppetView.keys.playhead === 7")
+            bus.set_positions(poses[0])
+            edit(lambda: page.click("#key-insert"), "key 1: inserted at frame 7")
+            written = shot_keys(shot)
+            assert [k.frame for k in written] == [1, 7, 13]
+            assert written[1].ticks.tolist() == [poses[0][i] for i in ids]
+
+            click_frame(13)  # select key 2 and delete it
+            tools.wait_js(page, "puppetView.selectedKey === 2")
+            page.click("#key-delete")  # takes no pose: never refused
+            tools.wait_js(page, "puppetView.keys.said && puppetView.keys.said.startsWith('key 2: deleted')")
+            assert [k.frame for k in shot_keys(shot)] == [1, 7]
+            tools.wait_js(page, "puppetView.selectedKey === null")
+
+            keys.type("m 1 step")  # the terminal's line for the same edit
+            tools.wait_js(page, "puppetView.keys.said === 'key 1: step'")
+            assert [k.interpolation for k in shot_keys(shot)] == ["smooth", "step"]
+            # no key selected: the menu sets the interpolation of the keys to come
+            page.select_option("#key-interpolation", "smooth")
+            tools.wait_js(page, "puppetView.keys.said === 'new keys: smooth'")
+            take_key(tools, page, lambda: page.keyboard.press("Space"), 3)
+            tools.wait_until(lambda: len(shot_keys(shot)) == 3, what="key 2 in the file")
+            assert [k.interpolation for k in shot_keys(shot)] == ["smooth", "step", "smooth"]
+            assert [k.frame for k in shot_keys(shot)] == [1, 7, 19]
+            terminal = keys.out_path.read_text()
+            for said in ("key 0: replaced", "key 0: smooth", "key 1: inserted at frame 7",
+                         "key 2: deleted"):
+                assert said in terminal
+        finally:
+            status = keys.stop(tools)
+    assert status == 0, keys.err_path.read_text()
+    assert "Traceback" not in keys.err_path.read_text()
+
+
 def test_live_view_takes_keys_into_a_shot_from_the_page(new_page, tools, tmp_path):
     rig = builtin()
     ids = [int(i) for i in rig.servo_map.ids]
@@ -213,6 +299,42 @@ def test_live_view_takes_keys_into_a_shot_from_the_page(new_page, tools, tmp_pat
     assert TakeReader(take).metadata is not None  # the take recorded alongside
 
 
+def test_play_view_of_a_shot_shows_its_keys_at_their_frames(new_page, tools, tmp_path):
+    """``play SHOT --view``: the shot plays for (last key frame − 1) / fps seconds and, paused
+    on a key's time, the page's servo angles are that key's."""
+    from puppet.cli.common import take_header
+    from puppet.keys import write_shot
+    from puppet.keys.example import critter_keys
+
+    rig = builtin()
+    keys = critter_keys(rig, step=12, fps=24)
+    shot = tmp_path / "shot.mcap"
+    write_shot(shot, take_header(rig), keys)
+    play = tools.PuppetProcess(["play", str(shot), "--fps", "24", "--view",
+                                str(tools.free_port())], tmp_path)
+    try:
+        page = tools.open_view(new_page, play)
+        tools.wait_js(page, "puppetView.playback !== null && puppetView.playback !== undefined")
+        duration = page.evaluate("puppetView.playback.duration_s")
+        assert abs(duration - (keys.keys[-1].frame - 1) / 24) < 1e-6
+        page.click("#pause")
+        tools.wait_js(page, "puppetView.playback.paused")
+        key = keys.keys[2]
+        at = (key.frame - 1) / 24
+        page.evaluate(f"const s = document.getElementById('scrub'); s.value = '{at}';"
+                      "s.dispatchEvent(new Event('input'));")
+        tools.wait_js(page, f"Math.abs(puppetView.playback.position_s - {at}) < 0.01")
+        want = dict(zip([int(i) for i in rig.servo_map.ids],
+                        np.degrees(rig.servo_map.angles(key.ticks)).round(1).tolist()))
+        check = " && ".join(f"Math.abs(puppetView.panel.servos.find(s => s.id === {i}).deg - "
+                            f"({deg})) < 0.15" for i, deg in want.items())
+        tools.wait_js(page, f"puppetView.panel && puppetView.panel.servos && {check}")
+    finally:
+        status = play.stop()
+    assert status == 0, play.stderr()
+    assert "Traceback" not in play.stderr()
+
+
 def test_live_keys_needs_the_view(tools, tmp_path):
     result = subprocess.run(tools.PUPPET + ["live", "--rig", str(BUILTIN_RIG), "--port", "x",
                                             "--keys", str(tmp_path / "s.mcap")],
@@ -227,6 +349,11 @@ def test_key_inputs_from_the_page_are_checked():
     assert check_input({"type": "retime", "index": True, "frame": 4}) == "retime: field 'index' missing or invalid"
     assert check_input({"type": "onion", "on": "yes"}) == "onion: field 'on' missing or invalid"
     assert check_input({"type": "playhead", "frame": 2.5}) == "playhead: field 'frame' missing or invalid"
+    edit = {"type": "key_edit", "action": "replace", "index": 0, "frame": 1, "interpolation": "step"}
+    assert check_input(edit) is None
+    assert check_input({**edit, "action": "new_interpolation"}) is None
+    assert check_input({**edit, "action": "goto"}) == "key_edit: field 'action' missing or invalid"
+    assert check_input({**edit, "interpolation": "cubic"}) == "key_edit: field 'interpolation' missing or invalid"
 
 
 def test_keys_view_on_a_taken_port_fails_before_the_bus(tools, tmp_path):

@@ -107,3 +107,27 @@ def test_the_desk_holds_a_bounded_number_of_waiting_commands(tmp_path):
     except KeyRefused as err:
         refused = str(err)
     assert refused == f"'key' refused: {WAITING_COMMANDS} commands wait already (is the bus reading?)"
+
+
+def test_interpolation_is_chosen_per_key_while_capturing(tmp_path):
+    """``m N KIND`` sets key N's interpolation in the file; ``m KIND`` that of the keys to come;
+    an unknown kind is refused naming the kinds, nothing changed."""
+    rig = builtin()
+    ids = np.asarray(rig.servo_map.ids)
+    shot = tmp_path / "shot.mcap"
+    session = KeySession(shot, take_header(rig), fps=24, step=12)
+    desk = KeyDesk(session)
+    session.keys = critter_keys(rig, step=12)  # keys at frames 1, 13, 25, 37, all linear
+    for line in ("m 1 smooth", "m 2 wobbly", "m step"):
+        desk.press(line, "terminal")
+    desk.press("", "terminal")  # a new key after "m step": a step key
+    now = time.monotonic_ns()  # after the press: in its hold window
+    held, ok = np.full(len(ids), 2048, np.int32), np.ones(len(ids), bool)
+    desk.feed([Reading(now + 1_000_000, ids, held, ok), Reading(now + 2 * HOLD_NS, ids, held, ok)])
+    outcomes = desk.step()
+    assert [t for _, t, _ in outcomes] == [True, False, True, True]
+    assert outcomes[0][2] == "key 1: smooth" and outcomes[2][2] == "new keys: step"
+    assert "interpolation 'wobbly' is not one of linear, smooth, step" in outcomes[1][2]
+    written = TakeReader(shot).keys().keys
+    assert [k.interpolation for k in written] == ["linear", "smooth", "linear", "linear", "step"]
+    assert [k.frame for k in written] == [1, 13, 25, 37, 49]

@@ -21,7 +21,7 @@ const state = {
   servos: [], handles: [], handleSpots: [], bones: [], overlay: true, ownCamera: false,
   recording: { on: false }, faults: [], markers: [], notices: [], panel: null, playback: null, takeMarks: [],
   connected: { frames: false, control: false }, lastPick: null,
-  keys: null, keysUpdates: 0,  // the shot's keys (puppet keys --view) and how many updates came
+  keys: null, keysUpdates: 0, selectedKey: null,  // selectedKey: the key (index) the key buttons edit  // the shot's keys (puppet keys --view) and how many updates came
   panels: 0, panelTimes: [],  // panel updates received; arrival times (ms, performance.now), newest 600
 };
 window.puppetView = state;
@@ -133,7 +133,8 @@ const handlers = {
     const said = $("keys-said");
     said.textContent = m.said || "";
     said.classList.toggle("refused", m.taken === false);
-    drawTimeline();
+    if (state.selectedKey !== null && state.selectedKey >= m.keys.length) state.selectedKey = null;
+    showSelectedKey();
   },
   panel(m) {
     state.panel = m;
@@ -449,6 +450,7 @@ function drawTimeline() {
     const kx = frameToX(frame);
     ctx.fillStyle = tickDrag && tickDrag.index === i ? "#ffd54a" : "#4c8ee2";
     ctx.fillRect(kx - 3, 12, 6, h - 26);
+    if (state.selectedKey === i) { ctx.strokeStyle = "#ffffff"; ctx.strokeRect(kx - 5, 11, 10, h - 24); }
     ctx.fillStyle = "#e6e6e6"; ctx.fillText(String(i), kx, 10);
   });
 }
@@ -480,7 +482,23 @@ function endTickDrag() {
   const { index, frame, from } = tickDrag;
   tickDrag = null;
   if (frame !== from) send({ type: "retime", index, frame });  // the file is rewritten by puppet, then the ticks redrawn
+  else state.selectedKey = state.selectedKey === index ? null : index;  // a click on a tick (de)selects it
+  showSelectedKey();
+}
+// The key buttons edit the selected key: enabled with one, its interpolation shown.
+function showSelectedKey() {
+  const k = state.keys, i = state.selectedKey;
+  const key = k && i !== null ? k.keys[i] : null;
+  $("key-replace").disabled = $("key-delete").disabled = !key;
+  $("key-interpolation").value = key ? key.interpolation : (k ? k.interpolation : "linear");
   drawTimeline();
+}
+// A key edit goes to puppet as the terminal's command line for it (the same KeyDesk).
+function keyEdit(action) {
+  const k = state.keys;
+  if (!k) return;
+  send({ type: "key_edit", action, index: state.selectedKey === null ? 0 : state.selectedKey,
+         frame: k.playhead, interpolation: $("key-interpolation").value });
 }
 timeline.addEventListener("pointerup", endTickDrag);
 timeline.addEventListener("pointercancel", endTickDrag);
@@ -491,6 +509,11 @@ state.timelineAt = frame => {
 };
 
 $("key").onclick = () => send({ type: "key" });
+$("key-replace").onclick = () => keyEdit("replace");
+$("key-delete").onclick = () => { keyEdit("delete"); state.selectedKey = null; showSelectedKey(); };
+$("key-insert").onclick = () => keyEdit("insert");
+// With a key selected: its interpolation; without: that of the keys to come.
+$("key-interpolation").onchange = () => keyEdit(state.selectedKey === null ? "new_interpolation" : "interpolation");
 $("onion").onclick = () => send({ type: "onion", on: !(state.keys && state.keys.onion) });
 document.addEventListener("keydown", event => {
   if (event.code !== "Space" || !state.keys || event.repeat) return;
