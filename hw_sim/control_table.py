@@ -20,6 +20,7 @@ summarised in shared/ref/dynamixel.md §2-3, and dynamixel_sdk's ``mx_*.model`` 
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass, field
 
 from hw_sim.errors import UnknownModelError
@@ -50,6 +51,12 @@ class Field:
     @property
     def eeprom(self) -> bool:
         return self.addr < self.eeprom_end
+
+    @functools.cached_property
+    def bounds(self) -> tuple[int, int]:
+        """(lo, hi): every raw value ``size`` bytes hold (two's complement when signed)."""
+        bits = 8 * self.size
+        return (-(1 << (bits - 1)), (1 << (bits - 1)) - 1) if self.signed else (0, (1 << bits) - 1)
 
     @property
     def writable(self) -> bool:

@@ -176,9 +176,10 @@ class Servo:
         """Store a read-only item's new value, clipped to its size (nothing if it has none)."""
         if f is None:
             return
-        bits = 8 * f.size
-        lo, hi = (-(1 << (bits - 1)), (1 << (bits - 1)) - 1) if f.signed else (0, (1 << bits) - 1)
-        self._store(f, max(lo, min(hi, int(value))))
+        lo, hi = f.bounds
+        value = int(value)
+        value = lo if value < lo else hi if value > hi else value
+        self.mem[f.addr:f.addr + f.size] = value.to_bytes(f.size, "little", signed=value < 0)
 
     def get(self, name: str) -> int:
         """The current value of item ``name`` (signed where it is), refreshed first."""
@@ -498,20 +499,15 @@ class Servo:
     def read(self, addr: int, length: int, now: float) -> tuple[int, bytes]:
         """(error, data) for a Read of ``length`` bytes at ``addr``; data empty on error."""
         end = addr + length
-        self.hear(now)
+        self.hear(now)  # refreshes every read-only item to ``now``: the read sees them fresh
         if length == 0 or end > self.model.size:
             return codec.ERR_ACCESS, b""
-        lo, hi = self._dynamic
-        if end > lo and addr < hi:
-            self.refresh(now)
         data = bytes(self.mem[addr:end])
         for a_item, d_item, count in self.model.indirect:
             if addr < d_item + count and end > d_item:
                 data = bytearray(data)
                 for k in range(max(addr, d_item), min(end, d_item + count)):
                     target = self._get_raw(a_item + 2 * (k - d_item), 2)
-                    if lo <= target < hi:
-                        self.refresh(now)
                     data[k - addr] = self.mem[target] if target < self.model.size else 0
                 data = bytes(data)
         return 0, data

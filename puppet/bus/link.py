@@ -99,6 +99,29 @@ def set_latency_assumption(ms: int) -> None:
     sdk_port_handler.LATENCY_TIMER = int(ms)
 
 
+def _crc16_table() -> tuple[int, ...]:
+    table = []
+    for i in range(256):
+        crc = i << 8
+        for _ in range(8):
+            crc = ((crc << 1) ^ 0x8005) if crc & 0x8000 else (crc << 1)
+        table.append(crc & 0xFFFF)
+    return tuple(table)
+
+
+CRC16_TABLE = _crc16_table()
+"""Protocol 2.0's CRC-16 (polynomial 0x8005, the SDK's ``updateCRC`` table), built once."""
+
+
+def crc16(data, crc: int, start: int, end: int) -> int:
+    """The Protocol 2.0 CRC-16 of ``data[start:end]`` (bytes or a list of ints), continuing
+    from ``crc`` (0 to start): the SDK's ``updateCRC`` without its per-call table and slices."""
+    table = CRC16_TABLE
+    for i in range(start, end):
+        crc = ((crc << 8) & 0xFFFF) ^ table[((crc >> 8) ^ data[i]) & 0xFF]
+    return crc
+
+
 def _failure(code: int, ids: Iterable[int], instruction: str, detail: str = "",
              deadline: bool = False) -> ServoError:
     """An SDK result code -> the matching typed error. ``deadline``: the SDK gave up because
@@ -771,11 +794,11 @@ class BusLink:
                 + (f" ({describe_status_error(error)})" if error else ""), error=error)
             out.failed = dict.fromkeys(ids, err)
             return out
-        crc = self.ph.updateCRC(0, rx, 8)
+        crc = crc16(rx, 0, 0, 8)
         pos = 8
         for expected_id in ids:
             error, dxl_id = rx[pos], rx[pos + 1]
-            crc = self.ph.updateCRC(crc, rx[pos: pos + seg - 2], seg - 2)
+            crc = crc16(rx, crc, pos, pos + seg - 2)
             got_crc = rx[pos + seg - 2] | (rx[pos + seg - 1] << 8)
             if dxl_id != expected_id or crc != got_crc:
                 out.failed[expected_id] = ServoCorrupt([expected_id], instruction, "bad segment")
@@ -787,7 +810,7 @@ class BusLink:
                 else:
                     out.values[dxl_id] = item.decode(rx[pos + 2: pos + 2 + item.size])
                     self._heard(dxl_id)
-            crc = self.ph.updateCRC(crc, rx[pos + seg - 2: pos + seg], 2)
+            crc = crc16(rx, crc, pos + seg - 2, pos + seg)
             pos += seg
         return out
 
