@@ -204,8 +204,16 @@ class Wire:
         if self.p1:
             return bytes([0xFF, 0xFF, *body, ~sum(body) & 0xFF])
         packet = [0xFF, 0xFF, 0xFD, 0x00, *body]
-        crc = self.ph.updateCRC(0, packet, len(packet))
+        crc = crc16(packet, 0, 0, len(packet))
         return bytes(packet + [crc & 0xFF, crc >> 8])
+
+    def fast_sync_read_packet(self, ids: list[int], address: int, size: int) -> bytes:
+        """Protocol 2.0 Fast Sync Read (0x8A) of ``size`` bytes at ``address`` from ``ids``:
+        the bytes the SDK's ``syncReadTx`` sends (no byte stuffing: ids stop at 252 and no
+        control table reaches address 0xFDFF, so ``FF FF FD`` cannot occur)."""
+        n = len(ids) + 7
+        return self._packet([rd.BROADCAST_ID, n & 0xFF, n >> 8, rd.INST_FAST_SYNC_READ,
+                             address & 0xFF, address >> 8, size & 0xFF, size >> 8, *ids])
 
     def ping_packet(self, dxl_id: int) -> bytes:
         """The Ping instruction packet for one id; its status carries 3 data bytes (Protocol
@@ -348,6 +356,7 @@ class BusLink:
         self.baud = int(baud)
         self.poll_block_s = float(poll_block_s)
         self.ph = self.wire.ph
+        self._fast_packets: dict[tuple, bytes] = {}  # (ids, address, size) -> Fast Sync Read request
 
     # ---- port lifetime -------------------------------------------------------------------
     @property
@@ -662,9 +671,10 @@ class BusLink:
         rx = None
         try:
             with self._transaction(ids, instruction):
-                code = self.ph.syncReadTx(self.port, item.address, item.size, ids, len(ids), fast)
-                if fast and code == rd.COMM_SUCCESS:
-                    rx, code = self.ph.rxPacket(self.port, True)
+                if fast:
+                    rx, code = self._fast_exchange(ids, item)
+                else:
+                    code = self.ph.syncReadTx(self.port, item.address, item.size, ids, len(ids), fast)
         except ServoTimeout as exc:
             if not exc.line_stalled:
                 raise
@@ -672,6 +682,61 @@ class BusLink:
         if code != rd.COMM_SUCCESS:
             return None, self._fail(code, ids, instruction)
         return rx, None
+
+    def _fast_exchange(self, ids: list[int], item: Item) -> tuple[bytearray | None, int]:
+        """Send a Fast Sync Read and take its one status packet -> (packet, SDK result code):
+        what the SDK's ``syncReadTx`` + ``rxPacket(port, True)`` do (the same bytes, deadline,
+        header hunt and result codes), with the request built once per (ids, item) and the
+        reply read in whole runs of the bytes still missing (the SDK rebuilds the request
+        with its stuffing pass and CRC table on every call)."""
+        key = (tuple(ids), item.address, item.size)
+        packet = self._fast_packets.get(key)
+        if packet is None:
+            packet = self._fast_packets[key] = self.wire.fast_sync_read_packet(
+                ids, item.address, item.size)
+        port = self.port
+        port.clearPort()
+        if port.writePort(packet) != len(packet):
+            return None, rd.COMM_TX_FAIL
+        port.setPacketTimeout((11 + item.size) * len(ids))
+        return self._fast_status(port, 8 + (item.size + 4) * len(ids))
+
+    @staticmethod
+    def _fast_status(port, expected: int) -> tuple[bytearray, int]:
+        """One Fast Sync Read status packet -> (packet, SDK result code), as the SDK's
+        ``rxPacket(port, True)`` finds it: skip bytes until ``FF FF FD`` (not ``FD``) starts a
+        plausible status (reserved 0, id <= 254, length <= 1024, instruction 0x55), read the
+        length it gives; past the deadline (``setPacketTimeout``), COMM_RX_TIMEOUT with no
+        byte, else COMM_RX_CORRUPT. Its CRC is left to ``fast_sync_read``, which checks it in
+        the same pass as the segments'. Reads ``expected`` bytes (the packet of a full answer)
+        at once, then what is missing."""
+        buf = bytearray()
+        wait = expected
+        while True:
+            buf += port.readPort(wait - len(buf))
+            if len(buf) < 11:
+                if port.isPacketTimeout():
+                    return buf, rd.COMM_RX_CORRUPT if buf else rd.COMM_RX_TIMEOUT
+                continue
+            start = 0
+            while start < len(buf) - 3 and not (buf[start] == 0xFF and buf[start + 1] == 0xFF
+                                                and buf[start + 2] == 0xFD and buf[start + 3] != 0xFD):
+                start += 1
+            if start:
+                del buf[:start]
+                continue
+            length = buf[p2.PKT_LENGTH_L] | (buf[p2.PKT_LENGTH_H] << 8)
+            if (buf[p2.PKT_RESERVED] != 0 or buf[p2.PKT_ID] > rd.BROADCAST_ID
+                    or length > p2.RXPACKET_MAX_LEN or buf[p2.PKT_INSTRUCTION] != 0x55):
+                del buf[0]
+                continue
+            wait = length + 7
+            if len(buf) < wait:
+                if port.isPacketTimeout():
+                    return buf, rd.COMM_RX_CORRUPT
+                continue
+            del buf[wait:]
+            return buf, rd.COMM_SUCCESS
 
     def sync_read(self, ids: list[int], item: Item) -> GroupRead:
         """Sync Read (0x82) of one item -> GroupRead with per-servo values, errors and failures.
@@ -775,8 +840,9 @@ class BusLink:
     def fast_sync_read(self, ids: list[int], item: Item) -> GroupRead:
         """Fast Sync Read (0x8A) of one item: one reply packet holding every servo's segment.
 
-        Each segment ``[ERR ID data CRC]`` is checked here (the SDK checks neither the segment
-        CRCs nor their count). A failed packet fails every servo (there is no partial answer).
+        Each segment ``[ERR ID data CRC]`` is checked here, in one CRC pass with the packet's
+        own CRC (the SDK checks neither the segment CRCs nor their count). A failed packet
+        fails every servo (there is no partial answer): a bad packet CRC as ServoCorrupt.
         """
         instruction = "fast_sync_read"
         self._not_on_p1(instruction)
@@ -785,7 +851,18 @@ class BusLink:
             return GroupRead(failed=dict.fromkeys(ids, failure))
         out = GroupRead()
         seg = item.size + 4
-        if rx[4] != rd.BROADCAST_ID or len(rx) != 8 + seg * len(ids):
+        full = rx[4] == rd.BROADCAST_ID and len(rx) == 8 + seg * len(ids)
+        # One CRC pass: the running CRC where each segment's own CRC sits (a full answer), then
+        # the packet's, its last two bytes (a full answer's are the last segment's).
+        sums, crc, pos = [], 0, 0
+        for end in range(6 + seg, len(rx) - 2, seg) if full else ():
+            crc = crc16(rx, crc, pos, end)
+            sums.append(crc)
+            pos = end
+        if crc16(rx, crc, pos, len(rx) - 2) != rx[-2] | (rx[-1] << 8):
+            return GroupRead(failed=dict.fromkeys(ids, self._fail(rd.COMM_RX_CORRUPT, ids, instruction)))
+        sums.append(rx[-2] | (rx[-1] << 8))
+        if not full:
             # A normal status (e.g. Instruction Error from old firmware) or a short packet.
             error = rx[8] if len(rx) > 8 else 0
             err = ServoStatusError(
@@ -794,11 +871,9 @@ class BusLink:
                 + (f" ({describe_status_error(error)})" if error else ""), error=error)
             out.failed = dict.fromkeys(ids, err)
             return out
-        crc = crc16(rx, 0, 0, 8)
         pos = 8
-        for expected_id in ids:
+        for expected_id, crc in zip(ids, sums):
             error, dxl_id = rx[pos], rx[pos + 1]
-            crc = crc16(rx, crc, pos, pos + seg - 2)
             got_crc = rx[pos + seg - 2] | (rx[pos + seg - 1] << 8)
             if dxl_id != expected_id or crc != got_crc:
                 out.failed[expected_id] = ServoCorrupt([expected_id], instruction, "bad segment")
@@ -810,7 +885,6 @@ class BusLink:
                 else:
                     out.values[dxl_id] = item.decode(rx[pos + 2: pos + 2 + item.size])
                     self._heard(dxl_id)
-            crc = crc16(rx, crc, pos + seg - 2, pos + seg)
             pos += seg
         return out
 
