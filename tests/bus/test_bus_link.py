@@ -117,3 +117,27 @@ def test_an_adapter_latency_timer_above_1_ms_is_set_to_1(tmp_path):
     assert timer.read_text() == "1"
     assert lower_latency_timer("/dev/ttyUSB7", root=str(tmp_path)) is None   # already 1 ms
     assert lower_latency_timer("/dev/pts/3", root=str(tmp_path)) is None     # no timer: a pty
+
+
+def test_fast_sync_read_sends_the_sdks_request_and_reads_its_reply_past_an_echo(sim):
+    # The link's own Fast Sync Read exchange puts on the line the very bytes the SDK's
+    # syncReadTx sends, and finds the reply behind a half-duplex echo as the SDK's rxPacket does.
+    bus = sim(ids=(1, 2, 3))
+    bus.set_positions({1: 1000, 2: 2000, 3: 3000})
+    link = BusLink(bus.link, latency_ms=PATIENT_MS)
+    link.open()
+    item = ct.PRESENT_POSITION
+    bus.traffic()
+    assert link.ph.syncReadTx(link.port, item.address, item.size, [1, 2, 3], 3, True) == 0
+    sdk_rx, sdk_code = link.ph.rxPacket(link.port, True)
+    sdk_sent = [data for _, way, data in bus.traffic() if way == "rx"]
+    link.port.is_using = False
+    group = link.fast_sync_read([1, 2, 3], item)
+    ours = [data for _, way, data in bus.traffic() if way == "rx"]
+    assert ours == sdk_sent and len(ours) == 1
+    assert sdk_code == dynamixel_sdk.COMM_SUCCESS
+    assert group.values == {1: 1000, 2: 2000, 3: 3000} and group.failed == {}
+    bus.inject("echo")
+    echoed = link.fast_sync_read([1, 2, 3], item)
+    assert echoed.values == {1: 1000, 2: 2000, 3: 3000} and echoed.failed == {}
+    link.close()
