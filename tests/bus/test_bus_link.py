@@ -141,3 +141,18 @@ def test_fast_sync_read_sends_the_sdks_request_and_reads_its_reply_past_an_echo(
     echoed = link.fast_sync_read([1, 2, 3], item)
     assert echoed.values == {1: 1000, 2: 2000, 3: 3000} and echoed.failed == {}
     link.close()
+
+
+def test_the_links_crc16_is_the_sdks():
+    # crc16 (two bytes a step, any start and end, continuing a CRC) against the SDK's updateCRC.
+    import random
+
+    from puppet.bus.link import crc16
+
+    ph = dynamixel_sdk.PacketHandler(2.0)
+    rng = random.Random(28)
+    for _ in range(300):
+        data = [rng.randrange(256) for _ in range(rng.randrange(0, 160))]
+        start, crc = rng.randrange(0, len(data) + 1), rng.randrange(1 << 16)
+        assert crc16(data, crc, start, len(data)) == ph.updateCRC(crc, data[start:], len(data) - start)
+        assert crc16(bytes(data), crc, start, len(data)) == crc16(data, crc, start, len(data))
