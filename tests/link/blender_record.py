@@ -72,9 +72,10 @@ def turns(armature):
 
 
 def degrees(a, b):
-    """The largest angle between two lists of rotations (q and -q are one rotation)."""
-    angles = (math.degrees(p.rotation_difference(q).angle) for p, q in zip(a, b))
-    return max(min(x, 360.0 - x) for x in angles)
+    """The largest angle between two lists of rotations (q and -q are one rotation), and the
+    bone it is on."""
+    angles = [math.degrees(p.rotation_difference(q).angle) for p, q in zip(a, b)]
+    return max((min(x, 360.0 - x), name) for x, name in zip(angles, sensed))
 
 
 frames = []
@@ -91,7 +92,9 @@ for f in range(math.ceil(keyed[0]), math.floor(keyed[-1]) + 1):
     frames.append({"frame": f,
                    "worst": max((a - b).length for a, b in zip(shown, expected)),
                    "step": max((a - b).length for a, b in zip(expected, following)),
-                   "worst_deg": degrees(shown_turns, expected_turns),
-                   "step_deg": degrees(expected_turns, following_turns)})
+                   "worst_deg": degrees(shown_turns, expected_turns)[0],
+                   "worst_bone": degrees(shown_turns, expected_turns)[1],
+                   "keys": [round(x, 3) for x in keyed if abs(x - f) <= 1.5],
+                   "step_deg": degrees(expected_turns, following_turns)[0]})
 print("RESULT " + json.dumps({"status": status, "keyed": keyed, "frames": frames,
                               "recorded": link.recorded}))

@@ -239,20 +239,27 @@ class Link:
         return True
 
     def record(self, frame, armature, scene, start_frame: int) -> float:
-        """Key the bound bones at start + take time x scene fps; the scene frame keyed. Each
-        bone's quaternion stays on the hemisphere of its previous key (q and -q are one
-        rotation; keys on opposite sides would interpolate through a wrong one)."""
+        """Key the bound bones at start + take time x scene fps (linear keys, as the glTF
+        export's); the scene frame keyed. Each bone's quaternion stays on the hemisphere of its
+        previous key (q and -q are one rotation; keys on opposite sides would interpolate
+        through a wrong one)."""
         fps = scene.render.fps / scene.render.fps_base
         at = start_frame + frame.take_s * fps
         if abs(at - round(at)) < 1e-6:
             at = float(round(at))
-        for pose_bone, *_ in self.bones:
-            q, previous = pose_bone.rotation_quaternion, self.keyed_q.get(pose_bone.name)
-            if previous is not None and q.dot(previous) < 0:
-                pose_bone.rotation_quaternion = -q
-            self.keyed_q[pose_bone.name] = pose_bone.rotation_quaternion.copy()
-            pose_bone.keyframe_insert("location", frame=at, group=pose_bone.name)
-            pose_bone.keyframe_insert("rotation_quaternion", frame=at, group=pose_bone.name)
+        edit = bpy.context.preferences.edit
+        interpolation = edit.keyframe_new_interpolation_type
+        edit.keyframe_new_interpolation_type = "LINEAR"  # as the glTF export's keys play
+        try:
+            for pose_bone, *_ in self.bones:
+                q, previous = pose_bone.rotation_quaternion, self.keyed_q.get(pose_bone.name)
+                if previous is not None and q.dot(previous) < 0:
+                    pose_bone.rotation_quaternion = -q
+                self.keyed_q[pose_bone.name] = pose_bone.rotation_quaternion.copy()
+                pose_bone.keyframe_insert("location", frame=at, group=pose_bone.name)
+                pose_bone.keyframe_insert("rotation_quaternion", frame=at, group=pose_bone.name)
+        finally:
+            edit.keyframe_new_interpolation_type = interpolation
         self.recorded += 1
         self.last_frame = at
         return at
