@@ -102,5 +102,9 @@ KEYS_DEG = Range(0.0, 90.0, "degrees", lo_open=True)
 """export --keys: how far a reduced glTF rotation curve may stray from the solve."""
 KEYS_UNITS = Range(0.0, 1e6, "model units", lo_open=True)
 """export --keys-units: how far a reduced glTF translation curve may stray from the solve."""
+KEY_STEP = Range(1, 100_000, "frames", integer=True)
+"""keys --step: frames from a key to the next."""
+KEY_INDEX = Range(0, 100_000, integer=True)
+"""keys delete / goto: a key's index in its shot (0 = the first key)."""
 SKIN_INDEX = Range(0, 1_000_000, integer=True)
 """glTF skin index."""

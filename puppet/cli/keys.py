@@ -44,8 +44,8 @@ def say_outcome(origin, taken: bool, words: str) -> None:
 @click.option("--out", default=None, help="Shot file to write (.mcap).")
 @click.option("--fps", default=DEFAULT_FPS, show_default=True, type=InRange(limits.FPS),
               help=f"The shot's frames per second ({limits.FPS}).")
-@click.option("--step", default=DEFAULT_STEP, show_default=True, type=click.IntRange(1, 100_000),
-              help="Frames from a key to the next.")
+@click.option("--step", default=DEFAULT_STEP, show_default=True, type=InRange(limits.KEY_STEP),
+              help=f"Frames from a key to the next ({limits.KEY_STEP}).")
 @click.option("--interpolation", default="linear", show_default=True,
               type=click.Choice(["linear", "smooth", "step"]),
               help="How in-betweens fill the frames after each key.")
@@ -212,7 +212,7 @@ def interpolation(shot: str, kinds: tuple[str, ...], out: str, force: bool) -> N
 
 @keys.command()
 @click.argument("shot")
-@click.argument("index", type=click.IntRange(0, None))
+@click.argument("index", type=InRange(limits.KEY_INDEX))
 @click.option("--out", required=True, help="The shot without that key (.mcap; not the input).")
 @click.option("--force", is_flag=True, help="Replace an existing file at --out.")
 def delete(shot: str, index: int, out: str, force: bool) -> None:
@@ -229,7 +229,7 @@ def delete(shot: str, index: int, out: str, force: bool) -> None:
 
 @keys.command()
 @click.argument("shot")
-@click.argument("index", type=click.IntRange(0, None))
+@click.argument("index", type=InRange(limits.KEY_INDEX))
 @click.option("--rig", "rig_path", default=None, help="Rig file of the puppet (default: built-in).")
 @click.option("--port", required=True, help="Serial port of the bus.")
 @click.option("--baud", default=1_000_000, show_default=True, type=InRange(limits.BAUD),

@@ -59,17 +59,26 @@ def release(port: str, models: dict[int, str] | None = None, *, baud: int = 1_00
         link.close()
 
 
+PASSES = 2
+"""Ping passes over the bus when ``release`` finds the servos itself."""
+
+
 def _found_models(port: str, baud: int) -> dict[int, str]:
     """{id: model name} of the servos answering on ``port``: Protocol 2.0 first, then 1.0
     (a bus carries one); a model puppet does not know is left out, with a DriveError when
-    nothing it knows answers."""
+    nothing it knows answers. A protocol that finds servos is pinged PASSES times and the
+    answers joined: a reply late on a busy bus must not leave a servo's torque on."""
     from puppet.bus.scan import scan
 
     for protocol in (2.0, 1.0):
-        found = scan(port, (baud,), (protocol,))
-        known = {f.id: f.model for f in found if f.model is not None}
+        known: dict[int, str] = {}
+        for _ in range(PASSES):
+            found = scan(port, (baud,), (protocol,))
+            known |= {f.id: f.model for f in found if f.model is not None}
+            if not known:
+                break  # nothing of this protocol: try the other
         if known:
-            return known
+            return dict(sorted(known.items()))
     raise DriveError(f"port {port}: no servo of a known model answered a ping at {baud} bps "
                      "(Protocol 2.0 nor 1.0): nothing to release (check the power, the cable "
                      "and the baud rate)")

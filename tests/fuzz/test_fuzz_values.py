@@ -263,6 +263,16 @@ OPTIONS = [
     (["export"], "--keys-units", ["take.mcap", "--gltf", "a.glb", "--keys", "1"], 1),
     (["batch"], "--keys", ["t.mcap", "--out", "o", "--formats", "gltf"], 1),
     (["batch"], "--keys-units", ["t.mcap", "--out", "o", "--formats", "gltf", "--keys", "1"], 1),
+    (["batch"], "--retries", ["t.mcap", "--out", "o"], 1),
+    (["batch"], "--take-timeout", ["t.mcap", "--out", "o"], 1),
+    (["keys"], "--fps", ["--rig", "r.toml", "--port", "p", "--out", "s.mcap"], 1),
+    (["keys"], "--step", ["--rig", "r.toml", "--port", "p", "--out", "s.mcap"], 1),
+    (["keys"], "--baud", ["--rig", "r.toml", "--port", "p", "--out", "s.mcap"], 1),
+    (["keys", "delete"], "index", ["--out", "o.mcap", "s.mcap"], 1),
+    (["keys", "goto"], "index", ["--port", "p", "s.mcap"], 1),
+    (["keys", "goto"], "--baud", ["s.mcap", "1", "--port", "p"], 1),
+    (["keys", "goto"], "--watchdog-ms", ["s.mcap", "1", "--port", "p"], 1),
+    (["keys", "goto"], "--latency-ms", ["s.mcap", "1", "--port", "p"], 1),
 ]
 # Options whose value is checked when the command runs (a string until then).
 RUN_CHECKED = {("export", "--fps"), ("batch", "--fps")}
@@ -283,14 +293,16 @@ def option_case(command, option, extra, nargs, text) -> str:
     cmd = main
     for name in command:
         cmd = cmd.commands[name]
-    args = [*extra, option, *([text] * nargs)]
+    positional = not option.startswith("-")  # an argument: its value after "--" (may be "-1")
+    args = [*extra, "--", *([text] * nargs)] if positional else [*extra, option, *([text] * nargs)]
+    named = f"'{option.upper()}'" if positional else option
     try:
         ctx = cmd.make_context(" ".join(command), args)
     except click.UsageError as err:
-        return "clean" if option in err.format_message() else "vague error"
+        return "clean" if named in err.format_message() else "vague error"
     except Exception:  # noqa: BLE001
         return "internal error"
-    param = next(p for p in cmd.params if option in p.opts)
+    param = next(p for p in cmd.params if option in p.opts or option == p.name)
     value = ctx.params[param.name]
     values = value if isinstance(value, tuple) else (value,)
     limits = getattr(param.type, "limits", None) or getattr(getattr(param.type, "types", [None])[0],
@@ -430,8 +442,7 @@ def test_every_numeric_option_of_every_command_is_covered():
         if isinstance(cmd, click.Group):
             for sub in cmd.commands.values():
                 walk(sub)
-            return
-        for p in cmd.params:
+        for p in cmd.params:  # a group's own options too (``puppet keys --step``)
             types = getattr(p.type, "types", [p.type])
             if any(isinstance(t, (InRange, click.types._NumberParamTypeBase)) for t in types) or \
                     (p.name == "fps"):
