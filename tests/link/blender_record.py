@@ -6,7 +6,7 @@ the add-on drive its armature with Record off: puppet's frames are flagged recor
 add-on keys them (calling its own tick: module mode has no event loop). Once its keys span SPAN
 scene frames it disconnects, prints RECORDED and waits for the REFERENCE .glb (the test exports
 the take meanwhile), imports it, and for every scene frame between two recorded keys at most 1.5
-frames apart measures, between the recorded action and the export: the largest distance of bone
+frames apart (and before the export's last) measures, between the recorded action and the export: the largest distance of bone
 heads and tails (world), and the largest angle (degrees) between the local rotations (relative
 to the parent bone) of the SENSED bones (comma-separated: the joints servos read); and the
 export's own largest change of each from that frame to the next. Prints RESULT {json}.
@@ -79,7 +79,8 @@ def degrees(a, b):
 
 
 frames = []
-for f in range(math.ceil(keyed[0]), math.floor(keyed[-1]) + 1):
+last = int(reference.animation_data.action.frame_range[1])  # the export's last frame
+for f in range(math.ceil(keyed[0]), min(math.floor(keyed[-1]), last - 1) + 1):
     before_f = max(x for x in keyed if x <= f)
     after_f = min(x for x in keyed if x >= f)
     if after_f - before_f > 1.5:
