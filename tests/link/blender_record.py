@@ -6,10 +6,11 @@ the add-on drive its armature with Record off: puppet's frames are flagged recor
 add-on keys them (calling its own tick: module mode has no event loop). Once its keys span SPAN
 scene frames it disconnects, prints RECORDED and waits for the REFERENCE .glb (the test exports
 the take meanwhile), imports it, and for every scene frame between two recorded keys at most 1.5
-frames apart (and before the export's last) measures, between the recorded action and the export: the largest distance of bone
-heads and tails (world), and the largest angle (degrees) between the local rotations (relative
-to the parent bone) of the SENSED bones (comma-separated: the joints servos read); and the
-export's own largest change of each from that frame to the next. Prints RESULT {json}.
+frames apart (and before the export's last) measures, between the recorded action and the
+export: the largest distance of bone heads and tails (world), and the largest angle (degrees)
+between the local rotations (relative to the parent bone) of the SENSED bones (comma-separated:
+the joints servos read); and the export's own largest change of each from that frame to the
+next. Prints RESULT {json}.
 """
 
 import json
