@@ -1,5 +1,5 @@
 """Live link benchmark: reading -> applied in Blender, bones only and with the exact mesh, against
-a plain loopback client in the same run.
+the live view's reading -> page (the baseline) and a plain loopback client, in the same run.
 
 A take of the built-in critter (``--seconds`` at ``--fps``, every servo moving) is played with
 ``puppet play TAKE --link 127.0.0.1:0 --fps FPS`` (frame k handed out at k / fps on the wall
@@ -12,19 +12,24 @@ clock: its "reading" time) three times, each to one client:
           (module mode has no event loop; in Blender a ``bpy.app.timers`` callback does it);
 - mesh:   the same with "Exact mesh" on (the 24 910 FAST vertices written every frame).
 
+The baseline, view: the live view's own measurement (``bench/view.py``'s ``run_case``, one
+headless Chromium page through playwright on the demo loop): from the reading's time to the
+page's acknowledgement of the frame that shows it, median and p99; its fps is the page's.
+
 Latency is puppet's: from the frame's reading time to the client's ack arriving (so it holds
 the return trip too), median and p99 over every acked frame; fps applied = frames acked /
 the take's length.
 
     python bench/link.py --json link.json [--seconds 10] [--fps 60]
 
-JSON: {"fps", "seconds", "frames", "plain" | "bones" | "mesh": {"applied", "fps_applied",
-       "median_ms", "p99_ms"}, "machine": {"cpus", "load_1min"}}.
+JSON: {"fps", "seconds", "frames", "view" | "plain" | "bones" | "mesh": {"applied",
+       "fps_applied", "median_ms", "p99_ms"}, "machine": {"cpus", "load_1min"}}.
 """
 
 from __future__ import annotations
 
 import argparse
+import importlib.util
 import json
 import os
 import re
@@ -45,6 +50,7 @@ from puppet.rig import builtin  # noqa: E402
 from puppet.take import TakeWriter  # noqa: E402
 
 SUMMARY = re.compile(r"(\d+) applied; reading->applied median ([\d.]+) ms, p99 ([\d.]+) ms")
+ROWS = ("view", "plain", "bones", "mesh")
 
 BLENDER = """
 import sys, time, bpy
@@ -69,13 +75,25 @@ print("APPLIED", puppet_link.LINK.frames_applied, puppet_link.LINK.skipped)
 
 
 def write_take(path: Path, rig, seconds: float, fps: float) -> None:
-    k = len(rig.servo_map)
-    with TakeWriter(path, ids=[int(i) for i in rig.servo_map.ids], models=dict(rig.servo_map.models),
-                    rig_map_text="", calibration_text="", rig_name=rig.name, overwrite=True) as w:
+    servos = rig.servo_map
+    k = len(servos)
+    with TakeWriter(path, ids=[int(i) for i in servos.ids], models=dict(servos.models),
+                    rig_map_text="", calibration_text="", rig_name=rig.name,
+                    overwrite=True) as w:
         for i in range(int(seconds * fps) + 1):
-            ticks = (rig.servo_map.zero + 380 * np.sin(2.0 * i / fps + np.arange(k))).astype(np.int32)
-            w.write(Reading(5_000_000_000 + round(i * 1e9 / fps), rig.servo_map.ids, ticks,
+            ticks = (servos.zero + 380 * np.sin(2.0 * i / fps + np.arange(k))).astype(np.int32)
+            w.write(Reading(5_000_000_000 + round(i * 1e9 / fps), servos.ids, ticks,
                             np.ones(k, bool)))
+
+
+def view_baseline(seconds: float) -> dict:
+    """The live view's reading -> page with one Chromium page (bench/view.py's own case)."""
+    spec = importlib.util.spec_from_file_location("bench_view", Path(__file__).with_name("view.py"))
+    view = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(view)
+    case = view.run_case(1, seconds, 4.0, (640, 480))
+    return {"applied": None, "fps_applied": case["page_fps"],
+            "median_ms": case["latency_median_ms"], "p99_ms": case["latency_p99_ms"]}
 
 
 def plain_client(port: int) -> None:
@@ -102,7 +120,8 @@ def plain_client(port: int) -> None:
 def play(take: Path, fps: float, client) -> dict:
     """Play the take to one client; puppet's summary figures."""
     proc = subprocess.Popen(["puppet", "play", str(take), "--link", "127.0.0.1:0", "--fps",
-                             f"{fps:g}"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+                             f"{fps:g}"], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            text=True)
     port = None
     for line in proc.stderr:
         if line.startswith("link: listening on"):
@@ -128,13 +147,13 @@ def main() -> None:
     parser.add_argument("--json", default=None, help="write the results here")
     args = parser.parse_args()
     rig = builtin()
-    result = {"fps": args.fps, "seconds": args.seconds}
+    result = {"fps": args.fps, "seconds": args.seconds, "view": view_baseline(args.seconds)}
     with tempfile.TemporaryDirectory() as folder:
         folder = Path(folder)
         take, glb, addon = folder / "take.mcap", folder / "critter.glb", folder / "puppet_link.zip"
         write_take(take, rig, args.seconds, args.fps)
-        subprocess.run(["puppet", "export", str(take), "--gltf", str(glb), "--fps", f"{args.fps:g}"],
-                       check=True, capture_output=True)
+        subprocess.run(["puppet", "export", str(take), "--gltf", str(glb), "--fps",
+                        f"{args.fps:g}"], check=True, capture_output=True)
         subprocess.run(["puppet", "blender", "addon", "--out", str(addon)], check=True,
                        capture_output=True)
         result["frames"] = int(args.seconds * args.fps) + 1
@@ -158,9 +177,10 @@ def main() -> None:
     print(f"critter, {result['frames']} frames at {args.fps:g} fps, loopback "
           f"({result['machine']['cpus']} cpus, load {result['machine']['load_1min']})")
     print(f"{'client':<8}{'applied':>9}{'fps':>8}{'median ms':>11}{'p99 ms':>9}")
-    for name in ("plain", "bones", "mesh"):
+    for name in ROWS:
         r = result[name]
-        print(f"{name:<8}{r['applied']:>9}{r['fps_applied']:>8}{r['median_ms']:>11}{r['p99_ms']:>9}")
+        print(f"{name:<8}{str(r['applied'] or '-'):>9}{r['fps_applied']:>8}{r['median_ms']:>11}"
+              f"{r['p99_ms']:>9}")
     if args.json:
         Path(args.json).write_text(json.dumps(result, indent=2))
 

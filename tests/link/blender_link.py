@@ -5,7 +5,10 @@ running ``puppet play --link``, apply and record frames by calling the add-on's 
 difference of bone heads and tails (world) between target and reference, the mesh mode's
 vertices, and the add-on's status lines.
 
-argv: ZIP GLB PORT MESH(0/1)
+With a CACHE path (else "-") the mesh mode records too and writes the mesh to that PC2 point
+cache.
+
+argv: ZIP GLB PORT MESH(0/1) CACHE
 """
 
 import json
@@ -14,7 +17,8 @@ import time
 
 import bpy
 
-zip_path, glb, port, use_mesh = sys.argv[-4], sys.argv[-3], int(sys.argv[-2]), sys.argv[-1] == "1"
+zip_path, glb, port, use_mesh, cache = sys.argv[-5:]
+port, use_mesh = int(port), use_mesh == "1"
 bpy.ops.wm.read_factory_settings(use_empty=True)
 bpy.ops.preferences.addon_install(filepath=zip_path, overwrite=True)
 bpy.ops.preferences.addon_enable(module="puppet_link")
@@ -32,7 +36,8 @@ target_mesh = next(o for o in new if o.type == "MESH")
 target.animation_data_clear()
 settings = scene.puppet_link
 settings.port, settings.armature, settings.mesh = port, target, target_mesh
-settings.use_mesh, settings.record, settings.start_frame = use_mesh, not use_mesh, 1
+settings.use_mesh, settings.record, settings.start_frame = use_mesh, not use_mesh or cache != "-", 1
+settings.point_cache = "" if cache == "-" else cache
 assert bpy.ops.puppet_link.connect() == {"FINISHED"}
 link = puppet_link.LINK
 keyed, meshes = [], []
@@ -51,7 +56,7 @@ while link.sock is not None and time.monotonic() < deadline:
                                      for i in range(len(co) // 3)]})
     time.sleep(0.002)
 result = {"status": link.status, "notes": link.notes, "applied": link.frames_applied,
-          "malformed": link.malformed, "frames": [], "meshes": meshes}
+          "malformed": link.malformed, "frames": [], "meshes": meshes, "keyed": keyed}
 if not use_mesh:
     for f in sorted(set(keyed)):
         scene.frame_set(f)

@@ -6,10 +6,11 @@ the add-on drive its armature with Record off: puppet's frames are flagged recor
 add-on keys them (calling its own tick: module mode has no event loop). Once its keys span SPAN
 scene frames it disconnects, prints RECORDED and waits for the REFERENCE .glb (the test exports
 the take meanwhile), imports it, and for every scene frame between two recorded keys at most 1.5
-frames apart measures, between the recorded action and the export: the largest distance of bone
-heads and tails (world), and the largest angle (degrees) between the local rotations (relative
-to the parent bone) of the SENSED bones (comma-separated: the joints servos read); and the
-export's own largest change of each from that frame to the next. Prints RESULT {json}.
+frames apart (and before the export's last) measures, between the recorded action and the
+export: the largest distance of bone heads and tails (world), and the largest angle (degrees)
+between the local rotations (relative to the parent bone) of the SENSED bones (comma-separated:
+the joints servos read); and the export's own largest change of each from that frame to the
+next. Prints RESULT {json}.
 """
 
 import json
@@ -72,13 +73,15 @@ def turns(armature):
 
 
 def degrees(a, b):
-    """The largest angle between two lists of rotations (q and -q are one rotation)."""
-    angles = (math.degrees(p.rotation_difference(q).angle) for p, q in zip(a, b))
-    return max(min(x, 360.0 - x) for x in angles)
+    """The largest angle between two lists of rotations (q and -q are one rotation), and the
+    bone it is on."""
+    angles = [math.degrees(p.rotation_difference(q).angle) for p, q in zip(a, b)]
+    return max((min(x, 360.0 - x), name) for x, name in zip(angles, sensed))
 
 
 frames = []
-for f in range(math.ceil(keyed[0]), math.floor(keyed[-1]) + 1):
+last = int(reference.animation_data.action.frame_range[1])  # the export's last frame
+for f in range(math.ceil(keyed[0]), min(math.floor(keyed[-1]), last - 1) + 1):
     before_f = max(x for x in keyed if x <= f)
     after_f = min(x for x in keyed if x >= f)
     if after_f - before_f > 1.5:
@@ -91,7 +94,9 @@ for f in range(math.ceil(keyed[0]), math.floor(keyed[-1]) + 1):
     frames.append({"frame": f,
                    "worst": max((a - b).length for a, b in zip(shown, expected)),
                    "step": max((a - b).length for a, b in zip(expected, following)),
-                   "worst_deg": degrees(shown_turns, expected_turns),
-                   "step_deg": degrees(expected_turns, following_turns)})
+                   "worst_deg": degrees(shown_turns, expected_turns)[0],
+                   "worst_bone": degrees(shown_turns, expected_turns)[1],
+                   "keys": [round(x, 3) for x in keyed if abs(x - f) <= 1.5],
+                   "step_deg": degrees(expected_turns, following_turns)[0]})
 print("RESULT " + json.dumps({"status": status, "keyed": keyed, "frames": frames,
                               "recorded": link.recorded}))

@@ -47,12 +47,14 @@ def addon_zip(tmp_path_factory):
     return out
 
 
-def _blender(addon_zip, glb, take, mesh, wait_until, interrupt_and_wait, rig_file=None):
+def _blender(addon_zip, glb, take, mesh, wait_until, interrupt_and_wait, rig_file=None,
+             cache="-"):
     rig = [] if rig_file is None else ["--rig", rig_file]
     puppet = helpers.Puppet(["play", take, "--link", "127.0.0.1:0", "--speed", "0.25", *rig])
     try:
         port, _ = puppet.listening(wait_until)
-        result = run_bpy.run_bpy_result(SCRIPT.read_text(), addon_zip, glb, port, int(mesh))
+        result = run_bpy.run_bpy_result(SCRIPT.read_text(), addon_zip, glb, port, int(mesh),
+                                        cache)
         assert puppet.proc.wait(timeout=300) == 0
     finally:
         interrupt_and_wait(puppet.proc, read_stderr=False)
@@ -89,6 +91,33 @@ def _mesh_mode(addon_zip, glb, take, rig, wait_until, interrupt_and_wait, rig_fi
 def test_mesh_mode_writes_the_solvers_vertices(addon_zip, exported, take, critter, wait_until,
                                                interrupt_and_wait):
     _mesh_mode(addon_zip, exported["glb"], take, critter, wait_until, interrupt_and_wait)
+
+
+def test_the_point_cache_holds_what_puppets_pc2_export_writes(
+        addon_zip, exported, take, critter, tmp_path, wait_until, interrupt_and_wait):
+    """Recording the exact mesh with a point cache: the add-on's PC2 (its own small writer) has
+    puppet's layout (``puppet.export.pc2``), and every frame it applied equals that frame of
+    ``puppet export --pc2 --up z`` (Blender's axes, the mesh's own space) of the same take."""
+    readers = _load("link_pc2_readers", HERE.parent / "export" / "readers.py")
+    cache, exported_pc2 = tmp_path / "live.pc2", tmp_path / "export.pc2"
+    done = subprocess.run(["puppet", "export", str(take), "--pc2", str(exported_pc2), "--up", "z",
+                           "--fps", "30"], capture_output=True, text=True, timeout=900)
+    assert done.returncode == 0, done.stderr
+    result, _ = _blender(addon_zip, exported["glb"], take, True, wait_until, interrupt_and_wait,
+                         cache=cache)
+    header, samples = readers.read_pc2(cache)
+    reference_header, reference = readers.read_pc2(exported_pc2)
+    assert header["num_points"] == reference_header["num_points"] == len(critter.V)
+    assert header["sample_rate"] == 1.0
+    keyed = sorted(set(result["keyed"]))
+    assert header["start_frame"] == keyed[0], (header, keyed)
+    assert len(samples) == keyed[-1] - keyed[0] + 1
+    assert len(keyed) >= 3, result
+    diagonal = float(np.linalg.norm(critter.V.max(0) - critter.V.min(0)))
+    for frame in keyed:
+        mine = samples[frame - keyed[0]]
+        theirs = reference[frame - int(reference_header["start_frame"])]
+        assert np.abs(mine - theirs).max() <= 1e-5 * diagonal, frame
 
 
 def test_a_moved_turned_scaled_armature_is_driven_as_its_gltf_export_plays(

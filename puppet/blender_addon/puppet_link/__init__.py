@@ -25,6 +25,7 @@ time on the take's time line), where ``puppet export`` of the take puts it.
 from __future__ import annotations
 
 import socket
+import struct
 import time
 
 import bpy
@@ -45,6 +46,36 @@ bl_info = {
 MAP_PREFIX = "puppet_map:"  # armature data custom property: joint -> bone, where names differ
 TICK_S = 0.004
 Z_UP = Matrix(((1, 0, 0, 0), (0, 0, -1, 0), (0, 1, 0, 0), (0, 0, 0, 1)))  # glTF Y up -> Z up
+
+
+PC2_HEADER = struct.Struct("<12siiffi")  # signature, version, points, start frame, rate, samples
+
+
+class PointCache:
+    """A PC2 point cache of the recorded mesh (Blender's Mesh Cache modifier reads it): one
+    sample per scene frame from ``start``, each the newest recorded mesh at or before it (a
+    frame that came late repeats the one before); the header's sample count is patched after
+    every write, so the file is whole whenever it is read. Layout: puppet's
+    ``puppet.export.pc2`` (little endian: "POINTCACHE2\\0", 1, points, start frame, 1.0,
+    samples; then samples x points x float32 x, y, z, the mesh's own space)."""
+
+    def __init__(self, path: str, points: int, start: int):
+        self.file = open(path, "wb")
+        self.points, self.start, self.samples = points, start, 0
+        self.file.write(PC2_HEADER.pack(b"POINTCACHE2\0", 1, points, float(start), 1.0, 0))
+
+    def add(self, co: bytes, at: float) -> None:
+        """The mesh ``co`` (points x 3 float32) recorded at scene frame ``at``."""
+        while self.start + self.samples <= round(at):
+            self.file.write(co)
+            self.samples += 1
+        self.file.seek(PC2_HEADER.size - 4)
+        self.file.write(struct.pack("<i", self.samples))
+        self.file.seek(0, 2)
+        self.file.flush()
+
+    def close(self) -> None:
+        self.file.close()
 
 
 def _trs(t, q) -> Matrix:
@@ -77,6 +108,9 @@ class Link:
         self.bones = []  # (pose bone, joint, parent joint or -1, B⁻¹Z, Z⁻¹B)
         self.recorded = 0
         self.last_frame = None  # the scene frame keyed last
+        self.keyed_q = {}  # bone name: its last keyed quaternion
+        self.mesh_co = None  # the mesh's coordinates last written (points x 3 float32)
+        self.cache = None  # the PointCache being written
         self.mesh_on = False
         self.bound_to = None  # the armature bound (name)
 
@@ -84,6 +118,7 @@ class Link:
 
     def connect(self, host: str, port: int, token: str, mesh: bool) -> None:
         self.close()
+        self.end_cache()
         self.sock = socket.create_connection((host, port), timeout=5.0)
         self.sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
         self.sock.sendall(wire.encode_json(wire.CONNECT, {
@@ -99,6 +134,18 @@ class Link:
             self.sock.close()
         self.sock = None
         self.status = status
+
+    def end_cache(self) -> None:
+        """Close the point cache (the next recording starts a new one)."""
+        if self.cache is not None:
+            self.cache.close()
+            self.cache = None
+
+    def cache_mesh(self, path: str, at: float) -> None:
+        """Add the mesh just written to the point cache at ``path`` (opened at the first one)."""
+        if self.cache is None:
+            self.cache = PointCache(bpy.path.abspath(path), len(self.mesh_co), round(at))
+        self.cache.add(self.mesh_co.tobytes(), at)
 
     def set_mesh(self, on: bool) -> None:
         if self.sock is not None and self.hello is not None and on != self.mesh_on:
@@ -233,19 +280,33 @@ class Link:
         points = np.frombuffer(frame.vertices, np.float32).reshape(-1, 3).astype(np.float64)
         A = np.array(K, np.float64)
         out = points @ A[:3, :3].T + A[:3, 3]
-        mesh.vertices.foreach_set("co", out.astype(np.float32).ravel())
+        self.mesh_co = out.astype(np.float32)
+        mesh.vertices.foreach_set("co", self.mesh_co.ravel())
         mesh.update()
         return True
 
     def record(self, frame, armature, scene, start_frame: int) -> float:
-        """Key the bound bones at start + take time x scene fps; the scene frame keyed."""
+        """Key the bound bones at start + take time x scene fps (linear keys, as the glTF
+        export's); the scene frame keyed. Each bone's quaternion stays on the hemisphere of its
+        previous key (q and -q are one rotation; keys on opposite sides would interpolate
+        through a wrong one)."""
         fps = scene.render.fps / scene.render.fps_base
         at = start_frame + frame.take_s * fps
         if abs(at - round(at)) < 1e-6:
             at = float(round(at))
-        for pose_bone, *_ in self.bones:
-            pose_bone.keyframe_insert("location", frame=at, group=pose_bone.name)
-            pose_bone.keyframe_insert("rotation_quaternion", frame=at, group=pose_bone.name)
+        edit = bpy.context.preferences.edit
+        interpolation = edit.keyframe_new_interpolation_type
+        edit.keyframe_new_interpolation_type = "LINEAR"  # as the glTF export's keys play
+        try:
+            for pose_bone, *_ in self.bones:
+                q, previous = pose_bone.rotation_quaternion, self.keyed_q.get(pose_bone.name)
+                if previous is not None and q.dot(previous) < 0:
+                    pose_bone.rotation_quaternion = -q
+                self.keyed_q[pose_bone.name] = pose_bone.rotation_quaternion.copy()
+                pose_bone.keyframe_insert("location", frame=at, group=pose_bone.name)
+                pose_bone.keyframe_insert("rotation_quaternion", frame=at, group=pose_bone.name)
+        finally:
+            edit.keyframe_new_interpolation_type = interpolation
         self.recorded += 1
         self.last_frame = at
         return at
@@ -260,6 +321,7 @@ def tick():
     settings = bpy.context.scene.puppet_link
     armature = settings.armature
     if LINK.sock is None:
+        LINK.end_cache()
         return None
     frame = LINK.poll()
     if frame is None or LINK.hello is None or armature is None:
@@ -269,17 +331,22 @@ def tick():
         LINK.bound_to = armature.name
     LINK.set_mesh(settings.use_mesh)
     LINK.apply(frame, armature)
+    meshed = False
     if settings.use_mesh and settings.mesh is not None and frame.vertices is not None:
-        LINK.apply_mesh(frame, armature, settings.mesh)
+        meshed = LINK.apply_mesh(frame, armature, settings.mesh)
     elif not settings.use_mesh and settings.mesh is not None:
         for modifier in settings.mesh.modifiers:
             if modifier.type == "ARMATURE":
                 modifier.show_viewport = True
     if settings.record or frame.recording:
-        LINK.record(frame, armature, bpy.context.scene, settings.start_frame)
+        at = LINK.record(frame, armature, bpy.context.scene, settings.start_frame)
+        if meshed and settings.point_cache:
+            LINK.cache_mesh(settings.point_cache, at)
     LINK.frames_applied += 1
     LINK.last_seq, LINK.last_take_s = frame.seq, frame.take_s
     LINK.ack(frame.seq)
+    if LINK.sock is None:  # puppet stopped with this frame
+        LINK.end_cache()
     return TICK_S
 
 
@@ -303,6 +370,9 @@ class PuppetLinkSettings(bpy.types.PropertyGroup):
     record: bpy.props.BoolProperty(name="Record", default=False,
                                    description="Key the bones at start + take time x scene fps")
     start_frame: bpy.props.IntProperty(name="Start frame", default=1)
+    point_cache: bpy.props.StringProperty(
+        name="Point cache", default="", subtype="FILE_PATH",
+        description="While recording the exact mesh, also write it to this PC2 file (empty: no)")
 
 
 class PUPPETLINK_OT_connect(bpy.types.Operator):
@@ -380,6 +450,7 @@ class PUPPETLINK_PT_panel(bpy.types.Panel):
         row = layout.row()
         row.prop(s, "record")
         row.prop(s, "start_frame")
+        layout.prop(s, "point_cache")
         for note in LINK.notes:
             layout.label(text=note)
         if s.armature is not None:
@@ -403,6 +474,7 @@ def register():
 
 def unregister():
     LINK.close()
+    LINK.end_cache()
     if bpy.app.timers.is_registered(tick):
         bpy.app.timers.unregister(tick)
     del bpy.types.Scene.puppet_link
