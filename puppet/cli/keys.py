@@ -10,6 +10,7 @@ import time
 import click
 
 from puppet import limits
+from puppet.cli.blender import link_option, open_link, report_link
 from puppet.cli.common import InRange, StopFlag, check_take_path, load_rig, start_reader
 from puppet.cli.view import view_option
 
@@ -53,8 +54,10 @@ def say_outcome(origin, taken: bool, words: str) -> None:
               help=f"Bus speed: {limits.BAUD}.")
 @click.option("--force", is_flag=True, help="Replace an existing shot file.")
 @view_option
+@link_option
 @click.pass_context
-def keys(ctx, rig_path, port, out, fps, step, interpolation, baud, force, view_address) -> None:
+def keys(ctx, rig_path, port, out, fps, step, interpolation, baud, force, view_address,
+         link_address) -> None:
     """Pose to pose: hold a pose and press Enter; each key lands --step frames after the last.
 
     \b
@@ -71,6 +74,7 @@ def keys(ctx, rig_path, port, out, fps, step, interpolation, baud, force, view_a
     Examples:
       puppet keys --rig my.toml --port /dev/ttyUSB0 --out shot.mcap --fps 24 --step 12
       puppet keys --rig my.toml --port /dev/ttyUSB0 --out shot.mcap --view   (and the page)
+      puppet keys --rig my.toml --port /dev/ttyUSB0 --out shot.mcap --view --link   (Blender)
       puppet keys retime shot.mcap 3=40 4=52 --out retimed.mcap
       puppet keys delete shot.mcap 2 --out fewer.mcap
       puppet keys interpolation shot.mcap 0=smooth 2=step --out smooth.mcap
@@ -85,17 +89,27 @@ def keys(ctx, rig_path, port, out, fps, step, interpolation, baud, force, view_a
                if value is None]
     if missing:
         raise click.UsageError(f"missing {', '.join(missing)} (or a command: retime, delete, interpolation, goto)")
+    if link_address is not None and view_address is None:
+        raise click.UsageError("--link streams the live loop that --view runs: add --view")
     rig = load_rig(rig_path)
     check_take_path(out, rig, force=force)  # before the port: a mistake costs nothing
     session = KeySession(out, take_header(rig), fps=fps, step=step, interpolation=interpolation)
     desk = KeyDesk(session, tell=say_outcome)
+    link = None
     if view_address is not None:  # bound before the bus is touched: a taken port fails first
-        source = _capture_in_view(rig, port, baud, desk, view_address)
+        link = open_link(link_address, rig) if link_address is not None else None
+        try:
+            source = _capture_in_view(rig, port, baud, desk, view_address, link)
+        finally:
+            if link is not None:
+                link.close()
     else:
         source = _capture(rig, port, baud, desk)
     frames = session.keys.keys[-1].frame if session.keys.keys else 0
     click.echo(f"shot: {out}\nkeys: {len(session.keys.keys)}, {frames} frames at {fps:g} fps\n"
                f"faults seen: {dict(source.log.counts) or 'none'}")
+    if link is not None:
+        click.echo(f"link: {report_link(link)['link']}")
 
 
 def _capture(rig, port: str, baud: int, desk):
@@ -114,11 +128,13 @@ def _capture(rig, port: str, baud: int, desk):
     return source
 
 
-def _capture_in_view(rig, port: str, baud: int, desk, address: str):
+def _capture_in_view(rig, port: str, baud: int, desk, address: str, link=None):
     """The capture inside the live view: the live loop solves and shows the puppet, the view
-    hands the KeyDesk its readings and the page's keys; the terminal's commands work as well."""
+    hands the KeyDesk its readings and the page's keys; the terminal's commands work as well.
+    link: a Link (``--link``) fed every solved frame of that loop, or None."""
     from puppet.cli.view import open_view
     from puppet.loop import Pipeline, run_live
+    from puppet.loop.run import LIVE_FPS
 
     live_view = open_view(address, mode="live", keys=desk)
     stop = StopFlag()
@@ -127,11 +143,13 @@ def _capture_in_view(rig, port: str, baud: int, desk, address: str):
             source = start_reader(rig, port, baud, rate_hz=200.0)
             try:
                 live_view.attach(pipeline, source=source)
+                if link is not None:
+                    link.attach(pipeline, fps=LIVE_FPS)
                 threading.Thread(target=_lines, args=(desk, False), daemon=True).start()
                 click.echo("hold a pose and press Enter here, or Space or Key on the page, for a "
                            "key (r N, d N, i FRAME, t N FRAME, m [N] KIND, q: see --help)")
                 run_live(pipeline, source, should_stop=lambda: stop() or desk.finished,
-                         view=live_view)
+                         view=live_view, link=link)
             finally:
                 live_view.close()
                 source.stop()

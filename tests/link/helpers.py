@@ -15,9 +15,9 @@ import pygltflib
 class Puppet:
     """A running ``puppet ...`` command; its stderr lines collected on a thread."""
 
-    def __init__(self, argv, program=("puppet",)):
-        self.proc = subprocess.Popen([*program, *map(str, argv)], stdout=subprocess.PIPE,
-                                     stderr=subprocess.PIPE, text=True)
+    def __init__(self, argv, program=("puppet",), stdin=None):
+        self.proc = subprocess.Popen([*program, *map(str, argv)], stdin=stdin,
+                                     stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
         self.lines: list[str] = []
         self.out: list[str] = []
         for stream, into in ((self.proc.stderr, self.lines), (self.proc.stdout, self.out)):

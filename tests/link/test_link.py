@@ -175,3 +175,42 @@ def test_demo_streams_the_live_loop_with_reading_times(tmp_path, critter, wait_u
         assert any(line.startswith("link: 1 client(s)") for line in puppet.out), puppet.out
     finally:
         interrupt_and_wait(puppet.proc, read_stderr=False)
+
+
+def test_keys_streams_the_loop_it_shows_on_the_page(tmp_path, critter, wait_until,
+                                                    interrupt_and_wait):
+    """``puppet keys --view --link``: the capture's live loop goes to Blender as live does;
+    without --view (no loop to stream) --link is refused before the bus."""
+    import hw_sim
+    from puppet.rig.load import BUILTIN_RIG
+
+    refused = subprocess.run(["puppet", "keys", "--rig", str(BUILTIN_RIG), "--port", "no-port",
+                              "--out", str(tmp_path / "s.mcap"), "--link", "127.0.0.1:0"],
+                             capture_output=True, text=True, timeout=300)
+    assert refused.returncode == 2, refused.stderr
+    assert "--link streams the live loop that --view runs: add --view" in refused.stderr
+    with hw_sim.serve(critter.servo_map.models) as bus:
+        puppet = Puppet(["keys", "--rig", BUILTIN_RIG, "--port", bus.port, "--out",
+                         tmp_path / "shot.mcap", "--view", "127.0.0.1:0", "--link",
+                         "127.0.0.1:0"], stdin=subprocess.PIPE)
+        try:
+            port, _ = puppet.listening(wait_until)
+            live = Client(port)
+            assert live.first[0] == wire.HELLO
+            assert live.first[1]["joints"] == list(critter.skeleton.names)
+            seqs = []
+            while len(seqs) < 3:
+                kind, frame = live.next()
+                assert kind == wire.FRAME_KIND
+                seqs.append(frame.seq)
+                live.ack(frame.seq)
+            assert seqs == sorted(set(seqs))
+            puppet.proc.stdin.write("q\n")
+            puppet.proc.stdin.flush()
+            while kind == wire.FRAME_KIND:
+                kind, _ = live.next()
+            assert kind == wire.BYE
+            assert puppet.proc.wait(timeout=300) == 0, "\n".join(puppet.lines)
+            assert any(line.startswith("link: 1 client(s)") for line in puppet.out), puppet.out
+        finally:
+            interrupt_and_wait(puppet.proc, read_stderr=False)
