@@ -87,11 +87,19 @@ def test_rig_info_text_and_bad_rig(tube_rig_dir):
 def test_the_protocol1_variant_is_the_critter_on_ax12a_and_mx28_as_generated():
     """critter_ax.toml is make_character's text (not a hand copy): the critter's joints, axes,
     signs and limits on one Protocol 1.0 bus, AX-12A on ids 1..8 (zero near 512), MX-28 the rest."""
+    import importlib.util
     import tomllib
 
-    from puppet.rig.builtin.make_character import AX_IDS, rig_toml
     from puppet.rig.load import BUILTIN_AX_RIG, BUILTIN_RIG
     from puppet.servo_models import PROTOCOL_1
+
+    # Loaded by path: importing puppet.rig.builtin.make_character would bind the data package
+    # over the function puppet.rig.builtin() for every later test in this process.
+    spec = importlib.util.spec_from_file_location("make_character",
+                                                  BUILTIN_RIG.parent / "make_character.py")
+    make_character = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(make_character)
+    AX_IDS, rig_toml = make_character.AX_IDS, make_character.rig_toml
 
     pin = tomllib.loads(BUILTIN_RIG.read_text())["pin"][0]["vertex"]
     assert BUILTIN_AX_RIG.read_text() == rig_toml(pin, protocol1=True)
