@@ -98,21 +98,26 @@ class StopFlag:
 
 
 def make_sinks(out: str | None, frames: str | None, fps: float, inputs=(), *,
-               force: bool = False) -> list:
+               force: bool = False, sound=None, sound_offset_s: float = 0.0,
+               timecode=None) -> list:
     """Frame sinks for a video file and/or a PNG folder, after checking both by the one rule
     for outputs (``puppet.atomic``: not one of ``inputs``, not a device or FIFO, an existing file
     of another kind only with ``force``). The video is written to a temporary file and renamed
-    into place when finished."""
+    into place when finished; sound, sound_offset_s, timecode: as ``VideoSink`` (the sound is
+    an input too)."""
     from puppet.atomic import check_folder_output, check_output
     from puppet.render import PngSink, VideoSink
 
+    if sound is not None:
+        inputs = [*inputs, sound.path]
     if out:
         check_output(out, kind="video", inputs=inputs, force=force, what="video")
     if frames:
         check_folder_output(frames)
     sinks = []
     if out:
-        sinks.append(VideoSink(out, fps))
+        sinks.append(VideoSink(out, fps, sound=sound, sound_offset_s=sound_offset_s,
+                               timecode=timecode))
     if frames:
         Path(frames).mkdir(parents=True, exist_ok=True)
         sinks.append(PngSink(frames))

@@ -24,12 +24,15 @@ from puppet.cli.view import view_option
               help=f"Frame rate of the video and frames ({limits.FPS}).")
 @click.option("--antialias", type=click.Choice(["msaa", "fxaa", "none"]), default="msaa",
               show_default=True, help="Offline: MSAA by default, whatever the renderer.")
+@click.option("--sound", "sound_path", default=None, metavar="FILE",
+              help="Sound (WAV, FLAC, OGG, MP3) muxed into --out at the take's offset (default: "
+                   "the take's own, found by its hash at its path or beside the take).")
 @view_option
 @link_option
 @force_option
 def play(take: str, rig_path: str | None, out: str | None, frames: str | None, speed: float,
          fps: float, antialias: str, view_address: str | None, link_address: str | None,
-         force: bool) -> None:
+         force: bool, sound_path: str | None) -> None:
     """Replay a take through the solver and renderer (deterministic).
 
     \b
@@ -57,7 +60,9 @@ def play(take: str, rig_path: str | None, out: str | None, frames: str | None, s
     if not out and not frames:
         fail("nothing to write: give --out VIDEO and/or --frames FOLDER (or watch it: --view)")
     rig, reader = open_take(take, rig_path)
-    sinks = make_sinks(out, frames, fps, inputs=[take, *rig_files(rig)], force=force)
+    sound, offset_s, timecode = _sound(reader, sound_path, out, speed)
+    sinks = make_sinks(out, frames, fps, inputs=[take, *rig_files(rig)], force=force,
+                       sound=sound, sound_offset_s=offset_s, timecode=timecode)
     stop = StopFlag()  # Ctrl-C or SIGTERM: stop after this frame, finish the video (playable)
     bar = None
     total = 0
@@ -80,9 +85,29 @@ def play(take: str, rig_path: str | None, out: str | None, frames: str | None, s
         if bar is not None:
             bar.__exit__(None, None, None)
     close_sinks(sinks)
+    for note in (n for sink in sinks for n in getattr(sink, "notes", ())):
+        click.echo(f"warning: {note}", err=True)
     if stop():
         click.echo(f"stopped by {stop.signal_name} after {summary.frames} of {total} frames; "
                    "the outputs hold those frames", err=True)
     print_summary(summary, False, extra={"take": take, "video": out} if out else {"take": take})
+
+def _sound(reader, sound_path: str | None, out: str | None, speed: float):
+    """(sound, offset_s, start timecode) for the video: the take's own sound (or --sound FILE);
+    a missing one, or a --speed other than 1, plays silent with one warning."""
+    from puppet.sound import sound_for_take
+
+    timecode = reader.metadata.timecode
+    if out is None or (sound_path is None and reader.metadata.sound is None):
+        return None, 0.0, timecode
+    if speed != 1.0:
+        click.echo(f"warning: --speed {speed:g}: the video is silent (its sound plays at speed 1 "
+                   "only)", err=True)
+        return None, 0.0, timecode
+    sound, offset_s, warning = sound_for_take(reader, sound_path)
+    if warning is not None:
+        click.echo(f"warning: {warning}", err=True)
+    return sound, offset_s, timecode
+
 
 COMMANDS = (play,)

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 from puppet.sound.decode import SUFFIXES, Sound, file_sha256, load_sound
 from puppet.sound.errors import SoundError
-from puppet.sound.locate import find_take_sound, keep_copy
+from puppet.sound.locate import find_take_sound, keep_copy, sound_for_take
 from puppet.sound.window import take_window
 from puppet.take.sync import SoundRef
 
@@ -26,4 +26,4 @@ def sound_ref(sound: Sound, offset_s: float = 0.0) -> SoundRef:
 
 
 __all__ = ["SUFFIXES", "Sound", "SoundError", "SoundRef", "file_sha256", "find_take_sound",
-           "keep_copy", "load_sound", "sound_ref", "take_window"]
+           "keep_copy", "load_sound", "sound_for_take", "sound_ref", "take_window"]

@@ -88,3 +88,19 @@ def keep_copy(sound: Sound, folder) -> Path:
             raise SoundError(target, f"cannot copy the sound here: {err.strerror or err}") from None
         return target
     raise SoundError(target_folder, f"both {names[0]} and {names[1]} exist with other content")
+
+
+def sound_for_take(reader, given=None) -> tuple[Sound | None, float, str | None]:
+    """(sound, offset_s, warning) to play a take with.
+
+    reader: the take's TakeReader; given: a sound file the user named (``--sound FILE``), or None
+    for the take's own (``find_take_sound``). offset_s: the take's stored offset (0 for a take
+    recorded without sound). warning: one line when the take's sound is missing (then sound is
+    None: it plays silent), else None. A given file that cannot be decoded is a SoundError.
+    """
+    ref = getattr(reader.metadata, "sound", None)
+    offset = ref.offset_s if ref is not None else 0.0
+    if given is not None:
+        return load_sound(given), offset, None
+    sound, warning = find_take_sound(ref, reader.path)
+    return sound, offset, warning
