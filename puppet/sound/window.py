@@ -30,10 +30,16 @@ def take_window(samples: np.ndarray, rate: int, offset_s: float, start_s: float,
         out = np.empty((n, channels), np.float32)
     elif out.shape != (n, channels):
         raise ValueError(f"take_window: out is {out.shape}, needs ({n}, {channels})")
-    begin = first_sample(offset_s, rate) + round(start_s * rate)
+    return fill_from(samples, first_sample(offset_s, rate) + round(start_s * rate), out)
+
+
+def fill_from(samples: np.ndarray, begin: int, out: np.ndarray) -> np.ndarray:
+    """out (n, channels) = samples[begin : begin + n], silence where that runs off the sound
+    (begin may be negative); allocates nothing."""
+    n = out.shape[0]
     lo, hi = max(begin, 0), min(begin + n, samples.shape[0])
     if hi <= lo:
-        out[...] = 0.0
+        out.fill(0.0)
         return out
     out[: lo - begin] = 0.0
     out[lo - begin : hi - begin] = samples[lo:hi]
