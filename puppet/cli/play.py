@@ -43,6 +43,8 @@ def play(take: str, rig_path: str | None, out: str | None, frames: str | None, s
     """
     from puppet.replay import play_take
 
+    if sound_path is not None and out is None:
+        fail("--sound is muxed into the video: give --out VIDEO")
     if view_address is not None and link_address is not None:
         fail("--view and --link: pick one for a play (both work on live and demo)")
     if link_address is not None:

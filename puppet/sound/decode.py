@@ -95,7 +95,11 @@ def load_sound(path: str | os.PathLike) -> Sound:
             _check_header(path, rate, channels, frames, f.format)
             samples = f.read(dtype="float32", always_2d=True)
     except (sf.LibsndfileError, RuntimeError, TypeError) as err:
-        raise SoundError(path, f"cannot decode it as a sound (WAV, FLAC, OGG or MP3): {err}") from None
+        said = getattr(err, "error_string", None) or str(err)
+        # libsndfile says "does not exist" of a file it cannot recognise: it exists (checked above)
+        said = "" if "does not exist" in said else f" (libsndfile: {said})"
+        raise SoundError(path, f"cannot decode it as a sound: not a WAV, FLAC, OGG or MP3 file "
+                               f"libsndfile reads{said}") from None
     if samples.shape[0] == 0:
         raise SoundError(path, "holds no samples (an empty sound)")
     if samples.shape[0] > limits.SOUND_SECONDS_MAX * rate:  # an MP3's frame count is an estimate

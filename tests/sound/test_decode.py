@@ -42,8 +42,13 @@ def test_every_format_decodes_to_its_clicks(tmp_path, suffix, lossy, clicks):
 def test_undecodable_file_is_refused_by_name(tmp_path):
     path = tmp_path / "notes.wav"
     path.write_text("these are not samples\n" * 20)
-    with pytest.raises(SoundError, match=r"notes\.wav: cannot decode it as a sound"):
+    with pytest.raises(SoundError, match=r"notes\.wav: cannot decode it as a sound: not a WAV"):
         load_sound(path)
+    mp3 = tmp_path / "noise.mp3"
+    mp3.write_bytes(bytes(range(256)) * 8)
+    with pytest.raises(SoundError, match=r"noise\.mp3: cannot decode it as a sound") as caught:
+        load_sound(mp3)
+    assert "does not exist" not in str(caught.value)
 
 
 def test_empty_and_missing_files_are_refused(tmp_path):

@@ -140,3 +140,18 @@ def test_play_out_muxes_the_takes_sound_or_warns_once(tmp_path, voiced_take, cli
     info = subprocess.run([imageio_ffmpeg.get_ffmpeg_exe(), "-hide_banner", "-i", str(silent)],
                           capture_output=True, text=True).stderr
     assert "Video:" in info and "Audio:" not in info
+
+
+def test_a_bad_sound_is_an_error_naming_it(tmp_path, voiced_take):
+    take, _ = voiced_take
+    bad = tmp_path / "bad.mp3"
+    bad.write_bytes(b"not a sound at all" * 64)
+    for args in (("export", take, "--bvh", tmp_path / "o.bvh", "--sound", bad),
+                 ("play", take, "--out", tmp_path / "o.mp4", "--sound", bad)):
+        result = run(*args)
+        assert result.returncode == 1, result.stderr
+        assert f"Error: {bad}: cannot decode it as a sound" in result.stderr
+        assert "Traceback" not in result.stderr
+    assert not (tmp_path / "o.bvh").exists() and not (tmp_path / "o.mp4").exists()
+    result = run("play", take, "--sound", bad, "--frames", tmp_path / "f")
+    assert result.returncode == 1 and "--sound is muxed into the video: give --out" in result.stderr
