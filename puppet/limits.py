@@ -108,3 +108,13 @@ KEY_INDEX = Range(0, 100_000, integer=True)
 """keys delete / goto: a key's index in its shot (0 = the first key)."""
 SKIN_INDEX = Range(0, 1_000_000, integer=True)
 """glTF skin index."""
+SOUND_SECONDS_MAX = 900.0
+"""A sound (--sound FILE) lasts at most 15 minutes: a performance to a voice or a song, and
+330 MB decoded at 48 kHz stereo (float32), what a 2-core machine's memory takes beside a render."""
+SOUND_RATES = (8000, 11025, 16000, 22050, 24000, 32000, 44100, 48000, 88200, 96000, 176400,
+               192000)
+"""Sample rates a sound may have (Hz): the standard ones; anything else is refused."""
+SOUND_CHANNELS_MAX = 8
+"""Channels a sound may have (7.1 at most)."""
+SOUND_OFFSET = Range(-SOUND_SECONDS_MAX, SOUND_SECONDS_MAX, "s")
+"""--sound-offset: the sound's time at the take's time 0 (negative: the sound starts after it)."""

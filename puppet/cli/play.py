@@ -24,12 +24,15 @@ from puppet.cli.view import view_option
               help=f"Frame rate of the video and frames ({limits.FPS}).")
 @click.option("--antialias", type=click.Choice(["msaa", "fxaa", "none"]), default="msaa",
               show_default=True, help="Offline: MSAA by default, whatever the renderer.")
+@click.option("--sound", "sound_path", default=None, metavar="FILE",
+              help="Sound (WAV, FLAC, OGG, MP3) muxed into --out at the take's offset (default: "
+                   "the take's own, found by its hash at its path or beside the take).")
 @view_option
 @link_option
 @force_option
 def play(take: str, rig_path: str | None, out: str | None, frames: str | None, speed: float,
          fps: float, antialias: str, view_address: str | None, link_address: str | None,
-         force: bool) -> None:
+         force: bool, sound_path: str | None) -> None:
     """Replay a take through the solver and renderer (deterministic).
 
     \b
@@ -43,6 +46,8 @@ def play(take: str, rig_path: str | None, out: str | None, frames: str | None, s
     from puppet.session.sources import TakeFrames, TakeOnClock
     from puppet.take import Playback
 
+    if sound_path is not None and out is None:
+        fail("--sound is muxed into the video: give --out VIDEO")
     if view_address is not None and link_address is not None:
         fail("--view and --link: pick one for a play (both work on live and demo)")
     if not out and not frames and view_address is None and link_address is None:
@@ -50,7 +55,9 @@ def play(take: str, rig_path: str | None, out: str | None, frames: str | None, s
     rig, reader = open_take(take, rig_path)
     outputs = []
     if out:
-        outputs.append(o.Video(out, fps, force=force))
+        sound, offset_s, timecode = _sound(reader, sound_path, speed)
+        outputs.append(o.Video(out, fps, force=force, sound=sound, sound_offset_s=offset_s,
+                               timecode=timecode, tell=say))
     if frames:
         outputs.append(o.Frames(frames))
     bar = None
@@ -85,6 +92,23 @@ def play(take: str, rig_path: str | None, out: str | None, frames: str | None, s
     from puppet.cli.common import print_summary
 
     print_summary(session.summary, False, extra={"take": take, **session.report()})
+
+
+def _sound(reader, sound_path: str | None, speed: float):
+    """(sound, offset_s, start timecode) for the video: the take's own sound (or --sound FILE);
+    a missing one, or a --speed other than 1, plays silent with one warning."""
+    from puppet.sound import sound_for_take
+
+    timecode = reader.metadata.timecode
+    if sound_path is None and reader.metadata.sound is None:
+        return None, 0.0, timecode
+    if speed != 1.0:
+        say(f"warning: --speed {speed:g}: the video is silent (its sound plays at speed 1 only)")
+        return None, 0.0, timecode
+    sound, offset_s, warning = sound_for_take(reader, sound_path)
+    if warning is not None:
+        say(f"warning: {warning}")
+    return sound, offset_s, timecode
 
 
 COMMANDS = (play,)

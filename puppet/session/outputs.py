@@ -76,17 +76,24 @@ class Video(Output):
 
     renders = True
 
-    def __init__(self, path, fps: float, *, force: bool = False, option: str = "--out") -> None:
+    def __init__(self, path, fps: float, *, force: bool = False, option: str = "--out",
+                 sound=None, sound_offset_s: float = 0.0, timecode=None, tell=print) -> None:
         self.path = Path(path)
         self.fps = fps
         self.force = force
         self.option = f"{option} {path}"
+        self.sound = sound              # a puppet.sound Sound muxed in when finished (an input)
+        self.sound_offset_s = sound_offset_s
+        self.timecode = timecode
+        self.tell = tell
 
     def check(self, inputs) -> None:
         import imageio_ffmpeg
 
         from puppet.atomic import check_output
 
+        if self.sound is not None:
+            inputs = [*inputs, self.sound.path]
         check_output(self.path, kind="video", inputs=inputs, force=self.force, what="video")
         _writable_folder(self.path, self.option)
         imageio_ffmpeg.get_ffmpeg_exe()  # found (and cached) now: its probe runs no later
@@ -94,7 +101,8 @@ class Video(Output):
     def open(self, run) -> None:
         from puppet.render import VideoSink
 
-        self.sink = VideoSink(self.path, self.fps)
+        self.sink = VideoSink(self.path, self.fps, sound=self.sound,
+                              sound_offset_s=self.sound_offset_s, timecode=self.timecode)
 
     def close(self) -> None:
         if self.sink is None:
@@ -103,8 +111,12 @@ class Video(Output):
         self.frames = sink.count
         if sink.count == 0:
             sink.abort()  # nothing made: no file
-        else:
+            return
+        try:
             sink.close()
+        finally:
+            for note in sink.notes:
+                self.tell(f"warning: {note}")
 
     def report(self) -> dict:
         return {"video": str(self.path)}
