@@ -108,3 +108,24 @@ KEY_INDEX = Range(0, 100_000, integer=True)
 """keys delete / goto: a key's index in its shot (0 = the first key)."""
 SKIN_INDEX = Range(0, 1_000_000, integer=True)
 """glTF skin index."""
+
+# Session folders (puppet.studio): what one index holds, bounded so that it stays a file a person
+# can read and the page can list at once.
+SESSION_TAKES = 10_000
+"""Takes in one session folder, trashed ones included (a take's number is never reused)."""
+SESSION_SHOTS = 1_000
+"""Shots in one session folder."""
+TAKE_NUMBER = Range(1, SESSION_TAKES, integer=True)
+"""A take's number within its shot (take 1 is the shot's first recording)."""
+NOTE_CHARS = 2_000
+"""Characters of a take's note."""
+NAME_CHARS = 80
+"""Characters of a shot's or a segment's name."""
+SEGMENTS_PER_TAKE = 100
+"""Segments (named in/out clips) of one take."""
+INDEX_BYTES = 32 * 1024 * 1024
+"""Size of a session's index file (10 000 takes with notes and segments fit); a larger file is
+not read: it is treated as damaged and rebuilt from the takes."""
+SESSION_FREE_BYTES = 16 * 1024 * 1024
+"""Free space a session folder's disk must have before a recording starts (about four minutes of
+15 servos read at 500 Hz: 131 bytes a reading)."""
