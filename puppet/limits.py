@@ -129,3 +129,5 @@ not read: it is treated as damaged and rebuilt from the takes."""
 SESSION_FREE_BYTES = 16 * 1024 * 1024
 """Free space a session folder's disk must have before a recording starts (about four minutes of
 15 servos read at 500 Hz: 131 bytes a reading)."""
+SECONDS_FROM_START = Range(0.0, 1e6, "s")
+"""A point in a take: seconds from its first reading (a segment's in and out)."""

@@ -250,9 +250,10 @@ class SessionWriter(SessionFolder):
         within its duration; loop: play it as a loop (its seam blended)."""
         found, take = self._editable(shot, number, "add a segment")
         name = self._name(name, "segment name")
-        if any(s.name.casefold() == name.casefold() for s in take.segments):
+        same = next((s for s in take.segments if s.name.casefold() == name.casefold()), None)
+        if same is not None:
             raise StudioError(f"{self.folder}: shot {found.name!r} take {number} has a segment "
-                              f"{name!r} already")
+                              f"{same.name!r} already")
         if len(take.segments) >= limits.SEGMENTS_PER_TAKE:
             raise StudioError(f"{self.folder}: shot {found.name!r} take {number} has "
                               f"{limits.SEGMENTS_PER_TAKE} segments (limits.SEGMENTS_PER_TAKE)")
