@@ -150,13 +150,15 @@ def restore(folder: str, shot_name: str, take: int) -> None:
 @click.argument("shot_name", metavar="SHOT")
 @click.argument("take", type=_TAKE)
 @click.argument("name")
-@click.argument("in_s", metavar="IN", type=InRange(limits.SECONDS_FROM_START))
-@click.argument("out_s", metavar="OUT", type=InRange(limits.SECONDS_FROM_START))
+@click.argument("in_s", metavar="[IN", type=InRange(limits.SECONDS_FROM_START), required=False)
+@click.argument("out_s", metavar="OUT]", type=InRange(limits.SECONDS_FROM_START), required=False)
 @click.option("--loop", is_flag=True, help="The clip plays as a loop (its seam blended).")
-@click.option("--remove", is_flag=True, help="Remove the segment NAME instead (IN OUT ignored).")
-def segment(folder: str, shot_name: str, take: int, name: str, in_s: float, out_s: float,
-            loop: bool, remove: bool) -> None:
+@click.option("--remove", is_flag=True, help="Remove the segment NAME instead (no IN OUT).")
+def segment(folder: str, shot_name: str, take: int, name: str, in_s: float | None,
+            out_s: float | None, loop: bool, remove: bool) -> None:
     """A named clip of a take from IN to OUT seconds (0 = its first reading)."""
+    if remove != (in_s is None and out_s is None) or (in_s is None) != (out_s is None):
+        raise click.UsageError("give IN and OUT (seconds) to add a segment, neither with --remove")
     with _writer(folder) as writer:
         if remove:
             writer.remove_segment(shot_name, take, name)

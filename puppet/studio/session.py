@@ -22,8 +22,10 @@ from __future__ import annotations
 
 import copy
 import errno
+import functools
 import math
 import os
+import threading
 import time
 import unicodedata
 from contextlib import contextmanager
@@ -38,8 +40,21 @@ from puppet.studio.index import Segment, Shot, Take, utc_text
 from puppet.studio.lock import SessionLock
 
 
+def _one_at_a_time(method):
+    """Run a public method of SessionWriter holding its mutex: threads of one studio (a page's
+    handlers, a recording that ends) change the index one change at a time."""
+
+    @functools.wraps(method)
+    def serialised(self, *args, **kwargs):
+        with self._mutex:
+            return method(self, *args, **kwargs)
+
+    return serialised
+
+
 class SessionWriter(SessionFolder):
-    """A session folder opened for writing, holding its lock until ``close()``.
+    """A session folder opened for writing, holding its lock until ``close()``; its methods may
+    be called from several threads (one change at a time).
 
     folder, index, notes: as SessionFolder (notes also say a stale lock taken over, a rebuilt
     index written); lock: the SessionLock held."""
@@ -47,6 +62,7 @@ class SessionWriter(SessionFolder):
     def __init__(self, folder: Path, index, notes: list[str], lock: SessionLock):
         super().__init__(folder, index, notes)
         self.lock = lock
+        self._mutex = threading.RLock()
 
     @classmethod
     def open(cls, folder: str | os.PathLike, *, create: bool = True) -> "SessionWriter":
@@ -79,6 +95,8 @@ class SessionWriter(SessionFolder):
     @classmethod
     def _open_locked(cls, folder: Path, lock: SessionLock) -> "SessionWriter":
         notes = []
+        for stale in folder.glob(".session.*.partial.json"):  # a killed writer's temporary
+            stale.unlink(missing_ok=True)
         if lock.took_over:
             notes.append(f"{lock.path}: took over the lock of {lock.took_over}")
         for part in (layout.TAKES, layout.TRASH, layout.EXPORTS):
@@ -97,6 +115,12 @@ class SessionWriter(SessionFolder):
             session._write()  # new, rebuilt or takes found: an unchanged index is not rewritten
         return session
 
+    @_one_at_a_time
+    def listing(self) -> dict:
+        """As SessionFolder.listing, never in the middle of a change."""
+        return super().listing()
+
+    @_one_at_a_time
     def close(self) -> None:
         """Let go of the session (its lock); safe to call twice."""
         self.lock.release()
@@ -108,6 +132,7 @@ class SessionWriter(SessionFolder):
         self.close()
 
     # ---- shots ----
+    @_one_at_a_time
     def new_shot(self, name: str) -> Shot:
         """A new shot called ``name`` (unique, at most limits.NAME_CHARS), now the current one."""
         name = self._name(name, "shot name")
@@ -122,6 +147,7 @@ class SessionWriter(SessionFolder):
             self.index.current_shot = key
         return shot
 
+    @_one_at_a_time
     def use_shot(self, shot: str) -> Shot:
         """Make shot ``shot`` (a name or a folder name) the one new recordings go to."""
         found = self.shot(shot)
@@ -129,6 +155,7 @@ class SessionWriter(SessionFolder):
             self.index.current_shot = found.key
         return found
 
+    @_one_at_a_time
     def rename_shot(self, shot: str, name: str) -> Shot:
         """Call shot ``shot`` ``name`` from now on (its folder keeps its name: no file moves)."""
         found = self.shot(shot)
@@ -140,6 +167,7 @@ class SessionWriter(SessionFolder):
         return found
 
     # ---- recording ----
+    @_one_at_a_time
     def new_take_path(self) -> Path:
         """Where the current shot's next take is to be recorded (takes/<shot>/takeNNN.mcap; a
         first shot "shot 1" is made when there is none). Checked before recording: the bounds,
@@ -166,6 +194,7 @@ class SessionWriter(SessionFolder):
         check_recordable(shot_folder, self.folder)
         return shot_folder / layout.take_name(number)
 
+    @_one_at_a_time
     def add_take(self, path: str | os.PathLike) -> Take:
         """List the take just recorded at ``path`` (from ``new_take_path``) as take N of its
         shot, with its date, rig, duration and readings read from the file."""
@@ -186,6 +215,7 @@ class SessionWriter(SessionFolder):
         return take
 
     # ---- a take's marks ----
+    @_one_at_a_time
     def note(self, shot: str, number: int, text: str) -> Take:
         """Set take ``number``'s note (at most limits.NOTE_CHARS; "" clears it)."""
         found, take = self._editable(shot, number, "change its note")
@@ -200,6 +230,7 @@ class SessionWriter(SessionFolder):
             take.note = text
         return take
 
+    @_one_at_a_time
     def circle(self, shot: str, number: int, circled: bool = True) -> Take:
         """Circle take ``number`` (a good one), or uncircle it."""
         _, take = self._editable(shot, number, "circle it" if circled else "uncircle it")
@@ -207,6 +238,7 @@ class SessionWriter(SessionFolder):
             take.circled = bool(circled)
         return take
 
+    @_one_at_a_time
     def lock_take(self, shot: str, number: int, locked: bool = True) -> Take:
         """Lock take ``number`` (read-only: no note, circle, segment or delete), or unlock it."""
         found, take = self.take(shot, number)
@@ -218,6 +250,7 @@ class SessionWriter(SessionFolder):
         return take
 
     # ---- trash ----
+    @_one_at_a_time
     def delete(self, shot: str, number: int) -> Take:
         """Move take ``number`` into the session's trash (restorable: ``restore``)."""
         found, take = self._editable(shot, number, "delete it")
@@ -229,6 +262,7 @@ class SessionWriter(SessionFolder):
         self._move_with(take, source, target, trashed=True)
         return take
 
+    @_one_at_a_time
     def restore(self, shot: str, number: int) -> Take:
         """Bring take ``number`` back from the trash."""
         found, take = self.take(shot, number)
@@ -244,6 +278,7 @@ class SessionWriter(SessionFolder):
         return take
 
     # ---- segments ----
+    @_one_at_a_time
     def add_segment(self, shot: str, number: int, name: str, in_s: float, out_s: float,
                     loop: bool = False) -> Segment:
         """A named clip of take ``number``: in_s < out_s, seconds from its first reading,
@@ -273,6 +308,7 @@ class SessionWriter(SessionFolder):
             take.segments.append(segment)
         return segment
 
+    @_one_at_a_time
     def remove_segment(self, shot: str, number: int, name: str) -> Segment:
         """Remove take ``number``'s segment called ``name``."""
         found, take = self._editable(shot, number, "remove a segment")

@@ -324,3 +324,32 @@ def test_a_full_disk_fails_before_recording_naming_the_folder(tmpfs, kit):
             session.rename_shot("walk", "walk, a much longer name than the disk has room for")
         assert session.shot("walk").name == "walk"
     assert index_of(disk / "shoot")["shots"][0]["name"] == "walk"
+
+
+def test_threads_of_one_studio_change_it_one_at_a_time(tmp_path, kit):
+    """A page's handlers and a recording that ends may call the writer at once: every change
+    is kept, the file is whole (they share one temporary file name: unserialised writes would
+    rename each other's away)."""
+    import threading
+
+    folder = tmp_path / "s"
+    with SessionWriter.open(folder) as session:
+        kit.record(session)
+        errors = []
+
+        def work(n):
+            try:
+                for i in range(10):
+                    session.new_shot(f"thread {n} shot {i}")
+                    session.note("shot 1", 1, f"{n}.{i}")
+            except Exception as err:  # noqa: BLE001 - reported by the assert below
+                errors.append(err)
+
+        threads = [threading.Thread(target=work, args=(n,)) for n in range(4)]
+        for thread in threads:
+            thread.start()
+        for thread in threads:
+            thread.join(timeout=120)
+        assert errors == []
+    names = {s["name"] for s in index_of(folder)["shots"]}
+    assert names == {"shot 1"} | {f"thread {n} shot {i}" for n in range(4) for i in range(10)}
