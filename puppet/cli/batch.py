@@ -67,8 +67,8 @@ EXIT_FAILED = 3     # some takes failed or timed out (their rows say why); the o
               help="Print what would be done for each take and why; write nothing.")
 @click.option("--json", "as_json", is_flag=True, help="Print the report as one JSON line.")
 @force_option
-def batch(takes: tuple[str, ...], out: str | None, circled: bool, rig_path: str | None, formats: str, fps: str,
-          size: tuple[int, int], up: str, space: str, keys: float | None,
+def batch(takes: tuple[str, ...], out: str | None, circled: bool, rig_path: str | None,
+          formats: str, fps: str, size: tuple[int, int], up: str, space: str, keys: float | None,
           keys_units: float | None,
           engine: str, address: str | None, workers: int | None, retries: int,
           take_timeout: float | None, resume: bool, dry_run: bool, as_json: bool,

@@ -196,7 +196,8 @@ def _decode_take(check: "_Fields", item, at: str, key: str) -> Take:
         sat = f"{at}.segments[{s}]"
         seg = check.object(segment_item, sat)
         segment = Segment(name=check.text(seg, "name", sat, limits.NAME_CHARS),
-                          in_s=check.number(seg, "in_s", sat), out_s=check.number(seg, "out_s", sat),
+                          in_s=check.number(seg, "in_s", sat),
+                          out_s=check.number(seg, "out_s", sat),
                           loop=check.flag(seg, "loop", sat))
         if not 0 <= segment.in_s < segment.out_s:
             raise IndexDamaged(f"{check.where}: {sat}: in_s {segment.in_s} and out_s "

@@ -73,8 +73,8 @@ def test_batch_of_a_session_plans_its_takes(shoot, tmp_path):
     report = json.loads(result.stdout)
     assert report["out"] == str(tmp_path / "elsewhere")
     assert [row["take"] for row in report["takes"]] == [
-        str(shoot / "takes" / "walk" / "take001.mcap"), str(shoot / "takes" / "walk" / "take002.mcap"),
-        str(shoot / "takes" / "jump" / "take001.mcap")]
+        str(shoot / "takes" / shot / f"take00{n}.mcap")
+        for shot, n in (("walk", 1), ("walk", 2), ("jump", 1))]
     assert not (tmp_path / "elsewhere").exists()
 
 
