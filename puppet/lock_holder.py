@@ -58,17 +58,6 @@ def command(pid: int) -> str | None:
     return " ".join(words) or None
 
 
-def alive(pid: int) -> bool:
-    """Whether a process ``pid`` runs on this machine (one of another user's counts)."""
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    except PermissionError:
-        return True
-    return True
-
-
 def _parent(pid: int) -> int | None:
     try:
         with open(f"/proc/{pid}/status") as fh:

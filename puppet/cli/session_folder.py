@@ -43,11 +43,10 @@ def _writer(folder: str, create: bool = False):
 
 
 def _said(writer, shot: str, take) -> None:
-    found = writer.shot(shot)
-    click.echo(f"shot {found.name!r} take {take.number}: "
-               + ", ".join(f for f, on in (("circled", take.circled), ("locked", take.locked),
-                                           ("in the trash", take.trashed)) if on)
-               or f"shot {found.name!r} take {take.number}: plain")
+    marks = [f for f, on in (("circled", take.circled), ("locked", take.locked),
+                             ("in the trash", take.trashed)) if on]
+    click.echo(f"shot {writer.shot(shot).name!r} take {take.number}: "
+               f"{', '.join(marks) or 'not circled, not locked'}")
 
 
 @session.command("list")

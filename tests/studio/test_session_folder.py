@@ -3,6 +3,7 @@ segments, and what happens when files change behind the studio's back."""
 
 import json
 import os
+import time
 
 import pytest
 
@@ -44,9 +45,8 @@ def test_takes_are_numbered_per_shot_with_their_facts(tmp_path, kit):
     assert second.duration_s == pytest.approx(15 / 30.0)
     assert (first.rig, second.rig, first.readings, second.readings) == (
         "bench", "critter", 31, 16)
-    reader = TakeReader(folder / first.file)
-    assert first.date[:10] == __import__("time").strftime(
-        "%Y-%m-%d", __import__("time").gmtime(reader.metadata.created_unix_ns / 1e9))
+    created = TakeReader(folder / first.file).metadata.created_unix_ns
+    assert first.date == time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime(created / 1e9))
     data = index_of(folder)  # what a person (or another program) reads
     assert [s["name"] for s in data["shots"]] == ["Walk, slow", "jump"]
     assert data["current_shot"] == "jump"
