@@ -79,15 +79,16 @@ def main() -> None:
       puppet rig axes creature.toml --out sheet.png       each joint turned: pick axes
       puppet calibrate --rig creature.toml --port /dev/ttyUSB0 --guided
       puppet batch session/*.mcap --out exports/ --formats gltf,usd
+      puppet session list shoot            a studio session's shots and takes
     """
 
 
 def _register() -> None:
     from puppet.cli import (batch, blender, bus, demo, export, keys, live, perform, play, record,
-                            release, rig, view)
+                            release, rig, session_folder, view)
 
     for module in (demo, live, record, keys, play, export, batch, bus, rig, view, perform,
-                   release, blender):
+                   release, blender, session_folder):
         for command in module.COMMANDS:
             main.add_command(command)
 
