@@ -72,6 +72,8 @@ def demo_source(rig: Rig, *, faults=None, timing: bool = True, baud: int = 1_000
 class _Given(Output):
     """Sinks, a view or a link made by the caller (benchmarks, tests) as a session output."""
 
+    sinks: list = []  # an attribute here (the base's is a property)
+
     def __init__(self, *, sinks_for=None, view=None, link=None, fps=None) -> None:
         self._sinks_for, self._view, self._link, self._fps = sinks_for, view, link, fps
         self.sinks = []

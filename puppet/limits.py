@@ -116,6 +116,8 @@ SOUND_RATES = (8000, 11025, 16000, 22050, 24000, 32000, 44100, 48000, 88200, 960
 """Sample rates a sound may have (Hz): the standard ones; anything else is refused."""
 SOUND_CHANNELS_MAX = 8
 """Channels a sound may have (7.1 at most)."""
+COUNT_IN_S = Range(0.0, 60.0, "s")
+"""--count-in: seconds counted in before a take's time 0."""
 SOUND_OFFSET = Range(-SOUND_SECONDS_MAX, SOUND_SECONDS_MAX, "s")
 """--sound-offset: the sound's time at the take's time 0 (negative: the sound starts after it)."""
 

@@ -89,6 +89,34 @@ keys_units_option = click.option(
     "--keys-units", default=None, type=InRange(limits.KEYS_UNITS), metavar="UNITS",
     help=f"With --keys: translations within UNITS model units ({limits.KEYS_UNITS}; "
          "default: the distance a DEG turn moves a point one bounding-box diagonal away).")
+def sound_options(command):
+    """--sound FILE, --sound-offset S and --count-in S: perform to a sound (live, record, keys)."""
+    command = click.option(
+        "--count-in", "count_in", default=0.0, type=InRange(limits.COUNT_IN_S), metavar="S",
+        help=f"Seconds counted in (3, 2, 1) before the take's time 0 ({limits.COUNT_IN_S}); "
+             "the take records, and the sound plays, from there.")(command)
+    command = click.option(
+        "--sound-offset", "sound_offset", default=0.0, type=InRange(limits.SOUND_OFFSET),
+        metavar="S", help="Where in the sound the take's time 0 is, seconds.")(command)
+    return click.option(
+        "--sound", "sound_path", default=None, metavar="FILE",
+        help="Perform to a sound (WAV, FLAC, OGG, MP3): it plays on this machine's sound device "
+             "from the take's time 0, and the take stores which sound and where (its hash, "
+             "offset and rate) for play and every export.")(command)
+
+
+def sound_outputs(sound_path, sound_offset: float, count_in: float) -> list:
+    """The session outputs of sound_options: the sound, and the count-in when there is one."""
+    from puppet.session import outputs as o
+
+    outputs = []
+    if sound_path is not None:
+        outputs.append(o.Sound(sound_path, offset_s=sound_offset, tell=say))
+    if count_in > 0:
+        outputs.append(o.CountIn(count_in, tell=say))
+    return outputs
+
+
 force_option = click.option(
     "--force", is_flag=True,
     help="Overwrite an existing output of another kind (an input, a device or a FIFO never).")

@@ -24,13 +24,16 @@ def _lines_only(desk) -> None:
 
 
 def new_desk(rig, path: str, *, fps: float = None, step: int = None,
-             interpolation: str = "linear"):
+             interpolation: str = "linear", sound=None):
     """A KeyDesk for a new shot of ``rig`` at ``path`` (``puppet keys``' defaults), its
-    outcomes said on the terminal."""
+    outcomes said on the terminal. sound: the shot's SoundRef (the sound's time at frame 1)."""
     from puppet.keys.capture import KeyDesk, KeySession
     from puppet.take.header import take_header
 
-    session = KeySession(path, take_header(rig), fps=DEFAULT_FPS if fps is None else fps,
+    header = take_header(rig)
+    if sound is not None:
+        header["sound"] = sound
+    session = KeySession(path, header, fps=DEFAULT_FPS if fps is None else fps,
                          step=DEFAULT_STEP if step is None else step, interpolation=interpolation)
     return KeyDesk(session, tell=say_outcome)
 
@@ -73,11 +76,16 @@ def say_outcome(origin, taken: bool, words: str) -> None:
 @click.option("--baud", default=1_000_000, show_default=True, type=InRange(limits.BAUD),
               help=f"Bus speed: {limits.BAUD}.")
 @click.option("--force", is_flag=True, help="Replace an existing shot file.")
+@click.option("--sound", "sound_path", default=None, metavar="FILE",
+              help="Key to a sound (WAV, FLAC, OGG, MP3): the shot stores which sound and where "
+                   "(--sound-offset: its time at frame 1), for play and every export.")
+@click.option("--sound-offset", "sound_offset", default=0.0, type=InRange(limits.SOUND_OFFSET),
+              metavar="S", help="The sound's time at the shot's frame 1, seconds.")
 @view_option
 @link_option
 @click.pass_context
 def keys(ctx, rig_path, port, out, fps, step, interpolation, baud, force, view_address,
-         link_address) -> None:
+         link_address, sound_path, sound_offset) -> None:
     """Pose to pose: hold a pose and press Enter; each key lands --step frames after the last.
 
     \b
@@ -114,21 +122,26 @@ def keys(ctx, rig_path, port, out, fps, step, interpolation, baud, force, view_a
     if link_address is not None and view_address is None:
         raise click.UsageError("--link streams the live loop that --view runs: add --view")
     rig = load_rig(rig_path)
-    desk = new_desk(rig, out, fps=fps, step=step, interpolation=interpolation)
+    sound = None
+    if sound_path is not None:
+        from puppet.sound import load_sound, sound_ref
+
+        sound = sound_ref(load_sound(sound_path), sound_offset)
+    desk = new_desk(rig, out, fps=fps, step=step, interpolation=interpolation, sound=sound)
     in_view = view_address is not None
+    ready = ("hold a pose and press Enter here, or Space or Key on the page, for a key "
+             "(r N, d N, i FRAME, t N FRAME, m [N] KIND, q: see --help)" if in_view else
+             "hold a pose and press Enter for a key (r N, d N, i FRAME, t N FRAME, m [N] KIND, "
+             "q: see --help)")
     outputs = [o.KeyDesk(desk, path=out, rig=rig, feed=not in_view, force=force, option="--out",
-                         lines=_lines_only if in_view else _lines_then_q)]
+                         lines=_lines_only if in_view else _lines_then_q, ready_text=ready,
+                         tell=click.echo)]
     if link_address is not None:
         outputs.append(o.Link(link_address, rig, tell=say))
     if in_view:
         outputs.append(o.View(view_address, mode="live", keys=desk, tell=say))
-        say("hold a pose and press Enter here, or Space or Key on the page, for a key "
-            "(r N, d N, i FRAME, t N FRAME, m [N] KIND, q: see --help)")
-    else:
-        say("hold a pose and press Enter for a key (r N, d N, i FRAME, t N FRAME, m [N] KIND, "
-            "q: see --help)")
     session = Session(rig, BusSource(rig, port, baud=baud, rate_hz=200.0), outputs,
-                      inputs=rig_files(rig), solve=in_view, tell=say,
+                      inputs=[*rig_files(rig), sound_path], solve=in_view, tell=say,
                       latch_fps=None if not in_view else 60.0,
                       pipeline={"overlay": True, "live": True})
     session.run()

@@ -8,7 +8,8 @@ import click
 
 from puppet import limits
 from puppet.cli.blender import link_option
-from puppet.cli.common import InRange, load_rig, rig_files, run_session, say
+from puppet.cli.common import (InRange, load_rig, rig_files, run_session, say,
+                               sound_options, sound_outputs)
 from puppet.cli.view import view_option
 
 READ_RATE_HZ = 500.0
@@ -40,12 +41,14 @@ READ_RATE_HZ = 500.0
               help="With --view: take key poses into this shot from the page (Space or its Key "
                    "button; timeline, onion skins) as `puppet keys --view` does, at its default "
                    "--fps and --step.")
+@sound_options
 @view_option
 @link_option
 def live(rig_path: str, port: str, baud: int, take_path: str | None, out: str | None,
          frames: str | None, seconds: float | None, fps: float, antialias: str,
          force: bool, shot_path: str | None, view_address: str | None,
-         link_address: str | None, watchdog_ms: float, no_watchdog: bool) -> None:
+         link_address: str | None, watchdog_ms: float, no_watchdog: bool,
+         sound_path: str | None, sound_offset: float, count_in: float) -> None:
     """Read the puppet, solve and render live until Ctrl-C.
 
     Servos with role = "actuator" in the rig file are driven to the angle the solve gives
@@ -77,16 +80,18 @@ def live(rig_path: str, port: str, baud: int, take_path: str | None, out: str | 
     if shot_path is not None:
         from puppet.cli.keys import new_desk
 
-        desk = new_desk(rig, shot_path, force=force)
-        outputs.append(o.KeyDesk(desk, feed=False, path=shot_path))
+        desk = new_desk(rig, shot_path)
+        outputs.append(o.KeyDesk(desk, path=shot_path, rig=rig, feed=False, force=force))
     if link_address is not None:
         outputs.append(o.Link(link_address, rig, tell=say))
     if view_address is not None:
         outputs.append(o.View(view_address, mode="live", rig=rig, record=True, keys=desk,
                               takes_dir=Path(take_path).parent if take_path else Path("."),
                               tell=say))
+    outputs += sound_outputs(sound_path, sound_offset, count_in)
     session = Session(rig, BusSource(rig, port, baud=baud, rate_hz=READ_RATE_HZ), outputs,
-                      inputs=rig_files(rig), seconds=seconds, video_fps=fps, tell=say,
+                      inputs=[*rig_files(rig), sound_path], seconds=seconds, video_fps=fps,
+                      tell=say, count_in_s=count_in,
                       solve=True, pipeline={"overlay": True, "antialias": antialias, "live": True})
     run_session(session)
 

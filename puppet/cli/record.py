@@ -5,7 +5,7 @@ from __future__ import annotations
 import click
 
 from puppet import limits
-from puppet.cli.common import InRange, load_rig, rig_files, say
+from puppet.cli.common import InRange, load_rig, rig_files, say, sound_options, sound_outputs
 
 
 @click.command()
@@ -19,8 +19,9 @@ from puppet.cli.common import InRange, load_rig, rig_files, say
 @click.option("--rate", default=500.0, show_default=True, type=InRange(limits.READ_RATE_HZ),
               help=f"Readings per second ({limits.READ_RATE_HZ}).")
 @click.option("--force", is_flag=True, help="Replace an existing take file.")
+@sound_options
 def record(rig_path: str, port: str, out: str, baud: int, seconds: float | None, rate: float,
-           force: bool) -> None:
+           force: bool, sound_path: str | None, sound_offset: float, count_in: float) -> None:
     """Record a take (raw servo readings) without solving or rendering: the lightest loop.
 
     \b
@@ -34,13 +35,15 @@ def record(rig_path: str, port: str, out: str, baud: int, seconds: float | None,
 
     rig = load_rig(rig_path)
     take = o.Take(out, rig, force=force, option="--out")  # checked before the port: a mistake costs no take
-    session = Session(rig, BusSource(rig, port, baud=baud, rate_hz=rate), [take],
-                      inputs=rig_files(rig), seconds=seconds, solve=False, latch_fps=None, tell=say)
+    session = Session(rig, BusSource(rig, port, baud=baud, rate_hz=rate),
+                      [take, *sound_outputs(sound_path, sound_offset, count_in)],
+                      inputs=[*rig_files(rig), sound_path], seconds=seconds, solve=False,
+                      latch_fps=None, tell=say, count_in_s=count_in)
     summary = session.run()
     if session.stopped_by is not None:
         say(f"stopped by {session.stopped_by}; the take holds every reading until then")
     flagged = summary.faults.pop("servo_not_ok", 0)
-    click.echo(f"take: {out}\nreadings: {summary.readings} in {summary.seconds:.2f} s, "
+    click.echo(f"take: {out}\nreadings: {take.readings} in {summary.seconds:.2f} s, "
                f"{flagged} with a flagged servo\nfaults seen: {describe_counts(summary.faults)}")
 
 

@@ -121,10 +121,12 @@ def run_live(pipeline: Pipeline, source, *, seconds: float | None = None,
             batch = latch.top_up(source, batch)
         summary.readings += len(batch)
         if recorder is not None:
-            if link is not None:
-                link.start_take(batch[0].t_ns)
             for reading in batch:
                 recorder.write(reading)
+            if link is not None:  # take time 0: the first reading recorded
+                started = getattr(recorder, "started_ns", batch[0].t_ns)
+                if started is not None:
+                    link.start_take(started)
         for take in feed:
             take(batch)
         if pipeline is None:  # readings only
@@ -143,7 +145,8 @@ def run_live(pipeline: Pipeline, source, *, seconds: float | None = None,
         if after_solve is not None:
             after_solve(pipeline, reading)
         if link is not None:
-            link.frame(pipeline, reading, recording=recorder is not None)
+            link.frame(pipeline, reading, recording=recorder is not None
+                       and getattr(recorder, "started_ns", 0) is not None)
         stages.lap("solve")
         if render:
             image = _draw(pipeline, stages, request)

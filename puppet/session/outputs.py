@@ -161,10 +161,74 @@ def open_take_writer(path, rig, *, force: bool = False):
     return BackgroundTakeWriter(take_writer(path, rig, force=force))
 
 
+class _TakeFromZero:
+    """The take's recorder: readings from the session's take time 0 on (after the count-in),
+    the file made at the first of them (nothing recorded: no file), with the sound's reference
+    (its offset: the sound's time at that first reading, so the two stay in sync by
+    construction) and the start timecode of that moment. ``started_ns``: the first reading's
+    time (the take's time 0; None until then)."""
+
+    def __init__(self, path, rig, *, force: bool, zero_ns: int, from_ns: int, sound=None,
+                 sound_offset_s: float = 0.0, timecode_fps: float = 30.0) -> None:
+        self.path, self.rig, self.force = path, rig, force
+        self.zero_ns = zero_ns   # when the sound's offset_s plays (monotonic ns)
+        self.from_ns = from_ns   # readings before this are the count-in's
+        self.sound, self.sound_offset_s = sound, sound_offset_s
+        self.timecode_fps = timecode_fps
+        self.started_ns: int | None = None
+        self._writer = None  # the BackgroundTakeWriter once the first reading came
+
+    @property
+    def writer(self):
+        """The TakeWriter (its ``count``); a stand-in counting 0 before the first reading."""
+        return self._writer.writer if self._writer is not None else _NoReadings
+
+    def _open(self, t_ns: int) -> None:
+        import time
+
+        from puppet.take import BackgroundTakeWriter
+        from puppet.take.header import take_writer
+        from puppet.timecode import StartTimecode, TimecodeError
+
+        sound_ref = None
+        if self.sound is not None:
+            from puppet.sound import sound_ref as make_ref
+
+            sound_ref = make_ref(self.sound, self.sound_offset_s + (t_ns - self.zero_ns) / 1e9)
+        unix_ns = time.time_ns() - (time.monotonic_ns() - t_ns)
+        try:
+            timecode = StartTimecode.from_clock(self.timecode_fps, unix_ns)
+        except TimecodeError:  # a frame rate timecode has no labels for: 30 fps time of day
+            timecode = StartTimecode.from_clock(30, unix_ns)
+        self._writer = BackgroundTakeWriter(take_writer(self.path, self.rig, force=self.force,
+                                                        sound=sound_ref, timecode=timecode))
+        self.started_ns = t_ns
+
+    def write(self, reading) -> None:
+        if self._writer is None:
+            if reading.t_ns < self.from_ns:
+                return  # the count-in
+            self._open(reading.t_ns)
+        self._writer.write(reading)
+
+    def mark(self, t_ns: int, name: str) -> None:
+        if self._writer is not None:
+            self._writer.mark(t_ns, name)
+
+    def close(self) -> None:
+        if self._writer is not None:
+            self._writer.close()
+
+
+class _NoReadings:
+    count = 0
+
+
 class Take(Output):
-    """The raw readings into a take (``--record``, ``puppet record``): every reading the source
-    gives, with the rig's header (``puppet.take.header``). Opened once the source answers, so a
-    port where nothing answers makes no file."""
+    """The raw readings into a take (``--record``, ``puppet record``): every reading from the
+    session's take time 0 (after its count-in) on, with the rig's header (``puppet.take.header``),
+    the sound's reference and the start timecode. The file is made at the first reading, so a
+    port where nothing answers, or a stop during the count-in, makes no file."""
 
     def __init__(self, path, rig, *, force: bool = False, option: str = "--record") -> None:
         self.path = Path(path)
@@ -172,7 +236,6 @@ class Take(Output):
         self.force = force
         self.option = f"{option} {path}"
         self.readings = 0
-        self.flagged = 0
 
     def check(self, inputs) -> None:
         from puppet.take.header import check_take_path
@@ -181,7 +244,12 @@ class Take(Output):
         _writable_folder(self.path, self.option)
 
     def open(self, run) -> None:
-        self.recorder = open_take_writer(self.path, self.rig, force=self.force)
+        sound = next((o for o in run.outputs if isinstance(o, Sound)), None)
+        self.recorder = _TakeFromZero(self.path, self.rig, force=self.force,
+                                      zero_ns=run.take_zero_ns, from_ns=run.record_from_ns,
+                                      sound=sound.sound if sound else None,
+                                      sound_offset_s=sound.offset_s if sound else 0.0,
+                                      timecode_fps=run.video_fps)
 
     def close(self) -> None:
         if self.recorder is not None:
@@ -190,7 +258,76 @@ class Take(Output):
             recorder.close()
 
     def report(self) -> dict:
-        return {"take": str(self.path)}
+        return {"take": str(self.path)} if self.readings or self.recorder else \
+            {"take": f"{self.path} (nothing recorded: no file)"}
+
+
+class Sound(Output):
+    """The sound a take is performed to (``--sound FILE``): decoded at check (a bad file named
+    before anything starts), played on the machine's sound device from the session's take
+    time 0 at ``offset_s`` into the sound (pre-rolled: the stream runs before; no device: said
+    once, silent), its reference stored in the take (``Take``). An input: never written over."""
+
+    def __init__(self, path, *, offset_s: float = 0.0, tell=print, device: bool = True) -> None:
+        self.path = Path(path)
+        self.offset_s = float(offset_s)
+        self.tell = tell
+        self.device = device
+        self.option = ""
+        self.player = None
+
+    def check(self, inputs) -> None:
+        from puppet.sound import load_sound
+
+        self.sound = load_sound(self.path)
+
+    def open(self, run) -> None:
+        import time
+
+        if not self.device:
+            return
+        from puppet.sound.device import DevicePlayer
+
+        self.player = DevicePlayer(self.sound, self.offset_s)
+        if not self.player.prepare():
+            self.tell(self.player.message)
+            return
+        wait_s = (run.take_zero_ns - time.monotonic_ns()) / 1e9
+        self.player.start(self.player.clock() + wait_s)  # heard at take time 0
+
+    def close(self) -> None:
+        if self.player is not None:
+            player, self.player = self.player, None
+            player.stop()
+
+    def report(self) -> dict:
+        return {"sound": f"{self.path} (from {self.offset_s:g} s)"}
+
+
+class CountIn(Output):
+    """The count-in before the take's time 0, said on the terminal: 3, 2, 1, then 'recording'
+    (``seconds``: its length; the session's take time 0 is its end)."""
+
+    def __init__(self, seconds: float, *, tell=print) -> None:
+        self.seconds = float(seconds)
+        self.tell = tell
+        self.feed = self._feed
+
+    def open(self, run) -> None:
+        self._zero_ns = run.take_zero_ns
+        self._said = None
+
+    def _feed(self, batch) -> None:
+        import math
+        import time
+
+        left = (self._zero_ns - time.monotonic_ns()) / 1e9
+        say = "recording" if left <= 0 else str(math.ceil(left))
+        if say != self._said:
+            self._said = say
+            self.tell(say)
+        if left <= 0:
+            self.feed = None
 
 
 class View(Output):
@@ -220,11 +357,8 @@ class View(Output):
         if self.record:
             rig = self.rig
             factory = lambda path: open_take_writer(path, rig)  # noqa: E731
-        try:
-            self.view = LiveView(self.address, mode=self.mode, take_factory=factory,
-                                 takes_dir=self.takes_dir, keys=self.keys)
-        except PuppetError as err:
-            raise OutputError(f"{self.option}: {err}") from None
+        self.view = LiveView(self.address, mode=self.mode, take_factory=factory,
+                             takes_dir=self.takes_dir, keys=self.keys)  # errors name --view
         logger = logging.getLogger("puppet.view")
         if not logger.handlers:
             handler = logging.StreamHandler()
@@ -268,10 +402,7 @@ class Link(Output):
     def check(self, inputs) -> None:
         from puppet.link import Link as LiveLink
 
-        try:
-            self._link = LiveLink(self.address, self.rig, fps=self.fps or 0.0)
-        except PuppetError as err:
-            raise OutputError(f"{self.option}: {err}") from None
+        self._link = LiveLink(self.address, self.rig, fps=self.fps or 0.0)  # errors name --link
         self.tell(f"link: listening on {self._link.where()}")
 
     def open(self, run) -> None:
@@ -343,8 +474,10 @@ class KeyDesk(Output):
     when the desk is finished (``q``)."""
 
     def __init__(self, desk, *, path, rig, feed: bool, force: bool = False, lines=None,
-                 option: str = "--keys") -> None:
+                 option: str = "--keys", ready_text: str | None = None, tell=print) -> None:
         self.desk = desk
+        self.ready_text = ready_text  # said once the bus answers (the first key can be taken)
+        self.tell = tell
         self.path = Path(path)
         self.rig = rig
         self.force = force
@@ -366,6 +499,8 @@ class KeyDesk(Output):
     def open(self, run) -> None:
         import threading
 
+        if self.ready_text is not None:
+            self.tell(self.ready_text)
         if self.lines is not None:
             threading.Thread(target=self.lines, args=(self.desk,), name="puppet-key-lines",
                              daemon=True).start()
@@ -377,4 +512,6 @@ class KeyDesk(Output):
     def report(self) -> dict:
         keys = self.desk.session.keys
         frames = keys.keys[-1].frame if keys.keys else 0
+        if self.option.startswith("--keys"):  # one line beside the run's (live --keys)
+            return {"shot": f"{self.path} ({len(keys.keys)} keys)"}
         return {"shot": str(self.path), "keys": f"{len(keys.keys)}, {frames} frames at {keys.fps:g} fps"}

@@ -40,12 +40,14 @@ class Session:
     rig: the rig (calibration applied). source: one of ``puppet.session.sources``. outputs:
     ``puppet.session.outputs`` instances. inputs: files the command reads (no output may be one
     of them). seconds: the loop's length (None: until the source ends, an output finishes or a
-    signal). solve: build the pipeline (False: readings only, ``puppet record``).
+    signal; counted from the take's time 0). solve: build the pipeline (False: readings only, ``puppet record``).
     pipeline: Pipeline keywords (iterations, width, height, antialias, overlay, live,
     render_options). video_fps: the rate sinks are fed at by wall clock (live sources).
     latch_fps: late latching's target (live sources; None: off). on_frame(frames done): after
     each frame (a progress bar). tell(text): where notes are said (stderr); say_setup: the bus
-    setup's changes among them (the demo's simulated servos: no).
+    setup's changes among them (the demo's simulated servos: no). count_in_s: seconds from the
+    outputs' opening to the take's time 0 (``take_zero_ns``): the take records, and the sound
+    plays, from there.
 
     After ``run()``: ``summary`` (puppet.loop.Summary), ``setup`` (the bus setup report or None),
     ``stopped_by`` (the first signal's name, or None), ``signals``.
@@ -55,7 +57,8 @@ class Session:
                  seconds: float | None = None, solve: bool = True, pipeline: dict | None = None,
                  video_fps: float = 30.0, latch_fps: float | None = LIVE_FPS,
                  on_frame: Callable[[int], None] | None = None,
-                 tell: Callable[[str], None] = print, say_setup: bool = True) -> None:
+                 tell: Callable[[str], None] = print, say_setup: bool = True,
+                 count_in_s: float = 0.0) -> None:
         self.rig = rig
         self.source = source
         self.outputs = sorted(outputs, key=_open_order)
@@ -68,6 +71,9 @@ class Session:
         self.on_frame = on_frame
         self.tell = tell
         self.say_setup = say_setup
+        self.count_in_s = float(count_in_s)
+        self.take_zero_ns = 0    # when the count-in ends and the sound starts (monotonic ns)
+        self.record_from_ns = 0  # the first reading a take keeps is the first from here on
         self.pipeline = None
         self.summary = None
         self.setup = None
@@ -87,7 +93,7 @@ class Session:
 
             view_at = parse_address(views[0].address)
             link_at = parse_address(links[0].address or "127.0.0.1:9100")
-            if view_at == link_at:
+            if view_at == link_at and view_at[1] != 0:  # port 0: each gets a free one
                 raise OutputError(f"{views[0].option} and {links[0].option} name one address "
                                   f"({view_at[0]}:{view_at[1]}): give them two")
         for output in self.outputs:
@@ -118,6 +124,9 @@ class Session:
                     if self.solve:
                         self.pipeline = self._build_pipeline()
                     self.setup = self.source.ready(self.tell if self.say_setup else None)
+                self.take_zero_ns = time.monotonic_ns() + int(self.count_in_s * 1e9)
+                # a count-in drops the readings before its end; without one every reading counts
+                self.record_from_ns = self.take_zero_ns if self.count_in_s > 0 else 0
                 for output in self.outputs:
                     if signals.stop:
                         break
@@ -167,7 +176,8 @@ class Session:
             return run_frames(self.pipeline, source.frames(should_stop),
                               sinks=sinks, on_frame=on_frame,
                               should_stop=should_stop)
-        return run_live(self.pipeline, self.source.reading_source, seconds=self.seconds,
+        seconds = None if self.seconds is None else self.seconds + self.count_in_s
+        return run_live(self.pipeline, self.source.reading_source, seconds=seconds,
                         sinks=sinks, video_fps=self.video_fps,
                         recorder=recorder, should_stop=should_stop,
                         on_frame=None if frames_done is None else (lambda s: frames_done(s.frames)),

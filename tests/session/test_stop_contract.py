@@ -78,7 +78,7 @@ def _case(name: str, stop: str, tmp: Path, port: str | None):
                 None)
     if name == "keys":  # end of input ends a key session; otherwise stdin stays open
         return (["keys", *rig, "--out", str(tmp / "shot.mcap")],
-                lambda: "hold a pose" in (tmp / "stderr.txt").read_text(), None, None,
+                lambda: "hold a pose" in (tmp / "stdout.txt").read_text(), None, None,
                 subprocess.DEVNULL if stop == "end" else subprocess.PIPE)
     if name == "view":
         return (["view", "--address", "127.0.0.1:0", *seconds], _page_up(tmp / "stderr.txt"),
@@ -125,10 +125,11 @@ def test_every_command_keeps_what_it_made_on_every_way_out(name, stop, tmp_path,
     rig = builtin()
     with hw_sim.serve(dict(rig.servo_map.models), motion="wave") as bus:
         argv, under_way, video, take, stdin = _case(name, stop, tmp_path, bus.port)
-        err_path = tmp_path / "stderr.txt"
+        err_path, out_path = tmp_path / "stderr.txt", tmp_path / "stdout.txt"
         err_path.write_text("")
-        with open(err_path, "w") as err:
-            proc = subprocess.Popen([*PUPPET, *argv], stdin=stdin, stdout=subprocess.PIPE,
+        out_path.write_text("")
+        with open(err_path, "w") as err, open(out_path, "w") as stdout:
+            proc = subprocess.Popen([*PUPPET, *argv], stdin=stdin, stdout=stdout,
                                     stderr=err, text=True, process_group=0, cwd=tmp_path)
             try:
                 if stop != "end":
@@ -144,12 +145,12 @@ def test_every_command_keeps_what_it_made_on_every_way_out(name, stop, tmp_path,
                     else:
                         child = wait_until(lambda: _reader_child(proc.pid), what="the reader child")
                         os.kill(child, signal.SIGKILL)
-                out, _ = proc.communicate(timeout=2 * PATIENCE_S)
+                proc.communicate(timeout=2 * PATIENCE_S)
             finally:
                 if proc.poll() is None:
                     os.killpg(proc.pid, signal.SIGKILL)
                     proc.wait()
-    stderr = err_path.read_text()
+    stderr, out = err_path.read_text(), out_path.read_text()
     assert "Traceback" not in stderr and "KeyboardInterrupt" not in stderr, stderr
     assert "Aborted" not in stderr, stderr
     if stop == "kill-reader":
