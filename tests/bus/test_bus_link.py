@@ -10,7 +10,7 @@ import termios
 
 from puppet.bus import BusLink, PortError, ServoCorrupt, ServoReader, ServoStatusError, ServoTimeout
 from puppet.bus import control_table as ct
-from puppet.bus.link import set_latency_assumption
+from puppet.bus.latency import set_latency_assumption
 
 PATIENT_MS = 255  # SDK latency assumption (its maximum) for calls that must succeed: ~0.5 s deadline
 
@@ -106,7 +106,7 @@ def test_old_firmware_falls_back_to_sync_read(sim, read_until):
 
 
 def test_an_adapter_latency_timer_above_1_ms_is_set_to_1(tmp_path):
-    from puppet.bus.link import adapter_latency_ms, lower_latency_timer
+    from puppet.bus.latency import adapter_latency_ms, lower_latency_timer
 
     (tmp_path / "ttyUSB7").mkdir()
     timer = tmp_path / "ttyUSB7" / "latency_timer"
@@ -147,7 +147,7 @@ def test_the_links_crc16_is_the_sdks():
     # crc16 (two bytes a step, any start and end, continuing a CRC) against the SDK's updateCRC.
     import random
 
-    from puppet.bus.link import crc16
+    from puppet.bus.codec import crc16
 
     ph = dynamixel_sdk.PacketHandler(2.0)
     rng = random.Random(28)
