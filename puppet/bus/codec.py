@@ -72,6 +72,31 @@ def fast_sync_read_crcs(rx, count: int, size: int) -> tuple[bool, list[int] | No
     return full, sums
 
 
+ALERT_BIT = 0x80
+"""Bit 7 of a status packet's error byte: a hardware error is latched."""
+STATUS_ERRORS = {
+    0x01: "result fail",
+    0x02: "instruction error",
+    0x03: "CRC error",
+    0x04: "data range error",
+    0x05: "data length error",
+    0x06: "data limit error",
+    0x07: "access error",
+}
+"""Protocol 2.0 status error numbers (bits 0..6 of the error byte)."""
+
+
+def describe_status_error(error: int) -> str:
+    """A status packet's error byte (Protocol 2.0 form) -> text ('alert' when bit 7 is set)."""
+    parts = []
+    if error & ALERT_BIT:
+        parts.append("alert (hardware error latched)")
+    number = error & 0x7F
+    if number:
+        parts.append(STATUS_ERRORS.get(number, f"error number {number}"))
+    return ", ".join(parts) if parts else "none"
+
+
 P1_HARDWARE_BITS = 0x25
 """Protocol 1.0 status error bits that are the servo's hardware conditions: input voltage (0),
 overheating (2), overload (5): the same bits as X-series Hardware Error Status (70)."""
@@ -208,5 +233,5 @@ class Wire:
         return tx
 
 
-__all__ = ["PROTOCOL", "PROTOCOLS", "CRC16_TABLE", "crc16", "fast_sync_read_crcs", "P1_HARDWARE_BITS",
-           "P1_ERROR_NUMBERS", "Wire"]
+__all__ = ["PROTOCOL", "PROTOCOLS", "CRC16_TABLE", "crc16", "fast_sync_read_crcs", "ALERT_BIT",
+           "STATUS_ERRORS", "describe_status_error", "P1_HARDWARE_BITS", "P1_ERROR_NUMBERS", "Wire"]

@@ -31,11 +31,11 @@ from dynamixel_sdk import protocol2_packet_handler as p2
 from dynamixel_sdk import robotis_def as rd
 
 from puppet.bus import port_lock
-from puppet.bus.codec import PROTOCOL, Wire, fast_sync_read_crcs
-from puppet.bus.control_table import Item, describe_status_error
+from puppet.bus.codec import PROTOCOL, Wire, describe_status_error, fast_sync_read_crcs
 from puppet.bus.errors import PortError, ServoCorrupt, ServoError, ServoStatusError, ServoTimeout
 from puppet.bus.latency import DEFAULT_LATENCY_MS, adapter_latency_ms, lower_latency_timer, set_latency_assumption
 from puppet.bus.port_lock import PortInUse
+from puppet.servo_models import Item
 
 
 PORT_ERRORS = (serial.SerialException, OSError, termios.error)
