@@ -26,7 +26,7 @@ takes without it (older ones) still play."""
 
 RIG_CHARACTER_MARK = "# puppet: recorded on character sha256 "
 """Line added before RIG_SOURCE_MARK: the checksum of the character the take was recorded on
-(``puppet.checksum.character_sha256``), so a take replayed without ``--rig`` is never solved on
+(``puppet.rig.checksum.character_sha256``), so a take replayed without ``--rig`` is never solved on
 a character changed since (its rig file's character edited or replaced). Older takes lack it."""
 
 
@@ -59,7 +59,7 @@ def rig_from_take(take, meta) -> Rig:
     recorded its character's checksum (RIG_CHARACTER_MARK) is refused (TakeError) when the
     character found is another one.
     """
-    from puppet.checksum import character_sha256
+    from puppet.rig.checksum import character_sha256
     from puppet.rig import builtin
     from puppet.rig.load import BUILTIN_RIG, builtin_name, load_rig_text
 

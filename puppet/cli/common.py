@@ -225,7 +225,7 @@ def take_writer(take_path: str, rig, *, force: bool = False):
 def take_header(rig) -> dict:
     """What a take (or shot) of ``rig`` is written with: TakeWriter's ids, models, rig_map_text
     (the rig file, and where it was), calibration_text and rig_name."""
-    from puppet.checksum import character_sha256
+    from puppet.rig.checksum import character_sha256
     from puppet.replay import RIG_CHARACTER_MARK, RIG_SOURCE_MARK
     from puppet.rig.calibration import Calibration
 
