@@ -27,8 +27,9 @@ from pathlib import Path
 from puppet.atomic import check_folder_output, check_output
 from puppet.batch.errors import BatchError
 from puppet.batch.manifest import MANIFEST_SUFFIX
-from puppet.checksum import bytes_sha256, character_sha256, file_sha256
+from puppet.checksum import bytes_sha256, file_sha256
 from puppet.rig import Rig
+from puppet.rig.checksum import character_sha256
 
 FORMATS = ("mp4", "gltf", "usd", "pc2", "bvh")
 SUFFIXES = {"mp4": ".mp4", "gltf": ".glb", "usd": ".usdc", "pc2": ".pc2", "bvh": ".bvh"}
@@ -198,7 +199,7 @@ class TakeRig:
     rig: the loaded rig (uncalibrated: each take applies its own recorded calibration to a
     copy); file: the rig file in words (the --rig file, or the file the take was recorded
     with); rig_sha256: the rig's text (the --rig file's bytes, or the rig map the take stores);
-    character: ``puppet.checksum.character_sha256``."""
+    character: ``puppet.rig.checksum.character_sha256``."""
 
     key: str
     rig: Rig

@@ -13,7 +13,8 @@ from __future__ import annotations
 from collections.abc import Iterable
 from dataclasses import dataclass
 
-from puppet.bus.link import PROTOCOLS, BusLink
+from puppet.bus.codec import PROTOCOLS
+from puppet.bus.link import BusLink
 from puppet.servo_models import MODELS, MODELS_BY_NUMBER
 
 SDK_BAUDS = frozenset((9600, 19200, 38400, 57600, 115200, 230400, 460800, 500000, 576000, 921600,

@@ -147,7 +147,7 @@ def _calibrate_guided(rig_path: str, port: str, baud: int, out: str | None, yes:
                       timeout_s: float, threshold: float, force: bool) -> None:
     """``calibrate --guided``: prompts on stderr, results written into the rig file."""
     from puppet.bus import BusError, ServoReader
-    from puppet.bus.control_table import MODELS_BY_NUMBER
+    from puppet.servo_models import MODELS_BY_NUMBER
     from puppet.rig.guided_calibration import GuidedCalibration
 
     session = GuidedCalibration(rig_path)

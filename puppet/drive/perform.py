@@ -40,7 +40,6 @@ from dataclasses import asdict, dataclass, field
 import numpy as np
 
 from puppet import limits
-from puppet.bus.control_table import describe_hardware_error
 from puppet.bus.errors import BusError, PortError, ServoCorrupt, ServoTimeout
 from puppet.bus.link import BusLink
 from puppet.bus.port_lock import PortInUse
@@ -50,7 +49,7 @@ from puppet.drive.goals import GoalShaper, TakeGoals
 from puppet.drive.health import (CURRENT_FRACTION, CURRENT_SUSTAIN_S, TEMPERATURE_CAP_C,
                                  TEMPERATURE_MARGIN_C, CurrentTemperatureStop)
 from puppet.drive.servos import DriveBus
-from puppet.servo_models import protocol_of
+from puppet.servo_models import describe_hardware_error, protocol_of
 from puppet.session.signals import Signals
 
 WATCHDOG_CHECK_CYCLES = 10
@@ -317,7 +316,7 @@ def _start(bus: DriveBus, goals: TakeGoals, opts, report, say, check_signal, pha
     accel_units = max(1, round(opts.start_accel_deg_s2 / it.ACCEL_UNIT_DEG_S2))
     report.start_profile_deg_s = float((start_units * unit).max())
     bus.write_all("moving_speed", start_units)   # never 0 (= full speed) for the start
-    bus.write_all(it.PROFILE_ACCELERATION, accel_units)  # (X layout only)
+    bus.write_all("profile_acceleration", accel_units)  # (X layout only)
     bus.write_all("torque_enable", 1)
     bus.check_torque(1)
     if opts.watchdog:
@@ -363,7 +362,7 @@ def _start(bus: DriveBus, goals: TakeGoals, opts, report, say, check_signal, pha
         _wait(1.0 / opts.rate_hz, bus, opts, check_signal, keepalive=False)
     report.start_max_speed_deg_s = {i: float(v * u) for i, v, u in zip(bus.ids, speeds, unit)}
     play_units = np.clip(np.rint(opts.max_speed_deg_s / unit), 1, bus.speed_max)
-    bus.write_all(it.PROFILE_ACCELERATION, 0)
+    bus.write_all("profile_acceleration", 0)
     bus.write_all("moving_speed", play_units)
     return first
 

@@ -12,7 +12,7 @@ takes without it (older ones) still play."""
 
 RIG_CHARACTER_MARK = "# puppet: recorded on character sha256 "
 """Line added before RIG_SOURCE_MARK: the checksum of the character the take was recorded on
-(``puppet.checksum.character_sha256``), so a take replayed without ``--rig`` is never solved on
+(``puppet.rig.checksum.character_sha256``), so a take replayed without ``--rig`` is never solved on
 a character changed since (its rig file's character edited or replaced). Older takes lack it."""
 
 
@@ -20,7 +20,7 @@ a character changed since (its rig file's character edited or replaced). Older t
 def take_header(rig) -> dict:
     """TakeWriter's keywords for a take of ``rig``: ids, models, rig_map_text (the rig file, its
     character's content hash and where the file was), calibration_text and rig_name."""
-    from puppet.checksum import character_sha256
+    from puppet.rig.checksum import character_sha256
     from puppet.rig.calibration import Calibration
 
     map_text = ""

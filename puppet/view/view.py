@@ -28,11 +28,11 @@ import numpy as np
 
 from puppet.errors import PuppetError
 from puppet.events import EVENT_KINDS
-from puppet.view.address import Access, bind, parse_address
+from puppet.net.address import Access, bind, parse_address
 from puppet.view.encoder import FrameEncoder
 from puppet.view.handles import Handle, drag_target, project, surface_bary, surface_point
 from puppet.view.orbit import OrbitCamera
-from puppet.view.protocol import MAX_HANDLES, PANEL_HZ
+from puppet.view.protocol import DEFAULT_PORT, MAX_HANDLES, PANEL_HZ
 from puppet.view.server import KEY_EDITS, ViewServer
 
 log = logging.getLogger("puppet.view")
@@ -78,8 +78,8 @@ class View:
                  takes_dir=".", max_fps: float = 40.0, keys=None):
         if mode not in MODES:
             raise ValueError(f"mode: {mode!r} is not one of {MODES}")
-        host, port = parse_address(address)
-        self._sock = bind(host, port)
+        host, port = parse_address(address, option="--view", default_port=DEFAULT_PORT)
+        self._sock = bind(host, port, option="--view")
         port = self._sock.getsockname()[1]
         self.access = Access.for_host(host, port)
         self.url = self.access.url()

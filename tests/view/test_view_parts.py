@@ -14,8 +14,8 @@ from puppet.bus import Reading
 from puppet.loop import Pipeline
 from puppet.render import Camera
 from puppet.rig import builtin
-from puppet.view import ViewError, parse_address
-from puppet.view.address import DEFAULT_PORT, Access, bind, is_loopback
+from puppet.net.address import AddressError, Access, bind, is_loopback, parse_address
+from puppet.view.protocol import DEFAULT_PORT
 from puppet.view.handles import drag_target, pixel_ray, project, surface_point
 from puppet.view.orbit import OrbitCamera
 from puppet.view.protocol import FLAG_DRAFT, FRAME_HEADER, FRAME_JPEG, frame_header
@@ -23,16 +23,23 @@ from puppet.view.server import check_input
 
 
 def test_addresses_parse():
-    assert parse_address(None) == ("127.0.0.1", DEFAULT_PORT)
-    assert parse_address("") == ("127.0.0.1", DEFAULT_PORT)
-    assert parse_address("9000") == ("127.0.0.1", 9000)
-    assert parse_address("0.0.0.0:9001") == ("0.0.0.0", 9001)
-    assert parse_address("[::1]:9002") == ("::1", 9002)
-    assert parse_address("myhost") == ("myhost", DEFAULT_PORT)
-    with pytest.raises(ViewError, match="port 'http' is not a number"):
-        parse_address("localhost:http")
-    with pytest.raises(ViewError, match="port 70000 is not in 0..65535"):
-        parse_address("70000")
+    def parse_address_view(text):
+        return parse_address(text, option="--view", default_port=DEFAULT_PORT)
+
+    assert parse_address_view(None) == ("127.0.0.1", DEFAULT_PORT)
+    assert parse_address_view("") == ("127.0.0.1", DEFAULT_PORT)
+    assert parse_address_view("9000") == ("127.0.0.1", 9000)
+    assert parse_address_view("0.0.0.0:9001") == ("0.0.0.0", 9001)
+    assert parse_address_view("[::1]:9002") == ("::1", 9002)
+    assert parse_address_view("myhost") == ("myhost", DEFAULT_PORT)
+    with pytest.raises(AddressError, match="--view 'localhost:http': port 'http' is not a number"):
+        parse_address_view("localhost:http")
+    with pytest.raises(AddressError, match="port 70000 is not in 0..65535"):
+        parse_address_view("70000")
+    # The Blender link's addresses: its own option named, its own default port.
+    assert parse_address("myhost", option="--link", default_port=9100) == ("myhost", 9100)
+    with pytest.raises(AddressError, match="--link '70000': port 70000"):
+        parse_address("70000", option="--link", default_port=9100)
 
 
 def test_loopback_needs_no_token_and_beyond_it_a_constant_time_token():
@@ -56,8 +63,8 @@ def test_a_taken_port_is_a_clear_error():
         taken.bind(("127.0.0.1", 0))
         taken.listen()
         port = taken.getsockname()[1]
-        with pytest.raises(ViewError) as err:
-            bind("127.0.0.1", port)
+        with pytest.raises(AddressError) as err:
+            bind("127.0.0.1", port, option="--view")
     assert str(err.value) == (f"--view: address 127.0.0.1:{port} is already in use (port {port}); "
                               f"stop the other program or pick another port, e.g. --view {port + 1}")
 
@@ -284,7 +291,7 @@ def test_take_source_shows_the_take_by_its_one_rule():
 
 
 def test_page_messages_parse_bounded_and_notices_merge_per_kind():
-    from puppet.view.guard import RateLimit, Throttle, parse_message
+    from puppet.net.guard import RateLimit, Throttle, parse_message
 
     assert parse_message("[" * 2000 + "]" * 2000) is None  # no RecursionError: refused unparsed
     assert parse_message('{"type": "orbit", "dx": 1, "dy": 2}') == {"type": "orbit", "dx": 1, "dy": 2}
