@@ -48,7 +48,7 @@ def rig_from_take(take, meta) -> Rig:
     recorded its character's checksum (RIG_CHARACTER_MARK) is refused (TakeError) when the
     character found is another one.
     """
-    from puppet.checksum import character_sha256
+    from puppet.rig.checksum import character_sha256
     from puppet.rig import builtin
     from puppet.rig.load import BUILTIN_RIG, builtin_name, load_rig_text
 

@@ -89,10 +89,12 @@ class Session:
         views = [o for o in self.outputs if isinstance(o, View)]
         links = [o for o in self.outputs if isinstance(o, Link)]
         if views and links:
-            from puppet.view.address import parse_address
+            from puppet.link.server import DEFAULT_PORT as LINK_PORT
+            from puppet.net.address import parse_address
+            from puppet.view.protocol import DEFAULT_PORT as VIEW_PORT
 
-            view_at = parse_address(views[0].address)
-            link_at = parse_address(links[0].address or "127.0.0.1:9100")
+            view_at = parse_address(views[0].address, option="--view", default_port=VIEW_PORT)
+            link_at = parse_address(links[0].address, option="--link", default_port=LINK_PORT)
             if view_at == link_at and view_at[1] != 0:  # port 0: each gets a free one
                 raise OutputError(f"{views[0].option} and {links[0].option} name one address "
                                   f"({view_at[0]}:{view_at[1]}): give them two")
