@@ -105,7 +105,7 @@ class View:
         source: the loop's reading source (a TakeSource gets the page's playback controls).
         recorder: the command's own --record writer, so marks go into it too.
         """
-        from puppet.render.picking import Picker
+        from puppet.render.passes.picking import Picker
 
         if pipeline.renderer is None:
             raise PuppetError("the live view needs a pipeline with a renderer")

@@ -127,7 +127,7 @@ def rest_reading(rig) -> Reading:
 
 
 def test_picking_is_exact(critter_pipeline):
-    from puppet.render.picking import Picker
+    from puppet.render.passes.picking import Picker
 
     pipeline = critter_pipeline
     pipeline.solve(rest_reading(pipeline.rig))
