@@ -8,7 +8,9 @@ Address, token and flood guard: ``puppet.net`` (shared with the Blender link). M
 protocol (frame header, limits, the default port), orbit
 (camera), handles (point handles, drag geometry), encoder (JPEG thread, latest-wins slot),
 server (aiohttp: page, sockets, credit), sources (rest pose, take playback), onion (ghosts of a
-shot's keys over the frames), view (the loop's side). The page and its script are in ``static/`` (no CDN, no build step).
+shot's keys over the frames), view (the loop's side: a facade over its parts: input (page input
+routed to the parts), cameras, handle_desk (pick, grab, drag), recording (record button, marks),
+playback, key_poses (keys and onion skins), frames (what is rendered for whom), panel). The page and its script are in ``static/`` (no CDN, no build step).
 """
 
 from puppet.view.errors import ViewError

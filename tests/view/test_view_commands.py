@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 from puppet.rig import builtin
-from puppet.view.view import KEEPALIVE_S
+from puppet.view.frames import KEEPALIVE_S
 
 
 def run_puppet(tools, *args, timeout=300):

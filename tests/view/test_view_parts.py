@@ -134,7 +134,7 @@ def rest_reading(rig) -> Reading:
 
 
 def test_picking_is_exact(critter_pipeline):
-    from puppet.render.picking import Picker
+    from puppet.render.passes.picking import Picker
 
     pipeline = critter_pipeline
     pipeline.solve(rest_reading(pipeline.rig))
@@ -175,12 +175,12 @@ def test_a_picked_handle_holds_its_exact_surface_point(critter_pipeline):
     view = View("127.0.0.1:0")
     try:
         view.attach(pipeline)
-        view_proj = view._picker.view_proj(view._cameras[0].camera())
+        view_proj = view._picker.view_proj(view.cameras.get(0).camera())
         (x, y), = project(view_proj, view.width, view.height, pipeline.deformed()[tip][None])
         view.command("page", {"type": "pick", "key": 1, "seq": 10**6, "x": x, "y": y, "camera": 0})
         view.apply(pipeline)
-        assert len(view._handles) == 1
-        handle = view._handles[0]
+        assert len(view.handle_desk.handles) == 1
+        handle = view.handle_desk.handles[0]
         assert handle.corners == tuple(int(v) for v in F[handle.triangle])
         assert abs(sum(handle.bary) - 1.0) < 1e-12 and min(handle.bary) >= 0.0
         assert pipeline.pattern.positional == tuple(int(v) for v in rig.pins) + (handle.point,)
@@ -206,7 +206,7 @@ def test_a_picked_handle_holds_its_exact_surface_point(critter_pipeline):
             assert np.abs(blocks[bone] - pipeline.values.full[q]).max() < 1e-5
         view.command("page", {"type": "remove", "handle": handle.id})
         view.apply(pipeline)
-        assert view._handles == []
+        assert view.handle_desk.handles == []
     finally:
         view.close()
         pipeline.set_handles([])
@@ -244,7 +244,7 @@ def test_nothing_is_rendered_or_encoded_without_a_viewer():
         view.close()
     assert summary.frames > 5
     assert (stats["frames_rendered"], stats["frames_reused"], stats["frames_sent"]) == (0, 0, 0)
-    assert view._encoder.encoded == 0
+    assert view.frames.encoder.encoded == 0
 
 
 def test_camera_moves_are_merged_into_one_change_per_frame(critter_pipeline):
@@ -253,7 +253,7 @@ def test_camera_moves_are_merged_into_one_change_per_frame(critter_pipeline):
     view = View("127.0.0.1:0")
     try:
         view.attach(critter_pipeline)
-        camera = view._cameras[0]
+        camera = view.cameras.get(0)
         version = camera.version
         for dx in (5.0, 7.0, -2.0):
             view.command("page", {"type": "orbit", "dx": dx, "dy": 1.0, "camera": 0})
