@@ -22,7 +22,11 @@ speed, and stops it only when ``WATCHDOG_TRIPS_TO_STOP`` checks in a row find it
 goal write not sent because the line was stalled costs that cycle (its goals go with the next).
 
 Stop (end of take, SIGINT, SIGTERM, bus error, any exception): torque off by one Sync Write
-with no reply, then servo by servo, then read back; see ``DriveBus.torque_off``. A port lost
+with no reply, then servo by servo, then read back; see ``DriveBus.torque_off``. A kill that no
+``finally`` sees (SIGKILL, a hang-up, a crash in native code): the torque guardian, a child
+process started before the port opens and waited for before torque goes on, opens the port
+once this process is gone and does the same stop (``puppet.drive.guardian``); only a kill of
+both at once leaves the servos to their Bus Watchdog. A port lost
 mid-performance (an adapter pulled) is tried again for ``PORT_RETRY_S``: if it comes back,
 torque goes off as above (the performance does not resume); if not, the error says torque may
 still be on (the Bus Watchdog stops the servos) and names ``puppet release``.
@@ -47,6 +51,7 @@ from puppet.bus.port_lock import PortInUse
 from puppet.drive import items as it
 from puppet.drive.errors import DriveError, HealthStop
 from puppet.drive.goals import GoalShaper, TakeGoals
+from puppet.drive.guardian import Guardian
 from puppet.drive.health import (CURRENT_FRACTION, CURRENT_SUSTAIN_S, TEMPERATURE_CAP_C,
                                  TEMPERATURE_MARGIN_C, CurrentTemperatureStop)
 from puppet.drive.servos import DriveBus
@@ -238,6 +243,8 @@ def perform(rig, reader, port: str, options: PerformOptions | None = None,
     link = BusLink(port, baud=opts.baud, latency_ms=opts.latency_ms,
                    protocol=protocol_of(servo_map.models))
     bus = DriveBus(link, ids, dict(servo_map.models), say)
+    guardian = Guardian(port, dict(servo_map.models), baud=opts.baud, latency_ms=opts.latency_ms,
+                        who="perform" if opts.key is None else "keys goto")
     torque_may_be_on = False
     error: BaseException | None = None
     with _Signals() as signals:
@@ -245,12 +252,14 @@ def perform(rig, reader, port: str, options: PerformOptions | None = None,
             if signals.which:
                 raise _Stopped(signals.which)
         try:
+            guardian.start()  # it gets ready while setup runs
             link.open()
             # From here every way out turns torque off: a servo may still hold torque from an
             # earlier run (stopped by its watchdog) until setup reaches it.
             torque_may_be_on = True
             phase("setup")
             bus.prepare(opts.watchdog)
+            guardian.wait_ready()  # torque goes on only with the guardian standing by
             report.changes = [f"servo {c.id}: {c.item} {c.old} -> {c.new}" for c in bus.changes]
             report.recovered = list(bus.recovered)
             check_signal()
@@ -275,6 +284,9 @@ def perform(rig, reader, port: str, options: PerformOptions | None = None,
                         f"({opts.watchdog_ms:.0f} ms after the last frame)" if opts.watchdog
                         else "the port is gone and --no-watchdog was given: the servos keep their last goal")
             link.close()
+            gone = guardian.stand_down()
+            if gone:
+                say(gone)
             phase("stop")
     if error is not None:
         if isinstance(error, PortInUse):  # another program's port: nothing was touched

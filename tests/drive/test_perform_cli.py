@@ -1,13 +1,19 @@
-"""``puppet perform`` as a user runs it (subprocesses on hw_sim): Ctrl-C, SIGTERM and SIGKILL,
-then recovery by the next perform; errors as ``Error:`` lines."""
+"""``puppet perform`` as a user runs it (subprocesses on hw_sim): Ctrl-C, SIGTERM and SIGKILL
+(of its process: its guardian turns torque off; of every process at once: the Bus Watchdog
+stops the servos and the next perform recovers); ``keys goto`` killed likewise; errors as
+``Error:`` lines."""
 
 from __future__ import annotations
 
 import json
+import os
 import queue
 import signal
 import subprocess
+import sys
 import threading
+import time
+from pathlib import Path
 
 import pytest
 
@@ -17,12 +23,13 @@ ARGS = ["--yes", "--latency-ms", "20", "--watchdog-ms", "2000"]
 
 
 class Perform:
-    """A ``puppet perform`` subprocess whose stderr lines are collected as they come."""
+    """A ``puppet perform`` subprocess (``argv``: another command), in a process group of its
+    own, whose stderr lines are collected as they come."""
 
-    def __init__(self, take, port, *extra):
-        self.proc = subprocess.Popen(["puppet", "perform", str(take), "--port", str(port),
-                                      *ARGS, *extra], stdout=subprocess.PIPE,
-                                     stderr=subprocess.PIPE, text=True)
+    def __init__(self, take, port, *extra, argv=None):
+        argv = argv or ["puppet", "perform", str(take), "--port", str(port), *ARGS, *extra]
+        self.proc = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                                     text=True, start_new_session=True)
         self.lines: queue.Queue = queue.Queue()
         self.seen: list[str] = []
         threading.Thread(target=self._pump, daemon=True).start()
@@ -71,12 +78,76 @@ def test_signal_stops_with_torque_off(rig, wave_take, sig):
         assert {bus.servo(i).get("Bus Watchdog") for i in ids} == {0}
 
 
-def test_sigkill_leaves_servos_to_their_watchdog_and_next_perform_recovers(rig, wave_take, wait_until):
+def _end_group(proc) -> None:
+    """SIGKILL whatever is left of ``proc``'s process group (a test's leftovers)."""
+    try:
+        os.killpg(proc.pid, signal.SIGKILL)
+    except ProcessLookupError:
+        pass
+
+
+GUARDIAN_LINE = "ended without turning torque off (killed?): torque off (read back): servos "
+
+
+def _guarded(run, bus, ids, models, read_back, who: str) -> None:
+    """SIGKILL of ``run``'s own process (torque on): its guardian turns every servo's torque
+    off and says so; read back through the client, Bus Watchdog cleared too."""
+    killed = time.monotonic()
+    run.proc.kill()
+    try:
+        run.wait_line(f"guardian: `puppet {who}` {GUARDIAN_LINE}")
+        print(f"torque off said {time.monotonic() - killed:.3f} s after SIGKILL")  # -s shows it
+        line = run.seen[-1]
+        assert line.endswith(f"servos {ids}"), line  # none NOT confirmed
+        assert read_back(bus.port, models) == dict.fromkeys(ids, 0)
+        assert read_back(bus.port, models, "bus_watchdog") == dict.fromkeys(ids, 0)
+    finally:
+        _end_group(run.proc)
+    assert "Traceback" not in "\n".join(run.seen)
+
+
+def test_sigkill_of_perform_has_its_guardian_turn_torque_off(rig, wave_take, read_back):
+    ids = [int(i) for i in rig.servo_map.ids]
+    models = dict(rig.servo_map.models)
+    with hw_sim.serve(models) as bus:
+        run = Perform(wave_take, bus.port, "--loop")
+        run.wait_line("phase: playback")
+        assert set(_torque(bus, ids).values()) == {1}
+        _guarded(run, bus, ids, models, read_back, "perform")
+
+
+def test_sigkill_of_keys_goto_has_its_guardian_turn_torque_off(rig, tmp_path, read_back):
+    """Killed during its countdown (torque on, goal = present): the same guardian."""
+    from puppet.keys import write_shot
+    from puppet.keys.example import critter_keys
+    from puppet.rig.calibration import Calibration
+    from puppet.rig.load import BUILTIN_RIG
+
+    ids = [int(i) for i in rig.servo_map.ids]
+    models = dict(rig.servo_map.models)
+    shot = tmp_path / "shot.mcap"
+    write_shot(shot, {"ids": ids, "models": models, "rig_map_text": "", "rig_name": rig.name,
+                      "calibration_text": Calibration.capture(rig.servo_map.ids,
+                                                              rig.servo_map.zero).to_record()},
+               critter_keys(rig))
+    puppet = str(Path(sys.executable).with_name("puppet"))
+    with hw_sim.serve(models) as bus:
+        run = Perform(shot, bus.port, argv=[puppet, "keys", "goto", str(shot), "2", "--rig",
+                                            str(BUILTIN_RIG), "--port", bus.port, "--latency-ms",
+                                            "20", "--watchdog-ms", "2000"])
+        run.wait_line("3...")  # the countdown: torque is on
+        assert set(_torque(bus, ids).values()) == {1}
+        _guarded(run, bus, ids, models, read_back, "keys goto")
+
+
+def test_sigkill_of_every_process_leaves_servos_to_their_watchdog_and_next_perform_recovers(
+        rig, wave_take, wait_until):
+    """The last line: perform and its guardian killed at once (the process group)."""
     ids = [int(i) for i in rig.servo_map.ids]
     with hw_sim.serve(dict(rig.servo_map.models)) as bus:
         run = Perform(wave_take, bus.port, "--loop")
         run.wait_line("phase: playback")
-        run.proc.kill()
+        os.killpg(run.proc.pid, signal.SIGKILL)
         run.finish()
         wait_until(lambda: all(bus.servo(i).get("Bus Watchdog") == -1 for i in ids),
                    what="every servo's Bus Watchdog to trip")
