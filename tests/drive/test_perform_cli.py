@@ -184,3 +184,78 @@ def test_missing_port_is_an_error_line(wave_take, tmp_path):
     assert result.returncode == 1
     assert "Error: " in result.stderr and "no-such-port" in result.stderr
     assert "Traceback" not in result.stderr
+
+
+TRIP = "Bus Watchdog tripped on "
+
+
+def test_watchdog_trips_of_every_servo_are_one_line_per_condition(rig, wave_take):
+    """perform stalled three times (SIGSTOP of its process past a 100 ms Bus Watchdog): each
+    check finds all 15 servos tripped and re-arms them; that is said in one line naming them,
+    repeats within NOTICE_REPEAT_S are counted and summed up at the stop, never a line per
+    servo."""
+    from puppet.drive.perform import NOTICE_REPEAT_S
+
+    ids = [int(i) for i in rig.servo_map.ids]
+    with hw_sim.serve(dict(rig.servo_map.models)) as bus:
+        run = Perform(wave_take, bus.port, "--loop", "--watchdog-ms", "100")
+        try:
+            run.wait_line("phase: playback")
+            started = time.monotonic()
+            for _ in range(3):
+                os.kill(run.proc.pid, signal.SIGSTOP)
+                try:
+                    _wait(lambda: all(bus.servo(i).get("Bus Watchdog") == -1 for i in ids),
+                          "every watchdog tripped")
+                finally:
+                    os.kill(run.proc.pid, signal.SIGCONT)
+                _wait(lambda: all(bus.servo(i).get("Bus Watchdog") == 5 for i in ids),
+                      "every watchdog re-armed")
+            elapsed = time.monotonic() - started
+            run.proc.send_signal(signal.SIGINT)
+            code, out, err = run.finish()
+        finally:
+            _end_group(run.proc)
+    assert code == 0, err
+    lines = [line for line in err.splitlines() if TRIP in line]
+    print("\n".join(lines))  # -s shows them
+    assert lines[0].startswith(f"{TRIP}servos {ids} "), lines
+    assert not any(f"servo {i}: Bus Watchdog" in err for i in ids)
+    said = [line for line in lines if not line.endswith("times in all")]
+    assert len(said) <= 1 + elapsed // NOTICE_REPEAT_S, (elapsed, lines)
+    if elapsed < NOTICE_REPEAT_S:  # every repeat came within the first line's period
+        assert lines[-1].startswith(f"{TRIP}servos {ids} ") and lines[-1].endswith(" times in all")
+        assert int(lines[-1].split(": ")[-1].split()[0]) >= 3, lines
+
+
+def _wait(condition, what: str, timeout_s: float = 120.0) -> None:
+    deadline = time.monotonic() + timeout_s
+    while not condition():
+        assert time.monotonic() < deadline, f"timed out waiting for {what}"
+        time.sleep(0.01)
+
+
+def test_notices_merge_repeats_and_sum_them_up(monkeypatch):
+    import importlib
+
+    performing = importlib.import_module("puppet.drive.perform")
+
+    said: list[str] = []
+    notices = performing._Notices(said.append)
+    monkeypatch.setattr(performing, "NOTICE_REPEAT_S", 1e9)
+    notices.add(performing.REARMED, [3, 1])
+    notices.add(performing.REARMED, [2])
+    notices.add(performing.STALLED, detail=" (0.2 s)")
+    notices.add(performing.REARMED, [1])
+    notices.close()
+    assert said == [
+        performing.REARMED.format(servos="servos [1, 3]"),
+        "warning: the goal frames stalled (the host loop) (0.2 s)",
+        performing.REARMED.format(servos="servos [1, 2, 3]") + ": 3 times in all"]
+    said.clear()
+    monkeypatch.setattr(performing, "NOTICE_REPEAT_S", 0.0)  # every time said, nothing left
+    notices = performing._Notices(said.append)
+    notices.add(performing.REARM_FAILED, [4], " (timeout)")
+    notices.add(performing.REARM_FAILED, [4], " (timeout)")
+    notices.close()
+    assert said == [performing.REARM_FAILED.format(servos="servo 4") + " (timeout)"] * 2
