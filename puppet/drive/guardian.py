@@ -163,8 +163,10 @@ def main() -> int:
     # Import the bus stack now, so that a takeover costs only the bus transactions.
     import puppet.drive.servos  # noqa: F401
 
-    sys.stdout.write(READY + "\n")
-    sys.stdout.flush()
+    try:
+        os.write(sys.stdout.fileno(), (READY + "\n").encode())
+    except OSError:  # the command is gone already (killed during its setup): stop anyway
+        pass
     line = sys.stdin.readline()
     if line.strip() == DONE:
         return 0

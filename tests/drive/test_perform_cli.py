@@ -259,3 +259,17 @@ def test_notices_merge_repeats_and_sum_them_up(monkeypatch):
     notices.add(performing.REARM_FAILED, [4], " (timeout)")
     notices.close()
     assert said == [performing.REARM_FAILED.format(servos="servo 4") + " (timeout)"] * 2
+
+
+def test_sigkill_during_setup_is_stopped_by_the_guardian_without_a_traceback(rig, wave_take,
+                                                                           read_back):
+    """Killed before torque went on (its guardian maybe still starting): the guardian stops
+    the servos anyway (one may hold torque from an earlier run) and nothing prints a traceback."""
+    ids = [int(i) for i in rig.servo_map.ids]
+    models = dict(rig.servo_map.models)
+    with hw_sim.serve(models) as bus:
+        for i in ids:
+            bus.servo(i).set("Torque Enable", 1)  # left on by an earlier run
+        run = Perform(wave_take, bus.port, "--loop")
+        run.wait_line("phase: setup")
+        _guarded(run, bus, ids, models, read_back, "perform")
