@@ -24,7 +24,7 @@ goal write not sent because the line was stalled costs that cycle (its goals go 
 Stop (end of take, SIGINT, SIGTERM, bus error, any exception): torque off by one Sync Write
 with no reply, then servo by servo, then read back; see ``DriveBus.torque_off``. A kill that no
 ``finally`` sees (SIGKILL, a hang-up, a crash in native code): the torque guardian, a child
-process started before the port opens and waited for before torque goes on, opens the port
+process started and waited for before the port opens, opens the port
 once this process is gone and does the same stop (``puppet.drive.guardian``); only a kill of
 both at once leaves the servos to their Bus Watchdog. A port lost
 mid-performance (an adapter pulled) is tried again for ``PORT_RETRY_S``: if it comes back,
@@ -298,14 +298,14 @@ def perform(rig, reader, port: str, options: PerformOptions | None = None,
             if signals.which:
                 raise _Stopped(signals.which)
         try:
-            guardian.start()  # it gets ready while setup runs
+            guardian.start()
+            guardian.wait_ready()  # before the port: its start competes with no bus setup
             link.open()
             # From here every way out turns torque off: a servo may still hold torque from an
             # earlier run (stopped by its watchdog) until setup reaches it.
             torque_may_be_on = True
             phase("setup")
             bus.prepare(opts.watchdog)
-            guardian.wait_ready()  # torque goes on only with the guardian standing by
             report.changes = [f"servo {c.id}: {c.item} {c.old} -> {c.new}" for c in bus.changes]
             report.recovered = list(bus.recovered)
             check_signal()
