@@ -85,8 +85,12 @@ class Guardian:
                 self._out += chunk
         else:
             return
-        raise DriveError(f"the torque guardian process did not start within {timeout_s:.0f} s "
-                         f"(exit status {self.proc.poll()}): torque stays off")
+        try:  # it closed its end: it is exiting
+            why = f"ended before it was ready (exit status {self.proc.wait(timeout=STAND_DOWN_S)})"
+        except subprocess.TimeoutExpired:
+            why = f"was not ready within {timeout_s:.0f} s"
+        raise DriveError(f"the torque guardian process {why}: torque stays off (a kill of this "
+                         "process would leave it on)")
 
     def stand_down(self) -> str | None:
         """The command turned torque off itself: the guardian exits untouched. -> None, or a

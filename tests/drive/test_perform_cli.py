@@ -273,3 +273,20 @@ def test_sigkill_during_setup_is_stopped_by_the_guardian_without_a_traceback(rig
         run = Perform(wave_take, bus.port, "--loop")
         run.wait_line("phase: setup")
         _guarded(run, bus, ids, models, read_back, "perform")
+
+
+def test_perform_refuses_to_turn_torque_on_without_its_guardian(rig, wave_take, monkeypatch):
+    """A guardian that cannot start (here: an interpreter that exits at once) is an error
+    before the port opens: torque never goes on unguarded."""
+    from puppet.drive import DriveError, PerformOptions, perform
+    from puppet.take import TakeReader
+
+    monkeypatch.setattr(sys, "executable", "/bin/false")
+    ids = [int(i) for i in rig.servo_map.ids]
+    with hw_sim.serve(dict(rig.servo_map.models)) as bus:
+        with pytest.raises(DriveError) as info:
+            perform(rig, TakeReader(wave_take), bus.port, PerformOptions(yes=True, latency_ms=20))
+        assert set(_torque(bus, ids).values()) == {0}
+    assert str(info.value).startswith("the torque guardian process ended before it was ready "
+                                      "(exit status 1): torque stays off")
+    assert info.value.report.torque_after == {}
