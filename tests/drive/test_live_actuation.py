@@ -217,6 +217,8 @@ def test_sigkill_of_live_has_its_reader_process_turn_the_tail_off(tail_rig, read
             live.proc.wait(timeout=WAIT_S)
             assert read_back(bus.port, {TAIL: models[TAIL]}, timeout_s=WAIT_S) == {TAIL: 0}
             assert read_back(bus.port, {TAIL: models[TAIL]}, "bus_watchdog") == {TAIL: 0}
+            _, _, err = live.finish()  # its stderr ends when the reader process has
+            assert "Traceback" not in err, err
         finally:
             try:
                 os.killpg(live.proc.pid, signal.SIGKILL)
