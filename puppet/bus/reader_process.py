@@ -216,8 +216,11 @@ def _child(shm_name, slots, port, servos, options, rate_hz, events, commands,
             ticks[slot] = reading.ticks
             ok[slot] = reading.ok
             written[0] += 1
-            for event in reader.log.drain():
-                events.send(("event", event))
+            try:
+                for event in reader.log.drain():
+                    events.send(("event", event))
+            except OSError:  # the parent is gone (its end of the pipe closed): stop, hook first
+                break
             if period_ns:
                 next_ns += period_ns
                 now = time.monotonic_ns()

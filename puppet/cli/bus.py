@@ -61,7 +61,7 @@ def scan(port: str, baud) -> None:
 
     bauds = SCAN_BAUDS if baud == "all" else (baud,)
     try:
-        found = scan_bus(port, bauds)
+        found = scan_bus(port, bauds, log=lambda line: click.echo(line, err=True))
     except BusError as err:
         fail(_on_port(port, err))
     if not found:

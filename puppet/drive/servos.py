@@ -201,6 +201,8 @@ class DriveBus:
                 if attempt == ATTEMPTS - 1:
                     raise
         hw = self.hardware_error(dxl_id)
+        while hw and (again := self.hardware_error(dxl_id)) != hw:
+            hw = again  # a late reply to another 1-byte read, misread: a latched error stays
         if hw:
             raise DriveError(f"servo {dxl_id}: hardware error latched ({describe_hardware_error(hw)}); "
                              "let it cool or fix the load, then power-cycle or reboot it")
