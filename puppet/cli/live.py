@@ -40,12 +40,20 @@ READ_RATE_HZ = 500.0
               help="With --view: take key poses into this shot from the page (Space or its Key "
                    "button; timeline, onion skins) as `puppet keys --view` does, at its default "
                    "--fps and --step.")
+@click.option("--over", "base_path", default=None,
+              help="Record a layer over this take (its base): the base plays from the same start, "
+                   "driven on the puppet where its servos can drive, on screen otherwise; name "
+                   "the layer's joints with --joints or --servos.")
+@click.option("--joints", default=None, help="With --over: the layer's joints, e.g. head,neck.")
+@click.option("--servos", "servo_ids", default=None,
+              help="With --over: the layer's servo ids, e.g. 3,4.")
 @view_option
 @link_option
 def live(rig_path: str, port: str, baud: int, take_path: str | None, out: str | None,
          frames: str | None, seconds: float | None, fps: float, antialias: str,
          force: bool, shot_path: str | None, view_address: str | None,
-         link_address: str | None, watchdog_ms: float, no_watchdog: bool) -> None:
+         link_address: str | None, watchdog_ms: float, no_watchdog: bool,
+         base_path: str | None, joints: str | None, servo_ids: str | None) -> None:
     """Read the puppet, solve and render live until Ctrl-C.
 
     Servos with role = "actuator" in the rig file are driven to the angle the solve gives
@@ -57,6 +65,8 @@ def live(rig_path: str, port: str, baud: int, take_path: str | None, out: str | 
       puppet live --rig my.toml --port /dev/ttyUSB0 --view     watch at the printed URL
       puppet live --rig my.toml --port /dev/ttyUSB0 --view --keys shot.mcap   key poses from the page
       puppet live --rig my.toml --port /dev/ttyUSB0 --link     into Blender (puppet_link add-on)
+      puppet live --rig my.toml --port /dev/ttyUSB0 --over body.mcap --joints head,neck \\
+          --record head.mcap                                  a layer over a take
     """
     from puppet.session import Session
     from puppet.session import outputs as o
@@ -65,10 +75,21 @@ def live(rig_path: str, port: str, baud: int, take_path: str | None, out: str | 
     rig = load_rig(rig_path)
     if shot_path is not None and view_address is None:
         raise click.UsageError("--keys takes keys from the page: add --view (or use `puppet keys`)")
-    outputs = [o.Actuators(rig, READ_RATE_HZ, watchdog_ms=0.0 if no_watchdog else watchdog_ms,
-                           tell=say)]
+    watchdog = 0.0 if no_watchdog else watchdog_ms
+    layer = None
+    if base_path is None:
+        if joints is not None or servo_ids is not None:
+            raise click.UsageError("--joints and --servos name a layer's joints: add --over BASE")
+        outputs = [o.Actuators(rig, READ_RATE_HZ, watchdog_ms=watchdog, tell=say)]
+    else:
+        from puppet.session import layers
+
+        layer = layers.LayerPlan.make(rig, base_path, joints=_names(joints),
+                                      servos=_ids(servo_ids), watchdog=not no_watchdog)
+        outputs = [layers.BaseDrive(layer, READ_RATE_HZ, watchdog_ms=watchdog, tell=say)]
     if take_path is not None:
-        outputs.append(o.Take(take_path, rig, force=force))
+        outputs.append(o.Take(take_path, rig, force=force) if layer is None else
+                       layers.LayerTake(take_path, layer, force=force))
     if out is not None:
         outputs.append(o.Video(out, fps, force=force))
     if frames is not None:
@@ -85,10 +106,22 @@ def live(rig_path: str, port: str, baud: int, take_path: str | None, out: str | 
         outputs.append(o.View(view_address, mode="live", rig=rig, record=True, keys=desk,
                               takes_dir=Path(take_path).parent if take_path else Path("."),
                               tell=say))
-    session = Session(rig, BusSource(rig, port, baud=baud, rate_hz=READ_RATE_HZ), outputs,
-                      inputs=rig_files(rig), seconds=seconds, video_fps=fps, tell=say,
+    source = (BusSource(rig, port, baud=baud, rate_hz=READ_RATE_HZ) if layer is None else
+              layers.BaseOverLive(rig, port, layer, baud=baud, rate_hz=READ_RATE_HZ))
+    session = Session(rig, source, outputs, inputs=[*rig_files(rig), base_path], seconds=seconds, video_fps=fps, tell=say,
                       solve=True, pipeline={"overlay": True, "antialias": antialias, "live": True})
     run_session(session)
+
+
+def _names(text: str | None) -> list[str]:
+    return [] if not text else [t.strip() for t in text.split(",") if t.strip()]
+
+
+def _ids(text: str | None) -> list[int]:
+    try:
+        return [int(t) for t in _names(text)]
+    except ValueError:
+        raise click.BadParameter(f"{text!r}: servo ids, e.g. 3,4", param_hint="--servos") from None
 
 
 COMMANDS = (live,)
