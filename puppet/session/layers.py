@@ -76,6 +76,7 @@ class LayerPlan:
         self.layer_cols = np.array([n for n, i in enumerate(ids) if i in self.servos], np.int64)
         self.base_cols = np.array([n for n, i in enumerate(ids) if i not in self.servos], np.int64)
         self.base_servos = [rig.servo_map.servos[n] for n in self.base_cols]
+        self.goal_delays_ms = np.zeros(0)  # base frame -> its goal on the bus, ms (after a drive)
         self._t0_ns: int | None = None
         self._lock = threading.Lock()
 
@@ -186,11 +187,16 @@ class _OverBase:
 
 
 class BaseOverLive(BusSource):
-    """The bus read live with the layer's base shown under it (see the module docstring)."""
+    """The bus read live with the layer's base shown under it (see the module docstring); with
+    a cycle hook (``BaseDrive``'s) the base's goals are fed to it on the base's clock, every
+    FEED_PERIOD_S, by a thread that stops before the reader does."""
 
     def __init__(self, rig, port: str, plan: LayerPlan, **options) -> None:
         super().__init__(rig, port, **options)
         self.plan = plan
+        self.reader = None
+        self._stop_feed = threading.Event()
+        self._feeder: threading.Thread | None = None
 
     def begin(self, hooks=()) -> None:
         super().begin(hooks)
@@ -202,10 +208,28 @@ class BaseOverLive(BusSource):
         if tell is not None:
             for note in self.plan.notes:
                 tell(f"note: {note}")
+        if self.reader.hook is not None:
+            self._feeder = threading.Thread(target=self._feed, name="puppet-base-goals",
+                                            daemon=True)
+            self._feeder.start()
         return report
 
+    def _feed(self) -> None:
+        """The base's goals at the base's play time, to the reader process's hook."""
+        plan, reader, cols = self.plan, self.reader, self.plan.base_cols
+        while not self._stop_feed.wait(FEED_PERIOD_S):
+            now = time.monotonic_ns()
+            play = plan.play_s(now)
+            if play is not None:
+                reader.set_goals(plan.goals.at(play)[cols], now)
+
     def stop(self) -> None:
-        if self.reading_source is not None and isinstance(self.reading_source, _OverBase):
+        self._stop_feed.set()
+        if self._feeder is not None:
+            self._feeder.join()
+            self._feeder = None
+            self.plan.goal_delays_ms = self.reader.goal_delays_ms().copy()
+        if isinstance(self.reading_source, _OverBase):
             self.reading_source = self.reader
         super().stop()
 
@@ -224,39 +248,14 @@ class BaseDrive(Actuators):
             self.plan = ActuationPlan.for_servos(plan.rig.servo_map, plan.base_servos, rate_hz,
                                                  watchdog_ms=watchdog_ms)
             self.hook = EasedHook(self.plan)
-        self._stop = threading.Event()
-        self._thread = None
 
     def open(self, run) -> None:
-        if self.plan is None:
-            return
-        self._source = run.source.reader
-        self._thread = threading.Thread(target=self._feed, name="puppet-base-goals", daemon=True)
-        self._thread.start()
-
-    def _feed(self) -> None:
-        """The base's goals at the base's play time, every FEED_PERIOD_S, to the reader."""
-        plan, source, cols = self.layer, self._source, self.layer.base_cols
-        while not self._stop.wait(FEED_PERIOD_S):
-            now = time.monotonic_ns()
-            play = plan.play_s(now)
-            if play is None:
-                continue
-            source.set_goals(plan.goals.at(play)[cols], now)
-
-    def close(self) -> None:
-        self._stop.set()
-        if self._thread is not None:
-            self._thread.join()
-            self._thread = None
-        super().close()
+        if self.plan is not None:
+            self._source = run.source.reader  # its goals are fed by the source (BaseOverLive)
 
     def report(self) -> dict:
-        source = getattr(self, "_source", None)
-        if self.plan is None or source is None:
-            return {}
-        delays = source.goal_delays_ms()
-        if not len(delays):
+        delays = self.layer.goal_delays_ms
+        if self.plan is None or not len(delays):
             return {}
         return {"base goals": f"{len(self.plan.ids)} servos driven; base frame -> goal on the "
                               f"bus {np.median(delays):.1f} ms median, "

@@ -243,11 +243,19 @@ def compose(reader, ids, options: LayerOptions | None = None, _depth: int = 0) -
     turns = turns_of(reader.metadata.models, ids)
     base = Playback(below.t_ns, base_ticks, below.ok, np.asarray(ids), source=base_reader.path,
                     ticks_per_turn=turns)
-    play, _ = play_times_ns(t_ns)
-    out = np.empty_like(ticks)
-    out_ok = np.empty_like(ok)
-    for r, p in enumerate(play):  # the base at each layer reading's play time: the one rule
+    layer_play, _ = play_times_ns(t_ns)
+    own = Playback(t_ns, ticks, ok, np.asarray(ids), source=reader.path, ticks_per_turn=turns)
+    # the time line: every reading of the layer and of the base (within the layer), so that
+    # each pass is sampled where it was read and interpolated only between its own readings
+    play = np.union1d(layer_play, base.play_ns[base.play_ns <= layer_play[-1]])
+    out = np.empty((len(play), len(ids)), np.int32)
+    out_ok = np.empty((len(play), len(ids)), bool)
+    ticks = np.empty_like(out)
+    ok = np.empty_like(out_ok)
+    for r, p in enumerate(play):  # both passes at each play time: the one rule
         base.sample(float(p), out[r], out_ok[r])
+        own.sample(float(p), ticks[r], ok[r])
+    t_ns = t_ns[0] + play
     duration_s = play[-1] * 1e-9
     if base.duration_s < duration_s:
         notes.append(f"{reader.path}: its base {base_reader.path} ends at "
@@ -262,14 +270,17 @@ def compose(reader, ids, options: LayerOptions | None = None, _depth: int = 0) -
             names = sorted({str(held[i]) for i in twice})
             notes.append(f"servos {twice} are held by layer {reader.path} and by {', '.join(names)} "
                          "below it: the top layer wins")
-        marks = [(float(p) * 1e-9, name) for p, name in _mark_play(read_markers(reader.path), t_ns, play)]
+        marks = [(float(p) * 1e-9, name)
+                 for p, name in _mark_play(read_markers(reader.path), own.t_ns, own.play_ns)]
         p_in, p_out = options.punch_of(reader.path, ref)
         t_in = _seconds(p_in, marks, "punch in", reader.path, 0.0)
         t_out = _seconds(p_out, marks, "punch out", reader.path, duration_s)
         if t_out <= t_in:
             raise TakeError(reader.path, f"punch out ({t_out:.3f} s) is not after punch in "
                                          f"({t_in:.3f} s)")
-        weight = _weights(play * 1e-9, t_in, t_out, ticks[:, cols], out[:, cols], t_ns, seams)
+        speed = np.maximum(_median_speed(own.t_ns, own.ticks[:, cols]),  # each pass's own
+                           _median_speed(base.t_ns, base.ticks[:, cols]))
+        weight = _weights(play * 1e-9, t_in, t_out, ticks[:, cols], out[:, cols], speed, seams)
         blend = out[:, cols] + weight[:, None] * (ticks[:, cols].astype(float) - out[:, cols])
         out[:, cols] = np.rint(blend).astype(np.int32)
         inside = weight > 0
@@ -289,10 +300,10 @@ def _mark_play(marks, t_ns, play):
     return out
 
 
-def _weights(play_s, t_in, t_out, layer, base, t_ns, seams) -> np.ndarray:
+def _weights(play_s, t_in, t_out, layer, base, speed, seams) -> np.ndarray:
     """(R,) the layer's weight at each reading: 0 outside [t_in, t_out], 1 inside, linear over
-    each seam's blend (its length from the gap the seam closes and the joints' median speed)."""
-    speed = np.maximum(_median_speed(t_ns, layer), _median_speed(t_ns, base))
+    each seam's blend (its length from the gap the seam closes and the joints' median
+    ``speed``, (l,) ticks/s)."""
     w = ((play_s >= t_in) & (play_s <= t_out)).astype(float)
     end = play_s[-1]
     if t_in > 0:
