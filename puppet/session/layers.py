@@ -76,6 +76,8 @@ class LayerPlan:
         self.layer_cols = np.array([n for n, i in enumerate(ids) if i in self.servos], np.int64)
         self.base_cols = np.array([n for n, i in enumerate(ids) if i not in self.servos], np.int64)
         self.base_servos = [rig.servo_map.servos[n] for n in self.base_cols]
+        self.ended = False  # the base's end was said
+        self.tell = print
         self.goal_delays_ms = np.zeros(0)  # base frame -> its goal on the bus, ms (after a drive)
         self._t0_ns: int | None = None
         self._lock = threading.Lock()
@@ -168,7 +170,12 @@ class _OverBase:
     def _over(self, reading: Reading) -> OverReading:
         plan = self._plan
         plan.start_at(reading.t_ns)
-        base = plan.goals.at(plan.play_s(reading.t_ns))
+        play = plan.play_s(reading.t_ns)
+        if play > plan.goals.duration_s and not plan.ended:
+            plan.ended = True
+            plan.tell(f"note: the base {plan.base} ended at {plan.goals.duration_s:.2f} s: "
+                      "the base holds its last frame")
+        base = plan.goals.at(play)
         ticks = reading.ticks.copy()
         ok = reading.ok.copy()
         cols = plan.base_cols
@@ -206,6 +213,7 @@ class BaseOverLive(BusSource):
     def ready(self, tell=None):
         report = super().ready(tell)
         if tell is not None:
+            self.plan.tell = tell
             for note in self.plan.notes:
                 tell(f"note: {note}")
         if self.reader.hook is not None:
