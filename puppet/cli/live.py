@@ -76,20 +76,19 @@ def live(rig_path: str, port: str, baud: int, take_path: str | None, out: str | 
     if shot_path is not None and view_address is None:
         raise click.UsageError("--keys takes keys from the page: add --view (or use `puppet keys`)")
     watchdog = 0.0 if no_watchdog else watchdog_ms
-    layer = None
     if base_path is None:
         if joints is not None or servo_ids is not None:
             raise click.UsageError("--joints and --servos name a layer's joints: add --over BASE")
+        source = BusSource(rig, port, baud=baud, rate_hz=READ_RATE_HZ)
         outputs = [o.Actuators(rig, READ_RATE_HZ, watchdog_ms=watchdog, tell=say)]
+        if take_path is not None:
+            outputs.append(o.Take(take_path, rig, force=force))
     else:
-        from puppet.session import layers
+        from puppet.session.layers import layer_parts
 
-        layer = layers.LayerPlan.make(rig, base_path, joints=_names(joints),
-                                      servos=_ids(servo_ids), watchdog=not no_watchdog)
-        outputs = [layers.BaseDrive(layer, READ_RATE_HZ, watchdog_ms=watchdog, tell=say)]
-    if take_path is not None:
-        outputs.append(o.Take(take_path, rig, force=force) if layer is None else
-                       layers.LayerTake(take_path, layer, force=force))
+        _, source, outputs = layer_parts(rig, port, base_path, take_path, joints=_names(joints),
+                                         servos=_ids(servo_ids), baud=baud, rate_hz=READ_RATE_HZ,
+                                         watchdog_ms=watchdog, force=force, tell=say)
     if out is not None:
         outputs.append(o.Video(out, fps, force=force))
     if frames is not None:
@@ -106,10 +105,9 @@ def live(rig_path: str, port: str, baud: int, take_path: str | None, out: str | 
         outputs.append(o.View(view_address, mode="live", rig=rig, record=True, keys=desk,
                               takes_dir=Path(take_path).parent if take_path else Path("."),
                               tell=say))
-    source = (BusSource(rig, port, baud=baud, rate_hz=READ_RATE_HZ) if layer is None else
-              layers.BaseOverLive(rig, port, layer, baud=baud, rate_hz=READ_RATE_HZ))
-    session = Session(rig, source, outputs, inputs=[*rig_files(rig), base_path], seconds=seconds, video_fps=fps, tell=say,
-                      solve=True, pipeline={"overlay": True, "antialias": antialias, "live": True})
+    session = Session(rig, source, outputs, inputs=[*rig_files(rig), base_path], seconds=seconds,
+                      video_fps=fps, tell=say, solve=True,
+                      pipeline={"overlay": True, "antialias": antialias, "live": True})
     run_session(session)
 
 

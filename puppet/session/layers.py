@@ -6,18 +6,19 @@ the layer's joints.
 live rig, named both otherwise; the layer holds at least one joint the puppeteer can move) and
 holds the base as goal ticks of the live rig (``puppet.drive.goals.TakeGoals``: the base
 composed by the one take-to-frames rule, converted through both calibrations). Then three parts
-of one session, each the session's own kind of part:
+of one session, each the session's own kind of part (``layer_parts`` makes all three):
 
   ``BaseOverLive``  the source: the bus read live; each reading's base servos show the base at
                     that reading's play time (time 0: the first reading), its layer servos what
-                    the puppeteer does; the raw reading rides along (``raw``).
+                    the puppeteer does; the raw reading rides along (``raw_ticks``). With a
+                    cycle hook it feeds the base's goals on the base's clock from a thread of its
+                    own, stopped before the reader stops.
   ``BaseDrive``     an output (``Actuators``' hook and torque report): on a rig that can drive
                     (every base servo's model has a Bus Watchdog, what perform needs) the base's
                     servos are driven, torque on, through ``ActuatorHook`` in the reader process
                     (gentle start: they ease to the base; clamps, current and temperature stops,
-                    Bus Watchdog, torque off on every way out); goals fed on the base's clock by a
-                    thread of its own. The layer's servos stay sensors. A rig that cannot drive
-                    plays the base on screen only, said once.
+                    Bus Watchdog, torque off on every way out). The layer's servos stay
+                    sensors. A rig that cannot drive plays the base on screen only, said once.
   ``LayerTake``     the ``--record`` output: the raw readings (every servo as read), with the
                     layer record (``puppet.take.layers.LayerRef``) and the base's sound and
                     timecode.
@@ -320,3 +321,19 @@ class _RawRecorder:
 
     def __getattr__(self, name):
         return getattr(self.writer, name)
+
+
+def layer_parts(rig, port: str, base, take_path=None, *, joints=(), servos=(),
+                baud: int = 1_000_000, rate_hz: float = 500.0, watchdog_ms: float = 100.0,
+                force: bool = False, tell=print):
+    """(plan, source, outputs) of a session that records a layer of ``rig`` on ``port`` over the
+    take ``base``: the layer's joints by name (``joints``) and/or servo ids (``servos``); the
+    take at ``take_path`` (None: the base plays and drives, nothing recorded); watchdog_ms 0:
+    drive without the Bus Watchdog (--no-watchdog). Add the command's other outputs (view,
+    link, video) and run ``Session(rig, source, outputs, inputs=[..., base])``. What
+    ``puppet live --over`` and the studio page's "record a layer" both call."""
+    plan = LayerPlan.make(rig, base, joints=joints, servos=servos, watchdog=watchdog_ms > 0)
+    outputs = [BaseDrive(plan, rate_hz, watchdog_ms=watchdog_ms, tell=tell)]
+    if take_path is not None:
+        outputs.append(LayerTake(take_path, plan, force=force))
+    return plan, BaseOverLive(rig, port, plan, baud=baud, rate_hz=rate_hz), outputs
