@@ -122,7 +122,8 @@ class LayerPlan:
         if not Path(base).is_file():
             raise LayerError(f"--over: {base} does not exist")
         reader = TakeReader(base)
-        check_same_rig(reader.metadata, rig.name, ids, layer=f"--over {base}", base=base)
+        check_same_rig(reader.metadata, rig.name, ids, layer=f"--over {base}", base=base,
+                       models=dict(sm.models))
         stack = compose(reader, ids)
         zero = Calibration.from_record(reader.metadata.calibration_text, reader.path).zero_ticks
         goals = TakeGoals(sm.servos, stack.t_ns, stack.ticks, stack.ok, zero, sm.zero)

@@ -166,7 +166,7 @@ def open_base(reader):
                                      f"(sha256 {ref.base_sha256[:12]}… recorded)")
     base = TakeReader(path)
     check_same_rig(base.metadata, reader.metadata.rig_name, reader.metadata.ids,
-                   layer=reader.path, base=path)
+                   layer=reader.path, base=path, models=reader.metadata.models)
     if base.keys() is not None and base.keys().keys:
         raise TakeError(reader.path, f"its base {path} is a shot (keys): a layer plays over takes")
     if len(base) == 0:
@@ -174,15 +174,18 @@ def open_base(reader):
     return base
 
 
-def check_same_rig(base_metadata, rig_name: str, ids, *, layer, base) -> None:
+def check_same_rig(base_metadata, rig_name: str, ids, *, layer, base, models=None) -> None:
     """TakeError naming both rigs unless the base (its TakeMetadata) was recorded on the rig
-    ``rig_name`` with servos ``ids``."""
+    ``rig_name`` with servos ``ids`` (of ``models``, {id: model}, where given)."""
     base_ids = sorted(int(i) for i in base_metadata.ids)
     ids = sorted(int(i) for i in ids)
-    if base_metadata.rig_name != rig_name or base_ids != ids:
+    differ = models is not None and any(
+        base_metadata.models.get(i) not in (None, models.get(i)) for i in ids)
+    if base_metadata.rig_name != rig_name or base_ids != ids or differ:
         raise TakeError(layer, f"a layer on rig {rig_name!r} (servos {ids}) cannot go over "
                                f"{base}, recorded on rig {base_metadata.rig_name!r} (servos "
-                               f"{base_ids}): record the layer on the base's rig")
+                               f"{base_ids}{', other models' if differ else ''}): record the "
+                               "layer on the base's rig")
 
 
 def _seconds(punch: str, marks, what: str, path, default: float) -> float:

@@ -21,7 +21,7 @@ from scipy.spatial.transform import Rotation
 
 import hw_sim
 from puppet.rig import load_rig
-from puppet.rig.load import BUILTIN_RIG
+from puppet.rig.load import BUILTIN_AX_RIG, BUILTIN_RIG
 from puppet.take import TakeReader, TakeWriter
 from puppet.take.header import take_header
 
@@ -89,9 +89,11 @@ def _wait_for(condition, what: str, proc, timeout_s: float = WAIT_S):
     raise AssertionError(f"timed out waiting for {what}")
 
 
-def _record_base(path, rig, seconds="3"):
-    with hw_sim.serve(dict(rig.servo_map.models), motion=Swing(LEG_IDS, 0.0)) as bus:
-        code, out, err = Live(bus.port, "--seconds", seconds, "--record", str(path)).finish()
+def _record_base(path, rig, seconds="3", rig_path=BUILTIN_RIG, motion=None):
+    motion = Swing(LEG_IDS, 0.0) if motion is None else motion
+    with hw_sim.serve(dict(rig.servo_map.models), motion=motion) as bus:
+        code, out, err = Live(bus.port, "--seconds", seconds, "--record", str(path),
+                              rig_path=rig_path).finish()
     assert code == 0, err
     return path
 
@@ -215,6 +217,22 @@ def test_a_base_servo_that_drops_out_is_stopped_named_and_the_recording_goes_on(
         assert "actuator_stopped" in out + err, out + err
         assert bus.servo(12).get("Torque Enable") == 0
         assert all(bus.servo(i).get("Torque Enable") == 0 for i in rig.servo_map.ids)
+
+
+def test_a_rig_that_cannot_drive_plays_the_base_on_screen_only_said_once(tmp_path):
+    ax = load_rig(BUILTIN_AX_RIG)
+    base = _record_base(tmp_path / "ax.mcap", ax, seconds="1", rig_path=BUILTIN_AX_RIG,
+                        motion="hold")
+    layer = tmp_path / "layer.mcap"
+    with hw_sim.serve(dict(ax.servo_map.models)) as bus:
+        code, out, err = Live(bus.port, "--seconds", "2", "--over", str(base), "--joints", ARMS,
+                              "--record", str(layer), rig_path=BUILTIN_AX_RIG).finish()
+        assert code == 0, err
+        assert err.count("the base plays on screen only") == 1, err
+        assert "torque off (read back)" not in err  # nothing was driven
+        assert all(bus.servo(i).get("Torque Enable") == 0 for i in ax.servo_map.ids)
+    with TakeReader(layer) as reader:
+        assert reader.metadata.layer.servos == ARM_IDS and len(reader) > 0
 
 
 def _refused(*extra, rig_path=BUILTIN_RIG) -> str:
