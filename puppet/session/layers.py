@@ -26,6 +26,7 @@ of one session, each the session's own kind of part (``layer_parts`` makes all t
 
 from __future__ import annotations
 
+import copy
 import threading
 import time
 from dataclasses import dataclass
@@ -60,7 +61,8 @@ class LayerPlan:
     """What a layer recorded live plays over and holds.
 
     base: the base take's path; servos (l,) the layer's servo ids (rig order); goals: the base as
-    goal ticks of the live rig (TakeGoals, every rig servo); layer_cols / base_cols: column
+    goal ticks of the live rig (TakeGoals, every rig servo; the loop's), drive_goals the same for
+    the goal feeder's thread; layer_cols / base_cols: column
     indexes of the rig's servos; drive: the base's servos can be driven; notes: said once.
     """
 
@@ -69,6 +71,7 @@ class LayerPlan:
         self.base = Path(base)
         self.servos = tuple(int(i) for i in servos)
         self.goals = goals
+        self.drive_goals = copy.deepcopy(goals)  # the feeder thread's own (``at`` reuses arrays)
         self.sound = sound
         self.timecode = timecode
         self.drive = drive
@@ -231,7 +234,7 @@ class BaseOverLive(BusSource):
             now = time.monotonic_ns()
             play = plan.play_s(now)
             if play is not None:
-                reader.set_goals(plan.goals.at(play)[cols], now)
+                reader.set_goals(plan.drive_goals.at(play)[cols], now)
 
     def stop(self) -> None:
         self._stop_feed.set()
