@@ -166,8 +166,6 @@ class _OverBase:
     def __init__(self, inner, plan: LayerPlan) -> None:
         self._inner = inner
         self._plan = plan
-        k = len(plan.rig.servo_map.ids)
-        self._base = np.empty(k)
 
     def __getattr__(self, name):
         return getattr(self._inner, name)
