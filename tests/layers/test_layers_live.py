@@ -165,6 +165,13 @@ def test_two_passes_export_legs_of_pass_1_arms_of_pass_2_and_free_bones_from_bot
     for bone in ARM_BONES:
         assert _angle_deg(got[bone], pass2[bone]).max() < 0.5, bone  # pass 2's arms
         assert _angle_deg(got[bone], pass1[bone]).max() > 10.0, bone  # not pass 1's
+    batch = tmp_path / "batch"
+    done = subprocess.run(["puppet", "batch", str(layer), "--out", str(batch), "--formats",
+                           "gltf"], capture_output=True, text=True, timeout=WAIT_S)
+    assert done.returncode == 0, done.stdout + done.stderr
+    batched = _rotations(GLTF2().load(str(batch / "arms.glb")))
+    for bone in LEGS + ARM_BONES:  # the batch composes the layer as export does
+        assert _angle_deg(batched[bone], got[bone]).max() < 0.01, bone
     sensed = {s.joint for s in rig.servo_map.servos} | {"hips"}
     free = [b for b in got if b not in sensed]
     assert free
