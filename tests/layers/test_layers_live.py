@@ -24,6 +24,7 @@ from puppet.rig import load_rig
 from puppet.rig.load import BUILTIN_AX_RIG, BUILTIN_RIG
 from puppet.take import TakeReader, TakeWriter
 from puppet.take.header import take_header
+from puppet.take.sync import SoundRef
 
 _spec = importlib.util.spec_from_file_location(
     "layers_gltf_readers", Path(__file__).parents[1] / "export" / "readers.py")
@@ -179,9 +180,25 @@ def test_two_passes_export_legs_of_pass_1_arms_of_pass_2_and_free_bones_from_bot
     assert max(_angle_deg(got[b], pass1[b]).max() for b in free) > 0.5
 
 
+SOUND = SoundRef(sha256="ab" * 32, name="song.wav", path="/music/song.wav", offset_s=0.5,
+                 rate=48000, channels=2, frames=96000)
+
+
+def _short_base(path, rig) -> Path:
+    """A 1 s base (legs swinging) performed to SOUND."""
+    ids = np.asarray(rig.servo_map.ids)
+    with TakeWriter(path, **take_header(rig), sound=SOUND) as w:
+        from puppet.reading import Reading
+
+        for r in range(101):
+            ticks = np.array([Swing(LEG_IDS, 0.0).position(int(i), r / 100) for i in ids], np.int32)
+            w.write(Reading(r * 10_000_000, ids, ticks, np.ones(len(ids), bool)))
+    return path
+
+
 @pytest.mark.parametrize("stop", ["SIGINT", "SIGTERM"])
 def test_torque_is_read_back_off_when_a_layer_is_stopped(rig, tmp_path, stop):
-    short = _record_base(tmp_path / "short.mcap", rig, seconds="1")
+    short = _short_base(tmp_path / "short.mcap", rig)
     layer = tmp_path / "layer.mcap"
     with hw_sim.serve(dict(rig.servo_map.models), motion=Swing(ARM_IDS, 0.5)) as bus:
         live = Live(bus.port, "--seconds", "600", "--over", str(short), "--servos", "4,5",
@@ -198,6 +215,7 @@ def test_torque_is_read_back_off_when_a_layer_is_stopped(rig, tmp_path, stop):
         assert all(bus.servo(i).get("Torque Enable") == 0 for i in rig.servo_map.ids)
     with TakeReader(layer) as reader:
         assert reader.metadata.layer.servos == (4, 5) and len(reader) > 0
+        assert reader.metadata.sound == SOUND  # the base's sound reference
 
 
 def test_a_base_servo_that_drops_out_is_stopped_named_and_the_recording_goes_on(rig, tmp_path,
