@@ -99,6 +99,12 @@ def open_take(take, rig: Rig | str | Path | None) -> tuple[Rig, TakeReader]:
         rig = load_rig(rig)
     reader.check_rig([int(i) for i in rig.servo_map.ids], dict(rig.servo_map.models),
                      rig_name=rig.name)
+    from puppet.take.layers import layer_notes
+
+    notes = layer_notes(reader)  # a layer: its stack checked, what it says said once
+    if notes:
+        reader.report.notes.extend(notes)
+        reader.recovery = reader.report.text()
     recorded = Calibration.from_record(meta.calibration_text, take)
     if recorded.zero_ticks:  # replay with the calibration the take was recorded with
         rig.servo_map.calibrate(recorded)

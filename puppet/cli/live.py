@@ -42,13 +42,21 @@ READ_RATE_HZ = 500.0
                    "button; timeline, onion skins) as `puppet keys --view` does, at its default "
                    "--fps and --step.")
 @sound_options
+@click.option("--over", "base_path", default=None,
+              help="Record a layer over this take (its base): the base plays from the same start, "
+                   "driven on the puppet where its servos can drive, on screen otherwise; name "
+                   "the layer's joints with --joints or --servos.")
+@click.option("--joints", default=None, help="With --over: the layer's joints, e.g. head,neck.")
+@click.option("--servos", "servo_ids", default=None,
+              help="With --over: the layer's servo ids, e.g. 3,4.")
 @view_option
 @link_option
 def live(rig_path: str, port: str, baud: int, take_path: str | None, out: str | None,
          frames: str | None, seconds: float | None, fps: float, antialias: str,
          force: bool, shot_path: str | None, view_address: str | None,
          link_address: str | None, watchdog_ms: float, no_watchdog: bool,
-         sound_path: str | None, sound_offset: float, count_in: float) -> None:
+         sound_path: str | None, sound_offset: float, count_in: float,
+         base_path: str | None, joints: str | None, servo_ids: str | None) -> None:
     """Read the puppet, solve and render live until Ctrl-C.
 
     Servos with role = "actuator" in the rig file are driven to the angle the solve gives
@@ -60,6 +68,8 @@ def live(rig_path: str, port: str, baud: int, take_path: str | None, out: str | 
       puppet live --rig my.toml --port /dev/ttyUSB0 --view     watch at the printed URL
       puppet live --rig my.toml --port /dev/ttyUSB0 --view --keys shot.mcap   key poses from the page
       puppet live --rig my.toml --port /dev/ttyUSB0 --link     into Blender (puppet_link add-on)
+      puppet live --rig my.toml --port /dev/ttyUSB0 --over body.mcap --joints head,neck \\
+          --record head.mcap                                  a layer over a take
     """
     from puppet.session import Session
     from puppet.session import outputs as o
@@ -68,10 +78,23 @@ def live(rig_path: str, port: str, baud: int, take_path: str | None, out: str | 
     rig = load_rig(rig_path)
     if shot_path is not None and view_address is None:
         raise click.UsageError("--keys takes keys from the page: add --view (or use `puppet keys`)")
-    outputs = [o.Actuators(rig, READ_RATE_HZ, watchdog_ms=0.0 if no_watchdog else watchdog_ms,
-                           tell=say)]
-    if take_path is not None:
-        outputs.append(o.Take(take_path, rig, force=force))
+    watchdog = 0.0 if no_watchdog else watchdog_ms
+    if base_path is None:
+        if joints is not None or servo_ids is not None:
+            raise click.UsageError("--joints and --servos name a layer's joints: add --over BASE")
+        source = BusSource(rig, port, baud=baud, rate_hz=READ_RATE_HZ)
+        outputs = [o.Actuators(rig, READ_RATE_HZ, watchdog_ms=watchdog, tell=say)]
+        if take_path is not None:
+            outputs.append(o.Take(take_path, rig, force=force))
+    else:
+        if count_in > 0:  # the base plays from the session's start; a count-in would shift it
+            raise click.UsageError("--count-in with --over: a layer starts with its base, "
+                                   "give one of them")
+        from puppet.session.layers import layer_parts
+
+        _, source, outputs = layer_parts(rig, port, base_path, take_path, joints=_names(joints),
+                                         servos=_ids(servo_ids), baud=baud, rate_hz=READ_RATE_HZ,
+                                         watchdog_ms=watchdog, force=force, tell=say)
     if out is not None:
         outputs.append(o.Video(out, fps, force=force))
     if frames is not None:
@@ -89,11 +112,21 @@ def live(rig_path: str, port: str, baud: int, take_path: str | None, out: str | 
                               takes_dir=Path(take_path).parent if take_path else Path("."),
                               tell=say))
     outputs += sound_outputs(sound_path, sound_offset, count_in)
-    session = Session(rig, BusSource(rig, port, baud=baud, rate_hz=READ_RATE_HZ), outputs,
-                      inputs=[*rig_files(rig), sound_path], seconds=seconds, video_fps=fps,
-                      tell=say, count_in_s=count_in,
-                      solve=True, pipeline={"overlay": True, "antialias": antialias, "live": True})
+    session = Session(rig, source, outputs, inputs=[*rig_files(rig), base_path, sound_path],
+                      seconds=seconds, video_fps=fps, tell=say, count_in_s=count_in, solve=True,
+                      pipeline={"overlay": True, "antialias": antialias, "live": True})
     run_session(session)
+
+
+def _names(text: str | None) -> list[str]:
+    return [] if not text else [t.strip() for t in text.split(",") if t.strip()]
+
+
+def _ids(text: str | None) -> list[int]:
+    try:
+        return [int(t) for t in _names(text)]
+    except ValueError:
+        raise click.BadParameter(f"{text!r}: servo ids, e.g. 3,4", param_hint="--servos") from None
 
 
 COMMANDS = (live,)

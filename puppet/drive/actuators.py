@@ -79,11 +79,20 @@ class ActuationPlan:
         servos = rig.servo_map.actuators
         if not servos:
             return None
+        return cls.for_servos(rig.servo_map, servos, rate_hz, max_speed_deg_s=max_speed_deg_s,
+                              watchdog_ms=watchdog_ms)
+
+    @classmethod
+    def for_servos(cls, servo_map, servos, rate_hz: float, *, max_speed_deg_s: float = 360.0,
+                   watchdog_ms: float = 100.0) -> "ActuationPlan":
+        """The plan for driving ``servos`` (of ``servo_map``, any role: a layer's base joints,
+        ``puppet.session.layers``) read at ``rate_hz``; as ``for_rig``."""
         if watchdog_ms > 0:
             from puppet.rig.servo_map import check_bus_watchdogs  # the parent's side only
 
-            check_bus_watchdogs(servos, rig.servo_map.path)
-        units = ServoUnits.for_servos(servos, rig.servo_map.zero[rig.servo_map.actuator_index])
+            check_bus_watchdogs(servos, servo_map.path)
+        where = {int(i): n for n, i in enumerate(servo_map.ids)}
+        units = ServoUnits.for_servos(servos, servo_map.zero[[where[int(s.id)] for s in servos]])
         lo, hi = units.tick_limits()
         step = units.ticks_per_joint_degree * (max_speed_deg_s / rate_hz)
         watchdog_units = 0

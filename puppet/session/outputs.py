@@ -152,13 +152,14 @@ class Frames(Output):
         return {"frames": str(self.path)}
 
 
-def open_take_writer(path, rig, *, force: bool = False):
+def open_take_writer(path, rig, *, force: bool = False, **more):
     """A take of ``rig`` at ``path`` written on a thread of its own (a periodic fsync never
-    stalls a frame): the writer every recording uses (--record, the page's record button)."""
+    stalls a frame): the writer every recording uses (--record, the page's record button).
+    ``more``: TakeWriter's header keywords (a layer's sound, timecode and layer record)."""
     from puppet.take import BackgroundTakeWriter
     from puppet.take.header import take_writer
 
-    return BackgroundTakeWriter(take_writer(path, rig, force=force))
+    return BackgroundTakeWriter(take_writer(path, rig, force=force, **more))
 
 
 class _TakeFromZero:

@@ -45,12 +45,11 @@ def check_take_path(take_path: str | Path, rig, *, force: bool, inputs=()) -> Pa
                         keep_existing=True, what="take")
 
 
-def take_writer(take_path: str | Path, rig, *, force: bool = False, sound=None, timecode=None):
-    """A new TakeWriter for the rig's servos, with its header (and the take's sound reference
-    and start timecode, when given). An existing file at take_path is replaced only with
-    ``force``; a rig file never."""
+def take_writer(take_path: str | Path, rig, *, force: bool = False, **more):
+    """A new TakeWriter for the rig's servos, with its header. An existing file at take_path is
+    replaced only with ``force``; a rig file never. ``more``: TakeWriter's other keywords
+    (sound, timecode, layer)."""
     from puppet.take.writer import TakeWriter
 
     check_take_path(take_path, rig, force=force)
-    return TakeWriter(take_path, **take_header(rig), overwrite=force, sound=sound,
-                      timecode=timecode)
+    return TakeWriter(take_path, **take_header(rig), overwrite=force, **more)

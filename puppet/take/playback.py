@@ -177,6 +177,7 @@ class Playback:
         self._step = np.empty(k, np.float64)  # scratch of sample()
         self._part = np.empty(k, np.float64)
         self._inbetweens = None
+        self.layer_notes: list[str] = []
         if self.interpolation is not None and joint_rotations is not None:
             from puppet.take.inbetween import Inbetweens
 
@@ -187,13 +188,16 @@ class Playback:
 
     @classmethod
     def of_take(cls, reader, ids, *, fps: float = 30.0, speed: float = 1.0,
-                rig=None) -> "Playback":
+                rig=None, layers=None) -> "Playback":
         """The frames of an open TakeReader for the rig servos ``ids`` (its bus order), each
         servo's ticks the short way round its model's turn (the take's models; 4096 where a
         damaged take lost them).
 
         A shot plays its keys (the module docstring); rig (a ``puppet.rig.Rig``, calibrated as
         the take: its servo map and skeleton) makes its frames carry the joint rotations.
+        A layer (``puppet.take.layers``) plays composed over its base, by this same rule;
+        ``layers``: its ``LayerOptions`` (mute, solo, punch; None: as recorded);
+        ``layer_notes`` then lists what the composition said.
         """
         ids = [int(i) for i in ids]
         keys = reader.keys()
@@ -214,8 +218,13 @@ class Playback:
                        ticks_per_turn=turns_of(reader.metadata.models, ids))
         if len(reader) == 0:
             raise TakeError(reader.path, "the take holds no readings")
-        return cls(*reader.arrays(ids=ids), np.asarray(ids), fps=fps, speed=speed,
-                   source=reader.path, ticks_per_turn=turns_of(reader.metadata.models, ids))
+        from puppet.take.layers import compose
+
+        stack = compose(reader, ids, layers)  # a layer over its base; a plain take as recorded
+        playback = cls(stack.t_ns, stack.ticks, stack.ok, np.asarray(ids), fps=fps, speed=speed,
+                       source=reader.path, ticks_per_turn=turns_of(reader.metadata.models, ids))
+        playback.layer_notes = stack.notes
+        return playback
 
     def _frame_rotations(self, f: int) -> np.ndarray:
         """(b, 3, 3) joint rotations of frame f of a shot: interpolated ROTATION_BLOCK frames at

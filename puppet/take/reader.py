@@ -26,6 +26,7 @@ from puppet.take import sync
 from puppet.take.sync import SoundRef
 from puppet.timecode import StartTimecode
 from puppet.take.errors import TakeError, TakeRigMismatch
+from puppet.take.layers import LAYER_METADATA, LayerRef
 from puppet.take.playback import gap_note
 
 MCAP_MAGIC = b"\x89MCAP0\r\n"
@@ -126,6 +127,8 @@ class TakeMetadata:
     sound:            the sound the take was performed to (``puppet.take.sync.SoundRef``), or
                       None (none, a take older than sound, or a damaged record: in the report).
     timecode:         the start timecode (``puppet.timecode.StartTimecode``) or None (likewise).
+    layer:            what the take is a layer of (``puppet.take.layers.LayerRef``), or None
+                      (a plain take; a damaged record: in the report, the take plays alone).
     """
 
     ids: np.ndarray
@@ -138,6 +141,7 @@ class TakeMetadata:
     library: str
     sound: SoundRef | None = None
     timecode: StartTimecode | None = None
+    layer: object | None = None
 
 
 def _parse(record_cls, body: bytes):
@@ -347,6 +351,7 @@ class TakeReader:
             sound=self._sync_record(s, sync.SOUND_METADATA, "sound", sync.SoundRef.from_metadata),
             timecode=self._sync_record(s, sync.TIMECODE_METADATA, "timecode",
                                        sync.timecode_from_metadata),
+            layer=self._sync_record(s, LAYER_METADATA, "layer", LayerRef.from_metadata),
         )
         if s.orphans:
             self.report.skip("corrupt record", f"{s.orphans} reading record(s) before the take "
@@ -551,7 +556,7 @@ class TakeReader:
                 self._prepare_codec(s)
             elif meta.name in (fmt.RIG_MAP_METADATA, fmt.CALIBRATION_METADATA):
                 s.texts[meta.name] = meta.metadata.get("text", "")
-            elif meta.name in (sync.SOUND_METADATA, sync.TIMECODE_METADATA):
+            elif meta.name in (sync.SOUND_METADATA, sync.TIMECODE_METADATA, LAYER_METADATA):
                 s.sync[meta.name] = meta.metadata
         elif opcode == Opcode.SCHEMA:
             schema = _parse(Schema, body)

@@ -39,6 +39,7 @@ class TakeWriter:
     sound:            the sound the take is performed to (``puppet.take.sync.SoundRef``: its
                       hash, file, offset at the take's time 0, rate), or None.
     timecode:         the take's start timecode (``puppet.timecode.StartTimecode``), or None.
+    layer:            what the take is a layer of (``puppet.take.layers.LayerRef``), or None.
     """
 
     def __init__(
@@ -54,6 +55,7 @@ class TakeWriter:
         overwrite: bool = False,
         sound=None,
         timecode=None,
+        layer=None,
     ):
         self.path = Path(path)
         self.ids = np.asarray(ids)
@@ -108,6 +110,10 @@ class TakeWriter:
                 self._mcap.add_metadata(sync.SOUND_METADATA, sound.to_metadata())
             if timecode is not None:
                 self._mcap.add_metadata(sync.TIMECODE_METADATA, sync.timecode_metadata(timecode))
+            if layer is not None:
+                from puppet.take.layers import LAYER_METADATA
+
+                self._mcap.add_metadata(LAYER_METADATA, layer.to_metadata())
             schema_id = self._mcap.register_schema(
                 fmt.SCHEMA_NAME, fmt.SCHEMA_ENCODING, fmt.SCHEMA_TEXT.encode()
             )
