@@ -4,6 +4,7 @@ and play commands share (stream each solve to Blender, ``puppet.link``)."""
 from __future__ import annotations
 
 import time
+from pathlib import Path
 
 import click
 
@@ -13,13 +14,14 @@ link_option = click.option(
          "host prints a token the add-on needs).")
 
 
-def open_link(address: str | None, rig, *, fps: float | None = None):
+def open_link(address: str | None, rig, *, fps: float | None = None, take: str | None = None):
     """Bind the link's address now (a taken port fails before any hardware is touched) and say
     where it listens; returns the Link (attach it to the pipeline). fps: the take's rate (play);
-    live and demo give the loop's when they attach."""
+    live and demo give the loop's when they attach. take: the take's name (the add-on names
+    the recording's action after it)."""
     from puppet.link import Link
 
-    link = Link(address, rig, fps=fps or 0.0)
+    link = Link(address, rig, fps=fps or 0.0, take=take)
     click.echo(f"link: listening on {link.where()}", err=True)
     return link
 
@@ -53,7 +55,7 @@ def play_to_link(take: str, rig_path: str | None, address: str, *, speed: float,
 
     rig, reader = open_take(take, rig_path)
     frames = take_frames(rig, reader, fps)
-    link = open_link(address, rig, fps=fps)
+    link = open_link(address, rig, fps=fps, take=Path(take).stem)
     stop = StopFlag()
     try:
         sinks = make_sinks(out, frames_dir, fps, inputs=[take, *rig_files(rig)], force=force)
