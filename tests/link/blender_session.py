@@ -1,8 +1,8 @@
 """Run with bpy: one Blender session of the add-on across two takes, with the user's mesh checked
-before and after. argv: ZIP GLB PORT CACHE STALL_AFTER.
+before and after. argv: ZIP CHARACTER GLB PORT CACHE STALL_AFTER.
 
-1. Installs and enables the add-on from its zip, imports GLB (the critter, 30 fps) as the user's
-   character, and snapshots its mesh: the vertex coordinates' bytes and every property of every
+1. Installs and enables the add-on from its zip, imports CHARACTER (``puppet blender
+   character``'s .glb of the critter, at rest) as the user's character, and snapshots its mesh: the vertex coordinates' bytes and every property of every
    modifier, and the object's visibility.
 2. Connect with Record, Exact mesh and a point cache (CACHE) on, before puppet runs: the add-on
    waits and retries by itself. The test starts ``puppet play TAKE --link PORT``; the add-on
@@ -12,7 +12,7 @@ before and after. argv: ZIP GLB PORT CACHE STALL_AFTER.
    by itself and records it into a second action, with Exact mesh turned off and on again while
    it streams.
 3. Disconnect, snapshot the user's mesh again; import the first take's reference (GLB: the
-   export of that take) and measure, at every keyed frame of the first action, the largest
+   export of that take, scene at 30 fps) and measure, at every keyed frame of the first action, the largest
    distance of bone heads and tails (world) from it. Prints RESULT {json}.
 """
 
@@ -22,7 +22,7 @@ import time
 
 import bpy
 
-zip_path, glb, port, cache, stall_after = sys.argv[-5:]
+zip_path, character, glb, port, cache, stall_after = sys.argv[-6:]
 port, stall_after = int(port), int(stall_after)
 bpy.ops.wm.read_factory_settings(use_empty=True)
 bpy.ops.preferences.addon_install(filepath=zip_path, overwrite=True)
@@ -31,10 +31,9 @@ import puppet_link  # noqa: E402  (installed just now)
 
 scene = bpy.context.scene
 scene.render.fps, scene.render.fps_base = 30, 1.0  # the take's rate, before the import
-bpy.ops.import_scene.gltf(filepath=glb)
+bpy.ops.import_scene.gltf(filepath=character)
 target = next(o for o in scene.objects if o.type == "ARMATURE")
 mesh_object = next(o for o in scene.objects if o.type == "MESH")
-target.animation_data_clear()
 
 
 def snapshot():

@@ -1,5 +1,6 @@
 """The add-on in one Blender session across two takes (``blender_session.py``, one ``bpy``
-subprocess for the module): the user's mesh is never written, a recording has no holes through
+subprocess for the module), driving the critter as the README brings it into Blender
+(``puppet blender character``): the user's mesh is never written, a recording has no holes through
 a 1.5 s Blender stall and equals ``puppet export`` of the take, each take is its own action,
 the add-on reconnects by itself, and the panel reports the link's health."""
 
@@ -48,6 +49,10 @@ def session(tmp_path_factory, take, exported):
     done = subprocess.run(["puppet", "blender", "addon", "--out", str(addon)],
                           capture_output=True, text=True, timeout=300)
     assert done.returncode == 0, done.stderr
+    character = folder / "critter.glb"  # the README's way to the built-in critter
+    done = subprocess.run(["puppet", "blender", "character", "--out", str(character)],
+                          capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr
     second = folder / "take2.mcap"
     shutil.copyfile(take, second)
     with socket.socket() as probe:  # a free port both puppets take in turn
@@ -55,7 +60,7 @@ def session(tmp_path_factory, take, exported):
         port = probe.getsockname()[1]
     cache = folder / "live_{take}.pc2"
     blender = helpers.Puppet.python(["-c", (HERE / "blender_session.py").read_text(), addon,
-                                     exported["glb"], port, cache, STALL_AFTER])
+                                     character, exported["glb"], port, cache, STALL_AFTER])
     puppets = []
     try:
         for which, mark in ((take, "WAITING"), (second, "TAKE1")):
@@ -142,6 +147,7 @@ def test_each_take_is_its_own_action_and_the_addon_reconnects_by_itself(session,
         result["first_keys_at_take1"]]
     assert result["actions"]["take2"]["keys"] == [frames_exported]
     assert result["malformed"] == 0
+    assert result["notes"][0] == "18 of 18 joints drive bones", result["notes"]
 
 
 def test_the_panel_shows_latency_rate_and_a_stall(session):

@@ -181,10 +181,12 @@ class Recording:
         self.cache_path, self.cache = cache_path, None
         self.previous = None  # (at, values, co) of the frame before
         self.pending = []  # (scene frame, values) not yet in the F-curves
-        self.frames = []  # every scene frame keyed, in order
+        self.frames = []  # every scene frame keyed, in order (8 bytes a frame)
+        self.streamed = []  # the scene frame (float) of every frame puppet sent, in order
         self.keys = 0
 
     def add(self, at: float, values: np.ndarray, co) -> None:
+        self.streamed.append(at)
         if self.previous is None:
             if abs(at - round(at)) < 1e-6:
                 self._key(round(at), values, co)
