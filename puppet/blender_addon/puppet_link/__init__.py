@@ -19,11 +19,12 @@ and p the nearest driven bone above.
 
 The exact mesh never touches the user's mesh: it is shown on a copy the add-on owns (an object
 "<mesh> (puppet)" with a copy of the mesh data, no modifiers, no shape keys, placed at the
-glTF-to-Blender axes so puppet's model-frame vertices go in as they come, one ``foreach_set``),
-while the user's mesh object is hidden; unticking "Exact mesh" or Disconnect deletes the copy
-and restores the object's visibility, so the user's vertices, modifiers and shape keys are
-as imported. (A shape key or a Mesh Cache file would write into the user's data or need its
-Armature modifier switched off; an evaluated copy would be re-made by Blender every frame.)
+glTF-to-Blender axes so puppet's model-frame vertices go in as they come: one bulk copy into its
+position attribute) while the user's mesh object is hidden; unticking "Exact mesh" or
+Disconnect deletes the copy and restores the object's visibility, so the user's vertices,
+modifiers and shape keys are as imported. (A shape key or a Mesh Cache file would write into
+the user's data or need its Armature modifier switched off; an evaluated copy would be re-made
+by Blender every frame.)
 
 Recording: a frame puppet flags recording (``puppet live --record``), or any frame while Record
 is ticked, is keyed: puppet sends each such frame, none skipped, and they queue while Blender is
@@ -140,8 +141,12 @@ class ExactMesh:
         return True
 
     def write(self, vertices) -> None:
+        """One bulk copy into the position attribute (``mesh.vertices.foreach_set("co")``
+        goes vertex by vertex: 15 ms for the critter's 24 910, against 0.02 ms), then tag the
+        mesh for Blender's next evaluation (normals included)."""
         data = bpy.data.objects[self.copy].data
-        data.vertices.foreach_set("co", vertices)
+        data.attributes["position"].data.foreach_set(
+            "vector", np.frombuffer(vertices, np.float32))
         data.update()
 
     def remove(self) -> None:
