@@ -22,14 +22,18 @@ the take's length.
 
     python bench/link.py --json link.json [--seconds 10] [--fps 60]
 
-The Blender rows also give the Blender-side cost of one update, median ms: "bones" (the add-on
-posing the armature), "mesh" (the add-on writing the exact mesh on its copy) and "evaluate"
-(``view_layer.update()`` after the tick: what Blender does before it draws the new pose).
+The Blender rows also give the Blender-side cost of one update, median CPU ms (the thread's CPU
+time: a loaded machine does not inflate it): "receive" (reading the socket, decoding), "bones"
+(the add-on posing the armature), "mesh" (the add-on writing the exact mesh on its copy) and
+"evaluate" (``view_layer.update()`` after the tick: what Blender does before it draws the new
+pose: with bones only, the Armature modifier deforming the user's mesh; with the exact mesh,
+the copy's normals, the user's mesh hidden), their sum and the capacity 1000 / sum fps.
 puppet runs as ``sys.executable -c 'from puppet.cli import main'``: no ``puppet`` on PATH needed.
 
 JSON: {"fps", "seconds", "frames", "view" | "plain" | "bones" | "mesh": {"applied",
        "fps_applied", "median_ms", "p99_ms", "client": {"applied", "skipped", "costs_ms":
-       {"bones", "mesh", "evaluate"}} (Blender rows)}, "machine": {"cpus", "load_1min"}}.
+       {"receive", "bones", "mesh", "evaluate"}, "update_ms", "capacity_fps"} (Blender rows)},
+       "machine": {"cpus", "load_1min"}}.
 """
 
 from __future__ import annotations
@@ -80,9 +84,9 @@ while link.state != "waiting":
     applied = link.frames_applied
     puppet_link.tick()
     if link.frames_applied > applied:  # what Blender does before it draws: evaluate the scene
-        start = time.perf_counter()
+        start = time.thread_time()
         bpy.context.view_layer.update()
-        evaluate.append((time.perf_counter() - start) * 1e3)
+        evaluate.append((time.thread_time() - start) * 1e3)
 link.close()
 costs = {name: list(values) for name, values in link.costs.items()}
 costs["evaluate"] = evaluate
@@ -91,7 +95,7 @@ print("APPLIED", json.dumps({"applied": link.frames_applied, "skipped": link.ski
 """
 PUPPET = [sys.executable, "-c", "import sys; from puppet.cli import main; sys.argv[0] = 'puppet'; "
           "main()"]  # this Python's puppet: the venv's bin need not be on PATH
-COSTS = ("bones", "mesh", "evaluate")
+COSTS = ("receive", "bones", "mesh", "evaluate")
 
 
 def write_take(path: Path, rig, seconds: float, fps: float) -> None:
@@ -195,7 +199,10 @@ def main() -> None:
                     raise SystemExit(f"Blender failed:\n{done.stdout[-2000:]}{done.stderr[-2000:]}")
                 out = json.loads(line[len("APPLIED "):])
                 costs = {name: _median(out["costs"].get(name, [])) for name in COSTS}
-                return {"applied": out["applied"], "skipped": out["skipped"], "costs_ms": costs}
+                total = sum(v for v in costs.values() if v is not None)
+                return {"applied": out["applied"], "skipped": out["skipped"], "costs_ms": costs,
+                        "update_ms": round(total, 3),
+                        "capacity_fps": round(1000.0 / total, 1) if total else None}
             return run
 
         for name, client in (("plain", plain_client), ("bones", blender(False)),
@@ -207,14 +214,18 @@ def main() -> None:
     print(f"critter, {result['frames']} frames at {args.fps:g} fps, loopback "
           f"({result['machine']['cpus']} cpus, load {result['machine']['load_1min']})")
     print(f"{'client':<8}{'applied':>9}{'fps':>8}{'median ms':>11}{'p99 ms':>9}"
-          + "".join(f"{'blender ' + c + ' ms':>22}" for c in COSTS))
+          + "".join(f"{c + ' ms':>12}" for c in COSTS) + f"{'update ms':>11}{'capacity':>10}")
     for name in ROWS:
         r = result[name]
         costs = r.get("client", {}).get("costs_ms", {}) if isinstance(r.get("client"), dict) else {}
+        client = r.get("client") if isinstance(r.get("client"), dict) else {}
         print(f"{name:<8}{str(r['applied'] or '-'):>9}{r['fps_applied']:>8}{r['median_ms']:>11}"
-              f"{r['p99_ms']:>9}" + "".join(f"{_shown(costs.get(c)):>22}" for c in COSTS))
-    print("blender * ms: Blender-side cost per update, median (bones: the add-on posing the "
-          "armature; mesh: writing the exact mesh; evaluate: Blender's scene update after it)")
+              f"{r['p99_ms']:>9}" + "".join(f"{_shown(costs.get(c)):>12}" for c in COSTS)
+              + f"{_shown(client.get('update_ms')):>11}{_shown(client.get('capacity_fps')):>10}")
+    print("Blender-side CPU ms per update, medians: receive (socket, decode), bones (posing the "
+          "armature), mesh (the exact mesh's bulk write), evaluate (Blender's scene update after "
+          "it, before a draw); update: their sum; capacity: 1000 / update, the rate Blender's "
+          "side sustains on one core (applied fps also needs puppet's side and the machine)")
     if args.json:
         Path(args.json).write_text(json.dumps(result, indent=2))
 

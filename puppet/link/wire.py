@@ -186,6 +186,7 @@ class Reader:
             if len(buffer) < end:
                 return
             at = self._start + LENGTH.size
-            kind, body = bytes(buffer[at:at + 1]), bytes(buffer[at + 1:end])
+            with memoryview(buffer) as view:  # one copy of the body (a slice would be two)
+                kind, body = bytes(view[at:at + 1]), bytes(view[at + 1:end])
             self._start = end
             yield kind, body

@@ -254,7 +254,9 @@ class Link:
     state: off | connecting | connected | waiting (to retry) | refused. status: a line for the
     panel. notes: mapping problems. health: puppet's last health message. Counts:
     frames_applied, frames_received, malformed, skipped (received, not shown: a newer one came
-    in the same tick). costs: {"bones", "mesh", "record"}: Blender-side milliseconds per update.
+    in the same tick). costs: {"receive", "bones", "mesh", "record"}: Blender-side CPU
+    milliseconds per update (reading the socket and decoding; posing the armature; writing the
+    exact mesh; keying), the last COSTS of each.
     """
 
     def __init__(self):
@@ -281,7 +283,7 @@ class Link:
         self.last_tick_at = None
         self.stall_note = ""
         self.stall_until = 0.0
-        self.costs = {name: deque(maxlen=COSTS) for name in ("bones", "mesh", "record")}
+        self.costs = {name: deque(maxlen=COSTS) for name in ("receive", "bones", "mesh", "record")}
 
     # -- connection -----------------------------------------------------------------------
 
@@ -363,9 +365,9 @@ class Link:
 
     def set_options(self, mesh: bool, record: bool) -> None:
         """Tell puppet whether to send the vertices and every frame (Record)."""
-        if (mesh, record) == (self.mesh_on, self.record_on):
-            return
-        self.mesh_on, self.record_on = bool(mesh), bool(record)
+        if (mesh, record) == (self.mesh_on, self.record_on) or self.state == "handshake":
+            return  # (during the handshake: sent once the hello is in)
+        self.mesh_on, self.record_on = bool(mesh), bool(record)  # the next CONNECT's, if none
         if self.sock is not None and self.state == "connected":
             try:
                 self.sock.setblocking(True)
@@ -607,7 +609,9 @@ def tick():
         return TICK_S
     armature, mesh_object = settings.armature, settings.mesh
     LINK.set_options(settings.use_mesh and mesh_object is not None, settings.record)
+    received = time.thread_time()
     frames = LINK.poll()
+    received = (time.thread_time() - received) * 1e3
     if not (settings.use_mesh and mesh_object is not None):
         LINK.exact.remove()
     if not frames or LINK.hello is None or armature is None:
@@ -621,7 +625,8 @@ def tick():
     if not LINK.bones or LINK.bound_to != armature.name:
         LINK.bind(armature)
         LINK.bound_to = armature.name
-    started = time.perf_counter()
+    LINK.costs["receive"].append(received)
+    started = time.thread_time()  # costs: this thread's CPU time (a busy machine inflates none)
     for frame in frames:
         if settings.record or frame.recording:
             LINK.record(frame, armature, settings, mesh_object)
@@ -631,15 +636,15 @@ def tick():
         LINK.recording.flush()
         if (not settings.record and not frames[-1].recording) or LINK.state != "connected":
             LINK.end_recording()
-    recorded = time.perf_counter()
+    recorded = time.thread_time()
     newest = frames[-1]
     LINK.skipped += len(frames) - 1
     LINK.apply(newest)
-    posed = time.perf_counter()
+    posed = time.thread_time()
     if settings.use_mesh and mesh_object is not None and newest.vertices is not None:
         if LINK.mesh_fits(newest, mesh_object) and LINK.exact.show(mesh_object):
             LINK.exact.write(newest.vertices)
-            LINK.costs["mesh"].append((time.perf_counter() - posed) * 1e3)
+            LINK.costs["mesh"].append((time.thread_time() - posed) * 1e3)
     if frames[0].recording or settings.record:
         LINK.costs["record"].append((recorded - started) * 1e3)
     LINK.costs["bones"].append((posed - recorded) * 1e3)
