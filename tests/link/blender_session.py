@@ -10,7 +10,7 @@ before and after. argv: ZIP CHARACTER GLB PORT CACHE STALL_AFTER.
    in the tick loop). When puppet says bye, prints TAKE1 (and the panel's lines seen) and goes
    on ticking: the test starts a second ``puppet play`` on the same port, the add-on reconnects
    by itself and records it into a second action, with Exact mesh turned off and on again while
-   it streams.
+   it streams, then Record off and a 1 s stall (live frames are skipped: the panel says so).
 3. Disconnect, snapshot the user's mesh again; import the first take's reference (GLB: the
    export of that take, scene at 30 fps) and measure, at every keyed frame of the first action, the largest
    distance of bone heads and tails (world) from it. Prints RESULT {json}.
@@ -113,6 +113,10 @@ while link.state != "waiting" and time.monotonic() < deadline:
             settings.use_mesh = False
         elif toggled == 10:
             settings.use_mesh = True
+        elif toggled == 20:  # Record off, then a stall: live display skips to the newest
+            settings.record = False
+            time.sleep(1.0)
+    panel.update(line.split(":")[0].split(" ")[0] for line in link.health_lines())
     time.sleep(0.002)
 bpy.ops.puppet_link.disconnect()
 puppet_link.tick()

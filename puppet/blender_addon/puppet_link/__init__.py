@@ -277,6 +277,7 @@ class Link:
         self.mesh_on = self.record_on = False
         self.bound_to = None  # the armature bound (name)
         self.health = {}
+        self.recent_skips = 0  # frames puppet skipped for us between its last two health messages
         self.retry_at = 0.0
         self.connect_started = 0.0
         self.last_frame_at = None  # time.monotonic() a frame last arrived
@@ -405,6 +406,8 @@ class Link:
                     if kind == wire.FRAME_KIND:
                         frames.append(content)
                     elif kind == wire.HEALTH:
+                        self.recent_skips = (content.get("skipped", 0)
+                                             - self.health.get("skipped", 0))
                         self.health = content
                     elif kind == wire.HELLO:
                         self.end_recording()  # a new connection: a new take
@@ -551,9 +554,10 @@ class Link:
             latency = ("reading->applied: none yet" if median is None else
                        f"reading->applied median {median:.1f} ms, p99 {p99:.1f} ms")
             lines.append(f"{latency}; applied {h.get('acked_per_s', 0):.1f}/s")
-            if h.get("skipped"):
-                lines.append(f"dropping: {h['skipped']} frames skipped (Blender slower than "
-                             "puppet; live only, recordings queue)")
+            if self.recent_skips > 0:
+                lines.append(f"dropping: {self.recent_skips} frames skipped in the last "
+                             f"{wire.HEALTH_S:g} s (Blender slower than puppet; live display "
+                             "only, recordings queue)")
             if h.get("lost"):
                 lines.append(f"LOST {h['lost']} recorded frames (Blender too far behind)")
         now = time.monotonic()
