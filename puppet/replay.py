@@ -16,18 +16,7 @@ from pathlib import Path
 
 from puppet.rig import Rig
 from puppet.take import TakeError, TakeReader
-
-RIG_SOURCE_MARK = "# puppet: recorded from rig file "
-"""Last line added to the rig map text a take stores: where that rig file was when recording
-began, so ``play``/``export`` without ``--rig`` find its character files (relative paths are
-relative to it). A TOML comment: the stored text parses as the rig file did, same line numbers;
-takes without it (older ones) still play."""
-
-
-RIG_CHARACTER_MARK = "# puppet: recorded on character sha256 "
-"""Line added before RIG_SOURCE_MARK: the checksum of the character the take was recorded on
-(``puppet.checksum.character_sha256``), so a take replayed without ``--rig`` is never solved on
-a character changed since (its rig file's character edited or replaced). Older takes lack it."""
+from puppet.take.header import RIG_CHARACTER_MARK, RIG_SOURCE_MARK
 
 
 def _mark(meta, mark: str) -> str | None:

@@ -74,14 +74,17 @@ def parse_formats(text: str | tuple[str, ...] | list[str]) -> tuple[str, ...]:
     return tuple(formats)
 
 
-def expand_takes(patterns: list[str] | tuple[str, ...]) -> list[tuple[Path, Path]]:
+def expand_takes(patterns: list[str] | tuple[str, ...],
+                 base: Path | None = None) -> list[tuple[Path, Path]]:
     """(take, base) for every take file the arguments name: files (base: their folder), folders
     (their *.mcap; base: the folder) and glob patterns (``**`` spans folders; base: the
-    pattern's leading folders without a wildcard). Sorted within each argument, duplicates
+    pattern's leading folders without a wildcard); ``base`` given: every take's base (a
+    session's takes/ folder: outputs mirror its shots). Sorted within each argument, duplicates
     dropped. BatchError if an argument matches nothing at all. Outputs mirror each take's folder
     below its base (``plan_jobs``)."""
     takes: list[tuple[Path, Path]] = []
     seen: set[Path] = set()
+    given = base
     if not patterns:
         raise BatchError("no takes given: name take files, folders or patterns (session/*.mcap)")
     for pattern in patterns:
@@ -101,7 +104,7 @@ def expand_takes(patterns: list[str] | tuple[str, ...]) -> list[tuple[Path, Path
             key = take.resolve()
             if key not in seen:
                 seen.add(key)
-                takes.append((take, base))
+                takes.append((take, given if given is not None else base))
     return takes
 
 

@@ -4,15 +4,35 @@ from __future__ import annotations
 
 import itertools
 import sys
-import threading
-import time
 
 import click
 
 from puppet import limits
-from puppet.cli.blender import link_option, open_link, report_link
-from puppet.cli.common import InRange, StopFlag, check_take_path, load_rig, start_reader
+from puppet.cli.blender import link_option
+from puppet.cli.common import InRange, load_rig, rig_files, run_session, say
 from puppet.cli.view import view_option
+
+
+def _lines_then_q(desk) -> None:
+    """The terminal's commands, then q at end of input (no view: the shot is done)."""
+    _lines(desk, finish_at_end=True)
+
+
+def _lines_only(desk) -> None:
+    """The terminal's commands; end of input does not finish (the page goes on taking keys)."""
+    _lines(desk, finish_at_end=False)
+
+
+def new_desk(rig, path: str, *, fps: float = None, step: int = None,
+             interpolation: str = "linear"):
+    """A KeyDesk for a new shot of ``rig`` at ``path`` (``puppet keys``' defaults), its
+    outcomes said on the terminal."""
+    from puppet.keys.capture import KeyDesk, KeySession
+    from puppet.take.header import take_header
+
+    session = KeySession(path, take_header(rig), fps=DEFAULT_FPS if fps is None else fps,
+                         step=DEFAULT_STEP if step is None else step, interpolation=interpolation)
+    return KeyDesk(session, tell=say_outcome)
 
 
 def _lines(desk, finish_at_end: bool = True) -> None:
@@ -82,8 +102,10 @@ def keys(ctx, rig_path, port, out, fps, step, interpolation, baud, force, view_a
     """
     if ctx.invoked_subcommand is not None:
         return
-    from puppet.cli.common import take_header
-    from puppet.keys.capture import KeyDesk, KeySession
+    from puppet.events import describe_counts
+    from puppet.session import Session
+    from puppet.session import outputs as o
+    from puppet.session.sources import BusSource
 
     missing = [name for name, value in (("--rig", rig_path), ("--port", port), ("--out", out))
                if value is None]
@@ -92,70 +114,26 @@ def keys(ctx, rig_path, port, out, fps, step, interpolation, baud, force, view_a
     if link_address is not None and view_address is None:
         raise click.UsageError("--link streams the live loop that --view runs: add --view")
     rig = load_rig(rig_path)
-    check_take_path(out, rig, force=force)  # before the port: a mistake costs nothing
-    session = KeySession(out, take_header(rig), fps=fps, step=step, interpolation=interpolation)
-    desk = KeyDesk(session, tell=say_outcome)
-    link = None
-    if view_address is not None:  # bound before the bus is touched: a taken port fails first
-        link = open_link(link_address, rig) if link_address is not None else None
-        try:
-            source = _capture_in_view(rig, port, baud, desk, view_address, link)
-        finally:
-            if link is not None:
-                link.close()
+    desk = new_desk(rig, out, fps=fps, step=step, interpolation=interpolation)
+    in_view = view_address is not None
+    outputs = [o.KeyDesk(desk, path=out, rig=rig, feed=not in_view, force=force, option="--out",
+                         lines=_lines_only if in_view else _lines_then_q)]
+    if link_address is not None:
+        outputs.append(o.Link(link_address, rig, tell=say))
+    if in_view:
+        outputs.append(o.View(view_address, mode="live", keys=desk, tell=say))
+        say("hold a pose and press Enter here, or Space or Key on the page, for a key "
+            "(r N, d N, i FRAME, t N FRAME, m [N] KIND, q: see --help)")
     else:
-        source = _capture(rig, port, baud, desk)
-    frames = session.keys.keys[-1].frame if session.keys.keys else 0
-    click.echo(f"shot: {out}\nkeys: {len(session.keys.keys)}, {frames} frames at {fps:g} fps\n"
-               f"faults seen: {dict(source.log.counts) or 'none'}")
-    if link is not None:
-        click.echo(f"link: {report_link(link)['link']}")
-
-
-def _capture(rig, port: str, baud: int, desk):
-    """Take the terminal's commands until q, end of input or Ctrl-C; returns the reader."""
-    source = start_reader(rig, port, baud, rate_hz=200.0)
-    threading.Thread(target=_lines, args=(desk,), daemon=True).start()
-    stop = StopFlag()
-    click.echo("hold a pose and press Enter for a key (r N, d N, i FRAME, t N FRAME, m [N] KIND, q: see --help)")
-    try:
-        while not stop() and not desk.finished:
-            desk.feed(source.drain())
-            desk.step()
-            time.sleep(0.005)
-    finally:
-        source.stop()
-    return source
-
-
-def _capture_in_view(rig, port: str, baud: int, desk, address: str, link=None):
-    """The capture inside the live view: the live loop solves and shows the puppet, the view
-    hands the KeyDesk its readings and the page's keys; the terminal's commands work as well.
-    link: a Link (``--link``) fed every solved frame of that loop, or None."""
-    from puppet.cli.view import open_view
-    from puppet.loop import Pipeline, run_live
-    from puppet.loop.run import LIVE_FPS
-
-    live_view = open_view(address, mode="live", keys=desk)
-    stop = StopFlag()
-    try:
-        with Pipeline(rig, overlay=True, live=True) as pipeline:
-            source = start_reader(rig, port, baud, rate_hz=200.0)
-            try:
-                live_view.attach(pipeline, source=source)
-                if link is not None:
-                    link.attach(pipeline, fps=LIVE_FPS)
-                threading.Thread(target=_lines, args=(desk, False), daemon=True).start()
-                click.echo("hold a pose and press Enter here, or Space or Key on the page, for a "
-                           "key (r N, d N, i FRAME, t N FRAME, m [N] KIND, q: see --help)")
-                run_live(pipeline, source, should_stop=lambda: stop() or desk.finished,
-                         view=live_view, link=link)
-            finally:
-                live_view.close()
-                source.stop()
-    finally:
-        live_view.close()
-    return source
+        say("hold a pose and press Enter for a key (r N, d N, i FRAME, t N FRAME, m [N] KIND, "
+            "q: see --help)")
+    session = Session(rig, BusSource(rig, port, baud=baud, rate_hz=200.0), outputs,
+                      inputs=rig_files(rig), solve=in_view, tell=say,
+                      latch_fps=None if not in_view else 60.0,
+                      pipeline={"overlay": True, "live": True})
+    session.run()
+    click.echo("\n".join(f"{key}: {value}" for key, value in session.report().items()))
+    click.echo(f"faults seen: {describe_counts(session.summary.faults)}")
 
 
 def _edit(shot: str, out: str, force: bool, change) -> None:

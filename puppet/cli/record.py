@@ -2,13 +2,10 @@
 
 from __future__ import annotations
 
-import time
-
 import click
 
 from puppet import limits
-from puppet.cli.common import (InRange, StopFlag, check_take_path, load_rig, start_reader,
-                               take_writer)
+from puppet.cli.common import InRange, load_rig, rig_files, say
 
 
 @click.command()
@@ -30,29 +27,21 @@ def record(rig_path: str, port: str, out: str, baud: int, seconds: float | None,
     Example:
       puppet record --rig my.toml --port /dev/ttyUSB0 --out take.mcap --seconds 30
     """
+    from puppet.events import describe_counts
+    from puppet.session import Session
+    from puppet.session import outputs as o
+    from puppet.session.sources import BusSource
+
     rig = load_rig(rig_path)
-    check_take_path(out, rig, force=force)  # before the port: a mistake costs no take
-    source = start_reader(rig, port, baud, rate_hz=rate)
-    try:
-        writer = take_writer(out, rig, force=force)  # the file is made once the port answers
-        stop = StopFlag()
-        start = time.monotonic()
-        count = flagged = 0
-        try:
-            while not stop() and (seconds is None or time.monotonic() - start < seconds):
-                batch = source.drain()
-                if not batch:
-                    time.sleep(0.005)
-                for reading in batch:
-                    writer.write(reading)
-                    count += 1
-                    flagged += int(not reading.ok.all())
-        finally:
-            writer.close()
-    finally:
-        source.stop()
-    click.echo(f"take: {out}\nreadings: {count} in {time.monotonic() - start:.2f} s, "
-               f"{flagged} with a flagged servo\nfaults seen: {dict(source.log.counts) or 'none'}")
+    take = o.Take(out, rig, force=force, option="--out")  # checked before the port: a mistake costs no take
+    session = Session(rig, BusSource(rig, port, baud=baud, rate_hz=rate), [take],
+                      inputs=rig_files(rig), seconds=seconds, solve=False, latch_fps=None, tell=say)
+    summary = session.run()
+    if session.stopped_by is not None:
+        say(f"stopped by {session.stopped_by}; the take holds every reading until then")
+    flagged = summary.faults.pop("servo_not_ok", 0)
+    click.echo(f"take: {out}\nreadings: {summary.readings} in {summary.seconds:.2f} s, "
+               f"{flagged} with a flagged servo\nfaults seen: {describe_counts(summary.faults)}")
 
 
 COMMANDS = (record,)

@@ -51,6 +51,7 @@ from puppet.drive.health import (CURRENT_FRACTION, CURRENT_SUSTAIN_S, TEMPERATUR
                                  TEMPERATURE_MARGIN_C, CurrentTemperatureStop)
 from puppet.drive.servos import DriveBus
 from puppet.servo_models import protocol_of
+from puppet.session.signals import Signals
 
 WATCHDOG_CHECK_CYCLES = 10
 """The Bus Watchdog items are read every this many cycles (the state read is every cycle)."""
@@ -167,28 +168,6 @@ class PerformReport:
         return "\n".join(lines)
 
 
-class _Signals:
-    """SIGINT / SIGTERM set ``which`` instead of raising, so the loop stops through its one
-    stop path (installed only in the main thread; restored on exit)."""
-
-    def __init__(self) -> None:
-        self.which: str | None = None
-        self._saved: dict = {}
-
-    def __enter__(self) -> "_Signals":
-        if threading.current_thread() is threading.main_thread():
-            for sig in (signal.SIGINT, signal.SIGTERM):
-                self._saved[sig] = signal.signal(sig, self._set)
-        return self
-
-    def _set(self, signum, _frame) -> None:
-        self.which = signal.Signals(signum).name
-
-    def __exit__(self, *exc) -> None:
-        for sig, handler in self._saved.items():
-            signal.signal(sig, handler)
-
-
 class _Stopped(Exception):
     """A signal asked the performance to stop (internal)."""
 
@@ -240,10 +219,10 @@ def perform(rig, reader, port: str, options: PerformOptions | None = None,
     bus = DriveBus(link, ids, dict(servo_map.models), say)
     torque_may_be_on = False
     error: BaseException | None = None
-    with _Signals() as signals:
+    with Signals() as signals:
         def check_signal() -> None:
-            if signals.which:
-                raise _Stopped(signals.which)
+            if signals.stop:
+                raise _Stopped(signals.signal_name)
         try:
             link.open()
             # From here every way out turns torque off: a servo may still hold torque from an
