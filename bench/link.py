@@ -28,7 +28,7 @@ time: a loaded machine does not inflate it): "receive" (reading the socket, deco
 "evaluate" (``view_layer.update()`` after the tick: what Blender does before it draws the new
 pose: with bones only, the Armature modifier deforming the user's mesh; with the exact mesh,
 the copy's normals, the user's mesh hidden), their sum and the capacity 1000 / sum fps.
-puppet runs as ``sys.executable -c 'from puppet.cli import main'``: no ``puppet`` on PATH needed.
+puppet runs as ``sys.executable -m puppet.cli``: no ``puppet`` on PATH needed.
 
 JSON: {"fps", "seconds", "frames", "view" | "plain" | "bones" | "mesh": {"applied",
        "fps_applied", "median_ms", "p99_ms", "client": {"applied", "skipped", "costs_ms":
@@ -93,8 +93,7 @@ costs["evaluate"] = evaluate
 print("APPLIED", json.dumps({"applied": link.frames_applied, "skipped": link.skipped,
                              "costs": costs}))
 """
-PUPPET = [sys.executable, "-c", "import sys; from puppet.cli import main; sys.argv[0] = 'puppet'; "
-          "main()"]  # this Python's puppet: the venv's bin need not be on PATH
+PUPPET = [sys.executable, "-m", "puppet.cli"]  # this Python's puppet: no venv bin on PATH needed
 COSTS = ("receive", "bones", "mesh", "evaluate")
 
 

@@ -274,8 +274,8 @@ class Link(Output):
 
         try:
             self._link = LiveLink(self.address, self.rig, fps=self.fps or 0.0)
-        except PuppetError as err:
-            raise OutputError(f"{self.option}: {err}") from None
+        except PuppetError as err:  # (LinkError names --link and the address already)
+            raise OutputError(str(err)) from None
         self.tell(f"link: listening on {self._link.where()}")
 
     def open(self, run) -> None:
