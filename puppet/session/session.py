@@ -87,7 +87,7 @@ class Session:
 
             view_at = parse_address(views[0].address)
             link_at = parse_address(links[0].address or "127.0.0.1:9100")
-            if view_at == link_at:
+            if view_at == link_at and view_at[1] != 0:  # (port 0: each gets a free one)
                 raise OutputError(f"{views[0].option} and {links[0].option} name one address "
                                   f"({view_at[0]}:{view_at[1]}): give them two")
         for output in self.outputs:
