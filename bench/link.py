@@ -20,7 +20,7 @@ Latency is puppet's: from the frame's reading time to the client's ack arriving 
 the return trip too), median and p99 over every acked frame; fps applied = frames acked /
 the take's length.
 
-    python bench/link.py --json link.json [--seconds 10] [--fps 60]
+    python bench/link.py --json link.json [--seconds 10] [--fps 60] [--no-view]
 
 The Blender rows also give the Blender-side cost of one update, median CPU ms (the thread's CPU
 time: a loaded machine does not inflate it): "receive" (reading the socket, decoding), "bones"
@@ -176,9 +176,12 @@ def main() -> None:
     parser.add_argument("--seconds", type=float, default=10.0, help="length of the take")
     parser.add_argument("--fps", type=float, default=60.0, help="frames per second played")
     parser.add_argument("--json", default=None, help="write the results here")
+    parser.add_argument("--no-view", action="store_true",
+                        help="leave out the live view's row (bench/view.py's case, Chromium)")
     args = parser.parse_args()
     rig = builtin()
-    result = {"fps": args.fps, "seconds": args.seconds, "view": view_baseline(args.seconds)}
+    result = {"fps": args.fps, "seconds": args.seconds,
+              "view": None if args.no_view else view_baseline(args.seconds)}
     with tempfile.TemporaryDirectory() as folder:
         folder = Path(folder)
         take, glb, addon = folder / "take.mcap", folder / "critter.glb", folder / "puppet_link.zip"
@@ -216,6 +219,8 @@ def main() -> None:
           + "".join(f"{c + ' ms':>12}" for c in COSTS) + f"{'update ms':>11}{'capacity':>10}")
     for name in ROWS:
         r = result[name]
+        if r is None:
+            continue
         costs = r.get("client", {}).get("costs_ms", {}) if isinstance(r.get("client"), dict) else {}
         client = r.get("client") if isinstance(r.get("client"), dict) else {}
         print(f"{name:<8}{str(r['applied'] or '-'):>9}{r['fps_applied']:>8}{r['median_ms']:>11}"
