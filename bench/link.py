@@ -20,10 +20,20 @@ Latency is puppet's: from the frame's reading time to the client's ack arriving 
 the return trip too), median and p99 over every acked frame; fps applied = frames acked /
 the take's length.
 
-    python bench/link.py --json link.json [--seconds 10] [--fps 60]
+    python bench/link.py --json link.json [--seconds 10] [--fps 60] [--no-view]
+
+The Blender rows also give the Blender-side cost of one update, median CPU ms (the thread's CPU
+time: a loaded machine does not inflate it): "receive" (reading the socket, decoding), "bones"
+(the add-on posing the armature), "mesh" (the add-on writing the exact mesh on its copy) and
+"evaluate" (``view_layer.update()`` after the tick: what Blender does before it draws the new
+pose: with bones only, the Armature modifier deforming the user's mesh; with the exact mesh,
+the copy's normals, the user's mesh hidden), their sum and the capacity 1000 / sum fps.
+puppet runs as ``sys.executable -m puppet.cli``: no ``puppet`` on PATH needed.
 
 JSON: {"fps", "seconds", "frames", "view" | "plain" | "bones" | "mesh": {"applied",
-       "fps_applied", "median_ms", "p99_ms"}, "machine": {"cpus", "load_1min"}}.
+       "fps_applied", "median_ms", "p99_ms", "client": {"applied", "skipped", "costs_ms":
+       {"receive", "bones", "mesh", "evaluate"}, "update_ms", "capacity_fps"} (Blender rows)},
+       "machine": {"cpus", "load_1min"}}.
 """
 
 from __future__ import annotations
@@ -53,7 +63,7 @@ SUMMARY = re.compile(r"(\d+) applied; reading->applied median ([\d.]+) ms, p99 (
 ROWS = ("view", "plain", "bones", "mesh")
 
 BLENDER = """
-import sys, time, bpy
+import sys, time, json, bpy
 zip_path, glb, port, mesh = sys.argv[-4], sys.argv[-3], int(sys.argv[-2]), sys.argv[-1] == "1"
 bpy.ops.wm.read_factory_settings(use_empty=True)
 bpy.ops.preferences.addon_install(filepath=zip_path, overwrite=True)
@@ -68,10 +78,23 @@ s.armature = next(o for o in scene.objects if o.type == "ARMATURE")
 s.mesh = next(o for o in scene.objects if o.type == "MESH")
 s.use_mesh = mesh
 bpy.ops.puppet_link.connect()
-while puppet_link.LINK.sock is not None:
+link = puppet_link.LINK
+evaluate = []
+while link.state != "waiting":
+    applied = link.frames_applied
     puppet_link.tick()
-print("APPLIED", puppet_link.LINK.frames_applied, puppet_link.LINK.skipped)
+    if link.frames_applied > applied:  # what Blender does before it draws: evaluate the scene
+        start = time.thread_time()
+        bpy.context.view_layer.update()
+        evaluate.append((time.thread_time() - start) * 1e3)
+link.close()
+costs = {name: list(values) for name, values in link.costs.items()}
+costs["evaluate"] = evaluate
+print("APPLIED", json.dumps({"applied": link.frames_applied, "skipped": link.skipped,
+                             "costs": costs}))
 """
+PUPPET = [sys.executable, "-m", "puppet.cli"]  # this Python's puppet: no venv bin on PATH needed
+COSTS = ("receive", "bones", "mesh", "evaluate")
 
 
 def write_take(path: Path, rig, seconds: float, fps: float) -> None:
@@ -119,7 +142,7 @@ def plain_client(port: int) -> None:
 
 def play(take: Path, fps: float, client) -> dict:
     """Play the take to one client; puppet's summary figures."""
-    proc = subprocess.Popen(["puppet", "play", str(take), "--link", "127.0.0.1:0", "--fps",
+    proc = subprocess.Popen([*PUPPET, "play", str(take), "--link", "127.0.0.1:0", "--fps",
                              f"{fps:g}"], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                             text=True)
     port = None
@@ -140,21 +163,32 @@ def play(take: Path, fps: float, client) -> dict:
             "p99_ms": float(found.group(3)), "client": client_out}
 
 
+def _median(values) -> float | None:
+    return round(float(np.median(values)), 3) if len(values) else None
+
+
+def _shown(value) -> str:
+    return "-" if value is None else f"{value:.2f}"
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seconds", type=float, default=10.0, help="length of the take")
     parser.add_argument("--fps", type=float, default=60.0, help="frames per second played")
     parser.add_argument("--json", default=None, help="write the results here")
+    parser.add_argument("--no-view", action="store_true",
+                        help="leave out the live view's row (bench/view.py's case, Chromium)")
     args = parser.parse_args()
     rig = builtin()
-    result = {"fps": args.fps, "seconds": args.seconds, "view": view_baseline(args.seconds)}
+    result = {"fps": args.fps, "seconds": args.seconds,
+              "view": None if args.no_view else view_baseline(args.seconds)}
     with tempfile.TemporaryDirectory() as folder:
         folder = Path(folder)
         take, glb, addon = folder / "take.mcap", folder / "critter.glb", folder / "puppet_link.zip"
         write_take(take, rig, args.seconds, args.fps)
-        subprocess.run(["puppet", "export", str(take), "--gltf", str(glb), "--fps",
+        subprocess.run([*PUPPET, "export", str(take), "--gltf", str(glb), "--fps",
                         f"{args.fps:g}"], check=True, capture_output=True)
-        subprocess.run(["puppet", "blender", "addon", "--out", str(addon)], check=True,
+        subprocess.run([*PUPPET, "blender", "addon", "--out", str(addon)], check=True,
                        capture_output=True)
         result["frames"] = int(args.seconds * args.fps) + 1
 
@@ -165,7 +199,12 @@ def main() -> None:
                 line = next((x for x in done.stdout.splitlines() if x.startswith("APPLIED")), None)
                 if line is None:
                     raise SystemExit(f"Blender failed:\n{done.stdout[-2000:]}{done.stderr[-2000:]}")
-                return {"applied": int(line.split()[1]), "skipped": int(line.split()[2])}
+                out = json.loads(line[len("APPLIED "):])
+                costs = {name: _median(out["costs"].get(name, [])) for name in COSTS}
+                total = sum(v for v in costs.values() if v is not None)
+                return {"applied": out["applied"], "skipped": out["skipped"], "costs_ms": costs,
+                        "update_ms": round(total, 3),
+                        "capacity_fps": round(1000.0 / total, 1) if total else None}
             return run
 
         for name, client in (("plain", plain_client), ("bones", blender(False)),
@@ -176,11 +215,21 @@ def main() -> None:
     result["machine"] = {"cpus": os.cpu_count(), "load_1min": round(os.getloadavg()[0], 2)}
     print(f"critter, {result['frames']} frames at {args.fps:g} fps, loopback "
           f"({result['machine']['cpus']} cpus, load {result['machine']['load_1min']})")
-    print(f"{'client':<8}{'applied':>9}{'fps':>8}{'median ms':>11}{'p99 ms':>9}")
+    print(f"{'client':<8}{'applied':>9}{'fps':>8}{'median ms':>11}{'p99 ms':>9}"
+          + "".join(f"{c + ' ms':>12}" for c in COSTS) + f"{'update ms':>11}{'capacity':>10}")
     for name in ROWS:
         r = result[name]
+        if r is None:
+            continue
+        costs = r.get("client", {}).get("costs_ms", {}) if isinstance(r.get("client"), dict) else {}
+        client = r.get("client") if isinstance(r.get("client"), dict) else {}
         print(f"{name:<8}{str(r['applied'] or '-'):>9}{r['fps_applied']:>8}{r['median_ms']:>11}"
-              f"{r['p99_ms']:>9}")
+              f"{r['p99_ms']:>9}" + "".join(f"{_shown(costs.get(c)):>12}" for c in COSTS)
+              + f"{_shown(client.get('update_ms')):>11}{_shown(client.get('capacity_fps')):>10}")
+    print("Blender-side CPU ms per update, medians: receive (socket, decode), bones (posing the "
+          "armature), mesh (the exact mesh's bulk write), evaluate (Blender's scene update after "
+          "it, before a draw); update: their sum; capacity: 1000 / update, the rate Blender's "
+          "side sustains on one core (applied fps also needs puppet's side and the machine)")
     if args.json:
         Path(args.json).write_text(json.dumps(result, indent=2))
 

@@ -13,7 +13,7 @@ link_option = click.option(
 
 @click.group()
 def blender() -> None:
-    """Blender: the live link's add-on."""
+    """Blender: the live link's add-on, and a rig's character to import."""
 
 
 @blender.command()
@@ -32,6 +32,29 @@ def addon(out: str, force: bool) -> None:
 
     path = write_addon(out, force=force)
     click.echo(f"add-on: {path}")
+
+
+@blender.command()
+@click.option("--rig", "rig_path", default=None, metavar="RIG",
+              help="The rig file (default: the built-in critter).")
+@click.option("--out", default="character.glb", show_default=True,
+              help="The character's glTF binary (.glb) to import in Blender.")
+@click.option("--force", is_flag=True, help="Replace an existing file of another kind.")
+def character(rig_path: str | None, out: str, force: bool) -> None:
+    """Write the rig's character at rest (its mesh, its skin, every joint) as a .glb for
+    Blender: File > Import > glTF 2.0, then the add-on drives its armature with --link.
+
+    \b
+    Example:
+      puppet blender character --out critter.glb     # the built-in critter
+    """
+    from puppet.cli.common import rig_files
+    from puppet.export.character import write_character
+    from puppet.rig import builtin, load_rig
+
+    rig = builtin() if rig_path is None else load_rig(rig_path)
+    path = write_character(rig, out, inputs=rig_files(rig), force=force)
+    click.echo(f"character: {path} ({rig.name}, {len(rig.skeleton.names)} joints)")
 
 
 COMMANDS = (blender,)

@@ -75,7 +75,7 @@ def play(take: str, rig_path: str | None, out: str | None, frames: str | None, s
                                     speed=1.0 if link_address is not None else speed, rig=rig)
         source = TakeFrames(playback, fps=fps, speed=speed, paced=link_address is not None)
         if link_address is not None:
-            outputs.append(o.Link(link_address, rig, fps=fps, tell=say))
+            outputs.append(o.Link(link_address, rig, fps=fps, take=reader.path.stem, tell=say))
         pipeline = {"overlay": True, "antialias": antialias, "live": False}
         bar = click.progressbar(length=len(source), label="play", file=sys.stderr)
         on_frame = lambda done: bar.update(1)  # noqa: E731

@@ -3,7 +3,10 @@ wherever the format's reader keeps it.
 
 - ``"bvh"``: a BVH file separates its words by whitespace, so every whitespace character (and
   every control character) becomes ``_``, which is also what Blender's BVH importer does to a
-  name it finds split in two. Non-ASCII letters lose their accents (``é`` -> ``e``; others -> ``_``):
+  name it finds split in two (it joins the words with ``_``: no spelling of a space survives
+  it). To drive a character whose bones or vertex groups have spaces ("Neck Base.001"), the
+  live link's add-on maps the names back by this same rule (its "BVH names back" operator;
+  this file ships inside the add-on for it: standard library only). Non-ASCII letters lose their accents (``é`` -> ``e``; others -> ``_``):
   Blender's importer reads the file in the system's text encoding, which is UTF-8 only on some
   systems. Everything else is kept as written: dots, ``.L``/``.R`` (Blender's mirroring),
   brackets, ``#``, ``/``, quotes; checked by importing every kept name into Blender 5.0

@@ -1,5 +1,6 @@
 """The Blender add-on's zip: ``puppet/blender_addon/puppet_link/`` plus this package's ``wire``
-module, copied verbatim (both ends of the link speak the same protocol file)."""
+module and ``puppet.export.names``, copied verbatim (both ends of the link speak the same
+protocol file; the add-on maps BVH names back by puppet's own rule)."""
 
 from __future__ import annotations
 
@@ -10,14 +11,16 @@ from puppet.atomic import atomic_output, check_output
 
 ADDON = Path(__file__).resolve().parents[1] / "blender_addon" / "puppet_link"
 WIRE = Path(__file__).resolve().with_name("wire.py")
+NAMES = Path(__file__).resolve().parents[1] / "export" / "names.py"
 NAME = "puppet_link"
 
 
 def addon_files() -> dict[str, bytes]:
-    """{path in the zip: bytes}: the add-on's files and wire.py, under puppet_link/."""
+    """{path in the zip: bytes}: the add-on's files, wire.py and names.py, under puppet_link/."""
     files = {f"{NAME}/{p.relative_to(ADDON).as_posix()}": p.read_bytes()
              for p in sorted(ADDON.rglob("*")) if p.is_file() and "__pycache__" not in p.parts}
     files[f"{NAME}/wire.py"] = WIRE.read_bytes()
+    files[f"{NAME}/names.py"] = NAMES.read_bytes()
     return files
 
 

@@ -5,11 +5,13 @@
     link.frame(pipeline, reading)        # after each solve (run_live's ``link=``): copies T
     link.close(); link.stats()           # reading -> applied in the client, median and p99
 
-The loop only copies ``T`` into a slot and wakes the link's thread; that thread computes the
-keys (``LinkPose``), encodes the frame once into preallocated buffers and gives each client the
-newest frame when its socket has taken the last one (a slow client skips frames, never queues).
-Protocol: ``puppet.link.wire``. Address, token and flood guard: the ones the live view uses
-(``puppet.net``): loopback by default, beyond it a random token every client must send.
+The loop only copies ``T`` into a ring of the last ``wire.RING`` solves and wakes the link's
+thread; that thread computes the keys (``LinkPose``), encodes a frame once into preallocated
+buffers and gives each client the newest frame when its socket has taken the last one (a slow
+client skips frames), except frames being recorded, which each client gets in order, every one
+(``wire``'s recording rule), and health messages to clients that ask.
+Protocol: ``puppet.link.wire``. Address and token: ``puppet.net`` (shared with the live view):
+loopback by default, beyond it a random token every client must send.
 """
 
 from __future__ import annotations
@@ -28,27 +30,30 @@ from puppet.net.address import Access, bind, parse_address
 from puppet.net.guard import parse_message
 
 DEFAULT_PORT = 9100
-ACK_RING = 4096  # frames in flight whose reading time is kept for their ack
+CLOSE_S = 10.0  # seconds close() gives recording clients to take the frames still owed them
 WINDOW = 2  # frames sent to a client and not yet acked: more wait (latest wins), never queue
 READ_BYTES = 1 << 16
 
 
 class _Client:
-    """One connection: its reader, whether it is connected (token ok), wants the mesh, and its
-    send buffer (a preallocated bytearray holding the frame it is sending, and how far)."""
+    """One connection: its reader, whether it is connected (token ok), wants the mesh, every
+    frame (record) and health messages, and its send buffer (a bytearray holding the message it
+    is sending, and how far). Counts: frames sent, skipped (latest wins), lost (a recording
+    client more than ``wire.RING`` frames behind)."""
 
     def __init__(self, sock: socket.socket, address):
         self.sock, self.address = sock, address
         self.reader = wire.Reader(max_message=1 << 16)
         self.connected = False
-        self.mesh = False
+        self.mesh = self.record = self.health = False
         self.name = "?"
         self.buffer = bytearray()
         self.view = memoryview(b"")
         self.sent_seq = -1
-        self.frames = self.acked = self.skipped = 0
-        self.acked_seq = -1
-        self.in_flight_seqs: list[int] = []
+        self.frames = self.acked = self.skipped = self.lost = 0
+        self.health_at = 0.0  # time.monotonic() of the last health message
+        self.health_acked = 0  # acked then
+        self.in_flight_seqs: list[int] = []  # at most wire.RING
 
     def in_flight(self) -> int:
         return len(self.in_flight_seqs)
@@ -59,30 +64,36 @@ class Link:
 
     fps: the frame rate announced in the hello (the take's; ``attach`` may give the loop's);
     take_start_ns: the reading time of take time 0 (None: the first frame's, or the take's
-    first reading: ``start_take``). Fields after close: see stats().
+    first reading: ``start_take``); take: the take's name for the hello (the add-on names the
+    recording's action after it; None: unknown). Fields after close: see stats().
     """
 
     def __init__(self, address: str | None, rig, *, fps: float = 60.0,
-                 take_start_ns: int | None = None):
+                 take_start_ns: int | None = None, take: str | None = None):
         host, port = parse_address(address, option="--link", default_port=DEFAULT_PORT)
         self.listener = bind(host, port, option="--link")
         port = self.listener.getsockname()[1]
         self.access = Access.for_host(host, port)
         self.rig, self.fps, self.take_start_ns = rig, float(fps), take_start_ns
+        self.take = take
         self.pose: LinkPose | None = None
         self._model = None
         self.latency_ms = Histogram()
         self.malformed = self.refused = self.clients_seen = self.published = 0
+        self.skipped = self.lost = 0  # over every client, counted when it leaves
         self._clients: dict[socket.socket, _Client] = {}
         self._lock = threading.Lock()
-        self._T_back = None      # written by the loop
+        # The last wire.RING solves, slot seq % RING (written by the loop under _lock).
+        self._ring_T = None
+        self._ring_seq = np.full(wire.RING, -1, np.int64)
+        self._ring_ns = np.zeros(wire.RING, np.int64)
+        self._ring_take = np.zeros(wire.RING, np.float64)
+        self._ring_flags = np.zeros(wire.RING, np.uint32)
+        self._recorded_seq = -1  # the newest seq flagged RECORDING
         self._T_front = None     # read by the link's thread
-        self._slot = (-1, 0, 0.0, 0)  # (seq, reading_ns, take_s, flags) of _T_back
-        self._encoded_seq = -1
+        self._encoded = {False: -1, True: -1}  # seq held in _bones / _mesh
         self._bones = bytearray()
         self._mesh = bytearray()
-        self._ring_seq = np.full(ACK_RING, -1, np.int64)
-        self._ring_ns = np.zeros(ACK_RING, np.int64)
         self._wake_r, self._wake_w = socket.socketpair()
         self._wake_r.setblocking(False)
         self._wake_w.setblocking(False)
@@ -108,7 +119,7 @@ class Link:
             self.fps = float(fps)
         self._model = pipeline.model
         self.pose = LinkPose(self.rig, pipeline.model.lbs_matrix)
-        self._T_back = np.zeros(pipeline.T.shape)
+        self._ring_T = np.zeros((wire.RING, *pipeline.T.shape))
         self._T_front = np.zeros(pipeline.T.shape)
         b, n = len(self.pose.names), self.pose.n_vertices
         self._bones = bytearray(wire.frame_size(b, 0))
@@ -134,8 +145,13 @@ class Link:
             take_s = (reading.t_ns - self.take_start_ns) * 1e-9
         flags = wire.RECORDING if recording else 0
         with self._lock:
-            self._T_back[...] = pipeline.T
-            self._slot = (self.published, int(reading.t_ns), float(take_s), flags)
+            seq = self.published
+            slot = seq % wire.RING
+            self._ring_T[slot] = pipeline.T
+            self._ring_seq[slot], self._ring_ns[slot] = seq, int(reading.t_ns)
+            self._ring_take[slot], self._ring_flags[slot] = float(take_s), flags
+            if recording:
+                self._recorded_seq = seq
             self.published += 1
         try:
             self._wake_w.send(b"\0")
@@ -149,13 +165,13 @@ class Link:
                 "rest_rotation": pose.rest_rotations.tolist(),
                 "above": pose.above.reshape(-1, 16).tolist(),
                 "armature": pose.armature.reshape(16).tolist(), "vertices": pose.n_vertices,
-                "fps": self.fps, "take_start_ns": self.take_start_ns}
+                "fps": self.fps, "take_start_ns": self.take_start_ns, "take": self.take}
 
     # -- the link's thread --------------------------------------------------------------------
 
     def _serve(self) -> None:
         while not self._stop:
-            for key, events in self._selector.select(timeout=0.5):
+            for key, events in self._selector.select(timeout=wire.HEALTH_S / 2):
                 if key.data == "listen":
                     self._accept()
                 elif key.data == "wake":
@@ -170,11 +186,50 @@ class Link:
                         self._receive(client)
                     if events & selectors.EVENT_WRITE and client.sock in self._clients:
                         self._send(client)
-            self._encode()
+            newest = self.published - 1
+            now = time.monotonic()
             for client in list(self._clients.values()):
-                if (client.connected and not client.view and client.sent_seq < self._encoded_seq
-                        and client.in_flight() < WINDOW):
-                    self._start_frame(client)
+                if not client.connected or client.view:
+                    continue
+                if client.health and now - client.health_at >= wire.HEALTH_S:
+                    self._start(client, wire.encode_json(wire.HEALTH, self._health(client, now)))
+                    continue
+                seq = self._next_seq(client, newest)
+                if seq is not None:
+                    self._start_frame(client, seq)
+
+    def _next_seq(self, client: _Client, newest: int) -> int | None:
+        """The frame to send ``client`` now, or None: the next one in order when it is
+        recording or asked for every frame (none lost unless RING behind), else the newest
+        (latest wins, within WINDOW in flight)."""
+        first = client.sent_seq + 1
+        if first > newest:
+            return None
+        if newest - first >= wire.RING:
+            lost = newest - wire.RING + 1 - first
+            client.lost += lost
+            first += lost
+        queued = first if client.record else None
+        if queued is None and self._recorded_seq >= first:  # the first recorded frame unsent
+            queued = next(seq for seq in range(first, newest + 1)
+                          if self._ring_flags[seq % wire.RING] & wire.RECORDING)
+        if queued is not None:
+            return queued if client.in_flight() < wire.RING else None
+        if client.in_flight() >= WINDOW:
+            return None
+        client.skipped += newest - first
+        return newest
+
+    def _health(self, client: _Client, now: float) -> dict:
+        h = self.latency_ms
+        rate = (client.acked - client.health_acked) / max(now - client.health_at, 1e-3)
+        if not client.health_at:
+            rate = 0.0
+        client.health_at, client.health_acked = now, client.acked
+        return {"applied_median_ms": round(h.percentile(50), 3) if h.count else None,
+                "applied_p99_ms": round(h.percentile(99), 3) if h.count else None,
+                "acked": client.acked, "published": self.published, "sent": client.frames,
+                "skipped": client.skipped, "lost": client.lost, "acked_per_s": round(rate, 2)}
 
     def _accept(self) -> None:
         try:
@@ -188,7 +243,9 @@ class Link:
         self._selector.register(sock, selectors.EVENT_READ, client)
 
     def _drop(self, client: _Client) -> None:
-        self._clients.pop(client.sock, None)
+        if self._clients.pop(client.sock, None) is not None:
+            self.skipped += client.skipped
+            self.lost += client.lost
         try:
             self._selector.unregister(client.sock)
         except (KeyError, ValueError):
@@ -224,7 +281,7 @@ class Link:
                 return
             if seq in client.in_flight_seqs:  # it and every older frame are done with
                 del client.in_flight_seqs[:client.in_flight_seqs.index(seq) + 1]
-            slot = seq % ACK_RING
+            slot = seq % wire.RING
             if self._ring_seq[slot] == seq:
                 self.latency_ms.add((time.monotonic_ns() - int(self._ring_ns[slot])) / 1e6)
                 client.acked += 1
@@ -237,6 +294,7 @@ class Link:
             return
         if kind == wire.MESH and client.connected:
             client.mesh = bool(message.get("mesh"))
+            client.record = bool(message.get("record", client.record))
         elif kind == wire.CONNECT and not client.connected:
             token = message.get("token")
             if message.get("protocol") != wire.PROTOCOL:
@@ -247,7 +305,10 @@ class Link:
                 self._refuse(client, "token refused: give the token puppet printed")
             else:
                 client.connected, client.mesh = True, bool(message.get("mesh"))
+                client.record = bool(message.get("record"))
+                client.health = bool(message.get("health"))
                 client.name = str(message.get("name", "?"))[:64]
+                client.sent_seq = max(self.published - 2, -1)  # from the newest frame on
                 self.clients_seen += 1
                 client.sock.setblocking(True)
                 client.sock.settimeout(5.0)
@@ -265,40 +326,47 @@ class Link:
             pass
         self._drop(client)
 
-    def _encode(self) -> None:
-        """Encode the newest published frame once (keys; the mesh when a client wants it)."""
+    def _encode(self, seq: int, mesh: bool) -> bytearray | None:
+        """The frame message of solve ``seq`` (keys; the vertices when ``mesh``), encoded once
+        into the bones' or the mesh's buffer; None when the loop has written over its slot."""
+        buffer = self._mesh if mesh else self._bones
+        if self._encoded[mesh] == seq:
+            return buffer
+        slot = seq % wire.RING
         with self._lock:
-            seq, reading_ns, take_s, flags = self._slot
-            if seq <= self._encoded_seq:
-                return
-            self._T_front[...] = self._T_back
-        mesh = any(c.mesh for c in self._clients.values() if c.connected)
+            if self._ring_seq[slot] != seq:
+                return None
+            self._T_front[...] = self._ring_T[slot]
+            reading_ns, take_s = int(self._ring_ns[slot]), float(self._ring_take[slot])
+            flags = int(self._ring_flags[slot])
         pose = self.pose
         pose.update(self._T_front, mesh)
-        b, n = len(pose.names), pose.n_vertices
-        for buffer, vertices in ((self._bones, 0), (self._mesh, n)):
-            if vertices and not mesh:
-                continue
-            at = wire.pack_frame_header(buffer, seq, reading_ns, take_s, b, vertices, flags)
-            np.frombuffer(buffer, np.float64, 3 * b, at)[...] = pose.translations.reshape(-1)
-            np.frombuffer(buffer, np.float64, 4 * b, at + 24 * b)[...] = pose.rotations.reshape(-1)
-            if vertices:
-                points = np.frombuffer(buffer, np.float32, 3 * n, at + 56 * b)
-                points[...] = pose.vertices.reshape(-1)
-        self._ring_seq[seq % ACK_RING] = seq
-        self._ring_ns[seq % ACK_RING] = reading_ns
-        self._encoded_seq = seq
+        b, n = len(pose.names), pose.n_vertices if mesh else 0
+        at = wire.pack_frame_header(buffer, seq, reading_ns, take_s, b, n, flags)
+        np.frombuffer(buffer, np.float64, 3 * b, at)[...] = pose.translations.reshape(-1)
+        np.frombuffer(buffer, np.float64, 4 * b, at + 24 * b)[...] = pose.rotations.reshape(-1)
+        if mesh:
+            np.frombuffer(buffer, np.float32, 3 * n, at + 56 * b)[...] = pose.vertices.reshape(-1)
+        self._encoded[mesh] = seq
+        return buffer
 
-    def _start_frame(self, client: _Client) -> None:
-        source = self._mesh if client.mesh else self._bones
-        if len(client.buffer) != len(source):
-            client.buffer = bytearray(len(source))  # once per client and mode
-        client.buffer[:] = source
-        if client.sent_seq >= 0:
-            client.skipped += self._encoded_seq - client.sent_seq - 1
-        client.sent_seq = self._encoded_seq
-        client.in_flight_seqs.append(client.sent_seq)
-        client.view = memoryview(client.buffer)
+    def _start_frame(self, client: _Client, seq: int) -> None:
+        source = self._encode(seq, client.mesh)
+        client.sent_seq = seq
+        if source is None:
+            client.lost += 1
+            return
+        client.in_flight_seqs.append(seq)
+        client.frames += 1
+        self._start(client, source)
+
+    def _start(self, client: _Client, message) -> None:
+        """Begin sending ``message`` (copied into the client's buffer, which grows only when a
+        message is longer than any before)."""
+        if len(client.buffer) < len(message):
+            client.buffer = bytearray(len(message))  # once per client and mode
+        client.buffer[:len(message)] = message
+        client.view = memoryview(client.buffer)[:len(message)]
         self._send(client)
 
     def _send(self, client: _Client) -> None:
@@ -311,7 +379,6 @@ class Link:
             return
         client.view = client.view[sent:]
         if not client.view:
-            client.frames += 1
             self._selector.modify(client.sock, selectors.EVENT_READ, client)
         else:
             self._selector.modify(client.sock, selectors.EVENT_READ | selectors.EVENT_WRITE, client)
@@ -327,6 +394,7 @@ class Link:
             self._thread.join(timeout=5.0)
             self._thread = None
         bye = wire.encode_json(wire.BYE, {"reason": reason})
+        deadline = time.monotonic() + CLOSE_S
         for client in list(self._clients.values()):
             if client.connected:
                 try:
@@ -334,6 +402,17 @@ class Link:
                     client.sock.settimeout(1.0)
                     if client.view:
                         client.sock.sendall(client.view)
+                    client.in_flight_seqs.clear()  # no acks are read now
+                    while time.monotonic() < deadline:  # what a recording client is owed
+                        seq = self._next_seq(client, self.published - 1)
+                        if seq is None:
+                            break
+                        message = self._encode(seq, client.mesh)
+                        client.sent_seq = seq
+                        if message is not None:
+                            client.sock.settimeout(max(deadline - time.monotonic(), 0.01))
+                            client.sock.sendall(message)
+                    client.sock.settimeout(1.0)
                     client.sock.sendall(bye)
                 except OSError:
                     pass
@@ -350,6 +429,7 @@ class Link:
         return {"clients": self.clients_seen, "published": self.published, "acked": h.count,
                 "applied_median_ms": round(h.percentile(50), 3) if h.count else None,
                 "applied_p99_ms": round(h.percentile(99), 3) if h.count else None,
+                "skipped": self.skipped, "lost": self.lost,
                 "malformed": self.malformed, "refused": self.refused}
 
     def text(self) -> str:

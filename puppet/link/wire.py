@@ -7,14 +7,16 @@ Every message is ``length (uint32, big-endian) | kind (1 byte) | body``, length 
 body, at most MAX_MESSAGE bytes. Kinds:
 
   client -> puppet
-    b"C" connect  JSON {"protocol": 1, "token": str|null, "mesh": bool, "name": str}
-    b"M" mesh     JSON {"mesh": bool}: start / stop sending the vertices
+    b"C" connect  JSON {"protocol": 2, "token": str|null, "mesh": bool, "name": str,
+                  "record": bool (optional), "health": bool (optional)}
+    b"M" mesh     JSON {"mesh": bool, "record": bool (optional)}: start / stop sending the
+                  vertices; record: send every frame from now on (the client keys them all)
     b"A" ack      ACK: seq (uint64), applied_s (float64, the client's clock): a frame applied
   puppet -> client
     b"H" hello    JSON {"protocol", "rig", "joints": [names], "parents": [int],
                   "rest_translation": [[x, y, z]], "rest_rotation": [[x, y, z, w]],
                   "above": [[16 floats]], "armature": [16 floats], "vertices": n,
-                  "fps", "take_start_ns"}
+                  "fps", "take_start_ns", "take": str|null (the take's name, when known)}
     b"F" frame    FRAME header: seq (uint64), reading_ns (int64, puppet's monotonic clock),
                   take_s (float64, seconds into the take), joints b (uint32), vertices n
                   (uint32), flags (uint32: RECORDING); then b × 3 float64 local translations,
@@ -22,6 +24,10 @@ body, at most MAX_MESSAGE bytes. Kinds:
                   unless the client asked for the mesh)
     b"E" error    JSON {"error": str}: refused (bad token, protocol); puppet closes the connection
     b"B" bye      JSON {"reason": str}: puppet stops streaming
+    b"S" health   JSON {"applied_median_ms", "applied_p99_ms" (puppet's reading -> applied,
+                  as its summary computes them; null before an ack), "acked", "published",
+                  "sent", "skipped", "lost", "acked_per_s" (this client's, over the last
+                  interval)}: every HEALTH_S to a client that connected with "health": true
 
 Joint transforms are each joint's glTF node translation and rotation relative to its parent
 node, as ``puppet export --gltf`` writes its keys (Y up, model units). The hello places them:
@@ -40,7 +46,10 @@ first reading), so the client keys it at scene frame start + take_s × scene fps
 (play) or the live loop's target (live, demo). Latest wins: puppet
 keeps at most 2 frames unacknowledged per client and then sends the newest one (a slow client
 skips frames, none queue); the client applies the newest frame it has and acks it (acking only
-that one acks the older ones too).
+that one acks the older ones too). Except while recording: a frame flagged RECORDING, and every
+frame to a client that asked for "record", is never skipped: puppet keeps the last RING frames'
+solves and sends each in order (a client more than RING frames behind loses the oldest, counted
+as "lost" in the health message), so the client keys every one when it catches up.
 """
 
 from __future__ import annotations
@@ -55,8 +64,12 @@ FRAME = struct.Struct("<QqdIII")
 RECORDING = 1  # frame flag: puppet is recording the take this frame belongs to
 ACK = struct.Struct("<Qd")
 
-CONNECT, MESH, ACK_KIND, HELLO, FRAME_KIND, ERROR, BYE = b"C", b"M", b"A", b"H", b"F", b"E", b"B"
-JSON_KINDS = (CONNECT, MESH, HELLO, ERROR, BYE)
+RING = 512  # frames puppet keeps for a recording client that is behind (8.5 s at 60 fps)
+HEALTH_S = 0.5  # seconds between health messages
+
+CONNECT, MESH, ACK_KIND, HELLO, FRAME_KIND, ERROR, BYE, HEALTH = (
+    b"C", b"M", b"A", b"H", b"F", b"E", b"B", b"S")
+JSON_KINDS = (CONNECT, MESH, HELLO, ERROR, BYE, HEALTH)
 
 
 class WireError(Exception):
@@ -173,6 +186,7 @@ class Reader:
             if len(buffer) < end:
                 return
             at = self._start + LENGTH.size
-            kind, body = bytes(buffer[at:at + 1]), bytes(buffer[at + 1:end])
+            with memoryview(buffer) as view:  # one copy of the body (a slice would be two)
+                kind, body = bytes(view[at:at + 1]), bytes(view[at + 1:end])
             self._start = end
             yield kind, body

@@ -391,12 +391,16 @@ class _ViewLogFormat(logging.Formatter):
 
 class Link(Output):
     """The Blender live link (puppet.link.Link): bound at check; every solve streamed. ``fps``:
-    the take's frame rate (play), or None: the loop's (live, demo)."""
+    the take's frame rate (play), or None: the loop's (live, demo). ``take``: the take's name
+    (play); None: the stem of the session's --record take, if any (the add-on names a
+    recording's action after it)."""
 
-    def __init__(self, address: str | None, rig, *, fps: float | None = None, tell=print) -> None:
+    def __init__(self, address: str | None, rig, *, fps: float | None = None,
+                 take: str | None = None, tell=print) -> None:
         self.address = address
         self.rig = rig
         self.fps = fps
+        self.take = take
         self.tell = tell
         self.option = "--link" + (f" {address}" if address else "")
 
@@ -409,6 +413,8 @@ class Link(Output):
     def open(self, run) -> None:
         from puppet.loop.run import LIVE_FPS
 
+        self._link.take = self.take or next(
+            (o.path.stem for o in run.outputs if isinstance(o, Take)), None)
         self._link.attach(run.pipeline, fps=None if self.fps else LIVE_FPS)
         self.link = self._link
 

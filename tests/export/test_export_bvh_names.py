@@ -138,3 +138,54 @@ def test_blender_bones_match_the_vertex_groups_and_the_mesh(beast):
     assert unchanged and unchanged <= set(got["bones"])
     for leaf, length in (("head", 0.4), ("tail_tip", 0.2), ("foot.L", 0.35)):
         assert math.isclose(got["bones"][leaf], length, abs_tol=1e-5)
+
+
+NAMES_BACK = """
+import bpy, json, sys
+zip_path, bvh, glb = sys.argv[-3:]
+bpy.ops.wm.read_factory_settings(use_empty=True)
+bpy.ops.preferences.addon_install(filepath=zip_path, overwrite=True)
+bpy.ops.preferences.addon_enable(module="puppet_link")
+bpy.ops.import_scene.gltf(filepath=glb)
+body = next(o for o in bpy.data.objects if o.type == "MESH")
+before = set(bpy.data.objects)
+bpy.ops.import_anim.bvh(filepath=bvh)
+arm = next(o for o in bpy.data.objects if o not in before and o.type == "ARMATURE")
+imported = sorted(b.name for b in arm.data.bones)
+bpy.ops.object.select_all(action="DESELECT")
+body.select_set(True)
+arm.select_set(True)
+bpy.context.view_layer.objects.active = arm
+assert bpy.ops.puppet_link.bvh_names() == {"FINISHED"}
+modifier = next(m for m in body.modifiers if m.type == "ARMATURE")
+modifier.object = arm  # the docs' step: the mesh follows the BVH's armature
+action = arm.animation_data.action
+paths = sorted({c.data_path.split('"')[1] for layer in action.layers for strip in layer.strips
+                for bag in strip.channelbags for c in bag.fcurves if '"' in c.data_path})
+turned = {}
+for frame in (1, 6, 12):
+    bpy.context.scene.frame_set(frame)
+    turned[frame] = arm.pose.bones["tail base"].matrix_basis.to_quaternion().angle
+print("RESULT " + json.dumps({"imported": imported, "bones": sorted(b.name for b in arm.data.bones),
+                              "groups": [g.name for g in body.vertex_groups], "paths": paths,
+                              "turned": turned}))
+"""
+
+
+@needs_bpy
+def test_the_addon_gives_the_bvh_bones_their_names_with_spaces_back(beast, tmp_path):
+    """Blender's BVH importer joins a name's words with "_" (so puppet writes "tail base" as
+    "tail_base"); the add-on's "BVH names back" renames those bones to the character's spelling
+    by puppet's rule, the action's channels follow, and every vertex group finds its bone: the
+    "tail base" joint, which a servo turns, drives its vertex group."""
+    from puppet.link.addon import write_addon
+
+    _, _, out, _ = beast
+    addon = write_addon(tmp_path / "puppet_link.zip")
+    got = blender.run_bpy_result(NAMES_BACK, addon, out["bvh"], out["gltf"])
+    assert {"tail_base", "tail_tip"} <= set(got["imported"])
+    assert {"tail base", "tail tip"} <= set(got["bones"])
+    assert not {"tail_base", "tail_tip"} & set(got["bones"])
+    assert set(got["groups"]) <= set(got["bones"]), (got["groups"], got["bones"])
+    assert set(got["paths"]) <= set(got["bones"]) and "tail base" in got["paths"]
+    assert max(got["turned"].values()) > 1e-3  # the servo's joint moves under its own name

@@ -3,12 +3,9 @@
 running ``puppet play --link``, apply and record frames by calling the add-on's own tick
 (module mode has no event loop), then print RESULT {json}: per recorded frame the largest
 difference of bone heads and tails (world) between target and reference, the mesh mode's
-vertices, and the add-on's status lines.
+vertices (world, on the add-on's copy of the mesh), and the add-on's status lines.
 
-With a CACHE path (else "-") the mesh mode records too and writes the mesh to that PC2 point
-cache.
-
-argv: ZIP GLB PORT MESH(0/1) CACHE
+argv: ZIP GLB PORT MESH(0/1)
 """
 
 import json
@@ -17,7 +14,7 @@ import time
 
 import bpy
 
-zip_path, glb, port, use_mesh, cache = sys.argv[-5:]
+zip_path, glb, port, use_mesh = sys.argv[-4:]
 port, use_mesh = int(port), use_mesh == "1"
 bpy.ops.wm.read_factory_settings(use_empty=True)
 bpy.ops.preferences.addon_install(filepath=zip_path, overwrite=True)
@@ -36,8 +33,7 @@ target_mesh = next(o for o in new if o.type == "MESH")
 target.animation_data_clear()
 settings = scene.puppet_link
 settings.port, settings.armature, settings.mesh = port, target, target_mesh
-settings.use_mesh, settings.record, settings.start_frame = use_mesh, not use_mesh or cache != "-", 1
-settings.point_cache = "" if cache == "-" else cache
+settings.use_mesh, settings.record, settings.start_frame = use_mesh, not use_mesh, 1
 assert bpy.ops.puppet_link.connect() == {"FINISHED"}
 link = puppet_link.LINK
 keyed, meshes = [], []
@@ -48,9 +44,10 @@ while link.sock is not None and time.monotonic() < deadline:
     if link.frames_applied > applied:
         keyed.append(settings.start_frame + round(link.last_take_s * 30))
         if use_mesh and len(meshes) < 3:
-            co = [0.0] * (3 * len(target_mesh.data.vertices))
-            target_mesh.data.vertices.foreach_get("co", co)
-            mw = target_mesh.matrix_world
+            shown = bpy.data.objects[link.exact.copy]
+            co = [0.0] * (3 * len(shown.data.vertices))
+            shown.data.vertices.foreach_get("co", co)
+            mw = shown.matrix_world
             meshes.append({"take_s": link.last_take_s,
                            "world": [list(mw @ __import__("mathutils").Vector(co[3 * i:3 * i + 3]))
                                      for i in range(len(co) // 3)]})

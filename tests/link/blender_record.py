@@ -5,8 +5,11 @@ Installs and enables the add-on from its zip, imports GLB (the character, at 30 
 the add-on drive its armature with Record off: puppet's frames are flagged recording, so the
 add-on keys them (calling its own tick: module mode has no event loop). Once its keys span SPAN
 scene frames it disconnects, prints RECORDED and waits for the REFERENCE .glb (the test exports
-the take meanwhile), imports it, and for every scene frame between two recorded keys at most 1.5
-frames apart (and before the export's last) measures, between the recorded action and the
+the take meanwhile), imports it, and for every keyed scene frame between two streamed frames at
+most one scene frame apart, one of them within a quarter frame of it (the export interpolates
+every reading the take holds; puppet solved and streamed only the newest of each loop's batch,
+so a key blended across a wider gap misses what the readings between did), and before the
+export's last, measures, between the recorded action and the
 export: the largest distance of bone heads and tails (world), and the largest angle (degrees)
 between the local rotations (relative to the parent bone) of the SENSED bones (comma-separated:
 the joints servos read); and the export's own largest change of each from that frame to the
@@ -39,15 +42,16 @@ assert bpy.ops.puppet_link.connect() == {"FINISHED"}
 link = puppet_link.LINK
 keyed = []
 deadline = time.monotonic() + 600
-while (link.sock is not None and (len(keyed) < 2 or keyed[-1] - keyed[0] < span)
+while (link.state != "waiting" and (len(keyed) < 2 or keyed[-1] - keyed[0] < span)
        and time.monotonic() < deadline):
-    recorded = link.recorded
     puppet_link.tick()
-    if link.recorded > recorded:
-        keyed.append(link.last_frame)
+    if link.recording is not None:
+        keyed, streamed = list(link.recording.frames), list(link.recording.streamed)
+        action = link.recording.action
     time.sleep(0.002)
 status = link.status
 link.close()
+recorded = len(keyed)
 print("RECORDED", flush=True)
 while not os.path.exists(reference_glb) and time.monotonic() < deadline:
     time.sleep(0.1)
@@ -79,13 +83,15 @@ def degrees(a, b):
     return max((min(x, 360.0 - x), name) for x, name in zip(angles, sensed))
 
 
+fcurves = [c for layer in action.layers for strip in layer.strips
+           for bag in strip.channelbags for c in bag.fcurves]
 frames = []
 last = int(reference.animation_data.action.frame_range[1])  # the export's last frame
 for f in range(math.ceil(keyed[0]), min(math.floor(keyed[-1]), last - 1) + 1):
-    before_f = max(x for x in keyed if x <= f)
-    after_f = min(x for x in keyed if x >= f)
-    if after_f - before_f > 1.5:
-        continue
+    before_f = max(x for x in streamed if x <= f + 1e-6)
+    after_f = min(x for x in streamed if x >= f - 1e-6)
+    if after_f - before_f > 1.0 or min(f - before_f, after_f - f) > 0.25:
+        continue  # the readings puppet solved are sparse here: the export saw ones between
     scene.frame_set(f)
     shown, expected = points(target), points(reference)
     shown_turns, expected_turns = turns(target), turns(reference)
@@ -96,7 +102,9 @@ for f in range(math.ceil(keyed[0]), min(math.floor(keyed[-1]), last - 1) + 1):
                    "step": max((a - b).length for a, b in zip(expected, following)),
                    "worst_deg": degrees(shown_turns, expected_turns)[0],
                    "worst_bone": degrees(shown_turns, expected_turns)[1],
-                   "keys": [round(x, 3) for x in keyed if abs(x - f) <= 1.5],
+                   "streamed": [round(x, 3) for x in streamed if abs(x - f) <= 1.5],
                    "step_deg": degrees(expected_turns, following_turns)[0]})
 print("RESULT " + json.dumps({"status": status, "keyed": keyed, "frames": frames,
-                              "recorded": link.recorded}))
+                              "recorded": recorded, "action": action.name,
+                              "interpolation": sorted({p.interpolation for c in fcurves
+                                                       for p in c.keyframe_points})}))

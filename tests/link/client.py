@@ -13,12 +13,13 @@ class Client:
     """Connects, reads the hello, then ``next()`` gives messages; ``ack(seq)`` acknowledges."""
 
     def __init__(self, port: int, *, host: str = "127.0.0.1", token=None, mesh=False,
-                 protocol=wire.PROTOCOL, timeout=60.0):
+                 protocol=wire.PROTOCOL, timeout=60.0, record=False, health=False):
         self.sock = socket.create_connection((host, port), timeout=timeout)
         self.reader = wire.Reader()
         self.pending = []
         self.sock.sendall(wire.encode_json(wire.CONNECT, {"protocol": protocol, "token": token,
-                                                          "mesh": mesh, "name": "test"}))
+                                                          "mesh": mesh, "name": "test",
+                                                          "record": record, "health": health}))
         self.first = self.next()   # (kind, content): the hello, or an error
 
     def next(self):
@@ -33,7 +34,11 @@ class Client:
         return kind, wire.decode(kind, body)
 
     def ack(self, seq: int) -> None:
-        self.sock.sendall(wire.encode_ack(seq, time.monotonic()))
+        """Acknowledge ``seq`` (nothing once puppet has closed)."""
+        try:
+            self.sock.sendall(wire.encode_ack(seq, time.monotonic()))
+        except (BrokenPipeError, ConnectionResetError):
+            pass
 
     def close(self) -> None:
         self.sock.close()

@@ -1,8 +1,9 @@
 """The add-on in Blender (``bpy``, in a subprocess): installed and enabled from the zip that
-``puppet blender addon`` writes, connected to ``puppet play TAKE --link``, it poses the glTF
-import of the critter so that every recorded frame equals ``puppet export --gltf`` of the same
-take (bone heads and tails, world, within 1e-5 of the rest diagonal), and the mesh mode shows
-the solver's vertices."""
+``puppet blender addon`` writes, connected to ``puppet play TAKE --link``, the mesh mode shows
+the solver's vertices, a moved, turned and scaled armature is driven as its export plays, the
+add-on reports what goes wrong, and ``live --record --link`` keys where the export puts each
+frame. (Recording from ``play``, the point cache, the user's mesh kept and reconnection:
+``test_blender_session.py``.)"""
 
 from __future__ import annotations
 
@@ -47,33 +48,16 @@ def addon_zip(tmp_path_factory):
     return out
 
 
-def _blender(addon_zip, glb, take, mesh, wait_until, interrupt_and_wait, rig_file=None,
-             cache="-"):
+def _blender(addon_zip, glb, take, mesh, wait_until, interrupt_and_wait, rig_file=None):
     rig = [] if rig_file is None else ["--rig", rig_file]
     puppet = helpers.Puppet(["play", take, "--link", "127.0.0.1:0", "--speed", "0.25", *rig])
     try:
         port, _ = puppet.listening(wait_until)
-        result = run_bpy.run_bpy_result(SCRIPT.read_text(), addon_zip, glb, port, int(mesh),
-                                        cache)
+        result = run_bpy.run_bpy_result(SCRIPT.read_text(), addon_zip, glb, port, int(mesh))
         assert puppet.proc.wait(timeout=300) == 0
     finally:
         interrupt_and_wait(puppet.proc, read_stderr=False)
     return result, puppet
-
-
-def test_recorded_keys_equal_the_gltf_export_frame_by_frame(
-        addon_zip, exported, take, critter, wait_until, interrupt_and_wait):
-    result, puppet = _blender(addon_zip, exported["glb"], take, False, wait_until,
-                              interrupt_and_wait)
-    diagonal = float(np.linalg.norm(critter.V.max(0) - critter.V.min(0)))
-    assert result["notes"][0].startswith(f"{len(critter.skeleton.names)} of "), result["notes"]
-    assert "stopped streaming" in result["status"]  # puppet's bye: the last pose stays
-    assert result["malformed"] == 0
-    frames = result["frames"]
-    assert len(frames) >= 3, result
-    worst = max(f["worst"] for f in frames)
-    assert worst <= 1e-5 * diagonal, frames
-    assert any("reading->applied median" in line for line in puppet.out), puppet.out
 
 
 def _mesh_mode(addon_zip, glb, take, rig, wait_until, interrupt_and_wait, rig_file=None):
@@ -91,33 +75,6 @@ def _mesh_mode(addon_zip, glb, take, rig, wait_until, interrupt_and_wait, rig_fi
 def test_mesh_mode_writes_the_solvers_vertices(addon_zip, exported, take, critter, wait_until,
                                                interrupt_and_wait):
     _mesh_mode(addon_zip, exported["glb"], take, critter, wait_until, interrupt_and_wait)
-
-
-def test_the_point_cache_holds_what_puppets_pc2_export_writes(
-        addon_zip, exported, take, critter, tmp_path, wait_until, interrupt_and_wait):
-    """Recording the exact mesh with a point cache: the add-on's PC2 (its own small writer) has
-    puppet's layout (``puppet.export.pc2``), and every frame it applied equals that frame of
-    ``puppet export --pc2 --up z`` (Blender's axes, the mesh's own space) of the same take."""
-    readers = _load("link_pc2_readers", HERE.parent / "export" / "readers.py")
-    cache, exported_pc2 = tmp_path / "live.pc2", tmp_path / "export.pc2"
-    done = subprocess.run(["puppet", "export", str(take), "--pc2", str(exported_pc2), "--up", "z",
-                           "--fps", "30"], capture_output=True, text=True, timeout=900)
-    assert done.returncode == 0, done.stderr
-    result, _ = _blender(addon_zip, exported["glb"], take, True, wait_until, interrupt_and_wait,
-                         cache=cache)
-    header, samples = readers.read_pc2(cache)
-    reference_header, reference = readers.read_pc2(exported_pc2)
-    assert header["num_points"] == reference_header["num_points"] == len(critter.V)
-    assert header["sample_rate"] == 1.0
-    keyed = sorted(set(result["keyed"]))
-    assert header["start_frame"] == keyed[0], (header, keyed)
-    assert len(samples) == keyed[-1] - keyed[0] + 1
-    assert len(keyed) >= 3, result
-    diagonal = float(np.linalg.norm(critter.V.max(0) - critter.V.min(0)))
-    for frame in keyed:
-        mine = samples[frame - keyed[0]]
-        theirs = reference[frame - int(reference_header["start_frame"])]
-        assert np.abs(mine - theirs).max() <= 1e-5 * diagonal, frame
 
 
 def test_a_moved_turned_scaled_armature_is_driven_as_its_gltf_export_plays(
@@ -202,9 +159,10 @@ def test_the_addon_reports_refusal_mapping_problems_malformed_frames_and_a_stop(
 def test_live_record_keys_blender_where_the_takes_export_puts_each_frame(
         addon_zip, exported, critter, tmp_path, wait_until, interrupt_and_wait):
     """``puppet live --record TAKE --link`` on hw_sim (the demo's motion) with Blender connected
-    and Record off in the panel: puppet's frames are flagged recording, the add-on keys each at
-    start + (reading time - the take's first reading) x scene fps, and Blender's action at every
-    scene frame between keys agrees with ``puppet export --gltf`` of the take at the scene's
+    and Record off in the panel: puppet's frames are flagged recording, the add-on keys every
+    integer scene frame from them (a frame at start + (reading time - the take's first reading)
+    x scene fps; between two readings their blend), LINEAR, and Blender's action at every
+    scene frame agrees with ``puppet export --gltf`` of the take at the scene's
     fps: each sensed joint's rotation within a tenth of what the export turns it in one frame
     (an offset of one frame, or a wrong take start, is that whole turn) plus two encoder ticks
     (the export rounds interpolated ticks). The free bones are not compared: FAST solves them
@@ -222,7 +180,7 @@ def test_live_record_keys_blender_where_the_takes_export_puts_each_frame(
             port, _ = puppet.listening(wait_until)
             sensed = ",".join(s.joint for s in critter.servo_map.servos)
             blender = helpers.Puppet.python(["-c", (HERE / "blender_record.py").read_text(),
-                                             addon_zip, exported["glb"], port, "20", reference,
+                                             addon_zip, exported["glb"], port, "40", reference,
                                              sensed])
             wait_until(lambda: "RECORDED" in blender.out or blender.proc.poll() is not None,
                        timeout=600)
@@ -237,9 +195,12 @@ def test_live_record_keys_blender_where_the_takes_export_puts_each_frame(
     staged.rename(reference)
     assert blender.proc.wait(timeout=600) == 0, "\n".join(blender.lines[-30:])
     result = json.loads(next(x for x in blender.out if x.startswith("RESULT "))[len("RESULT "):])
-    assert result["keyed"] == sorted(result["keyed"])
+    (tmp_path / "result.json").write_text(json.dumps(result))
+    keyed = result["keyed"]
+    assert keyed == list(range(keyed[0], keyed[-1] + 1))  # every integer frame, no holes
+    assert result["interpolation"] == ["LINEAR"]
     frames = result["frames"]
-    assert len(frames) >= 10, result
+    assert len(frames) >= 6, result
     tick_deg = 360.0 / 4096  # the critter's XL330s
     for f in frames:
         assert f["worst_deg"] <= 0.1 * f["step_deg"] + 2 * tick_deg, (f, frames)

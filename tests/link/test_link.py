@@ -117,6 +117,47 @@ def test_play_streams_the_gltf_exports_keys_to_two_clients_latest_wins(
         interrupt_and_wait(puppet.proc, read_stderr=False)
 
 
+def test_a_recording_client_gets_every_frame_in_order_through_a_stall(
+        take, wait_until, interrupt_and_wait):
+    """A client that asks for every frame ("record") and stops reading for a while (a Blender
+    stall) still gets each frame once, in order, when it reads again, and health messages say
+    how puppet sees it; a latest-wins client beside it skips."""
+    import time
+
+    puppet, port, _ = _start(take, ["127.0.0.1:0", "--speed", "2"], wait_until)
+    try:
+        recorder = Client(port, record=True, health=True)
+        plain = Client(port)
+        assert recorder.first[0] == plain.first[0] == wire.HELLO
+        assert recorder.first[1]["take"] == "take"  # the take's name: the action's
+        time.sleep(1.0)  # the stall: puppet goes on publishing
+        seqs, healths, plain_seqs = [], [], []
+        while True:
+            kind, message = recorder.next()
+            if kind == wire.FRAME_KIND:
+                seqs.append(message.seq)
+                recorder.ack(message.seq)
+            elif kind == wire.HEALTH:
+                healths.append(message)
+            else:
+                break
+        while True:
+            kind, message = plain.next()
+            if kind != wire.FRAME_KIND:
+                break
+            plain_seqs.append(message.seq)
+        assert seqs == list(range(seqs[-1] + 1)), seqs  # every frame from the first, in order
+        assert len(seqs) == 46  # the take's frames at 30 fps
+        assert len(plain_seqs) < len(seqs)  # the one that did not read skipped
+        assert healths and healths[-1]["lost"] == 0 and healths[-1]["skipped"] == 0
+        assert healths[-1]["published"] >= healths[0]["published"]
+        assert set(healths[-1]) == {"applied_median_ms", "applied_p99_ms", "acked", "published",
+                                    "sent", "skipped", "lost", "acked_per_s"}
+        assert puppet.proc.wait(timeout=120) == 0
+    finally:
+        interrupt_and_wait(puppet.proc, read_stderr=False)
+
+
 def test_beyond_loopback_a_token_is_needed(take, wait_until, interrupt_and_wait):
     puppet, port, token = _start(take, ["0.0.0.0:0"], wait_until)
     try:
