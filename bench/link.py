@@ -117,9 +117,13 @@ def plain_client(port: int) -> None:
                 return
 
 
+PUPPET = [sys.executable, "-P", "-c", "from puppet.cli import main; main()"]
+"""The puppet command, run by this interpreter: no need for the venv's bin on PATH."""
+
+
 def play(take: Path, fps: float, client) -> dict:
     """Play the take to one client; puppet's summary figures."""
-    proc = subprocess.Popen(["puppet", "play", str(take), "--link", "127.0.0.1:0", "--fps",
+    proc = subprocess.Popen([*PUPPET, "play", str(take), "--link", "127.0.0.1:0", "--fps",
                              f"{fps:g}"], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                             text=True)
     port = None
@@ -152,9 +156,9 @@ def main() -> None:
         folder = Path(folder)
         take, glb, addon = folder / "take.mcap", folder / "critter.glb", folder / "puppet_link.zip"
         write_take(take, rig, args.seconds, args.fps)
-        subprocess.run(["puppet", "export", str(take), "--gltf", str(glb), "--fps",
+        subprocess.run([*PUPPET, "export", str(take), "--gltf", str(glb), "--fps",
                         f"{args.fps:g}"], check=True, capture_output=True)
-        subprocess.run(["puppet", "blender", "addon", "--out", str(addon)], check=True,
+        subprocess.run([*PUPPET, "blender", "addon", "--out", str(addon)], check=True,
                        capture_output=True)
         result["frames"] = int(args.seconds * args.fps) + 1
 
