@@ -7,8 +7,8 @@ by ``tests/hw_sim/test_hwsim_models.py``) what the simulator serves all come fro
 :data:`MODELS`. Every model here is a Protocol 2.0 X-series servo with Present Position at
 address 132 (4 bytes, signed). This module imports nothing but numpy at import time: the rig,
 the bus, the take, drive and hw_sim's agreement test all read it. (A :class:`ServoUnits` converts
-ticks to radians through the native ``puppet._kinematics.servo_angles``, loaded when the first
-one is made: one call per frame instead of seven NumPy ones.)
+ticks to radians through the native ``puppet._kinematics.servo_angles``, imported at the first
+conversion: one call per frame instead of seven NumPy ones.)
 
 Conversions (:class:`ServoUnits`), for a servo of sign ``s``, gear ``g`` (servo turns per joint
 turn), zero ``z`` ticks and ``N`` ticks per turn:
@@ -404,6 +404,19 @@ def ticks_per_degree(ticks_per_turn=TICKS_PER_TURN):
     return np.asarray(ticks_per_turn, float) / 360.0
 
 
+_servo_angles = None
+"""puppet._kinematics.servo_angles once imported (module-level, not on the units: they pickle)."""
+
+
+def _load_servo_angles():
+    """Import the native conversion (see the module docstring) and keep it in ``_servo_angles``."""
+    global _servo_angles
+    from puppet import _kinematics
+
+    _servo_angles = _kinematics.servo_angles
+    return _servo_angles
+
+
 class ServoUnits:
     """Paired conversions ticks <-> joint radians for k servos (see the module docstring).
 
@@ -437,9 +450,6 @@ class ServoUnits:
         # The native conversion's table (servo_angles.h): radians per tick, top, wrap, lo, hi.
         self._table = np.ascontiguousarray(np.stack([self.radians_per_tick, self._top, self._wrap.astype(float),
                                                      self.lo, self.hi]).reshape(5, k))
-        from puppet import _kinematics  # the native conversion (see the module docstring)
-
-        self._servo_angles = _kinematics.servo_angles
 
     @classmethod
     def for_servos(cls, servos, zero=None) -> "ServoUnits":
@@ -466,7 +476,7 @@ class ServoUnits:
         np.copyto(work, ticks)  # float64 counts (exact for any tick count)
         # (x - zero) * radians_per_tick; where wrapped x -> top - ((top - x) mod 2π), into
         # (top - 2π, top]; clamped to the limits (solver_native/include/servo_angles.h).
-        self._servo_angles(work, self.zero, self._table, out, clamp)
+        (_servo_angles or _load_servo_angles())(work, self.zero, self._table, out, clamp)
         return out
 
     def ticks(self, angles, out=None) -> np.ndarray:

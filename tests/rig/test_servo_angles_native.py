@@ -63,3 +63,13 @@ def test_native_angles_refuse_wrong_shapes():
         _kinematics.servo_angles(np.zeros(5), u.zero, u._table, np.zeros(6), True)
     with pytest.raises(TypeError):
         _kinematics.servo_angles(np.zeros(5, np.float32), u.zero, u._table, np.zeros(5), True)
+
+
+def test_units_still_pickle_for_batch_workers():
+    import pickle
+
+    u = units()
+    ticks = np.array([2100, 900, -4000, 3100, 100_500], np.int32)
+    u.angles(ticks)  # the native conversion loaded
+    copy = pickle.loads(pickle.dumps(u))
+    np.testing.assert_array_equal(copy.angles(ticks), u.angles(ticks))
