@@ -14,7 +14,15 @@
      minus the clean one's, both measured in the same run (target <= 5 ms at 1 ms). hw_sim's
      pty has no USB latency of its own: this is the deadline the host waits out.
    The ceiling is the baseline of these cases: it is computed from the bytes counted in the
-   same run.
+   same run. Beside each Fast Sync Read, the pseudo-terminal's own ceiling, measured right after
+   (``_pty_round_trips``): the same bytes each way through a raw pty, answered when hw_sim's
+   timing model would, no protocol. Its round trip minus the wire time is what the pty and the
+   scheduler cost (about a tenth of a millisecond a round trip, whatever the baud: it weighs most
+   at 4 Mbps, where the wire takes 0.39 ms);
+   puppet's median minus the pty's is the protocol's share (the SDK's packet building and
+   parsing, puppet's transaction, hw_sim's decoding). ``pty_ratio`` = pty ceiling / wire ceiling
+   is the best any protocol could read at through this pty; ``ratio_to_pty`` = puppet's rate /
+   the pty's.
 2. Round trip of a group Sync Read and Fast Sync Read: 3 / 12 / 30 servos x read sync|fast x
    (timing model off; on at 1 Mbps; on at 4 Mbps), ``GroupSyncRead.txRxPacket()`` /
    ``fastSyncRead()`` of Present Position (4 bytes). Baseline (same run): a canned responder,
@@ -159,11 +167,13 @@ def _time_family(path: str, baud: int, model: str, ids: list[int], read: str, it
     try:
         for _ in range(max(5, iterations // 10)):
             call()
-        wire = None
+        wire = host_bytes = None
         if bus is not None:
             bus.traffic()
             call()
-            wire = sum(len(data) for _, _, data in bus.traffic())
+            traffic = bus.traffic()
+            wire = sum(len(data) for _, _, data in traffic)
+            host_bytes = sum(len(data) for _, kind, data in traffic if kind == "rx")
         samples, failures = [], 0
         for _ in range(iterations):
             t = time.perf_counter()
@@ -175,7 +185,62 @@ def _time_family(path: str, baud: int, model: str, ids: list[int], read: str, it
     samples.sort()
     return {"median_ms": statistics.median(samples) * 1e3,
             "p99_ms": samples[min(len(samples) - 1, int(0.99 * len(samples)))] * 1e3,
-            "failures": failures, "bytes": wire}
+            "failures": failures, "bytes": wire, "host_bytes": host_bytes}
+
+
+def _pty_round_trips(host_bytes: int, servo_bytes: int, baud: int, iterations: int) -> dict:
+    """The pseudo-terminal's own ceiling for one reading: raw bytes of the same sizes through the
+    same kind of pty as hw_sim's (raw mode), no protocol. The host writes ``host_bytes`` and reads
+    ``servo_bytes``; a forked responder reads the host's bytes and answers when hw_sim's timing
+    model would (the host's bytes and the reply's on the line at 10 bits a byte from the moment it
+    read them, sleeping then spinning the last 0.2 ms as hw_sim does). Median / p99 ms of the
+    round trip: wire time + what the pty and the scheduler add, nothing else."""
+    master, slave = pty.openpty()
+    tty.setraw(slave)
+    byte_s = 10.0 / baud
+    reply = bytes(range(256)) * (servo_bytes // 256 + 1)
+    pid = os.fork()
+    if pid == 0:
+        try:
+            os.close(slave)
+            got = 0
+            while True:
+                chunk = os.read(master, 4096)
+                if not chunk:
+                    break
+                t_rx = time.monotonic()
+                got += len(chunk)
+                if got < host_bytes:
+                    continue
+                got = 0
+                turn = t_rx + (host_bytes + servo_bytes) * byte_s
+                while (rem := turn - time.monotonic()) > 0:
+                    if rem > 3e-4:
+                        time.sleep(rem - 2e-4)
+                os.write(master, reply[:servo_bytes])
+        except OSError:
+            pass
+        finally:
+            os._exit(0)
+    os.close(master)
+    request = b"\xff" * host_bytes
+    samples = []
+    try:
+        for i in range(iterations + max(5, iterations // 10)):
+            t = time.perf_counter()
+            os.write(slave, request)
+            need = servo_bytes
+            while need > 0:
+                need -= len(os.read(slave, need))
+            if i >= max(5, iterations // 10):
+                samples.append(time.perf_counter() - t)
+    finally:
+        os.close(slave)
+        os.kill(pid, 9)
+        os.waitpid(pid, 0)
+    samples.sort()
+    return {"median_ms": statistics.median(samples) * 1e3,
+            "p99_ms": samples[min(len(samples) - 1, int(0.99 * len(samples)))] * 1e3}
 
 
 def _time_sdk_fast(path: str, ids: list[int], latency_ms: int, iterations: int) -> float:
@@ -213,12 +278,18 @@ def family_cases(iterations: int) -> list[dict]:
             r = _time_family(bus.port, baud, model, ids, read, iterations, bus=bus)
         wire_ms = r["bytes"] * 10 / baud * 1e3
         rate, ceiling = 1e3 / r["median_ms"], 1e3 / wire_ms
-        rows.append({"case": f"{read} {FAMILY_SERVOS} {model}", "read": read, "model": model,
-                     "servos": FAMILY_SERVOS, "baud": baud, "bytes": r["bytes"],
-                     "wire_ms": wire_ms, "ceiling_per_s": ceiling, "median_ms": r["median_ms"],
-                     "p99_ms": r["p99_ms"], "reads_per_s": rate, "ratio": rate / ceiling,
-                     "target": TARGET_RATIO if read == "fast" else None,
-                     "failures": r["failures"]})
+        row = {"case": f"{read} {FAMILY_SERVOS} {model}", "read": read, "model": model,
+               "servos": FAMILY_SERVOS, "baud": baud, "bytes": r["bytes"],
+               "wire_ms": wire_ms, "ceiling_per_s": ceiling, "median_ms": r["median_ms"],
+               "p99_ms": r["p99_ms"], "reads_per_s": rate, "ratio": rate / ceiling,
+               "target": TARGET_RATIO if read == "fast" else None,
+               "failures": r["failures"], "load_1min": os.getloadavg()[0]}
+        if read == "fast":  # the pty's own ceiling for the same bytes, measured right after
+            p = _pty_round_trips(r["host_bytes"], r["bytes"] - r["host_bytes"], baud, iterations)
+            row.update({"host_bytes": r["host_bytes"], "pty_median_ms": p["median_ms"],
+                        "pty_p99_ms": p["p99_ms"], "pty_ceiling_per_s": 1e3 / p["median_ms"],
+                        "pty_ratio": 1e3 / p["median_ms"] / ceiling, "ratio_to_pty": p["median_ms"] / r["median_ms"]})
+        rows.append(row)
     # A silent servo: servo 16 is asked for but absent, so the Fast Sync Read waits out the
     # SDK's deadline, tx time + 2 x latency timer + 2 ms, for the latency timer puppet set
     # (set_latency_assumption, as BusLink does from the adapter's timer). Cost: the median
@@ -246,6 +317,16 @@ def _family_report(rows: list[dict]) -> None:
         print(f"{r['case']:<38} {r['baud']:>9} {r['bytes']:>5} {r['wire_ms']:>7.3f} "
               f"{r['ceiling_per_s']:>9.0f} {r['reads_per_s']:>8.0f} {r['ratio']:>6.2f} {target:>6} "
               f"{r['failures']:>4}")
+    print("the pty's own ceiling (raw bytes of the same sizes, same timing, no protocol), and where a "
+          "Fast Sync Read's time goes, ms:")
+    print(f"{'case':<38} {'baud':>9} {'wire':>7} {'pty':>7} {'puppet':>7} {'pty-wire':>8} {'protocol':>8} "
+          f"{'pty/wire':>8} {'puppet/pty':>10} {'load':>5}")
+    for r in rows:
+        if "pty_median_ms" in r:
+            print(f"{r['case']:<38} {r['baud']:>9} {r['wire_ms']:>7.3f} {r['pty_median_ms']:>7.3f} "
+                  f"{r['median_ms']:>7.3f} {r['pty_median_ms'] - r['wire_ms']:>8.3f} "
+                  f"{r['median_ms'] - r['pty_median_ms']:>8.3f} {r['pty_ratio']:>8.2f} {r['ratio_to_pty']:>10.2f} "
+                  f"{r['load_1min']:>5.1f}")
     print(f"{'case':<38} {'clean_ms':>8} {'silent_ms':>9} {'cost_ms':>8} {'2L+2_ms':>7} {'target':>7}")
     for r in rows:
         if "silent_cost_ms" in r:

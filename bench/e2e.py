@@ -38,6 +38,7 @@ import argparse
 import json
 import os
 import resource
+import statistics
 import tempfile
 import time
 from pathlib import Path
@@ -126,8 +127,11 @@ def run_case(case: str, variant: str, args, folder: Path) -> dict:
 
 
 def _median(values):
-    values = sorted(values)
-    return values[len(values) // 2] if values else float("nan")
+    """The median of one column over the rounds (the mean of the middle two for an even count, each
+    column on its own: two rounds give each column's midpoint, never the better fps paired with the
+    worse latency of the other round); NaN entries (no figure) are left out."""
+    values = [v for v in values if v == v]
+    return statistics.median(values) if values else float("nan")
 
 
 def main() -> None:

@@ -140,6 +140,10 @@ def plain_client(port: int) -> None:
                 return
 
 
+PUPPET = [sys.executable, "-P", "-c", "from puppet.cli import main; main()"]
+"""The puppet command, run by this interpreter: no need for the venv's bin on PATH."""
+
+
 def play(take: Path, fps: float, client) -> dict:
     """Play the take to one client; puppet's summary figures."""
     proc = subprocess.Popen([*PUPPET, "play", str(take), "--link", "127.0.0.1:0", "--fps",

@@ -10,6 +10,14 @@ full-space igl.arap_solve (ms per iteration).
 
     python bench/solver.py --json out.json [--frames 200] [--quick]
 
+Clock: every per-iteration, per-call and baseline time is the CPU time of the timing thread
+(time.thread_time_ns; libigl's baseline: the process's CPU time), so a run descheduled on a shared
+machine neither passes nor fails a ratio; precompute and refactor times stay wall-clock (they may
+use several threads). Beside each case: GFLOP/s by a flop model of the iteration (flops_per_iter)
+and its fraction of this core's single-precision peak, measured in the same run (peak_gflops:
+float32 matrix products, single-threaded BLAS, the best of several). The 1-minute load average is
+printed and stored with the figures.
+
 Also: the live-solve cases (dynamics on, the tolerance stop, the dropout pattern switch on the
 built-in character), and, when a -march=native build of the module exists in build/native-arch
 (cmake -S . -B build/native-arch -DPUPPET_NATIVE_ARCH=ON && cmake --build build/native-arch),
@@ -49,6 +57,37 @@ def _use_module(argv):
 
 
 _use_module(sys.argv)
+
+cpu_ns = time.thread_time_ns
+"""The bench's clock: CPU time of the calling thread (ns)."""
+
+ROTATION_FLOPS = 800
+"""Flops of one closest-rotation fit (solver_native/src/kernels_impl.inc, polar) with two Jacobi
+sweeps, what a warm-started frame takes (one or two): 408 + 197 per sweep, counting a multiply-add
+as two and a select or comparison as none."""
+
+
+def flops_per_iter(model):
+    """The flop model of one plain iteration, unpadded: the covariance gather S = K^T T over K's
+    nonzero entries (3r x 4m by 4m x 3: the kernel skips the zero columns of compactly supported
+    extra weights), r rotation fits, the global product G R (4m x 3r by 3r x 3, dense)."""
+    m, r = model.m, model.r
+    return 2 * np.count_nonzero(model.K) * 3 + r * ROTATION_FLOPS + 2 * (4 * m) * (3 * r) * 3
+
+
+def peak_gflops(n=256, reps=40):
+    """This core's measured single-precision peak: the best rate of float32 n x n matrix products
+    (single-threaded BLAS, see OPENBLAS_NUM_THREADS above), GFLOP/s in thread CPU time."""
+    rng = np.random.default_rng(0)
+    a, b = rng.normal(size=(n, n)).astype(np.float32), rng.normal(size=(n, n)).astype(np.float32)
+    c = np.empty((n, n), np.float32)
+    np.matmul(a, b, out=c)
+    best = float("inf")
+    for _ in range(reps):
+        t0 = cpu_ns()
+        np.matmul(a, b, out=c)
+        best = min(best, cpu_ns() - t0)
+    return 2 * n**3 / best
 from puppet import _native  # noqa: E402
 from puppet.fast import FastModel, Pattern  # noqa: E402
 
@@ -114,10 +153,10 @@ def numpy_iteration_us(model, solver, values, T0, iters=100):
 
     for _ in range(5):
         T = step(T)
-    t0 = time.perf_counter()
+    t0 = cpu_ns()
     for _ in range(iters):
         T = step(T)
-    return (time.perf_counter() - t0) / iters * 1e6
+    return (cpu_ns() - t0) / iters / 1e3
 
 
 def full_arap_ms(V, F, pins, targets, calls=4):
@@ -132,10 +171,10 @@ def full_arap_ms(V, F, pins, targets, calls=4):
     U = igl.arap_solve(bc, data, U)
     times = []
     for _ in range(calls):
-        t0 = time.perf_counter()
+        t0 = time.process_time_ns()  # CPU time of every thread (libigl may use several)
         U = igl.arap_solve(bc, data, U)
-        times.append(time.perf_counter() - t0)
-    return statistics.median(times) * 1e3
+        times.append(time.process_time_ns() - t0)
+    return statistics.median(times) / 1e6
 
 
 def iterations_to_energy(solver, values, T0, cap=1000):
@@ -181,9 +220,9 @@ def run_case(name, V, F, bones, extra, r, frames, quick):
         times = []
         for f in range(frames + 20):
             values.positional[:] = frame_targets(V, pins, f, diag, axes)
-            t0 = time.perf_counter_ns()
+            t0 = cpu_ns()
             solver.solve(values, T, iterations=10, accelerate=accelerate)
-            dt = time.perf_counter_ns() - t0
+            dt = cpu_ns() - t0
             if f >= 20:
                 times.append(dt / 10 / 1e3)
         per_iter[accelerate] = statistics.median(times)
@@ -192,8 +231,11 @@ def run_case(name, V, F, bones, extra, r, frames, quick):
     iters_plain, iters_accel = iterations_to_energy(solver, values, model.rest_T(), cap=300 if quick else 1000)
     numpy_us = numpy_iteration_us(model, solver, values, T, iters=30 if quick else 100)
     full_ms = full_arap_ms(V, F, pins, values.positional, calls=2 if quick else 4)
+    flops = flops_per_iter(model)
     return {
         "name": name,
+        "flops_per_iter": flops,
+        "gflops": flops / per_iter[False] / 1e3,
         "n": int(V.shape[0]),
         "f": int(F.shape[0]),
         "m": model.m,
@@ -278,11 +320,11 @@ def tol_case(tols=(1e-3, 1e-4, 1e-5), budgets=(10, 20, 30, 50), frames=30, targe
         plain_us, tol_us = [], []
         for f in range(max(frames, 30)):
             rig.fill_values(rig.servo_map.angles(ticks[f % frames]), values)
-            t0 = time.perf_counter_ns()
+            t0 = cpu_ns()
             n = timed.solve(values, T0, iterations=10, accelerate=accelerate).iterations
-            t1 = time.perf_counter_ns()
+            t1 = cpu_ns()
             k = timed_tol.solve(values, T1, iterations=10, tol=1e-12, accelerate=accelerate).iterations
-            t2 = time.perf_counter_ns()
+            t2 = cpu_ns()
             plain_us.append((t1 - t0) / n / 1e3)
             tol_us.append((t2 - t1) / k / 1e3)
         key = "accel" if accelerate else "plain"
@@ -312,10 +354,10 @@ def per_iter_us(solver, values, V, pins, diag, axes, frames, model):
     times = []
     for f in range(frames + 20):
         values.positional[:] = frame_targets(V, pins, f, diag, axes)
-        t0 = time.perf_counter_ns()
+        t0 = cpu_ns()
         solver.solve(values, T, iterations=10)
         if f >= 20:
-            times.append((time.perf_counter_ns() - t0) / 10 / 1e3)
+            times.append((cpu_ns() - t0) / 10 / 1e3)
     return statistics.median(times)
 
 
@@ -376,9 +418,9 @@ def builtin_limits_case(frames):
         T = model.rest_T()
         for f in range(frames):
             rig.fill_values(angles * (0.9 + 0.1 * np.sin(f / 7)), values)
-            t0 = time.perf_counter_ns()
+            t0 = cpu_ns()
             solver.solve(values, T, iterations=10)
-            times.append((time.perf_counter_ns() - t0) / 10 / 1e3)
+            times.append((cpu_ns() - t0) / 10 / 1e3)
         out[f"{name}_us_per_iter"] = statistics.median(times[20:])
         out[f"{name}_active"] = solver.active_limits if pattern.limits else 0
     return out
@@ -410,10 +452,10 @@ def switch_case():
         cached = []
         live.solve(frozenset(), rot, pose, T, 8)
         for _ in range(50):  # a cached switch each way: the pattern lookup and the warm start
-            t0 = time.perf_counter_ns()
+            t0 = cpu_ns()
             live._switch_to(live._state(frozenset({neck}) if not live.free_bones else frozenset()),
                             frozenset({neck}) if not live.free_bones else frozenset(), T)
-            cached.append((time.perf_counter_ns() - t0) / 1e6)
+            cached.append((cpu_ns() - t0) / 1e6)
     ids = np.array([s.id for s in rig.servo_map.servos])
     from puppet.demo import Performance
 
@@ -620,16 +662,19 @@ def stage_case(frames):
                 for f in range(b0, min(b0 + block, n)):
                     if setup is not None:
                         setup(k, f)
-                    t0 = time.perf_counter_ns()
+                    t0 = cpu_ns()
                     run(f)
                     if f >= 20:
-                        times[k].append((time.perf_counter_ns() - t0) / 1e3)
+                        times[k].append((cpu_ns() - t0) / 1e3)
     med = {k: statistics.median(v) for k, v in times.items()}
     per_iter = med.pop("call_100") / 100
+    peak = peak_gflops()
     iterations_alone = 8 * per_iter
     return {
         "frames": frames, "m": model.m, "r": model.r, "bones": b,
         "us_per_iter_100_call": per_iter, "iterations_alone_us": iterations_alone,
+        "gflops": flops_per_iter(model) / per_iter / 1e3, "peak_gflops": peak,
+        "load_1min": os.getloadavg()[0],
         **{f"{k}_us": v for k, v in med.items()},
         "call_8_over_iterations_alone_us": med["call_8"] - iterations_alone,
         "ratio_after": med["stage_after"] / iterations_alone,
@@ -649,6 +694,9 @@ def print_stage(st):
           f"{st['stage_before_us'] / st['stage_after_us']:>7.2f}")
     print(f"  {'stage / iterations alone':<34}{st['ratio_before']:>9.2f}{st['ratio_after']:>9.2f}"
           f"   (target <= {st['target_ratio']})")
+    print(f"  the critter's iteration (a call of 100): {st['us_per_iter_100_call']:.2f} us, {st['gflops']:.1f} GFLOP/s "
+          f"= {100 * st['gflops'] / st['peak_gflops']:.0f} % of the measured peak {st['peak_gflops']:.1f}; "
+          f"thread CPU time, load average {st['load_1min']:.2f}")
     print(f"  iterations alone 8 x {st['us_per_iter_100_call']:.2f} = {st['iterations_alone_us']:.1f}; one solve "
           f"call of 8 iterations {st['call_8_us']:.1f}, of 0 (the fixed cost per call) {st['call_0_us']:.1f} "
           f"(held pose {st['call_0_held_us']:.1f})")
@@ -717,16 +765,22 @@ def main(argv=None):
         with open(args.json, "w") as fh:
             json.dump({"native_simd": _native.simd, "per_iter": per_iter_cases(V, F, args.frames)}, fh)
         return
+    peak = peak_gflops()
     results = [run_case(name, V, F, b, x, r, args.frames, args.quick) for name, b, x, r in CASES]
+    peak = max(peak, peak_gflops())  # probed before and after the cases: the better of the two
+    for c in results:
+        c["fraction_of_peak"] = c["gflops"] / peak
     header = (
-        f"{'case':<16}{'n':>7}{'m':>4}{'r':>5}{'us/it':>8}{'us/it acc':>10}{'prec s':>8}{'refac ms':>9}"
-        f"{'it plain':>9}{'it acc':>7}{'numpy us':>10}{'full ms':>9}{'x numpy':>9}{'x full':>9}"
+        f"{'case':<16}{'n':>7}{'m':>4}{'r':>5}{'us/it':>8}{'GFLOP/s':>8}{'% peak':>7}{'us/it acc':>10}{'prec s':>8}"
+        f"{'refac ms':>9}{'it plain':>9}{'it acc':>7}{'numpy us':>10}{'full ms':>9}{'x numpy':>9}{'x full':>9}"
     )
-    print(f"native build: simd={_native.simd}; {len(V)} vertices, {len(F)} triangles; {args.frames} frames")
+    print(f"native build: simd={_native.simd}; {len(V)} vertices, {len(F)} triangles; {args.frames} frames; "
+          f"thread CPU time; peak {peak:.1f} GFLOP/s (float32 BLAS probe); load average {os.getloadavg()[0]:.2f}")
     print(header)
     for c in results:
         print(
-            f"{c['name']:<16}{c['n']:>7}{c['m']:>4}{c['r']:>5}{c['us_per_iter']:>8.2f}{c['us_per_iter_accel']:>10.2f}"
+            f"{c['name']:<16}{c['n']:>7}{c['m']:>4}{c['r']:>5}{c['us_per_iter']:>8.2f}{c['gflops']:>8.1f}"
+            f"{100 * c['fraction_of_peak']:>7.0f}{c['us_per_iter_accel']:>10.2f}"
             f"{c['precompute_s']:>8.3f}{c['refactor_ms']:>9.3f}{c['iters_plain']:>9}{c['iters_accel']:>7}"
             f"{c['numpy_us_per_iter']:>10.1f}{c['full_arap_ms_per_iter']:>9.1f}"
             f"{c['numpy_us_per_iter'] / c['us_per_iter']:>9.0f}{c['full_arap_ms_per_iter'] * 1e3 / c['us_per_iter']:>9.0f}"
@@ -766,6 +820,12 @@ def main(argv=None):
           f"{sw['jump_to_sensed_unblended']:.4f})")
     stage = stage_case(args.frames)
     print_stage(stage)
+    m5 = results[0]
+    checks = [(f"m5_r50 iteration {m5['us_per_iter']:.2f} us <= 1.5", m5["us_per_iter"] <= 1.5),
+              (f"at {100 * m5['fraction_of_peak']:.0f} % >= 55 % of peak", m5["fraction_of_peak"] >= 0.55),
+              (f"critter iteration {stage['us_per_iter_100_call']:.2f} us <= 10", stage["us_per_iter_100_call"] <= 10),
+              (f"stage {stage['ratio_after']:.2f} x its 8 iterations <= 1.3", stage["ratio_after"] <= 1.3)]
+    print("targets (thread CPU time): " + "; ".join(f"{text} {'met' if ok else 'NOT met'}" for text, ok in checks))
     builds = compare_builds(V, F, args.frames, args)
     if builds is None:
         print(f"(no -march=native build in {NATIVE_ARCH_BUILD}: build comparison skipped)")
@@ -776,7 +836,8 @@ def main(argv=None):
             print(f"  {name:<16}{c['portable_us']:>8.2f}{c['native_arch_us']:>8.2f}"
                   f"   native/portable {c['native_arch_us'] / c['portable_us']:.3f}")
     with open(args.json, "w") as fh:
-        json.dump({"native_simd": _native.simd, "frames": args.frames, "cases": results, "live": live,
+        json.dump({"native_simd": _native.simd, "frames": args.frames, "clock": "thread CPU time",
+                   "peak_gflops": peak, "load_1min": os.getloadavg()[0], "cases": results, "live": live,
                    "tol": tol, "switch": sw, "builtin_limits": blim, "stage": stage, "builds": builds}, fh, indent=2)
 
 

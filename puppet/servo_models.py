@@ -5,8 +5,10 @@ What a rig may name, what the bus can read and check, what ``perform`` and ``liv
 and how they read current, and (through hw_sim's own device-side copy, kept equal field by field
 by ``tests/hw_sim/test_hwsim_models.py``) what the simulator serves all come from
 :data:`MODELS`. Every model here is a Protocol 2.0 X-series servo with Present Position at
-address 132 (4 bytes, signed). This module imports nothing but numpy: the rig, the bus, the
-take, drive and hw_sim's agreement test all read it.
+address 132 (4 bytes, signed). This module imports nothing but numpy at import time: the rig,
+the bus, the take, drive and hw_sim's agreement test all read it. (A :class:`ServoUnits` converts
+ticks to radians through the native ``puppet._kinematics.servo_angles``, imported at the first
+conversion: one call per frame instead of seven NumPy ones.)
 
 Conversions (:class:`ServoUnits`), for a servo of sign ``s``, gear ``g`` (servo turns per joint
 turn), zero ``z`` ticks and ``N`` ticks per turn:
@@ -430,6 +432,19 @@ def ticks_per_degree(ticks_per_turn=TICKS_PER_TURN):
     return np.asarray(ticks_per_turn, float) / 360.0
 
 
+_servo_angles = None
+"""puppet._kinematics.servo_angles once imported (module-level, not on the units: they pickle)."""
+
+
+def _load_servo_angles():
+    """Import the native conversion (see the module docstring) and keep it in ``_servo_angles``."""
+    global _servo_angles
+    from puppet import _kinematics
+
+    _servo_angles = _kinematics.servo_angles
+    return _servo_angles
+
+
 class ServoUnits:
     """Paired conversions ticks <-> joint radians for k servos (see the module docstring).
 
@@ -460,6 +475,9 @@ class ServoUnits:
         np.add(self.lo, self.hi, out=self._top, where=self._wrap)
         self._top = np.where(self._wrap, self._top / 2.0 + np.pi, 0.0)
         self._work = np.empty(k)
+        # The native conversion's table (servo_angles.h): radians per tick, top, wrap, lo, hi.
+        self._table = np.ascontiguousarray(np.stack([self.radians_per_tick, self._top, self._wrap.astype(float),
+                                                     self.lo, self.hi]).reshape(5, k))
 
     @classmethod
     def for_servos(cls, servos, zero=None) -> "ServoUnits":
@@ -483,15 +501,10 @@ class ServoUnits:
         work = self._work if ticks.shape == self._work.shape else np.empty(ticks.shape)
         if out is None:
             out = np.empty(ticks.shape)
-        np.subtract(ticks, self.zero, out=work)
-        np.multiply(work, self.radians_per_tick, out=out)
-        if self._any_wrap:  # x -> top - ((top - x) mod 2π), into (top - 2π, top]
-            np.subtract(self._top, out, out=work)
-            np.remainder(work, 2.0 * np.pi, out=work)
-            np.subtract(self._top, work, out=work)
-            np.copyto(out, work, where=self._wrap)
-        if clamp:
-            np.clip(out, self.lo, self.hi, out=out)
+        np.copyto(work, ticks)  # float64 counts (exact for any tick count)
+        # (x - zero) * radians_per_tick; where wrapped x -> top - ((top - x) mod 2π), into
+        # (top - 2π, top]; clamped to the limits (solver_native/include/servo_angles.h).
+        (_servo_angles or _load_servo_angles())(work, self.zero, self._table, out, clamp)
         return out
 
     def ticks(self, angles, out=None) -> np.ndarray:

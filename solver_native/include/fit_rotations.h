@@ -18,17 +18,22 @@
 
 #include <cstddef>
 
+#include "kernels.h"
+
 namespace puppet {
 
-// Array-of-structures form: S and R are `count` row-major 3x3 matrices.
-void fit_rotations(const float* S, float* R, std::ptrdiff_t count);
+// Array-of-structures form: S and R are `count` row-major 3x3 matrices. `interleave` (1..3): the
+// most batches of eight run at once (see kRotationInterleave); 1 gives the plain schedule.
+void fit_rotations(const float* S, float* R, std::ptrdiff_t count, int interleave = kRotationInterleave);
 
 // Structure-of-arrays form used by the solver: entry (i, j) of matrix g lives at
 // S[(3 * i + j) * stride + g] (same for R); `count` must be a multiple of 8 and
 // stride >= count. Lanes are independent; S and R may not alias. Vwarm (same layout, optional,
 // in/out) holds each matrix's eigenbasis of S^T S from the previous call (start it at the
 // identity): warm-started Jacobi needs one or two sweeps instead of four or five.
+// Batches of eight run up to `interleave` at once; a group's sweeps stop when all its lanes
+// have converged, so results depend on the grouping only within float32 rounding.
 void fit_rotations_soa(const float* S, float* R, std::ptrdiff_t count, std::ptrdiff_t stride,
-                       float* Vwarm = nullptr);
+                       float* Vwarm = nullptr, int interleave = kRotationInterleave);
 
 }  // namespace puppet

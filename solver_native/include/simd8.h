@@ -12,6 +12,7 @@ typedef int i8 __attribute__((vector_size(32)));
 typedef float f8u __attribute__((vector_size(32), aligned(4)));  // unaligned loads/stores
 
 #define PUPPET_INLINE __attribute__((always_inline)) inline
+#define PUPPET_INLINE_LAMBDA __attribute__((always_inline))
 
 PUPPET_INLINE f8 splat(float x) { return f8{x, x, x, x, x, x, x, x}; }
 PUPPET_INLINE f8 load(const float* p) { return *reinterpret_cast<const f8u*>(p); }

@@ -293,8 +293,7 @@ void FastSolver::set_values(const float* full, const float* rel, const float* po
 
 double FastSolver::quad_energy(const float* x) {
   k_->gemm3(q_.data(), mp_, mp_, 4 * m_, x, 1, mp_, qx_.data(), mp_, false);
-  double e = 0.0;
-  for (int i = 0; i < 3 * mp_; ++i) e += static_cast<double>(x[i]) * qx_[i];
+  double e = k_->dot_f64(x, qx_.data(), 3 * static_cast<size_t>(mp_));
   if (dynamics_) {
     // (T - Tp)^T M~/h^2 (T - Tp) - 2 tr(T^T F), evaluated on the difference (no cancellation).
     for (int i = 0; i < 3 * mp_; ++i) bd_[i] = x[i] - tp_[i];
@@ -375,13 +374,12 @@ void FastSolver::note_rate(double q) {
 double FastSolver::local_step(const float* x, bool energy) {
   const int rr = 3 * rp_;
   k_->gemm3_sparse(csm_.data(), rr, rr, tile_off_.data(), tile_k_.data(), x, 1, mp_, s_.data(), rr);
-  k_->fit_rotations_soa(s_.data(), rot_.data(), rp_, rp_, vwarm_.data());
+  k_->fit_rotations_soa(s_.data(), rot_.data(), rp_, rp_, vwarm_.data(), kRotationInterleave);
   return energy ? local_energy(x) : 0.0;
 }
 
 double FastSolver::local_energy(const float* x) {
-  double lin = 0.0;
-  for (int i = 0; i < 9 * rp_; ++i) lin += static_cast<double>(s_[i]) * rot_[i];
+  const double lin = k_->dot_f64(s_.data(), rot_.data(), 9 * static_cast<size_t>(rp_));
   return quad_energy(x) - 2.0 * lin + c0_;
 }
 

@@ -13,6 +13,7 @@
 #include "array_types.h"
 #include "constraint_values.h"
 #include "forward_kinematics.h"
+#include "servo_angles.h"
 
 namespace nb = nanobind;
 using namespace puppet;
@@ -109,11 +110,38 @@ void constraint_values_py(ConstRotationsD rot, ConstPosesD pose, ConstIndexVec f
                     relative_bones.data(), static_cast<int>(relative.shape(0)), relative.data());
 }
 
+using AnyD = nb::ndarray<const double, nb::c_contig, nb::device::cpu>;
+using AnyDOut = nb::ndarray<double, nb::c_contig, nb::device::cpu>;
+using TableD = nb::ndarray<const double, nb::shape<5, -1>, nb::c_contig, nb::device::cpu>;
+using ZeroVec = nb::ndarray<const int64_t, nb::ndim<1>, nb::c_contig, nb::device::cpu>;
+
+void servo_angles_py(AnyD ticks, ZeroVec zero, TableD table, AnyDOut out, bool clamp) {
+  const size_t k = table.shape(1);
+  if (zero.shape(0) != k)
+    throw std::invalid_argument("servo_angles: zero has " + std::to_string(zero.shape(0)) + " entries, table " +
+                                std::to_string(k) + " servos");
+  if (ticks.ndim() < 1 || ticks.ndim() > 2 || ticks.shape(ticks.ndim() - 1) != k)
+    throw std::invalid_argument("servo_angles: ticks must be (k,) or (n, k) with k = " + std::to_string(k) +
+                                " servos");
+  bool same = out.ndim() == ticks.ndim();
+  for (size_t d = 0; same && d < ticks.ndim(); ++d) same = out.shape(d) == ticks.shape(d);
+  if (!same) throw std::invalid_argument("servo_angles: out must have the shape of ticks");
+  servo_angles(ticks.data(), k == 0 ? 0 : ticks.size() / k, zero.data(), table.data(), k, clamp, out.data());
+}
+
 }  // namespace
 
 NB_MODULE(_kinematics, m) {
-  m.doc() = "puppet's native forward kinematics: joint rotations, bone poses, constraint values (float64 in).";
+  m.doc() =
+      "puppet's native forward kinematics: servo angles, joint rotations, bone poses, constraint values "
+      "(float64 in).";
 
+  m.def("servo_angles", &servo_angles_py, nb::arg("ticks").noconvert(), nb::arg("zero").noconvert(),
+        nb::arg("table").noconvert(),
+        nb::arg("out").noconvert(), nb::arg("clamp"), nb::call_guard<nb::gil_scoped_release>(),
+        "Joint radians of raw ticks, written into out (see servo_angles.h).\n\n"
+        "ticks: (k,) or (n, k) float64 counts. zero: (k,) int64 rest ticks. table: (5, k) float64 rows\n"
+        "radians_per_tick, top, wrap (0/1), lo, hi. out: float64, the shape of ticks. clamp: clamp to [lo, hi].");
   m.def("joint_rotations", &joint_rotations_py, nb::arg("angles").noconvert(), nb::arg("axes").noconvert(),
         nb::arg("axis_dof").noconvert(), nb::arg("bone_axes").noconvert(), nb::arg("rot").noconvert(),
         nb::call_guard<nb::gil_scoped_release>(),

@@ -20,11 +20,14 @@ using namespace puppet;
 
 namespace {
 
-void fit_rotations_py(ConstMat3Stack S, Mat3Stack R) {
+void fit_rotations_py(ConstMat3Stack S, Mat3Stack R, int interleave) {
   if (S.shape(0) != R.shape(0))
     throw std::invalid_argument("fit_rotations: S has " + std::to_string(S.shape(0)) +
                                 " matrices, R has " + std::to_string(R.shape(0)));
-  fit_rotations(S.data(), R.data(), static_cast<std::ptrdiff_t>(S.shape(0)));
+  if (interleave < 1 || interleave > kRotationInterleave)
+    throw std::invalid_argument("fit_rotations: interleave is " + std::to_string(interleave) + ", must be 1.." +
+                                std::to_string(kRotationInterleave));
+  fit_rotations(S.data(), R.data(), static_cast<std::ptrdiff_t>(S.shape(0)), interleave);
 }
 
 std::string shape_msg(const char* name, size_t got, size_t want) {
@@ -77,12 +80,15 @@ NB_MODULE(_native, m) {
   m.doc() = "puppet's native core: FAST per-frame iterations (C++17, Eigen).";
   m.attr("simd") = kernels().isa;  // instruction set of the kernels chosen for this CPU
 
+  m.attr("rotation_interleave") = kRotationInterleave;  // most batches of 8 the rotation fit runs at once
   m.def("fit_rotations", &fit_rotations_py, nb::arg("S").noconvert(), nb::arg("R").noconvert(),
-        nb::call_guard<nb::gil_scoped_release>(),
+        nb::arg("interleave") = kRotationInterleave, nb::call_guard<nb::gil_scoped_release>(),
         "Closest proper rotation of each 3x3 matrix, written into R.\n\n"
         "S: (r, 3, 3) float32 C-contiguous covariances.\n"
         "R: (r, 3, 3) float32 C-contiguous output, R[k] in SO(3) minimising ||R[k] - S[k]||_F.\n"
-        "Zero or non-finite S[k] gives the identity; reflections are corrected (det R = +1).");
+        "Zero or non-finite S[k] gives the identity; reflections are corrected (det R = +1).\n"
+        "interleave: the most batches of 8 matrices computed at once (1..rotation_interleave; 1 is the\n"
+        "plain schedule, one batch at a time); results agree across values to float32 rounding.");
 
   nb::class_<SolveStats>(m, "SolveStats", "Statistics of the last FastSolver.solve call (updated in place).")
       .def_ro("iterations", &SolveStats::iterations, "global steps run")
