@@ -50,6 +50,17 @@ def recorded_character(meta) -> str | None:
     return _mark(meta, RIG_CHARACTER_MARK)
 
 
+def take_inputs(take, rig: Rig) -> list[Path]:
+    """Every file a command replaying ``take`` on ``rig`` reads, which none of its outputs may
+    be (``puppet.atomic.check_output``'s inputs): the take, and the rig's files
+    (``puppet.rig.rig_file.loaded_files``: for the rig the take stores, the character, buffers,
+    images and calibration found for it). The one place to add the files a take will name (its
+    sound, its session files)."""
+    from puppet.rig.rig_file import loaded_files
+
+    return [Path(take), *loaded_files(rig)]
+
+
 def rig_from_take(take, meta) -> Rig:
     """The rig a take was recorded with, from the rig map text it stores.
 

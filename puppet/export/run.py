@@ -293,9 +293,9 @@ class ExportWriters:
         if not items:
             raise ExportError("export", "nothing to write: give --gltf, --usd, --pc2 and/or --bvh FILE")
         self.keys_deg, self.keys_units = _key_tolerances(rig, outputs, keys, keys_units)
-        from puppet.rig.rig_file import loaded_files
+        from puppet.replay import take_inputs
 
-        self.inputs = [Path(reader.path), *loaded_files(rig)]
+        self.inputs = take_inputs(reader.path, rig)
         self.force = outputs.force
         check_distinct({f"--{fmt}": target for fmt, target in items})
         for fmt, target in items:

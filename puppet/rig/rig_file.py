@@ -351,26 +351,41 @@ def _read_servo(index: int, table: dict, lines: _Lines, fail) -> Servo:
                  (float(np.radians(limits[0])), float(np.radians(limits[1]))), header or 0, role)
 
 
-def input_files(path) -> list[Path]:
-    """Every file loading the rig at ``path`` reads: the rig file, its character, skeleton,
-    weights and calibration files, and a glTF character's buffers and images (outputs may be
-    none of them). ``path``: a rig file (.toml) or a bare character file."""
+def character_files(character) -> list[Path]:
+    """A character file and what it names: a glTF's buffers and images (resolved next to it)."""
     from puppet.rig.gltf import external_files
 
-    path = Path(path)
-    files, character = [path], path
-    if path.suffix.lower() == ".toml":
-        spec = read_rig_file(path)
-        files += [p for p in (spec.mesh, spec.skeleton, spec.weights, spec.calibration) if p]
-        character = spec.mesh
+    character = Path(character)
+    files = [character]
     if character.suffix.lower() in (".gltf", ".glb"):
         files += external_files(character)
     return files
 
 
+def spec_files(spec: RigFile) -> list[Path]:
+    """Every file a parsed rig file makes the loader read (not the rig file itself): its
+    character (``character_files``), skeleton, weights and calibration files."""
+    files = character_files(spec.mesh)
+    return files + [p for p in (spec.skeleton, spec.weights, spec.calibration) if p is not None]
+
+
+def input_files(path) -> list[Path]:
+    """Every file loading the rig at ``path`` reads: the rig file, its character, skeleton,
+    weights and calibration files, and a glTF character's buffers and images (outputs may be
+    none of them). ``path``: a rig file (.toml) or a bare character file."""
+    path = Path(path)
+    if path.suffix.lower() == ".toml":
+        return [path, *spec_files(read_rig_file(path))]
+    return character_files(path)
+
+
 def loaded_files(rig) -> list[Path]:
-    """The files a loaded rig came from (``input_files`` of its path, and its calibration file);
-    [] for a rig made in memory."""
-    files = input_files(rig.path) if getattr(rig, "path", None) is not None else []
+    """Every file a loaded rig was read from, which no output of a command using it may be: its
+    path, its ``files`` (set by the loaders: character, buffers, images, skeleton, weights,
+    calibration; also for the rig a take stores) and its calibration file now. [] for a rig made
+    in memory. The one list of a rig's inputs: a command's other inputs (the take, and the sound
+    and session files to come) are added by ``puppet.replay.take_inputs``."""
+    files = [Path(rig.path)] if getattr(rig, "path", None) is not None else []
+    files += list(getattr(rig, "files", ()))
     calibration = getattr(getattr(rig, "calibration", None), "path", None)
-    return files + ([Path(calibration)] if calibration is not None else [])
+    return list(dict.fromkeys(files + ([Path(calibration)] if calibration is not None else [])))
