@@ -140,15 +140,20 @@ def read_keys(path, k: int) -> Keys | None:
     a truncated tail keeps the keys before it.
     """
     from mcap.exceptions import McapError
-    from mcap.records import Channel, Message
+    from mcap.records import Channel, Message, Schema
     from mcap.stream_reader import StreamReader
 
+    from puppet.take.channels import channel_topic
+
     path = Path(path)
-    channel, fps, keys, skipped = None, None, [], []
+    channel, fps, keys, skipped, schemas = None, None, [], [], {}
     try:
         with open(path, "rb") as stream:
             for record in StreamReader(stream, skip_magic=False).records:
-                if isinstance(record, Channel) and record.topic == KEY_TOPIC:
+                if isinstance(record, Schema):
+                    schemas[record.id] = record
+                elif (isinstance(record, Channel) and channel is None
+                      and channel_topic(record.topic, schemas.get(record.schema_id)) == KEY_TOPIC):
                     channel = record.id
                     try:
                         fps = float(record.metadata["fps"])
