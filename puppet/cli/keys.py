@@ -105,9 +105,12 @@ def keys(ctx, rig_path, port, out, fps, step, interpolation, baud, force, view_a
                 link.close()
     else:
         source = _capture(rig, port, baud, desk)
-    frames = session.keys.keys[-1].frame if session.keys.keys else 0
-    click.echo(f"shot: {out}\nkeys: {len(session.keys.keys)}, {frames} frames at {fps:g} fps\n"
-               f"faults seen: {dict(source.log.counts) or 'none'}")
+    if session.written:
+        frames = session.keys.keys[-1].frame if session.keys.keys else 0
+        click.echo(f"shot: {out}\nkeys: {len(session.keys.keys)}, {frames} frames at {fps:g} fps")
+    else:  # the shot is written at its first key: none taken, nothing written
+        click.echo(f"shot: none: no key was taken, nothing written to {out}")
+    click.echo(f"faults seen: {dict(source.log.counts) or 'none'}")
     if link is not None:
         click.echo(f"link: {report_link(link)['link']}")
 
@@ -171,8 +174,8 @@ def _edit(shot: str, out: str, force: bool, change) -> None:
                           what="shot")
     new = change(keys)
     write_shot(target, header, new)
-    click.echo(f"shot: {out}\nkeys: " + ", ".join(f"{i}@{k.frame} {k.interpolation}"
-                                                 for i, k in enumerate(new.keys)))
+    click.echo(f"shot: {out}\nkeys: " + ", ".join(f"{k.id}@{k.frame} {k.interpolation}"
+                                                 for k in new.keys))
 
 
 @keys.command()

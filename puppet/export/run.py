@@ -269,6 +269,33 @@ def take_frames(rig, reader, fps: float) -> Playback:
     return Playback.of_take(reader, ids, fps=fps, rig=rig)
 
 
+PC2_HEADER_BYTES = 32
+BVH_BYTES_PER_CHANNEL = 10  # a channel's value as BVH text, with its separator
+
+
+def estimated_bytes(fmt: str, frames: int, vertices: int, joints: int) -> int:
+    """About how many bytes an export of ``frames`` frames writes (exact for PC2: a header and
+    3 float32 per vertex per frame; USD: the points alone, 3 float32 per vertex per frame;
+    glTF: a key time and a rotation, translation and scale per joint per frame before key
+    reduction; BVH: six channels of text per joint per frame). Checked against
+    ``puppet.limits.EXPORT_BYTES`` before anything is written."""
+    if fmt == "pc2":
+        return PC2_HEADER_BYTES + frames * vertices * 12
+    if fmt == "usd":
+        return frames * vertices * 12
+    if fmt == "gltf":
+        return frames * (4 + joints * (16 + 12 + 12))
+    return frames * joints * 6 * BVH_BYTES_PER_CHANNEL
+
+
+def _bytes(n: float) -> str:
+    """A byte count in words: 2.0 TB, 16.0 GiB, 512 MB."""
+    for unit, size in (("TiB", 2**40), ("GiB", 2**30), ("MiB", 2**20), ("KiB", 2**10)):
+        if n >= size:
+            return f"{n / size:.1f} {unit}"
+    return f"{int(n)} bytes"
+
+
 class ExportWriters:
     """Every format asked in ``outputs``, written one solved frame at a time.
 
@@ -303,13 +330,23 @@ class ExportWriters:
                          what=f"--{fmt} output")
             if fmt in SUFFIXES and target.suffix.lower() not in SUFFIXES[fmt]:
                 raise ExportError(target, f"--{fmt} files are named *{' or *'.join(SUFFIXES[fmt])}")
+        self.order = SourceOrder(rig)
+        for fmt, target in items:  # before anything is written: a size no one meant
+            size = estimated_bytes(fmt, len(frames), self.order.n_out, rig.skeleton.bone_count)
+            if size > limits.EXPORT_BYTES.hi and not self.force:
+                raise ExportError(target, f"the --{fmt} output would be about {_bytes(size)} "
+                                          f"({len(frames)} frames at {frames.fps:g} fps, "
+                                          f"{self.order.n_out} vertices, "
+                                          f"{rig.skeleton.bone_count} joints), over the "
+                                          f"{_bytes(limits.EXPORT_BYTES.hi)} an export writes "
+                                          "without --force (puppet.limits.EXPORT_BYTES); "
+                                          "lower --fps, or pass --force to write it")
         if "bvh" in dict(items):
             self._bvh_offsets, self._end_sites = _bvh_skeleton(rig)
         self.rig, self.items, self.targets = rig, items, dict(items)
         self.up, self.influences, self.meters_per_unit = up, influences, meters_per_unit
         self.fps = frames.fps
         self.key_frames = frames.key_frames()  # a shot's key poses: glTF keys whatever --keys
-        self.order = SourceOrder(rig)
         self.report = ExportReport(frames=len(frames), fps=frames.fps, cuts=list(frames.cuts),
                                    take_seconds=(frames.t_ns[-1] - frames.t_ns[0]) * 1e-9)
         if "pc2" in self.targets:
