@@ -163,6 +163,8 @@ def read_rig_file(path) -> RigFile:
         raise RigError("is a folder, not a rig file", path=path) from None
     except OSError as err:
         raise RigError(f"cannot read rig file: {err.strerror or err}", path=path) from err
+    if raw.startswith(b"\xef\xbb\xbf"):  # a byte-order mark (Windows editors): not TOML
+        raw = raw[3:]
     try:
         text = raw.decode("utf-8")
     except UnicodeDecodeError as err:
@@ -234,6 +236,7 @@ def read_rig_text(text: str, *, path, base) -> RigFile:
         fail("must be an array of tables [[servo]]", "servo", lines.top("servo"))
     parsed = [_read_servo(i, s, lines, fail) for i, s in enumerate(servos)]
     servo_map = ServoMap(parsed, path=path)
+    _check_contradictions(mesh, skin, fixed, parsed, extras, lines, fail)
 
     pins = doc.get("pin", [])
     if not isinstance(pins, list) or not all(isinstance(p, dict) for p in pins):
@@ -259,6 +262,37 @@ def read_rig_text(text: str, *, path, base) -> RigFile:
             pin_points.append((_vector(pin["point"], f"{label} point", at, fail), at))
     return RigFile(Path(str(path)), name, mesh, skeleton, weights, calibration, tuple(fixed),
                    solver, servo_map, pin_vertices, pin_points, lines, skin, extras)
+
+
+def _check_contradictions(mesh: Path, skin, fixed, servos, extras, lines: _Lines, fail) -> None:
+    """Refuse keys that contradict each other, naming the line of the later one: a servo on a
+    bone declared fixed (held rigidly: it has no joint to read or drive), ``skin`` on a mesh
+    that is not glTF, a ``[[limit]]`` on a fixed bone or on a bone a sensor servo reads (limits
+    bound what the solve decides), two ``[[limit]]`` on one bone. (Two servos about one axis
+    of a joint: ``ServoMap.joints``.)"""
+    for i, servo in enumerate(servos):
+        if servo.joint in fixed:
+            fail(f"servo {servo.id} is on joint {servo.joint!r}, which 'fixed' (line "
+                 f"{lines.top('fixed')}) holds rigidly: a fixed bone has no joint to "
+                 f"{'drive' if servo.role == 'actuator' else 'read'}; remove the bone from "
+                 "'fixed' or the servo", f"servo #{i + 1} joint", lines.key("servo", i, "joint"))
+    if skin is not None and mesh.suffix.lower() not in (".glb", ".gltf"):
+        fail(f"'skin' picks one of a glTF file's skins, but the mesh {mesh.name} is not glTF "
+             "(.glb/.gltf): remove 'skin'", "skin", lines.top("skin"))
+    sensed = {servo.joint: servo.id for servo in servos if servo.role != "actuator"}
+    seen: dict[str, int | None] = {}
+    for limit in extras.limits:
+        if limit.bone in fixed:
+            fail(f"limit on bone {limit.bone!r}, which 'fixed' holds rigidly: limits bound a "
+                 "bone the solve decides; remove the limit", "limit", limit.line)
+        if limit.bone in sensed:
+            fail(f"limit on bone {limit.bone!r}, which servo {sensed[limit.bone]} reads: limits "
+                 "bound a bone the solve decides (a servo's own range is its limits_deg); "
+                 "remove the limit", "limit", limit.line)
+        if limit.bone in seen:
+            fail(f"a second limit on bone {limit.bone!r} (the first is on line "
+                 f"{seen[limit.bone]}): one [[limit]] per bone", "limit", limit.line)
+        seen[limit.bone] = limit.line
 
 
 def _read_solver(table, lines, fail) -> SolverOptions:
