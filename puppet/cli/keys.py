@@ -91,6 +91,9 @@ def keys(ctx, rig_path, port, out, fps, step, interpolation, baud, force, view_a
         raise click.UsageError(f"missing {', '.join(missing)} (or a command: retime, delete, interpolation, goto)")
     if link_address is not None and view_address is None:
         raise click.UsageError("--link streams the live loop that --view runs: add --view")
+    from puppet.keys.shot import check_shot_path
+
+    check_shot_path(out)
     rig = load_rig(rig_path)
     check_take_path(out, rig, force=force)  # before the port: a mistake costs nothing
     session = KeySession(out, take_header(rig), fps=fps, step=step, interpolation=interpolation)
@@ -166,7 +169,9 @@ def _edit(shot: str, out: str, force: bool, change) -> None:
     rule: never the input, an existing file only with --force)."""
     from puppet.atomic import check_output
     from puppet.keys import read_shot, write_shot
+    from puppet.keys.shot import check_shot_path
 
+    check_shot_path(out)
     header, keys, reader = read_shot(shot)
     if reader.recovery is not None:
         click.echo(f"warning: {shot}: {reader.recovery}", err=True)

@@ -19,6 +19,19 @@ from puppet.take import TakeError, TakeReader, TakeWriter
 from puppet.take.keys import Key, Keys, check_frames, check_interpolation
 
 
+SHOT_SUFFIX = ".mcap"
+"""A shot is a take (MCAP): its file is named *.mcap, as ``play``, ``export`` and ``batch`` find
+takes."""
+
+
+def check_shot_path(path) -> Path:
+    """``path``, or TakeError unless it is named *.mcap (a shot is a take)."""
+    path = Path(path)
+    if path.suffix.lower() != SHOT_SUFFIX:
+        raise TakeError(path, f"a shot is a take: name it *{SHOT_SUFFIX} (e.g. shot.mcap)")
+    return path
+
+
 def write_shot(path, header: dict, keys: Keys) -> None:
     """Write a shot: one reading per key at its time, then the keys channel; whole or absent
     (a temporary file renamed over ``path``). The caller has checked ``path``
@@ -42,6 +55,11 @@ def read_shot(path) -> tuple[dict, Keys, TakeReader]:
     """(header, keys, reader) of a shot; TakeError naming it when it has no keys channel."""
     reader = TakeReader(path)
     keys = reader.keys()
+    if keys is None and reader.truncated:
+        raise TakeError(path, f"no keys: the file is cut short ({reader.report.end}) before its "
+                              "keys channel (/puppet/keys), written at a shot's end; its "
+                              f"{len(reader)} key pose(s) still play as a take (`puppet play`, "
+                              "`puppet export`)")
     if keys is None:
         raise TakeError(path, "not a shot: the take has no keys channel (/puppet/keys); "
                               "record keys with `puppet keys`")

@@ -39,6 +39,8 @@ def read_character_npz(path):
     ``puppet/rig/builtin/make_character.py`` (keys: CHARACTER_KEYS)."""
     path = Path(path)
     check_regular_file(path, "character file")
+    if not path.exists():
+        raise RigError("character file not found", path=path)
     if not zipfile.is_zipfile(path):
         raise RigError("not a character .npz: not a zip archive (an .npz is written by "
                        "numpy.savez)", path=path)
