@@ -113,7 +113,9 @@ def keys(ctx, rig_path, port, out, fps, step, interpolation, baud, force, view_a
         click.echo(f"shot: {out}\nkeys: {len(session.keys.keys)}, {frames} frames at {fps:g} fps")
     else:  # the shot is written at its first key: none taken, nothing written
         click.echo(f"shot: none: no key was taken, nothing written to {out}")
-    click.echo(f"faults seen: {dict(source.log.counts) or 'none'}")
+    from puppet.events import describe_counts
+
+    click.echo(f"faults seen: {describe_counts(dict(source.log.counts))}")  # the summary's words
     if link is not None:
         click.echo(f"link: {report_link(link)['link']}")
 
@@ -189,7 +191,12 @@ def _edit(shot: str, out: str, force: bool, change) -> None:
 @click.option("--out", required=True, help="The retimed shot (.mcap; not the input).")
 @click.option("--force", is_flag=True, help="Replace an existing file at --out.")
 def retime(shot: str, moves: tuple[str, ...], out: str, force: bool) -> None:
-    """Move keys to new frames: INDEX=FRAME ... (refused if keys would reorder or share a frame).
+    """Move keys to new frames: KEY=FRAME ... (refused if keys would reorder or share a frame,
+    or a key would land past the shot's length, puppet.limits.SHOT_SECONDS: 1 h).
+
+    KEY is a key's id as `puppet keys` prints it (0, 1, 2, ... as taken): ids stay with their
+    keys across edits (a deleted key's id is not reused; a damaged key skipped on reading
+    renumbers nothing and stays in the output file).
 
     \b
     Example:

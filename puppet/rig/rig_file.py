@@ -7,7 +7,9 @@ Example (paths are relative to the rig file)::
     # skin = 0                    #   (.glb/.gltf with several skins: which one)
     # skeleton = "body.tgf"       #   a libigl TGF skeleton, and optionally
     # weights = "body.dmat"       #   DMAT weights (else bounded biharmonic weights, cached)
-    calibration = "critter.calibration.toml"   # optional, host-side zero ticks
+    calibration = "critter.calibration.toml"   # optional, host-side zero ticks; without it,
+                                  # <rig file's name>.calibration.toml beside the rig file when
+                                  # it exists (where `puppet calibrate` writes the zero ticks)
     fixed = ["hips"]              # bones held rigidly (sensed, identity joint)
 
     [solver]
@@ -171,7 +173,18 @@ def read_rig_file(path) -> RigFile:
         line = raw[:err.start].count(b"\n") + 1
         raise RigError(f"not UTF-8 text (byte 0x{raw[err.start]:02x} at offset {err.start}); "
                        "a rig file is TOML", path=path, line=line) from None
-    return read_rig_text(text, path=path, base=path.parent)
+    spec = read_rig_text(text, path=path, base=path.parent)
+    if spec.calibration is None and default_calibration(path).is_file():
+        spec.calibration = Path(os.path.abspath(default_calibration(path)))
+    return spec
+
+
+def default_calibration(rig_path) -> Path:
+    """The calibration file of a rig file that names none: ``<name>.calibration.toml`` beside
+    it (``my.toml`` -> ``my.calibration.toml``); read when it exists, written by ``puppet
+    calibrate``."""
+    rig_path = Path(rig_path)
+    return rig_path.with_name(f"{rig_path.stem}.calibration.toml")
 
 
 _TOML_LINE = re.compile(r"\(at line (\d+), column \d+\)|\(at end of document\)")

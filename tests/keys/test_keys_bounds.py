@@ -7,7 +7,6 @@ file; ``q`` ends a capture whose command queue is full; a capture with no key wr
 import json
 import time
 
-import numpy as np
 import pytest
 
 from puppet import limits
