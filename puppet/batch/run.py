@@ -255,8 +255,8 @@ def _refuse_rig_files(jobs: list[Job], rows: dict, finder: RigFinder, inputs: li
     inputs = list(dict.fromkeys([*inputs, *(path for take_rig in finder.rigs()
                                             for path in loaded_files(take_rig.rig))]))
     for job in jobs:
-        if rows[job.take].state != TO_DO:
-            continue
+        if rows[job.take].state != TO_DO or not job.log.parent.is_dir():
+            continue  # a dry run's folder yet to be made holds nothing to refuse
         try:
             for fmt, target in job.outputs.items():
                 check_output(target, kind=KINDS[fmt], inputs=inputs, force=force)
