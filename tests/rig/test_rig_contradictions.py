@@ -41,6 +41,16 @@ def test_a_servo_on_a_fixed_bone_is_refused_naming_its_line(tmp_path):
     assert err.line == _line_of(text, 'joint = "neck"')
 
 
+def test_guided_calibration_refuses_a_servo_on_a_fixed_bone_before_asking(tmp_path):
+    from puppet.rig.guided_calibration import GuidedCalibration
+
+    text = TEXT.replace('fixed = ["hips"]', 'fixed = ["hips", "neck"]')
+    with pytest.raises(RigError) as err:
+        GuidedCalibration(_rig_file(tmp_path, text))
+    assert "servo on joint 'neck', which 'fixed' holds rigidly" in str(err.value)
+    assert err.value.field == "servo #1 joint"
+
+
 def test_two_servos_about_one_axis_of_a_joint_are_refused(tmp_path):
     first = _line_of(TEXT, "id = 3")
     lines = TEXT.splitlines()
