@@ -39,7 +39,8 @@ import hw_sim
 from puppet.bus.link import BusLink
 from puppet.reading import Reading
 from puppet.drive import PerformOptions, perform
-from puppet.drive import items as it
+from puppet.drive.items import StateLayout
+from puppet.servo_models import X_ITEMS
 from puppet.drive.servos import DriveBus
 from puppet.bus.reader_process import ReaderProcess
 from puppet.drive.actuators import ActuationPlan, ActuatorHook, LiveActuation
@@ -53,7 +54,8 @@ SERVOS = 15
 BAUDS = (1_000_000, 4_000_000)
 
 
-def wire_ceiling_hz(servos: int, baud: int, fast: bool, read_bytes: int = it.STATE.size) -> float:
+def wire_ceiling_hz(servos: int, baud: int, fast: bool,
+                    read_bytes: int = StateLayout.of(X_ITEMS).block.size) -> float:
     """1 / wire time of one goal Sync Write + one (Fast) Sync Read and its replies."""
     sync_write = 14 + servos * (1 + 4)          # header..INST 8, addr 2, len 2, CRC 2
     sync_read = 14 + servos                     # same, plus one id per servo

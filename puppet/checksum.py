@@ -1,17 +1,13 @@
-"""sha256 content keys: of files, of bytes, and of the character a rig solves.
+"""sha256 content keys of files and of bytes.
 
-Batch manifests key a take's outputs on them (``puppet.batch.manifest``); a take records its
-character's (``puppet.replay.RIG_CHARACTER_MARK``) so the rig it is replayed on is the one it
-was recorded on.
+Batch manifests key a take's outputs on them (``puppet.batch.manifest``). The character a rig
+solves has its own (``puppet.rig.checksum.character_sha256``).
 """
 
 from __future__ import annotations
 
 import hashlib
 import os
-from pathlib import Path
-
-import numpy as np
 
 _CHUNK = 1 << 20
 
@@ -28,27 +24,3 @@ def file_sha256(path: str | os.PathLike) -> str:
 def bytes_sha256(data: bytes | str) -> str:
     """sha256 (hex) of bytes (a str as UTF-8)."""
     return hashlib.sha256(data.encode("utf-8") if isinstance(data, str) else data).hexdigest()
-
-
-def character_sha256(rig) -> str:
-    """sha256 (hex) of the character a rig solves, as loaded: rest vertices, triangles, weights,
-    the skeleton (names, parents, heads, tails, frames) and the source vertex order; for a glTF
-    character, also the bytes of its file and of the buffers and images it names (its look and
-    place, which exports carry: ``Rig.source``). The same character gives the same checksum
-    whichever folder it was read from."""
-    from puppet.rig.gltf import external_files
-
-    h = hashlib.sha256()
-    source = getattr(rig, "source", None)
-    if source is not None:
-        for path in [Path(source.path), *external_files(source.path)]:
-            h.update(file_sha256(path).encode() if path.is_file() else b"missing")
-    skeleton = rig.skeleton
-    arrays = [rig.V, rig.F, rig.W, skeleton.parents, skeleton.heads, skeleton.tails,
-              skeleton.frames, rig.source_index if rig.source_index is not None else np.zeros(0)]
-    for array in arrays:
-        array = np.ascontiguousarray(array)
-        h.update(f"{array.dtype.str}{array.shape}".encode())
-        h.update(array.tobytes())
-    h.update("\0".join(skeleton.names).encode("utf-8"))
-    return h.hexdigest()

@@ -1,20 +1,19 @@
 """The main job on the embedded default: the built-in character on a simulated bus.
 
-``run_demo`` starts ``hw_sim`` with a performance made for the rig (every sensed joint swings
-within its limits, left and right half a cycle apart), reads it through the same
-``puppet.bus`` reader as real hardware (in its own process), and runs the live loop.
+``demo_source`` is ``hw_sim`` with a performance made for the rig (every sensed joint swings
+within its limits, left and right half a cycle apart), read through the same ``puppet.bus``
+reader as real hardware (in its own process); ``puppet demo`` runs it as a live session.
 """
 
 from __future__ import annotations
 
 import math
-import threading
 from collections.abc import Callable
 from typing import TYPE_CHECKING
 
-import hw_sim
-from puppet.bus.reader_process import ReaderProcess
 from puppet.rig import Rig, builtin
+from puppet.session.outputs import Output
+from puppet.session.sources import SimulatedBus
 
 if TYPE_CHECKING:
     from puppet.loop import Pipeline, Summary
@@ -60,98 +59,69 @@ class Performance:
         return zero + angle * scale
 
 
-class _Starting:
-    """``source.start()`` on a thread of its own, so that the reader's child process (spawned:
-    a fresh interpreter that imports the bus code and opens the port) gets going while this
-    process builds the pipeline. ``wait()`` returns the setup report or raises the start's error."""
-
-    def __init__(self, source):
-        self._source = source
-        self._result = None
-        self._error = None
-        self._thread = threading.Thread(target=self._run, name="puppet-reader-start", daemon=True)
-        self._thread.start()
-
-    def _run(self) -> None:
-        try:
-            self._result = self._source.start()
-        except BaseException as err:  # noqa: BLE001 - handed to wait(), raised there
-            self._error = err
-
-    def join(self) -> None:
-        """Wait for the start to end, whatever its outcome (before stopping the source)."""
-        self._thread.join()
-
-    def wait(self):
-        self._thread.join()
-        if self._error is not None:
-            raise self._error
-        return self._result
-
-
-def run_demo(*, seconds: float | None, sinks_for: Callable[[Pipeline], list], faults=None, width: int = 640,
-             height: int = 480, iterations: int = 8, video_fps: float = 30.0, overlay: bool = True,
-             antialias: str = "auto",
-             timing: bool = True, baud: int = 1_000_000, rate_hz: float = DEMO_READ_RATE_HZ,
-             latency_ms: int = 3, render_options: dict | None = None,
-             should_stop: Callable[[], bool] = lambda: False,
-             on_frame: Callable[[Summary], None] | None = None,
-             started_s: float | None = None, latch_fps: float | None = 60.0, view=None,
-             rig=None, link=None) -> tuple[Summary, object]:
-    """Run the built-in character on hw_sim for ``seconds``; returns (summary, setup report).
-
-    rig: the built-in character as loaded (default ``builtin()``; e.g. its secondary-motion
-        variant ``load_rig(BUILTIN_DYNAMICS_RIG)``): the simulated servos play its performance.
-
-    sinks_for: called with the ready Pipeline, returns the sinks to feed (e.g. a VideoSink).
-    seconds: length of the run (None: until ``should_stop()``).
-    faults: a hw_sim fault file (or schedule) to play during the run.
-    view: a puppet.view.View (bound, not attached) to watch the run in a browser.
-    link: a puppet.link.Link (bound, not attached) streaming the solves to Blender.
-    rate_hz: bus readings per second (the reader process's steady rate; each frame also asks
-        for a reading of its own, see puppet.loop.LateLatch).
+def demo_source(rig: Rig, *, faults=None, timing: bool = True, baud: int = 1_000_000,
+                rate_hz: float = DEMO_READ_RATE_HZ, latency_ms: int = 3) -> SimulatedBus:
+    """The demo's reading source: hw_sim serving ``rig``'s servos playing its ``Performance``
+    (and ``faults``: a hw_sim fault file or schedule), read by the bus reader process.
     latency_ms: the SDK's latency assumption; 3 ms leaves the simulator (a process competing
-        for the same cores as the renderer and the video encoder) room to answer late.
-    render_options: more Renderer keywords (see Pipeline), for benchmarks.
-    should_stop: polled every frame (Ctrl-C, SIGTERM); started_s, latch_fps: see ``run_live``.
+    for the same cores as the renderer and the video encoder) room to answer late."""
+    return SimulatedBus(rig, Performance(rig), faults=faults, timing=timing, baud=baud,
+                        rate_hz=rate_hz, latency_ms=latency_ms)
 
-    Order of setup: hw_sim forks its server first, while this process has no thread and no GL
-    context (forking a process that has threads can deadlock the child); the reader process is
-    spawned (fork and exec at once, safe with threads) and opens the bus while the pipeline
-    (precompute, GL context, shaders) is built here.
+
+class _Given(Output):
+    """Sinks, a view or a link made by the caller (benchmarks, tests) as a session output."""
+
+    sinks: list = []  # an attribute here (the base's is a property)
+
+    def __init__(self, *, sinks_for=None, view=None, link=None, fps=None) -> None:
+        self._sinks_for, self._view, self._link, self._fps = sinks_for, view, link, fps
+        self.sinks = []
+
+    def open(self, run) -> None:
+        if self._sinks_for is not None:
+            self.sinks = list(self._sinks_for(run.pipeline))
+        if self._view is not None:
+            self._view.attach(run.pipeline, source=run.source.reading_source)
+            self.view = self._view
+        if self._link is not None:
+            self._link.attach(run.pipeline, fps=self._fps)
+            self.link = self._link
+
+    def close(self) -> None:
+        sinks, self.sinks = self.sinks, []
+        for sink in sinks:
+            if getattr(sink, "count", 1) == 0 and hasattr(sink, "abort"):
+                sink.abort()
+            else:
+                sink.close()
+
+
+def run_demo(*, seconds: float | None, sinks_for: Callable[[Pipeline], list], faults=None,
+             width: int = 640, height: int = 480, iterations: int = 8, video_fps: float = 30.0,
+             overlay: bool = True, antialias: str = "auto", timing: bool = True,
+             baud: int = 1_000_000, rate_hz: float = DEMO_READ_RATE_HZ, latency_ms: int = 3,
+             render_options: dict | None = None, on_frame: Callable[[int], None] | None = None,
+             latch_fps: float | None = 60.0, view=None, rig=None, link=None
+             ) -> tuple[Summary, object]:
+    """The demo as one session with sinks, a view or a link made by the caller (benchmarks,
+    tests); ``puppet demo`` builds its session from ``demo_source`` and the session's outputs.
+    Returns (summary, setup report).
+
+    sinks_for(pipeline): the sinks to feed (e.g. a VideoSink). seconds: the run's length (None:
+    until a signal). view / link: a puppet.view.View / puppet.link.Link, bound, not attached.
+    on_frame(frames done): after each frame. The rest: ``demo_source`` and Pipeline keywords.
     """
-    rig = builtin() if rig is None else rig
-    models = rig.servo_map.models
-    with hw_sim.serve(models, motion=Performance(rig), faults=faults, timing=timing, baud=baud) as bus:
-        source = ReaderProcess(bus.link, models, rate_hz=rate_hz, baud=baud, latency_ms=latency_ms)
-        starting = _Starting(source)
-        # Imported only now: the solver and renderer imports (scipy, moderngl) then overlap with
-        # the reader process's own start.
-        from puppet.loop import Pipeline, run_live
+    from puppet.session import Session
 
-        try:
-            with Pipeline(rig, iterations=iterations, width=width, height=height, overlay=overlay,
-                          antialias=antialias, render_options=render_options, live=True) as pipeline:
-                if pipeline.renderer is not None:
-                    pipeline.draw()  # compiles the shaders (llvmpipe: at first use) while the reader starts
-                report = starting.wait()
-                sinks = sinks_for(pipeline)
-                try:
-                    if view is not None:
-                        view.attach(pipeline, source=source)
-                    if link is not None:  # frames at the loop's target rate
-                        link.attach(pipeline, fps=latch_fps or rate_hz)
-                    summary = run_live(pipeline, source, seconds=seconds, sinks=sinks,
-                                       video_fps=video_fps, should_stop=should_stop,
-                                       on_frame=on_frame, started_s=started_s, latch_fps=latch_fps,
-                                       view=view, link=link)
-                except BaseException:
-                    for sink in sinks:  # an error or a second Ctrl-C: keep no half file
-                        getattr(sink, "abort", sink.close)()
-                    raise
-                for sink in sinks:
-                    sink.close()
-        finally:
-            starting.join()
-            source.stop()
-    return summary, report
+    rig = builtin() if rig is None else rig
+    given = _Given(sinks_for=sinks_for, view=view, link=link, fps=latch_fps or rate_hz)
+    session = Session(rig, demo_source(rig, faults=faults, timing=timing, baud=baud,
+                                       rate_hz=rate_hz, latency_ms=latency_ms),
+                      [given], seconds=seconds, video_fps=video_fps, latch_fps=latch_fps,
+                      on_frame=on_frame,
+                      pipeline={"iterations": iterations, "width": width, "height": height,
+                                "overlay": overlay, "antialias": antialias,
+                                "render_options": render_options, "live": True, "render": True})
+    summary = session.run()
+    return summary, session.setup

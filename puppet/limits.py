@@ -117,3 +117,39 @@ EXPORT_BYTES = Range(0, 16 * 2**30, "bytes", integer=True)
 """The most an export writes to one file without ``--force`` (16 GiB), estimated from the
 frames, vertices and joints before anything is written (``puppet.export.run.estimated_bytes``):
 a point cache of a long take of a dense mesh grows as frames × vertices × 12 bytes."""
+
+SOUND_SECONDS_MAX = 900.0
+"""A sound (--sound FILE) lasts at most 15 minutes: a performance to a voice or a song, and
+330 MB decoded at 48 kHz stereo (float32), what a 2-core machine's memory takes beside a render."""
+SOUND_RATES = (8000, 11025, 16000, 22050, 24000, 32000, 44100, 48000, 88200, 96000, 176400,
+               192000)
+"""Sample rates a sound may have (Hz): the standard ones; anything else is refused."""
+SOUND_CHANNELS_MAX = 8
+"""Channels a sound may have (7.1 at most)."""
+COUNT_IN_S = Range(0.0, 60.0, "s")
+"""--count-in: seconds counted in before a take's time 0."""
+SOUND_OFFSET = Range(-SOUND_SECONDS_MAX, SOUND_SECONDS_MAX, "s")
+"""--sound-offset: the sound's time at the take's time 0 (negative: the sound starts after it)."""
+
+# Session folders (puppet.studio): what one index holds, bounded so that it stays a file a person
+# can read and the page can list at once.
+SESSION_TAKES = 10_000
+"""Takes in one session folder, trashed ones included (a take's number is never reused)."""
+SESSION_SHOTS = 1_000
+"""Shots in one session folder."""
+TAKE_NUMBER = Range(1, SESSION_TAKES, integer=True)
+"""A take's number within its shot (take 1 is the shot's first recording)."""
+NOTE_CHARS = 2_000
+"""Characters of a take's note."""
+NAME_CHARS = 80
+"""Characters of a shot's or a segment's name."""
+SEGMENTS_PER_TAKE = 100
+"""Segments (named in/out clips) of one take."""
+INDEX_BYTES = 32 * 1024 * 1024
+"""Size of a session's index file (10 000 takes with notes and segments fit); a larger file is
+not read: it is treated as damaged and rebuilt from the takes."""
+SESSION_FREE_BYTES = 16 * 1024 * 1024
+"""Free space a session folder's disk must have before a recording starts (about four minutes of
+15 servos read at 500 Hz: 131 bytes a reading)."""
+SECONDS_FROM_START = Range(0.0, 1e6, "s")
+"""A point in a take: seconds from its first reading (a segment's in and out)."""

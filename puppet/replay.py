@@ -16,18 +16,7 @@ from pathlib import Path
 
 from puppet.rig import Rig
 from puppet.take import TakeError, TakeReader
-
-RIG_SOURCE_MARK = "# puppet: recorded from rig file "
-"""Last line added to the rig map text a take stores: where that rig file was when recording
-began, so ``play``/``export`` without ``--rig`` find its character files (relative paths are
-relative to it). A TOML comment: the stored text parses as the rig file did, same line numbers;
-takes without it (older ones) still play."""
-
-
-RIG_CHARACTER_MARK = "# puppet: recorded on character sha256 "
-"""Line added before RIG_SOURCE_MARK: the checksum of the character the take was recorded on
-(``puppet.checksum.character_sha256``), so a take replayed without ``--rig`` is never solved on
-a character changed since (its rig file's character edited or replaced). Older takes lack it."""
+from puppet.take.header import RIG_CHARACTER_MARK, RIG_SOURCE_MARK
 
 
 def _mark(meta, mark: str) -> str | None:
@@ -50,15 +39,16 @@ def recorded_character(meta) -> str | None:
     return _mark(meta, RIG_CHARACTER_MARK)
 
 
-def take_inputs(take, rig: Rig) -> list[Path]:
+def take_inputs(take, rig: Rig, sound=None) -> list[Path]:
     """Every file a command replaying ``take`` on ``rig`` reads, which none of its outputs may
-    be (``puppet.atomic.check_output``'s inputs): the take, and the rig's files
+    be (``puppet.atomic.check_output``'s inputs): the take, the rig's files
     (``puppet.rig.rig_file.loaded_files``: for the rig the take stores, the character, buffers,
-    images and calibration found for it). The one place to add the files a take will name (its
-    sound, its session files)."""
+    images and calibration found for it) and its sound (``sound``: a SoundRef with a path: the
+    take's stored one, or the --sound file given; None: none). The one list of a replay's
+    inputs: add the files a take will name (its session files) here."""
     from puppet.rig.rig_file import loaded_files
 
-    return [Path(take), *loaded_files(rig)]
+    return [Path(take), *loaded_files(rig), *([Path(sound.path)] if sound is not None else [])]
 
 
 def rig_from_take(take, meta) -> Rig:
@@ -70,7 +60,7 @@ def rig_from_take(take, meta) -> Rig:
     recorded its character's checksum (RIG_CHARACTER_MARK) is refused (TakeError) when the
     character found is another one.
     """
-    from puppet.checksum import character_sha256
+    from puppet.rig.checksum import character_sha256
     from puppet.rig import builtin
     from puppet.rig.load import BUILTIN_RIG, builtin_name, load_rig_text
 

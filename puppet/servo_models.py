@@ -47,6 +47,28 @@ PRESENT_LOAD_UNIT_PCT = 0.1
 VELOCITY_UNIT_RPM = 0.229
 """Profile Velocity / Present Velocity unit, rev/min, of the X-series and MX(2.0) models."""
 
+REALTIME_TICK_WRAP = 32768
+"""Realtime Tick counts milliseconds and wraps to 0 after 32767."""
+
+HARDWARE_ERROR_BITS = {
+    0: "input voltage",
+    2: "overheating",
+    3: "motor encoder",
+    4: "electrical shock",
+    5: "overload",
+}
+"""Hardware Error Status bits (Protocol 1.0's status error byte keeps 0, 2 and 5 the same)."""
+
+
+def describe_hardware_error(bits: int) -> str:
+    """Hardware Error Status bits -> 'overheating, overload' ('none' for 0)."""
+    names = [name for bit, name in HARDWARE_ERROR_BITS.items() if bits & (1 << bit)]
+    unknown = bits & ~sum(1 << bit for bit in HARDWARE_ERROR_BITS)
+    if unknown:
+        names.append(f"unknown bits 0x{unknown:02x}")
+    return ", ".join(names) if names else "none"
+
+
 PROTOCOL_1 = 1.0
 PROTOCOL_2 = 2.0
 """Dynamixel protocol versions, as ``dynamixel_sdk.PacketHandler`` takes them."""
@@ -104,7 +126,9 @@ class ControlItems:
     ``baud_rate``, ``id``, ``model_number``, ``firmware_version``. Protocol 2.0 only:
     ``hardware_error_status`` (Protocol 1.0 reports errors in every status packet's error byte
     instead), ``operating_mode`` (XL-320: Control Mode, 1 wheel / 2 joint), ``drive_mode``,
-    ``bus_watchdog``, ``realtime_tick`` (also MX on Protocol 1.0, address 50).
+    ``bus_watchdog``, ``realtime_tick`` (also MX on Protocol 1.0, address 50). The X layout
+    only (X-series, MX(2.0)): ``moving_status`` (b0 in position), ``profile_acceleration``
+    (the start profile's; other families start at Moving Speed).
     """
 
     model_number: Item
@@ -134,6 +158,8 @@ class ControlItems:
     drive_mode: Item | None = None
     bus_watchdog: Item | None = None
     realtime_tick: Item | None = None
+    moving_status: Item | None = None
+    profile_acceleration: Item | None = None
 
 
 def _x_items(current: bool) -> ControlItems:
@@ -158,7 +184,9 @@ def _x_items(current: bool) -> ControlItems:
         operating_mode=Item("Operating Mode", 11, 1, eeprom=True),
         drive_mode=Item("Drive Mode", 10, 1, eeprom=True),
         bus_watchdog=Item("Bus Watchdog", 98, 1, signed=True),
-        realtime_tick=Item("Realtime Tick", 120, 2))
+        realtime_tick=Item("Realtime Tick", 120, 2),
+        moving_status=Item("Moving Status", 123, 1),
+        profile_acceleration=Item("Profile Acceleration", 108, 4))
 
 
 def _p1_items(mx: bool = False, current: bool = False) -> ControlItems:
@@ -198,7 +226,7 @@ _XL320_ITEMS = ControlItems(
     operating_mode=Item("Control Mode", 11, 1, eeprom=True))
 
 X_ITEMS = _x_items(current=True)
-"""The X-series items (current-sensing models): what ``puppet.bus.control_table`` names."""
+"""The X-series items (current-sensing models)."""
 
 BAUDS_X330 = (9600, 57600, 115200, 1_000_000, 2_000_000, 3_000_000, 4_000_000)
 BAUDS_X430 = BAUDS_X330 + (4_500_000,)

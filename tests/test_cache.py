@@ -8,6 +8,7 @@ import os
 from pathlib import Path
 
 import numpy as np
+import pytest
 from puppet import cache
 from puppet.fast import FastModel, model as fast_model
 from puppet.rig import bbw
@@ -92,3 +93,38 @@ def test_cache_failures_are_logged(tmp_path, caplog):
         c = FastModel(V, F, W, clusters=5, cache_dir=blocked)
     np.testing.assert_array_equal(a.Q, c.Q)
     assert any("not written" in r.getMessage() and str(blocked) in r.getMessage() for r in caplog.records)
+
+
+def test_an_entry_is_keyed_by_the_code_digest_and_every_input(tmp_path, caplog):
+    data = np.arange(6, dtype=np.float64).reshape(2, 3)
+    entry = cache.Entry.keyed(tmp_path, "part", ".npy", "code-1", data, 7)
+    assert entry.path.parent == tmp_path and entry.path.name.startswith("part-")
+    assert entry.load(np.load) is None                     # nothing stored yet
+    entry.store(lambda tmp: np.save(tmp, data))
+    np.testing.assert_array_equal(cache.Entry.keyed(tmp_path, "part", ".npy", "code-1", data, 7).load(np.load), data)
+    # Another code digest, another input (value, dtype or shape): another entry, a miss.
+    for other in [("code-2", data, 7), ("code-1", data, 8), ("code-1", data.astype(np.float32), 7),
+                  ("code-1", data.reshape(3, 2), 7)]:
+        assert cache.Entry.keyed(tmp_path, "part", ".npy", *other).load(np.load) is None
+    # A stored value the reader refuses is a logged miss.
+    def refuse(path):
+        raise ValueError("not what this part stores")
+
+    with caplog.at_level(logging.WARNING, logger="puppet.cache"):
+        assert entry.load(refuse) is None
+    assert any("unreadable" in r.getMessage() and str(entry.path) in r.getMessage() for r in caplog.records)
+
+
+def test_the_lod_key_covers_the_code(monkeypatch, tmp_path):
+    from puppet.render import lod
+
+    monkeypatch.setenv("PUPPET_CACHE", str(tmp_path))
+    V, F, _ = _tube()
+    first = lod.simplified_triangles(V, F, len(F) // 2)
+    assert len(list((tmp_path / "render").glob("lod-*.npy"))) == 1
+    monkeypatch.setattr(lod, "_simplify", lambda *args: pytest.fail("simplified again"))
+    np.testing.assert_array_equal(lod.simplified_triangles(V, F, len(F) // 2), first)  # a hit
+    # Edited lod code: a new key, computed again (nothing stale reused).
+    monkeypatch.setattr(lod, "code_digest", lambda *paths: "edited")
+    with pytest.raises(pytest.fail.Exception, match="simplified again"):
+        lod.simplified_triangles(V, F, len(F) // 2)

@@ -21,6 +21,8 @@ import threading
 from collections.abc import Iterator
 from contextlib import contextmanager
 
+from puppet.session.signals import Signals
+
 STOP_GRACE_S = 5.0
 """How long a worker process has to exit after SIGTERM before it is killed (SIGKILL)."""
 
@@ -28,7 +30,6 @@ CANCEL_WITHIN_S = 30.0
 """Documented bound from the signal to the driver's exit, workers and staging gone (local:
 STOP_GRACE_S at most; Ray: its tasks cancelled and a private instance shut down)."""
 
-SIGNALS = (signal.SIGINT, signal.SIGTERM)
 
 
 class BatchCancelled(KeyboardInterrupt):
@@ -53,13 +54,13 @@ class _State:
     pending: str | None = None
     cancelled: str | None = None
     received = None      # the Received of the active block
+    signals = None       # its puppet.session.signals.Signals
 
 
 _state = _State()
 
 
-def _on_signal(signum, _frame) -> None:
-    name = signal.Signals(signum).name
+def _on_signal(name: str) -> None:
     if _state.cancelled is not None:
         return  # already stopping: the cleanup is bounded
     if _state.held:
@@ -90,24 +91,22 @@ def cancel_on_signals() -> Iterator[Received]:
     if threading.current_thread() is not threading.main_thread():
         yield received
         return
-    previous = {s: signal.signal(s, _on_signal) for s in SIGNALS}
     _state.held, _state.pending, _state.cancelled, _state.active = 0, None, None, True
     _state.received = received
     try:
-        yield received
+        with Signals(on_signal=_on_signal) as signals:
+            _state.signals = signals
+            yield received
     finally:
-        for s, handler in previous.items():
-            signal.signal(s, signal.SIG_DFL if handler is None else handler)
         _state.held, _state.pending, _state.cancelled, _state.active = 0, None, None, False
-        _state.received = None
+        _state.received = _state.signals = None
 
 
 def reclaim_signals() -> None:
     """Set our handlers again inside ``cancel_on_signals`` after a library replaced them (``ray.init``
     sets its own SIGTERM handler, and its core a C-level one)."""
-    if _state.active and threading.current_thread() is threading.main_thread():
-        for s in SIGNALS:
-            signal.signal(s, _on_signal)
+    if _state.active and _state.signals is not None:
+        _state.signals.reclaim()
 
 
 @contextmanager

@@ -56,7 +56,7 @@ class Made:
     take: the take file; take_sha256: its bytes; rig_name, rig_file: the rig (file as the user
     knows it: the --rig file, or the rig file the take was recorded with); rig_sha256: the rig's
     text (the --rig file's bytes, or the rig map the take stores); character:
-    ``puppet.checksum.character_sha256``;
+    ``puppet.rig.checksum.character_sha256``;
     settings: shaping_settings; version: puppet's version."""
 
     take: str

@@ -27,8 +27,9 @@ from pathlib import Path
 from puppet.atomic import check_folder_output, check_output
 from puppet.batch.errors import BatchError
 from puppet.batch.manifest import MANIFEST_SUFFIX
-from puppet.checksum import bytes_sha256, character_sha256, file_sha256
+from puppet.checksum import bytes_sha256, file_sha256
 from puppet.rig import Rig
+from puppet.rig.checksum import character_sha256
 
 FORMATS = ("mp4", "gltf", "usd", "pc2", "bvh")
 SUFFIXES = {"mp4": ".mp4", "gltf": ".glb", "usd": ".usdc", "pc2": ".pc2", "bvh": ".bvh"}
@@ -74,14 +75,17 @@ def parse_formats(text: str | tuple[str, ...] | list[str]) -> tuple[str, ...]:
     return tuple(formats)
 
 
-def expand_takes(patterns: list[str] | tuple[str, ...]) -> list[tuple[Path, Path]]:
+def expand_takes(patterns: list[str] | tuple[str, ...],
+                 base: Path | None = None) -> list[tuple[Path, Path]]:
     """(take, base) for every take file the arguments name: files (base: their folder), folders
     (their *.mcap; base: the folder) and glob patterns (``**`` spans folders; base: the
-    pattern's leading folders without a wildcard). Sorted within each argument, duplicates
+    pattern's leading folders without a wildcard); ``base`` given: every take's base (a
+    session's takes/ folder: outputs mirror its shots). Sorted within each argument, duplicates
     dropped. BatchError if an argument matches nothing at all. Outputs mirror each take's folder
     below its base (``plan_jobs``)."""
     takes: list[tuple[Path, Path]] = []
     seen: set[Path] = set()
+    given = base
     if not patterns:
         raise BatchError("no takes given: name take files, folders or patterns (session/*.mcap)")
     for pattern in patterns:
@@ -101,7 +105,7 @@ def expand_takes(patterns: list[str] | tuple[str, ...]) -> list[tuple[Path, Path
             key = take.resolve()
             if key not in seen:
                 seen.add(key)
-                takes.append((take, base))
+                takes.append((take, given if given is not None else base))
     return takes
 
 
@@ -195,7 +199,7 @@ class TakeRig:
     rig: the loaded rig (uncalibrated: each take applies its own recorded calibration to a
     copy); file: the rig file in words (the --rig file, or the file the take was recorded
     with); rig_sha256: the rig's text (the --rig file's bytes, or the rig map the take stores);
-    character: ``puppet.checksum.character_sha256``."""
+    character: ``puppet.rig.checksum.character_sha256``."""
 
     key: str
     rig: Rig

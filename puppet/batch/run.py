@@ -170,7 +170,8 @@ def run_batch(takes: list[str], out: str | os.PathLike, *, rig: Rig | None = Non
               address: str | None = None, resume: bool = False, dry_run: bool = False,
               force: bool = False, retries: int | None = None,
               take_timeout: float | None = None, on_start: Callable[[int], None] | None = None,
-              on_result: Callable[[TakeResult], None] | None = None) -> BatchReport:
+              on_result: Callable[[TakeResult], None] | None = None,
+              base: Path | None = None) -> BatchReport:
     """Solve and write every take; see the module docstring for the order of checks.
 
     takes: files, folders or glob patterns; out: the output folder (created); rig: the rig
@@ -185,6 +186,8 @@ def run_batch(takes: list[str], out: str | os.PathLike, *, rig: Rig | None = Non
     (``manifest.changes``; a redone take's row says why). dry_run: decide and report, per take,
     what would be done and why (rows "to do", "skipped", "failed"), writing nothing.
     on_start(number of takes to run) and on_result(row) as each ends drive the progress.
+    base: the folder every take's outputs mirror below (a session's takes/ folder; default:
+    each argument's, ``plan.expand_takes``).
     SIGINT or SIGTERM (on the main thread) stops every worker, removes the staging folders and
     raises cancel.BatchCancelled with the report so far (takes not finished: cancelled).
     """
@@ -196,7 +199,7 @@ def run_batch(takes: list[str], out: str | os.PathLike, *, rig: Rig | None = Non
     if workers is not None and workers < 1:
         raise BatchError(f"--workers: {workers} must be >= 1")
     inputs = [Path(p) for p in rig_inputs]
-    found = expand_takes(takes)
+    found = expand_takes(takes, base)
     paths = [take for take, _ in found]
     folder = check_folder_output(out, what="output folder") if dry_run else prepare_out(out)
     if not dry_run:

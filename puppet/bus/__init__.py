@@ -37,7 +37,8 @@ from puppet.bus.errors import (
     ServoTimeout,
 )
 from puppet.bus.health import ServoHealth
-from puppet.bus.link import BusLink, set_latency_assumption
+from puppet.bus.latency import set_latency_assumption
+from puppet.bus.link import BusLink
 from puppet.bus.port_lock import PortInUse
 from puppet.bus.reader import ServoReader
 from puppet.bus.reader_thread import LatestQueue, ReaderDied, ReaderThread

@@ -5,10 +5,9 @@ from __future__ import annotations
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 
-from puppet.bus import control_table as ct
 from puppet.bus.errors import BusError, ServoError, ServoModelMismatch, ServoStatusError, ServoTimeout
 from puppet.bus.link import SILENT, BusLink
-from puppet.servo_models import X_ITEMS, ControlItems, protocol_of
+from puppet.servo_models import MODELS_BY_NUMBER, X_ITEMS, ControlItems, model_named, protocol_of
 
 
 @dataclass(frozen=True)
@@ -63,7 +62,7 @@ def identify(link: BusLink, servos: Mapping[int, str], report: SetupReport, atte
     mismatched: list[str] = []
     mismatched_ids: list[int] = []
     for dxl_id, model_name in servos.items():
-        model = ct.model_named(model_name)
+        model = model_named(model_name)
         for attempt in range(attempts):
             try:
                 number, firmware = link.ping(dxl_id)
@@ -75,7 +74,7 @@ def identify(link: BusLink, servos: Mapping[int, str], report: SetupReport, atte
             continue
         report.found[dxl_id] = ServoInfo(dxl_id, number, firmware)
         if number != model.number:
-            found = ct.MODELS_BY_NUMBER.get(number)
+            found = MODELS_BY_NUMBER.get(number)
             mismatched_ids.append(dxl_id)
             mismatched.append(f"id {dxl_id}: map says {model.name} ({model.number}), servo reports "
                               f"{found.name if found else 'model'} ({number})")
@@ -98,11 +97,11 @@ def check_baud(servos: Mapping[int, str], baud: int, port: str = "") -> None:
     RX and the XL-320, ...)."""
     slow: dict[str, list[int]] = {}
     for dxl_id, name in servos.items():
-        if int(baud) not in ct.model_named(name).baud_rates:
+        if int(baud) not in model_named(name).baud_rates:
             slow.setdefault(name, []).append(int(dxl_id))
     if slow:
         names = "; ".join(f"servo{'s' if len(ids) > 1 else ''} {', '.join(map(str, ids))} ({m}: "
-                          f"{_rates(ct.model_named(m).baud_rates)})" for m, ids in slow.items())
+                          f"{_rates(model_named(m).baud_rates)})" for m, ids in slow.items())
         raise BusError(f"{'port ' + port + ': ' if port else ''}{baud} bit/s is not a rate of "
                        f"{names}")
 
@@ -115,7 +114,7 @@ def p1_read_mode(servos: Mapping[int, str]) -> str:
     """How a Protocol 1.0 bus reads ``servos`` ({id: model name}), in words: 'bulk_read' (one
     Bulk Read, 0x92, of the MX servos: ``ServoModel.bulk_read``), 'read' (one Read per AX / RX
     servo: they have no Bulk Read, and Protocol 1.0 has no Sync Read) or 'bulk_read + read'."""
-    bulk = [i for i, m in servos.items() if ct.model_named(m).bulk_read]
+    bulk = [i for i, m in servos.items() if model_named(m).bulk_read]
     alone = [i for i in servos if i not in bulk]
     return " + ".join(name for name, ids in (("bulk_read", bulk), ("read", alone)) if ids)
 
@@ -124,7 +123,7 @@ def supports_fast_sync_read(servos: Mapping[int, str], found: Mapping[int, Servo
     """True when every found servo's firmware has Fast Sync Read (X330 FW >= 46, X430 >= 45;
     no Protocol 1.0 model, XL-320 or MX(2.0))."""
     return bool(found) and all(
-        info.firmware >= ct.model_named(servos[i]).fast_sync_read_firmware for i, info in found.items())
+        info.firmware >= model_named(servos[i]).fast_sync_read_firmware for i, info in found.items())
 
 
 def ensure_status_return(link: BusLink, dxl_id: int, changes: list[Change],

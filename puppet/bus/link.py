@@ -1,7 +1,10 @@
 """One serial link to a Dynamixel bus (Protocol 2.0 or 1.0), through the official dynamixel_sdk.
 
-Every SDK call goes through here. One link speaks one protocol (a bus carries one: see
-``puppet.servo_models``): ``Wire`` holds where each protocol's packets keep their fields.
+Every SDK call goes through here: the bus transactions (deadlines, settling after a failure,
+the witness, retries of the caller's, the Fast Sync Read exchange). One link speaks one protocol
+(a bus carries one: see ``puppet.servo_models``); the packets' bytes are ``puppet.bus.codec``'s
+(``Wire``: where each protocol's packets keep their fields), the adapter's latency timer
+``puppet.bus.latency``'s.
 Protocol 1.0 has no Sync Read, Fast Sync Read, Reboot or broadcast ping, and no alert bit: its
 status error byte carries the servo's hardware conditions (input voltage, overheating,
 overload: the bits X-series Hardware Error Status uses) beside the instruction's own errors;
@@ -16,8 +19,6 @@ raises, is reset before every transaction (this link is the port's only user).
 from __future__ import annotations
 
 import contextlib
-import functools
-import os
 import time
 from collections.abc import Collection, Iterable, Iterator, Mapping
 from dataclasses import dataclass, field
@@ -26,18 +27,17 @@ import dynamixel_sdk
 import dynamixel_sdk.port_handler as sdk_port_handler
 import serial
 import termios
-from dynamixel_sdk import protocol1_packet_handler as p1
 from dynamixel_sdk import protocol2_packet_handler as p2
 from dynamixel_sdk import robotis_def as rd
 
 from puppet.bus import port_lock
-from puppet.bus.control_table import Item, describe_status_error
+from puppet.bus.codec import PROTOCOL, Wire, describe_status_error, fast_sync_read_crcs
 from puppet.bus.errors import PortError, ServoCorrupt, ServoError, ServoStatusError, ServoTimeout
+from puppet.bus.latency import DEFAULT_LATENCY_MS, adapter_latency_ms, lower_latency_timer, set_latency_assumption
 from puppet.bus.port_lock import PortInUse
+from puppet.servo_models import Item
 
-PROTOCOL = 2.0
-"""The protocol a link speaks unless told (every X-series servo)."""
-PROTOCOLS = (1.0, 2.0)
+
 PORT_ERRORS = (serial.SerialException, OSError, termios.error)
 """What pyserial raises when the adapter vanishes: SerialException ('device reports readiness to
 read but returned no data'), OSError (EIO on write), termios.error (EIO from tcflush)."""
@@ -45,94 +45,6 @@ LATE = "late"
 SILENT = "silent"
 STALLED = "stalled"
 """Verdicts of ``BusLink.witness`` on a transaction that missed its deadline."""
-DEFAULT_LATENCY_MS = 1
-"""The adapter latency the SDK's timeouts assume, ms. FTDI adapters (U2D2) need their
-latency_timer set to 1 (udev rule) for this to hold; hw_sim's pty answers at once."""
-
-
-USB_SERIAL_SYSFS = "/sys/bus/usb-serial/devices"
-"""Where Linux keeps each USB serial adapter's settings (``ttyUSBn/latency_timer``)."""
-UDEV_RULE = 'ACTION=="add", SUBSYSTEM=="usb-serial", DRIVER=="ftdi_sio", ATTR{latency_timer}="1"'
-
-
-def _latency_file(port_name: str, root: str) -> str:
-    return os.path.join(root, os.path.basename(os.path.realpath(port_name)), "latency_timer")
-
-
-def adapter_latency_ms(port_name: str, root: str = USB_SERIAL_SYSFS) -> int | None:
-    """The FTDI latency timer (ms) of a USB serial adapter (U2D2, USB2DYNAMIXEL), read from
-    ``/sys/bus/usb-serial/devices/ttyUSBn/latency_timer``; None for other ports (pty, ACM)."""
-    try:
-        with open(_latency_file(port_name, root)) as f:
-            return int(f.read().strip())
-    except (OSError, ValueError):
-        return None
-
-
-def lower_latency_timer(port_name: str, root: str = USB_SERIAL_SYSFS) -> str | None:
-    """Set the FTDI latency timer of ``port_name``'s adapter to 1 ms when it is above (the
-    Linux default is 16 ms: every reply waits for it, a silent servo costs ~34 ms) -> a line
-    saying what was done: the change, or, where the file is not writable (no root), the udev
-    rule that sets it; None for a port without the timer or already at 1 ms."""
-    before = adapter_latency_ms(port_name, root)
-    if before is None or before <= 1:
-        return None
-    try:
-        with open(_latency_file(port_name, root), "w") as f:
-            f.write("1")
-    except OSError as err:
-        return (f"port {port_name}: USB latency timer {before} ms (not writable: {err.strerror}); "
-                f"each reply waits up to {before} ms and a silent servo costs about "
-                f"{2 * before + 2} ms. Set it to 1 ms: `echo 1 | sudo tee "
-                f"{_latency_file(port_name, root)}`, or for good a udev rule: {UDEV_RULE}")
-    after = adapter_latency_ms(port_name, root)
-    return f"port {port_name}: USB latency timer {before} -> {after} ms"
-
-
-def set_latency_assumption(ms: int) -> None:
-    """Set the SDK's LATENCY_TIMER (ms). A failed read then costs ~2·ms + 2.5 ms.
-
-    It must be set on the submodule ``dynamixel_sdk.port_handler``: the package-level name is a
-    copy and has no effect. The value is process-wide (the SDK keeps it as a module global).
-    """
-    if not 0 < ms <= 255:
-        raise ValueError(f"latency assumption {ms} ms: must be in 1..255")
-    sdk_port_handler.LATENCY_TIMER = int(ms)
-
-
-def _crc16_table() -> tuple[int, ...]:
-    table = []
-    for i in range(256):
-        crc = i << 8
-        for _ in range(8):
-            crc = ((crc << 1) ^ 0x8005) if crc & 0x8000 else (crc << 1)
-        table.append(crc & 0xFFFF)
-    return tuple(table)
-
-
-CRC16_TABLE = _crc16_table()
-"""Protocol 2.0's CRC-16 (polynomial 0x8005, the SDK's ``updateCRC`` table), built once."""
-
-
-@functools.cache
-def _crc16_pair_table() -> tuple[int, ...]:
-    """The CRC after two bytes, indexed by (CRC before) ^ (the two bytes, big-endian): 65536
-    entries, built on first use (~10 ms)."""
-    t = CRC16_TABLE
-    return tuple(((t[x >> 8] << 8) & 0xFFFF) ^ t[((t[x >> 8] >> 8) ^ x) & 0xFF] for x in range(65536))
-
-
-def crc16(data, crc: int, start: int, end: int) -> int:
-    """The Protocol 2.0 CRC-16 of ``data[start:end]`` (bytes or a list of ints), continuing
-    from ``crc`` (0 to start): the SDK's ``updateCRC`` without its per-call table and slices,
-    two bytes a step."""
-    if (end - start) & 1:
-        crc = ((crc << 8) & 0xFFFF) ^ CRC16_TABLE[((crc >> 8) ^ data[start]) & 0xFF]
-        start += 1
-    pairs = _crc16_pair_table()
-    for i in range(start, end, 2):
-        crc = pairs[crc ^ (data[i] << 8 | data[i + 1])]
-    return crc
 
 
 def _failure(code: int, ids: Iterable[int], instruction: str, detail: str = "",
@@ -155,145 +67,6 @@ each outstanding witness of a servo reads a size of its own, so a late reply to 
 witness is never taken for this one's. Sizes below 5 are left to the reader's own reads and to
 ping replies (3 data bytes)."""
 
-P1_HARDWARE_BITS = 0x25
-"""Protocol 1.0 status error bits that are the servo's hardware conditions: input voltage (0),
-overheating (2), overload (5): the same bits as X-series Hardware Error Status (70)."""
-P1_ERROR_NUMBERS = ((0x40, 0x02), (0x10, 0x03), (0x08, 0x04), (0x02, 0x06))
-"""Protocol 1.0 status error bits that fail the instruction -> the Protocol 2.0 error number:
-instruction (6) -> Instruction Error, checksum (4) -> CRC Error, range (3) -> Data Range Error,
-angle limit (1) -> Data Limit Error."""
-
-
-class Wire:
-    """Where one protocol's packets keep their fields (a status packet ``rx`` as a byte list).
-
-    Protocol 2.0: ``FF FF FD 00 ID LEN_L LEN_H 55 ERR data CRC_L CRC_H`` (CRC-16);
-    Protocol 1.0: ``FF FF ID LEN ERR data CHK`` (checksum ``~(ID + LEN + ... ) & 0xFF``).
-    """
-
-    def __init__(self, protocol: float) -> None:
-        if protocol not in PROTOCOLS:
-            raise ValueError(f"protocol {protocol!r}: not one of {PROTOCOLS}")
-        self.protocol = float(protocol)
-        self.p1 = self.protocol == 1.0
-        self.ph = dynamixel_sdk.PacketHandler(self.protocol)
-        self.id_at = p1.PKT_ID if self.p1 else p2.PKT_ID
-        self.error_at = p1.PKT_ERROR if self.p1 else p2.PKT_ERROR
-        self.data_at = p1.PKT_PARAMETER0 if self.p1 else p2.PKT_PARAMETER0 + 1
-        self.overhead = 6 if self.p1 else 11
-        """Bytes of a status packet around its data."""
-
-    def data(self, rx: list) -> list:
-        """The data bytes of a status packet (all of them: the SDK would slice the asked-for
-        count and take the checksum for data when a shorter reply, e.g. a late one to another
-        read, comes)."""
-        if self.p1:
-            return rx[self.data_at: self.data_at + max(0, rx[p1.PKT_LENGTH] - 2)]
-        length = rx[p2.PKT_LENGTH_L] | (rx[p2.PKT_LENGTH_H] << 8)  # instruction, error, data, CRC
-        return rx[self.data_at: self.data_at + max(0, length - 4)]
-
-    def error(self, rx: list) -> int:
-        """The status error byte in the Protocol 2.0 form: bit 7 alert (Protocol 1.0: a
-        hardware condition bit is set), bits 0..6 the error number."""
-        raw = rx[self.error_at]
-        if not self.p1:
-            return raw
-        number = next((n for bit, n in P1_ERROR_NUMBERS if raw & bit), 0)
-        return (0x80 if raw & P1_HARDWARE_BITS else 0) | number
-
-    def hardware_bits(self, rx: list) -> int:
-        """Protocol 1.0: the hardware condition bits of a status packet (X-series Hardware
-        Error Status numbering); 0 on Protocol 2.0 (read Hardware Error Status instead)."""
-        return rx[self.error_at] & P1_HARDWARE_BITS if self.p1 else 0
-
-    def stale(self, rx: list, size: int) -> bool:
-        """A clean status packet whose data count is not ``size``: a late reply to another
-        instruction (a reply carrying an error number may have no data: it is not stale)."""
-        return not self.error(rx) & 0x7F and len(self.data(rx)) != size
-
-    def _packet(self, body: list) -> bytes:
-        """An instruction packet from its body (ID, length, instruction, parameters) with the
-        header and the checksum (Protocol 1.0) or CRC-16 (Protocol 2.0) added."""
-        if self.p1:
-            return bytes([0xFF, 0xFF, *body, ~sum(body) & 0xFF])
-        packet = [0xFF, 0xFF, 0xFD, 0x00, *body]
-        crc = crc16(packet, 0, 0, len(packet))
-        return bytes(packet + [crc & 0xFF, crc >> 8])
-
-    def fast_sync_read_packet(self, ids: list[int], address: int, size: int) -> bytes:
-        """Protocol 2.0 Fast Sync Read (0x8A) of ``size`` bytes at ``address`` from ``ids``:
-        the bytes the SDK's ``syncReadTx`` sends (no byte stuffing: ids stop at 252 and no
-        control table reaches address 0xFDFF, so ``FF FF FD`` cannot occur)."""
-        n = len(ids) + 7
-        return self._packet([rd.BROADCAST_ID, n & 0xFF, n >> 8, rd.INST_FAST_SYNC_READ,
-                             address & 0xFF, address >> 8, size & 0xFF, size >> 8, *ids])
-
-    def ping_packet(self, dxl_id: int) -> bytes:
-        """The Ping instruction packet for one id; its status carries 3 data bytes (Protocol
-        2.0: model number, firmware) or none (Protocol 1.0)."""
-        if self.p1:
-            return self._packet([dxl_id, 2, rd.INST_PING])
-        return self._packet([dxl_id, 3, 0, rd.INST_PING])
-
-    def ping_size(self) -> int:
-        """Data bytes of a ping's status."""
-        return 0 if self.p1 else 3
-
-    def read_packet(self, dxl_id: int, address: int, size: int) -> bytes:
-        """The Read instruction packet."""
-        if self.p1:
-            return self._packet([dxl_id, 4, rd.INST_READ, address, size])
-        return self._packet([dxl_id, 7, 0, rd.INST_READ, address & 0xFF, address >> 8,
-                             size & 0xFF, size >> 8])
-
-    def status_start(self, dxl_id: int, size: int) -> bytes:
-        """How a status packet from ``dxl_id`` carrying ``size`` data bytes begins."""
-        if self.p1:
-            return bytes((0xFF, 0xFF, dxl_id, size + 2))
-        length = size + 4
-        return bytes((0xFF, 0xFF, 0xFD, 0x00, dxl_id, length & 0xFF, length >> 8, 0x55))
-
-    def read_tx(self, dxl_id: int, address: int, size: int) -> list:
-        """The SDK's txRxPacket list of a Read (header and checksum filled in by the SDK)."""
-        if self.p1:
-            tx = [0] * 8
-            tx[p1.PKT_ID], tx[p1.PKT_LENGTH], tx[p1.PKT_INSTRUCTION] = dxl_id, 4, rd.INST_READ
-            tx[p1.PKT_PARAMETER0: p1.PKT_PARAMETER0 + 2] = [address, size]
-            return tx
-        tx = [0] * 14
-        tx[p2.PKT_ID], tx[p2.PKT_LENGTH_L], tx[p2.PKT_INSTRUCTION] = dxl_id, 7, rd.INST_READ
-        tx[p2.PKT_PARAMETER0: p2.PKT_PARAMETER0 + 4] = [
-            address & 0xFF, address >> 8, size & 0xFF, size >> 8]
-        return tx
-
-    def write_tx(self, dxl_id: int, address: int, data: list[int]) -> list:
-        """The SDK's txRxPacket list of a Protocol 1.0 Write."""
-        tx = [0] * (len(data) + 7)
-        tx[p1.PKT_ID], tx[p1.PKT_LENGTH], tx[p1.PKT_INSTRUCTION] = dxl_id, len(data) + 3, rd.INST_WRITE
-        tx[p1.PKT_PARAMETER0] = address
-        tx[p1.PKT_PARAMETER0 + 1: p1.PKT_PARAMETER0 + 1 + len(data)] = data
-        return tx
-
-    def sent(self, tx: list) -> list:
-        """The whole packet of a txRxPacket list after the SDK sent it (it fills in the header
-        and checksum in place)."""
-        if self.p1:
-            return tx[: tx[p1.PKT_LENGTH] + 4]
-        return tx[: (tx[p2.PKT_LENGTH_L] | tx[p2.PKT_LENGTH_H] << 8) + 7]
-
-    def ping_tx(self, dxl_id: int) -> list:
-        """The SDK's txRxPacket list of a Ping."""
-        if self.p1:
-            tx = [0] * 6
-            tx[p1.PKT_ID], tx[p1.PKT_LENGTH], tx[p1.PKT_INSTRUCTION] = dxl_id, 2, rd.INST_PING
-            return tx
-        tx = [0] * 10
-        tx[p2.PKT_ID], tx[p2.PKT_LENGTH_L], tx[p2.PKT_INSTRUCTION] = dxl_id, 3, rd.INST_PING
-        return tx
-
-    def rx(self, port) -> tuple[list, int]:
-        """One status packet (the SDK's rxPacket) -> (packet, result code)."""
-        return self.ph.rxPacket(port) if self.p1 else self.ph.rxPacket(port, False)
 
 
 @dataclass
@@ -368,7 +141,7 @@ class BusLink:
         self._witness_pending: dict[int, set[int]] = {}  # id -> sizes of unanswered witness reads
         self.baud = int(baud)
         self.poll_block_s = float(poll_block_s)
-        self.ph = self.wire.ph
+        self.ph = dynamixel_sdk.PacketHandler(self.protocol)
         self._fast_packets: dict[tuple, bytes] = {}  # (ids, address, size) -> Fast Sync Read request
 
     # ---- port lifetime -------------------------------------------------------------------
@@ -530,7 +303,7 @@ class BusLink:
         half-duplex adapter may echo it). -> (packet, SDK result code)."""
         wire = self.wire
         while True:
-            rx, code = wire.rx(self.port)
+            rx, code = self.ph.rxPacket(self.port) if wire.p1 else self.ph.rxPacket(self.port, False)
             if code == rd.COMM_SUCCESS and rx == echo:
                 continue
             if code != rd.COMM_SUCCESS or rx[wire.id_at] == dxl_id and not wire.stale(rx, size):
@@ -867,17 +640,9 @@ class BusLink:
             return GroupRead(failed=dict.fromkeys(ids, failure))
         out = GroupRead()
         seg = item.size + 4
-        full = rx[4] == rd.BROADCAST_ID and len(rx) == 8 + seg * len(ids)
-        # One CRC pass: the running CRC where each segment's own CRC sits (a full answer), then
-        # the packet's, its last two bytes (a full answer's are the last segment's).
-        sums, crc, pos = [], 0, 0
-        for end in range(6 + seg, len(rx) - 2, seg) if full else ():
-            crc = crc16(rx, crc, pos, end)
-            sums.append(crc)
-            pos = end
-        if crc16(rx, crc, pos, len(rx) - 2) != rx[-2] | (rx[-1] << 8):
+        full, sums = fast_sync_read_crcs(rx, len(ids), item.size)
+        if sums is None:
             return GroupRead(failed=dict.fromkeys(ids, self._fail(rd.COMM_RX_CORRUPT, ids, instruction)))
-        sums.append(rx[-2] | (rx[-1] << 8))
         if not full:
             # A normal status (e.g. Instruction Error from old firmware) or a short packet.
             error = rx[8] if len(rx) > 8 else 0
@@ -917,5 +682,4 @@ class BusLink:
             raise self._fail(code, ids, "sync_write")
 
 
-__all__ = ["BusLink", "GroupRead", "Wire", "PROTOCOLS", "P1_HARDWARE_BITS", "lower_latency_timer", "set_latency_assumption", "adapter_latency_ms", "DEFAULT_LATENCY_MS",
-           "PORT_ERRORS", "LATE", "SILENT", "STALLED"]
+__all__ = ["BusLink", "GroupRead", "PORT_ERRORS", "LATE", "SILENT", "STALLED"]

@@ -43,8 +43,8 @@ from collections.abc import Iterable, Mapping
 import dynamixel_sdk
 import numpy as np
 
-from puppet.bus import control_table as ct
 from puppet.bus import health as hs
+from puppet.bus.codec import ALERT_BIT
 from puppet.bus.configure import (SetupReport, bus_protocol, check_baud, configure_servo,
                                   identify, p1_read_mode, supports_fast_sync_read)
 from puppet.bus.errors import PortError, ServoCorrupt, ServoError, ServoMissing, ServoTimeout
@@ -52,6 +52,7 @@ from puppet.bus.link import SILENT, STALLED, BusLink, GroupRead
 from puppet.bus.unwrap import TurnUnwrapper, unwrap_period
 from puppet.events import EventLog
 from puppet.reading import Reading
+from puppet.servo_models import REALTIME_TICK_WRAP, TICKS_PER_TURN, describe_hardware_error, model_named
 
 READ_MODES = ("auto", "fast_sync_read", "sync_read")
 DUPLICATE_PROBES = 6
@@ -123,11 +124,11 @@ class ServoReader:
         for dxl_id, name in servos.items():
             if not 0 <= int(dxl_id) <= 252:
                 raise ValueError(f"ServoReader: servo id {dxl_id} outside 0..252")
-            ct.model_named(name)
+            model_named(name)
         self.servos = {int(i): str(m) for i, m in servos.items()}
         self.protocol = bus_protocol(self.servos, "ServoReader: the servo map")
         check_baud(self.servos, baud, str(port) if isinstance(port, str) else port.getPortName())
-        self.models = {i: ct.model_named(m) for i, m in self.servos.items()}
+        self.models = {i: model_named(m) for i, m in self.servos.items()}
         self.items = {i: m.items for i, m in self.models.items()}
         """{id: ControlItems}: where each servo's model keeps what the reader reads."""
         self.driven = frozenset(int(i) for i in driven)
@@ -168,7 +169,7 @@ class ServoReader:
         self._prev2_t = [0] * len(self.ids)
         self._run = [0] * len(self.ids)           # good readings in a row
         self.unwrap = {i: TurnUnwrapper(unwrap_period(m)) for i, m in self.models.items()}
-        scale = {i: m.ticks_per_turn / ct.TICKS_PER_TURN for i, m in self.models.items()}
+        scale = {i: m.ticks_per_turn / TICKS_PER_TURN for i, m in self.models.items()}
         self._max_jump = {i: self.max_jump_ticks * f for i, f in scale.items()}
         self._max_speed = {i: self.max_speed_ticks_s * f for i, f in scale.items()}
         self.health = {i: hs.ServoHealth(i, m) for i, m in self.servos.items()}
@@ -604,7 +605,7 @@ class ServoReader:
                      f"{why}: " + (", ".join(f"{c.item} {c.old}->{c.new}" for c in changes) or "no change"))
 
     def _note_alert(self, dxl_id: int, error: int) -> None:
-        alert = bool(error & ct.ALERT_BIT)
+        alert = bool(error & ALERT_BIT)
         h = self.health[dxl_id]
         if alert and not h.alert:
             self._health_due = True
@@ -648,10 +649,10 @@ class ServoReader:
         if bits != h.hardware_error:
             if bits:
                 self.log.add("hardware_error", [dxl_id],
-                             f"Hardware Error Status 0x{bits:02x}: {ct.describe_hardware_error(bits)}")
+                             f"Hardware Error Status 0x{bits:02x}: {describe_hardware_error(bits)}")
             else:
                 self.log.add("hardware_error_cleared", [dxl_id],
-                             f"was {ct.describe_hardware_error(h.hardware_error)}")
+                             f"was {describe_hardware_error(h.hardware_error)}")
             h.hardware_error = bits
         if not bits or not self.auto_reboot or dxl_id in self.driven or self.link.wire.p1:
             return  # (Protocol 1.0 has no Reboot: the bits clear with their cause)
@@ -672,12 +673,12 @@ class ServoReader:
         if seen is None:
             return
         elapsed_ms = (t_ns - seen[1]) / 1e6
-        if elapsed_ms >= ct.REALTIME_TICK_WRAP / 2:
+        if elapsed_ms >= REALTIME_TICK_WRAP / 2:
             return  # too long ago to tell a wrap from a reboot
-        expected = (seen[0] + elapsed_ms) % ct.REALTIME_TICK_WRAP
-        behind = (expected - tick) % ct.REALTIME_TICK_WRAP
-        if behind > ct.REALTIME_TICK_WRAP / 2:
-            behind -= ct.REALTIME_TICK_WRAP
+        expected = (seen[0] + elapsed_ms) % REALTIME_TICK_WRAP
+        behind = (expected - tick) % REALTIME_TICK_WRAP
+        if behind > REALTIME_TICK_WRAP / 2:
+            behind -= REALTIME_TICK_WRAP
         if behind > max(100.0, 0.25 * elapsed_ms):
             h = self.health[dxl_id]
             h.reboots += 1
@@ -695,7 +696,7 @@ class ServoReader:
         except ServoError as exc:
             self.log.add("reboot_failed", [dxl_id], str(exc))
             return
-        self.log.add("reboot_sent", [dxl_id], ct.describe_hardware_error(self.health[dxl_id].hardware_error))
+        self.log.add("reboot_sent", [dxl_id], describe_hardware_error(self.health[dxl_id].hardware_error))
         self.health[dxl_id].reboots += 1
         self._tick_seen.pop(dxl_id, None)
         self._reconfigure(dxl_id, "after reboot")

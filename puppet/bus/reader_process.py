@@ -165,8 +165,11 @@ def _child(shm_name, slots, port, servos, options, rate_hz, events, commands,
     goal_shm = inbox = reader = started = None
     parent = os.getppid()
     # SIGINT is ignored from birth (``children_deaf_to_ctrl_c``): the parent stops us (a
-    # terminal's Ctrl-C reaches the whole group).
+    # terminal's Ctrl-C reaches the whole group); so is SIGTERM to the group (a service manager
+    # stopping the command): the parent's stop turns the actuators' torque off here, in order.
+    # A parent that dies is noticed (``parent``) and ends us the same way.
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, signal.SIG_IGN)
     t_ns, ticks, ok, written, stop = _ring_arrays(shm.buf, slots, len(servos))
     if hook is not None:
         signal.signal(signal.SIGTERM, lambda *_: stop.__setitem__(0, 1))
@@ -213,8 +216,11 @@ def _child(shm_name, slots, port, servos, options, rate_hz, events, commands,
             ticks[slot] = reading.ticks
             ok[slot] = reading.ok
             written[0] += 1
-            for event in reader.log.drain():
-                events.send(("event", event))
+            try:
+                for event in reader.log.drain():
+                    events.send(("event", event))
+            except OSError:  # the parent is gone (its end of the pipe closed): stop, hook first
+                break
             if period_ns:
                 next_ns += period_ns
                 now = time.monotonic_ns()

@@ -6,14 +6,20 @@ own baud rate, so ``scan`` asks at each rate with each protocol: a Protocol 2.0 
 Protocol 1.0 has no broadcast ping, a ping of each id 0..253 (a silent id costs one SDK
 deadline: ~4 ms at 1 Mbit/s with a 1 ms latency timer, about 1.5 s for the 254 ids). A Protocol
 1.0 ping carries no data: the model number and firmware are read after it (``BusLink.ping``).
+
+A reply later than that deadline (a busy host, a noisy line) is lost, so where a Protocol 1.0
+pass found servos the ids that did not answer are pinged again, up to ``P1_PASSES`` passes, until
+a pass finds nothing new; a pass that found more is said (``log``). A Protocol 2.0 broadcast ping
+waits its whole window for every reply, so one is asked once (``puppet release`` pings twice).
 """
 
 from __future__ import annotations
 
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 
-from puppet.bus.link import PROTOCOLS, BusLink
+from puppet.bus.codec import PROTOCOLS
+from puppet.bus.link import BusLink
 from puppet.servo_models import MODELS, MODELS_BY_NUMBER
 
 SDK_BAUDS = frozenset((9600, 19200, 38400, 57600, 115200, 230400, 460800, 500000, 576000, 921600,
@@ -23,6 +29,12 @@ SDK_BAUDS = frozenset((9600, 19200, 38400, 57600, 115200, 230400, 460800, 500000
 SCAN_BAUDS = tuple(sorted({b for m in MODELS.values() for b in m.baud_rates} & SDK_BAUDS))
 """``scan --baud all``: every rate a model of the table can select that the SDK opens,
 ascending (9600 .. 4 Mbit/s)."""
+
+
+P1_PASSES = 3
+"""Most passes of Protocol 1.0 pings over the ids that did not answer (see the module text)."""
+P1_IDS = range(254)
+"""The ids a Protocol 1.0 scan pings (254 is the broadcast id)."""
 
 
 @dataclass(frozen=True)
@@ -44,10 +56,12 @@ class Found:
 
 
 def scan(port: str, bauds: Iterable[int], protocols: Iterable[float] = (2.0, 1.0),
-         latency_ms: int | None = None) -> list[Found]:
+         latency_ms: int | None = None, log: Callable[[str], None] = lambda _line: None
+         ) -> list[Found]:
     """Ping ``port`` at each of ``bauds`` with each of ``protocols`` -> every servo that
-    answered, in that order (ids ascending within each). PortError (PortInUse) when the port
-    cannot be had."""
+    answered, in that order (ids ascending within each). log: a line for each Protocol 1.0
+    pass that found servos the one before missed. PortError (PortInUse) when the port cannot
+    be had."""
     out: list[Found] = []
     for baud in bauds:
         for protocol in protocols:
@@ -56,12 +70,29 @@ def scan(port: str, bauds: Iterable[int], protocols: Iterable[float] = (2.0, 1.0
             link = BusLink(port, baud=baud, latency_ms=latency_ms, protocol=protocol)
             try:
                 link.open()
-                found = link.broadcast_ping()
+                found = link.broadcast_ping() if protocol != 1.0 else _ping_p1(link, baud, log)
             finally:
                 link.close()
             out += [Found(baud, protocol, i, number, firmware)
                     for i, (number, firmware) in sorted(found.items())]
     return out
+
+
+def _ping_p1(link: BusLink, baud: int, log: Callable[[str], None]) -> dict:
+    """Protocol 1.0: every id pinged, then again those that did not answer while a pass finds
+    more (at most ``P1_PASSES``) -> {id: (model number, firmware)}."""
+    found = link.ping_each(P1_IDS)
+    for n in range(2, P1_PASSES + 1):
+        if not found:
+            break  # nothing of this protocol at this rate
+        more = link.ping_each([i for i in P1_IDS if i not in found])
+        if not more:
+            break
+        found |= more
+        log(f"{link.port_name} at {baud} bps, Protocol 1.0: pass {n} found servo"
+            f"{'s' if len(more) > 1 else ''} {sorted(more)} that pass {n - 1} missed (replies "
+            "late: a busy host or a noisy line)")
+    return found
 
 
 __all__ = ["Found", "scan", "SCAN_BAUDS", "SDK_BAUDS"]

@@ -7,7 +7,11 @@ error does too (its traceback only with ``PUPPET_DEBUG=1``).
 
 from __future__ import annotations
 
-import os
+from puppet.session import signals as _signals
+
+_signals.early()  # a Ctrl-C from here on, before a command's own handlers, is kept (no traceback)
+
+import os  # noqa: E402
 
 # On a small machine OpenBLAS worker threads busy-wait after every numpy call and steal the
 # core the solver, the renderer and the bus reader need; puppet's numpy work is small.
@@ -24,10 +28,19 @@ def _os_message(err: OSError) -> str:
     return f"{where}{err.strerror or err}"
 
 
+SIGNAL_COMMANDS = frozenset({"demo", "live", "record", "keys", "play", "view", "perform", "batch"})
+"""Commands that stop through ``puppet.session.signals`` (a session, perform, batch): a signal
+before their handlers are set is theirs; every other command gets Python's own handlers back."""
+
+
 class _PuppetGroup(click.Group):
     """A click group that turns library and file-system errors into ``Error: …``, exit 1."""
 
     def invoke(self, ctx: click.Context):
+        name = ctx.protected_args[0] if ctx.protected_args else None
+        if name not in SIGNAL_COMMANDS:  # no session: Ctrl-C is Python's KeyboardInterrupt there
+            if _signals.release_early() is not None:
+                raise click.Abort()
         try:
             return super().invoke(ctx)
         except (click.ClickException, click.exceptions.Exit, click.Abort, KeyboardInterrupt):
@@ -66,15 +79,16 @@ def main() -> None:
       puppet rig axes creature.toml --out sheet.png       each joint turned: pick axes
       puppet calibrate --rig creature.toml --port /dev/ttyUSB0 --guided
       puppet batch session/*.mcap --out exports/ --formats gltf,usd
+      puppet session list shoot            a studio session's shots and takes
     """
 
 
 def _register() -> None:
     from puppet.cli import (batch, blender, bus, demo, export, keys, live, perform, play, record,
-                            release, rig, view)
+                            release, rig, session_folder, view)
 
     for module in (demo, live, record, keys, play, export, batch, bus, rig, view, perform,
-                   release, blender):
+                   release, blender, session_folder):
         for command in module.COMMANDS:
             main.add_command(command)
 

@@ -19,10 +19,14 @@ EXIT_FAILED = 3     # some takes failed or timed out (their rows say why); the o
 
 @click.command()
 @click.argument("takes", nargs=-1)
-@click.option("--out", "out", required=True,
+@click.option("--out", "out", default=None,
               help="Output folder (created): OUT/<take>.<ext>, a log OUT/<take>.log and a "
                    "manifest OUT/<take>.batch.json per take; takes in folders below the one an "
-                   "argument names (shoot/*/*.mcap) go to the same folders below OUT.")
+                   "argument names (shoot/*/*.mcap) go to the same folders below OUT. Required, "
+                   "but for a session folder: its exports/ (exports/<shot>/take003.glb).")
+@click.option("--circled", is_flag=True,
+              help="With a session folder: only its circled takes [default: every take not in "
+                   "its trash].")
 @click.option("--rig", "rig_path", default=None,
               help="Rig to solve every take on (a take of other servos is refused) [default: "
                    "each take's own, as puppet export].")
@@ -63,8 +67,8 @@ EXIT_FAILED = 3     # some takes failed or timed out (their rows say why); the o
               help="Print what would be done for each take and why; write nothing.")
 @click.option("--json", "as_json", is_flag=True, help="Print the report as one JSON line.")
 @force_option
-def batch(takes: tuple[str, ...], out: str, rig_path: str | None, formats: str, fps: str,
-          size: tuple[int, int], up: str, space: str, keys: float | None,
+def batch(takes: tuple[str, ...], out: str | None, circled: bool, rig_path: str | None,
+          formats: str, fps: str, size: tuple[int, int], up: str, space: str, keys: float | None,
           keys_units: float | None,
           engine: str, address: str | None, workers: int | None, retries: int,
           take_timeout: float | None, resume: bool, dry_run: bool, as_json: bool,
@@ -78,15 +82,32 @@ def batch(takes: tuple[str, ...], out: str, rig_path: str | None, formats: str, 
 
     \b
     Examples:
+      puppet batch SESSION --circled --formats gltf     a studio session's circled takes
       puppet batch session/*.mcap --out exports/ --formats gltf,usd
       puppet batch session/ --out videos/ --formats mp4 --size 1280 720 --resume
       puppet batch 'shoot/*/*.mcap' --out exports/ --fps 24 --resume --dry-run
       puppet batch session/*.mcap --out exports/ --engine ray --address 10.0.0.5:6379
     """
     from puppet.batch import BatchCancelled, BatchError, run_batch
+    from puppet.studio import is_session
+    from puppet.studio.exports import batch_input
 
     if not takes:
         raise BatchError("no takes given: name take files, folders or patterns (session/*.mcap)")
+    base = None
+    if any(is_session(t) for t in takes):  # a studio's session folder: its takes, its exports/
+        if len(takes) > 1:
+            raise BatchError(f"{takes[0]}: a session folder is batched alone (given with "
+                             f"{len(takes) - 1} other argument(s))")
+        chosen = batch_input(takes[0], circled=circled)
+        for note in chosen.notes:
+            click.echo(f"warning: {note}", err=True)
+        takes, base, out = tuple(map(str, chosen.takes)), chosen.base, out or str(chosen.out)
+    elif circled:
+        raise BatchError(f"--circled: picks a session folder's circled takes; {takes[0]} is not "
+                         "a session folder (no session.json, no takes/)")
+    if out is None:
+        raise BatchError("--out: missing (only a session folder has a default: its exports/)")
     rig = None if rig_path is None else load_rig(rig_path)
     bar = None
     total = finished = 0
@@ -116,7 +137,7 @@ def batch(takes: tuple[str, ...], out: str, rig_path: str | None, formats: str, 
                            keys_units=keys_units, engine=engine,
                            workers=workers, address=address, resume=resume, dry_run=dry_run,
                            force=force, retries=retries, take_timeout=take_timeout,
-                           on_start=on_start, on_result=on_result)
+                           on_start=on_start, on_result=on_result, base=base)
     except BatchCancelled as stop:
         if bar is not None:
             bar.__exit__(None, None, None)

@@ -1,9 +1,7 @@
-"""``puppet blender addon``: write the Blender add-on; and the ``--link`` option the live, demo
-and play commands share (stream each solve to Blender, ``puppet.link``)."""
+"""``puppet blender addon``: write the Blender add-on; and the ``--link`` option the live, demo,
+play and keys commands share (each solve streamed to Blender: ``puppet.session.outputs.Link``)."""
 
 from __future__ import annotations
-
-import time
 
 import click
 
@@ -11,85 +9,6 @@ link_option = click.option(
     "--link", "link_address", is_flag=False, flag_value="", default=None, metavar="[HOST:]PORT",
     help="Stream each solve to Blender's puppet_link add-on (default 127.0.0.1:9100; another "
          "host prints a token the add-on needs).")
-
-
-def open_link(address: str | None, rig, *, fps: float | None = None):
-    """Bind the link's address now (a taken port fails before any hardware is touched) and say
-    where it listens; returns the Link (attach it to the pipeline). fps: the take's rate (play);
-    live and demo give the loop's when they attach."""
-    from puppet.link import Link
-
-    link = Link(address, rig, fps=fps or 0.0)
-    click.echo(f"link: listening on {link.where()}", err=True)
-    return link
-
-
-def report_link(link) -> dict:
-    """The link's line for the run summary (``print_summary``'s extra)."""
-    return {"link": link.text()}
-
-
-def paced(frames, fps: float, speed: float, should_stop):
-    """The readings of ``frames`` (a Playback) on the wall clock: frame k is handed out at
-    start + k / (fps × speed) (never early; a late one at once)."""
-    start = time.monotonic()
-    for k, reading in enumerate(frames):
-        wait = start + k / (fps * speed) - time.monotonic()
-        while wait > 0 and not should_stop():
-            time.sleep(min(wait, 0.1))
-            wait = start + k / (fps * speed) - time.monotonic()
-        yield k, reading
-
-
-def play_to_link(take: str, rig_path: str | None, address: str, *, speed: float, fps: float,
-                 out: str | None, frames_dir: str | None, force: bool) -> None:
-    """``puppet play TAKE --link``: wait for a client, then solve the take's frames (the
-    export's: ``puppet.take.Playback`` at ``fps``) on the wall clock at ``speed`` and stream each
-    one with its take time k / fps; --out / --frames get the frames too."""
-    from puppet.cli.common import (StopFlag, close_sinks, make_sinks, open_take, print_summary,
-                                   rig_files)
-    from puppet.export.run import take_frames
-    from puppet.loop import Pipeline, run_frames
-
-    rig, reader = open_take(take, rig_path)
-    frames = take_frames(rig, reader, fps)
-    link = open_link(address, rig, fps=fps)
-    stop = StopFlag()
-    try:
-        sinks = make_sinks(out, frames_dir, fps, inputs=[take, *rig_files(rig)], force=force)
-        with Pipeline(rig, render=bool(sinks)) as pipeline:
-            link.attach(pipeline)
-            click.echo("link: waiting for a client (Ctrl-C stops)", err=True)
-            while link.clients_seen == 0 and not stop():
-                time.sleep(0.05)
-            current = {}
-
-            def readings():
-                for k, reading in paced(frames, fps, speed, stop):
-                    current["take_s"] = k / fps
-                    current["shown"] = _Stamp(time.monotonic_ns())  # the reading -> applied clock
-                    yield reading
-
-            def on_frame(solved) -> None:
-                link.frame(solved, current["shown"], take_s=current["take_s"])
-
-            try:
-                summary = run_frames(pipeline, readings(), sinks=sinks, on_frame=on_frame,
-                                     should_stop=stop)
-            except BaseException:
-                close_sinks(sinks, failed=True)
-                raise
-            close_sinks(sinks)
-    finally:
-        link.close()
-    print_summary(summary, False, extra={"take": take, **report_link(link)})
-
-
-class _Stamp:
-    """A reading's time alone (what ``Link.frame`` reads of it)."""
-
-    def __init__(self, t_ns: int):
-        self.t_ns = t_ns
 
 
 @click.group()

@@ -61,7 +61,7 @@ def scan(port: str, baud) -> None:
 
     bauds = SCAN_BAUDS if baud == "all" else (baud,)
     try:
-        found = scan_bus(port, bauds)
+        found = scan_bus(port, bauds, log=lambda line: click.echo(line, err=True))
     except BusError as err:
         fail(_on_port(port, err))
     if not found:
@@ -153,7 +153,7 @@ def _calibrate_guided(rig_path: str, port: str, baud: int, out: str | None, yes:
                       timeout_s: float, threshold: float, force: bool) -> None:
     """``calibrate --guided``: prompts on stderr, results written into the rig file."""
     from puppet.bus import BusError, ServoReader
-    from puppet.bus.control_table import MODELS_BY_NUMBER
+    from puppet.servo_models import MODELS_BY_NUMBER
     from puppet.rig.guided_calibration import GuidedCalibration
 
     session = GuidedCalibration(rig_path)

@@ -1,9 +1,8 @@
-"""Helpers shared by the commands: loading a rig or a take, starting the reader, sinks, output."""
+"""Helpers shared by the commands: options, loading a rig or a take, running a session and printing it."""
 
 from __future__ import annotations
 
 import json
-import signal
 import sys
 import time
 from pathlib import Path
@@ -48,75 +47,30 @@ def load_rig(rig_path: str | None):
     return builtin() if rig_path is None else load(rig_path)
 
 
-def start_reader(rig, port: str, baud: int, rate_hz: float = 500.0, hook=None):
-    """A started ReaderProcess reading the rig's servos on ``port``; reports what setup did.
-    hook: its cycle hook (puppet.drive.actuators.ActuatorHook drives the rig's actuators)."""
-    from puppet.bus.reader_process import ReaderProcess, ReaderProcessError
-
-    if not rig.servo_map.ids.size:
-        fail(f"{rig.path or rig.name}: the rig has no servos to read")
-    source = ReaderProcess(port, rig.servo_map.models, rate_hz=rate_hz, baud=baud,
-                           hook=hook)
-    try:
-        report = source.start()
-    except ReaderProcessError as err:
-        fail(str(err))  # it names the port
-    print_setup(report, port)
-    return source
+def say(text: str) -> None:
+    """A note on stderr (setup, outputs, warnings): stdout keeps the summary."""
+    click.echo(text, err=True)
 
 
 def print_setup(report, port: str) -> None:
     """Report what the bus setup found and changed (on stderr)."""
-    for note in report.notes:
-        click.echo(note, err=True)
-    if report.missing:
-        click.echo(f"warning: servos {report.missing} did not answer on {port}; they are flagged "
-                   "and probed until they appear", err=True)
-    for change in report.changes:
-        click.echo(f"servo {change.id}: {change.item} {change.old} -> {change.new}", err=True)
+    from puppet.session.sources import setup_lines
+
+    for line in setup_lines(report, port):
+        say(line)
 
 
-class StopFlag:
-    """Set by SIGINT/SIGTERM so loops end cleanly and every sink is closed (a video gets its
-    index: playable). A second signal while stopping raises KeyboardInterrupt (forced stop:
-    outputs are then discarded, not left half written). ``signal_name`` names the first one."""
-
-    def __init__(self):
-        self.stop = False
-        self.signal_name: str | None = None
-        signal.signal(signal.SIGINT, self._set)
-        signal.signal(signal.SIGTERM, self._set)
-
-    def _set(self, signum, _frame):
-        if self.stop:
-            raise KeyboardInterrupt
-        self.stop = True
-        self.signal_name = signal.Signals(signum).name
-
-    def __call__(self) -> bool:
-        return self.stop
-
-
-def make_sinks(out: str | None, frames: str | None, fps: float, inputs=(), *,
-               force: bool = False) -> list:
-    """Frame sinks for a video file and/or a PNG folder, after checking both by the one rule
-    for outputs (``puppet.atomic``: not one of ``inputs``, not a device or FIFO, an existing file
-    of another kind only with ``force``). The video is written to a temporary file and renamed
-    into place when finished."""
-    from puppet.atomic import check_folder_output, check_output
-    from puppet.render import PngSink, VideoSink
-
-    if out:
-        check_output(out, kind="video", inputs=inputs, force=force, what="video")
-    if frames:
-        check_folder_output(frames)
-    sinks = []
-    if out:
-        sinks.append(VideoSink(out, fps))
-    if frames:
-        Path(frames).mkdir(parents=True, exist_ok=True)
-        sinks.append(PngSink(frames))
-    return sinks
+def run_session(session, *, as_json: bool = False, extra=None):
+    """Run a live session (``puppet.session.Session``) and print its summary: the outputs'
+    lines (take, video, link...), then ``extra(session)``'s, then the loop's figures; a run
+    stopped by a signal says so on stderr. Returns the session."""
+    session.run()
+    if session.stopped_by is not None:
+        say(f"stopped by {session.stopped_by} after {session.summary.frames} frames; "
+            "every output holds what was made until then")
+    lines = {**session.report(), **(extra(session) if extra is not None else {})}
+    print_summary(session.summary, as_json, extra=lines)
+    return session
 
 
 space_option = click.option(
@@ -135,25 +89,37 @@ keys_units_option = click.option(
     "--keys-units", default=None, type=InRange(limits.KEYS_UNITS), metavar="UNITS",
     help=f"With --keys: translations within UNITS model units ({limits.KEYS_UNITS}; "
          "default: the distance a DEG turn moves a point one bounding-box diagonal away).")
+def sound_options(command):
+    """--sound FILE, --sound-offset S and --count-in S: perform to a sound (live, record, keys)."""
+    command = click.option(
+        "--count-in", "count_in", default=0.0, type=InRange(limits.COUNT_IN_S), metavar="S",
+        help=f"Seconds counted in (3, 2, 1) before the take's time 0 ({limits.COUNT_IN_S}); "
+             "the take records, and the sound plays, from there.")(command)
+    command = click.option(
+        "--sound-offset", "sound_offset", default=0.0, type=InRange(limits.SOUND_OFFSET),
+        metavar="S", help="Where in the sound the take's time 0 is, seconds.")(command)
+    return click.option(
+        "--sound", "sound_path", default=None, metavar="FILE",
+        help="Perform to a sound (WAV, FLAC, OGG, MP3): it plays on this machine's sound device "
+             "from the take's time 0, and the take stores which sound and where (its hash, "
+             "offset and rate) for play and every export.")(command)
+
+
+def sound_outputs(sound_path, sound_offset: float, count_in: float) -> list:
+    """The session outputs of sound_options: the sound, and the count-in when there is one."""
+    from puppet.session import outputs as o
+
+    outputs = []
+    if sound_path is not None:
+        outputs.append(o.Sound(sound_path, offset_s=sound_offset, tell=say))
+    if count_in > 0:
+        outputs.append(o.CountIn(count_in, tell=say))
+    return outputs
+
+
 force_option = click.option(
     "--force", is_flag=True,
     help="Overwrite an existing output of another kind (an input, a device or a FIFO never).")
-
-
-def close_sinks(sinks, *, failed: bool = False) -> None:
-    """Close every sink (finishing its file), or abort them after a failure (``failed``): no half
-    written video is renamed into place. The first sink error is raised after all are closed."""
-    error = None
-    for sink in sinks:
-        try:
-            if failed and hasattr(sink, "abort"):
-                sink.abort()
-            else:
-                sink.close()
-        except PuppetError as err:
-            error = error or err
-    if error is not None:
-        raise error
 
 
 def progress(seconds: float | None, label: str):
@@ -200,45 +166,6 @@ def rig_files(rig) -> list[Path]:
     from puppet.rig.rig_file import loaded_files
 
     return loaded_files(rig)
-
-
-def check_take_path(take_path: str, rig, *, force: bool) -> Path:
-    """Refuse a take path that is one of the rig's files, a device or FIFO, or an existing file
-    without --force (``puppet.atomic``'s rule)."""
-    from puppet.atomic import check_output
-
-    return check_output(take_path, kind="take", inputs=rig_files(rig), force=force,
-                        keep_existing=True, what="take")
-
-
-def take_writer(take_path: str, rig, *, force: bool = False):
-    """A new TakeWriter for the rig's servos, with its rig map and calibration as metadata.
-
-    An existing file at take_path is replaced only with force (--force); a rig file never.
-    """
-    from puppet.take import TakeWriter
-
-    check_take_path(take_path, rig, force=force)
-    return TakeWriter(take_path, **take_header(rig), overwrite=force)
-
-
-def take_header(rig) -> dict:
-    """What a take (or shot) of ``rig`` is written with: TakeWriter's ids, models, rig_map_text
-    (the rig file, and where it was), calibration_text and rig_name."""
-    from puppet.checksum import character_sha256
-    from puppet.replay import RIG_CHARACTER_MARK, RIG_SOURCE_MARK
-    from puppet.rig.calibration import Calibration
-
-    map_text = ""
-    if rig.path is not None and rig.path.suffix == ".toml":
-        map_text = rig.path.read_text(encoding="utf-8")
-        map_text += ("" if map_text.endswith("\n") or not map_text else "\n")
-        map_text += f"{RIG_CHARACTER_MARK}{character_sha256(rig)}\n"
-        map_text += f"{RIG_SOURCE_MARK}{rig.path.resolve()}\n"
-    calibration = Calibration.capture(rig.servo_map.ids, rig.servo_map.zero)
-    return {"ids": [int(i) for i in rig.servo_map.ids], "models": dict(rig.servo_map.models),
-            "rig_map_text": map_text, "calibration_text": calibration.to_record(),
-            "rig_name": rig.name}
 
 
 def open_take(take: str, rig_path: str | None):

@@ -5,14 +5,15 @@ from __future__ import annotations
 import click
 
 from puppet import limits
-from puppet.cli.common import (InRange, Null, StopFlag, fail, force_option, make_sinks,
-                               print_summary, progress, rig_files)
-from puppet.cli.blender import link_option, open_link, report_link
-from puppet.cli.view import open_view, take_factory_for, view_option
+from puppet.cli.common import (InRange, Null, fail, force_option, progress, rig_files,
+                               run_session, say)
+from puppet.cli.blender import link_option
+from puppet.cli.view import view_option
 
 
 @click.command()
-@click.option("--out", default="demo.mp4", show_default=True, help="Video file to write.")
+@click.option("--out", default=None,
+              help="Video file to write [default: demo.mp4; with --link none unless given].")
 @click.option("--seconds", default=None, type=InRange(limits.SECONDS),
               help=f"Length of the run ({limits.SECONDS}) [default: 10; with --view: until "
                    "Ctrl-C].")
@@ -51,9 +52,10 @@ def demo(out: str, seconds: float | None, faults: str | None, size: tuple[int, i
     from hw_sim.errors import FaultFileError
     from hw_sim.faults import FaultSchedule
 
-    from puppet.atomic import check_output
-    from puppet.demo import run_demo
+    from puppet.demo import demo_source
     from puppet.rig.load import BUILTIN_AX_RIG, BUILTIN_DYNAMICS_RIG, builtin, load_rig
+    from puppet.session import Session
+    from puppet.session import outputs as o
 
     fault_file = faults
     if faults is not None:  # checked before anything starts: a bad file is the user's to fix
@@ -64,32 +66,27 @@ def demo(out: str, seconds: float | None, faults: str | None, size: tuple[int, i
     if dynamics and ax:
         fail("--dynamics and --ax are two variants of the critter: choose one")
     rig = load_rig(BUILTIN_DYNAMICS_RIG) if dynamics else load_rig(BUILTIN_AX_RIG) if ax else builtin()
-    inputs = [fault_file, *rig_files(rig)]
-    check_output(out, kind="video", inputs=inputs, force=force, what="video")  # opened later
-    live_view = link = None
-    if link_address is not None:  # bound before the simulated bus starts
-        link = open_link(link_address, rig)
-    if view_address is not None:  # bound before the simulated bus starts
-        live_view = open_view(view_address, mode="live", take_factory=take_factory_for(rig))
-    elif seconds is None and link is None:
+    if out is None and link_address is None:
+        out = "demo.mp4"
+    outputs = []
+    if out is not None:
+        outputs.append(o.Video(out, fps, force=force))
+    if link_address is not None:
+        outputs.append(o.Link(link_address, rig, tell=say))
+    if view_address is not None:
+        outputs.append(o.View(view_address, mode="live", rig=rig, record=True, tell=say))
+    elif seconds is None and link_address is None:
         seconds = 10.0
     bar, on_frame = progress(seconds, "demo")
-    try:
-        with bar if bar is not None else Null():
-            summary, report = run_demo(seconds=seconds, faults=faults, width=size[0], height=size[1],
-                                       video_fps=fps, on_frame=on_frame, antialias=antialias,
-                                       sinks_for=lambda _p: make_sinks(out, None, fps, inputs=inputs,
-                                                                      force=force),
-                                       view=live_view, should_stop=StopFlag(), rig=rig,
-                                       link=link)
-    finally:
-        if live_view is not None:
-            live_view.close()
-        if link is not None:
-            link.close()
-    print_summary(summary, as_json, extra={"video": out, "read_mode": report.read_mode,
-                                           "dynamics": rig.extras.dynamics is not None,
-                                           **(report_link(link) if link is not None else {})})
+    session = Session(rig, demo_source(rig, faults=faults), outputs,
+                      inputs=[fault_file, *rig_files(rig)], seconds=seconds, video_fps=fps,
+                      on_frame=on_frame, tell=say, say_setup=False,
+                      pipeline={"width": size[0], "height": size[1], "antialias": antialias,
+                                "overlay": True, "live": True})
+    with bar if bar is not None else Null():
+        run_session(session, as_json=as_json, extra=lambda run: {
+            "read_mode": run.setup.read_mode if run.setup else None,
+            "dynamics": rig.extras.dynamics is not None})
 
 
 COMMANDS = (demo,)

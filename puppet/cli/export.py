@@ -35,11 +35,14 @@ from puppet.cli.common import (force_option, keys_option, keys_units_option, ope
 @space_option
 @keys_option
 @keys_units_option
+@click.option("--sound", "sound_path", default=None, metavar="FILE",
+              help="The sound the glTF extras, USD layer data and BVH comment name (its file, "
+                   "hash, rate, the take's offset); default: the take's own.")
 @click.option("--json", "as_json", is_flag=True, help="Print the report as one JSON line.")
 @force_option
 def export(take: str, rig_path: str | None, gltf: str | None, usd: str | None, pc2: str | None,
            bvh: str | None, fps: str, up: str, space: str, keys: float | None,
-           keys_units: float | None, as_json: bool, force: bool) -> None:
+           keys_units: float | None, as_json: bool, force: bool, sound_path: str | None) -> None:
     """Export a take; frame 1 is the take's first reading in every format.
 
     An output estimated over 16 GiB (puppet.limits.EXPORT_BYTES: a long take of a dense mesh
@@ -59,6 +62,12 @@ def export(take: str, rig_path: str | None, gltf: str | None, usd: str | None, p
     if not outputs.items():
         raise ExportError("export", "nothing to write: give --gltf, --usd, --pc2 and/or --bvh FILE")
     rig, reader = open_take(take, rig_path)
+    sound = None
+    if sound_path is not None:  # decoded: refused here when it is not a sound
+        from puppet.sound import load_sound, sound_ref
+
+        stored = reader.metadata.sound
+        sound = sound_ref(load_sound(sound_path), stored.offset_s if stored is not None else 0.0)
     bar = None
 
     def progress(done: int, total: int) -> None:
@@ -70,7 +79,7 @@ def export(take: str, rig_path: str | None, gltf: str | None, usd: str | None, p
 
     try:
         report = export_take(rig, reader, outputs, fps=fps_value, up=up, space=space, keys=keys,
-                             keys_units=keys_units, progress=progress)
+                             keys_units=keys_units, progress=progress, sound=sound)
     finally:
         if bar is not None:
             bar.__exit__(None, None, None)

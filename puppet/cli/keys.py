@@ -4,15 +4,38 @@ from __future__ import annotations
 
 import itertools
 import sys
-import threading
-import time
 
 import click
 
 from puppet import limits
-from puppet.cli.blender import link_option, open_link, report_link
-from puppet.cli.common import InRange, StopFlag, check_take_path, load_rig, start_reader
+from puppet.cli.blender import link_option
+from puppet.cli.common import InRange, load_rig, rig_files, run_session, say
 from puppet.cli.view import view_option
+
+
+def _lines_then_q(desk) -> None:
+    """The terminal's commands, then q at end of input (no view: the shot is done)."""
+    _lines(desk, finish_at_end=True)
+
+
+def _lines_only(desk) -> None:
+    """The terminal's commands; end of input does not finish (the page goes on taking keys)."""
+    _lines(desk, finish_at_end=False)
+
+
+def new_desk(rig, path: str, *, fps: float = None, step: int = None,
+             interpolation: str = "linear", sound=None):
+    """A KeyDesk for a new shot of ``rig`` at ``path`` (``puppet keys``' defaults), its
+    outcomes said on the terminal. sound: the shot's SoundRef (the sound's time at frame 1)."""
+    from puppet.keys.capture import KeyDesk, KeySession
+    from puppet.take.header import take_header
+
+    header = take_header(rig)
+    if sound is not None:
+        header["sound"] = sound
+    session = KeySession(path, header, fps=DEFAULT_FPS if fps is None else fps,
+                         step=DEFAULT_STEP if step is None else step, interpolation=interpolation)
+    return KeyDesk(session, tell=say_outcome)
 
 
 def _lines(desk, finish_at_end: bool = True) -> None:
@@ -53,11 +76,16 @@ def say_outcome(origin, taken: bool, words: str) -> None:
 @click.option("--baud", default=1_000_000, show_default=True, type=InRange(limits.BAUD),
               help=f"Bus speed: {limits.BAUD}.")
 @click.option("--force", is_flag=True, help="Replace an existing shot file.")
+@click.option("--sound", "sound_path", default=None, metavar="FILE",
+              help="Key to a sound (WAV, FLAC, OGG, MP3): the shot stores which sound and where "
+                   "(--sound-offset: its time at frame 1), for play and every export.")
+@click.option("--sound-offset", "sound_offset", default=0.0, type=InRange(limits.SOUND_OFFSET),
+              metavar="S", help="The sound's time at the shot's frame 1, seconds.")
 @view_option
 @link_option
 @click.pass_context
 def keys(ctx, rig_path, port, out, fps, step, interpolation, baud, force, view_address,
-         link_address) -> None:
+         link_address, sound_path, sound_offset) -> None:
     """Pose to pose: hold a pose and press Enter; each key lands --step frames after the last.
 
     \b
@@ -82,8 +110,10 @@ def keys(ctx, rig_path, port, out, fps, step, interpolation, baud, force, view_a
     """
     if ctx.invoked_subcommand is not None:
         return
-    from puppet.cli.common import take_header
-    from puppet.keys.capture import KeyDesk, KeySession
+    from puppet.events import describe_counts
+    from puppet.session import Session
+    from puppet.session import outputs as o
+    from puppet.session.sources import BusSource
 
     missing = [name for name, value in (("--rig", rig_path), ("--port", port), ("--out", out))
                if value is None]
@@ -95,75 +125,31 @@ def keys(ctx, rig_path, port, out, fps, step, interpolation, baud, force, view_a
 
     check_shot_path(out)
     rig = load_rig(rig_path)
-    check_take_path(out, rig, force=force)  # before the port: a mistake costs nothing
-    session = KeySession(out, take_header(rig), fps=fps, step=step, interpolation=interpolation)
-    desk = KeyDesk(session, tell=say_outcome)
-    link = None
-    if view_address is not None:  # bound before the bus is touched: a taken port fails first
-        link = open_link(link_address, rig) if link_address is not None else None
-        try:
-            source = _capture_in_view(rig, port, baud, desk, view_address, link)
-        finally:
-            if link is not None:
-                link.close()
-    else:
-        source = _capture(rig, port, baud, desk)
-    if session.written:
-        frames = session.keys.keys[-1].frame if session.keys.keys else 0
-        click.echo(f"shot: {out}\nkeys: {len(session.keys.keys)}, {frames} frames at {fps:g} fps")
-    else:  # the shot is written at its first key: none taken, nothing written
-        click.echo(f"shot: none: no key was taken, nothing written to {out}")
-    from puppet.events import describe_counts
+    sound = None
+    if sound_path is not None:
+        from puppet.sound import load_sound, sound_ref
 
-    click.echo(f"faults seen: {describe_counts(dict(source.log.counts))}")  # the summary's words
-    if link is not None:
-        click.echo(f"link: {report_link(link)['link']}")
-
-
-def _capture(rig, port: str, baud: int, desk):
-    """Take the terminal's commands until q, end of input or Ctrl-C; returns the reader."""
-    source = start_reader(rig, port, baud, rate_hz=200.0)
-    threading.Thread(target=_lines, args=(desk,), daemon=True).start()
-    stop = StopFlag()
-    click.echo("hold a pose and press Enter for a key (r N, d N, i FRAME, t N FRAME, m [N] KIND, q: see --help)")
-    try:
-        while not stop() and not desk.finished:
-            desk.feed(source.drain())
-            desk.step()
-            time.sleep(0.005)
-    finally:
-        source.stop()
-    return source
-
-
-def _capture_in_view(rig, port: str, baud: int, desk, address: str, link=None):
-    """The capture inside the live view: the live loop solves and shows the puppet, the view
-    hands the KeyDesk its readings and the page's keys; the terminal's commands work as well.
-    link: a Link (``--link``) fed every solved frame of that loop, or None."""
-    from puppet.cli.view import open_view
-    from puppet.loop import Pipeline, run_live
-    from puppet.loop.run import LIVE_FPS
-
-    live_view = open_view(address, mode="live", keys=desk)
-    stop = StopFlag()
-    try:
-        with Pipeline(rig, overlay=True, live=True) as pipeline:
-            source = start_reader(rig, port, baud, rate_hz=200.0)
-            try:
-                live_view.attach(pipeline, source=source)
-                if link is not None:
-                    link.attach(pipeline, fps=LIVE_FPS)
-                threading.Thread(target=_lines, args=(desk, False), daemon=True).start()
-                click.echo("hold a pose and press Enter here, or Space or Key on the page, for a "
-                           "key (r N, d N, i FRAME, t N FRAME, m [N] KIND, q: see --help)")
-                run_live(pipeline, source, should_stop=lambda: stop() or desk.finished,
-                         view=live_view, link=link)
-            finally:
-                live_view.close()
-                source.stop()
-    finally:
-        live_view.close()
-    return source
+        sound = sound_ref(load_sound(sound_path), sound_offset)
+    desk = new_desk(rig, out, fps=fps, step=step, interpolation=interpolation, sound=sound)
+    in_view = view_address is not None
+    ready = ("hold a pose and press Enter here, or Space or Key on the page, for a key "
+             "(r N, d N, i FRAME, t N FRAME, m [N] KIND, q: see --help)" if in_view else
+             "hold a pose and press Enter for a key (r N, d N, i FRAME, t N FRAME, m [N] KIND, "
+             "q: see --help)")
+    outputs = [o.KeyDesk(desk, path=out, rig=rig, feed=not in_view, force=force, option="--out",
+                         lines=_lines_only if in_view else _lines_then_q, ready_text=ready,
+                         tell=click.echo)]
+    if link_address is not None:
+        outputs.append(o.Link(link_address, rig, tell=say))
+    if in_view:
+        outputs.append(o.View(view_address, mode="live", keys=desk, tell=say))
+    session = Session(rig, BusSource(rig, port, baud=baud, rate_hz=200.0), outputs,
+                      inputs=[*rig_files(rig), sound_path], solve=in_view, tell=say,
+                      latch_fps=None if not in_view else 60.0,
+                      pipeline={"overlay": True, "live": True})
+    session.run()
+    click.echo("\n".join(f"{key}: {value}" for key, value in session.report().items()))
+    click.echo(f"faults seen: {describe_counts(session.summary.faults)}")
 
 
 def _edit(shot: str, out: str, force: bool, change) -> None:

@@ -7,43 +7,13 @@ from pathlib import Path
 import click
 
 from puppet import limits
-from puppet.cli.common import (InRange, StopFlag, check_take_path, load_rig, make_sinks,
-                               print_summary, rig_files, start_reader, take_writer)
-from puppet.cli.blender import link_option, open_link, report_link
-from puppet.cli.view import open_view, take_factory_for, view_option
+from puppet.cli.blender import link_option
+from puppet.cli.common import (InRange, load_rig, rig_files, run_session, say,
+                               sound_options, sound_outputs)
+from puppet.cli.view import view_option
 
 READ_RATE_HZ = 500.0
 """Bus cycles per second in live (a read of every servo, and the actuators' goal write)."""
-
-
-def report_actuators(source) -> None:
-    """Say on stderr what the actuators' setup changed and their torque read back at the end."""
-    for note in source.notes:
-        click.echo(note, err=True)
-    after = source.torque_after
-    release = f"; `puppet release --port {source.port}` turns it off"
-    if not after:
-        ids = [int(i) for i in source.hook.ids]
-        click.echo(f"warning: actuator servos {ids}: torque not confirmed off (no read back)"
-                   + release, err=True)
-        return
-    on = sorted(i for i, v in after.items() if v != 0)
-    if on:
-        click.echo(f"warning: actuator servos {on}: torque not confirmed off (read back {after})"
-                   + release, err=True)
-    else:
-        click.echo(f"actuators {sorted(after)}: torque off (read back)", err=True)
-
-
-def _key_desk(rig, shot_path: str):
-    """The KeyDesk of ``live --view --keys``: a new shot at ``puppet keys``' defaults, its
-    outcomes said on the terminal."""
-    from puppet.cli.common import take_header
-    from puppet.cli.keys import DEFAULT_FPS, DEFAULT_STEP, say_outcome
-    from puppet.keys.capture import KeyDesk, KeySession
-
-    session = KeySession(shot_path, take_header(rig), fps=DEFAULT_FPS, step=DEFAULT_STEP)
-    return KeyDesk(session, tell=say_outcome)
 
 
 @click.command()
@@ -71,12 +41,14 @@ def _key_desk(rig, shot_path: str):
               help="With --view: take key poses into this shot from the page (Space or its Key "
                    "button; timeline, onion skins) as `puppet keys --view` does, at its default "
                    "--fps and --step.")
+@sound_options
 @view_option
 @link_option
 def live(rig_path: str, port: str, baud: int, take_path: str | None, out: str | None,
          frames: str | None, seconds: float | None, fps: float, antialias: str,
          force: bool, shot_path: str | None, view_address: str | None,
-         link_address: str | None, watchdog_ms: float, no_watchdog: bool) -> None:
+         link_address: str | None, watchdog_ms: float, no_watchdog: bool,
+         sound_path: str | None, sound_offset: float, count_in: float) -> None:
     """Read the puppet, solve and render live until Ctrl-C.
 
     Servos with role = "actuator" in the rig file are driven to the angle the solve gives
@@ -89,73 +61,39 @@ def live(rig_path: str, port: str, baud: int, take_path: str | None, out: str | 
       puppet live --rig my.toml --port /dev/ttyUSB0 --view --keys shot.mcap   key poses from the page
       puppet live --rig my.toml --port /dev/ttyUSB0 --link     into Blender (puppet_link add-on)
     """
-    from puppet.drive.actuators import ActuationPlan, ActuatorHook, LiveActuation
-    from puppet.loop import Pipeline, run_live
-    from puppet.loop.run import LIVE_FPS
-    from puppet.take import BackgroundTakeWriter
+    from puppet.session import Session
+    from puppet.session import outputs as o
+    from puppet.session.sources import BusSource
 
     rig = load_rig(rig_path)
     if shot_path is not None and view_address is None:
         raise click.UsageError("--keys takes keys from the page: add --view (or use `puppet keys`)")
-    if take_path or shot_path:  # every output checked before the view, the bus or any file is touched
-        from puppet.atomic import check_distinct
+    outputs = [o.Actuators(rig, READ_RATE_HZ, watchdog_ms=0.0 if no_watchdog else watchdog_ms,
+                           tell=say)]
+    if take_path is not None:
+        outputs.append(o.Take(take_path, rig, force=force))
+    if out is not None:
+        outputs.append(o.Video(out, fps, force=force))
+    if frames is not None:
+        outputs.append(o.Frames(frames))
+    desk = None
+    if shot_path is not None:
+        from puppet.cli.keys import new_desk
 
-        check_distinct({"--record": take_path, "--out": out, "--keys": shot_path})
-        for path in (take_path, shot_path):
-            if path:
-                check_take_path(path, rig, force=force)
-    desk = _key_desk(rig, shot_path) if shot_path else None
-    sinks = make_sinks(out, frames, fps, inputs=rig_files(rig), force=force)
-    live_view = link = None
-    if link_address is not None:  # bound before the bus is touched: a taken port fails first
-        link = open_link(link_address, rig)
-    if view_address is not None:  # bound before the bus is touched: a taken port fails first
-        takes = Path(take_path).parent if take_path else Path(".")
-        live_view = open_view(view_address, mode="live", take_factory=take_factory_for(rig),
-                              takes_dir=takes, keys=desk)
-    stop = StopFlag()
-    try:
-        with Pipeline(rig, render=bool(sinks) or live_view is not None, overlay=True,
-                      antialias=antialias, live=True) as pipeline:
-            plan = ActuationPlan.for_rig(rig, READ_RATE_HZ,
-                                         watchdog_ms=0.0 if no_watchdog else watchdog_ms)
-            actuation = LiveActuation(rig) if plan is not None else None
-            source = start_reader(rig, port, baud, READ_RATE_HZ,
-                                  hook=ActuatorHook(plan) if plan is not None else None)
-            if actuation is not None:
-                actuation.source = source
-            try:
-                # On its own thread: a periodic fsync must not stall a frame.
-                recorder = (BackgroundTakeWriter(take_writer(take_path, rig, force=force))
-                            if take_path else None)
-                try:
-                    if live_view is not None:
-                        live_view.attach(pipeline, source=source, recorder=recorder)
-                    if link is not None:  # frames at the loop's target rate
-                        link.attach(pipeline, fps=LIVE_FPS)
-                    summary = run_live(pipeline, source, seconds=seconds, sinks=sinks, video_fps=fps,
-                                       recorder=recorder, should_stop=stop, view=live_view,
-                                       after_solve=actuation and actuation.after_solve, link=link)
-                finally:
-                    if live_view is not None:
-                        live_view.close()
-                    if recorder is not None:
-                        recorder.close()
-            finally:
-                for sink in sinks:
-                    sink.close()
-                source.stop()
-                if plan is not None:
-                    report_actuators(source)
-    finally:
-        if live_view is not None:
-            live_view.close()
-        if link is not None:
-            link.close()
-    extra = {"take": take_path} if take_path else {}
-    if desk is not None:
-        extra["shot"] = f"{shot_path} ({len(desk.session.keys.keys)} keys)"
-    print_summary(summary, False, extra={**extra, **(report_link(link) if link else {})})
+        desk = new_desk(rig, shot_path)
+        outputs.append(o.KeyDesk(desk, path=shot_path, rig=rig, feed=False, force=force))
+    if link_address is not None:
+        outputs.append(o.Link(link_address, rig, tell=say))
+    if view_address is not None:
+        outputs.append(o.View(view_address, mode="live", rig=rig, record=True, keys=desk,
+                              takes_dir=Path(take_path).parent if take_path else Path("."),
+                              tell=say))
+    outputs += sound_outputs(sound_path, sound_offset, count_in)
+    session = Session(rig, BusSource(rig, port, baud=baud, rate_hz=READ_RATE_HZ), outputs,
+                      inputs=[*rig_files(rig), sound_path], seconds=seconds, video_fps=fps,
+                      tell=say, count_in_s=count_in,
+                      solve=True, pipeline={"overlay": True, "antialias": antialias, "live": True})
+    run_session(session)
 
 
 COMMANDS = (live,)

@@ -32,10 +32,14 @@ from puppet.cli.common import InRange, load_rig
 @click.option("--latency-ms", default=None, type=InRange(limits.LATENCY_MS),
               help=f"Adapter latency the SDK timeouts assume ({limits.LATENCY_MS}; default: the "
                    "adapter's, or 1).")
+@click.option("--sound", "sound_path", default=None, metavar="FILE",
+              help="Play this sound with the motors (default: the take's own, found by its hash); "
+                   "on this machine's sound device, from the take's time 0.")
+@click.option("--silent", is_flag=True, help="Perform without the take's sound.")
 @click.option("--json", "as_json", is_flag=True, help="Print the report as one JSON line.")
 def perform(take: str, rig_path: str | None, port: str, baud: int, speed: float, loop: bool,
             yes: bool, no_watchdog: bool, watchdog_ms: float, rate_hz: float,
-            latency_ms: int | None, as_json: bool) -> None:
+            latency_ms: int | None, sound_path: str | None, silent: bool, as_json: bool) -> None:
     """Perform a take on the puppet's servos.
 
     Goals come from the take's joint angles through this rig's calibration, clamped to its
@@ -59,17 +63,54 @@ def perform(take: str, rig_path: str | None, port: str, baud: int, speed: float,
     def log(line: str) -> None:
         click.echo(line, err=True)
 
+    player = None if silent else _player(reader, sound_path, speed, loop, log)
+
+    def on_phase(phase: str) -> None:
+        click.echo(f"phase: {phase}", err=True)
+        if player is not None and phase == "playback":
+            player.start(player.clock())  # sample offset_s is heard at the motors' take time 0
+        elif player is not None and phase == "stop":
+            player.stop()  # with the motors' last goal, before torque goes off
+
     try:
-        report = run(rig, reader, port, options, log=log,
-                     on_phase=lambda p: click.echo(f"phase: {p}", err=True))
+        report = run(rig, reader, port, options, log=log, on_phase=on_phase)
     except DriveError as err:
         if err.report is not None:
             click.echo(err.report.text(), err=True)
         raise
+    finally:
+        if player is not None:
+            player.stop()
     if as_json:
         click.echo(json.dumps(report.as_dict()))
     else:
         click.echo(report.text())
+
+
+def _player(reader, sound_path: str | None, speed: float, loop: bool, log):
+    """The take's sound (or --sound FILE) on the sound device, pre-rolled now (its stream runs
+    silent until the playback starts); None without a sound, a device, or at a --speed other
+    than 1 (said once)."""
+    from puppet.sound import sound_for_take
+    from puppet.sound.device import DevicePlayer
+
+    if sound_path is None and reader.metadata.sound is None:
+        return None
+    if speed != 1.0:
+        log(f"warning: --speed {speed:g}: the performance is silent (its sound plays at speed 1 only)")
+        return None
+    sound, offset_s, warning = sound_for_take(reader, sound_path)
+    if warning is not None:
+        log(f"warning: {warning}")
+    if sound is None:
+        return None
+    if loop:
+        log("note: --loop: the sound plays with the first pass only")
+    player = DevicePlayer(sound, offset_s)
+    if not player.prepare():
+        log(player.message)
+        return None
+    return player
 
 
 COMMANDS = (perform,)

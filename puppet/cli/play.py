@@ -7,8 +7,8 @@ import sys
 import click
 
 from puppet import limits
-from puppet.cli.common import (InRange, StopFlag, close_sinks, fail, force_option, make_sinks,
-                               open_take, print_summary, rig_files)
+from puppet.cli.common import (InRange, fail, force_option, open_take, rig_files, run_session,
+                               say)
 from puppet.cli.blender import link_option
 from puppet.cli.view import view_option
 
@@ -24,12 +24,15 @@ from puppet.cli.view import view_option
               help=f"Frame rate of the video and frames ({limits.FPS}).")
 @click.option("--antialias", type=click.Choice(["msaa", "fxaa", "none"]), default="msaa",
               show_default=True, help="Offline: MSAA by default, whatever the renderer.")
+@click.option("--sound", "sound_path", default=None, metavar="FILE",
+              help="Sound (WAV, FLAC, OGG, MP3) muxed into --out at the take's offset (default: "
+                   "the take's own, found by its hash at its path or beside the take).")
 @view_option
 @link_option
 @force_option
 def play(take: str, rig_path: str | None, out: str | None, frames: str | None, speed: float,
          fps: float, antialias: str, view_address: str | None, link_address: str | None,
-         force: bool) -> None:
+         force: bool, sound_path: str | None) -> None:
     """Replay a take through the solver and renderer (deterministic).
 
     \b
@@ -38,51 +41,74 @@ def play(take: str, rig_path: str | None, out: str | None, frames: str | None, s
       puppet play take.mcap --view       pause, scrub and change speed in the browser
       puppet play take.mcap --link       into Blender (the puppet_link add-on), on the clock
     """
-    from puppet.replay import play_take
+    from puppet.session import Session
+    from puppet.session import outputs as o
+    from puppet.session.sources import TakeFrames, TakeOnClock
+    from puppet.take import Playback
 
+    if sound_path is not None and out is None:
+        fail("--sound is muxed into the video: give --out VIDEO")
     if view_address is not None and link_address is not None:
         fail("--view and --link: pick one for a play (both work on live and demo)")
-    if link_address is not None:
-        from puppet.cli.blender import play_to_link
-
-        play_to_link(take, rig_path, link_address, speed=speed, fps=fps, out=out,
-                     frames_dir=frames, force=force)
-        return
-
-    if view_address is not None:
-        from puppet.cli.view import play_in_view
-
-        play_in_view(take, rig_path, out, frames, speed, fps, view_address, force=force)
-        return
-    if not out and not frames:
+    if not out and not frames and view_address is None and link_address is None:
         fail("nothing to write: give --out VIDEO and/or --frames FOLDER (or watch it: --view)")
     rig, reader = open_take(take, rig_path)
-    sinks = make_sinks(out, frames, fps, inputs=[take, *rig_files(rig)], force=force)
-    stop = StopFlag()  # Ctrl-C or SIGTERM: stop after this frame, finish the video (playable)
+    outputs = []
+    if out:
+        sound, offset_s, timecode = _sound(reader, sound_path, speed)
+        outputs.append(o.Video(out, fps, force=force, sound=sound, sound_offset_s=offset_s,
+                               timecode=timecode, tell=say))
+    if frames:
+        outputs.append(o.Frames(frames))
     bar = None
-    total = 0
+    if view_address is not None:  # the take on the wall clock, driven from the page
+        from puppet.take.markers import read_markers
 
-    def progress(done: int, frames_in_all: int) -> None:
-        nonlocal bar, total
-        if bar is None:
-            total = frames_in_all
-            bar = click.progressbar(length=total, label="play", file=sys.stderr)
-            bar.__enter__()
-        bar.update(1)
+        playback = Playback.of_take(reader, rig.servo_map.ids, rig=rig)
+        marks = [(playback.play_s(t), name) for t, name in read_markers(take)]
+        source = TakeOnClock(playback, speed=speed, markers=marks)
+        outputs.append(o.View(view_address, mode="play", tell=say))
+        pipeline = {"overlay": True, "live": True}
+        on_frame = None
+    else:  # the export's frames at --fps: as fast as possible, or on the clock into Blender
+        playback = Playback.of_take(reader, rig.servo_map.ids, fps=fps,
+                                    speed=1.0 if link_address is not None else speed, rig=rig)
+        source = TakeFrames(playback, fps=fps, speed=speed, paced=link_address is not None)
+        if link_address is not None:
+            outputs.append(o.Link(link_address, rig, fps=fps, tell=say))
+        pipeline = {"overlay": True, "antialias": antialias, "live": False}
+        bar = click.progressbar(length=len(source), label="play", file=sys.stderr)
+        on_frame = lambda done: bar.update(1)  # noqa: E731
+    session = Session(rig, source, outputs, inputs=[take, *rig_files(rig)], video_fps=fps,
+                      on_frame=on_frame, tell=say, pipeline=pipeline)
+    if bar is None:
+        run_session(session, extra=lambda _run: {"take": take})
+        return
+    with bar:
+        session.run()
+    if session.stopped_by is not None:
+        say(f"stopped by {session.stopped_by} after {session.summary.frames} of {len(source)} "
+            "frames; the outputs hold those frames")
+    from puppet.cli.common import print_summary
 
-    try:
-        summary = play_take(rig, reader, sinks, fps=fps, speed=speed, antialias=antialias,
-                            progress=progress, should_stop=stop)
-    except BaseException:
-        close_sinks(sinks, failed=True)
-        raise
-    finally:
-        if bar is not None:
-            bar.__exit__(None, None, None)
-    close_sinks(sinks)
-    if stop():
-        click.echo(f"stopped by {stop.signal_name} after {summary.frames} of {total} frames; "
-                   "the outputs hold those frames", err=True)
-    print_summary(summary, False, extra={"take": take, "video": out} if out else {"take": take})
+    print_summary(session.summary, False, extra={"take": take, **session.report()})
+
+
+def _sound(reader, sound_path: str | None, speed: float):
+    """(sound, offset_s, start timecode) for the video: the take's own sound (or --sound FILE);
+    a missing one, or a --speed other than 1, plays silent with one warning."""
+    from puppet.sound import sound_for_take
+
+    timecode = reader.metadata.timecode
+    if sound_path is None and reader.metadata.sound is None:
+        return None, 0.0, timecode
+    if speed != 1.0:
+        say(f"warning: --speed {speed:g}: the video is silent (its sound plays at speed 1 only)")
+        return None, 0.0, timecode
+    sound, offset_s, warning = sound_for_take(reader, sound_path)
+    if warning is not None:
+        say(f"warning: {warning}")
+    return sound, offset_s, timecode
+
 
 COMMANDS = (play,)

@@ -2,13 +2,10 @@
 
 from __future__ import annotations
 
-import time
-
 import click
 
 from puppet import limits
-from puppet.cli.common import (InRange, StopFlag, check_take_path, load_rig, start_reader,
-                               take_writer)
+from puppet.cli.common import InRange, load_rig, rig_files, say, sound_options, sound_outputs
 
 
 @click.command()
@@ -22,37 +19,32 @@ from puppet.cli.common import (InRange, StopFlag, check_take_path, load_rig, sta
 @click.option("--rate", default=500.0, show_default=True, type=InRange(limits.READ_RATE_HZ),
               help=f"Readings per second ({limits.READ_RATE_HZ}).")
 @click.option("--force", is_flag=True, help="Replace an existing take file.")
+@sound_options
 def record(rig_path: str, port: str, out: str, baud: int, seconds: float | None, rate: float,
-           force: bool) -> None:
+           force: bool, sound_path: str | None, sound_offset: float, count_in: float) -> None:
     """Record a take (raw servo readings) without solving or rendering: the lightest loop.
 
     \b
     Example:
       puppet record --rig my.toml --port /dev/ttyUSB0 --out take.mcap --seconds 30
     """
+    from puppet.events import describe_counts
+    from puppet.session import Session
+    from puppet.session import outputs as o
+    from puppet.session.sources import BusSource
+
     rig = load_rig(rig_path)
-    check_take_path(out, rig, force=force)  # before the port: a mistake costs no take
-    source = start_reader(rig, port, baud, rate_hz=rate)
-    try:
-        writer = take_writer(out, rig, force=force)  # the file is made once the port answers
-        stop = StopFlag()
-        start = time.monotonic()
-        count = flagged = 0
-        try:
-            while not stop() and (seconds is None or time.monotonic() - start < seconds):
-                batch = source.drain()
-                if not batch:
-                    time.sleep(0.005)
-                for reading in batch:
-                    writer.write(reading)
-                    count += 1
-                    flagged += int(not reading.ok.all())
-        finally:
-            writer.close()
-    finally:
-        source.stop()
-    click.echo(f"take: {out}\nreadings: {count} in {time.monotonic() - start:.2f} s, "
-               f"{flagged} with a flagged servo\nfaults seen: {dict(source.log.counts) or 'none'}")
+    take = o.Take(out, rig, force=force, option="--out")  # checked before the port: a mistake costs no take
+    session = Session(rig, BusSource(rig, port, baud=baud, rate_hz=rate),
+                      [take, *sound_outputs(sound_path, sound_offset, count_in)],
+                      inputs=[*rig_files(rig), sound_path], seconds=seconds, solve=False,
+                      latch_fps=None, tell=say, count_in_s=count_in)
+    summary = session.run()
+    if session.stopped_by is not None:
+        say(f"stopped by {session.stopped_by}; the take holds every reading until then")
+    flagged = summary.faults.pop("servo_not_ok", 0)
+    click.echo(f"take: {out}\nreadings: {take.readings} in {summary.seconds:.2f} s, "
+               f"{flagged} with a flagged servo\nfaults seen: {describe_counts(summary.faults)}")
 
 
 COMMANDS = (record,)

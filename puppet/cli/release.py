@@ -11,7 +11,8 @@ from puppet.cli.common import InRange, fail, load_rig
 @click.command()
 @click.option("--port", required=True, help="Serial port of the bus.")
 @click.option("--rig", "rig_path", default=None,
-              help="Release this rig's servos (default: every servo a broadcast ping finds).")
+              help="Release this rig's servos too, even those that do not answer a ping (every "
+                   "servo that answers is released, named when not in the rig).")
 @click.option("--baud", default=1_000_000, show_default=True, type=InRange(limits.BAUD),
               help=f"Bus speed: {limits.BAUD}.")
 def release(port: str, rig_path: str | None, baud: int) -> None:

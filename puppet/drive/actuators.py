@@ -40,7 +40,6 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from puppet.bus.control_table import describe_hardware_error
 from puppet.bus.errors import BusError
 from puppet.bus.link import BusLink
 from puppet.drive import items as it
@@ -48,7 +47,7 @@ from puppet.drive.errors import HealthStop
 from puppet.drive.goals import GoalShaper
 from puppet.drive.health import CurrentTemperatureStop
 from puppet.drive.servos import DriveBus
-from puppet.servo_models import ServoUnits, protocol_of
+from puppet.servo_models import ServoUnits, describe_hardware_error, protocol_of
 
 
 @dataclass(frozen=True)

@@ -1,7 +1,8 @@
 """What driving reads and writes, per model: each servo's own items come from its model's
 ``ControlItems`` (``puppet.servo_models``; a field name such as "goal_position" names the item
-on every model), plus the few X-series items no other family has (Moving Status, Profile
-Acceleration), and the cycle's one contiguous state read, laid out from each model's items.
+on every model, None where the model has none: Moving Status and Profile Acceleration are the
+X layout's only), the values driving writes into them, and the cycle's one contiguous state
+read, laid out from each model's items.
 
 Per-model units (current, velocity, Bus Watchdog firmware) are fields of
 ``puppet.servo_models.MODELS``.
@@ -11,32 +12,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from puppet.bus.control_table import (GOAL_POSITION, HARDWARE_ERROR_STATUS, OPERATING_MODE,
-                                      PRESENT_POSITION, TORQUE_ENABLE, Item)
-from puppet.servo_models import ControlItems
-
-# X-series addresses (the X layout), named for the tests and benchmarks that drive X-series.
-DRIVE_MODE = Item("Drive Mode", 10, 1, eeprom=True)
-CURRENT_LIMIT = Item("Current Limit", 38, 2, eeprom=True)
-TEMPERATURE_LIMIT = Item("Temperature Limit", 31, 1, eeprom=True)
-MAX_POSITION_LIMIT = Item("Max Position Limit", 48, 4, eeprom=True)
-MIN_POSITION_LIMIT = Item("Min Position Limit", 52, 4, eeprom=True)
-BUS_WATCHDOG = Item("Bus Watchdog", 98, 1, signed=True)
-PROFILE_VELOCITY = Item("Profile Velocity", 112, 4)
-
-MOVING_STATUS = Item("Moving Status", 123, 1)
-"""X layout only (Moving at 122): b0 in position."""
-PROFILE_ACCELERATION = Item("Profile Acceleration", 108, 4)
-"""X layout only: the start profile's acceleration (other families start at Moving Speed)."""
-X_ONLY = (MOVING_STATUS, PROFILE_ACCELERATION)
-
-STATE_ADDRESS = 122
-"""The X layout's cycle read, Moving (122) .. Present Temperature (146), 25 bytes: Moving 122,
-Moving Status 123, Present PWM 124, Present Current/Load 126, Present Velocity 128, Present
-Position 132, Velocity/Position Trajectory 136/140, Input Voltage 144, Present Temperature
-146. Other layouts read their own span (``StateLayout``): Protocol 1.0 Present Position (36)
-.. Moving (46), 11 bytes; XL-320 Present Position (37) .. Moving (49), 13 bytes."""
-STATE = Item("Moving .. Present Temperature", STATE_ADDRESS, 25)
+from puppet.servo_models import ControlItems, Item
 
 POSITION_MODES = {3: "position", 4: "extended position", 5: "current-based position"}
 POSITION_MODE = 3
@@ -54,20 +30,15 @@ is a direction only in wheel mode) or Profile Velocity (4 bytes)."""
 
 
 def x_layout(items: ControlItems) -> bool:
-    """Whether a model keeps the X-series layout (X-series and MX(2.0): Present Position at
-    132), where the X_ONLY items live."""
-    return items.present_position.address == PRESENT_POSITION.address
+    """Whether a model keeps the X-series layout (X-series and MX(2.0)), where Moving Status
+    and Profile Acceleration live."""
+    return items.moving_status is not None
 
 
 def resolve(items: ControlItems, what: str | Item) -> Item | None:
     """The item ``what`` names on a model with ``items``: a ControlItems field name -> that
-    model's item (None: it has none); an Item -> itself, or None for an X_ONLY item on a model
-    without the X layout."""
-    if isinstance(what, str):
-        return getattr(items, what)
-    if what in X_ONLY and not x_layout(items):
-        return None
-    return what
+    model's item (None: it has none); an Item -> itself."""
+    return getattr(items, what) if isinstance(what, str) else what
 
 
 @dataclass(frozen=True)
@@ -83,6 +54,11 @@ class StateLayout:
     fields: dict
     moving_status: int | None
     load: bool
+    """The X layout's block: Moving (122) .. Present Temperature (146), 25 bytes: Moving 122,
+    Moving Status 123, Present PWM 124, Present Current/Load 126, Present Velocity 128, Present
+    Position 132, Velocity/Position Trajectory 136/140, Input Voltage 144, Present Temperature
+    146. Protocol 1.0: Present Position (36) .. Moving (46), 11 bytes; XL-320: Present Position
+    (37) .. Moving (49), 13 bytes."""
 
     @classmethod
     def of(cls, items: ControlItems) -> "StateLayout":
@@ -95,7 +71,7 @@ class StateLayout:
         start = min(i.address for i in chosen.values())
         end = max(i.address + i.size for i in chosen.values())
         fields = {name: (i.address - start, i) for name, i in chosen.items()}
-        status = MOVING_STATUS.address - start if x_layout(items) else None
+        status = items.moving_status.address - start if x_layout(items) else None
         return cls(Item(f"{items.present_position.name} .. state", start, end - start), fields,
                    status, load)
 
@@ -109,7 +85,7 @@ class StateLayout:
         return out
 
 
-__all__ = ["DRIVE_MODE", "CURRENT_LIMIT", "TEMPERATURE_LIMIT", "MAX_POSITION_LIMIT",
-           "MIN_POSITION_LIMIT", "BUS_WATCHDOG", "PROFILE_ACCELERATION", "PROFILE_VELOCITY",
-           "MOVING_STATUS", "STATE", "StateLayout", "GOAL_POSITION", "HARDWARE_ERROR_STATUS",
-           "OPERATING_MODE", "PRESENT_POSITION", "TORQUE_ENABLE", "resolve", "x_layout"]
+__all__ = ["POSITION_MODES", "POSITION_MODE", "XL320_JOINT_MODE", "DRIVE_MODE_TIME_PROFILE",
+           "DRIVE_MODE_TORQUE_ON_BY_GOAL", "WATCHDOG_UNIT_S", "WATCHDOG_TRIPPED",
+           "MOVING_STATUS_IN_POSITION", "ACCEL_UNIT_DEG_S2", "MOVING_SPEED_MAX", "StateLayout",
+           "resolve", "x_layout"]

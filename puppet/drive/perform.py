@@ -22,7 +22,11 @@ speed, and stops it only when ``WATCHDOG_TRIPS_TO_STOP`` checks in a row find it
 goal write not sent because the line was stalled costs that cycle (its goals go with the next).
 
 Stop (end of take, SIGINT, SIGTERM, bus error, any exception): torque off by one Sync Write
-with no reply, then servo by servo, then read back; see ``DriveBus.torque_off``. A port lost
+with no reply, then servo by servo, then read back; see ``DriveBus.torque_off``. A kill that no
+``finally`` sees (SIGKILL, a hang-up, a crash in native code): the torque guardian, a child
+process started and waited for before the port opens, opens the port
+once this process is gone and does the same stop (``puppet.drive.guardian``); only a kill of
+both at once leaves the servos to their Bus Watchdog. A port lost
 mid-performance (an adapter pulled) is tried again for ``PORT_RETRY_S``: if it comes back,
 torque goes off as above (the performance does not resume); if not, the error says torque may
 still be on (the Bus Watchdog stops the servos) and names ``puppet release``.
@@ -40,17 +44,18 @@ from dataclasses import asdict, dataclass, field
 import numpy as np
 
 from puppet import limits
-from puppet.bus.control_table import describe_hardware_error
 from puppet.bus.errors import BusError, PortError, ServoCorrupt, ServoTimeout
 from puppet.bus.link import BusLink
 from puppet.bus.port_lock import PortInUse
 from puppet.drive import items as it
 from puppet.drive.errors import DriveError, HealthStop
 from puppet.drive.goals import GoalShaper, TakeGoals
+from puppet.drive.guardian import Guardian
 from puppet.drive.health import (CURRENT_FRACTION, CURRENT_SUSTAIN_S, TEMPERATURE_CAP_C,
                                  TEMPERATURE_MARGIN_C, CurrentTemperatureStop)
 from puppet.drive.servos import DriveBus
-from puppet.servo_models import protocol_of
+from puppet.servo_models import describe_hardware_error, protocol_of
+from puppet.session.signals import Signals
 
 WATCHDOG_CHECK_CYCLES = 10
 """The Bus Watchdog items are read every this many cycles (the state read is every cycle)."""
@@ -69,6 +74,9 @@ PORT_RETRY_S = 2.0
 """How long a port lost mid-performance is tried again (every ``PORT_RETRY_PERIOD_S``) to turn
 torque off."""
 PORT_RETRY_PERIOD_S = 0.1
+NOTICE_REPEAT_S = 5.0
+"""A condition said once (a Bus Watchdog trip, a stalled loop) is said again at most this often,
+with how many times it came back since and on which servos (``_Notices``)."""
 
 
 MAX_REPLAY_S = 600.0
@@ -167,26 +175,46 @@ class PerformReport:
         return "\n".join(lines)
 
 
-class _Signals:
-    """SIGINT / SIGTERM set ``which`` instead of raising, so the loop stops through its one
-    stop path (installed only in the main thread; restored on exit)."""
+class _Notices:
+    """The performance's repeated conditions, merged: one line per condition naming its servos
+    (a trip of 15 watchdogs is one line, not 15), then at most one line per ``NOTICE_REPEAT_S``
+    while it comes back, with its count since, and at the stop a line with its count in all.
+    Bounded: one entry per condition (a fixed set of texts)."""
 
-    def __init__(self) -> None:
-        self.which: str | None = None
-        self._saved: dict = {}
+    def __init__(self, say: Callable[[str], None]) -> None:
+        self.say = say
+        self.seen: dict[str, dict] = {}
 
-    def __enter__(self) -> "_Signals":
-        if threading.current_thread() is threading.main_thread():
-            for sig in (signal.SIGINT, signal.SIGTERM):
-                self._saved[sig] = signal.signal(sig, self._set)
-        return self
+    def add(self, condition: str, ids=(), detail: str = "") -> None:
+        """``condition``: a fixed text, ``{servos}`` where the servos go; it happened on
+        ``ids`` (none: on the host); ``detail``: this time's particulars (said only when the
+        line is)."""
+        ids = sorted(int(i) for i in ids)
+        now = time.monotonic()
+        entry = self.seen.setdefault(condition, {"times": 0, "unsaid": 0, "ids": set(),
+                                                 "said_at": None})
+        entry["times"] += 1
+        entry["ids"].update(ids)
+        if entry["said_at"] is not None and now - entry["said_at"] < NOTICE_REPEAT_S:
+            entry["unsaid"] += 1
+            return
+        again = (f" ({entry['unsaid']} more times since the last such line)"
+                 if entry["unsaid"] else "")
+        self.say(condition.format(servos=_servos(ids)) + detail + again)
+        entry["unsaid"], entry["said_at"] = 0, now
 
-    def _set(self, signum, _frame) -> None:
-        self.which = signal.Signals(signum).name
+    def close(self) -> None:
+        """Say each condition that came back after its last line: its count and servos in all."""
+        for condition, entry in self.seen.items():
+            if entry["unsaid"]:
+                self.say(condition.format(servos=_servos(sorted(entry["ids"])))
+                         + f": {entry['times']} times in all")
+                entry["unsaid"] = 0
 
-    def __exit__(self, *exc) -> None:
-        for sig, handler in self._saved.items():
-            signal.signal(sig, handler)
+
+def _servos(ids) -> str:
+    """'servos [1, 2]', 'servo 3', or 'the host' (no servo)."""
+    return "the host" if not ids else f"servo {ids[0]}" if len(ids) == 1 else f"servos {ids}"
 
 
 class _Stopped(Exception):
@@ -217,6 +245,7 @@ def perform(rig, reader, port: str, options: PerformOptions | None = None,
             log(text)
 
     phase = on_phase or (lambda _p: None)
+    notices = _Notices(say)
     if opts.watchdog:  # refused before anything moves: a model with no Bus Watchdog
         from puppet.rig.servo_map import check_bus_watchdogs
 
@@ -238,13 +267,17 @@ def perform(rig, reader, port: str, options: PerformOptions | None = None,
     link = BusLink(port, baud=opts.baud, latency_ms=opts.latency_ms,
                    protocol=protocol_of(servo_map.models))
     bus = DriveBus(link, ids, dict(servo_map.models), say)
+    guardian = Guardian(port, dict(servo_map.models), baud=opts.baud, latency_ms=opts.latency_ms,
+                        who="perform" if opts.key is None else "keys goto")
     torque_may_be_on = False
     error: BaseException | None = None
-    with _Signals() as signals:
+    with Signals() as signals:
         def check_signal() -> None:
-            if signals.which:
-                raise _Stopped(signals.which)
+            if signals.stop:
+                raise _Stopped(signals.signal_name)
         try:
+            guardian.start()
+            guardian.wait_ready()  # before the port: its start competes with no bus setup
             link.open()
             # From here every way out turns torque off: a servo may still hold torque from an
             # earlier run (stopped by its watchdog) until setup reaches it.
@@ -254,8 +287,9 @@ def perform(rig, reader, port: str, options: PerformOptions | None = None,
             report.changes = [f"servo {c.id}: {c.item} {c.old} -> {c.new}" for c in bus.changes]
             report.recovered = list(bus.recovered)
             check_signal()
-            start_pose = _start(bus, goals, opts, report, say, check_signal, phase)
-            _playback(bus, goals, servo_map, start_pose, opts, report, say, check_signal, phase)
+            start_pose = _start(bus, goals, opts, report, say, check_signal, phase, notices)
+            _playback(bus, goals, servo_map, start_pose, opts, report, say, check_signal, phase,
+                      notices)
             report.stop_reason = "end of take"
         except _Stopped as stop:
             report.stop_reason = f"stopped by {stop}"
@@ -275,6 +309,10 @@ def perform(rig, reader, port: str, options: PerformOptions | None = None,
                         f"({opts.watchdog_ms:.0f} ms after the last frame)" if opts.watchdog
                         else "the port is gone and --no-watchdog was given: the servos keep their last goal")
             link.close()
+            notices.close()
+            gone = guardian.stand_down()
+            if gone:
+                say(gone)
             phase("stop")
     if error is not None:
         if isinstance(error, PortInUse):  # another program's port: nothing was touched
@@ -319,7 +357,8 @@ def _watchdog_units(opts: PerformOptions) -> int:
     return max(1, min(127, math.ceil(ms / (it.WATCHDOG_UNIT_S * 1000.0))))
 
 
-def _start(bus: DriveBus, goals: TakeGoals, opts, report, say, check_signal, phase) -> np.ndarray:
+def _start(bus: DriveBus, goals: TakeGoals, opts, report, say, check_signal, phase,
+           notices: _Notices) -> np.ndarray:
     """Goal := present, slow profile, torque on, watchdog, countdown, slow move to the first
     pose; returns that pose, (k,) goal ticks."""
     phase("start")
@@ -338,7 +377,7 @@ def _start(bus: DriveBus, goals: TakeGoals, opts, report, say, check_signal, pha
     accel_units = max(1, round(opts.start_accel_deg_s2 / it.ACCEL_UNIT_DEG_S2))
     report.start_profile_deg_s = float((start_units * unit).max())
     bus.write_all("moving_speed", start_units)   # never 0 (= full speed) for the start
-    bus.write_all(it.PROFILE_ACCELERATION, accel_units)  # (X layout only)
+    bus.write_all("profile_acceleration", accel_units)  # (X layout only)
     bus.write_all("torque_enable", 1)
     bus.check_torque(1)
     if opts.watchdog:
@@ -359,16 +398,11 @@ def _start(bus: DriveBus, goals: TakeGoals, opts, report, say, check_signal, pha
     speeds = np.zeros(len(bus.ids))
 
     def rearm(n: int) -> None:  # a stall tripped its watchdog: back to the slow move
-        dxl_id = bus.ids[n]
-        try:
-            bus.rearm(dxl_id, _watchdog_units(opts))
-            bus.write(dxl_id, "goal_position", int(round(first[n])))
-        except (ServoTimeout, ServoCorrupt) as err:  # the next check tries again
-            say(f"servo {dxl_id}: re-arming its Bus Watchdog failed ({err})")
-            return
-        _rearmed(report, say, dxl_id)
+        bus.rearm(bus.ids[n], _watchdog_units(opts))
+        bus.write(bus.ids[n], "goal_position", int(round(first[n])))
 
-    health = _Health(bus, opts, on_trip=rearm)
+    health = _Health(bus, opts, on_trip=lambda tripped: _rearm_all(tripped, rearm, bus, report,
+                                                                   notices))
     while True:
         check_signal()
         state = bus.read_state()
@@ -384,7 +418,7 @@ def _start(bus: DriveBus, goals: TakeGoals, opts, report, say, check_signal, pha
         _wait(1.0 / opts.rate_hz, bus, opts, check_signal, keepalive=False)
     report.start_max_speed_deg_s = {i: float(v * u) for i, v, u in zip(bus.ids, speeds, unit)}
     play_units = np.clip(np.rint(opts.max_speed_deg_s / unit), 1, bus.speed_max)
-    bus.write_all(it.PROFILE_ACCELERATION, 0)
+    bus.write_all("profile_acceleration", 0)
     bus.write_all("moving_speed", play_units)
     return first
 
@@ -403,10 +437,31 @@ def _wait(seconds: float, bus: DriveBus, opts, check_signal, keepalive: bool = T
         time.sleep(min(step, left))
 
 
-def _rearmed(report: PerformReport, say, dxl_id: int) -> None:
-    report.rearmed[dxl_id] = report.rearmed.get(dxl_id, 0) + 1
-    say(f"servo {dxl_id}: Bus Watchdog tripped (the host or the line stalled past its period): "
-        "re-armed, easing back from its present position")
+REARMED = ("Bus Watchdog tripped on {servos} (the host or the line stalled past its period): "
+           "re-armed, easing back from the present position")
+STALLED = "warning: the goal frames stalled ({servos} loop)"
+REARM_FAILED = "re-arming the Bus Watchdog of {servos} failed (the next check tries again)"
+
+
+def _rearm_all(tripped: list[int], rearm: Callable[[int], None], bus: DriveBus,
+               report: PerformReport, notices: _Notices) -> None:
+    """Re-arm each tripped servo (indices) with ``rearm``; one line for those re-armed, one
+    for those that failed (``_Notices``)."""
+    done, failed, why = [], [], ""
+    for n in tripped:
+        dxl_id = bus.ids[n]
+        try:
+            rearm(n)
+        except (ServoTimeout, ServoCorrupt) as err:  # still tripped: the next check tries again
+            failed.append(dxl_id)
+            why = why or f" ({err})"
+            continue
+        done.append(dxl_id)
+        report.rearmed[dxl_id] = report.rearmed.get(dxl_id, 0) + 1
+    if done:
+        notices.add(REARMED, done)
+    if failed:
+        notices.add(REARM_FAILED, failed, why)
 
 
 def _read_positions(bus: DriveBus) -> np.ndarray:
@@ -428,8 +483,8 @@ def _limits(bus: DriveBus, goals: TakeGoals) -> tuple[np.ndarray, np.ndarray]:
 class _Health:
     """The host-side health watchdog over each cycle's state (see the module docstring).
 
-    on_trip: called with a servo's index when its Bus Watchdog is found tripped (it re-arms
-    it); None: a trip stops the performance at once.
+    on_trip: called with the indices of the servos whose Bus Watchdog a check found tripped
+    (it re-arms them); None: a trip stops the performance at once.
     """
 
     def __init__(self, bus: DriveBus, opts: PerformOptions, on_trip=None) -> None:
@@ -486,6 +541,7 @@ class _Health:
 
     def _check_watchdogs(self) -> None:
         values = self.bus.read_watchdogs()
+        tripped: list[int] = []
         for n, dxl_id in enumerate(self.bus.ids):
             if values.get(dxl_id) != it.WATCHDOG_TRIPPED:
                 if dxl_id in values:
@@ -496,11 +552,13 @@ class _Health:
                 again = f", {self.trips[n]} checks in a row" if self.trips[n] > 1 else ""
                 raise HealthStop(dxl_id, "Bus Watchdog tripped (it heard nothing for longer "
                                  f"than its period{again}): it stopped and refuses goals")
-            self.on_trip(n)
+            tripped.append(n)
+        if tripped:
+            self.on_trip(tripped)
 
 
 def _playback(bus: DriveBus, goals: TakeGoals, servo_map, start_pose: np.ndarray, opts, report,
-              say, check_signal, phase) -> None:
+              say, check_signal, phase, notices: _Notices) -> None:
     """The loop: one goal Sync Write and one state Sync Read per cycle, paced to rate_hz."""
     phase("playback")
     period = 1.0 / opts.rate_hz
@@ -511,15 +569,10 @@ def _playback(bus: DriveBus, goals: TakeGoals, servo_map, start_pose: np.ndarray
     ease_step = goals.units.ticks_per_joint_degree * (opts.start_speed_deg_s * period)
 
     def rearm(n: int) -> None:  # a stall tripped its watchdog: ease back from where it stopped
-        dxl_id = bus.ids[n]
-        try:
-            shaper.ease(n, bus.rearm(dxl_id, _watchdog_units(opts)), ease_step[n])
-        except (ServoTimeout, ServoCorrupt) as err:  # still tripped: the next check tries again
-            say(f"servo {dxl_id}: re-arming its Bus Watchdog failed ({err})")
-            return
-        _rearmed(report, say, dxl_id)
+        shaper.ease(n, bus.rearm(bus.ids[n], _watchdog_units(opts)), ease_step[n])
 
-    health = _Health(bus, opts, on_trip=rearm)
+    health = _Health(bus, opts, on_trip=lambda tripped: _rearm_all(tripped, rearm, bus, report,
+                                                                   notices))
     unsent = 0
     errors: list[np.ndarray] = []
     t0 = time.monotonic()
@@ -537,7 +590,7 @@ def _playback(bus: DriveBus, goals: TakeGoals, servo_map, start_pose: np.ndarray
                 break
             t_take %= take_len if take_len > 0 else 1.0
         if now - last_write > stale_s:
-            say(f"warning: {now - last_write:.3f} s since the last goal frame (stalled host loop)")
+            notices.add(STALLED, detail=f" ({now - last_write:.3f} s since the last goal frame)")
         wanted = goals.at(t_take)
         command = shaper.shape(wanted)
         try:

@@ -1,8 +1,10 @@
 """Release a bus: torque off on every servo found, their Bus Watchdog cleared, read back.
 
 What ``puppet release`` does after a program left servos with torque on (an adapter pulled
-during ``perform``, a crash): the servos are the rig's (``models``) or, without a rig, every
-servo that answers a ping (``puppet.bus.scan``); the stop itself is ``DriveBus.torque_off``.
+during ``perform``, a crash): the servos are every servo that answers a ping
+(``puppet.bus.scan``) and, with a rig, the rig's too (``models``): a servo of another rig on
+the same bus must not keep its torque because the wrong rig file was given; those are released
+and named (``Released.others``). The stop itself is ``DriveBus.torque_off``.
 """
 
 from __future__ import annotations
@@ -29,16 +31,25 @@ class Released:
 
 def release(port: str, models: dict[int, str] | None = None, *, baud: int = 1_000_000,
             log: Callable[[str], None] = lambda _line: None) -> Released:
-    """Torque off and Bus Watchdog 0 (where the model has one) on ``models``' servos ({id:
-    model}, one protocol; None: every servo a Protocol 2.0 broadcast ping finds, else every
-    servo a Protocol 1.0 ping of each id finds) at ``port``, read back. DriveError naming the
-    port when nothing answers; PortError (PortInUse) when the port cannot be had."""
+    """Torque off and Bus Watchdog 0 (where the model has one) on every servo that answers a
+    ping at ``port`` (a Protocol 2.0 broadcast ping, else a Protocol 1.0 ping of each id; with
+    ``models`` ({id: model} of a rig, one protocol) only that protocol is pinged) and on
+    ``models``' servos, read back. DriveError naming the port when nothing answers; PortError
+    (PortInUse) when the port cannot be had."""
+    out = Released()
     if models is None:
         models = _found_models(port, baud)
+    else:
+        models = dict(models)
+        found = _found_models(port, baud, (protocol_of(models),), required=False)
+        out.others = sorted(i for i in found if i not in models)
+        if out.others:
+            log(f"servo{'s' if len(out.others) > 1 else ''} {out.others} answered but "
+                f"{'are' if len(out.others) > 1 else 'is'} not in the rig: released too")
+        models |= found  # the model a servo reports over the rig's word for it
     link = BusLink(port, baud=baud, protocol=protocol_of(models))
     try:
         link.open()
-        out = Released()
         # a read of its own (late replies on a busy host retried) tells who is there
         out.missing = sorted(DriveBus(link, list(models), models, log).unanswered(list(models)))
         ids = [i for i in models if i not in out.missing]
@@ -63,14 +74,16 @@ PASSES = 2
 """Ping passes over the bus when ``release`` finds the servos itself."""
 
 
-def _found_models(port: str, baud: int) -> dict[int, str]:
-    """{id: model name} of the servos answering on ``port``: Protocol 2.0 first, then 1.0
-    (a bus carries one); a model puppet does not know is left out, with a DriveError when
-    nothing it knows answers. A protocol that finds servos is pinged PASSES times and the
-    answers joined: a reply late on a busy bus must not leave a servo's torque on."""
+def _found_models(port: str, baud: int, protocols=(2.0, 1.0), required: bool = True
+                  ) -> dict[int, str]:
+    """{id: model name} of the servos answering on ``port``: each of ``protocols`` in turn
+    until one finds servos (a bus carries one); a model puppet does not know is left out,
+    with a DriveError when nothing it knows answers (``required``; else {}). A protocol that
+    finds servos is pinged PASSES times and the answers joined: a reply late on a busy bus
+    must not leave a servo's torque on."""
     from puppet.bus.scan import scan
 
-    for protocol in (2.0, 1.0):
+    for protocol in protocols:
         known: dict[int, str] = {}
         for _ in range(PASSES):
             found = scan(port, (baud,), (protocol,))
@@ -79,6 +92,8 @@ def _found_models(port: str, baud: int) -> dict[int, str]:
                 break  # nothing of this protocol: try the other
         if known:
             return dict(sorted(known.items()))
+    if not required:
+        return {}
     raise DriveError(f"port {port}: no servo of a known model answered a ping at {baud} bps "
                      "(Protocol 2.0 nor 1.0): nothing to release (check the power, the cable "
                      "and the baud rate)")

@@ -26,12 +26,11 @@ import numpy as np
 
 from puppet.bus.configure import (Change, SetupReport, check_baud, ensure_status_return,
                                   identify, supports_fast_sync_read)
-from puppet.bus.control_table import describe_hardware_error
 from puppet.bus.errors import BusError, PortError, ServoCorrupt, ServoStatusError, ServoTimeout
 from puppet.bus.link import SILENT, BusLink
 from puppet.drive import items as it
 from puppet.drive.errors import DriveError
-from puppet.servo_models import MODELS, protocol_of
+from puppet.servo_models import MODELS, describe_hardware_error, protocol_of
 ATTEMPTS = 3
 """Tries of a single-servo read or write outside the loop (a reply lost to noise is retried)."""
 SILENCE_PATIENCE_S = 2.0
@@ -202,6 +201,8 @@ class DriveBus:
                 if attempt == ATTEMPTS - 1:
                     raise
         hw = self.hardware_error(dxl_id)
+        while hw and (again := self.hardware_error(dxl_id)) != hw:
+            hw = again  # a late reply to another 1-byte read, misread: a latched error stays
         if hw:
             raise DriveError(f"servo {dxl_id}: hardware error latched ({describe_hardware_error(hw)}); "
                              "let it cool or fix the load, then power-cycle or reboot it")

@@ -14,6 +14,7 @@ A leaf joint's End Site takes its length from the mesh (``mesh_end_sites``).
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 from typing import Iterable
 
@@ -87,8 +88,10 @@ class BvhWriter(CountPatchedWriter):
         end_sites=None,
         precision: int = 6,
         positions: str = "root",
+        sync: dict | None = None,
     ):
         self.path = Path(path)
+        self.sync = dict(sync or {})  # puppet.export.sync: one comment line after HIERARCHY
         if positions not in ("root", "all"):
             raise ExportError(self.path, f"positions must be 'root' or 'all', got {positions!r}")
         self.positions = positions
@@ -169,6 +172,8 @@ class BvhWriter(CountPatchedWriter):
         f = self._fmt
         rot = " ".join(f"{a}rotation" for a in self.order)
         lines = ["HIERARCHY"]
+        if self.sync:  # a comment (importers skip a line they do not know), ASCII as the file
+            lines.append("# puppet " + json.dumps(self.sync, ensure_ascii=True))
 
         def vec(v) -> str:
             return " ".join(f.format(float(x)) for x in v)

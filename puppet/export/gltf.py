@@ -243,8 +243,9 @@ class GltfWriter(ExportWriter):
     def __init__(self, path, *, names, parents, heads, frames, V, F, W, fps: float,
                  influences: int = 4, name: str = "character", keys_deg: float | None = None,
                  keys_units: float | None = None, source: SourceScene | None = None,
-                 forced_frames=()):
+                 forced_frames=(), sync: dict | None = None):
         self.path = Path(path)
+        self.sync = dict(sync or {})  # puppet.export.sync.sync_fields: written into the extras
         if influences < 4 or influences % 4:
             raise ExportError(self.path, f"influences must be a multiple of 4, got {influences}")
         self.names = [str(n) for n in names]
@@ -377,11 +378,12 @@ class GltfWriter(ExportWriter):
 
     def timing(self) -> dict:
         """The take's rate and frame range as written in the scene's and the animation's extras:
-        {"puppet_fps": frames per second, "puppet_frame_start": 1, "puppet_frame_end": N}.
+        {"puppet_fps": frames per second, "puppet_frame_start": 1, "puppet_frame_end": N}, and
+        its sound and start timecode (``sync``, puppet.export.sync).
         Blender's glTF importer (``import_scene_extras``, on by default) makes the scene's extras
         custom properties of the scene it imports into; it does not change the scene's rate or
         range itself, and places key time t on frame t × the scene's fps."""
-        return {"puppet_fps": self.fps, "puppet_frame_start": 1,
+        return {**self.sync, "puppet_fps": self.fps, "puppet_frame_start": 1,
                 "puppet_frame_end": self.num_frames}
 
     def skin(self, world: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:

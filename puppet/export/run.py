@@ -33,6 +33,7 @@ from puppet.export.joint_transforms import JointTransforms
 from puppet.export.names import safe_names
 from puppet.export.pc2 import Pc2Writer
 from puppet.export.source_order import SourceOrder
+from puppet.export.sync import sync_fields
 from puppet.take.playback import MAX_GAP_S, Playback, check_rate
 
 FORMATS = ("gltf", "usd", "pc2", "bvh")
@@ -226,7 +227,7 @@ def export_take(rig, reader, outputs: Outputs, *, fps: float = 30.0, up: str = "
                 meters_per_unit: float = 1.0, keys: float | None = None,
                 keys_units: float | None = None,
                 progress: Callable[[int, int], None] | None = None,
-                precompute=None) -> ExportReport:
+                precompute=None, sound=None) -> ExportReport:
     """Export a take (TakeReader) solved on ``rig`` into every file named in ``outputs``.
 
     fps:        output frames per second (> 0); frames by ``puppet.take.Playback``.
@@ -240,12 +241,14 @@ def export_take(rig, reader, outputs: Outputs, *, fps: float = 30.0, up: str = "
                 (``puppet.export.key_reduction``). BVH, USD and PC2 stay per frame.
     progress:   called with (frames done, frames in all) after each frame.
     precompute: a shared ``puppet.loop.RigPrecompute`` of ``rig`` (batch), None: built here.
+    sound:      a ``puppet.take.sync.SoundRef`` the files name (None: the take's own, if any).
     Raises ExportError (or the take's TakeRigMismatch) naming the file at fault.
     """
     start = time.monotonic()
     frames = take_frames(rig, reader, fps)
     with ExportWriters(rig, reader, outputs, frames, up=up, space=space, influences=influences,
-                       meters_per_unit=meters_per_unit, keys=keys, keys_units=keys_units) as exports:
+                       meters_per_unit=meters_per_unit, keys=keys, keys_units=keys_units,
+                       sound=sound) as exports:
         from puppet.loop import Pipeline, run_frames  # the solver's native module: only here
 
         with Pipeline(rig, render=False, iterations=iterations, precompute=precompute) as pipeline:
@@ -306,13 +309,14 @@ class ExportWriters:
 
     rig, reader: the rig solved on and the take (TakeReader, its path: the take is an input no
     output may overwrite). frames: the Playback the frames come from (its fps, count, cuts).
-    up, space, influences, meters_per_unit, keys, keys_units: as export_take. Fields: report
-    (ExportReport), frames (written so far).
+    up, space, influences, meters_per_unit, keys, keys_units, sound: as export_take. Fields: report
+    (ExportReport), frames (written so far), sync (``puppet.export.sync.sync_fields``: the take's
+    sound and start timecode, written into the glTF, USD and BVH).
     """
 
     def __init__(self, rig, reader, outputs: Outputs, frames: Playback, *, up: str = "y",
                  space: str = "object", influences: int = 4, meters_per_unit: float = 1.0,
-                 keys: float | None = None, keys_units: float | None = None):
+                 keys: float | None = None, keys_units: float | None = None, sound=None):
         if up not in UP_AXES:
             raise ExportError("--up", f"up axis must be one of {UP_AXES}, got {up!r}")
         self.to_space = point_space(rig, space)
@@ -322,7 +326,10 @@ class ExportWriters:
         self.keys_deg, self.keys_units = _key_tolerances(rig, outputs, keys, keys_units)
         from puppet.replay import take_inputs
 
-        self.inputs = take_inputs(reader.path, rig)
+        metadata = getattr(reader, "metadata", None)
+        sound = sound if sound is not None else getattr(metadata, "sound", None)
+        # the sound is an input too (at its stored path, or the --sound file given)
+        self.inputs = take_inputs(reader.path, rig, sound)
         self.force = outputs.force
         check_distinct({f"--{fmt}": target for fmt, target in items})
         for fmt, target in items:
@@ -346,6 +353,7 @@ class ExportWriters:
         self.rig, self.items, self.targets = rig, items, dict(items)
         self.up, self.influences, self.meters_per_unit = up, influences, meters_per_unit
         self.fps = frames.fps
+        self.sync = sync_fields(frames.fps, sound, getattr(metadata, "timecode", None))
         self.key_frames = frames.key_frames()  # a shot's key poses: glTF keys whatever --keys
         self.report = ExportReport(frames=len(frames), fps=frames.fps, cuts=list(frames.cuts),
                                    take_seconds=(frames.t_ns[-1] - frames.t_ns[0]) * 1e-9)
@@ -378,7 +386,8 @@ class ExportWriters:
                                                        keys_deg=self.keys_deg,
                                                        keys_units=self.keys_units,
                                                        source=rig.source,
-                                                       forced_frames=self.key_frames)
+                                                       forced_frames=self.key_frames,
+                                                       sync=self.sync)
                     elif fmt == "usd":
                         from puppet.export.usd import UsdWriter
 
@@ -389,7 +398,7 @@ class ExportWriters:
                                                       source=rig.source, weld=order.index,
                                                       textures=target.with_name(
                                                           f"{target.stem}_textures"),
-                                                      inputs=self.inputs)
+                                                      inputs=self.inputs, sync=self.sync)
                         if self.writers[fmt].renamed:
                             self.renamed["usd"] = dict(self.writers[fmt].renamed)
                     elif fmt == "pc2":
@@ -399,7 +408,8 @@ class ExportWriters:
                         self.writers[fmt] = BvhWriter(temporary, names=self._bvh_names,
                                                       parents=sk.parents, offsets=self._bvh_offsets,
                                                       end_sites=self._end_sites,
-                                                      frame_time=1.0 / fps, positions="all")
+                                                      frame_time=1.0 / fps, positions="all",
+                                                      sync=self.sync)
         except BaseException:
             self.__exit__(*sys.exc_info())
             raise

@@ -98,7 +98,7 @@ class UsdWriter(ExportWriter):
 
     def __init__(self, path, *, names, parents, heads, frames, V, F, fps: float, up: str = "Y",
                  meters_per_unit: float = 1.0, name: str = "character", save_every: int = 64,
-                 source=None, weld=None, textures=None, inputs=()):
+                 source=None, weld=None, textures=None, inputs=(), sync: dict | None = None):
         Tf, Usd, UsdGeom, UsdSkel, Vt = _usd()
         self._Tf, self._Vt, self._Usd = Tf, Vt, Usd
         self.path = Path(path)
@@ -139,6 +139,8 @@ class UsdWriter(ExportWriter):
         stage.SetFramesPerSecond(self.fps)
         stage.SetStartTimeCode(1)
         stage.SetEndTimeCode(1)
+        if sync:  # the sound and start timecode (puppet.export.sync) in the layer's metadata
+            stage.GetRootLayer().customLayerData = dict(sync)
         top = UsdGeom.Xform.Define(stage, root)
         stage.SetDefaultPrim(top.GetPrim())
 

@@ -11,12 +11,11 @@ bone weights (non-negative, rows summing to one). m = m_bones + extra_weights ha
 
 from __future__ import annotations
 
-import hashlib
 from pathlib import Path
 
 import numpy as np
 
-from puppet.cache import cache_dir, code_digest, read_failed, store
+from puppet.cache import Entry, cache_dir, code_digest
 from puppet.fast.blas import one_blas_thread
 from puppet.fast.clusters import kmeans_weight_space
 from puppet.fast.energy import ENERGIES, lbs_matrix, reduced_matrices
@@ -40,6 +39,12 @@ def code_version() -> str:
     from puppet import _native
 
     return code_digest(str(Path(__file__).parent), _native.__file__)
+
+
+def _read_precompute(path: Path) -> tuple:
+    """A stored precompute -> FastModel._set's arguments (weights, labels, Q, K, c0, dropped)."""
+    with np.load(path) as z:
+        return z["weights"], z["labels"], z["Q"], z["K"], float(z["c0"]), int(z["dropped"])
 
 
 def _validate_mesh(V, F, tets):
@@ -145,24 +150,17 @@ class FastModel:
         diag = float(np.linalg.norm(V.max(0) - V.min(0)))
         eps = 1e-12 * diag**2 if tets is None else 1e-12 * diag**3
 
-        key = None
+        entry = None
         if cache_dir is not False:
-            h = hashlib.sha256(f"{CACHE_VERSION}|{code_version()}".encode())
-            for a in (V, elems, Wb, labels_in if labels_in is not None else np.array([int(clusters)])):
-                h.update(np.ascontiguousarray(a).tobytes())
-                h.update(str(a.shape).encode())
-            h.update(f"{extra}|{energy}|{tets is not None}".encode())
-            key = h.hexdigest()[:32]
-            cdir = Path(cache_dir) if cache_dir is not None else default_cache_dir()
-            path = cdir / f"{key}.npz"
-            if path.exists():
-                try:
-                    with np.load(path) as z:
-                        self._set(z["weights"], z["labels"], z["Q"], z["K"], float(z["c0"]), int(z["dropped"]))
-                    self.cache_hit = True
-                    return
-                except (OSError, KeyError, ValueError, EOFError) as err:
-                    read_failed(path, err)  # recomputed and overwritten below
+            entry = Entry.keyed(Path(cache_dir) if cache_dir is not None else default_cache_dir(),
+                                "fast", ".npz", code_version(), CACHE_VERSION, V, elems, Wb,
+                                labels_in if labels_in is not None else int(clusters), extra, energy,
+                                tets is not None)
+            stored = entry.load(_read_precompute)
+            if stored is not None:
+                self._set(*stored)
+                self.cache_hit = True
+                return
         Wf = full_weights(Wb, extra) if extra else Wb
         if labels_in is None:
             labels = kmeans_weight_space(Wf, int(clusters))
@@ -174,8 +172,8 @@ class FastModel:
         labels, K = _order_clusters_by_support(labels, K)
         self._set(Wf, labels, Q, K, c0, dropped)
         self.cache_hit = False
-        if key is not None:  # a read-only cache dir only costs the next run its precompute
-            store(path, lambda tmp: np.savez(tmp, weights=Wf, labels=labels, Q=Q, K=K, c0=c0, dropped=dropped))
+        if entry is not None:  # a read-only cache dir only costs the next run its precompute
+            entry.store(lambda tmp: np.savez(tmp, weights=Wf, labels=labels, Q=Q, K=K, c0=c0, dropped=dropped))
 
     def _set(self, Wf, labels, Q, K, c0, dropped):
         self.weights64 = np.asarray(Wf, np.float64)

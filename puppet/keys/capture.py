@@ -80,7 +80,7 @@ def held_pose(readings, press_ns: int, ids) -> tuple[np.ndarray, np.ndarray, int
 class KeySession:
     """A shot being captured into ``path``.
 
-    header: the shot's TakeWriter keywords (``cli.common.take_header``). fps: the shot's frames
+    header: the shot's TakeWriter keywords (``puppet.take.header.take_header``). fps: the shot's frames
     per second; step: frames between a key and the next; interpolation: of every new key.
     keys: the shot's Keys so far. written: whether the shot file was written yet (at the
     first key taken; a session that takes none writes nothing).

@@ -2,7 +2,7 @@
 remove, retime or re-interpolate keys (each edit returns new Keys; the file is written by write_shot).
 
 header: the TakeWriter keywords a shot is written with (ids, models, rig_map_text,
-calibration_text, rig_name): ``cli.common.take_header(rig)`` for a new shot, ``read_shot``'s
+calibration_text, rig_name): ``puppet.take.header.take_header(rig)`` for a new shot, ``read_shot``'s
 for an edited one.
 """
 

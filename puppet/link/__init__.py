@@ -5,6 +5,6 @@ Modules: wire (the versioned protocol, standard library only, shipped inside the
 latest-wins per client, acks and latency).
 """
 
-from puppet.link.server import DEFAULT_PORT, Link, LinkError
+from puppet.link.server import DEFAULT_PORT, Link
 
-__all__ = ["DEFAULT_PORT", "Link", "LinkError"]
+__all__ = ["DEFAULT_PORT", "Link"]

@@ -8,8 +8,8 @@
 The loop only copies ``T`` into a slot and wakes the link's thread; that thread computes the
 keys (``LinkPose``), encodes the frame once into preallocated buffers and gives each client the
 newest frame when its socket has taken the last one (a slow client skips frames, never queues).
-Protocol: ``puppet.link.wire``. Address and token: the live view's (``puppet.view.address``):
-loopback by default, beyond it a random token every client must send.
+Protocol: ``puppet.link.wire``. Address, token and flood guard: the ones the live view uses
+(``puppet.net``): loopback by default, beyond it a random token every client must send.
 """
 
 from __future__ import annotations
@@ -21,22 +21,16 @@ import time
 
 import numpy as np
 
-from puppet.errors import PuppetError
 from puppet.link import wire
 from puppet.link.pose import LinkPose
 from puppet.loop.histogram import Histogram
-from puppet.view.address import Access, bind, parse_address
-from puppet.view.errors import ViewError
-from puppet.view.guard import parse_message
+from puppet.net.address import Access, bind, parse_address
+from puppet.net.guard import parse_message
 
 DEFAULT_PORT = 9100
 ACK_RING = 4096  # frames in flight whose reading time is kept for their ack
 WINDOW = 2  # frames sent to a client and not yet acked: more wait (latest wins), never queue
 READ_BYTES = 1 << 16
-
-
-class LinkError(PuppetError):
-    """The link cannot start (bad address, port in use)."""
 
 
 class _Client:
@@ -70,12 +64,8 @@ class Link:
 
     def __init__(self, address: str | None, rig, *, fps: float = 60.0,
                  take_start_ns: int | None = None):
-        text = str(DEFAULT_PORT) if address is None or not str(address).strip() else str(address)
-        try:
-            host, port = parse_address(text)
-            self.listener = bind(host, port)
-        except ViewError as err:
-            raise LinkError(str(err).replace("--view", "--link")) from None
+        host, port = parse_address(address, option="--link", default_port=DEFAULT_PORT)
+        self.listener = bind(host, port, option="--link")
         port = self.listener.getsockname()[1]
         self.access = Access.for_host(host, port)
         self.rig, self.fps, self.take_start_ns = rig, float(fps), take_start_ns

@@ -23,7 +23,7 @@ from puppet.fast.live_solve import LiveSolve
 from puppet.fast.solver import Dynamics
 from puppet.loop.dropout import Dropout, Steps
 from puppet.reading import Reading
-from puppet.render.antialias import ANTIALIAS, LIVE_PIXELS_PER_TRIANGLE, is_software_gl, resolve_antialias
+from puppet.render.passes.antialias import ANTIALIAS, LIVE_PIXELS_PER_TRIANGLE, is_software_gl, resolve_antialias
 from puppet.rig import Rig
 
 BONE_KIND_STATES = {"full": "sensed", "relative": "relative", "free": "free"}

@@ -66,7 +66,7 @@ def run_live(pipeline: Pipeline, source, *, seconds: float | None = None,
              on_frame: Callable[[Summary], None] | None = None,
              started_s: float | None = None, latch_fps: float | None = LIVE_FPS,
              view=None, after_solve: Callable[[Pipeline, Reading], None] | None = None,
-             link=None) -> Summary:
+             link=None, feed: Iterable[Callable[[list], None]] = ()) -> Summary:
     """Run the live loop until ``seconds`` pass or ``should_stop()`` (e.g. Ctrl-C).
 
     source:   a started ReaderProcess or ReaderThread: ``drain()``, ``latest(timeout)`` and
@@ -85,9 +85,14 @@ def run_live(pipeline: Pipeline, source, *, seconds: float | None = None,
     link:     a live link (puppet.link.Link) or None: ``link.frame(pipeline, reading)`` after
               each solve (it copies T; its own thread sends); with a recorder, take time 0 is
               the first reading recorded and every frame is flagged recording.
+    feed:     callables given every batch of readings (a key desk without a view).
+    pipeline None: readings only (``puppet record``): every reading recorded and fed, nothing
+              solved; ``frames`` then counts batches and faults count readings with a flagged servo.
     """
     sinks = list(sinks)
-    render = bool(sinks) and pipeline.renderer is not None
+    feed = list(feed)
+    keep_all = recorder is not None or bool(feed)
+    render = bool(sinks) and pipeline is not None and pipeline.renderer is not None
     summary = Summary()
     not_ok = 0
     start = time.monotonic()
@@ -105,6 +110,9 @@ def run_live(pipeline: Pipeline, source, *, seconds: float | None = None,
             view.apply(pipeline)
         batch = source.drain()
         if not batch:
+            if keep_all:  # latest() would keep only the newest of what came meanwhile
+                time.sleep(0.0005)
+                continue
             newest = source.latest(timeout=0.5)
             if newest is None:
                 continue
@@ -113,10 +121,20 @@ def run_live(pipeline: Pipeline, source, *, seconds: float | None = None,
             batch = latch.top_up(source, batch)
         summary.readings += len(batch)
         if recorder is not None:
-            if link is not None:
-                link.start_take(batch[0].t_ns)
             for reading in batch:
                 recorder.write(reading)
+            if link is not None:  # take time 0: the first reading recorded
+                started = getattr(recorder, "started_ns", batch[0].t_ns)
+                if started is not None:
+                    link.start_take(started)
+        for take in feed:
+            take(batch)
+        if pipeline is None:  # readings only
+            not_ok += sum(not r.ok.all() for r in batch)
+            summary.frames += 1
+            if on_frame is not None:
+                on_frame(summary)
+            continue
         reading = batch[-1]
         stages.lap("idle")
         work_start = time.perf_counter()
@@ -127,7 +145,8 @@ def run_live(pipeline: Pipeline, source, *, seconds: float | None = None,
         if after_solve is not None:
             after_solve(pipeline, reading)
         if link is not None:
-            link.frame(pipeline, reading, recording=recorder is not None)
+            link.frame(pipeline, reading, recording=recorder is not None
+                       and getattr(recorder, "started_ns", 0) is not None)
         stages.lap("solve")
         if render:
             image = _draw(pipeline, stages, request)
@@ -152,7 +171,7 @@ def run_live(pipeline: Pipeline, source, *, seconds: float | None = None,
     summary.faults = dict(source.log.counts)
     if not_ok:
         summary.faults["servo_not_ok"] = not_ok
-    return _finish(summary, pipeline)
+    return summary if pipeline is None else _finish(summary, pipeline)
 
 
 def run_frames(pipeline: Pipeline, readings: Iterable[Reading], *, sinks: Iterable = (),

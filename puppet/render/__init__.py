@@ -5,9 +5,10 @@
         video.write(renderer.draw(T))      # T: (4m, 3) float32 handle transforms
 
 Modules: context (EGL context, RenderError with the packages to install), camera (Camera,
-automatic framing), skin_weights (W packed for the shader, exact), contact_shadow (spheres that
-shade the ground), overlay (bone states and colors), shaders (GLSL), renderer (Renderer),
-sinks (PngSink, VideoSink). On llvmpipe, MSAA (samples=4, the default) costs about as much as
+automatic framing), skin_weights (W packed for the shader, exact), clusters (vertices grouped
+by place), bounds (a box of the skinned mesh from T alone), overlay (bone states and colors),
+shaders (GLSL), passes (mesh, ground and contact shadow, bones, antialias, picking: each owns
+its GL objects), renderer (Renderer, which orchestrates them), sinks (PngSink, VideoSink). On llvmpipe, MSAA (samples=4, the default) costs about as much as
 the rest of the frame; Renderer(..., samples=0, fxaa=True) antialiases for a fraction of that.
 """
 

@@ -15,12 +15,11 @@ simplification takes 0.1-0.2 s, a cached one a few ms.
 
 from __future__ import annotations
 
-import hashlib
 import logging
 
 import numpy as np
 
-from puppet.cache import cache_dir, code_digest, read_failed, store
+from puppet.cache import Entry, cache_dir, code_digest
 
 log = logging.getLogger(__name__)
 
@@ -54,24 +53,23 @@ def simplified_triangles(V: np.ndarray, F: np.ndarray, target: int, *, cache: bo
     F = np.asarray(F)
     if len(F) <= target:
         return np.ascontiguousarray(F, np.int32)
-    key = hashlib.sha256()
-    for part in (np.ascontiguousarray(V, np.float64), np.ascontiguousarray(F, np.int64)):
-        key.update(part.tobytes())
-    key.update(f"{int(target)} {code_digest(__file__)}".encode())
-    path = cache_dir("render") / f"lod-{key.hexdigest()[:32]}.npy"
-    if cache and path.exists():
-        try:
-            stored = np.load(path)
-            if stored.ndim != 2 or stored.shape[1] != 3 or stored.dtype != np.int32 or not (
-                    0 <= stored.min() and stored.max() < len(V)):
-                raise ValueError(f"not (g, 3) int32 triangles of {len(V)} vertices")
-            return stored
-        except (OSError, ValueError, EOFError) as err:
-            read_failed(path, err)
+    entry = Entry.keyed(cache_dir("render"), "lod", ".npy", code_digest(__file__),
+                        np.asarray(V, np.float64), np.asarray(F, np.int64), int(target))
+
+    def read(path):
+        stored = np.load(path)
+        if stored.ndim != 2 or stored.shape[1] != 3 or stored.dtype != np.int32 or not (
+                0 <= stored.min() and stored.max() < len(V)):
+            raise ValueError(f"not (g, 3) int32 triangles of {len(V)} vertices")
+        return stored
+
+    stored = entry.load(read) if cache else None
+    if stored is not None:
+        return stored
     simplified = _simplify(V, F, target)
     if simplified is None or len(simplified) == 0:
         log.info("mesh drawn whole (not a closed manifold, or not simplified): %d triangles", len(F))
         simplified = np.ascontiguousarray(F, np.int32)
     if cache:
-        store(path, lambda tmp: np.save(tmp, simplified))
+        entry.store(lambda tmp: np.save(tmp, simplified))
     return simplified

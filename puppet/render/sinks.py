@@ -19,7 +19,7 @@ import imageio.v3 as iio
 import imageio_ffmpeg
 import numpy as np
 
-from puppet.atomic import flush, temporary_sibling
+from puppet.atomic import commit, flush, temporary_sibling
 from puppet.render.errors import SinkError
 
 
@@ -104,11 +104,20 @@ class VideoSink:
     is the encoder's own (a shell around ffmpeg, in a session of its own): when this process is
     killed (SIGKILL, a crash), ffmpeg still finishes the frames it was given and ``path`` holds
     that video, playable. ``abort`` kills the encoder first: nothing is renamed.
+
+    sound: a ``puppet.sound.Sound`` muxed in on close (``puppet.sound.mux``): the sound under the
+    video, sound_offset_s (the sound's time at the first frame) on, exactly as long as the video;
+    a longer sound is cut at its end, said once in ``notes``. The silent video is renamed into
+    place first and replaced by the one with sound (a kill in between leaves it silent, playable).
+    timecode: a ``puppet.timecode.StartTimecode`` of the first frame: the MP4's timecode track, at
+    the video's rate when fps is a timecode rate (else left out, said in ``notes``).
+    notes: what the sink did that the user should hear of, in words.
     """
 
     def __init__(self, path, fps: float = 30.0, *, size: tuple[int, int] | None = None, quality: float = 7.0,
                  codec: str = "libx264", preset: str | None = DEFAULT_PRESET, encoder: str = "thread",
-                 queue_frames: int = 8, nice: int = ENCODER_NICE):
+                 queue_frames: int = 8, nice: int = ENCODER_NICE, sound=None,
+                 sound_offset_s: float = 0.0, timecode=None):
         self.path = Path(path)
         if not fps > 0:
             raise SinkError(f"{self.path}: fps must be positive, got {fps}")
@@ -132,8 +141,24 @@ class VideoSink:
         self._error = None       # what went wrong with the encoder (a message), None while fine
         self._reported = False   # the error was raised once already
         self._closed = False
+        self.sound, self.sound_offset_s = sound, float(sound_offset_s)
+        self.notes: list[str] = []
+        self.timecode = self._timecode_label(timecode)
         if size is not None:
             self._open(tuple(int(s) for s in size))
+
+    def _timecode_label(self, timecode) -> str | None:
+        """The first frame's label at the video's rate, or None."""
+        if timecode is None:
+            return None
+        from puppet.timecode import rate_of_fps
+
+        rate = rate_of_fps(self.fps)
+        if rate is None:
+            self.notes.append(f"{self.path}: no timecode track: {self.fps:g} fps is not a "
+                              "timecode rate (23.976, 24, 25, 29.97, 30)")
+            return None
+        return timecode.at_rate(rate).label
 
     def _command(self, size: tuple[int, int]) -> list[str]:
         crf = int((1 - self.quality / 10.0) * 51)
@@ -146,6 +171,7 @@ class VideoSink:
         return [*nice, *rename, imageio_ffmpeg.get_ffmpeg_exe(), "-y", "-f", "rawvideo", "-pix_fmt", "rgb24",
                 "-s", f"{size[0]}x{size[1]}", "-r", str(Fraction(self.fps).limit_denominator()),
                 "-i", "-", "-an", "-vcodec", self.codec, "-pix_fmt", "yuv420p", *quality,
+                *(["-timecode", self.timecode] if self.timecode else []),
                 "-v", "error", str(self._temporary)]
 
     def _open(self, size: tuple[int, int]) -> None:
@@ -245,10 +271,33 @@ class VideoSink:
                     self._error = f"cannot finish the video file: {err}"
             if self._error is not None and not self._reported:
                 self._raise_error()
+            if self.sound is not None and self.count:
+                self._mux_sound()
         finally:
             self._temporary.unlink(missing_ok=True)
             if self._log is not None:
                 self._log.close()
+
+    def _mux_sound(self) -> None:
+        """Replace the finished silent video by the same video with the sound under it."""
+        from puppet.sound.mux import mux_sound
+        from puppet.sound.window import cut_at_take_end
+
+        sound, seconds = self.sound, self.count / self.fps
+        cut = cut_at_take_end(sound.frames, sound.rate, self.sound_offset_s, seconds)
+        if cut > 0:
+            self.notes.append(f"{sound.path}: the sound is cut at the video's end ({cut:.3f} s "
+                              "of it left out)")
+        partial = self.path.with_name(f".{self.path.stem}.{os.getpid()}.sound{self.path.suffix}")
+        try:
+            mux_sound(self.path, partial, sound.samples, sound.rate, self.sound_offset_s, seconds,
+                      timecode=self.timecode, source=str(sound.path))
+            commit(partial, self.path)
+        except OSError as err:
+            raise SinkError(f"{self.path}: cannot write the video with its sound: {err}; the "
+                            "video is kept without sound") from err
+        finally:
+            partial.unlink(missing_ok=True)
 
     def abort(self) -> None:
         """Stop the encoder now and remove the unfinished file (nothing is renamed into place)."""

@@ -8,15 +8,15 @@ on the others); ``igl.bbw`` (active-set QP, bounds [0, 1]); rows normalized to s
 
 from __future__ import annotations
 
-import hashlib
-import os
+from importlib import metadata
 from pathlib import Path
 
 import numpy as np
 
-from puppet.cache import cache_root, read_failed, write_failed
+from puppet.cache import Entry, cache_root, code_digest
 from puppet.rig.errors import RigError
 from puppet.rig.skeleton import Skeleton
+from puppet.rig import weight_check
 from puppet.rig.weight_check import normalize_weights
 
 CACHE_VERSION = 1
@@ -35,6 +35,13 @@ def default_cache_dir() -> Path:
     """The cache root (``puppet.cache``: $PUPPET_CACHE, else $XDG_CACHE_HOME/puppet, else
     ~/.cache/puppet)."""
     return cache_root()
+
+
+def code_version() -> str:
+    """A digest of the code that computes the weights: this module, the normalization
+    (``weight_check``) and the libigl release. Part of every cache key: edited weights code
+    never serves weights computed by the old one."""
+    return f"{code_digest(__file__, weight_check.__file__)} libigl {metadata.version('libigl')}"
 
 
 def check_bbw_input(V: np.ndarray, F: np.ndarray, skeleton: Skeleton) -> list[str]:
@@ -90,14 +97,6 @@ def _handles(skeleton: Skeleton):
             column_of_bone)
 
 
-def _cache_key(V, F, skeleton: Skeleton) -> str:
-    h = hashlib.sha256(f"bbw-v{CACHE_VERSION}".encode())
-    for array in (V, F, skeleton.heads, skeleton.tails, skeleton.parents):
-        a = np.ascontiguousarray(array)
-        h.update(str(a.dtype).encode() + str(a.shape).encode() + a.tobytes())
-    return h.hexdigest()[:24]
-
-
 def bbw_tet(V: np.ndarray, F: np.ndarray, skeleton: Skeleton, *, samples_per_bone: int = 10,
             path=None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """BBW on a tet mesh of the surface's interior (no cache, no normalization).
@@ -138,34 +137,31 @@ def bbw_weights(V: np.ndarray, F: np.ndarray, skeleton: Skeleton, *, cache_dir=N
     V: (n, 3) float64 surface vertices; F: (f, 3) triangles (closed, outward);
     skeleton: bones (a bone with head == tail is a point handle).
     Returns (n, bones) float64, non-negative, rows summing to 1. Cached under ``cache_dir``
-    (default :func:`default_cache_dir`) by a hash of the inputs.
+    (default :func:`default_cache_dir`), keyed by the inputs and ``code_version()``.
     Raises WeightInputError listing every problem with the input.
     """
     V = np.ascontiguousarray(V, np.float64)
     F = np.ascontiguousarray(F, np.int64)
-    cache_file = None
+    entry = None
     if use_cache:
-        cache_file = Path(cache_dir or default_cache_dir()) / f"bbw-{_cache_key(V, F, skeleton)}.npy"
-        if cache_file.exists():
-            try:
-                W = np.load(cache_file)
-            except (OSError, ValueError, EOFError) as err:
-                read_failed(cache_file, err)  # recomputed and overwritten below
-            else:
-                if W.shape == (len(V), skeleton.bone_count):
-                    return W
-                read_failed(cache_file, ValueError(f"shape {W.shape}, expected "
-                                                   f"{(len(V), skeleton.bone_count)}"))
+        entry = Entry.keyed(Path(cache_dir or default_cache_dir()), "bbw", ".npy", code_version(),
+                            CACHE_VERSION, V, F, np.asarray(skeleton.heads), np.asarray(skeleton.tails),
+                            np.asarray(skeleton.parents), int(samples_per_bone))
+        shape = (len(V), skeleton.bone_count)
+
+        def read(file):
+            W = np.load(file)
+            if W.shape != shape:
+                raise ValueError(f"shape {W.shape}, expected {shape}")
+            return W
+
+        W = entry.load(read)
+        if W is not None:
+            return W
     TV, _, W_tet = bbw_tet(V, F, skeleton, samples_per_bone=samples_per_bone, path=path)
     W = normalize_weights(W_tet[: len(V)], path=path)
-    if cache_file is not None:
-        try:
-            cache_file.parent.mkdir(parents=True, exist_ok=True)
-            tmp = cache_file.with_name(cache_file.name + f".{os.getpid()}.tmp.npy")
-            np.save(tmp, W)
-            os.replace(tmp, cache_file)
-        except OSError as err:
-            write_failed(cache_file, err)  # the next run computes them again
+    if entry is not None:  # a folder that refuses is logged; the next run computes them again
+        entry.store(lambda tmp: np.save(tmp, W))
     return W
 
 

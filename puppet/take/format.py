@@ -8,6 +8,8 @@ file as soon as it is written (crash safety):
                               id -> model name), servo_count, created_unix_ns
   Metadata "puppet.rig_map"   text: the rig map TOML the take was recorded with
   Metadata "puppet.calibration" text: the calibration text the take was recorded with
+  Metadata "puppet.sound"     optional: the sound performed to (puppet.take.sync)
+  Metadata "puppet.timecode"  optional: the start timecode (puppet.take.sync)
   Schema   "puppet_msgs/msg/ServoReading" (encoding ros2msg, text below)
   Channel  "/puppet/servo_readings" (message encoding cdr; metadata: ids)
   Message* one per Reading, log_time = publish_time = t_ns

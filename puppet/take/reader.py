@@ -22,7 +22,10 @@ from mcap.stream_reader import breakup_chunk
 
 from puppet.reading import Reading
 from puppet.take import format as fmt
+from puppet.take import sync
 from puppet.take.channels import channel_topic, renamed
+from puppet.take.sync import SoundRef
+from puppet.timecode import StartTimecode
 from puppet.take.errors import TakeError, TakeRigMismatch
 from puppet.take.playback import gap_note
 
@@ -107,6 +110,7 @@ class _ScanState:
         self.t_first: int | None = None
         self.last_t: int | None = None
         self.orphans = 0  # reading records met before the take metadata could be read
+        self.sync: dict[str, dict[str, str]] = {}  # the sound and timecode records, as read
 
 
 @dataclass
@@ -121,6 +125,9 @@ class TakeMetadata:
     format_version:   take format version (puppet.take.format.READABLE_VERSIONS).
     created_unix_ns:  wall-clock time the recording started, ns since the Unix epoch.
     library:          the writer that made the file (MCAP header).
+    sound:            the sound the take was performed to (``puppet.take.sync.SoundRef``), or
+                      None (none, a take older than sound, or a damaged record: in the report).
+    timecode:         the start timecode (``puppet.timecode.StartTimecode``) or None (likewise).
     """
 
     ids: np.ndarray
@@ -131,6 +138,8 @@ class TakeMetadata:
     format_version: int
     created_unix_ns: int
     library: str
+    sound: SoundRef | None = None
+    timecode: StartTimecode | None = None
 
 
 def _parse(record_cls, body: bytes):
@@ -337,6 +346,9 @@ class TakeReader:
             format_version=s.version,
             created_unix_ns=created,
             library=s.header.library if s.header is not None else "",
+            sound=self._sync_record(s, sync.SOUND_METADATA, "sound", sync.SoundRef.from_metadata),
+            timecode=self._sync_record(s, sync.TIMECODE_METADATA, "timecode",
+                                       sync.timecode_from_metadata),
         )
         if s.orphans:
             self.report.skip("corrupt record", f"{s.orphans} reading record(s) before the take "
@@ -347,6 +359,18 @@ class TakeReader:
             self._offsets = array("Q", range(len(self._payloads)))
         if len(self._offsets):
             self.t_first_ns, self.t_last_ns = s.t_first, s.last_t
+
+    def _sync_record(self, s: "_ScanState", name: str, what: str, parse):
+        """The value of an optional sync record (puppet.take.sync), None when absent; a damaged
+        one is reported and left out (the take plays without it)."""
+        info = s.sync.get(name)
+        if info is None:
+            return None
+        try:
+            return parse(info)
+        except (ValueError, KeyError) as err:
+            self.report.notes.append(f"the {what} metadata is damaged ({err}); it is left out")
+            return None
 
     def _note_gaps(self) -> None:
         """Report gaps between readings that playback cuts (puppet.take.playback.gap_note)."""
@@ -533,6 +557,8 @@ class TakeReader:
                 self._prepare_codec(s)
             elif meta.name in (fmt.RIG_MAP_METADATA, fmt.CALIBRATION_METADATA):
                 s.texts[meta.name] = meta.metadata.get("text", "")
+            elif meta.name in (sync.SOUND_METADATA, sync.TIMECODE_METADATA):
+                s.sync[meta.name] = meta.metadata
         elif opcode == Opcode.SCHEMA:
             schema = _parse(Schema, body)
             s.schemas[schema.id] = schema

@@ -14,6 +14,7 @@ from mcap.writer import CompressionType, IndexType, Writer
 import puppet
 from puppet.reading import Reading
 from puppet.take import format as fmt
+from puppet.take import sync
 from puppet.take.errors import TakeError
 
 
@@ -35,6 +36,9 @@ class TakeWriter:
     rig_name:         a name for the rig.
     fsync_interval_s: seconds between fsyncs; None never fsyncs before close().
     overwrite:        replace an existing file.
+    sound:            the sound the take is performed to (``puppet.take.sync.SoundRef``: its
+                      hash, file, offset at the take's time 0, rate), or None.
+    timecode:         the take's start timecode (``puppet.timecode.StartTimecode``), or None.
     """
 
     def __init__(
@@ -48,6 +52,8 @@ class TakeWriter:
         rig_name: str,
         fsync_interval_s: float | None = 1.0,
         overwrite: bool = False,
+        sound=None,
+        timecode=None,
     ):
         self.path = Path(path)
         self.ids = np.asarray(ids)
@@ -98,6 +104,10 @@ class TakeWriter:
             self._mcap.add_metadata(fmt.TAKE_METADATA, info)
             self._mcap.add_metadata(fmt.RIG_MAP_METADATA, {"text": str(rig_map_text)})
             self._mcap.add_metadata(fmt.CALIBRATION_METADATA, {"text": str(calibration_text)})
+            if sound is not None:
+                self._mcap.add_metadata(sync.SOUND_METADATA, sound.to_metadata())
+            if timecode is not None:
+                self._mcap.add_metadata(sync.TIMECODE_METADATA, sync.timecode_metadata(timecode))
             schema_id = self._mcap.register_schema(
                 fmt.SCHEMA_NAME, fmt.SCHEMA_ENCODING, fmt.SCHEMA_TEXT.encode()
             )

@@ -22,6 +22,9 @@ from __future__ import annotations
 
 import struct
 
+#: Where the view listens when ``--view`` names no port (``puppet.net.address``).
+DEFAULT_PORT = 8765
+
 FRAME_HEADER = struct.Struct("<BBHIqq")
 FRAME_JPEG = 1
 FLAG_DRAFT = 1
@@ -35,7 +38,7 @@ MAX_CLIENT_MESSAGE = 4096
 #: (3 tabs beside the loop on 2 cores: 27 page fps instead of 31).
 PANEL_HZ = 5.0
 
-# ---- what one viewer may cost the others (per connection; see puppet.view.guard) ----------
+# ---- what one viewer may cost the others (per connection; see puppet.net.guard) ----------
 #: Messages per second a page may send on either socket, and at once: the page merges camera
 #: moves and drags into one message per animation frame (<= 60 Hz each) and acknowledges each
 #: frame (<= the view's max fps). Messages above the limit are dropped unread and counted.

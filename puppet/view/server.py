@@ -29,9 +29,9 @@ from importlib import resources
 from aiohttp import WSMsgType, web
 
 from puppet.take.keys import INTERPOLATIONS, MAX_FRAME
-from puppet.view.address import Access
+from puppet.net.address import Access
 from puppet.view.encoder import EncodedFrame
-from puppet.view.guard import RateLimit, Throttle, parse_message
+from puppet.net.guard import RateLimit, Throttle, parse_message
 from puppet.view.protocol import (CREDIT, EDIT_BURST, EDIT_RATE_HZ, FLAG_DRAFT, INPUT_BURST, INPUT_RATE_HZ,
                                   MAX_CLIENT_MESSAGE, CONTROL_SNDBUF, NOTICE_EVERY_S, OUTBOX_MESSAGES,
                                   PANEL_HZ, PICK_BURST, PICK_RATE_HZ,

@@ -10,7 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
-from puppet.checksum import character_sha256
+from puppet.rig.checksum import character_sha256
 from puppet.rig import builtin, load_rig
 from puppet.rig.load import BUILTIN_RIG
 

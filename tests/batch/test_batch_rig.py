@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 
 from puppet.bus import Reading
-from puppet.cli.common import take_writer
+from puppet.take.header import take_writer
 from puppet.rig import load_rig
 from puppet.rig.load import BUILTIN_DYNAMICS_RIG, BUILTIN_RIG
 

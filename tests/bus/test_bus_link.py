@@ -9,8 +9,8 @@ import serial
 import termios
 
 from puppet.bus import BusLink, PortError, ServoCorrupt, ServoReader, ServoStatusError, ServoTimeout
-from puppet.bus import control_table as ct
-from puppet.bus.link import set_latency_assumption
+from puppet.bus.latency import set_latency_assumption
+from puppet.servo_models import X_ITEMS
 
 PATIENT_MS = 255  # SDK latency assumption (its maximum) for calls that must succeed: ~0.5 s deadline
 
@@ -29,17 +29,17 @@ def test_error_status_without_data_is_a_typed_error_not_an_index_error(sim):
     bus.inject("error_status", ids=[2], error=0x07)
     # The bare SDK crashes on this reply ...
     with pytest.raises(IndexError):
-        link.ph.read4ByteTxRx(link.port, 2, ct.PRESENT_POSITION.address)
+        link.ph.read4ByteTxRx(link.port, 2, X_ITEMS.present_position.address)
     # ... the link names the servo, the instruction and the error.
     with pytest.raises(ServoStatusError) as info:
-        link.read(2, ct.PRESENT_POSITION)
+        link.read(2, X_ITEMS.present_position)
     assert info.value.ids == [2] and info.value.error & 0x7F == 0x07
     assert "access error" in str(info.value)
-    group = link.sync_read([1, 2], ct.PRESENT_POSITION)
+    group = link.sync_read([1, 2], X_ITEMS.present_position)
     assert list(group.values) == [1] and isinstance(group.failed[2], ServoStatusError)
     # A fast packet with a data-less segment comes up short: the whole packet fails (the
     # reader then reads each servo alone), as a typed error, not an IndexError.
-    fast = link.fast_sync_read([1, 2], ct.PRESENT_POSITION)
+    fast = link.fast_sync_read([1, 2], X_ITEMS.present_position)
     assert fast.values == {} and sorted(fast.failed) == [1, 2]
     assert all(isinstance(e, ServoCorrupt) for e in fast.failed.values())
     link.close()
@@ -50,7 +50,7 @@ def test_one_dead_servo_does_not_hide_the_others(sim):
     link = BusLink(bus.link, latency_ms=PATIENT_MS)
     link.open()
     bus.inject("drop", ids=[2])
-    group = link.sync_read([1, 2, 3], ct.PRESENT_POSITION)
+    group = link.sync_read([1, 2, 3], X_ITEMS.present_position)
     assert 1 in group.values                   # answered before the failure: kept
     assert isinstance(group.failed[2], ServoTimeout) and group.failed[2].ids == [2]
     with pytest.raises(ServoTimeout) as info:
@@ -59,7 +59,7 @@ def test_one_dead_servo_does_not_hide_the_others(sim):
     assert link.ping(3) == (1200, 52)
     bus.inject("truncate", ids=[3])
     with pytest.raises(ServoCorrupt):
-        link.read(3, ct.PRESENT_POSITION)
+        link.read(3, X_ITEMS.present_position)
     link.close()
 
 
@@ -106,7 +106,7 @@ def test_old_firmware_falls_back_to_sync_read(sim, read_until):
 
 
 def test_an_adapter_latency_timer_above_1_ms_is_set_to_1(tmp_path):
-    from puppet.bus.link import adapter_latency_ms, lower_latency_timer
+    from puppet.bus.latency import adapter_latency_ms, lower_latency_timer
 
     (tmp_path / "ttyUSB7").mkdir()
     timer = tmp_path / "ttyUSB7" / "latency_timer"
@@ -126,7 +126,7 @@ def test_fast_sync_read_sends_the_sdks_request_and_reads_its_reply_past_an_echo(
     bus.set_positions({1: 1000, 2: 2000, 3: 3000})
     link = BusLink(bus.link, latency_ms=PATIENT_MS)
     link.open()
-    item = ct.PRESENT_POSITION
+    item = X_ITEMS.present_position
     bus.traffic()
     assert link.ph.syncReadTx(link.port, item.address, item.size, [1, 2, 3], 3, True) == 0
     sdk_rx, sdk_code = link.ph.rxPacket(link.port, True)
@@ -147,7 +147,7 @@ def test_the_links_crc16_is_the_sdks():
     # crc16 (two bytes a step, any start and end, continuing a CRC) against the SDK's updateCRC.
     import random
 
-    from puppet.bus.link import crc16
+    from puppet.bus.codec import crc16
 
     ph = dynamixel_sdk.PacketHandler(2.0)
     rng = random.Random(28)

@@ -8,7 +8,7 @@ import numpy as np
 
 from puppet.bus import ReaderThread, ServoTimeout
 from puppet.bus import health as hs
-from puppet.bus.control_table import RETURN_DELAY_TIME
+from puppet.servo_models import X_ITEMS
 
 
 def test_steady_rate_independent_of_a_slow_consumer(sim, open_reader, wait_until):
@@ -58,7 +58,7 @@ def test_thread_survives_unplug_and_runs_commands(sim, open_reader, wait_until):
         assert thread.alive
         def read_on_the_thread():  # one raw read: a loaded machine may time it out, try again
             try:
-                return ("value", thread.call(reader.link.read, 1, RETURN_DELAY_TIME).result(timeout=60))
+                return ("value", thread.call(reader.link.read, 1, X_ITEMS.return_delay_time).result(timeout=60))
             except ServoTimeout:
                 return None
 

@@ -67,3 +67,45 @@ def test_scan_across_bauds_finds_protocol_1_servos_at_their_rate_only():
         firmware = bus.servo(4).get("Firmware Version")
     assert found == [Found(57600, 1.0, 4, 18, firmware)]
     assert found[0].model == "AX-18A"
+
+
+def test_a_protocol_1_scan_pings_the_missing_ids_again_and_says_what_it_found(monkeypatch):
+    """Servos 3 and 5 do not answer the first pass (their replies dropped, as replies late on a
+    busy host are lost); the fault is lifted once that pass is over: the second pass finds them
+    and says so; a third finds nothing new and ends the scan."""
+    from puppet.bus.link import BusLink
+
+    models = {1: "AX-12A", 2: "AX-12A", 3: "AX-18A", 4: "MX-28", 5: "AX-12A", 6: "AX-12A"}
+    with hw_sim.serve(models) as bus:
+        bus.inject("drop", ids=[3, 5])
+        passes = []
+        ping_each = BusLink.ping_each
+
+        def counted(link, ids):
+            ids = list(ids)
+            found = ping_each(link, ids)
+            passes.append((len(ids), sorted(found)))
+            bus.clear_faults()  # after the first pass
+            return found
+
+        monkeypatch.setattr(BusLink, "ping_each", counted)
+        lines = []
+        port = bus.port
+        found = scan(port, (1_000_000,), (1.0,), log=lines.append)
+    assert [f.id for f in found] == sorted(models)
+    assert [f.model for f in found] == [models[i] for i in sorted(models)]
+    assert passes == [(254, [1, 2, 4, 6]), (250, [3, 5]), (248, [])]
+    assert lines == [f"{port} at 1000000 bps, Protocol 1.0: pass 2 found servos [3, 5] that "
+                     "pass 1 missed (replies late: a busy host or a noisy line)"]
+
+
+def test_a_protocol_1_scan_of_nothing_pings_once(monkeypatch):
+    from puppet.bus.link import BusLink
+
+    calls = []
+    ping_each = BusLink.ping_each
+    monkeypatch.setattr(BusLink, "ping_each",
+                        lambda link, ids: calls.append(1) or ping_each(link, ids))
+    with hw_sim.serve({1: "XL330-M288"}) as bus:  # a Protocol 2.0 bus: nothing answers 1.0
+        assert scan(bus.port, (1_000_000,), (1.0,)) == []
+    assert calls == [1]

@@ -9,7 +9,8 @@ import numpy as np
 import pytest
 
 from puppet.bus import Reading, ReaderDied, ReaderThread
-from puppet.bus import control_table as ct
+from puppet import servo_models
+from puppet.bus.codec import describe_status_error
 from puppet.bus.errors import PortError, ServoStatusError, ServoTimeout
 from puppet.bus.reader_thread import LatestQueue
 from puppet.bus.unwrap import TurnUnwrapper, nearest_turn_offset
@@ -17,27 +18,28 @@ from puppet.events import EventLog
 
 
 def test_item_round_trips_signed_present_position():
+    position = servo_models.X_ITEMS.present_position
     for value in (-5, 0, 4095, 4096, -70000, 2**31 - 1, -(2**31)):
-        assert ct.PRESENT_POSITION.decode(ct.PRESENT_POSITION.encode(value)) == value
+        assert position.decode(position.encode(value)) == value
     # The SDK hands back unsigned; -5 arrives as 4294967291.
-    assert ct.PRESENT_POSITION.decode(list((4294967291).to_bytes(4, "little"))) == -5
-    assert ct.REALTIME_TICK.decode([0xFF, 0x7F]) == 32767
+    assert position.decode(list((4294967291).to_bytes(4, "little"))) == -5
+    assert servo_models.X_ITEMS.realtime_tick.decode([0xFF, 0x7F]) == 32767
 
 
 def test_models_are_data_with_their_numbers():
-    numbers = {m.name: m.number for m in ct.MODELS.values()}
+    numbers = {m.name: m.number for m in servo_models.MODELS.values()}
     assert {name: numbers[name] for name in ("XL330-M288", "XL430-W250", "XM430-W350")} == {
         "XL330-M288": 1200, "XL430-W250": 1060, "XM430-W350": 1020}
     assert len(set(numbers.values())) == len(numbers)  # one model per number
     with pytest.raises(ValueError, match="XL320"):
-        ct.model_named("XL320")
+        servo_models.model_named("XL320")
 
 
 def test_error_descriptions_name_the_bits():
-    assert ct.describe_hardware_error(0b110100) == "overheating, electrical shock, overload"
-    assert ct.describe_hardware_error(0) == "none"
-    assert ct.describe_status_error(0x80) == "alert (hardware error latched)"
-    assert ct.describe_status_error(0x87) == "alert (hardware error latched), access error"
+    assert servo_models.describe_hardware_error(0b110100) == "overheating, electrical shock, overload"
+    assert servo_models.describe_hardware_error(0) == "none"
+    assert describe_status_error(0x80) == "alert (hardware error latched)"
+    assert describe_status_error(0x87) == "alert (hardware error latched), access error"
 
 
 def test_typed_errors_carry_ids_and_instruction():

@@ -68,3 +68,39 @@ def wave_take(tmp_path, rig):
     k = len(rig.servo_map.ids)
     angles = 15.0 * np.sin(2 * np.pi * 0.5 * t[:, None] + np.arange(k)[None, :])
     return _make_take(tmp_path / "wave.mcap", rig, angles)
+
+
+def _read_back(port, models: dict, what: str = "torque_enable", *, latency_ms: int = 20,
+               timeout_s: float = 60.0) -> dict[int, int]:
+    """{id: ``what``} of ``models``' servos ({id: model}) read over ``port`` through the
+    project's own client (BusLink + DriveBus), the port tried again while another process
+    still holds it (a command's last process ending)."""
+    import time
+
+    from puppet.bus.errors import PortError
+    from puppet.bus.link import BusLink
+    from puppet.drive.servos import DriveBus
+    from puppet.servo_models import protocol_of
+
+    link = BusLink(str(port), baud=1_000_000, latency_ms=latency_ms, protocol=protocol_of(models))
+    deadline = time.monotonic() + timeout_s
+    while True:
+        try:
+            link.open()
+            break
+        except PortError:
+            if time.monotonic() > deadline:
+                raise
+            time.sleep(0.05)
+    try:
+        bus = DriveBus(link, list(models), models, lambda _line: None)
+        return {int(i): bus.read(i, what) for i in models}
+    finally:
+        link.close()
+
+
+@pytest.fixture
+def read_back():
+    """``read_back(port, {id: model}, what="torque_enable")`` -> {id: value}, read through
+    BusLink (see ``_read_back``)."""
+    return _read_back

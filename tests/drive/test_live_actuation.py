@@ -200,3 +200,27 @@ def test_a_short_adapter_drop_re_arms_the_tail_and_a_long_one_names_release(tail
         assert "watchdog_tripped" in out, out
         assert f"warning: actuator servos [{TAIL}]: torque not confirmed off" in err, err
         assert f"`puppet release --port {bus.link}` turns it off" in err, err
+
+
+def test_sigkill_of_live_has_its_reader_process_turn_the_tail_off(tail_rig, read_back):
+    """SIGKILL of live's own process (the loop that computes the goals): the reader process,
+    which holds the port, sees its parent gone and turns the actuator's torque off; read back
+    through the client once it has let the port go."""
+    models = dict(tail_rig.servo_map.models)
+    with hw_sim.serve(models) as bus:
+        bus.set_positions(_pose_ticks(tail_rig))
+        tail = bus.servo(TAIL)
+        live = Live(bus.port, "--seconds", "600")
+        try:
+            _wait_for(lambda: tail.get("Torque Enable") == 1, "torque on", live.proc)
+            live.proc.kill()
+            live.proc.wait(timeout=WAIT_S)
+            assert read_back(bus.port, {TAIL: models[TAIL]}, timeout_s=WAIT_S) == {TAIL: 0}
+            assert read_back(bus.port, {TAIL: models[TAIL]}, "bus_watchdog") == {TAIL: 0}
+            _, _, err = live.finish()  # its stderr ends when the reader process has
+            assert "Traceback" not in err, err
+        finally:
+            try:
+                os.killpg(live.proc.pid, signal.SIGKILL)
+            except ProcessLookupError:
+                pass

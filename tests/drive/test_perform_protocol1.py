@@ -5,6 +5,7 @@ without a Bus Watchdog unless told."""
 
 from __future__ import annotations
 
+import os
 import signal
 import subprocess
 import threading
@@ -142,7 +143,8 @@ def test_release_finds_p1_servos_and_turns_torque_off(p1_rig):
 def _perform_cli(take, rig_path, port, *extra):
     return subprocess.Popen(["puppet", "perform", str(take), "--rig", str(rig_path), "--port",
                              str(port), "--yes", "--latency-ms", "20", "--no-watchdog", *extra],
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            start_new_session=True)
 
 
 def _wait_playback(proc) -> list[str]:
@@ -169,11 +171,12 @@ def test_a_signal_stops_a_p1_performance_with_torque_off(p1_rig, p1_take, protoc
 
 
 def test_sigkill_without_a_watchdog_leaves_torque_on_until_release(p1_rig, p1_take, protocol1_rig):
-    # What --no-watchdog means: nothing on an AX or MX stops it when the host dies.
+    # What --no-watchdog means: nothing on an AX or MX stops it when the host dies, perform and
+    # its torque guardian at once (the process group; perform alone: the guardian stops it).
     with hw_sim.serve(dict(p1_rig.servo_map.models)) as bus:
         proc = _perform_cli(p1_take, protocol1_rig, bus.port, "--loop")
         _wait_playback(proc)
-        proc.kill()
+        os.killpg(proc.pid, signal.SIGKILL)
         proc.communicate(timeout=120)
         assert set(_torque(bus, p1_rig).values()) == {1}
         result = subprocess.run(["puppet", "release", "--port", bus.port, "--rig",

@@ -65,3 +65,32 @@ def test_release_of_a_rig_names_the_servo_that_did_not_answer(tmp_path):
     assert "servo 4:" not in result.stdout
     assert result.stderr.strip().splitlines()[-1] == (
         f"Error: port {port}: servo [4] of {BUILTIN_RIG} did not answer: torque unknown")
+
+
+def test_release_with_another_rig_releases_and_names_the_servos_not_in_it(tmp_path):
+    """The rig given names servos 1 and 2; servo 5 on the bus (torque on) is not in it: it is
+    released too, and named."""
+    from puppet.rig.load import BUILTIN_RIG
+
+    rig_path = _two_servo_rig(tmp_path, BUILTIN_RIG, (1, 2))
+    with hw_sim.serve(MODELS) as bus:
+        _stiff(bus, MODELS)
+        result = _release("--port", bus.port, "--rig", rig_path)
+        assert {i: bus.servo(i).get("Torque Enable") for i in MODELS} == dict.fromkeys(MODELS, 0)
+        assert bus.servo(5).get("Bus Watchdog") == 0
+    assert result.returncode == 0, result.stderr
+    assert "servo [5] answered but is not in the rig: released too" in result.stderr
+    assert "servo 5: Torque Enable 0, Bus Watchdog 0 (read back)" in result.stdout
+
+
+def _two_servo_rig(tmp_path, builtin_rig, ids):
+    """The built-in rig with only the servo blocks of ``ids`` (its mesh named by full path)."""
+    import re
+
+    text = builtin_rig.read_text().replace('mesh = "critter.npz"',
+                                           f'mesh = "{builtin_rig.parent / "critter.npz"}"')
+    head, *blocks = re.split(r"(?m)^(?=\[\[servo\]\])", text)
+    kept = [b for b in blocks if int(re.search(r"(?m)^id\s*=\s*(\d+)", b).group(1)) in ids]
+    path = tmp_path / "two.toml"
+    path.write_text(head + "".join(kept))
+    return path

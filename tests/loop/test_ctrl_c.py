@@ -56,7 +56,7 @@ def _command(name: str, tmp_path: Path, port: str):
 
 
 @pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
-@pytest.mark.parametrize("name", ["live", "record", "play", "perform"])
+@pytest.mark.parametrize("name", ["perform"])  # the session's commands: tests/session/test_stop_contract.py
 def test_one_ctrl_c_to_the_process_group_exits_0_without_a_traceback(name, sig, tmp_path,
                                                                      wait_until):
     """SIGINT as a terminal's Ctrl-C, SIGTERM as a service manager stopping the group."""

@@ -10,7 +10,7 @@ from puppet.bus import Reading
 from puppet.bus.reader_process import ReaderProcess
 from puppet.demo import Performance
 from puppet.loop import LateLatch, Pipeline, run_frames, run_live
-from puppet.render.antialias import LIVE_PIXELS_PER_TRIANGLE, is_software_gl
+from puppet.render.passes.antialias import LIVE_PIXELS_PER_TRIANGLE, is_software_gl
 
 
 def test_solve_follows_the_reading_and_keeps_full_constraints(critter):
@@ -106,7 +106,7 @@ def test_antialias_auto_picks_fxaa_on_a_software_renderer(critter):
 
 
 def test_antialias_a_gl_cannot_do_names_what_it_can():
-    from puppet.render.antialias import resolve_antialias
+    from puppet.render.passes.antialias import resolve_antialias
     from puppet.render import RenderError
 
     with pytest.raises(RenderError, match=r"antialias 'msaa': this GL \(some GL\) cannot do it "

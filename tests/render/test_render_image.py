@@ -240,7 +240,7 @@ def test_fxaa_over_the_character_rectangle_equals_fxaa_over_the_frame(gl_context
         with Renderer(rig.V, rig.F, W, width=320, height=240, samples=0, context=gl_context, **options) as renderer:
             images[name] = renderer.draw(T, bones=bones).copy()
             if name == "character":
-                x, y, w, h = renderer._character_rect(True)
+                x, y, w, h = renderer.antialias.rect
                 assert 0 < w * h < 0.8 * 320 * 240  # a part of the frame, not all of it
     difference = np.abs(images["character"].astype(int) - images["frame"].astype(int)).max(axis=2)
     assert difference.max() <= 2
@@ -294,4 +294,4 @@ def test_each_camera_gets_its_own_backdrop_and_shadow(gl_context, bar, helpers):
         for k in (0, 1, 0, 2, 1, 0, 2):
             r.camera = cameras[k]
             np.testing.assert_array_equal(r.draw(T), fresh[k], err_msg=f"camera {k}")
-        assert len(r._backdrops) == 2
+        assert len(r.ground_pass.backdrops) == 2

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from puppet.render import Renderer, lod
-from puppet.render.picking import Picker
+from puppet.render.passes.picking import Picker
 
 
 def _face_normals(V, F):

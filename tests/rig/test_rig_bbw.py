@@ -4,7 +4,7 @@ clear reports for open meshes and skeletons outside the mesh."""
 import numpy as np
 import pytest
 
-from puppet.rig import check_weights, load_rig
+from puppet.rig import bbw, check_weights, load_rig
 from puppet.rig.bbw import WeightInputError, bbw_weights, interpolate_in_tets
 from puppet.rig.tgf_dmat import read_tgf
 
@@ -34,6 +34,20 @@ def test_bbw_weights_are_valid_local_and_cached(no_weights_rig):
     marker = np.full_like(rig.W, 1.0 / rig.W.shape[1])
     np.save(cached[0], marker)
     np.testing.assert_array_equal(load_rig(no_weights_rig).W, marker)
+
+
+def test_edited_weights_code_misses_the_cache(no_weights_rig, monkeypatch):
+    # The key covers the code that computes the weights: an edited bbw (or normalization, or
+    # libigl) never serves the old code's weights.
+    cache = no_weights_rig.parent / "cache"
+    first = load_rig(no_weights_rig).W
+    assert len(list(cache.glob("bbw-*.npy"))) == 1
+    assert bbw.code_digest(bbw.__file__, bbw.weight_check.__file__) in bbw.code_version()
+    monkeypatch.setattr(bbw, "code_version", lambda: "edited")
+    real_tet, computed = bbw.bbw_tet, []
+    monkeypatch.setattr(bbw, "bbw_tet", lambda *args, **kw: computed.append(1) or real_tet(*args, **kw))
+    np.testing.assert_allclose(load_rig(no_weights_rig).W, first)
+    assert computed == [1] and len(list(cache.glob("bbw-*.npy"))) == 2
 
 
 def test_open_mesh_is_reported(tube_rig_dir):

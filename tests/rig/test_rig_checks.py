@@ -54,13 +54,9 @@ def test_ticks_per_turn_and_energy_names_are_defined_once():
         if re.search(r"^\s*ENERGIES\s*=\s*\(", text, re.M):
             definitions["energies"].append(path.relative_to(PACKAGE).as_posix())
     assert definitions == {"ticks": ["servo_models.py"], "energies": ["fast/energy_names.py"]}
-    import puppet.bus.control_table as ct
     import puppet.fast.energy as energy
     import puppet.rig
-    import puppet.servo_models as servo_models
 
-    assert ct.TICKS_PER_TURN is servo_models.TICKS_PER_TURN
-    assert ct.MODELS is servo_models.MODELS
     assert puppet.rig.ENERGIES is energy.ENERGIES
 
 

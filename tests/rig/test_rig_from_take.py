@@ -13,7 +13,7 @@ from click.testing import CliRunner
 
 from puppet.reading import Reading
 from puppet.cli import main
-from puppet.cli.common import take_writer
+from puppet.take.header import take_writer
 from puppet.replay import RIG_SOURCE_MARK
 from puppet.rig import load_rig
 from puppet.rig.load import BUILTIN_RIG

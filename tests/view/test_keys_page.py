@@ -305,7 +305,7 @@ def test_live_view_takes_keys_into_a_shot_from_the_page(new_page, tools, tmp_pat
 def test_play_view_of_a_shot_shows_its_keys_at_their_frames(new_page, tools, tmp_path):
     """``play SHOT --view``: the shot plays for (last key frame − 1) / fps seconds and, paused
     on a key's time, the page's servo angles are that key's."""
-    from puppet.cli.common import take_header
+    from puppet.take.header import take_header
     from puppet.keys import write_shot
     from puppet.keys.example import critter_keys
 

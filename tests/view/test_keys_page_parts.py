@@ -10,7 +10,7 @@ import time
 
 import numpy as np
 
-from puppet.cli.common import take_header
+from puppet.take.header import take_header
 from puppet.keys.capture import HOLD_NS, KeyDesk, KeySession
 from puppet.keys.example import critter_keys
 from puppet.reading import Reading

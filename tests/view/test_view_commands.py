@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 from puppet.rig import builtin
-from puppet.view.view import KEEPALIVE_S
+from puppet.view.frames import KEEPALIVE_S
 
 
 def run_puppet(tools, *args, timeout=300):
@@ -96,7 +96,7 @@ def test_view_beyond_loopback_needs_the_token_and_poses_by_drags(new_page, tools
     finally:
         status = view.stop()
     assert status == 0, view.stderr()
-    assert "handles 1" in view.stdout()
+    assert "handles: 1" in view.stdout()
     assert "refused / from 127.0.0.1: missing or wrong token" in view.stderr()
 
 
@@ -104,7 +104,7 @@ def write_take(path, seconds: float = 3.0, rate_hz: float = 100.0, marks=()):
     """A take of the built-in rig whose servos swing: written as the recorder writes.
     marks: (seconds into the take, name) stored as the view's marker button stores them."""
     from puppet.bus import Reading
-    from puppet.cli.common import take_writer
+    from puppet.take.header import take_writer
 
     rig = builtin()
     ids = rig.servo_map.ids

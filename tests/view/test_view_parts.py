@@ -14,8 +14,8 @@ from puppet.bus import Reading
 from puppet.loop import Pipeline
 from puppet.render import Camera
 from puppet.rig import builtin
-from puppet.view import ViewError, parse_address
-from puppet.view.address import DEFAULT_PORT, Access, bind, is_loopback
+from puppet.net.address import AddressError, Access, bind, is_loopback, parse_address
+from puppet.view.protocol import DEFAULT_PORT
 from puppet.view.handles import drag_target, pixel_ray, project, surface_point
 from puppet.view.orbit import OrbitCamera
 from puppet.view.protocol import FLAG_DRAFT, FRAME_HEADER, FRAME_JPEG, frame_header
@@ -23,16 +23,23 @@ from puppet.view.server import check_input
 
 
 def test_addresses_parse():
-    assert parse_address(None) == ("127.0.0.1", DEFAULT_PORT)
-    assert parse_address("") == ("127.0.0.1", DEFAULT_PORT)
-    assert parse_address("9000") == ("127.0.0.1", 9000)
-    assert parse_address("0.0.0.0:9001") == ("0.0.0.0", 9001)
-    assert parse_address("[::1]:9002") == ("::1", 9002)
-    assert parse_address("myhost") == ("myhost", DEFAULT_PORT)
-    with pytest.raises(ViewError, match="port 'http' is not a number"):
-        parse_address("localhost:http")
-    with pytest.raises(ViewError, match="port 70000 is not in 0..65535"):
-        parse_address("70000")
+    def parse_address_view(text):
+        return parse_address(text, option="--view", default_port=DEFAULT_PORT)
+
+    assert parse_address_view(None) == ("127.0.0.1", DEFAULT_PORT)
+    assert parse_address_view("") == ("127.0.0.1", DEFAULT_PORT)
+    assert parse_address_view("9000") == ("127.0.0.1", 9000)
+    assert parse_address_view("0.0.0.0:9001") == ("0.0.0.0", 9001)
+    assert parse_address_view("[::1]:9002") == ("::1", 9002)
+    assert parse_address_view("myhost") == ("myhost", DEFAULT_PORT)
+    with pytest.raises(AddressError, match="--view 'localhost:http': port 'http' is not a number"):
+        parse_address_view("localhost:http")
+    with pytest.raises(AddressError, match="port 70000 is not in 0..65535"):
+        parse_address_view("70000")
+    # The Blender link's addresses: its own option named, its own default port.
+    assert parse_address("myhost", option="--link", default_port=9100) == ("myhost", 9100)
+    with pytest.raises(AddressError, match="--link '70000': port 70000"):
+        parse_address("70000", option="--link", default_port=9100)
 
 
 def test_loopback_needs_no_token_and_beyond_it_a_constant_time_token():
@@ -56,8 +63,8 @@ def test_a_taken_port_is_a_clear_error():
         taken.bind(("127.0.0.1", 0))
         taken.listen()
         port = taken.getsockname()[1]
-        with pytest.raises(ViewError) as err:
-            bind("127.0.0.1", port)
+        with pytest.raises(AddressError) as err:
+            bind("127.0.0.1", port, option="--view")
     assert str(err.value) == (f"--view: address 127.0.0.1:{port} is already in use (port {port}); "
                               f"stop the other program or pick another port, e.g. --view {port + 1}")
 
@@ -127,7 +134,7 @@ def rest_reading(rig) -> Reading:
 
 
 def test_picking_is_exact(critter_pipeline):
-    from puppet.render.picking import Picker
+    from puppet.render.passes.picking import Picker
 
     pipeline = critter_pipeline
     pipeline.solve(rest_reading(pipeline.rig))
@@ -168,12 +175,12 @@ def test_a_picked_handle_holds_its_exact_surface_point(critter_pipeline):
     view = View("127.0.0.1:0")
     try:
         view.attach(pipeline)
-        view_proj = view._picker.view_proj(view._cameras[0].camera())
+        view_proj = view._picker.view_proj(view.cameras.get(0).camera())
         (x, y), = project(view_proj, view.width, view.height, pipeline.deformed()[tip][None])
         view.command("page", {"type": "pick", "key": 1, "seq": 10**6, "x": x, "y": y, "camera": 0})
         view.apply(pipeline)
-        assert len(view._handles) == 1
-        handle = view._handles[0]
+        assert len(view.handle_desk.handles) == 1
+        handle = view.handle_desk.handles[0]
         assert handle.corners == tuple(int(v) for v in F[handle.triangle])
         assert abs(sum(handle.bary) - 1.0) < 1e-12 and min(handle.bary) >= 0.0
         assert pipeline.pattern.positional == tuple(int(v) for v in rig.pins) + (handle.point,)
@@ -199,7 +206,7 @@ def test_a_picked_handle_holds_its_exact_surface_point(critter_pipeline):
             assert np.abs(blocks[bone] - pipeline.values.full[q]).max() < 1e-5
         view.command("page", {"type": "remove", "handle": handle.id})
         view.apply(pipeline)
-        assert view._handles == []
+        assert view.handle_desk.handles == []
     finally:
         view.close()
         pipeline.set_handles([])
@@ -237,7 +244,7 @@ def test_nothing_is_rendered_or_encoded_without_a_viewer():
         view.close()
     assert summary.frames > 5
     assert (stats["frames_rendered"], stats["frames_reused"], stats["frames_sent"]) == (0, 0, 0)
-    assert view._encoder.encoded == 0
+    assert view.frames.encoder.encoded == 0
 
 
 def test_camera_moves_are_merged_into_one_change_per_frame(critter_pipeline):
@@ -246,7 +253,7 @@ def test_camera_moves_are_merged_into_one_change_per_frame(critter_pipeline):
     view = View("127.0.0.1:0")
     try:
         view.attach(critter_pipeline)
-        camera = view._cameras[0]
+        camera = view.cameras.get(0)
         version = camera.version
         for dx in (5.0, 7.0, -2.0):
             view.command("page", {"type": "orbit", "dx": dx, "dy": 1.0, "camera": 0})
@@ -284,7 +291,7 @@ def test_take_source_shows_the_take_by_its_one_rule():
 
 
 def test_page_messages_parse_bounded_and_notices_merge_per_kind():
-    from puppet.view.guard import RateLimit, Throttle, parse_message
+    from puppet.net.guard import RateLimit, Throttle, parse_message
 
     assert parse_message("[" * 2000 + "]" * 2000) is None  # no RecursionError: refused unparsed
     assert parse_message('{"type": "orbit", "dx": 1, "dy": 2}') == {"type": "orbit", "dx": 1, "dy": 2}

@@ -1,7 +1,9 @@
-"""Where the live view listens: ``[HOST:]PORT`` parsing, the listening socket, the URL, the token.
+"""Where a server of puppet listens (the live view's ``--view``, the Blender link's ``--link``):
+``[HOST:]PORT`` parsing, the listening socket, the URL, the token.
 
 Bound to 127.0.0.1 unless the user names another address; beyond loopback every request needs
-a random token (carried in the printed URL), compared in constant time.
+a random token (carried in the printed URL), compared in constant time. Errors name the option
+the address came from (``option``).
 """
 
 from __future__ import annotations
@@ -13,36 +15,41 @@ import secrets
 import socket
 from dataclasses import dataclass
 
-from puppet.view.errors import ViewError
+from puppet.errors import PuppetError
 
 DEFAULT_HOST = "127.0.0.1"
-DEFAULT_PORT = 8765
 LOOPBACK_NAMES = ("localhost",)
 
 
-def parse_address(text: str | None) -> tuple[str, int]:
-    """(host, port) from '' / None (the default), 'PORT', 'HOST:PORT' or '[IPv6]:PORT'."""
+class AddressError(PuppetError):
+    """A listening address that cannot be parsed, resolved or bound (in use, no permission);
+    the message names the option it came from."""
+
+
+def parse_address(text: str | None, *, option: str, default_port: int) -> tuple[str, int]:
+    """(host, port) from '' / None (the default), 'PORT', 'HOST', 'HOST:PORT' or '[IPv6]:PORT';
+    a port left out is ``default_port``. AddressError naming ``option`` (e.g. '--view')."""
     if text is None or str(text).strip() == "":
-        return DEFAULT_HOST, DEFAULT_PORT
+        return DEFAULT_HOST, default_port
     text = str(text).strip()
     host, port_text = DEFAULT_HOST, text
     if text.startswith("["):
         end = text.find("]")
         if end < 0:
-            raise ViewError(f"--view {text!r}: missing ']' after an IPv6 address")
+            raise AddressError(f"{option} {text!r}: missing ']' after an IPv6 address")
         host, rest = text[1:end], text[end + 1:]
-        port_text = rest[1:] if rest.startswith(":") else (rest or str(DEFAULT_PORT))
+        port_text = rest[1:] if rest.startswith(":") else (rest or str(default_port))
     elif ":" in text:
         host, port_text = text.rsplit(":", 1)
-        port_text = port_text or str(DEFAULT_PORT)
+        port_text = port_text or str(default_port)
     elif not text.isdigit():
-        host, port_text = text, str(DEFAULT_PORT)
+        host, port_text = text, str(default_port)
     try:
         port = int(port_text)
     except ValueError:
-        raise ViewError(f"--view {text!r}: port {port_text!r} is not a number") from None
+        raise AddressError(f"{option} {text!r}: port {port_text!r} is not a number") from None
     if not 0 <= port <= 65535:
-        raise ViewError(f"--view {text!r}: port {port} is not in 0..65535")
+        raise AddressError(f"{option} {text!r}: port {port} is not in 0..65535")
     return host or DEFAULT_HOST, port
 
 
@@ -56,12 +63,13 @@ def is_loopback(host: str) -> bool:
         return False
 
 
-def bind(host: str, port: int) -> socket.socket:
-    """A listening TCP socket on (host, port); ViewError naming the address when it is taken."""
+def bind(host: str, port: int, *, option: str) -> socket.socket:
+    """A listening TCP socket on (host, port); AddressError naming ``option`` and the address
+    when it cannot be had (taken, unresolvable, not allowed)."""
     try:
         infos = socket.getaddrinfo(host, port, type=socket.SOCK_STREAM, flags=socket.AI_PASSIVE)
     except socket.gaierror as err:
-        raise ViewError(f"--view: cannot resolve host {host!r}: {err.strerror}") from None
+        raise AddressError(f"{option}: cannot resolve host {host!r}: {err.strerror}") from None
     family, kind, proto, _, address = infos[0]
     sock = socket.socket(family, kind, proto)
     try:
@@ -72,17 +80,17 @@ def bind(host: str, port: int) -> socket.socket:
         sock.close()
         where = f"[{host}]:{port}" if ":" in host else f"{host}:{port}"
         if err.errno == errno.EADDRINUSE:
-            raise ViewError(f"--view: address {where} is already in use (port {port}); "
-                            "stop the other program or pick another port, e.g. --view "
-                            f"{port + 1}") from None
-        raise ViewError(f"--view: cannot listen on {where}: {err.strerror}") from None
+            raise AddressError(f"{option}: address {where} is already in use (port {port}); "
+                               f"stop the other program or pick another port, e.g. {option} "
+                               f"{port + 1}") from None
+        raise AddressError(f"{option}: cannot listen on {where}: {err.strerror}") from None
     sock.setblocking(False)
     return sock
 
 
 @dataclass(frozen=True)
 class Access:
-    """Who may use the view. token: None on loopback, else the secret every request carries."""
+    """Who may use a server. token: None on loopback, else the secret every request carries."""
 
     host: str
     port: int

@@ -1,5 +1,5 @@
-"""Flood protection for the view's server: rate limits per connection, notices merged per kind,
-a bounded JSON parse.
+"""Flood protection for a server of puppet (the live view's, the Blender link's): rate limits per
+connection, notices merged per kind, a bounded JSON parse.
 
 One client must not cost the others anything: every page input passes a ``RateLimit`` before it
 is even parsed, ``parse_message`` refuses nesting before ``json`` recurses, and notices (to a

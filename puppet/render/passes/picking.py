@@ -16,7 +16,8 @@ import moderngl
 import numpy as np
 
 from puppet.render.camera import Camera
-from puppet.render.renderer import SKINNED_FLOATS
+from puppet.render.passes.base import GLPass
+from puppet.render.passes.mesh import SKINNED_FLOATS
 
 PICK_VERTEX = """
 #version 330
@@ -60,32 +61,31 @@ class Pick:
     bary: tuple[float, float, float]
 
 
-class Picker:
+class Picker(GLPass):
     """Picks surface points of a Renderer's character (sharing its context and buffers).
 
     renderer: the Renderer whose frames are picked; the picker must be released before it.
     """
 
     def __init__(self, renderer):
+        super().__init__(renderer.ctx)
         self.renderer = renderer
         ctx = renderer.ctx
-        self._ctx = ctx
-        self._prog = ctx.program(vertex_shader=PICK_VERTEX, geometry_shader=PICK_GEOMETRY,
-                                 fragment_shader=PICK_FRAGMENT)
-        positions = (renderer._skinned, f"3f {4 * (SKINNED_FLOATS - 3)}x", "in_position")
-        self._vao = ctx.vertex_array(self._prog, [positions], index_buffer=renderer._ibo, index_element_size=4)
-        size = (renderer.width, renderer.height)
-        self._color = ctx.texture(size, 4, dtype="f4")
-        self._depth = ctx.depth_renderbuffer(size)
-        self._fbo = ctx.framebuffer(self._color, self._depth)
         self._pixel = np.zeros(4, np.float32)
-        self._released = False
+        with self.building():
+            self._prog = self.own(ctx.program(vertex_shader=PICK_VERTEX, geometry_shader=PICK_GEOMETRY,
+                                              fragment_shader=PICK_FRAGMENT))
+            mesh = renderer.mesh
+            positions = (mesh.skinned, f"3f {4 * (SKINNED_FLOATS - 3)}x", "in_position")
+            self._vao = self.own(ctx.vertex_array(self._prog, [positions], index_buffer=mesh.ibo,
+                                                  index_element_size=4))
+            size = (renderer.width, renderer.height)
+            self._fbo = self.own(ctx.framebuffer(self.own(ctx.texture(size, 4, dtype="f4")),
+                                                 self.own(ctx.depth_renderbuffer(size))))
 
     def view_proj(self, camera: Camera) -> np.ndarray:
         """(4, 4) float32 world to clip of ``camera`` exactly as the renderer draws (rows flipped)."""
-        r = self.renderer
-        flip = np.diag([1.0, -1.0, 1.0, 1.0]).astype(np.float32)
-        return flip @ camera.projection_matrix(r.width / r.height, r._radius) @ camera.view_matrix()
+        return self.renderer.view_proj(camera)
 
     def pick(self, T: np.ndarray, camera: Camera, x: int, y: int) -> Pick | None:
         """The surface point under pixel (x, y) (image coordinates, top row 0) of the frame drawn
@@ -93,9 +93,8 @@ class Picker:
         r = self.renderer
         if not (0 <= int(x) < r.width and 0 <= int(y) < r.height):
             return None
-        ctx = self._ctx
-        r._upload(T)
-        r._skin(every_vertex=True)
+        ctx = self.ctx
+        r.skin_every_vertex(T)
         self._prog["u_view_proj"].write(np.ascontiguousarray(self.view_proj(camera).T, np.float32))
         self._fbo.use()
         ctx.scissor = (int(x), int(y), 1, 1)
@@ -120,10 +119,9 @@ class Picker:
     def coverage(self, T: np.ndarray, camera: Camera, out: np.ndarray) -> np.ndarray:
         """Where the character drawn with T (4m, 3) and camera covers the frame: ``out``
         (height, width) float32, top row first, filled with triangle index + 1 (0: background)."""
-        ctx = self._ctx
+        ctx = self.ctx
         r = self.renderer
-        r._upload(T)
-        r._skin(every_vertex=True)
+        r.skin_every_vertex(T)
         self._prog["u_view_proj"].write(np.ascontiguousarray(self.view_proj(camera).T, np.float32))
         self._fbo.use()
         self._fbo.clear(0.0, 0.0, 0.0, 0.0, depth=1.0)
@@ -137,14 +135,6 @@ class Picker:
         ctx.disable(moderngl.DEPTH_TEST)
         self._fbo.read_into(out, components=1, dtype="f4")
         return out
-
-    def release(self) -> None:
-        if self._released:
-            return
-        self._released = True
-        self._ctx.detect_framebuffer(0).use()
-        for obj in (self._vao, self._prog, self._fbo, self._color, self._depth):
-            obj.release()
 
     def __enter__(self) -> "Picker":
         return self

@@ -1,0 +1,168 @@
+"""Sound benchmark: the MP4's sound offset read back, and what of the device path this machine
+can measure.
+
+1. MP4 offset: a click track (irregular clicks) is muxed by VideoSink at several offsets, frame
+   rates and sample rates; the MP4 is decoded by ffmpeg (AAC priming hidden by the edit list, as a
+   player sees it) and cross-correlated with the window the sound should have under the video
+   (``puppet.sound.window``). offset_samples: how far the decoded track lags (target 0 +/- 1 audio
+   frame); length_error_samples: decoded length minus the video's length in samples.
+2. Device: with a sound device (PortAudio), the sound's sample 0 against the take's time 0 as the
+   stream reports it (outputBufferDacTime of the first block holding sound minus the scheduled
+   time 0, less the sample offset inside that block), cold (open then play) against pre-rolled
+   (stream open and running, then scheduled). Without one (CI, this machine: no /dev/snd, no
+   PortAudio) that skew cannot be measured here, and the table says so. What is measured instead,
+   on the same code: the start cost, cold (decode the file, open the player) against pre-rolled
+   (schedule time 0 on a running scheduler), CPU time, ratio in one run; and the callback's CPU
+   time per 256-sample block against the block's duration (how much of the audio thread's
+   deadline it uses).
+
+    python bench/sound.py --json sound.json
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib.util
+import json
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import imageio_ffmpeg
+import numpy as np
+import soundfile as sf
+
+from puppet.render.sinks import VideoSink
+from puppet.sound import load_sound, take_window
+from puppet.sound.device import BlockScheduler, DevicePlayer
+
+_spec = importlib.util.spec_from_file_location(
+    "sound_clicks", Path(__file__).resolve().parents[1] / "tests" / "sound" / "clicks.py")
+clicks = importlib.util.module_from_spec(_spec)
+_spec.loader.exec_module(clicks)
+
+AAC_FRAME = 1024  # samples in one AAC frame
+
+
+def decoded(path: Path, rate: int) -> np.ndarray:
+    done = subprocess.run([imageio_ffmpeg.get_ffmpeg_exe(), "-v", "error", "-i", str(path), "-map",
+                           "0:a", "-f", "f32le", "-ac", "1", "-ar", str(rate), "-"],
+                          capture_output=True, check=True)
+    return np.frombuffer(done.stdout, np.float32)
+
+
+def mp4_offsets(folder: Path) -> list[dict]:
+    cases = []
+    for rate in (44100, 48000):
+        path = folder / f"clicks{rate}.wav"
+        sf.write(path, clicks.click_track(rate, seconds=3.0, channels=2), rate)
+        sound = load_sound(path)
+        for fps, offset in ((24000 / 1001, 0.0), (25.0, 0.515), (30000 / 1001, -0.2), (30.0, 1.0)):
+            frames = round(1.5 * fps)
+            out = folder / f"v{rate}_{fps:.3f}_{offset}.mp4"
+            with VideoSink(out, fps, sound=sound, sound_offset_s=offset) as video:
+                for _ in range(frames):
+                    video.write(np.zeros((32, 32, 3), np.uint8))
+            audio = decoded(out, rate)
+            expected = take_window(sound.samples, rate, offset, 0.0, frames / fps)[:, 0]
+            n = min(len(audio), len(expected))
+            lag = clicks.lag_samples(audio[:n], expected[:n])
+            cases.append({"rate": rate, "fps": round(fps, 3), "offset_s": offset,
+                          "offset_samples": lag, "offset_aac_frames": lag / AAC_FRAME,
+                          "length_error_samples": len(audio) - len(expected)})
+    return cases
+
+
+def device_skew(sound, repeats: int) -> dict:
+    """The skew on a real device, cold and pre-rolled; {"measured": False, ...} without one."""
+    probe = DevicePlayer(sound, 0.0)
+    if not probe.prepare():
+        return {"measured": False, "why": probe.message}
+    probe.stop()
+    results = {}
+    for mode in ("cold", "preroll"):
+        skews = []
+        for _ in range(repeats):
+            player = DevicePlayer(sound, 0.0)
+            if mode == "preroll":
+                player.prepare()
+                time.sleep(0.2)  # the stream runs, playing silence
+                zero = player.start()
+            else:  # the motion starts now; the stream is opened only now
+                motion = time.monotonic()
+                player.prepare()
+                zero = player.clock() - (time.monotonic() - motion)  # time 0 = when asked
+                player.start(zero)
+            deadline = time.monotonic() + 2.0
+            while player.first_dac is None and time.monotonic() < deadline:
+                time.sleep(0.005)
+            if player.first_dac is not None:
+                skews.append(1e3 * abs(player.first_dac - zero))
+            player.stop()
+        skews = np.array(skews)
+        results[mode] = {"median_ms": float(np.median(skews)), "p95_ms": float(np.percentile(skews, 95)),
+                         "worst_ms": float(skews.max()), "n": int(len(skews))}
+    return {"measured": True, **results}
+
+
+def start_costs(path: Path, repeats: int) -> dict:
+    """CPU seconds: cold (decode + player made) vs pre-rolled (time 0 scheduled)."""
+    cold, warm = [], []
+    for _ in range(repeats):
+        t = time.process_time()
+        sound = load_sound(path)
+        scheduler = BlockScheduler(sound.samples, sound.rate, 0.0)
+        cold.append(time.process_time() - t)
+        t = time.perf_counter()
+        scheduler.take_zero = 0.0
+        warm.append(time.perf_counter() - t)
+    out = np.empty((256, sound.channels), np.float32)
+    blocks = 20_000
+    t = time.process_time()
+    for i in range(blocks):
+        scheduler.fill(out, i * 256 / sound.rate)
+    per_block = (time.process_time() - t) / blocks
+    return {"cold_start_ms": 1e3 * float(np.median(cold)),
+            "preroll_start_us": 1e6 * float(np.median(warm)),
+            "cold_over_preroll": float(np.median(cold) / max(np.median(warm), 1e-9)),
+            "callback_us_per_256": 1e6 * per_block,
+            "callback_share_of_block": per_block / (256 / sound.rate)}
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--json", default=None, help="write the figures here")
+    parser.add_argument("--repeats", type=int, default=20)
+    args = parser.parse_args()
+    with tempfile.TemporaryDirectory(prefix="puppet-bench-sound-") as tmp:
+        folder = Path(tmp)
+        cases = mp4_offsets(folder)
+        long_path = folder / "song.wav"
+        sf.write(long_path, np.tile(clicks.click_track(48000, seconds=2.5, channels=2), (24, 1)), 48000)
+        costs = start_costs(long_path, args.repeats)
+        device = device_skew(load_sound(long_path), args.repeats)
+    print(f"{'rate':>6} {'fps':>7} {'offset s':>9} {'lag samples':>12} {'AAC frames':>11} {'len err':>8}")
+    for c in cases:
+        print(f"{c['rate']:>6} {c['fps']:>7.3f} {c['offset_s']:>9.3f} {c['offset_samples']:>12d} "
+              f"{c['offset_aac_frames']:>11.4f} {c['length_error_samples']:>8d}")
+    print(f"\nstart, a 60 s stereo 48 kHz WAV (CPU): cold (decode + player) "
+          f"{costs['cold_start_ms']:.2f} ms, pre-rolled (schedule time 0) "
+          f"{costs['preroll_start_us']:.2f} us: {costs['cold_over_preroll']:.0f}x")
+    print(f"callback: {costs['callback_us_per_256']:.2f} us CPU per 256-sample block "
+          f"({100 * costs['callback_share_of_block']:.3f} % of the block's {256 / 48:.2f} ms)")
+    if device["measured"]:
+        for mode in ("cold", "preroll"):
+            d = device[mode]
+            print(f"device skew {mode}: median {d['median_ms']:.2f} ms, p95 {d['p95_ms']:.2f} ms, "
+                  f"worst {d['worst_ms']:.2f} ms (n={d['n']})")
+    else:
+        print(f"device skew: not measured on this machine: {device['why']}")
+    if args.json:
+        Path(args.json).write_text(json.dumps({"mp4": cases, "start": costs, "device": device},
+                                              indent=1))
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,217 @@
+"""The reading sources a session runs on: the bus (a puppet, or the simulated one of the demo),
+a take on the wall clock, a take's frames one after another, and the rest pose.
+
+Each is ``begin(hooks)`` (start, may return before the source is ready: the pipeline is built
+meanwhile), ``ready()`` (wait; returns the setup report or None; raises naming the port),
+``stop()`` (idempotent: every way out calls it). A live source gives the loop a
+``puppet.loop.ReadingSource`` (``reading_source``); a frames source an iterable of readings
+(``frames``) with its length.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+
+from puppet.errors import PuppetError
+
+LIVE = "live"      # run_live: a reading source at its own pace, frames by wall clock
+FRAMES = "frames"  # run_frames: a take's frames, one after another
+
+
+class _Starting:
+    """``start()`` of a reader on a thread of its own, so that its child process (spawned: a
+    fresh interpreter that imports the bus code and opens the port) gets going while the session
+    builds the pipeline. ``wait()`` returns the setup report or raises the start's error."""
+
+    def __init__(self, start) -> None:
+        self._result = None
+        self._error: BaseException | None = None
+        self._thread = threading.Thread(target=self._run, args=(start,), name="puppet-reader-start",
+                                        daemon=True)
+        self._thread.start()
+
+    def _run(self, start) -> None:
+        try:
+            self._result = start()
+        except BaseException as err:  # noqa: BLE001 - handed to wait(), raised there
+            self._error = err
+
+    def join(self) -> None:
+        self._thread.join()
+
+    def wait(self):
+        self._thread.join()
+        if self._error is not None:
+            raise self._error
+        return self._result
+
+
+def setup_lines(report, port: str) -> list[str]:
+    """What the bus setup found and changed, in words (a ``SetupReport``)."""
+    lines = list(report.notes)
+    if report.missing:
+        lines.append(f"warning: servos {report.missing} did not answer on {port}; they are flagged "
+                     "and probed until they appear")
+    lines += [f"servo {c.id}: {c.item} {c.old} -> {c.new}" for c in report.changes]
+    return lines
+
+
+class BusSource:
+    """The rig's servos on ``port`` through the bus reader process (puppet.bus.ReaderProcess).
+
+    rate_hz: steady readings per second; latency_ms: the SDK's latency assumption (None: the
+    reader's default). The outputs' cycle hooks (the actuators') run inside the reader process.
+    """
+
+    kind = LIVE
+
+    def __init__(self, rig, port: str, *, baud: int = 1_000_000, rate_hz: float = 500.0,
+                 latency_ms: int | None = None) -> None:
+        if not rig.servo_map.ids.size:
+            raise PuppetError(f"{rig.path or rig.name}: the rig has no servos to read")
+        self.rig = rig
+        self.port = port
+        self.baud = baud
+        self.rate_hz = rate_hz
+        self.latency_ms = latency_ms
+        self.reading_source = None   # the ReaderProcess once begun (kept after stop: its log)
+        self._starting: _Starting | None = None
+        self._stopped = False
+
+    def begin(self, hooks=()) -> None:
+        from puppet.bus.reader_process import ReaderProcess
+
+        hooks = list(hooks)
+        if len(hooks) > 1:
+            raise PuppetError("the bus reader takes one cycle hook")
+        extra = {} if self.latency_ms is None else {"latency_ms": self.latency_ms}
+        self.reading_source = ReaderProcess(self._port(), self.rig.servo_map.models,
+                                            rate_hz=self.rate_hz, baud=self.baud,
+                                            hook=hooks[0] if hooks else None, **extra)
+        self._starting = _Starting(self.reading_source.start)
+
+    def _port(self) -> str:
+        return self.port
+
+    def ready(self, tell=None):
+        """Wait for the reader; its setup said through ``tell``; returns the setup report."""
+        from puppet.bus.reader_process import ReaderProcessError
+
+        try:
+            report = self._starting.wait()
+        except ReaderProcessError as err:
+            raise PuppetError(str(err)) from None  # it names the port
+        if tell is not None:
+            for line in setup_lines(report, self.port):
+                tell(line)
+        return report
+
+    def stop(self) -> None:
+        if self._starting is not None:
+            self._starting.join()
+            self._starting = None
+        if self.reading_source is not None and not self._stopped:
+            self._stopped = True
+            self.reading_source.stop()
+
+
+class SimulatedBus(BusSource):
+    """``puppet demo``'s bus: hw_sim serving the rig's servos, which play ``motion`` (and
+    ``faults``), read through the same reader as hardware.
+
+    Order: hw_sim forks its server first, while this process has no thread and no GL context
+    (forking a process that has threads can deadlock the child); the reader process is then
+    spawned (fork and exec at once, safe with threads).
+    """
+
+    def __init__(self, rig, motion, *, faults=None, timing: bool = True, **options) -> None:
+        super().__init__(rig, port="", **options)
+        self.motion = motion
+        self.faults = faults
+        self.timing = timing
+        self._sim = None
+
+    def _port(self) -> str:
+        import hw_sim
+
+        self._sim = hw_sim.serve(self.rig.servo_map.models, motion=self.motion, faults=self.faults,
+                                 timing=self.timing, baud=self.baud)
+        bus = self._sim.__enter__()
+        self.port = bus.port
+        return bus.link
+
+    def stop(self) -> None:
+        try:
+            super().stop()
+        finally:
+            if self._sim is not None:
+                sim, self._sim = self._sim, None
+                sim.__exit__(None, None, None)
+
+
+class _Ready:
+    """A source ready at once (no bus): begin, ready and stop do nothing."""
+
+    kind = LIVE
+    rate_hz = None
+
+    def begin(self, hooks=()) -> None:
+        if list(hooks):
+            raise PuppetError("actuators need a bus: this source has none")
+
+    def ready(self, tell=None):
+        return None
+
+    def stop(self) -> None:
+        pass
+
+
+class RestPose(_Ready):
+    """The rig in its rest pose (zero ticks, every servo ok): ``puppet view``, posed by handles."""
+
+    def __init__(self, rig) -> None:
+        from puppet.view import RestSource
+
+        self.reading_source = RestSource(rig.servo_map.ids, rig.servo_map.zero)
+
+
+class TakeOnClock(_Ready):
+    """A take on the wall clock (``play --view``): paused, scrubbed and sped up from the page.
+    ``playback``: its puppet.take.Playback; ``markers``: (play seconds, name)."""
+
+    def __init__(self, playback, *, speed: float = 1.0, markers=()) -> None:
+        from puppet.view import TakeSource
+
+        self.reading_source = TakeSource(playback, speed=speed, markers=markers)
+
+
+class TakeFrames(_Ready):
+    """A take's frames (``puppet.take.Playback``, the one take-to-frames rule), solved one after
+    another as fast as possible, or on the wall clock at ``speed`` (``paced``: frame k at
+    start + k / (fps × speed), never early). ``take_s``: the take time of the frame being solved."""
+
+    kind = FRAMES
+
+    def __init__(self, playback, *, fps: float, speed: float = 1.0, paced: bool = False) -> None:
+        self.playback = playback
+        self.fps = float(fps)
+        self.speed = float(speed)
+        self.paced = paced
+        self.take_s = 0.0
+        self.shown_ns = 0
+
+    def __len__(self) -> int:
+        return len(self.playback)
+
+    def frames(self, should_stop):
+        """The readings to solve, in order (paced on the wall clock when ``paced``)."""
+        start = time.monotonic()
+        for k, reading in enumerate(self.playback):
+            if self.paced:
+                due = start + k / (self.fps * self.speed)
+                while (wait := due - time.monotonic()) > 0 and not should_stop():
+                    time.sleep(min(wait, 0.1))
+            self.take_s = k / self.fps
+            self.shown_ns = time.monotonic_ns()
+            yield reading

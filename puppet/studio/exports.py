@@ -1,0 +1,42 @@
+"""A session folder as the input of an export or a batch: which takes, where outputs go.
+
+``puppet batch SESSION [--circled]`` batches the session's takes (every take not in the trash,
+or only the circled ones); outputs go to SESSION/exports/ unless told otherwise, mirroring the
+shots' folders (exports/<shot>/take003.glb), so take 3 of two shots never collide.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+from puppet.studio import layout
+from puppet.studio.errors import StudioError
+from puppet.studio.folder import SessionFolder
+
+
+@dataclass(frozen=True)
+class BatchInput:
+    """takes: the take files, in shot then number order; base: the folder outputs mirror
+    below (SESSION/takes); out: SESSION/exports; notes: what reading the session said (a
+    rebuilt index, missing takes skipped), for warnings."""
+
+    takes: list[Path]
+    base: Path
+    out: Path
+    notes: list[str]
+
+
+def batch_input(folder: str | os.PathLike, *, circled: bool = False) -> BatchInput:
+    """The takes of session ``folder`` to batch; StudioError naming the folder when it holds
+    none (none circled, with ``circled``)."""
+    session = SessionFolder.read(folder)
+    chosen, missing = session.chosen(circled=circled)
+    if not chosen:
+        which = "circled takes" if circled else "takes outside the trash"
+        hint = (" (circle one: puppet session circle SESSION SHOT TAKE)" if circled else "")
+        raise StudioError(f"{session.folder}: no {which} to batch{hint}"
+                          + (f"; {'; '.join(missing)}" if missing else ""))
+    return BatchInput([path for _, _, path in chosen], session.folder / layout.TAKES,
+                      session.folder / layout.EXPORTS, [*session.notes, *missing])

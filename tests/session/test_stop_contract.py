@@ -1,0 +1,206 @@
+"""The one stop rule, for every live command x every way a run ends (issue one-session).
+
+Each command runs as a user's terminal job (its own process group) and is ended by: the end of
+its input or --seconds, one Ctrl-C, two Ctrl-C, SIGTERM, or SIGKILL of its bus reader's child.
+Every cell must give the same outcome: exit 0 and the summary on the signals and the end, exit 1
+naming the reader when it is killed; every video asked for closed and playable with its frames;
+every take readable with its readings; no traceback; no process of the command left behind; no
+temporary file left under a final name.
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import urllib.request
+from pathlib import Path
+
+import imageio_ffmpeg
+import numpy as np
+import pytest
+
+import hw_sim
+from puppet.reading import Reading
+from puppet.rig import builtin
+from puppet.rig.load import BUILTIN_RIG
+from puppet.take import TakeReader, TakeWriter
+
+PATIENCE_S = 60.0
+PUPPET = [sys.executable, "-m", "puppet.cli"]
+
+BUS = ("demo", "live", "record", "keys")      # commands with a bus reader child
+STOPS = ("end", "ctrl-c", "ctrl-c-twice", "sigterm", "kill-reader")
+
+
+def _take(path: Path, seconds: float) -> Path:
+    rig = builtin()
+    k = len(rig.servo_map)
+    with TakeWriter(path, ids=[int(i) for i in rig.servo_map.ids], models=dict(rig.servo_map.models),
+                    rig_map_text="", calibration_text="", rig_name=rig.name) as writer:
+        for i in range(int(seconds * 100)):
+            ticks = (rig.servo_map.zero + 300 * np.sin(0.05 * i + np.arange(k))).astype(np.int32)
+            writer.write(Reading(i * 10_000_000, rig.servo_map.ids, ticks, np.ones(k, bool)))
+    return path
+
+
+def _bigger(path: Path, size: int):
+    return lambda: any(p.stat().st_size > size for p in path.parent.glob(f"*{path.suffix}")
+                       if p.is_file())
+
+
+def _page_up(stderr: Path):
+    def up() -> bool:
+        for line in stderr.read_text().splitlines():
+            if line.startswith("view: "):
+                try:
+                    with urllib.request.urlopen(line[6:].strip(), timeout=5) as reply:
+                        return reply.status == 200
+                except OSError:
+                    return False
+        return False
+    return up
+
+
+def _case(name: str, stop: str, tmp: Path, port: str | None):
+    """(argv, under_way predicate, video or None, take or None, stdin)."""
+    seconds = ["--seconds", "2"] if stop == "end" else []
+    video, take = tmp / "v.mp4", tmp / "t.mcap"
+    rig = ["--rig", str(BUILTIN_RIG), "--port", str(port)]
+    if name == "demo":
+        return (["demo", "--out", str(video), *seconds], _bigger(video, 20_000), video, None, None)
+    if name == "live":
+        return (["live", *rig, "--record", str(take), "--out", str(video), *seconds],
+                _bigger(video, 20_000), video, take, None)
+    if name == "record":
+        return (["record", *rig, "--out", str(take), *seconds], _bigger(take, 20_000), None, take,
+                None)
+    if name == "keys":  # end of input ends a key session; otherwise stdin stays open
+        return (["keys", *rig, "--out", str(tmp / "shot.mcap")],
+                lambda: "hold a pose" in (tmp / "stdout.txt").read_text(), None, None,
+                subprocess.DEVNULL if stop == "end" else subprocess.PIPE)
+    if name == "view":
+        return (["view", "--address", "127.0.0.1:0", *seconds], _page_up(tmp / "stderr.txt"),
+                None, None, None)
+    long = _take(tmp / "long.mcap", 2.0 if stop == "end" else 120.0)
+    if name == "play":  # the take's frames as fast as they solve, into the video
+        return (["play", str(long), "--out", str(video), "--antialias", "none"],
+                _bigger(video, 20_000), video, None, None)
+    return (["play", str(long), "--view", "127.0.0.1:0", "--out", str(video)],
+            _bigger(video, 20_000), video, None, None)
+
+
+def _reader_child(pid: int) -> int | None:
+    """The pid of ``pid``'s bus reader child (a spawned interpreter: multiprocessing's spawn_main)."""
+    for entry in Path("/proc").iterdir():
+        if not entry.name.isdigit():
+            continue
+        try:
+            stat = (entry / "stat").read_text()
+            cmdline = (entry / "cmdline").read_bytes()
+        except OSError:
+            continue
+        if int(stat.rsplit(")", 1)[1].split()[1]) == pid and b"spawn_main" in cmdline:
+            return int(entry.name)
+    return None
+
+
+def _group_gone(group: int) -> bool:
+    try:
+        os.killpg(group, 0)
+    except ProcessLookupError:
+        return True
+    return False
+
+
+CASES = ([(n, s) for n in BUS for s in STOPS] + [("view", s) for s in STOPS if s != "kill-reader"]
+         + [("play", s) for s in STOPS if s != "kill-reader"]
+         + [("play-view", s) for s in STOPS if s not in ("kill-reader", "end")])  # a take on the page
+                                                                                 # holds its last frame
+
+
+@pytest.mark.parametrize("name, stop", CASES, ids=[f"{n}-{s}" for n, s in CASES])
+def test_every_command_keeps_what_it_made_on_every_way_out(name, stop, tmp_path, wait_until):
+    rig = builtin()
+    with hw_sim.serve(dict(rig.servo_map.models), motion="wave") as bus:
+        argv, under_way, video, take, stdin = _case(name, stop, tmp_path, bus.port)
+        err_path, out_path = tmp_path / "stderr.txt", tmp_path / "stdout.txt"
+        err_path.write_text("")
+        out_path.write_text("")
+        with open(err_path, "w") as err, open(out_path, "w") as stdout:
+            proc = subprocess.Popen([*PUPPET, *argv], stdin=stdin, stdout=stdout,
+                                    stderr=err, text=True, process_group=0, cwd=tmp_path)
+            try:
+                if stop != "end":
+                    wait_until(lambda: proc.poll() is not None or under_way(), what=f"{name} under way")
+                    assert proc.poll() is None, err_path.read_text()
+                    if stop == "ctrl-c":
+                        os.killpg(proc.pid, signal.SIGINT)
+                    elif stop == "ctrl-c-twice":
+                        os.killpg(proc.pid, signal.SIGINT)
+                        os.killpg(proc.pid, signal.SIGINT)
+                    elif stop == "sigterm":
+                        os.killpg(proc.pid, signal.SIGTERM)
+                    else:
+                        child = wait_until(lambda: _reader_child(proc.pid), what="the reader child")
+                        os.kill(child, signal.SIGKILL)
+                proc.communicate(timeout=2 * PATIENCE_S)
+            finally:
+                if proc.poll() is None:
+                    os.killpg(proc.pid, signal.SIGKILL)
+                    proc.wait()
+    stderr, out = err_path.read_text(), out_path.read_text()
+    assert "Traceback" not in stderr and "KeyboardInterrupt" not in stderr, stderr
+    assert "Aborted" not in stderr, stderr
+    if stop == "kill-reader":
+        assert proc.returncode == 1, stderr
+        assert "Error:" in stderr and "reader process" in stderr, stderr
+    else:
+        assert proc.returncode == 0, stderr
+        assert "faults seen" in out, out  # the summary
+    wait_until(lambda: _group_gone(proc.pid), what="every process of the command ended")
+    if video is not None:
+        frames, _ = imageio_ffmpeg.count_frames_and_secs(str(video))  # playable: it has its index
+        assert frames > 0
+    if take is not None:
+        assert len(TakeReader(take)) > 0
+    assert [p.name for p in tmp_path.iterdir() if ".partial" in p.name or p.name.startswith(".")] == []
+
+
+def _catches_sigterm(pid: int) -> bool:
+    """True once ``pid`` catches SIGTERM: the command line's first statement ran
+    (``puppet.session.signals.early``; Python itself leaves SIGTERM at its default)."""
+    try:
+        status = Path(f"/proc/{pid}/status").read_text()
+    except OSError:
+        return False
+    caught = int(next(line for line in status.splitlines() if line.startswith("SigCgt:")).split()[1], 16)
+    return bool(caught & (1 << (signal.SIGTERM - 1)))
+
+
+@pytest.mark.parametrize("after_s", [0.0, 0.3, 1.0])
+def test_ctrl_c_during_start_up_stops_cleanly_with_a_summary(after_s, tmp_path, wait_until):
+    """From the command line's first statement on (imports, rig, simulated bus, pipeline), a
+    Ctrl-C ends the run with its summary and exit 0: no traceback, no 'Aborted!'."""
+    import time
+
+    video = tmp_path / "v.mp4"
+    proc = subprocess.Popen([*PUPPET, "demo", "--out", str(video), "--seconds", "30"],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            process_group=0, cwd=tmp_path)
+    try:
+        wait_until(lambda: proc.poll() is not None or _catches_sigterm(proc.pid),
+                   what="the command line's handlers")
+        time.sleep(after_s)  # the stimulus's moment within start-up, not a wait for a state
+        os.killpg(proc.pid, signal.SIGINT)
+        out, err = proc.communicate(timeout=2 * PATIENCE_S)
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+            proc.wait()
+    assert proc.returncode == 0, err
+    assert "Traceback" not in err and "Aborted" not in err, err
+    assert "faults seen" in out, out
+    wait_until(lambda: _group_gone(proc.pid), what="every process of the command ended")
+    assert [p.name for p in tmp_path.iterdir() if p.name.startswith(".")] == []
