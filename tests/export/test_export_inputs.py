@@ -34,7 +34,7 @@ FORMATS = ("gltf", "usd", "pc2", "bvh")
 
 def _record(rig, path: Path) -> Path:
     """A take of ``rig`` written as ``puppet record`` writes one (its rig map and where it was)."""
-    from puppet.cli.common import take_header
+    from puppet.take.header import take_header
 
     ids, k = rig.servo_map.ids, len(rig.servo_map)
     with TakeWriter(path, **take_header(rig)) as writer:
