@@ -111,7 +111,9 @@ def main(argv: list[str] | None = None) -> int:
             motion = WithinLimits(rig_servos)
     else:
         try:
-            servos = parse_servos(args.servos or "1-14", args.model)
+            if args.servos is not None and not args.servos.strip():
+                raise ValueError("no servo ids given (e.g. 1-14, or leave --servos out for 1-14)")
+            servos = parse_servos("1-14" if args.servos is None else args.servos, args.model)
         except ValueError as exc:
             print(f"hw-sim: --servos {args.servos!r}: {exc}", file=sys.stderr)
             return 2

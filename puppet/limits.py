@@ -108,6 +108,16 @@ KEY_INDEX = Range(0, 100_000, integer=True)
 """keys delete / goto: a key's index in its shot (0 = the first key)."""
 SKIN_INDEX = Range(0, 1_000_000, integer=True)
 """glTF skin index."""
+SHOT_SECONDS = Range(0.0, 3600.0, "s")
+"""A shot's length: its last key's time, (frame − 1) / fps. Keys are posed by hand, so an hour is
+far beyond any shot (86 401 frames at 24 fps) while everything made from it stays bounded (a
+key typed with a few zeros too many is refused, naming it, before export or play runs for
+hours); a take's length is bounded by its recording (``record --seconds``, ``SECONDS``)."""
+EXPORT_BYTES = Range(0, 16 * 2**30, "bytes", integer=True)
+"""The most an export writes to one file without ``--force`` (16 GiB), estimated from the
+frames, vertices and joints before anything is written (``puppet.export.run.estimated_bytes``):
+a point cache of a long take of a dense mesh grows as frames × vertices × 12 bytes."""
+
 SOUND_SECONDS_MAX = 900.0
 """A sound (--sound FILE) lasts at most 15 minutes: a performance to a voice or a song, and
 330 MB decoded at 48 kHz stereo (float32), what a 2-core machine's memory takes beside a render."""

@@ -39,6 +39,18 @@ def recorded_character(meta) -> str | None:
     return _mark(meta, RIG_CHARACTER_MARK)
 
 
+def take_inputs(take, rig: Rig, sound=None) -> list[Path]:
+    """Every file a command replaying ``take`` on ``rig`` reads, which none of its outputs may
+    be (``puppet.atomic.check_output``'s inputs): the take, the rig's files
+    (``puppet.rig.rig_file.loaded_files``: for the rig the take stores, the character, buffers,
+    images and calibration found for it) and its sound (``sound``: a SoundRef with a path: the
+    take's stored one, or the --sound file given; None: none). The one list of a replay's
+    inputs: add the files a take will name (its session files) here."""
+    from puppet.rig.rig_file import loaded_files
+
+    return [Path(take), *loaded_files(rig), *([Path(sound.path)] if sound is not None else [])]
+
+
 def rig_from_take(take, meta) -> Rig:
     """The rig a take was recorded with, from the rig map text it stores.
 

@@ -32,7 +32,7 @@ from pathlib import Path
 from puppet.batch.cancel import STOP_GRACE_S
 from puppet.batch.plan import Job
 from puppet.batch.row import TIMED_OUT, TakeResult
-from puppet.batch.task import run_take_logged, staging_folder, take_timeout_s
+from puppet.batch.task import internal_error, run_take_logged, staging_folder, take_timeout_s
 from puppet.child_signals import children_deaf_to_ctrl_c
 from puppet.fast.blas import children_one_blas_thread
 
@@ -84,8 +84,8 @@ def _worker_main(connection: Connection, blob: bytes, staging_root: str, parent:
             try:
                 result = run_take_logged(job, shared, staging_folder(root, job))
             except Exception as err:  # noqa: BLE001 - a bug in one take must not stop the others
-                result = TakeResult.failed(job.take,
-                                           f"internal error: {type(err).__name__}: {err}")
+                result = internal_error(job.take, err,
+                                        worker=f"{os.uname().nodename}:{os.getpid()}")
             try:
                 connection.send(result)
             except OSError:  # the driver is gone: nobody to tell

@@ -39,6 +39,7 @@ import logging
 import os
 import shutil
 import socket
+import sys
 import time
 import warnings
 from collections.abc import Callable
@@ -50,7 +51,8 @@ from puppet.batch.errors import BatchError
 from puppet.batch.plan import Job
 from puppet.batch.row import TIMED_OUT, TakeResult, plain
 from puppet.batch.staging import node_temp
-from puppet.batch.task import Shared, run_take_logged, staging_folder, take_timeout_s
+from puppet.batch.task import (TRACEBACK_LINES, Shared, internal_error, run_take_logged,
+                               staging_folder, take_timeout_s)
 from puppet.fast.blas import children_one_blas_thread
 
 INSTALL_HINT = "pip install 'puppet[ray]'"
@@ -127,8 +129,11 @@ def _ray_task(job: Job, take_bytes: bytes, shared: Shared, staging_name: str) ->
         local_take = folder / job.take.name
         local_take.write_bytes(take_bytes)
         local_job = dataclasses.replace(job, take=local_take)
-        with one_blas_thread():
-            result = run_take_logged(local_job, shared, folder)
+        try:
+            with one_blas_thread():
+                result = run_take_logged(local_job, shared, folder)
+        except Exception as err:  # noqa: BLE001 - its row carries the worker's own error
+            result = internal_error(job.take, err, worker=f"{os.uname().nodename}:{os.getpid()}")
         result.take = str(job.take)
         # name the user's take, not this node's copy
         result.reason = result.reason.replace(str(local_take), str(job.take))
@@ -270,8 +275,8 @@ class RayEngine:
             for ref in running:
                 try:
                     ray.cancel(ref, force=True)
-                except Exception:  # noqa: BLE001 - stopping anyway: the instance goes next
-                    pass
+                except Exception as err:  # noqa: BLE001 - stopping anyway: said, the instance goes next
+                    print(f"warning: a Ray task could not be cancelled: {err}", file=sys.stderr)
             raise
         return put_s
 
@@ -291,9 +296,19 @@ class RayEngine:
                 return None
             what = "its Ray worker or node died" if type(err).__name__ in _RETRIED else \
                 "the Ray task failed"
-            first = str(err).strip().splitlines()[0] if str(err).strip() else type(err).__name__
-            return TakeResult.failed(job.take, f"{what} ({tries} tries): {plain(first)}",
-                                     retries=tries - 1)
+            cause = getattr(err, "cause", None)  # a RayTaskError: the task's own exception
+            if isinstance(cause, BaseException):
+                result = internal_error(job.take, cause)
+                result.reason = f"{what} ({tries} tries): {result.reason}"
+            else:
+                lines = [plain(line) for line in str(err).strip().splitlines() if line.strip()]
+                last = lines[-1] if lines else type(err).__name__
+                result = TakeResult.failed(job.take, f"{what} ({tries} tries): "
+                                                     f"{type(err).__name__}: {last}")
+                for line in lines[-TRACEBACK_LINES:]:
+                    result.add_log(line)
+            result.retries = tries - 1
+            return result
         result.retries = tries - 1
         return result
 

@@ -212,6 +212,7 @@ def run_batch(takes: list[str], out: str | os.PathLike, *, rig: Rig | None = Non
                         keys_units=keys_units)
     finder = RigFinder(rig)
     jobs, rows, made = _decide(jobs, finder, shaping_settings(settings), resume)
+    inputs = _refuse_rig_files(jobs, rows, finder, inputs, force)
     todo = [job for job in jobs if rows[job.take].state == TO_DO]
     if dry_run:
         runner.close()
@@ -245,6 +246,28 @@ def run_batch(takes: list[str], out: str | os.PathLike, *, rig: Rig | None = Non
     report.rows = [rows[job.take] for job in jobs]
     report.seconds = time.perf_counter() - start
     return report
+
+
+def _refuse_rig_files(jobs: list[Job], rows: dict, finder: RigFinder, inputs: list[Path],
+                      force: bool) -> list[Path]:
+    """The command's inputs with every file of the rigs the takes found (a take's own rig: its
+    character, buffers, images, calibration; ``puppet.rig.rig_file.loaded_files``); a take to
+    do whose output is one of them fails here, before any work (``puppet.atomic``'s rule)."""
+    from puppet.rig.rig_file import loaded_files
+
+    inputs = list(dict.fromkeys([*inputs, *(path for take_rig in finder.rigs()
+                                            for path in loaded_files(take_rig.rig))]))
+    for job in jobs:
+        if rows[job.take].state != TO_DO or not job.log.parent.is_dir():
+            continue  # a dry run's folder yet to be made holds nothing to refuse
+        try:
+            for fmt, target in job.outputs.items():
+                check_output(target, kind=KINDS[fmt], inputs=inputs, force=force)
+            for target, what in ((job.log, "log file"), (job.manifest, "manifest")):
+                check_output(target, kind="text", inputs=inputs, force=force, what=what)
+        except OutputError as err:
+            rows[job.take] = TakeResult.failed(job.take, str(err), log=str(job.log))
+    return inputs
 
 
 def _run(todo: list[Job], refused: list[Job], runner, finder: RigFinder, settings: Settings,

@@ -75,14 +75,36 @@ def take_timeout_s(take: Path, limit_s: float | None) -> float:
         return float(limit_s)
     from puppet.take import TakeReader
 
+    if not take.is_file():  # a FIFO would block the driver: the task reports it
+        return TIMEOUT_BASE_S
     try:
-        if not take.is_file():  # a FIFO would block the driver: the task reports it
-            raise OSError
         with TakeReader(take) as reader:
-            seconds = reader.duration_s()
-    except Exception:  # noqa: BLE001 - a bad take is the task's to report, in its row
-        seconds = 0.0
+            seconds = reader.duration_s
+    except (PuppetError, OSError):  # a bad take: the task reports it, in its row, at once
+        return TIMEOUT_BASE_S
     return TIMEOUT_BASE_S + TIMEOUT_PER_SECOND * seconds
+
+
+TRACEBACK_LINES = 8
+"""Lines of a worker's traceback (its end) kept in a failed take's log."""
+
+
+def internal_error(take, err: BaseException, *, worker: str = "") -> TakeResult:
+    """The failed row of a take whose worker raised what no take should (a bug, not a bad take):
+    the reason names the exception and where it was raised (file:line in function); the log
+    lines hold the end of the worker's own traceback. The same on every engine."""
+    import traceback
+
+    frames = traceback.extract_tb(err.__traceback__)
+    where = f" (at {Path(frames[-1].filename).name}:{frames[-1].lineno} in {frames[-1].name})" \
+        if frames else ""
+    result = TakeResult.failed(take, f"internal error: {type(err).__name__}: {err}{where}",
+                               worker=worker)
+    text = "".join(traceback.format_exception(type(err), err, err.__traceback__)).rstrip()
+    result.add_log("the worker's traceback (its end):")
+    for line in text.splitlines()[-TRACEBACK_LINES:]:
+        result.add_log(line)
+    return result
 
 
 def staging_folder(root: Path, job: Job) -> Path:

@@ -79,7 +79,8 @@ def scan(port: str, baud) -> None:
 @click.option("--port", required=True, help="Serial port.")
 @click.option("--baud", default=1_000_000, show_default=True, type=InRange(limits.BAUD),
               help=f"Bus speed: {limits.BAUD}.")
-@click.option("--out", default=None, help="Calibration file (default: the rig's); with --guided, "
+@click.option("--out", default=None, help="Calibration file (default: the one the rig names, else "
+              "<rig>.calibration.toml beside it, which the rig then reads); with --guided, "
               "a rig file to write instead of updating RIG.")
 @click.option("--guided", is_flag=True, help="Find each [[servo]] block's id, sign and zero ticks by "
               "moving its joint when asked; writes them into the rig file.")
@@ -114,10 +115,15 @@ def calibrate(rig_path: str, port: str, baud: int, out: str | None, guided: bool
     from puppet.bus import BusError, ServoReader
     from puppet.rig import Calibration
 
+    from puppet.rig.rig_file import default_calibration
+
     rig = load_rig(rig_path)
     target = out or rig.calibration.path
+    if target is None and rig_path is not None and Path(rig_path).suffix.lower() == ".toml":
+        target = default_calibration(rig_path)  # the rig reads it from now on
     if target is None:
-        fail(f"{rig_path}: the rig names no calibration file; pass --out FILE")
+        fail(f"{rig_path or 'the built-in rig'}: no calibration file to write (the built-in "
+             "rig, or a bare character); pass --out FILE")
     # the rig's own calibration file is what this command rewrites; every other file is an input
     own = rig.calibration.path
     inputs = [f for f in rig_files(rig) if own is None or Path(f).resolve() != Path(own).resolve()]

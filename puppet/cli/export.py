@@ -45,6 +45,9 @@ def export(take: str, rig_path: str | None, gltf: str | None, usd: str | None, p
            keys_units: float | None, as_json: bool, force: bool, sound_path: str | None) -> None:
     """Export a take; frame 1 is the take's first reading in every format.
 
+    An output estimated over 16 GiB (puppet.limits.EXPORT_BYTES: a long take of a dense mesh
+    as PC2 or USD) is refused before anything is written, unless --force.
+
     \b
     Examples:
       puppet export take.mcap --gltf anim.glb --fps 24

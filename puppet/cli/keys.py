@@ -121,6 +121,9 @@ def keys(ctx, rig_path, port, out, fps, step, interpolation, baud, force, view_a
         raise click.UsageError(f"missing {', '.join(missing)} (or a command: retime, delete, interpolation, goto)")
     if link_address is not None and view_address is None:
         raise click.UsageError("--link streams the live loop that --view runs: add --view")
+    from puppet.keys.shot import check_shot_path
+
+    check_shot_path(out)
     rig = load_rig(rig_path)
     sound = None
     if sound_path is not None:
@@ -154,7 +157,9 @@ def _edit(shot: str, out: str, force: bool, change) -> None:
     rule: never the input, an existing file only with --force)."""
     from puppet.atomic import check_output
     from puppet.keys import read_shot, write_shot
+    from puppet.keys.shot import check_shot_path
 
+    check_shot_path(out)
     header, keys, reader = read_shot(shot)
     if reader.recovery is not None:
         click.echo(f"warning: {shot}: {reader.recovery}", err=True)
@@ -162,8 +167,8 @@ def _edit(shot: str, out: str, force: bool, change) -> None:
                           what="shot")
     new = change(keys)
     write_shot(target, header, new)
-    click.echo(f"shot: {out}\nkeys: " + ", ".join(f"{i}@{k.frame} {k.interpolation}"
-                                                 for i, k in enumerate(new.keys)))
+    click.echo(f"shot: {out}\nkeys: " + ", ".join(f"{k.id}@{k.frame} {k.interpolation}"
+                                                 for k in new.keys))
 
 
 @keys.command()
@@ -172,7 +177,12 @@ def _edit(shot: str, out: str, force: bool, change) -> None:
 @click.option("--out", required=True, help="The retimed shot (.mcap; not the input).")
 @click.option("--force", is_flag=True, help="Replace an existing file at --out.")
 def retime(shot: str, moves: tuple[str, ...], out: str, force: bool) -> None:
-    """Move keys to new frames: INDEX=FRAME ... (refused if keys would reorder or share a frame).
+    """Move keys to new frames: KEY=FRAME ... (refused if keys would reorder or share a frame,
+    or a key would land past the shot's length, puppet.limits.SHOT_SECONDS: 1 h).
+
+    KEY is a key's id as `puppet keys` prints it (0, 1, 2, ... as taken): ids stay with their
+    keys across edits (a deleted key's id is not reused; a damaged key skipped on reading
+    renumbers nothing and stays in the output file).
 
     \b
     Example:

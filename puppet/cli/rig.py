@@ -64,7 +64,7 @@ def rig_axes(rig_path: str, out: str, every_joint: bool, angle: float, force: bo
     from puppet.rig import load_rig
     from puppet.rig.axis_turns import axis_turns
     from puppet.atomic import check_output
-    from puppet.render.axes_sheet import Turn, render_turn_sheet, save_sheet
+    from puppet.render.axes_sheet import MAX_PAIRS, Turn, render_turn_sheet, save_sheet
 
     loaded = load_rig(rig_path)
     inputs = [rig_path, *rig_files(loaded)]
@@ -74,6 +74,12 @@ def rig_axes(rig_path: str, out: str, every_joint: bool, angle: float, force: bo
                    "(as --all); fill in a block's joint and axis to see just its servo", err=True)
         every_joint = True
     turns = [Turn(*t) for t in axis_turns(loaded, every_joint)]
+    if len(turns) > MAX_PAIRS:
+        click.echo(f"warning: {len(turns)} turns to show; one sheet holds {MAX_PAIRS} pairs "
+                   "(puppet.render.axes_sheet.MAX_PAIRS): showing the first "
+                   f"{MAX_PAIRS} (servos first), {len(turns) - MAX_PAIRS} left out; give the "
+                   "joints you mean servos and run it without --all", err=True)
+        turns = turns[:MAX_PAIRS]
     sk = loaded.skeleton
     sheet = render_turn_sheet(loaded.V, loaded.F, loaded.W, sk.heads, sk.tails, sk.parents, turns,
                               angle_deg=angle)

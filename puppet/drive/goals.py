@@ -108,12 +108,15 @@ def _key_pose(reader, ids: list[int], key: int | None):
     keys = reader.keys()
     if keys is None:
         raise DriveError(f"{reader.path}: not a shot (no keys channel): no key {key} to go to")
-    if key is not None and not 0 <= key < len(keys.keys):
-        raise DriveError(f"{reader.path}: no key {key}: the shot has "
-                         + (f"keys 0..{len(keys.keys) - 1}" if keys.keys else "no keys"))
+    chosen = keys.keys
+    if key is not None:  # by its stable id (puppet.take.keys), as every key command
+        ids_there = [k.id for k in keys.keys]
+        if key not in ids_there:
+            raise DriveError(f"{reader.path}: no key {key}: the shot's keys are "
+                             + (", ".join(map(str, ids_there)) if ids_there else "none"))
+        chosen = [keys.keys[ids_there.index(key)]]
     where = {int(i): n for n, i in enumerate(reader.metadata.ids)}
     order = np.array([where[i] for i in ids], np.int64)
-    chosen = keys.keys if key is None else [keys.keys[key]]
     t_ns = keys.times_ns() if key is None else np.zeros(1, np.int64)
     return (t_ns, np.stack([k.ticks[order] for k in chosen]).astype(np.int32),
             np.stack([k.ok[order] for k in chosen]))

@@ -272,6 +272,33 @@ def take_frames(rig, reader, fps: float) -> Playback:
     return Playback.of_take(reader, ids, fps=fps, rig=rig)
 
 
+PC2_HEADER_BYTES = 32
+BVH_BYTES_PER_CHANNEL = 10  # a channel's value as BVH text, with its separator
+
+
+def estimated_bytes(fmt: str, frames: int, vertices: int, joints: int) -> int:
+    """About how many bytes an export of ``frames`` frames writes (exact for PC2: a header and
+    3 float32 per vertex per frame; USD: the points alone, 3 float32 per vertex per frame;
+    glTF: a key time and a rotation, translation and scale per joint per frame before key
+    reduction; BVH: six channels of text per joint per frame). Checked against
+    ``puppet.limits.EXPORT_BYTES`` before anything is written."""
+    if fmt == "pc2":
+        return PC2_HEADER_BYTES + frames * vertices * 12
+    if fmt == "usd":
+        return frames * vertices * 12
+    if fmt == "gltf":
+        return frames * (4 + joints * (16 + 12 + 12))
+    return frames * joints * 6 * BVH_BYTES_PER_CHANNEL
+
+
+def _bytes(n: float) -> str:
+    """A byte count in words: 2.0 TB, 16.0 GiB, 512 MB."""
+    for unit, size in (("TiB", 2**40), ("GiB", 2**30), ("MiB", 2**20), ("KiB", 2**10)):
+        if n >= size:
+            return f"{n / size:.1f} {unit}"
+    return f"{int(n)} bytes"
+
+
 class ExportWriters:
     """Every format asked in ``outputs``, written one solved frame at a time.
 
@@ -297,12 +324,12 @@ class ExportWriters:
         if not items:
             raise ExportError("export", "nothing to write: give --gltf, --usd, --pc2 and/or --bvh FILE")
         self.keys_deg, self.keys_units = _key_tolerances(rig, outputs, keys, keys_units)
-        from puppet.rig.rig_file import loaded_files
+        from puppet.replay import take_inputs
 
         metadata = getattr(reader, "metadata", None)
         sound = sound if sound is not None else getattr(metadata, "sound", None)
         # the sound is an input too (at its stored path, or the --sound file given)
-        self.inputs = [Path(reader.path), *loaded_files(rig), *([Path(sound.path)] if sound else [])]
+        self.inputs = take_inputs(reader.path, rig, sound)
         self.force = outputs.force
         check_distinct({f"--{fmt}": target for fmt, target in items})
         for fmt, target in items:
@@ -310,6 +337,17 @@ class ExportWriters:
                          what=f"--{fmt} output")
             if fmt in SUFFIXES and target.suffix.lower() not in SUFFIXES[fmt]:
                 raise ExportError(target, f"--{fmt} files are named *{' or *'.join(SUFFIXES[fmt])}")
+        self.order = SourceOrder(rig)
+        for fmt, target in items:  # before anything is written: a size no one meant
+            size = estimated_bytes(fmt, len(frames), self.order.n_out, rig.skeleton.bone_count)
+            if size > limits.EXPORT_BYTES.hi and not self.force:
+                raise ExportError(target, f"the --{fmt} output would be about {_bytes(size)} "
+                                          f"({len(frames)} frames at {frames.fps:g} fps, "
+                                          f"{self.order.n_out} vertices, "
+                                          f"{rig.skeleton.bone_count} joints), over the "
+                                          f"{_bytes(limits.EXPORT_BYTES.hi)} an export writes "
+                                          "without --force (puppet.limits.EXPORT_BYTES); "
+                                          "lower --fps, or pass --force to write it")
         if "bvh" in dict(items):
             self._bvh_offsets, self._end_sites = _bvh_skeleton(rig)
         self.rig, self.items, self.targets = rig, items, dict(items)
@@ -317,7 +355,6 @@ class ExportWriters:
         self.fps = frames.fps
         self.sync = sync_fields(frames.fps, sound, getattr(metadata, "timecode", None))
         self.key_frames = frames.key_frames()  # a shot's key poses: glTF keys whatever --keys
-        self.order = SourceOrder(rig)
         self.report = ExportReport(frames=len(frames), fps=frames.fps, cuts=list(frames.cuts),
                                    take_seconds=(frames.t_ns[-1] - frames.t_ns[0]) * 1e-9)
         if "pc2" in self.targets:

@@ -23,6 +23,8 @@ from puppet.export.names import safe_name, safe_names
 
 WRAP = {33071: "clamp", 33648: "mirror", 10497: "repeat"}
 EXTENSIONS = {"image/png": ".png", "image/jpeg": ".jpg"}
+IMAGE_MAGICS = (b"\x89PNG\r\n\x1a\n", b"\xff\xd8\xff")
+"""How a PNG and a JPEG begin: an image file that does not is left out, with a warning."""
 
 
 def primvar_name(texcoord: int) -> str:
@@ -33,7 +35,7 @@ def primvar_name(texcoord: int) -> str:
 def write_textures(scene, folder: Path, inputs=()) -> tuple[dict[int, Path], list[str]]:
     """Write the scene's images into ``folder`` (made if missing): ({image index: file}, warnings
     naming each image that cannot be read). inputs: files no texture may overwrite."""
-    from puppet.atomic import atomic_output
+    from puppet.atomic import atomic_output, check_folder_output
 
     files, warnings = {}, []
     for i, image in enumerate(scene.images):
@@ -43,6 +45,13 @@ def write_textures(scene, folder: Path, inputs=()) -> tuple[dict[int, Path], lis
         if warning:
             warnings.append(warning)
             continue
+        if not data.startswith(IMAGE_MAGICS):
+            where = image.path if image.path is not None else f"image {i} of the character"
+            warnings.append(f"{where}: not a PNG or JPEG image ({len(data)} bytes starting "
+                            f"{data[:8]!r}): its textures are left out (the materials are "
+                            "exported plain)")
+            continue
+        check_folder_output(folder, what="textures folder")
         folder.mkdir(parents=True, exist_ok=True)
         target = folder / f"{i}_{safe_name(image.name or 'image')}{EXTENSIONS.get(image.mime_type, '.png')}"
         with atomic_output(target, kind="png", inputs=inputs, force=True, what="texture") as temporary:

@@ -25,6 +25,7 @@ is over: one capture path whoever pressed.
 from __future__ import annotations
 
 import queue
+import threading
 import time
 from collections import deque
 
@@ -45,6 +46,10 @@ WAITING_COMMANDS = 64
 WINDOW_WAIT_NS = 10_000_000_000
 """Longest wait for a reading after the hold window (a stalled reader), ns; then the key is
 taken from the readings there are (or refused when there are none)."""
+QUIT_WAIT_NS = 2_000_000_000
+"""After ``q`` (or end of input), how long the keys still in their hold window may wait for
+their readings, all together, ns (ten hold windows: a reading bus answers in well under it);
+then those not taken are dropped, each said, and the capture ends: q always ends it."""
 
 
 class KeyRefused(PuppetError):
@@ -77,7 +82,8 @@ class KeySession:
 
     header: the shot's TakeWriter keywords (``puppet.take.header.take_header``). fps: the shot's frames
     per second; step: frames between a key and the next; interpolation: of every new key.
-    keys: the shot's Keys so far.
+    keys: the shot's Keys so far. written: whether the shot file was written yet (at the
+    first key taken; a session that takes none writes nothing).
     """
 
     def __init__(self, path, header: dict, *, fps: float, step: int,
@@ -87,6 +93,7 @@ class KeySession:
         self.ids = np.asarray(header["ids"])
         self.keys = Keys(float(fps), [])
         self.readings: deque = deque(maxlen=KEPT_READINGS)
+        self.written = False  # the shot file was written (a key was taken): nothing before
 
     def needs_pose(self, command: str) -> bool:
         """Whether ``command`` takes the held pose (a new, replaced or inserted key)."""
@@ -103,7 +110,7 @@ class KeySession:
                 ticks, ok, used = held_pose(self.readings, press_ns, self.ids)
                 frame = self.keys.keys[-1].frame + self.step if self.keys.keys else 1
                 new = insert_key(self.keys, Key(frame, ticks, ok, self.interpolation), self.path)
-                said = f"key {len(self.keys.keys)}: frame {frame} ({used} readings held)"
+                said = f"key {new.keys[-1].id}: frame {frame} ({used} readings held)"
             elif parts[0] == "r" and len(parts) == 2:
                 ticks, ok, used = held_pose(self.readings, press_ns, self.ids)
                 index = int(parts[1])
@@ -121,7 +128,7 @@ class KeySession:
                 ticks, ok, used = held_pose(self.readings, press_ns, self.ids)
                 frame = int(parts[1])
                 new = insert_key(self.keys, Key(frame, ticks, ok, self.interpolation), self.path)
-                index = [k.frame for k in new.keys].index(frame)
+                index = next(k.id for k in new.keys if k.frame == frame)
                 said = f"key {index}: inserted at frame {frame} ({used} readings held)"
             elif parts[0] == "m" and len(parts) == 3:
                 index = int(parts[1])
@@ -137,7 +144,9 @@ class KeySession:
                                 "m [N] linear|smooth|step (interpolation), q (finish)")
         except ValueError:
             raise KeyRefused(f"{command.strip()!r}: N and FRAME are whole numbers") from None
-        write_shot(self.path, self.header, new)
+        if new is not self.keys:  # a change of the keys: the shot is written whole
+            write_shot(self.path, self.header, new)
+            self.written = True
         self.keys = new
         return said
 
@@ -159,10 +168,19 @@ class KeyDesk:
         self.finished = False
         self._commands: queue.Queue = queue.Queue(maxsize=WAITING_COMMANDS)
         self._pending = None  # (command, press_ns, origin) waiting for its hold window to end
+        self._quit = threading.Event()  # q (or end of input) was pressed, at _quit_ns
+        self._quit_ns = 0
 
     def press(self, command: str, origin=None) -> None:
         """Queue one command line (any thread); ``origin`` comes back with its outcome.
-        KeyRefused when WAITING_COMMANDS wait already (the loop is stalled)."""
+        ``q`` is never refused: it ends the capture at the next step, however many commands
+        wait (those whose hold window is over are applied first, the others are dropped and
+        said). KeyRefused when WAITING_COMMANDS wait already (the loop is stalled)."""
+        if command.strip() == "q":
+            if not self._quit.is_set():
+                self._quit_ns = time.monotonic_ns()
+                self._quit.set()
+            return
         try:
             self._commands.put_nowait((command, time.monotonic_ns(), origin))
         except queue.Full:
@@ -178,22 +196,31 @@ class KeyDesk:
         words) per command applied (taken False: refused, words say why)."""
         outcomes = []
         session = self.session
-        if self._pending is None and self._commands.empty():
+        quitting = self._quit.is_set()
+        give_up = quitting and time.monotonic_ns() - self._quit_ns >= QUIT_WAIT_NS
+        if self._pending is None and self._commands.empty() and not quitting:
             return outcomes  # the loop's usual frame: nothing pressed
         while not self.finished:
             if self._pending is None:
                 try:
                     self._pending = self._commands.get_nowait()
                 except queue.Empty:
+                    self.finished = quitting
                     break
             command, press_ns, origin = self._pending
-            if command.strip() == "q":
-                self._pending, self.finished = None, True
-                break
             if session.needs_pose(command):
                 latest = session.readings[-1].t_ns if session.readings else 0
                 if latest <= press_ns + HOLD_NS and time.monotonic_ns() - press_ns < WINDOW_WAIT_NS:
-                    break  # the hold window is not over
+                    if not give_up:
+                        break  # the hold window is not over (after q: QUIT_WAIT_NS at most)
+                    self._pending = None  # q waited long enough: this one is not taken
+                    outcome = (origin, False, f"refused: {command.strip() or 'key'!r} not taken: "
+                                              f"q ended the capture before its hold window "
+                                              f"(no readings for {QUIT_WAIT_NS / 1e9:g} s)")
+                    if self.tell is not None:
+                        self.tell(*outcome)
+                    outcomes.append(outcome)
+                    continue
             self._pending = None
             try:
                 outcome = (origin, True, session.apply(command, press_ns))

@@ -7,7 +7,7 @@ from __future__ import annotations
 import zipfile
 from pathlib import Path
 
-from puppet.atomic import atomic_output, check_output
+from puppet.atomic import OutputError, atomic_output, check_output
 
 ADDON = Path(__file__).resolve().parents[1] / "blender_addon" / "puppet_link"
 WIRE = Path(__file__).resolve().with_name("wire.py")
@@ -26,6 +26,9 @@ def addon_files() -> dict[str, bytes]:
 
 def write_addon(out, *, force: bool = False) -> Path:
     """Write the add-on's zip at ``out`` (the one rule for outputs: ``puppet.atomic``)."""
+    if Path(out).suffix.lower() != ".zip":
+        raise OutputError(f"{out}: the add-on is a zip archive that Blender installs: name it "
+                          "*.zip (e.g. puppet_link.zip)")
     target = check_output(out, kind="npz", inputs=[], force=force, what="add-on")
     with atomic_output(target, kind="npz", inputs=[], force=force, what="add-on") as temporary:
         with zipfile.ZipFile(temporary, "w", zipfile.ZIP_DEFLATED) as archive:

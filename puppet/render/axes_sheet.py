@@ -83,6 +83,12 @@ class Sheet:
     panels: list[Panel]
 
 
+MAX_PAIRS = 120
+"""Pairs of panels one sheet holds (240 renders, a 60-row PNG of about 19 000 x 1 280 px at the
+default panel size): a bound, so that a model of a thousand joints with --all is not thousands
+of renders and a gigabyte image; ``puppet rig axes`` shows the first ones (servos first) and
+says how many it left out."""
+
 def _rotation(axis: np.ndarray, angle: float) -> np.ndarray:
     axis = np.asarray(axis, np.float64) / np.linalg.norm(axis)
     x, y, z = axis
@@ -272,6 +278,8 @@ def render_turn_sheet(V, F, W, heads, tails, parents, turns: list[Turn], *, angl
 
     if not turns:
         raise RenderInputError("turns: nothing to render (the rig has no servos; use --all for every joint)")
+    if len(turns) > MAX_PAIRS:
+        raise RenderInputError(f"turns: {len(turns)} pairs; a sheet holds at most {MAX_PAIRS}")
     width, height = (int(x) for x in panel_size)
     W = np.asarray(W)
     parents = np.asarray(parents)

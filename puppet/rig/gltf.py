@@ -14,8 +14,10 @@ pose is its bind pose). Bone j's pivot and frame are its joint node's rest globa
 (scale removed); its tip is its child joint (if exactly one) or pivot + frame y · length.
 Weights of all sets are summed per joint and rows renormalized to 1.
 
-Bounds (an error naming the file past them): at most MAX_JOINTS joints, MAX_VERTICES vertices
-and MAX_WEIGHT_ENTRIES vertices x joints (the dense weight matrix); joint names of at most
+Bounds (an error naming the file past them): files and the buffer files they name are regular
+files (a FIFO or device is refused, never read) of at most MAX_FILE_BYTES; at most MAX_NODES
+nodes and MAX_JOINTS joints per skin, counted in the JSON before anything else is parsed; at most
+MAX_VERTICES vertices and MAX_WEIGHT_ENTRIES vertices x joints (the dense weight matrix); joint names of at most
 MAX_NAME_LENGTH characters, valid Unicode (a lone surrogate is refused). Node transforms and
 positions must be finite, and rest vertices and joints within COORD (+-1e6 model units);
 the skinned meshes must hold at least one triangle. The node hierarchy is walked without
@@ -35,7 +37,7 @@ from pathlib import Path
 
 import numpy as np
 
-from puppet.rig.errors import RigError
+from puppet.rig.errors import RigError, check_regular_file
 from puppet.rig.skeleton import Skeleton
 from puppet.rig.solve_options import COORD
 from puppet.rig.source_scene import SourceScene, read_source_scene
@@ -57,6 +59,11 @@ MAX_VERTICES = 1_000_000
 MAX_WEIGHT_ENTRIES = 50_000_000
 #: Characters of a joint name.
 MAX_NAME_LENGTH = 256
+#: Bytes of a glTF file, or of one buffer file it names (read whole: a bound, not a tuning).
+MAX_FILE_BYTES = 2 * 2**30
+#: Nodes of the document (every joint is a node; 8 per joint leaves room for meshes, cameras,
+#: lights and empties): counted in its JSON before the document is parsed into objects.
+MAX_NODES = 8 * MAX_JOINTS
 
 
 @dataclass
@@ -112,10 +119,8 @@ class _Accessors:
                 except (ValueError, IndexError) as err:
                     self.fail(f"bad data uri: {err}", f"buffers[{index}].uri")
             else:
-                try:
-                    data = (self.path.parent / buf.uri).read_bytes()
-                except OSError as err:
-                    self.fail(f"cannot read {buf.uri!r}: {err.strerror}", f"buffers[{index}].uri")
+                data = _read_bounded(self.path.parent / buf.uri, f"buffer file {buf.uri!r}",
+                                     buf.byteLength, self.path, f"buffers[{index}].uri")
             if buf.byteLength is not None and len(data) < buf.byteLength:
                 self.fail(f"buffer holds {len(data)} bytes, byteLength says {buf.byteLength}",
                           f"buffers[{index}]")
@@ -198,6 +203,44 @@ def _node_local(node) -> np.ndarray:
     return m
 
 
+def _read_bounded(file: Path, what: str, length, path: Path, field: str) -> bytes:
+    """The first ``length`` bytes (all when None) of a regular file of at most MAX_FILE_BYTES;
+    RigError naming the glTF file and field otherwise (a FIFO or device is never read)."""
+    import os
+    import stat
+
+    try:
+        info = os.stat(file)
+    except OSError as err:
+        raise RigError(f"cannot read {what}: {err.strerror}", path=path, field=field) from None
+    if not stat.S_ISREG(info.st_mode):
+        raise RigError(f"{what} ({file}) is not a regular file (a FIFO, device or folder): "
+                       "only regular files are read", path=path, field=field)
+    if info.st_size > MAX_FILE_BYTES:
+        raise RigError(f"{what} holds {info.st_size} bytes; at most {MAX_FILE_BYTES} are read",
+                       path=path, field=field)
+    try:
+        with open(file, "rb") as handle:
+            return handle.read(-1 if length is None else max(0, int(length)))
+    except OSError as err:
+        raise RigError(f"cannot read {what}: {err.strerror}", path=path, field=field) from None
+
+
+def _check_counts(doc: dict, path: Path) -> None:
+    """RigError past MAX_NODES nodes or MAX_JOINTS joints in a skin, from the document's JSON
+    (before pygltflib turns every node into an object)."""
+    nodes = doc.get("nodes")
+    if isinstance(nodes, list) and len(nodes) > MAX_NODES:
+        raise RigError(f"{len(nodes)} nodes; at most {MAX_NODES} are read", path=path,
+                       field="nodes")
+    skins = doc.get("skins")
+    for index, skin in enumerate(skins if isinstance(skins, list) else []):
+        joints = skin.get("joints") if isinstance(skin, dict) else None
+        if isinstance(joints, list) and len(joints) > MAX_JOINTS:
+            raise RigError(f"{len(joints)} joints; at most {MAX_JOINTS} are read", path=path,
+                           field=f"skins[{index}].joints")
+
+
 def _check_container(path: Path) -> None:
     """RigError unless the file is a glTF 2.0 binary (.glb) or JSON (.gltf) document."""
     import json
@@ -232,6 +275,7 @@ def _check_container(path: Path) -> None:
     if not str(asset["version"]).startswith("2"):
         raise RigError(f"glTF version {asset['version']}; only glTF 2.0 is read", path=path,
                        field="asset.version")
+    _check_counts(doc, path)
 
 
 def _choose_skin(gltf, path: Path, skin: int | None) -> tuple[int, list[int]]:
@@ -364,6 +408,10 @@ def read_gltf(path, skin: int | None = None) -> GltfCharacter:
     path = Path(path)
     if not path.exists():
         raise RigError("glTF file not found", path=path)
+    check_regular_file(path, "glTF file")
+    if path.stat().st_size > MAX_FILE_BYTES:
+        raise RigError(f"{path.stat().st_size} bytes; at most {MAX_FILE_BYTES} are read",
+                       path=path)
     if path.suffix.lower() == ".glb" and path.is_file() and path.stat().st_size < 12:
         raise RigError(f"{path.stat().st_size} bytes: too short for a binary glTF (12-byte header)",
                        path=path)
@@ -545,8 +593,14 @@ def external_files(path) -> list[Path]:
     import json
     import struct
 
+    import os
+    import stat
+
     path = Path(path)
     try:
+        info = os.stat(path)
+        if not stat.S_ISREG(info.st_mode) or info.st_size > MAX_FILE_BYTES:
+            return []  # never read: loading it says what is wrong
         raw = path.read_bytes()
         if raw[:4] == GLB_MAGIC:
             length, = struct.unpack_from("<I", raw, 12)

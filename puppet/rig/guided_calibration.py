@@ -230,6 +230,11 @@ class GuidedCalibration:
             if not isinstance(joint, str) or not joint:
                 raise RigError(f"joint must be a bone name, got {joint!r}", path=self.path,
                                field=f"{where} joint")
+            fixed = self.doc.get("fixed", [])
+            if isinstance(fixed, list) and joint in fixed:  # before any asking: the rig's rule
+                raise RigError(f"servo on joint {joint!r}, which 'fixed' holds rigidly: a fixed "
+                               "bone has no joint to read; remove the bone from 'fixed' or the "
+                               "servo", path=self.path, field=f"{where} joint")
             axis_text, axis = _parse_axis(block.get("axis", "x"), where, self.path)
             limits_deg, gear = _parse_range(block, where, self.path)
             file_id = block.get("id")

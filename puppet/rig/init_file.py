@@ -145,8 +145,11 @@ def rig_init_text(character_path: Path, rig_path: Path, character, skin: int | N
                   + (": no vertex follows it (held fixed)" if name in unused_names else "")
                   + (": suggested fixed root" if i == root else ""),
                   f"#   rest axes: {where}",
-                  f"#   {turns}",
-                  "# [[servo]]",
+                  f"#   {turns}"]
+        if i in fixed:  # a servo there contradicts 'fixed' (refused, naming the line)
+            lines.append(f"#   a servo here: take {name!r} out of 'fixed' above first (a fixed "
+                         "bone has no joint to read)")
+        lines += ["# [[servo]]",
                   _line(f"# id = {i + 1}", "bus id (`puppet scan`), or let calibrate --guided find it"),
                   _line(f'# model = "{SUGGESTED_MODEL}"', "your servo's model"),
                   f"# joint = {_toml_string(name)}",

@@ -11,7 +11,7 @@ import numpy as np
 from puppet.rig.calibration import Calibration
 from puppet.rig.errors import RigError, check_regular_file
 from puppet.rig.rig import Rig
-from puppet.rig.rig_file import RigFile, read_rig_file, read_rig_text
+from puppet.rig.rig_file import RigFile, character_files, read_rig_file, read_rig_text, spec_files
 from puppet.rig.servo_map import ServoMap
 from puppet.rig.skeleton import Skeleton
 from puppet.rig.weight_check import normalize_weights
@@ -39,6 +39,8 @@ def read_character_npz(path):
     ``puppet/rig/builtin/make_character.py`` (keys: CHARACTER_KEYS)."""
     path = Path(path)
     check_regular_file(path, "character file")
+    if not path.exists():
+        raise RigError("character file not found", path=path)
     if not zipfile.is_zipfile(path):
         raise RigError("not a character .npz: not a zip archive (an .npz is written by "
                        "numpy.savez)", path=path)
@@ -117,10 +119,11 @@ def load_rig(path) -> Rig:
 
         c = read_gltf(path)
         return Rig(path.stem, c.V, c.F, c.skeleton, c.W, ServoMap([], path=path), path=path,
-                   source_index=c.source_index, source=c.source)
+                   source_index=c.source_index, source=c.source, files=tuple(character_files(path)))
     if suffix == ".npz":
         V, F, W, skeleton = read_character_npz(path)
-        return Rig(path.stem, V, F, skeleton, W, ServoMap([], path=path), path=path)
+        return Rig(path.stem, V, F, skeleton, W, ServoMap([], path=path), path=path,
+                   files=(path,))
     if suffix != ".toml":
         raise RigError(f"unknown rig format {suffix!r} (known: .toml, .glb, .gltf, .npz)", path=path)
     return rig_from_spec(read_rig_file(path))
@@ -202,7 +205,8 @@ def rig_from_spec(spec: RigFile) -> Rig:
         calibration = Calibration(path=spec.calibration)
     # Joint errors (unknown joint, >3 servos, repeated order) name the rig file's line.
     rig = Rig(spec.name, V, F, skeleton, W, spec.servo_map, calibration, spec.solver,
-              np.array(pins, np.int64), spec.fixed, path, source_index, source=source)
+              np.array(pins, np.int64), spec.fixed, path, source_index, source=source,
+              files=tuple(spec_files(spec)))
     rig.set_extras(spec.extras)
     problem = rig.anchor_problem()
     if problem is not None:

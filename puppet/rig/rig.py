@@ -65,6 +65,10 @@ class Rig:
     source:         the glTF character file's look and place (``puppet.rig.source_scene.
                     SourceScene``: attributes, materials, nodes), carried by exports; None for
                     characters that are not glTF.
+    files:          every file the rig was read from besides ``path`` (character, its buffers
+                    and images, skeleton, weights, calibration): no output may be one of them
+                    (``puppet.rig.rig_file.loaded_files``). Set by the loaders, also for a rig
+                    read from the text a take stores (whose ``path`` is only a label).
     """
 
     name: str
@@ -82,6 +86,7 @@ class Rig:
     extras: SolveExtras = field(default_factory=SolveExtras)
     contacts: tuple[tuple[int, str, tuple[float, float, float]], ...] = ()
     source: SourceScene | None = None
+    files: tuple[Path, ...] = ()
 
     def __post_init__(self) -> None:
         self.V = np.ascontiguousarray(self.V, np.float64)

@@ -7,7 +7,9 @@ Example (paths are relative to the rig file)::
     # skin = 0                    #   (.glb/.gltf with several skins: which one)
     # skeleton = "body.tgf"       #   a libigl TGF skeleton, and optionally
     # weights = "body.dmat"       #   DMAT weights (else bounded biharmonic weights, cached)
-    calibration = "critter.calibration.toml"   # optional, host-side zero ticks
+    calibration = "critter.calibration.toml"   # optional, host-side zero ticks; without it,
+                                  # <rig file's name>.calibration.toml beside the rig file when
+                                  # it exists (where `puppet calibrate` writes the zero ticks)
     fixed = ["hips"]              # bones held rigidly (sensed, identity joint)
 
     [solver]
@@ -163,13 +165,26 @@ def read_rig_file(path) -> RigFile:
         raise RigError("is a folder, not a rig file", path=path) from None
     except OSError as err:
         raise RigError(f"cannot read rig file: {err.strerror or err}", path=path) from err
+    if raw.startswith(b"\xef\xbb\xbf"):  # a byte-order mark (Windows editors): not TOML
+        raw = raw[3:]
     try:
         text = raw.decode("utf-8")
     except UnicodeDecodeError as err:
         line = raw[:err.start].count(b"\n") + 1
         raise RigError(f"not UTF-8 text (byte 0x{raw[err.start]:02x} at offset {err.start}); "
                        "a rig file is TOML", path=path, line=line) from None
-    return read_rig_text(text, path=path, base=path.parent)
+    spec = read_rig_text(text, path=path, base=path.parent)
+    if spec.calibration is None and default_calibration(path).is_file():
+        spec.calibration = Path(os.path.abspath(default_calibration(path)))
+    return spec
+
+
+def default_calibration(rig_path) -> Path:
+    """The calibration file of a rig file that names none: ``<name>.calibration.toml`` beside
+    it (``my.toml`` -> ``my.calibration.toml``); read when it exists, written by ``puppet
+    calibrate``."""
+    rig_path = Path(rig_path)
+    return rig_path.with_name(f"{rig_path.stem}.calibration.toml")
 
 
 _TOML_LINE = re.compile(r"\(at line (\d+), column \d+\)|\(at end of document\)")
@@ -234,6 +249,7 @@ def read_rig_text(text: str, *, path, base) -> RigFile:
         fail("must be an array of tables [[servo]]", "servo", lines.top("servo"))
     parsed = [_read_servo(i, s, lines, fail) for i, s in enumerate(servos)]
     servo_map = ServoMap(parsed, path=path)
+    _check_contradictions(mesh, skin, fixed, parsed, extras, lines, fail)
 
     pins = doc.get("pin", [])
     if not isinstance(pins, list) or not all(isinstance(p, dict) for p in pins):
@@ -259,6 +275,37 @@ def read_rig_text(text: str, *, path, base) -> RigFile:
             pin_points.append((_vector(pin["point"], f"{label} point", at, fail), at))
     return RigFile(Path(str(path)), name, mesh, skeleton, weights, calibration, tuple(fixed),
                    solver, servo_map, pin_vertices, pin_points, lines, skin, extras)
+
+
+def _check_contradictions(mesh: Path, skin, fixed, servos, extras, lines: _Lines, fail) -> None:
+    """Refuse keys that contradict each other, naming the line of the later one: a servo on a
+    bone declared fixed (held rigidly: it has no joint to read or drive), ``skin`` on a mesh
+    that is not glTF, a ``[[limit]]`` on a fixed bone or on a bone a sensor servo reads (limits
+    bound what the solve decides), two ``[[limit]]`` on one bone. (Two servos about one axis
+    of a joint: ``ServoMap.joints``.)"""
+    for i, servo in enumerate(servos):
+        if servo.joint in fixed:
+            fail(f"servo {servo.id} is on joint {servo.joint!r}, which 'fixed' (line "
+                 f"{lines.top('fixed')}) holds rigidly: a fixed bone has no joint to "
+                 f"{'drive' if servo.role == 'actuator' else 'read'}; remove the bone from "
+                 "'fixed' or the servo", f"servo #{i + 1} joint", lines.key("servo", i, "joint"))
+    if skin is not None and mesh.suffix.lower() not in (".glb", ".gltf"):
+        fail(f"'skin' picks one of a glTF file's skins, but the mesh {mesh.name} is not glTF "
+             "(.glb/.gltf): remove 'skin'", "skin", lines.top("skin"))
+    sensed = {servo.joint: servo.id for servo in servos if servo.role != "actuator"}
+    seen: dict[str, int | None] = {}
+    for limit in extras.limits:
+        if limit.bone in fixed:
+            fail(f"limit on bone {limit.bone!r}, which 'fixed' holds rigidly: limits bound a "
+                 "bone the solve decides; remove the limit", "limit", limit.line)
+        if limit.bone in sensed:
+            fail(f"limit on bone {limit.bone!r}, which servo {sensed[limit.bone]} reads: limits "
+                 "bound a bone the solve decides (a servo's own range is its limits_deg); "
+                 "remove the limit", "limit", limit.line)
+        if limit.bone in seen:
+            fail(f"a second limit on bone {limit.bone!r} (the first is on line "
+                 f"{seen[limit.bone]}): one [[limit]] per bone", "limit", limit.line)
+        seen[limit.bone] = limit.line
 
 
 def _read_solver(table, lines, fail) -> SolverOptions:
@@ -351,26 +398,41 @@ def _read_servo(index: int, table: dict, lines: _Lines, fail) -> Servo:
                  (float(np.radians(limits[0])), float(np.radians(limits[1]))), header or 0, role)
 
 
-def input_files(path) -> list[Path]:
-    """Every file loading the rig at ``path`` reads: the rig file, its character, skeleton,
-    weights and calibration files, and a glTF character's buffers and images (outputs may be
-    none of them). ``path``: a rig file (.toml) or a bare character file."""
+def character_files(character) -> list[Path]:
+    """A character file and what it names: a glTF's buffers and images (resolved next to it)."""
     from puppet.rig.gltf import external_files
 
-    path = Path(path)
-    files, character = [path], path
-    if path.suffix.lower() == ".toml":
-        spec = read_rig_file(path)
-        files += [p for p in (spec.mesh, spec.skeleton, spec.weights, spec.calibration) if p]
-        character = spec.mesh
+    character = Path(character)
+    files = [character]
     if character.suffix.lower() in (".gltf", ".glb"):
         files += external_files(character)
     return files
 
 
+def spec_files(spec: RigFile) -> list[Path]:
+    """Every file a parsed rig file makes the loader read (not the rig file itself): its
+    character (``character_files``), skeleton, weights and calibration files."""
+    files = character_files(spec.mesh)
+    return files + [p for p in (spec.skeleton, spec.weights, spec.calibration) if p is not None]
+
+
+def input_files(path) -> list[Path]:
+    """Every file loading the rig at ``path`` reads: the rig file, its character, skeleton,
+    weights and calibration files, and a glTF character's buffers and images (outputs may be
+    none of them). ``path``: a rig file (.toml) or a bare character file."""
+    path = Path(path)
+    if path.suffix.lower() == ".toml":
+        return [path, *spec_files(read_rig_file(path))]
+    return character_files(path)
+
+
 def loaded_files(rig) -> list[Path]:
-    """The files a loaded rig came from (``input_files`` of its path, and its calibration file);
-    [] for a rig made in memory."""
-    files = input_files(rig.path) if getattr(rig, "path", None) is not None else []
+    """Every file a loaded rig was read from, which no output of a command using it may be: its
+    path, its ``files`` (set by the loaders: character, buffers, images, skeleton, weights,
+    calibration; also for the rig a take stores) and its calibration file now. [] for a rig made
+    in memory. The one list of a rig's inputs: a command's other inputs (the take, and the sound
+    and session files to come) are added by ``puppet.replay.take_inputs``."""
+    files = [Path(rig.path)] if getattr(rig, "path", None) is not None else []
+    files += list(getattr(rig, "files", ()))
     calibration = getattr(getattr(rig, "calibration", None), "path", None)
-    return files + ([Path(calibration)] if calibration is not None else [])
+    return list(dict.fromkeys(files + ([Path(calibration)] if calibration is not None else [])))

@@ -146,6 +146,15 @@ class ServoMap:
                 raise RigError(f"joint {name!r}: two servos with order {self.servos[dup].order}",
                                path=self.path, line=self.servos[dup].line or None,
                                field=f"servo {self.servos[dup].id} order")
+            for a, first in enumerate(members):
+                for second in members[a + 1:]:
+                    one, two = self.servos[first], self.servos[second]
+                    if abs(float(np.dot(one.axis, two.axis))) > 1.0 - 1e-6:
+                        raise RigError(f"joint {name!r}: servos {one.id} and {two.id} both turn "
+                                       f"about one axis {np.round(one.axis, 6).tolist()}; the "
+                                       "solve cannot tell their angles apart (give each servo "
+                                       "of a joint its own axis)", path=self.path,
+                                       line=two.line or None, field=f"servo {two.id} axis")
             members.sort(key=lambda i: self.servos[i].order)
             joints.append(Joint(bone, np.array([self.servos[i].axis for i in members], float),
                                 np.array(members, np.int64)))

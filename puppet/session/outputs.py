@@ -519,6 +519,8 @@ class KeyDesk(Output):
     def report(self) -> dict:
         keys = self.desk.session.keys
         frames = keys.keys[-1].frame if keys.keys else 0
+        if not self.desk.session.written:  # the shot is written at its first key: none taken
+            return {"shot": f"none: no key was taken, nothing written to {self.path}"}
         if self.option.startswith("--keys"):  # one line beside the run's (live --keys)
             return {"shot": f"{self.path} ({len(keys.keys)} keys)"}
         return {"shot": str(self.path), "keys": f"{len(keys.keys)}, {frames} frames at {keys.fps:g} fps"}

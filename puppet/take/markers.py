@@ -35,14 +35,19 @@ def read_markers(path) -> list[tuple[int, str]]:
     """[(t_ns, name)] of a take's marks in file order (a take killed mid-write included)."""
     from mcap.exceptions import McapError
     from mcap.stream_reader import StreamReader
-    from mcap.records import Channel, Message
+    from mcap.records import Channel, Message, Schema
+
+    from puppet.take.channels import channel_topic
 
     path = Path(path)
-    marks, channel = [], None
+    marks, channel, schemas = [], None, {}
     try:
         with open(path, "rb") as stream:
             for record in StreamReader(stream, skip_magic=False).records:
-                if isinstance(record, Channel) and record.topic == MARKER_TOPIC:
+                if isinstance(record, Schema):
+                    schemas[record.id] = record
+                elif (isinstance(record, Channel) and channel is None
+                      and channel_topic(record.topic, schemas.get(record.schema_id)) == MARKER_TOPIC):
                     channel = record.id
                 elif isinstance(record, Message) and channel is not None and record.channel_id == channel:
                     try:

@@ -23,6 +23,7 @@ from mcap.stream_reader import breakup_chunk
 from puppet.reading import Reading
 from puppet.take import format as fmt
 from puppet.take import sync
+from puppet.take.channels import channel_topic, renamed
 from puppet.take.sync import SoundRef
 from puppet.timecode import StartTimecode
 from puppet.take.errors import TakeError, TakeRigMismatch
@@ -103,6 +104,7 @@ class _ScanState:
         self.channel: Channel | None = None
         self.channel_id: int | None = None
         self.other_channels: set[int] = set()  # channels of other topics (e.g. /puppet/markers)
+        self.unknown_channels: set[int] = set()  # of them, those neither name nor schema places
         self.version: int | None = None
         self.codec: fmt.ReadingCodec | None = None
         self.msg_len: int | None = None  # MCAP body length of one reading's message record
@@ -516,9 +518,13 @@ class TakeReader:
     def _take_message(self, s: "_ScanState", channel_id: int, log_time: int, payload):
         """Check one message: None (a good reading, counted), "other channel", or (reason, detail)."""
         if channel_id != s.channel_id:
-            if channel_id in s.other_channels or len(payload) != s.codec.size:
+            content = (s.channel_id is None and len(payload) == s.codec.size
+                       and s.codec.version >= 2 and s.codec.check(payload) is None)
+            if (channel_id in s.other_channels and not (content and channel_id in s.unknown_channels)
+                    or len(payload) != s.codec.size):
                 return "other channel"  # a message a tool added to the take: not a reading
-            if s.channel_id is None and s.codec.version >= 2 and s.codec.check(payload) is None:
+            if content:
+                s.other_channels.discard(channel_id)
                 s.channel_id = channel_id
                 self.report.notes.append(
                     "the readings' channel record is damaged; readings recognised by checksum")
@@ -586,9 +592,14 @@ class TakeReader:
             s.msg_len = _MESSAGE_HEAD.size + s.codec.size
 
     def _channel(self, s: "_ScanState", ch: Channel) -> None:
-        if ch.topic != fmt.TOPIC:
+        topic = channel_topic(ch.topic, s.schemas.get(ch.schema_id))
+        if topic is not None and topic != ch.topic:
+            self.report.notes.append(renamed(ch.topic, topic))
+        if topic != fmt.TOPIC:
             s.other_channels.add(ch.id)
-            self.topics.add(ch.topic)
+            if topic is None:
+                s.unknown_channels.add(ch.id)
+            self.topics.add(topic or ch.topic)
             return
         version = s.version
         if version is None:  # the take metadata is damaged: the schema tells the version

@@ -214,7 +214,8 @@ class TakeWriter:
 
         if self._closed:
             raise TakeError(self.path, "keys() after close()")
-        key_format.check_frames([k.frame for k in keys.keys], self.path)
+        key_format.check_frames([k.frame for k in keys.keys], self.path, keys.fps,
+                                [k.id for k in keys.keys])
         schema = self._mcap.register_schema(key_format.KEY_SCHEMA_NAME,
                                             key_format.KEY_SCHEMA_ENCODING,
                                             key_format.KEY_SCHEMA.encode())
@@ -228,6 +229,10 @@ class TakeWriter:
             self._mcap.add_message(channel, log_time=int(t_ns),
                                    data=key_format.encode_key(index, key),
                                    publish_time=int(t_ns), sequence=index)
+        for extra, (t_ns, data) in enumerate(keys.damaged, start=len(keys.keys)):
+            # what reading skipped, kept as it was: an edit never drops what it could not read
+            self._mcap.add_message(channel, log_time=int(t_ns), data=data,
+                                   publish_time=int(t_ns), sequence=extra)
         self._mcap.flush()
         self._file.flush()
 

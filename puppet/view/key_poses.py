@@ -50,8 +50,8 @@ class KeyPoses:
         said = self._said
         return {"fps": session.keys.fps, "step": session.step, "next_frame": next_frame,
                 "interpolation": session.interpolation,
-                "keys": [{"index": i, "frame": k.frame, "interpolation": k.interpolation}
-                         for i, k in enumerate(keys)],
+                "keys": [{"index": k.id, "frame": k.frame, "interpolation": k.interpolation}
+                         for k in keys],
                 "playhead": self.playhead if self.playhead is not None else next_frame,
                 "onion": self.onion, "path": str(session.path),
                 "said": said[1] if said else None, "taken": said[0] if said else None}

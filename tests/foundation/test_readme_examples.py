@@ -6,7 +6,8 @@ Substitutions a reader makes too:
   serving the rig file the line names with ``--rig`` (a line naming no rig, like ``scan``: the
   most recent ``hw-sim --rig`` line's port);
 - ``my.toml`` is the built-in rig copied as the README says (its ``mesh`` pointing at
-  ``critter.npz``, plus a calibration file name for ``calibrate``); ``faults.txt`` is a small
+  ``critter.npz``, nothing added: ``calibrate`` writes ``my.calibration.toml`` beside it, which
+  the later lines read); ``faults.txt`` is a small
   fault file; ``creature.glb`` is the skinned test character of ``tests/rig/character.py``;
   ``ax.toml`` is the built-in Protocol 1.0 variant (``critter_ax.toml``) copied the same way;
 - the manual step the README describes below the block: once ``rig init`` has written
@@ -84,7 +85,6 @@ def write_inputs(folder: Path) -> None:
     """The files the README's commands read: my.toml, ax.toml, faults.txt, creature.glb."""
     text = BUILTIN_RIG.read_text().replace('mesh = "critter.npz"',
                                            f'mesh = "{BUILTIN_RIG.parent / "critter.npz"}"')
-    text = text.replace('fixed = ["hips"]', 'calibration = "my.calibration.toml"\nfixed = ["hips"]')
     (folder / "my.toml").write_text(text)
     (folder / "ax.toml").write_text(BUILTIN_AX_RIG.read_text().replace(
         'mesh = "critter.npz"', f'mesh = "{BUILTIN_AX_RIG.parent / "critter.npz"}"'))
@@ -256,6 +256,12 @@ def test_every_using_it_command_runs_as_written(tmp_path, interrupt_and_wait):
                 assert found == [j for j in character_module().NAMES if j in CHARACTER_SERVOS], (
                     line, result.stdout, stderr)
             assert "Traceback" not in stderr, (line, stderr)
+            if argv[:2] == ["puppet", "calibrate"] and "--out" not in argv and "--guided" not in argv:
+                from puppet.rig import load_rig  # the rig reads what calibrate wrote beside it
+
+                written = tmp_path / Path(option(argv, "--rig")).with_suffix(".calibration.toml")
+                assert written.is_file(), f"{line!r} did not write {written.name}"
+                assert load_rig(tmp_path / option(argv, "--rig")).calibration.path == written
             for name in outputs:
                 assert (tmp_path / name).exists(), f"{line!r} did not write {name}"
             print(f"{time.monotonic() - started:6.1f} s  {line}")  # shown with -s or on failure

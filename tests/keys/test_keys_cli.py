@@ -107,7 +107,8 @@ def test_keys_captured_with_enter_edited_and_retimed(tmp_path, wait_until, inter
             taken("r 2", "key 2: replaced")  # once servo 3 answers again
             assert command("d 3", "deleted") == "key 3: deleted (4 keys left)"
             bus.set_positions(poses[3])
-            assert taken("i 30", "inserted").startswith("key 3: inserted at frame 30")
+            # ids are stable: key 3 is gone, the inserted key is the next unused id, 5
+            assert taken("i 30", "inserted").startswith("key 5: inserted at frame 30")
             proc.stdin.write("q\n")
             proc.stdin.flush()
             assert proc.wait(timeout=120) == 0
@@ -128,13 +129,13 @@ def test_keys_captured_with_enter_edited_and_retimed(tmp_path, wait_until, inter
     # retime two keys into a new shot; the input is never written
     before = shot.read_bytes()
     retimed = tmp_path / "retimed.mcap"
-    result = run("keys", "retime", shot, "3=40", "4=52", "--out", retimed)
+    result = run("keys", "retime", shot, "5=40", "4=52", "--out", retimed)
     assert result.returncode == 0, result.stderr
     assert [k.frame for k in TakeReader(retimed).keys().keys] == [1, 13, 25, 40, 52]
-    bad = run("keys", "retime", shot, "3=20", "--out", tmp_path / "bad.mcap")
+    bad = run("keys", "retime", shot, "5=20", "--out", tmp_path / "bad.mcap")
     assert bad.returncode == 1 and "Traceback" not in bad.stderr
-    assert "key 3 (frame 20) would land before key 2 (frame 25)" in bad.stderr
-    same = run("keys", "retime", shot, "3=40", "--out", shot)
+    assert "key 5 (frame 20) would land before key 2 (frame 25)" in bad.stderr
+    same = run("keys", "retime", shot, "5=40", "--out", shot)
     assert same.returncode == 1 and str(shot) in same.stderr and "Traceback" not in same.stderr
     gone = run("keys", "delete", retimed, "1", "--out", tmp_path / "fewer.mcap")
     assert gone.returncode == 0, gone.stderr

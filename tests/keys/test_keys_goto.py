@@ -94,7 +94,7 @@ def test_goto_refuses_a_take_without_keys_and_a_missing_key(tmp_path):
                            "/dev/puppet-no-such-port", *PATIENT],
                           capture_output=True, text=True, timeout=300)
     assert gone.returncode == 1 and "Traceback" not in gone.stderr
-    assert f"{shot}: no key 9: the shot has keys 0..3" in gone.stderr
+    assert f"{shot}: no key 9: the shot's keys are 0, 1, 2, 3" in gone.stderr
 
 
 def test_performing_a_shot_follows_its_time_line(tmp_path):

@@ -135,17 +135,19 @@ def test_edits_keep_keys_in_order_and_name_both_keys(critter):
     assert "key 2 (frame 25) would land before key 1 (frame 30)" in str(err.value)
     fewer = remove_key(keys, 1)
     assert [k.frame for k in fewer.keys] == [1, 25, 37]
+    assert [k.id for k in fewer.keys] == [0, 2, 3]  # ids are stable: the others keep theirs
     new = Key(19, keys.keys[0].ticks + 5, keys.keys[0].ok)
     more = insert_key(keys, new)
     assert [k.frame for k in more.keys] == [1, 13, 19, 25, 37]
+    assert [k.id for k in more.keys] == [0, 1, 4, 2, 3]  # a new key takes the next unused id
     with pytest.raises(TakeError) as err:
         insert_key(keys, Key(25, new.ticks, new.ok))
-    assert "key 3 (frame 25) would land on the same frame as key 2 (frame 25)" in str(err.value)
+    assert "key 4 (frame 25) would land on the same frame as key 2 (frame 25)" in str(err.value)
     again = replace_key(keys, 3, new)
     assert again.keys[3].frame == 37 and again.keys[3].ticks.tolist() == new.ticks.tolist()
     with pytest.raises(TakeError) as err:
         remove_key(keys, 9)
-    assert "no key 9: the shot has keys 0..3" in str(err.value)
+    assert "no key 9: the shot's keys are 0, 1, 2, 3" in str(err.value)
 
 
 def test_a_take_without_keys_is_not_a_shot(tmp_path, critter):

@@ -72,15 +72,18 @@ class KeysProcess:
         return self.proc.returncode
 
 
-def take_key(tools, page, press, count: int):
-    """Press (Space or the button) until the page says key ``count - 1`` was taken: a key
-    refused because a read failed on this busy machine is pressed again, as a puppeteer would."""
+def take_key(tools, page, press, count: int, key_id: int | None = None):
+    """Press (Space or the button) until the page says key ``key_id`` (default ``count - 1``,
+    the id of a shot's count-th key when none was deleted) was taken: a key refused because a
+    read failed on this busy machine is pressed again, as a puppeteer would."""
+    key_id = count - 1 if key_id is None else key_id
+
     def answer():
         seen = page.evaluate("puppetView.keysUpdates")
         press()
         said = tools.wait_js(page, f"puppetView.keysUpdates > {seen} && puppetView.keys.said")
-        return said.startswith(f"key {count - 1}:")
-    tools.wait_until(answer, what=f"key {count - 1} taken")
+        return said.startswith(f"key {key_id}:")
+    tools.wait_until(answer, what=f"key {key_id} taken")
 
 
 def changed_pixels(a, b) -> int:
@@ -242,31 +245,31 @@ def test_key_edits_from_the_page_go_through_the_terminals_commands(new_page, too
             click_frame(7)  # the red line to frame 7, then insert the held pose there
             tools.wait_js(page, "puppetView.keys.playhead === 7")
             bus.set_positions(poses[0])
-            edit(lambda: page.click("#key-insert"), "key 1: inserted at frame 7")
+            edit(lambda: page.click("#key-insert"), "key 2: inserted at frame 7")  # the next id
             written = shot_keys(shot)
             assert [k.frame for k in written] == [1, 7, 13]
             assert written[1].ticks.tolist() == [poses[0][i] for i in ids]
 
-            click_frame(13)  # select key 2 and delete it
+            click_frame(13)  # select the third tick (key 1: ids are stable) and delete it
             tools.wait_js(page, "puppetView.selectedKey === 2")
             page.click("#key-delete")  # takes no pose: never refused
-            tools.wait_js(page, "puppetView.keys.said && puppetView.keys.said.startsWith('key 2: deleted')")
+            tools.wait_js(page, "puppetView.keys.said && puppetView.keys.said.startsWith('key 1: deleted')")
             assert [k.frame for k in shot_keys(shot)] == [1, 7]
             tools.wait_js(page, "puppetView.selectedKey === null")
 
-            keys.type("m 1 step")  # the terminal's line for the same edit
-            tools.wait_js(page, "puppetView.keys.said === 'key 1: step'")
+            keys.type("m 2 step")  # the terminal's line for the same edit
+            tools.wait_js(page, "puppetView.keys.said === 'key 2: step'")
             assert [k.interpolation for k in shot_keys(shot)] == ["smooth", "step"]
             # no key selected: the menu sets the interpolation of the keys to come
             page.select_option("#key-interpolation", "smooth")
             tools.wait_js(page, "puppetView.keys.said === 'new keys: smooth'")
-            take_key(tools, page, lambda: page.keyboard.press("Space"), 3)
-            tools.wait_until(lambda: len(shot_keys(shot)) == 3, what="key 2 in the file")
+            take_key(tools, page, lambda: page.keyboard.press("Space"), 3, key_id=3)  # next id
+            tools.wait_until(lambda: len(shot_keys(shot)) == 3, what="key 3 in the file")
             assert [k.interpolation for k in shot_keys(shot)] == ["smooth", "step", "smooth"]
             assert [k.frame for k in shot_keys(shot)] == [1, 7, 19]
             terminal = keys.out_path.read_text()
-            for said in ("key 0: replaced", "key 0: smooth", "key 1: inserted at frame 7",
-                         "key 2: deleted"):
+            for said in ("key 0: replaced", "key 0: smooth", "key 2: inserted at frame 7",
+                         "key 1: deleted"):
                 assert said in terminal
         finally:
             status = keys.stop(tools)

@@ -451,7 +451,7 @@ function drawTimeline() {
     ctx.fillStyle = tickDrag && tickDrag.index === i ? "#ffd54a" : "#4c8ee2";
     ctx.fillRect(kx - 3, 12, 6, h - 26);
     if (state.selectedKey === i) { ctx.strokeStyle = "#ffffff"; ctx.strokeRect(kx - 5, 11, 10, h - 24); }
-    ctx.fillStyle = "#e6e6e6"; ctx.fillText(String(i), kx, 10);
+    ctx.fillStyle = "#e6e6e6"; ctx.fillText(String(key.index), kx, 10);  // its stable id
   });
 }
 function tickAt(x) {
@@ -481,7 +481,7 @@ function endTickDrag() {
   if (!tickDrag) return;
   const { index, frame, from } = tickDrag;
   tickDrag = null;
-  if (frame !== from) send({ type: "retime", index, frame });  // the file is rewritten by puppet, then the ticks redrawn
+  if (frame !== from) send({ type: "retime", index: state.keys.keys[index].index, frame });  // by its id; the file is rewritten by puppet, then the ticks redrawn
   else state.selectedKey = state.selectedKey === index ? null : index;  // a click on a tick (de)selects it
   showSelectedKey();
 }
@@ -497,7 +497,7 @@ function showSelectedKey() {
 function keyEdit(action) {
   const k = state.keys;
   if (!k) return;
-  send({ type: "key_edit", action, index: state.selectedKey === null ? 0 : state.selectedKey,
+  send({ type: "key_edit", action, index: state.selectedKey === null ? 0 : k.keys[state.selectedKey].index,
          frame: k.playhead, interpolation: $("key-interpolation").value });
 }
 timeline.addEventListener("pointerup", endTickDrag);

@@ -1,0 +1,83 @@
+"""Odd input ends in an error, never a hang: ``rig init`` of a FIFO, of a glTF whose buffer is a
+device (``/dev/zero`` never ends), of a model of 50 000 joints (refused from its JSON's counts,
+before the document is parsed into objects: ``puppet.rig.gltf.MAX_NODES``/``MAX_JOINTS``);
+``rig axes --all`` of more turns than a sheet holds (``puppet.render.axes_sheet.MAX_PAIRS``)
+shows the first ones and says how many it left out."""
+
+import json
+import os
+import subprocess
+import sys
+
+import pytest
+from click.testing import CliRunner
+
+from puppet.rig.errors import RigError
+from puppet.rig.gltf import MAX_JOINTS, MAX_NODES, read_gltf
+
+
+def _puppet(*args):
+    # A subprocess: were the file read, the command would block or never end; generous timeout.
+    return subprocess.run([sys.executable, "-P", "-c", "from puppet.cli import main; main()",
+                           *map(str, args)], capture_output=True, text=True, timeout=300)
+
+
+def test_rig_init_of_a_fifo_is_refused_without_reading_it(tmp_path):
+    os.mkfifo(tmp_path / "beast.glb")
+    result = _puppet("rig", "init", tmp_path / "beast.glb", "--out", tmp_path / "beast.toml")
+    assert result.returncode == 1, result.stderr
+    assert "is a FIFO (named pipe), not a glTF file" in result.stderr
+    assert "Traceback" not in result.stderr and not (tmp_path / "beast.toml").exists()
+
+
+def test_rig_init_of_a_gltf_whose_buffer_is_a_device_is_refused(tmp_path, character):
+    doc, _ = character.document(character.beast(), binary=False)
+    doc.buffers[0].uri = "/dev/zero"
+    doc.save_json(str(tmp_path / "beast.gltf"))
+    result = _puppet("rig", "init", tmp_path / "beast.gltf", "--out", tmp_path / "beast.toml")
+    assert result.returncode == 1, result.stderr
+    assert "buffers[0].uri: buffer file '/dev/zero'" in result.stderr
+    assert "not a regular file" in result.stderr and "Traceback" not in result.stderr
+
+
+def _many_joints(path, joints: int):
+    """A glTF document of ``joints`` nodes in one chain, all joints of one skin (no mesh data
+    is needed: the counts are refused first)."""
+    nodes = [{"name": f"j{i}", **({"children": [i + 1]} if i + 1 < joints else {})}
+             for i in range(joints)]
+    doc = {"asset": {"version": "2.0"}, "nodes": nodes, "skins": [{"joints": list(range(joints))}]}
+    path.write_text(json.dumps(doc))
+    return path
+
+
+def test_a_model_of_50000_joints_is_refused_from_its_counts(tmp_path):
+    with pytest.raises(RigError) as err:
+        read_gltf(_many_joints(tmp_path / "many.gltf", 50_000))
+    assert f"50000 nodes; at most {MAX_NODES} are read" in str(err.value)
+    with pytest.raises(RigError) as err:
+        read_gltf(_many_joints(tmp_path / "joints.gltf", MAX_JOINTS + 1))
+    assert f"{MAX_JOINTS + 1} joints; at most {MAX_JOINTS} are read" in str(err.value)
+    assert err.value.field == "skins[0].joints"
+
+
+def test_rig_axes_shows_at_most_a_sheet_of_pairs_and_says_what_it_left_out(
+        tmp_path, character, monkeypatch):
+    import imageio.v3 as iio
+
+    import puppet.render.axes_sheet as axes_sheet
+    from puppet.cli import main
+    from puppet.render.axes_sheet import RenderInputError, render_turn_sheet
+
+    glb = character.write_glb(tmp_path / "beast.glb")
+    assert _puppet("rig", "init", glb).returncode == 0
+    monkeypatch.setattr(axes_sheet, "MAX_PAIRS", 4)  # a sheet's bound, made small to test it
+    result = CliRunner().invoke(main, ["rig", "axes", str(tmp_path / "beast.toml"), "--all",
+                                       "--out", str(tmp_path / "sheet.png")])
+    assert result.exit_code == 0, result.output
+    turns = 3 * len(character.NAMES)
+    assert (f"warning: {turns} turns to show; one sheet holds 4 pairs" in result.output
+            and f"{turns - 4} left out" in result.output)
+    assert "8 panels: 4 pairs" in result.output
+    assert iio.imread(tmp_path / "sheet.png").shape[0] == 2 * 260
+    with pytest.raises(RenderInputError, match="5 pairs; a sheet holds at most 4"):
+        render_turn_sheet(None, None, None, None, None, None, [None] * 5)
