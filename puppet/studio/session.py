@@ -142,6 +142,11 @@ class SessionWriter(SessionFolder):
                               "(limits.SESSION_SHOTS): start another session")
         key = layout.shot_key(name, {s.key for s in self.index.shots} | self._folders())
         shot = Shot(key=key, name=name, created=utc_text())
+        folder = self.folder / layout.TAKES / key
+        try:  # its takes' folder, there at once: a take recorded into it is listed on next open
+            folder.mkdir(parents=True, exist_ok=True)
+        except OSError as err:
+            raise StudioError(f"{folder}: cannot make the shot's folder: {err.strerror or err}") from None
         with self._change():
             self.index.shots.append(shot)
             self.index.current_shot = key
