@@ -214,7 +214,8 @@ def protocol1_rig(tmp_path):
 # -- parallel runs (pytest-xdist) ---------------------------------------------------------------
 
 XDIST_GROUPS = {
-    # one Blender set-up (the session fixtures critter_shown, mare_shown, ...) for the folder
+    # one Blender set-up per character: mare_shown and the fixtures built on it here, the
+    # tests of critter_shown (the param "critter" of the fixture shown) in their own group
     "tests/export/blender/": "blender-export",
     # the serial exports every batch engine is compared with (session fixture serial_outputs)
     "tests/batch/test_batch_engines.py": "batch-ray",
@@ -229,10 +230,13 @@ run in one worker, so it is made once. Every test run with ``engine == "ray"`` i
 def _xdist_group(item: pytest.Item, path: str) -> str | None:
     """The worker group of a test: XDIST_GROUPS by path, Ray's tests together, else its module
     when it uses a module-scoped fixture (made once, in one worker); None: any worker."""
+    callspec = getattr(item, "callspec", None)
+    if path.startswith("tests/export/blender/") and callspec is not None and \
+            callspec.params.get("shown") == "critter":
+        return "blender-export-critter"  # critter_shown's Blender run beside the mare's
     for prefix, group in XDIST_GROUPS.items():
         if path.startswith(prefix):
             return group
-    callspec = getattr(item, "callspec", None)
     if callspec is not None and callspec.params.get("engine") == "ray":
         return "batch-ray"
     info = getattr(item, "_fixtureinfo", None)
