@@ -217,28 +217,36 @@ XDIST_GROUPS = {
     # one Blender set-up per character: mare_shown and the fixtures built on it here, the
     # tests of critter_shown (the param "critter" of the fixture shown) in their own group
     "tests/export/blender/": "blender-export",
-    # the serial exports every batch engine is compared with (session fixture serial_outputs)
-    "tests/batch/test_batch_engines.py": "batch-ray",
-    "tests/batch/test_batch_ray_address.py": "batch-ray",
-    "tests/batch/test_batch_failures.py": "batch-ray",
 }
 """Path prefix (relative to the repository) -> xdist group: tests that share a session set-up
-run in one worker, so it is made once. Every test run with ``engine == "ray"`` is in group
-``batch-ray`` too: one Ray instance at a time on the machine (and the serial exports once)."""
+run in one worker, so it is made once."""
+
+SHARED_FIXTURES = {
+    "serial_outputs": "batch-serial",  # the serial exports every batch engine is compared with
+}
+"""Fixture -> xdist group: the tests that use an expensive session fixture run in one worker."""
+
+RAY_GROUP = "batch-ray"
+"""The tests that start Ray (a test run with ``engine == "ray"``, or marked with this group):
+one Ray instance at a time on the machine."""
 
 
 def _xdist_group(item: pytest.Item, path: str) -> str | None:
-    """The worker group of a test: XDIST_GROUPS by path, Ray's tests together, else its module
-    when it uses a module-scoped fixture (made once, in one worker); None: any worker."""
+    """The worker group of a test: XDIST_GROUPS by path, Ray's tests together, SHARED_FIXTURES,
+    else its module when it uses a module-scoped fixture (made once, in one worker); None: any
+    worker."""
     callspec = getattr(item, "callspec", None)
-    if path.startswith("tests/export/blender/") and callspec is not None and \
-            callspec.params.get("shown") == "critter":
+    params = callspec.params if callspec is not None else {}
+    if path.startswith("tests/export/blender/") and params.get("shown") == "critter":
         return "blender-export-critter"  # critter_shown's Blender run beside the mare's
     for prefix, group in XDIST_GROUPS.items():
         if path.startswith(prefix):
             return group
-    if callspec is not None and callspec.params.get("engine") == "ray":
-        return "batch-ray"
+    if params.get("engine") == "ray":
+        return RAY_GROUP
+    for name in getattr(item, "fixturenames", ()):
+        if name in SHARED_FIXTURES:
+            return SHARED_FIXTURES[name]
     info = getattr(item, "_fixtureinfo", None)
     if info is not None:
         for defs in info.name2fixturedefs.values():
