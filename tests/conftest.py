@@ -255,7 +255,11 @@ def _xdist_group(item: pytest.Item, path: str) -> str | None:
     return None
 
 
+@pytest.hookimpl(wrapper=True)
 def pytest_collection_modifyitems(config, items):
+    """Mark each test's xdist group before every other hook (xdist's reads the marks), and after
+    them give the node id its group suffix where xdist's own could not (pytest >= 9.2 keeps the
+    node id in ``_id``: xdist 3.8 still sets ``_nodeid``, and loadgroup then groups nothing)."""
     root = Path(str(config.rootpath))
     for item in items:
         if item.get_closest_marker("xdist_group") is not None:
@@ -267,6 +271,16 @@ def pytest_collection_modifyitems(config, items):
         group = _xdist_group(item, path)
         if group is not None:
             item.add_marker(pytest.mark.xdist_group(group))
+    result = yield
+    if config.getvalue("loadgroup"):
+        for item in items:
+            names = sorted({str(mark.args[0] if mark.args else mark.kwargs.get("name", "default"))
+                            for mark in item.iter_markers("xdist_group")})
+            if names and "@" not in item.nodeid and hasattr(item, "_id"):
+                from _pytest.nodeid import coerce_node_id
+
+                item._id = coerce_node_id(f"{item.nodeid}@{'_'.join(names)}")
+    return result
 
 
 def _folder(nodeid: str) -> str:
