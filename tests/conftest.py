@@ -6,6 +6,11 @@ the whole session (subprocesses started by tests inherit it).
 
 Tests on a loaded 2-core machine must not depend on speed: instead of sleeping a fixed time
 and then asserting a state, they wait for the state with ``wait_until`` and a generous timeout.
+
+The suite runs in parallel workers (pytest-xdist, ``-n 4 --dist loadgroup`` in pyproject.toml).
+Tests that share an expensive set-up or a resource run in one worker (``xdist_group``, set here
+at collection: see ``XDIST_GROUPS`` and ``_xdist_group``). At the end of a run pytest prints the
+25 slowest tests and the time per top-level folder (``pytest_terminal_summary``).
 """
 
 from __future__ import annotations
@@ -14,7 +19,9 @@ import os
 import signal
 import subprocess
 import time
+from collections import defaultdict
 from collections.abc import Callable
+from pathlib import Path
 from typing import TypeVar
 
 import dynamixel_sdk
@@ -202,3 +209,109 @@ def protocol1_rig(tmp_path):
     path.write_text(BUILTIN_AX_RIG.read_text().replace(
         'mesh = "critter.npz"', f'mesh = "{BUILTIN_AX_RIG.parent / "critter.npz"}"'))
     return path
+
+
+# -- parallel runs (pytest-xdist) ---------------------------------------------------------------
+
+XDIST_GROUPS = {
+    # one Blender set-up per character: mare_shown and the fixtures built on it here, the
+    # tests of critter_shown (the param "critter" of the fixture shown) in their own group
+    "tests/export/blender/": "blender-export",
+}
+"""Path prefix (relative to the repository) -> xdist group: tests that share a session set-up
+run in one worker, so it is made once."""
+
+SHARED_FIXTURES = {
+    "serial_outputs": "batch-serial",  # the serial exports every batch engine is compared with
+}
+"""Fixture -> xdist group: the tests that use an expensive session fixture run in one worker."""
+
+RAY_GROUP = "batch-ray"
+"""The tests that start Ray (a test run with ``engine == "ray"``, or marked with this group):
+one Ray instance at a time on the machine."""
+
+
+def _xdist_group(item: pytest.Item, path: str) -> str | None:
+    """The worker group of a test: XDIST_GROUPS by path, Ray's tests together, SHARED_FIXTURES,
+    else its module when it uses a module-scoped fixture (made once, in one worker); None: any
+    worker."""
+    callspec = getattr(item, "callspec", None)
+    params = callspec.params if callspec is not None else {}
+    if path.startswith("tests/export/blender/") and params.get("shown") == "critter":
+        return "blender-export-critter"  # critter_shown's Blender run beside the mare's
+    for prefix, group in XDIST_GROUPS.items():
+        if path.startswith(prefix):
+            return group
+    if params.get("engine") == "ray":
+        return RAY_GROUP
+    for name in getattr(item, "fixturenames", ()):
+        if name in SHARED_FIXTURES:
+            return SHARED_FIXTURES[name]
+    info = getattr(item, "_fixtureinfo", None)
+    if info is not None:
+        for defs in info.name2fixturedefs.values():
+            if defs and defs[-1].scope == "module":
+                return path
+    return None
+
+
+@pytest.hookimpl(wrapper=True)
+def pytest_collection_modifyitems(config, items):
+    """Mark each test's xdist group before every other hook (xdist's reads the marks), and after
+    them give the node id its group suffix where xdist's own could not (pytest >= 9.2 keeps the
+    node id in ``_id``: xdist 3.8 still sets ``_nodeid``, and loadgroup then groups nothing)."""
+    root = Path(str(config.rootpath))
+    for item in items:
+        if item.get_closest_marker("xdist_group") is not None:
+            continue  # the test says so itself
+        try:
+            path = Path(str(item.path)).relative_to(root).as_posix()
+        except ValueError:
+            continue
+        group = _xdist_group(item, path)
+        if group is not None:
+            item.add_marker(pytest.mark.xdist_group(group))
+    result = yield
+    if getattr(config.option, "loadgroup", False):  # set in xdist workers only
+        for item in items:
+            names = sorted({str(mark.args[0] if mark.args else mark.kwargs.get("name", "default"))
+                            for mark in item.iter_markers("xdist_group")})
+            if names and "@" not in item.nodeid and hasattr(item, "_id"):
+                from _pytest.nodeid import coerce_node_id
+
+                item._id = coerce_node_id(f"{item.nodeid}@{'_'.join(names)}")
+    return result
+
+
+def _folder(nodeid: str) -> str:
+    """The top-level test folder of a node id ("tests/loop/test_x.py::t" -> "loop")."""
+    parts = nodeid.split("::")[0].split("/")
+    if parts[0] == "tests":
+        parts = parts[1:]
+    return parts[0] if len(parts) > 1 else "(top)"
+
+
+@pytest.hookimpl(trylast=True)  # after the slowest-tests table
+def pytest_terminal_summary(terminalreporter, exitstatus, config):
+    """The suite's time per top-level folder (set-up, call and tear-down of every test, summed
+    over workers: with -n the sum exceeds the wall time), slowest first."""
+    if hasattr(config, "workerinput"):
+        return  # an xdist worker: its reports reach the controller, which prints
+    seconds: dict[str, float] = defaultdict(float)
+    tests: dict[str, set] = defaultdict(set)
+    for reports in terminalreporter.stats.values():
+        for report in reports:
+            duration = getattr(report, "duration", None)
+            nodeid = getattr(report, "nodeid", "")
+            if duration is None or not nodeid or getattr(report, "when", None) is None:
+                continue
+            folder = _folder(nodeid)
+            seconds[folder] += duration
+            tests[folder].add(nodeid)
+    if not seconds:
+        return
+    terminalreporter.write_sep("=", "time per folder (set-up + call + tear-down, all workers)")
+    for folder, total in sorted(seconds.items(), key=lambda kv: -kv[1]):
+        terminalreporter.write_line(f"{total:9.1f} s  {len(tests[folder]):5d} tests  {folder}")
+    terminalreporter.write_line(f"{sum(seconds.values()):9.1f} s  "
+                                f"{sum(map(len, tests.values())):5d} tests  (all)")

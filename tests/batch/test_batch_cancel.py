@@ -16,6 +16,7 @@ import pytest
 from puppet.cli.batch import EXIT_DONE, EXIT_FAILED
 
 PATIENCE_S = 120.0  # generous: a loaded 2-core machine, Ray shutting down
+TAKE_TIMEOUT_S = 25  # --take-timeout of the hung-take test (the default scales with the take)
 
 ENGINES = ["local", pytest.param("ray", marks=pytest.mark.skipif(
     __import__("importlib").util.find_spec("ray") is None, reason="ray is not installed"))]
@@ -179,9 +180,11 @@ def test_a_hung_take_times_out_and_its_worker_is_freed(tmp_path, critter, tools,
     hung = tools.write_take(tmp_path / "hung.mcap", critter, readings=900, seed=3)
     after = tools.write_take(tmp_path / "after.mcap", critter, seed=4)
     out = tmp_path / "out"
-    # one worker: the take after the hung one runs only once the hung one's worker is freed
+    # one worker: the take after the hung one runs only once the hung one's worker is freed.
+    # The time limit is the mechanism's, not the default's: short, yet long enough for `after`
+    # (a short take) on a loaded machine.
     batch = start([hung, after, "--out", out, "--formats", "pc2", "--workers", 1,
-                   "--take-timeout", 60], engine)
+                   "--take-timeout", TAKE_TIMEOUT_S], engine)
     try:
         folder = wait_until(lambda: take_folders(out, engine, batch.pid, "hung")
                             or batch.poll() is not None, timeout=300, what="the take started")
@@ -196,7 +199,8 @@ def test_a_hung_take_times_out_and_its_worker_is_freed(tmp_path, critter, tools,
     assert batch.returncode == EXIT_FAILED, stderr
     rows = rows_of(stdout)
     assert rows["hung.mcap"]["state"] == "timed out"
-    assert rows["hung.mcap"]["reason"].startswith("still running after 60 s (--take-timeout)")
+    assert rows["hung.mcap"]["reason"].startswith(
+        f"still running after {TAKE_TIMEOUT_S} s (--take-timeout)")
     assert rows["after.mcap"]["state"] == "done"
     assert _stat(worker) is None or _stat(worker)[3] == "Z"
     assert outputs(out) == ["after.pc2"]

@@ -38,6 +38,7 @@ def test_local_engine_matches_the_serial_commands(tmp_path, session, serial_outp
     assert_outputs_equal(out, serial_outputs, ALL)
 
 
+@pytest.mark.xdist_group("batch-ray")  # one Ray instance at a time (tests/conftest.py)
 def test_ray_engine_matches_the_serial_commands(tmp_path, session, serial_outputs):
     pytest.importorskip("ray", reason="ray is not installed (pip install 'puppet[ray]')")
     out = tmp_path / "out"

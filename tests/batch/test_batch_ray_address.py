@@ -93,6 +93,7 @@ def running_cluster():
         shutil.rmtree(temp, ignore_errors=True)
 
 
+@pytest.mark.xdist_group("batch-ray")  # one Ray instance at a time (tests/conftest.py)
 def test_a_private_instance_unless_address_auto_joins_the_running_cluster(tmp_path, session,
                                                                        serial_outputs,
                                                                        running_cluster,

@@ -1,7 +1,11 @@
 """The one rule for outputs (``puppet.atomic``), through every command that writes: each output
 option pointed at each of the command's inputs, at a FIFO, at a device node and at an existing
 file of another kind is refused (exit 1, an Error line naming the file and why) and leaves every
-file as it was. hw_sim serves the bus, so a command that wrongly went ahead would write."""
+file as it was. hw_sim serves the bus, so a command that wrongly went ahead would write.
+
+Every case runs the command line in this process (click's runner: the same parsing, the same
+checks, the same ``Error:`` line and exit status, without a Python start of 3 s per case); a
+few cases, one of each reason, run as a ``puppet`` process too, as a user runs them."""
 
 import hashlib
 import importlib.util
@@ -13,6 +17,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from click.testing import CliRunner
 
 import hw_sim
 from puppet.bus import Reading
@@ -72,6 +77,11 @@ COMMANDS = {
 CASES = [pytest.param(name, option, target, why, id=f"{name} {option} {target}")
          for name, (_, options, targets) in COMMANDS.items()
          for option in options for target, why in targets.items()]
+#: One case of each reason, run as a `puppet` process as well (the installed entry point).
+PROCESS_CASES = [pytest.param(*case, id=f"{case[0]} {case[1]} {case[2]}") for case in (
+    ("export", "--pc2", "take", "input"), ("live", "--out", "fifo", "fifo"),
+    ("demo", "--out", "device", "device"), ("rig axes", "--out", "other_take", "kind"),
+    ("play --frames", "--frames", "rig", "folder"))]
 
 
 def _take(path: Path) -> Path:
@@ -141,20 +151,44 @@ def _state(folder: Path) -> dict:
     return state
 
 
+def _command(name: str, option: str, target: str, world: dict, bus) -> list[str]:
+    args, _, _ = COMMANDS[name]
+    fields = {key: str(path) for key, path in world.items()} | {"port": bus.port}
+    return [arg.format(**fields) for arg in args] + [option, str(world[target])]
+
+
+def _assert_refused(returncode: int, stderr: str, target: Path, why: str) -> None:
+    """Exit 1 and one Error line naming the target and the reason; no traceback."""
+    assert returncode == 1, (returncode, stderr)
+    assert "Traceback" not in stderr, stderr
+    errors = [line for line in stderr.splitlines() if line.startswith("Error: ")]
+    assert len(errors) == 1, stderr
+    assert str(target) in errors[0], errors[0]
+    assert REASONS[why] in errors[0], errors[0]
+
+
 @pytest.mark.parametrize("name, option, target, why", CASES)
 def test_an_output_on_an_input_a_device_or_another_kind_is_refused(name, option, target, why,
                                                                      world, bus, tmp_path):
-    args, _, _ = COMMANDS[name]
-    fields = {key: str(path) for key, path in world.items()} | {"port": bus.port}
-    command = [arg.format(**fields) for arg in args] + [option, str(world[target])]
+    from puppet.cli import main
+
+    command = _command(name, option, target, world, bus)
+    before = _state(tmp_path)
+    result = CliRunner().invoke(main, command, prog_name="puppet")
+    # an exception that escaped the command line (not its exit) is a traceback for a user
+    assert isinstance(result.exception, SystemExit), result.exc_info
+    _assert_refused(result.exit_code, result.stderr, world[target], why)
+    assert _state(tmp_path) == before
+    assert stat.S_ISCHR(os.stat("/dev/null").st_mode)
+
+
+@pytest.mark.parametrize("name, option, target, why", PROCESS_CASES)
+def test_the_puppet_command_refuses_an_output_on_an_input_or_a_node(name, option, target, why,
+                                                                    world, bus, tmp_path):
+    command = _command(name, option, target, world, bus)
     before = _state(tmp_path)
     result = subprocess.run(["puppet", *command], capture_output=True, text=True, timeout=300)
-    assert result.returncode == 1, (result.returncode, result.stderr)
-    assert "Traceback" not in result.stderr, result.stderr
-    errors = [line for line in result.stderr.splitlines() if line.startswith("Error: ")]
-    assert len(errors) == 1, result.stderr
-    assert str(world[target]) in errors[0], errors[0]
-    assert REASONS[why] in errors[0], errors[0]
+    _assert_refused(result.returncode, result.stderr, world[target], why)
     assert _state(tmp_path) == before
     assert stat.S_ISCHR(os.stat("/dev/null").st_mode)
 
