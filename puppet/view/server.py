@@ -627,6 +627,7 @@ INPUTS = {
                "frame": lambda v: _whole(v) and 1 <= v <= MAX_FRAME},
     "onion": {"on": lambda v: isinstance(v, bool)},
     "playhead": {"frame": lambda v: _whole(v) and 1 <= v <= MAX_FRAME},
+    "studio": {"action": lambda v: isinstance(v, str) and len(v) <= 20},  # its fields: StudioDesk
 }
 
 

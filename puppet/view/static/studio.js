@@ -1,0 +1,204 @@
+// puppet studio: the session's shots and numbered takes beside the live view (view.js): record
+// with a count-in, review (play, pause, scrub, speed), circle, note, lock, trash, clips, export.
+// Every change goes to the server as {type: "studio", action, ...}; the server answers every page
+// with the session's listing ({type: "studio", shots: [...], said, reviewing, export}).
+"use strict";
+
+Object.assign(state, { studio: null, selected: null, clip: { in_s: null, out_s: null }, countdownTimer: null });
+
+function studioSend(action, fields) { send({ type: "studio", action, ...(fields || {}) }); }
+
+function currentShot() {
+  const s = state.studio;
+  return s && s.shots.find(shot => shot.key === s.current_shot) || null;
+}
+
+function selectedTake() {
+  const sel = state.selected, s = state.studio;
+  if (!sel || !s) return null;
+  const shot = s.shots.find(x => x.key === sel.shot);
+  const take = shot && shot.takes.find(t => t.number === sel.take);
+  return take ? { shot, take } : null;
+}
+
+function takeLine(take) {
+  const flags = [];
+  if (take.circled) flags.push("circled");
+  if (take.locked) flags.push("locked");
+  if (take.status !== "ok") flags.push(take.status);
+  const duration = take.duration_s == null ? "?" : `${take.duration_s.toFixed(1)} s`;
+  const date = (take.date || "").replace("T", " ").replace(/\.\d+/, "").replace("Z", "");
+  return { head: `take ${take.number}`, facts: `${date} · ${take.rig || "?"} · ${duration}`,
+           flags: flags.join(" · "), note: take.note || "" };
+}
+
+function renderStudio() {
+  const s = state.studio;
+  if (!s) return;
+  const shotSelect = $("shot");
+  shotSelect.replaceChildren(...s.shots.map(shot => {
+    const o = document.createElement("option");
+    o.value = shot.key; o.textContent = shot.name; o.selected = shot.key === s.current_shot;
+    return o;
+  }));
+  const shot = currentShot();
+  if (state.selected && !selectedTake()) state.selected = null;
+  const list = $("takes");
+  const rows = shot ? shot.takes.map(take => {
+    const li = document.createElement("li");
+    const t = takeLine(take);
+    const button = document.createElement("button");
+    button.className = "take";
+    const chosen = state.selected && state.selected.shot === shot.key && state.selected.take === take.number;
+    button.setAttribute("aria-pressed", String(!!chosen));
+    button.classList.toggle("trashed", take.trashed);
+    button.classList.toggle("missing", take.status.includes("missing"));
+    button.setAttribute("aria-label", `${shot.name} take ${take.number}${t.flags ? ", " + t.flags : ""}`);
+    const head = document.createElement("b"); head.textContent = t.head;
+    const facts = document.createElement("span"); facts.className = "facts"; facts.textContent = t.facts;
+    const flags = document.createElement("span"); flags.className = "flags"; flags.textContent = t.flags;
+    const note = document.createElement("span"); note.className = "take-note"; note.textContent = t.note;
+    button.append(head, facts, flags, note);
+    if (take.segments && take.segments.length) {
+      const segs = document.createElement("span"); segs.className = "facts";
+      segs.textContent = "clips: " + take.segments.map(x => `${x.name}${x.loop ? " (loop)" : ""}`).join(", ");
+      button.append(segs);
+    }
+    button.onclick = () => { state.selected = { shot: shot.key, take: take.number }; renderStudio(); };
+    li.append(button);
+    return li;
+  }) : [];
+  list.replaceChildren(...rows);
+  if (!rows.length) {
+    const li = document.createElement("li"); li.className = "empty";
+    li.textContent = shot ? "no takes yet: press record" : "no shot yet: name one and press new shot";
+    list.append(li);
+  }
+  const sel = selectedTake();
+  const take = sel && sel.take;
+  const usable = take && !take.trashed;
+  const editable = usable && !take.locked;
+  $("review").disabled = !usable || take.status !== "ok" || state.recording.on;
+  $("go-live").disabled = !s.reviewing;
+  $("circle").disabled = !editable;
+  $("circle").setAttribute("aria-pressed", String(!!(take && take.circled)));
+  $("circle").textContent = take && take.circled ? "uncircle" : "circle";
+  $("lock").disabled = !usable;
+  $("lock").setAttribute("aria-pressed", String(!!(take && take.locked)));
+  $("lock").textContent = take && take.locked ? "unlock" : "lock";
+  $("delete").disabled = !editable;
+  $("restore").disabled = !(take && take.trashed);
+  $("save-note").disabled = !editable;
+  $("note").disabled = !editable;
+  if (take && document.activeElement !== $("note")) $("note").value = take.note || "";
+  $("rename-shot").disabled = !shot;
+  $("export-take").disabled = !usable || take.status !== "ok" || !!(s.export && s.export.running);
+  const anyCircled = s.shots.some(x => x.takes.some(t => t.circled && !t.trashed));
+  $("export-circled").disabled = !anyCircled || !!(s.export && s.export.running);
+  const ex = s.export;
+  const bar = $("export-progress");
+  if (ex) { bar.max = ex.total || 1; bar.value = ex.running ? (ex.done || 0) : ex.total || 1; }
+  const said = $("studio-said");
+  said.textContent = s.said ? s.said.text : " ";
+  said.classList.toggle("refused", !!(s.said && !s.said.ok));
+  const reviewing = !!s.reviewing;
+  $("playback").hidden = !reviewing;
+  $("clip-bar").hidden = !reviewing;
+  showClip();
+  showInstruction();
+}
+
+function showClip() {
+  const c = state.clip;
+  const fmt = v => v == null ? "–" : `${v.toFixed(2)} s`;
+  $("clip-span").textContent = `in ${fmt(c.in_s)} · out ${fmt(c.out_s)}`;
+  const sel = selectedTake();
+  const ok = c.in_s != null && c.out_s != null && c.out_s > c.in_s && state.studio && state.studio.reviewing
+    && sel && !sel.take.locked;
+  $("clip-make").disabled = !ok;
+}
+
+// One line that says what to do now, for the current mode.
+function showInstruction() {
+  const s = state.studio, r = state.recording;
+  let text;
+  if (!s) return;
+  if (r.on && r.starts_in_s > 0) text = "Count-in: get ready, recording starts at 0.";
+  else if (r.on) text = "Recording: perform now; press marker to mark a moment, stop when done.";
+  else if (s.reviewing) text = "Reviewing a take: play, pause, scrub and speed below; set in and out to make a clip; live goes back to the puppet.";
+  else if (!currentShot()) text = "Name a shot and press new shot, then record.";
+  else if (state.selected) text = "Take selected: review it, circle the good ones, add a note, lock it or delete it; or record the next take.";
+  else text = `Live: press record to record the next take of "${currentShot().name}" after the count-in; pick a take to review it.`;
+  const el = $("instruction");
+  if (el.textContent !== text) el.textContent = text;
+}
+
+function showCountdown() {
+  const r = state.recording, el = $("countdown");
+  clearInterval(state.countdownTimer);
+  if (!r.on || !(r.starts_in_s > 0)) { el.hidden = true; return; }
+  const zero = performance.now() + r.starts_in_s * 1000;
+  const tick = () => {
+    const left = (zero - performance.now()) / 1000;
+    if (left <= 0) { el.hidden = true; clearInterval(state.countdownTimer); showInstruction(); return; }
+    el.hidden = false; el.textContent = String(Math.ceil(left));
+  };
+  tick();
+  state.countdownTimer = setInterval(tick, 100);
+}
+
+const viewSnapshot = handlers.snapshot;
+handlers.snapshot = m => {
+  viewSnapshot(m);
+  if (!m.studio) return;
+  document.body.classList.add("studio-mode");
+  $("studio").hidden = false;
+  $("instruction").hidden = false;
+  $("count-in-label").hidden = false;
+  $("hint").hidden = true;
+  handlers.studio(m.studio);
+};
+handlers.studio = m => { state.studio = m; renderStudio(); };
+const viewRecording = handlers.recording;
+handlers.recording = m => { viewRecording(m); if (state.studio) { showCountdown(); renderStudio(); } };
+const viewPanel = handlers.panel;
+handlers.panel = m => {
+  const wasOn = state.recording.on;
+  viewPanel(m);
+  if (state.studio && wasOn !== state.recording.on) renderStudio();
+};
+
+$("record").onclick = () => {
+  if (!state.studio) { send({ type: "record", on: !state.recording.on }); return; }
+  if (state.recording.on) studioSend("stop");
+  else studioSend("record", { count_in: Number($("count-in").value) });
+};
+$("new-shot").onclick = () => studioSend("new_shot", { name: $("shot-name").value });
+$("rename-shot").onclick = () => { const s = currentShot(); if (s) studioSend("rename_shot", { shot: s.key, name: $("shot-name").value }); };
+$("shot").onchange = () => { state.selected = null; studioSend("use_shot", { shot: $("shot").value }); };
+function onSelected(action, fields) {
+  const sel = selectedTake();
+  if (sel) studioSend(action, { shot: sel.shot.key, take: sel.take.number, ...(fields || {}) });
+}
+$("review").onclick = () => { state.clip = { in_s: null, out_s: null }; onSelected("review"); };
+$("go-live").onclick = () => studioSend("live");
+$("circle").onclick = () => { const sel = selectedTake(); if (sel) onSelected("circle", { on: !sel.take.circled }); };
+$("lock").onclick = () => { const sel = selectedTake(); if (sel) onSelected("lock", { on: !sel.take.locked }); };
+$("delete").onclick = () => onSelected("delete");
+$("restore").onclick = () => onSelected("restore");
+$("save-note").onclick = () => onSelected("note", { text: $("note").value });
+$("clip-in").onclick = () => { state.clip.in_s = state.playback ? state.playback.position_s : 0; showClip(); };
+$("clip-out").onclick = () => { state.clip.out_s = state.playback ? state.playback.position_s : 0; showClip(); };
+$("clip-make").onclick = () => {
+  const r = state.studio.reviewing;
+  studioSend("segment", { shot: r.shot, take: r.take, name: $("clip-name").value || "clip",
+                          in_s: state.clip.in_s, out_s: state.clip.out_s, loop: $("clip-loop").checked });
+};
+function exportFields(scope) {
+  const formats = Array.from(document.querySelectorAll("input[name=format]:checked"), x => x.value);
+  const fps = $("export-fps").value === "" ? null : Number($("export-fps").value);
+  const keys = $("export-keys").value === "" ? null : Number($("export-keys").value);
+  return { scope, formats, fps, keys };
+}
+$("export-take").onclick = () => onSelected("export", exportFields("take"));
+$("export-circled").onclick = () => studioSend("export", exportFields("circled"));

@@ -1,0 +1,315 @@
+"""The studio on the page (``puppet studio``): the session folder's shots and numbered takes,
+the page's studio commands (shots, record with a count-in, circle, note, lock, trash, review,
+segments, export) applied through the one writer (``puppet.studio.SessionWriter``), and the
+session's listing sent to every page after each change.
+
+Recording goes through the view's Recording part: ``new_take_path`` gives the path, the take is
+written by the session's take recorder (``puppet.session.outputs.take_from_zero``: readings from
+the count-in's end, the sound's reference, the start timecode) and ``recorded`` lists it as
+take N of the current shot the moment it is closed. Review switches the session's source
+(``puppet.session.sources.SwitchedReadings``) between the bus and a take on the wall clock.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+from puppet import limits
+from puppet.errors import PuppetError
+
+log = logging.getLogger("puppet.view")
+
+#: The page's studio actions: action -> {field: check}.
+EXPORT_FORMATS = ("gltf", "usd", "pc2", "bvh", "mp4")
+MAX_COUNT_IN_S = 10.0
+
+
+def _text(v) -> bool:
+    return isinstance(v, str) and len(v) <= 200
+
+
+def _number(v) -> bool:
+    return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+
+
+def _take(v) -> bool:
+    return isinstance(v, int) and not isinstance(v, bool) and 1 <= v <= 100_000
+
+
+ACTIONS = {
+    "new_shot": {"name": _text},
+    "rename_shot": {"shot": _text, "name": _text},
+    "use_shot": {"shot": _text},
+    "record": {"count_in": lambda v: _number(v) and 0 <= v <= MAX_COUNT_IN_S},
+    "stop": {},
+    "note": {"shot": _text, "take": _take, "text": lambda v: isinstance(v, str)},
+    "circle": {"shot": _text, "take": _take, "on": lambda v: isinstance(v, bool)},
+    "lock": {"shot": _text, "take": _take, "on": lambda v: isinstance(v, bool)},
+    "delete": {"shot": _text, "take": _take},
+    "restore": {"shot": _text, "take": _take},
+    "review": {"shot": _text, "take": _take},
+    "live": {},
+    "segment": {"shot": _text, "take": _take, "name": _text, "in_s": _number,
+                "out_s": _number, "loop": lambda v: isinstance(v, bool)},
+    "export": {"scope": lambda v: v in ("take", "circled"),
+               "formats": lambda v: isinstance(v, list) and 0 < len(v) <= len(EXPORT_FORMATS)
+               and all(f in EXPORT_FORMATS for f in v),
+               "fps": lambda v: v is None or (_number(v) and limits.FPS.problem(v) is None),
+               "keys": lambda v: v is None or (_number(v) and limits.KEYS_DEG.problem(v) is None)},
+}
+
+
+def check_action(message: dict) -> str | None:
+    """None when a ``studio`` message is well formed, else what is wrong with it."""
+    action = message.get("action")
+    fields = ACTIONS.get(action)
+    if fields is None:
+        return f"studio: unknown action {action!r}"
+    for name, ok in fields.items():
+        if name not in message or not ok(message[name]):
+            return f"studio {action}: field {name!r} missing or invalid"
+    return None
+
+
+def _recorded_fps(paths) -> float | None:
+    """The frame rate the takes were recorded at (their start timecode's), when they agree: a
+    24 fps shot exports at 24 unless told otherwise; None: the export's default."""
+    from puppet.take import TakeReader
+
+    rates = set()
+    for path in paths:
+        timecode = TakeReader(path).metadata.timecode
+        rates.add(None if timecode is None else float(timecode.rate.fps))
+    return rates.pop() if len(rates) == 1 else None
+
+
+class StudioDesk:
+    """writer: the open SessionWriter (its lock held for the session's life); rig: the
+    session's rig; open_take(path, zero_ns): the take recorder of the session (count-in end at
+    ``zero_ns``); tell: where notes are said (stderr)."""
+
+    def __init__(self, writer, rig, *, open_take, tell=print):
+        self.writer = writer
+        self.rig = rig
+        self._open_take = open_take
+        self.tell = tell
+        self.said = None            # the newest outcome: {"ok": bool, "text": str}
+        self.reviewing = None       # {"shot": key, "take": n} while a take is shown
+        self.export = None          # {"running", "done", "total", "text", "outputs"}
+        self._server = None
+        self._source = None
+        self._recording = None
+        self._export_thread: threading.Thread | None = None
+
+    def attach(self, server, source, recording) -> None:
+        """server: the ViewServer; source: the loop's reading source (SwitchedReadings);
+        recording: the view's Recording part."""
+        self._server = server
+        self._source = source
+        self._recording = recording
+
+    # ---- what the page shows ----
+    def state(self) -> dict:
+        listing = self.writer.listing()
+        return {**listing, "said": self.said, "reviewing": self.reviewing,
+                "export": self.export, "rig": self.rig.name}
+
+    def _send(self) -> None:
+        if self._server is not None:
+            self._server.send_to(None, {"type": "studio", **self.state()})
+
+    def _say(self, text: str, ok: bool = True) -> None:
+        self.said = {"ok": ok, "text": text}
+        log.info("studio: %s", text)
+
+    # ---- recording (the Recording part calls these) ----
+    def new_take(self, count_in_s: float):
+        """(path, recorder) of the current shot's next take, its time 0 after ``count_in_s``."""
+        if self.writer.current_shot is None:
+            self.writer.new_shot(self.writer._first_shot_name())
+        path = self.writer.new_take_path()  # a read-only or full disk fails here, naming it
+        zero_ns = time.monotonic_ns() + int(count_in_s * 1e9)
+        return path, self._open_take(path, zero_ns)
+
+    def recorded(self, path: Path) -> None:
+        """The take at ``path`` was closed: listed as take N of its shot (nothing recorded:
+        no file, said)."""
+        if not Path(path).is_file():
+            self._say(f"nothing recorded (stopped during the count-in): no take", ok=False)
+        else:
+            take = self.writer.add_take(path)
+            shot = self.writer.index.shot(Path(path).parent.name)
+            self._say(f"recorded {shot.name} take {take.number} ({take.duration_s or 0:.1f} s)")
+        self._send()
+
+    # ---- page input (the loop thread) ----
+    def input(self, client: str, message: dict) -> None:
+        problem = check_action(message)
+        if problem is not None:
+            raise PuppetError(problem)
+        action = message["action"]
+        try:
+            getattr(self, f"_{action}")(message)
+        except PuppetError as err:
+            self._say(str(err), ok=False)
+            self._send()
+            raise
+        self._send()
+
+    def _new_shot(self, m) -> None:
+        shot = self.writer.new_shot(m["name"])
+        self._say(f"new shot {shot.name!r}: the next take goes there")
+
+    def _rename_shot(self, m) -> None:
+        old = self.writer.shot(m["shot"]).name
+        shot = self.writer.rename_shot(m["shot"], m["name"])
+        self._say(f"shot {old!r} is now {shot.name!r}")
+
+    def _use_shot(self, m) -> None:
+        shot = self.writer.use_shot(m["shot"])
+        self._say(f"shot {shot.name!r}: the next take goes there")
+
+    def _record(self, m) -> None:
+        self._live(m)
+        self._recording.set(True, count_in_s=float(m["count_in"]))
+        self._say(f"recording into {self.writer.current_shot.name!r} after a count-in of "
+                  f"{m['count_in']:g} s")
+
+    def _stop(self, m) -> None:
+        self._recording.set(False)  # recorded() says the take
+
+    def _note(self, m) -> None:
+        take = self.writer.note(m["shot"], m["take"], m["text"])
+        self._say(f"take {take.number}: note saved")
+
+    def _circle(self, m) -> None:
+        take = self.writer.circle(m["shot"], m["take"], m["on"])
+        self._say(f"take {take.number} {'circled' if m['on'] else 'uncircled'}")
+
+    def _lock(self, m) -> None:
+        take = self.writer.lock_take(m["shot"], m["take"], m["on"])
+        self._say(f"take {take.number} {'locked: read-only' if m['on'] else 'unlocked'}")
+
+    def _delete(self, m) -> None:
+        if self._reviewed(m):
+            self._live(m)
+        take = self.writer.delete(m["shot"], m["take"])
+        self._say(f"take {take.number} moved into the session's trash (restore brings it back)")
+
+    def _restore(self, m) -> None:
+        take = self.writer.restore(m["shot"], m["take"])
+        self._say(f"take {take.number} restored from the trash")
+
+    def _reviewed(self, m) -> bool:
+        shot = self.writer.shot(m["shot"])
+        return self.reviewing == {"shot": shot.key, "take": m["take"]}
+
+    def _review(self, m) -> None:
+        from puppet.take import Playback, TakeReader
+        from puppet.take.markers import read_markers
+
+        if self._recording.state()["on"]:
+            raise PuppetError("stop recording first to review a take")
+        shot, take = self.writer.take(m["shot"], m["take"])
+        status = self.writer.status(shot, take)
+        if status != "ok":
+            raise PuppetError(f"shot {shot.name!r} take {take.number} is {status}: nothing to play")
+        path = self.writer.path(shot, take)
+        reader = TakeReader(path)
+        if len(reader) == 0:
+            raise PuppetError(f"{path}: the take holds no readings")
+        reader.check_rig([int(i) for i in self.rig.servo_map.ids],
+                         dict(self.rig.servo_map.models), rig_name=self.rig.name)
+        playback = Playback.of_take(reader, self.rig.servo_map.ids, rig=self.rig)
+        marks = [(playback.play_s(t), name) for t, name in read_markers(path)]
+        self._source.review(playback, markers=marks)
+        self.reviewing = {"shot": shot.key, "take": take.number}
+        self._say(f"reviewing {shot.name} take {take.number}: play, pause, scrub, speed")
+
+    def _live(self, m) -> None:
+        self._source.live()
+        if self.reviewing is not None:
+            self.reviewing = None
+            self._say("live: the puppet")
+
+    def _segment(self, m) -> None:
+        segment = self.writer.add_segment(m["shot"], m["take"], m["name"], m["in_s"],
+                                          m["out_s"], loop=m["loop"])
+        kind = "loop" if segment.loop else "clip"
+        self._say(f"take {m['take']}: {kind} {segment.name!r} {segment.in_s:.2f}-"
+                  f"{segment.out_s:.2f} s")
+
+    # ---- export (a `puppet batch` of the session's takes, beside the loop) ----
+    def _export(self, m) -> None:
+        if self._export_thread is not None and self._export_thread.is_alive():
+            raise PuppetError("an export is running: wait for it to finish")
+        folder = self.writer.folder
+        args = ["batch"]
+        if m["scope"] == "circled":
+            args += [str(folder), "--circled"]
+            chosen, _ = self.writer.chosen(circled=True)
+            if not chosen:
+                raise PuppetError(f"{folder}: no circled takes to export (circle one first)")
+            total = len(chosen)
+            what = f"{total} circled take(s)"
+            paths = [path for _, _, path in chosen]
+        else:
+            if not (_text(m.get("shot")) and _take(m.get("take"))):
+                raise PuppetError("studio export: field 'shot' or 'take' missing or invalid")
+            shot, take = self.writer.take(m["shot"], m["take"])
+            if self.writer.status(shot, take) != "ok":
+                raise PuppetError(f"shot {shot.name!r} take {take.number}: nothing to export "
+                                  f"({self.writer.status(shot, take)})")
+            args += [str(self.writer.path(shot, take)), "--out",
+                     str(folder / "exports" / shot.key)]
+            total = 1
+            what = f"{shot.name} take {take.number}"
+            paths = [self.writer.path(shot, take)]
+        args += ["--formats", ",".join(m["formats"]), "--workers", "1", "--json", "--resume"]
+        fps = m["fps"] if m["fps"] is not None else _recorded_fps(paths)
+        if fps is not None:
+            args += ["--fps", f"{fps:g}"]
+        if m["keys"] is not None:
+            args += ["--keys", f"{m['keys']:g}"]
+        self.export = {"running": True, "done": 0, "total": total,
+                       "text": f"exporting {what} as {', '.join(m['formats'])}…", "ok": None}
+        self._say(self.export["text"])
+        self._export_thread = threading.Thread(target=self._run_export, args=(args, what),
+                                               name="studio-export", daemon=True)
+        self._export_thread.start()
+
+    def _run_export(self, args: list[str], what: str) -> None:
+        import json
+
+        command = [sys.executable, "-c", "from puppet.cli import main; main()", *args]
+        proc = subprocess.run(command, capture_output=True, text=True)
+        export = dict(self.export)
+        export["running"] = False
+        if proc.returncode == 0:
+            report = {}
+            try:
+                report = json.loads(proc.stdout.strip().splitlines()[-1])
+            except (ValueError, IndexError):
+                pass
+            export["done"] = export["total"]
+            export["ok"] = True
+            export["text"] = f"exported {what} into {self.writer.folder / 'exports'}"
+            export["report"] = report
+        else:
+            err = (proc.stderr.strip().splitlines() or ["failed"])[-1]
+            export["ok"] = False
+            export["text"] = f"export of {what} failed: {err}"
+        self.export = export
+        self._say(export["text"], ok=bool(export["ok"]))
+        self._send()
+
+    def close(self) -> None:
+        thread = self._export_thread
+        if thread is not None:
+            thread.join(timeout=600)
