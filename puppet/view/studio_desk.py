@@ -28,6 +28,9 @@ log = logging.getLogger("puppet.view")
 #: The page's studio actions: action -> {field: check}.
 EXPORT_FORMATS = ("gltf", "usd", "pc2", "bvh", "mp4")
 MAX_COUNT_IN_S = 10.0
+REFRESH_S = 1.0
+"""How often the take files are looked at (s): one removed behind the studio's back is listed
+as missing within this long."""
 
 
 def _text(v) -> bool:
@@ -106,6 +109,8 @@ class StudioDesk:
         self._source = None
         self._recording = None
         self._export_thread: threading.Thread | None = None
+        self._shown = None          # the listing the pages were last sent
+        self._looked = 0.0          # when the take files were last looked at (monotonic s)
 
     def attach(self, server, source, recording) -> None:
         """server: the ViewServer; source: the loop's reading source (SwitchedReadings);
@@ -122,7 +127,18 @@ class StudioDesk:
 
     def _send(self) -> None:
         if self._server is not None:
-            self._server.send_to(None, {"type": "studio", **self.state()})
+            state = self.state()
+            self._shown = state["shots"]
+            self._server.send_to(None, {"type": "studio", **state})
+
+    def refresh(self, now: float) -> None:
+        """Every REFRESH_S (the loop thread): the pages are sent the listing again when a take
+        file changed behind the studio's back (removed: listed as missing)."""
+        if now - self._looked < REFRESH_S or self._server is None:
+            return
+        self._looked = now
+        if self.writer.listing()["shots"] != self._shown:
+            self._send()
 
     def _say(self, text: str, ok: bool = True) -> None:
         self.said = {"ok": ok, "text": text}

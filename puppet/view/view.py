@@ -170,6 +170,8 @@ class View:
         if log_source is not None:
             self._panel.take_events(log_source)
         self.key_poses.feed(batch)
+        if self.studio is not None:
+            self.studio.refresh(now)
         if self._panel.due(now):
             self._panel.update(pipeline, reading, now, frames=self.frames.seq,
                                drops=self.frames.encoder.dropped + self.server.drops,

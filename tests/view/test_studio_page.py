@@ -177,3 +177,78 @@ def test_a_session_of_two_shots_and_three_takes(new_page, tools, tmp_path):
                           "--out", str(video)], capture_output=True, text=True, timeout=600)
     assert run.returncode == 0, run.stderr
     assert video.stat().st_size > 1000
+
+
+def test_a_second_studio_is_refused_and_a_removed_take_is_listed_missing(new_page, tools,
+                                                                         tmp_path):
+    folder = tmp_path / "shoot"
+    process = _studio(tools, folder, tmp_path)
+    try:
+        page = _open(new_page, process, tools)
+        page.get_by_label("shot name").fill("walk")
+        page.get_by_role("button", name="new shot", exact=True).click()
+        _said(page, tools, "new shot 'walk'")
+        _record(page, tools, "walk", 1, count_in="0")
+
+        second = subprocess.run([*tools.PUPPET, "studio", str(folder), "--demo", "--address",
+                                 f"127.0.0.1:{tools.free_port()}"], capture_output=True,
+                                text=True, timeout=300, cwd=tmp_path)
+        assert second.returncode == 1
+        assert second.stderr.startswith("Error: ") and "Traceback" not in second.stderr
+        assert f"pid {process.proc.pid}" in second.stderr and "studio" in second.stderr
+        assert "view: http" not in second.stderr  # refused before the page or the bus
+
+        (folder / "takes" / "walk" / "take001.mcap").unlink()  # behind the studio's back
+        tools.wait_js(page, "puppetView.studio.shots[0].takes[0].status === 'missing'",
+                      STUDIO_WAIT_S)
+        _select(page, "walk", 1)
+        assert "missing" in page.get_by_role("button", name="walk take 1, missing").inner_text()
+        assert page.get_by_role("button", name="review", exact=True).is_disabled()
+        assert page.get_by_role("button", name="export take", exact=True).is_disabled()
+        _record(page, tools, "walk", 2, count_in="0")  # the studio goes on
+    finally:
+        assert process.stop() == 0, process.stderr()
+
+
+def test_a_damaged_index_is_rebuilt_saying_so(new_page, tools, tmp_path):
+    folder = tmp_path / "shoot"
+    process = _studio(tools, folder, tmp_path)
+    try:
+        page = _open(new_page, process, tools)
+        page.get_by_label("shot name").fill("walk")
+        page.get_by_role("button", name="new shot", exact=True).click()
+        _said(page, tools, "new shot 'walk'")
+        _record(page, tools, "walk", 1, count_in="0")
+    finally:
+        assert process.stop() == 0, process.stderr()
+    (folder / "session.json").write_text('{"shots": [ damaged')
+    process = _studio(tools, folder, tmp_path)
+    try:
+        assert "rebuilt" in process.stderr() and "session.json" in process.stderr()
+        page = _open(new_page, process, tools)
+        tools.wait_js(page, "puppetView.notices.some(n => n.text.includes('rebuilt'))",
+                      STUDIO_WAIT_S)
+        takes = page.evaluate("puppetView.studio.shots.flatMap(s => s.takes)")
+        assert [t["number"] for t in takes] == [1] and takes[0]["status"] == "ok"
+    finally:
+        assert process.stop() == 0, process.stderr()
+    assert list((folder / "trash").glob("session.damaged-*.json"))
+
+
+def test_a_read_only_session_folder_fails_before_recording(tools, tmp_path):
+    folder = tmp_path / "shoot"
+    folder.mkdir()
+    mounted = subprocess.run(["mount", "-t", "tmpfs", "-o", "size=8m", "tmpfs", str(folder)],
+                             capture_output=True, text=True, timeout=60)
+    if mounted.returncode != 0:
+        pytest.fail(f"cannot mount a tmpfs (the test needs root): {mounted.stderr}")
+    try:
+        subprocess.run(["mount", "-o", "remount,ro", str(folder)], check=True, timeout=60)
+        run = subprocess.run([*tools.PUPPET, "studio", str(folder), "--demo", "--address",
+                              f"127.0.0.1:{tools.free_port()}"], capture_output=True, text=True,
+                             timeout=300, cwd=tmp_path)
+    finally:
+        subprocess.run(["umount", "-l", str(folder)], check=True, timeout=60)
+    assert run.returncode == 1
+    assert run.stderr.startswith("Error: ") and str(folder) in run.stderr, run.stderr
+    assert "Traceback" not in run.stderr and "view: http" not in run.stderr

@@ -157,6 +157,7 @@ handlers.snapshot = m => {
   $("count-in-label").hidden = false;
   $("hint").hidden = true;
   handlers.studio(m.studio);
+  (m.studio.notes || []).forEach(text => note(`session: ${text}`));
 };
 handlers.studio = m => { state.studio = m; renderStudio(); };
 const viewRecording = handlers.recording;
