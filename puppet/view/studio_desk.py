@@ -25,6 +25,8 @@ from puppet.errors import PuppetError
 
 log = logging.getLogger("puppet.view")
 
+#: A clip's file suffix per format (``puppet export``'s options).
+CLIP_SUFFIX = {"gltf": ".glb", "usd": ".usdc", "pc2": ".pc2", "bvh": ".bvh"}
 #: The page's studio actions: action -> {field: check}.
 EXPORT_FORMATS = ("gltf", "usd", "pc2", "bvh", "mp4")
 MAX_COUNT_IN_S = 10.0
@@ -78,6 +80,11 @@ def check_action(message: dict) -> str | None:
         if name not in message or not ok(message[name]):
             return f"studio {action}: field {name!r} missing or invalid"
     return None
+
+
+def _file_part(name: str) -> str:
+    """A clip's name as part of a file name (letters, digits, - and _ kept)."""
+    return "".join(c if c.isalnum() or c in "-_" else "_" for c in name)[:60] or "clip"
 
 
 def _recorded_fps(paths) -> float | None:
@@ -263,64 +270,74 @@ class StudioDesk:
 
     # ---- export (a `puppet batch` of the session's takes, beside the loop) ----
     def _export(self, m) -> None:
+        """Export the chosen take, or the circled takes as a batch (``puppet batch SESSION
+        --circled``), into the session's exports/ (exports/<shot>/take003.glb), then each of
+        their clips as files of their own (exports/<shot>/take003.<clip>.glb, a loop blended);
+        run beside the loop, its progress sent to the pages."""
         if self._export_thread is not None and self._export_thread.is_alive():
             raise PuppetError("an export is running: wait for it to finish")
         folder = self.writer.folder
-        args = ["batch"]
+        formats = [f for f in m["formats"]]
         if m["scope"] == "circled":
-            args += [str(folder), "--circled"]
             chosen, _ = self.writer.chosen(circled=True)
             if not chosen:
                 raise PuppetError(f"{folder}: no circled takes to export (circle one first)")
-            total = len(chosen)
-            what = f"{total} circled take(s)"
-            paths = [path for _, _, path in chosen]
+            batch = ["batch", str(folder), "--circled"]
+            what = f"{len(chosen)} circled take(s)"
         else:
             if not (_text(m.get("shot")) and _take(m.get("take"))):
                 raise PuppetError("studio export: field 'shot' or 'take' missing or invalid")
             shot, take = self.writer.take(m["shot"], m["take"])
-            if self.writer.status(shot, take) != "ok":
+            status = self.writer.status(shot, take)
+            if status != "ok":
                 raise PuppetError(f"shot {shot.name!r} take {take.number}: nothing to export "
-                                  f"({self.writer.status(shot, take)})")
-            args += [str(self.writer.path(shot, take)), "--out",
-                     str(folder / "exports" / shot.key)]
-            total = 1
+                                  f"({status})")
+            chosen = [(shot, take, self.writer.path(shot, take))]
+            batch = ["batch", str(chosen[0][2]), "--out", str(folder / "exports" / shot.key)]
             what = f"{shot.name} take {take.number}"
-            paths = [self.writer.path(shot, take)]
-        args += ["--formats", ",".join(m["formats"]), "--workers", "1", "--json", "--resume"]
-        fps = m["fps"] if m["fps"] is not None else _recorded_fps(paths)
-        if fps is not None:
-            args += ["--fps", f"{fps:g}"]
-        if m["keys"] is not None:
-            args += ["--keys", f"{m['keys']:g}"]
-        self.export = {"running": True, "done": 0, "total": total,
-                       "text": f"exporting {what} as {', '.join(m['formats'])}…", "ok": None}
+        fps = m["fps"] if m["fps"] is not None else _recorded_fps([p for _, _, p in chosen])
+        rate = [] if fps is None else ["--fps", f"{fps:g}"]
+        keys = [] if m["keys"] is None else ["--keys", f"{m['keys']:g}"]
+        jobs = [[*batch, "--formats", ",".join(formats), "--workers", "1", *rate, *keys]]
+        for shot, take, path in chosen:
+            for segment in take.segments:
+                out = folder / "exports" / shot.key
+                stem = f"{path.stem}.{_file_part(segment.name)}"
+                files = [item for f in formats if f in CLIP_SUFFIX
+                         for item in (f"--{f}", str(out / f"{stem}{CLIP_SUFFIX[f]}"))]
+                if files:
+                    jobs.append(["export", str(path), "--clip", f"{segment.in_s!r}",
+                                 f"{segment.out_s!r}", *(["--loop"] if segment.loop else []),
+                                 *files, *rate, *keys])
+        self.export = {"running": True, "done": 0, "total": len(jobs), "ok": None,
+                       "text": f"exporting {what} as {', '.join(formats)}…"}
         self._say(self.export["text"])
-        self._export_thread = threading.Thread(target=self._run_export, args=(args, what),
+        self._export_thread = threading.Thread(target=self._run_export, args=(jobs, what),
                                                name="studio-export", daemon=True)
         self._export_thread.start()
 
-    def _run_export(self, args: list[str], what: str) -> None:
-        import json
-
-        command = [sys.executable, "-c", "from puppet.cli import main; main()", *args]
-        proc = subprocess.run(command, capture_output=True, text=True)
+    def _run_export(self, jobs: list[list[str]], what: str) -> None:
         export = dict(self.export)
-        export["running"] = False
-        if proc.returncode == 0:
-            report = {}
-            try:
-                report = json.loads(proc.stdout.strip().splitlines()[-1])
-            except (ValueError, IndexError):
-                pass
-            export["done"] = export["total"]
-            export["ok"] = True
-            export["text"] = f"exported {what} into {self.writer.folder / 'exports'}"
-            export["report"] = report
+        for n, args in enumerate(jobs):
+            if args[0] == "export":
+                for i, item in enumerate(args):
+                    if item in ("--gltf", "--usd", "--pc2", "--bvh"):
+                        Path(args[i + 1]).parent.mkdir(parents=True, exist_ok=True)
+            command = [sys.executable, "-c", "from puppet.cli import main; main()", *args]
+            proc = subprocess.run(command, capture_output=True, text=True)
+            if proc.returncode != 0:
+                err = (proc.stderr.strip().splitlines() or ["failed"])[-1]
+                export.update(running=False, ok=False,
+                              text=f"export of {what} failed: {err}")
+                break
+            export["done"] = n + 1
+            self.export = dict(export)
+            self._send()
         else:
-            err = (proc.stderr.strip().splitlines() or ["failed"])[-1]
-            export["ok"] = False
-            export["text"] = f"export of {what} failed: {err}"
+            clips = len(jobs) - 1
+            export.update(running=False, ok=True,
+                          text=f"exported {what}" + (f" and {clips} clip(s)" if clips else "")
+                          + f" into {self.writer.folder / 'exports'}")
         self.export = export
         self._say(export["text"], ok=bool(export["ok"]))
         self._send()
