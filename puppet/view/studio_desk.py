@@ -30,6 +30,9 @@ CLIP_SUFFIX = {"gltf": ".glb", "usd": ".usdc", "pc2": ".pc2", "bvh": ".bvh"}
 #: The page's studio actions: action -> {field: check}.
 EXPORT_FORMATS = ("gltf", "usd", "pc2", "bvh", "mp4")
 MAX_COUNT_IN_S = 10.0
+COMPARE_STEP_S = 1.0 / 15.0
+"""The compared take's ghost follows the play position in steps this long (s): a ghost is a
+cold solve and two renders, so a playing review re-solves it at most this often."""
 REFRESH_S = 1.0
 """How often the take files are looked at (s): one removed behind the studio's back is listed
 as missing within this long."""
@@ -60,6 +63,8 @@ ACTIONS = {
     "restore": {"shot": _text, "take": _take},
     "review": {"shot": _text, "take": _take},
     "live": {},
+    "compare": {"shot": _text, "take": _take},
+    "compare_off": {},
     "segment": {"shot": _text, "take": _take, "name": _text, "in_s": _number,
                 "out_s": _number, "loop": lambda v: isinstance(v, bool)},
     "export": {"scope": lambda v: v in ("take", "circled"),
@@ -116,20 +121,25 @@ class StudioDesk:
         self._source = None
         self._recording = None
         self._export_thread: threading.Thread | None = None
+        self.comparing = None       # {"shot": key, "take": n}: its ghost over the reviewed take
+        self._compare = None        # its Playback
+        self._compare_at = None     # the play position its ghost shows (s)
         self._shown = None          # the listing the pages were last sent
         self._looked = 0.0          # when the take files were last looked at (monotonic s)
 
-    def attach(self, server, source, recording) -> None:
+    def attach(self, server, source, recording, key_poses) -> None:
         """server: the ViewServer; source: the loop's reading source (SwitchedReadings);
-        recording: the view's Recording part."""
+        recording: the view's Recording part; key_poses: its KeyPoses (the compare ghost)."""
         self._server = server
         self._source = source
         self._recording = recording
+        self._key_poses = key_poses
 
     # ---- what the page shows ----
     def state(self) -> dict:
         listing = self.writer.listing()
         return {**listing, "said": self.said, "reviewing": self.reviewing,
+                "comparing": self.comparing,
                 "export": self.export, "rig": self.rig.name}
 
     def _send(self) -> None:
@@ -137,6 +147,19 @@ class StudioDesk:
             state = self.state()
             self._shown = state["shots"]
             self._server.send_to(None, {"type": "studio", **state})
+
+    def follow(self) -> None:
+        """Each frame (the loop thread): the compared take's ghost at the reviewed take's play
+        position (in COMPARE_STEP_S steps)."""
+        if self._compare is None:
+            return
+        state = self._source.state()
+        if state is None:
+            return
+        at = round(state["position_s"] / COMPARE_STEP_S) * COMPARE_STEP_S
+        if at != self._compare_at:
+            self._compare_at = at
+            self._key_poses.compare(self._compare.at(min(at, self._compare.duration_s)))
 
     def refresh(self, now: float) -> None:
         """Every REFRESH_S (the loop thread): the pages are sent the listing again when a take
@@ -178,7 +201,7 @@ class StudioDesk:
             raise PuppetError(problem)
         action = message["action"]
         try:
-            getattr(self, f"_{action}")(message)
+            getattr(self, "_compare_take" if action == "compare" else f"_{action}")(message)
         except PuppetError as err:
             self._say(str(err), ok=False)
             self._send()
@@ -233,12 +256,10 @@ class StudioDesk:
         shot = self.writer.shot(m["shot"])
         return self.reviewing == {"shot": shot.key, "take": m["take"]}
 
-    def _review(self, m) -> None:
+    def _playback(self, m):
+        """(shot, take, path, Playback) of a take to review or compare, checked."""
         from puppet.take import Playback, TakeReader
-        from puppet.take.markers import read_markers
 
-        if self._recording.state()["on"]:
-            raise PuppetError("stop recording first to review a take")
         shot, take = self.writer.take(m["shot"], m["take"])
         status = self.writer.status(shot, take)
         if status != "ok":
@@ -249,13 +270,38 @@ class StudioDesk:
             raise PuppetError(f"{path}: the take holds no readings")
         reader.check_rig([int(i) for i in self.rig.servo_map.ids],
                          dict(self.rig.servo_map.models), rig_name=self.rig.name)
-        playback = Playback.of_take(reader, self.rig.servo_map.ids, rig=self.rig)
+        return shot, take, path, Playback.of_take(reader, self.rig.servo_map.ids, rig=self.rig)
+
+    def _review(self, m) -> None:
+        from puppet.take.markers import read_markers
+
+        if self._recording.state()["on"]:
+            raise PuppetError("stop recording first to review a take")
+        shot, take, path, playback = self._playback(m)
         marks = [(playback.play_s(t), name) for t, name in read_markers(path)]
         self._source.review(playback, markers=marks)
         self.reviewing = {"shot": shot.key, "take": take.number}
         self._say(f"reviewing {shot.name} take {take.number}: play, pause, scrub, speed")
 
+    def _compare_take(self, m) -> None:
+        if self.reviewing is None:
+            raise PuppetError("review a take first, then compare another with it")
+        shot, take, _, playback = self._playback(m)
+        if self.reviewing == {"shot": shot.key, "take": take.number}:
+            raise PuppetError(f"take {take.number} is the one reviewed: compare another take")
+        self._compare, self._compare_at = playback, None
+        self.comparing = {"shot": shot.key, "take": take.number}
+        self._say(f"comparing {shot.name} take {take.number} (magenta ghost) with take "
+                  f"{self.reviewing['take']}")
+
+    def _compare_off(self, m) -> None:
+        self._compare = self.comparing = None
+        self._key_poses.compare(None)
+        self._say("compare off")
+
     def _live(self, m) -> None:
+        if self.comparing is not None:
+            self._compare_off(m)
         self._source.live()
         if self.reviewing is not None:
             self.reviewing = None

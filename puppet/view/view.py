@@ -29,6 +29,7 @@ from puppet.view.frames import ViewFrames
 from puppet.view.handle_desk import HandleDesk
 from puppet.view.input import PageInput
 from puppet.view.key_poses import KeyPoses
+from puppet.view.onion import GHOST_LEGEND
 from puppet.view.panel import Panel, bone_legend
 from puppet.view.playback import Playback
 from puppet.view.recording import Recording
@@ -77,7 +78,7 @@ class View:
         self.max_fps = float(max_fps)
         self.keys = keys
         self.studio = studio
-        self.key_poses = KeyPoses(keys)
+        self.key_poses = KeyPoses(keys, ghosts=studio is not None)
         self.server: ViewServer | None = None
         self.refactor_ms: list[float] = []
         self._commands: deque = deque()
@@ -114,7 +115,7 @@ class View:
         self.recording = Recording(self.take_factory, self.takes_dir, recorder, server, self._lock, t0,
                                    slate=self.studio)
         if self.studio is not None:
-            self.studio.attach(server, source, self.recording)
+            self.studio.attach(server, source, self.recording, self.key_poses)
         self.playback = Playback(source)
         self._panel = Panel(self._servo_ids, self._bone_names, width, height, self._picker.view_proj,
                             server, self._lock, t0)
@@ -143,7 +144,7 @@ class View:
                 "servos": [{"id": i, "joint": j} for i, j in zip(self._servo_ids, self._servo_joints)],
                 "bones": self._bone_names, "handles": handles, "faults": faults,
                 "markers": markers, "overlay": self.frames.overlay, "recording": self.recording.state(),
-                "legend": bone_legend(),
+                "legend": bone_legend(), "ghost_legend": GHOST_LEGEND,
                 "panel": panel, "playback": self.playback.state(),
                 "keys": self.key_poses.state(),
                 "studio": self.studio.state() if self.studio is not None else None}
@@ -171,6 +172,7 @@ class View:
             self._panel.take_events(log_source)
         self.key_poses.feed(batch)
         if self.studio is not None:
+            self.studio.follow()
             self.studio.refresh(now)
         if self._panel.due(now):
             self._panel.update(pipeline, reading, now, frames=self.frames.seq,

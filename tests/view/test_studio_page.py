@@ -136,6 +136,20 @@ def test_a_session_of_two_shots_and_three_takes(new_page, tools, tmp_path):
         page.get_by_label("loop").check()
         page.get_by_role("button", name="make clip", exact=True).click()
         _said(page, tools, "loop 'cycle'")
+
+        # compare: walk 2 as a magenta ghost over walk 1 (the frames change, tinted)
+        seq = page.evaluate("puppetView.shownSeq")
+        _select(page, "walk", 2)
+        page.get_by_role("button", name="compare", exact=True).click()
+        _said(page, tools, "comparing walk take 2")
+        tools.wait_js(page, f"puppetView.shownSeq > {seq} + 2", STUDIO_WAIT_S)
+        legend = page.get_by_role("list", name="ghost colours").inner_text()
+        assert "compared take" in legend and "previous key" in legend
+        image = tools.frame_image(page)
+        magenta = ((image[..., 0] > image[..., 1] + 60) & (image[..., 2] > image[..., 1] + 60)).sum()
+        assert magenta > 200, magenta
+        page.get_by_role("button", name="compare off", exact=True).click()
+        _said(page, tools, "compare off")
         page.get_by_role("button", name="live", exact=True).click()
         _said(page, tools, "live: the puppet")
 

@@ -80,6 +80,9 @@ function renderStudio() {
   const editable = usable && !take.locked;
   $("review").disabled = !usable || take.status !== "ok" || state.recording.on;
   $("go-live").disabled = !s.reviewing;
+  const reviewed = s.reviewing && sel && sel.shot.key === s.reviewing.shot && take.number === s.reviewing.take;
+  $("compare").disabled = !s.reviewing || !usable || take.status !== "ok" || !!reviewed;
+  $("compare-off").disabled = !s.comparing;
   $("circle").disabled = !editable;
   $("circle").setAttribute("aria-pressed", String(!!(take && take.circled)));
   $("circle").textContent = take && take.circled ? "uncircle" : "circle";
@@ -108,6 +111,17 @@ function renderStudio() {
   showInstruction();
 }
 
+function showGhostLegend(legend) {
+  $("onion-legend").replaceChildren(...legend.map(item => {
+    const li = document.createElement("li");
+    const swatch = document.createElement("span");
+    swatch.className = "swatch"; swatch.style.background = item.color;
+    li.append(swatch, document.createTextNode(item.what));
+    return li;
+  }));
+  $("onion-legend").hidden = false;
+}
+
 function showClip() {
   const c = state.clip;
   const fmt = v => v == null ? "–" : `${v.toFixed(2)} s`;
@@ -125,6 +139,7 @@ function showInstruction() {
   if (!s) return;
   if (r.on && r.starts_in_s > 0) text = "Count-in: get ready, recording starts at 0.";
   else if (r.on) text = "Recording: perform now; press marker to mark a moment, stop when done.";
+  else if (s.comparing) text = "Comparing: the magenta ghost is the other take at the same time; play or scrub to see both.";
   else if (s.reviewing) text = "Reviewing a take: play, pause, scrub and speed below; set in and out to make a clip; live goes back to the puppet.";
   else if (!currentShot()) text = "Name a shot and press new shot, then record.";
   else if (state.selected) text = "Take selected: review it, circle the good ones, add a note, lock it or delete it; or record the next take.";
@@ -157,6 +172,7 @@ handlers.snapshot = m => {
   $("count-in-label").hidden = false;
   $("hint").hidden = true;
   handlers.studio(m.studio);
+  showGhostLegend(m.ghost_legend || []);
   (m.studio.notes || []).forEach(text => note(`session: ${text}`));
 };
 handlers.studio = m => { state.studio = m; renderStudio(); };
@@ -183,6 +199,8 @@ function onSelected(action, fields) {
 }
 $("review").onclick = () => { state.clip = { in_s: null, out_s: null }; onSelected("review"); };
 $("go-live").onclick = () => studioSend("live");
+$("compare").onclick = () => onSelected("compare");
+$("compare-off").onclick = () => studioSend("compare_off");
 $("circle").onclick = () => { const sel = selectedTake(); if (sel) onSelected("circle", { on: !sel.take.circled }); };
 $("lock").onclick = () => { const sel = selectedTake(); if (sel) onSelected("lock", { on: !sel.take.locked }); };
 $("delete").onclick = () => onSelected("delete");
