@@ -411,6 +411,8 @@ class Studio(View):
     def open(self, run) -> None:
         sound = next((o for o in run.outputs if isinstance(o, Sound)), None)
         self._sound = (sound.sound, sound.offset_s) if sound is not None else (None, 0.0)
+        if sound is not None:
+            self.desk.use_sound(sound.sound, sound.offset_s)  # its waveform and Web Audio
         self._fps = run.video_fps
         self.view.attach(run.pipeline, source=run.source.reading_source)
 

@@ -33,6 +33,8 @@ MAX_COUNT_IN_S = 10.0
 COMPARE_STEP_S = 1.0 / 15.0
 """The compared take's ghost follows the play position in steps this long (s): a ghost is a
 cold solve and two renders, so a playing review re-solves it at most this often."""
+WAVEFORM_BARS = 2000
+"""The sound's waveform on the page: this many (min, max) pairs over its length."""
 REFRESH_S = 1.0
 """How often the take files are looked at (s): one removed behind the studio's back is listed
 as missing within this long."""
@@ -87,6 +89,13 @@ def check_action(message: dict) -> str | None:
     return None
 
 
+def _stored_sound(path):
+    """The take's stored sound reference (puppet.take.sync.SoundRef), or None."""
+    from puppet.take import TakeReader
+
+    return TakeReader(path).metadata.sound
+
+
 def _file_part(name: str) -> str:
     """A clip's name as part of a file name (letters, digits, - and _ kept)."""
     return "".join(c if c.isalnum() or c in "-_" else "_" for c in name)[:60] or "clip"
@@ -122,6 +131,8 @@ class StudioDesk:
         self._recording = None
         self._export_thread: threading.Thread | None = None
         self.comparing = None       # {"shot": key, "take": n}: its ghost over the reviewed take
+        self.sound = None           # the shot's sound for the page (``use_sound``)
+        self.sound_path: Path | None = None  # served to the page (Web Audio)
         self._compare = None        # its Playback
         self._compare_at = None     # the play position its ghost shows (s)
         self._shown = None          # the listing the pages were last sent
@@ -135,11 +146,29 @@ class StudioDesk:
         self._recording = recording
         self._key_poses = key_poses
 
+    def use_sound(self, sound, offset_s: float) -> None:
+        """The sound takes are performed to (a puppet.sound Sound, its time at each take's
+        time 0): its waveform (WAVEFORM_BARS min/max pairs of the channels' mean) and the file,
+        played by the page from the take's time 0 (after the count-in), in review and scrubbing."""
+        import numpy as np
+
+        mono = sound.samples.mean(axis=1) if sound.samples.ndim == 2 else sound.samples
+        bars = max(1, min(WAVEFORM_BARS, len(mono)))
+        edges = np.linspace(0, len(mono), bars + 1).astype(np.int64)
+        lows = np.minimum.reduceat(mono, edges[:-1])
+        highs = np.maximum.reduceat(mono, edges[:-1])
+        self.sound_path = Path(sound.path)
+        self.sound = {"name": sound.name, "offset_s": float(offset_s),
+                      "duration_s": sound.frames / sound.rate, "rate": sound.rate,
+                      "sha256": sound.sha256,
+                      "peaks": [[round(float(a), 3), round(float(b), 3)]
+                                for a, b in zip(lows, highs)]}
+
     # ---- what the page shows ----
     def state(self) -> dict:
         listing = self.writer.listing()
         return {**listing, "said": self.said, "reviewing": self.reviewing,
-                "comparing": self.comparing,
+                "comparing": self.comparing, "sound": self.sound,
                 "export": self.export, "rig": self.rig.name}
 
     def _send(self) -> None:
@@ -254,7 +283,8 @@ class StudioDesk:
 
     def _reviewed(self, m) -> bool:
         shot = self.writer.shot(m["shot"])
-        return self.reviewing == {"shot": shot.key, "take": m["take"]}
+        r = self.reviewing
+        return r is not None and (r["shot"], r["take"]) == (shot.key, m["take"])
 
     def _playback(self, m):
         """(shot, take, path, Playback) of a take to review or compare, checked."""
@@ -280,14 +310,16 @@ class StudioDesk:
         shot, take, path, playback = self._playback(m)
         marks = [(playback.play_s(t), name) for t, name in read_markers(path)]
         self._source.review(playback, markers=marks)
-        self.reviewing = {"shot": shot.key, "take": take.number}
+        stored = _stored_sound(path)
+        self.reviewing = {"shot": shot.key, "take": take.number,
+                          "sound_offset_s": None if stored is None else stored.offset_s}
         self._say(f"reviewing {shot.name} take {take.number}: play, pause, scrub, speed")
 
     def _compare_take(self, m) -> None:
         if self.reviewing is None:
             raise PuppetError("review a take first, then compare another with it")
         shot, take, _, playback = self._playback(m)
-        if self.reviewing == {"shot": shot.key, "take": take.number}:
+        if (self.reviewing["shot"], self.reviewing["take"]) == (shot.key, take.number):
             raise PuppetError(f"take {take.number} is the one reviewed: compare another take")
         self._compare, self._compare_at = playback, None
         self.comparing = {"shot": shot.key, "take": take.number}

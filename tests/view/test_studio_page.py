@@ -270,3 +270,72 @@ def test_a_read_only_session_folder_fails_before_recording(tools, tmp_path):
     assert run.returncode == 1
     assert run.stderr.startswith("Error: ") and str(folder) in run.stderr, run.stderr
     assert "Traceback" not in run.stderr and "view: http" not in run.stderr
+
+
+def _click_track(path: Path, seconds: float = 8.0, rate: int = 22050) -> Path:
+    """A mono 16-bit WAV: silence with a click every second (known times)."""
+    import wave
+
+    import numpy as np
+
+    samples = np.zeros(int(seconds * rate), np.int16)
+    for k in range(int(seconds)):
+        samples[k * rate: k * rate + 200] = 20000
+    with wave.open(str(path), "wb") as out:
+        out.setnchannels(1)
+        out.setsampwidth(2)
+        out.setframerate(rate)
+        out.writeframes(samples.tobytes())
+    return path
+
+
+def test_the_shot_sound_under_the_timeline_heard_from_the_take_time_0(new_page, tools, tmp_path):
+    from puppet.sound import file_sha256
+    from puppet.take import TakeReader
+
+    track = _click_track(tmp_path / "clicks.wav")
+    folder = tmp_path / "shoot"
+    process = _studio(tools, folder, tmp_path, "--sound", str(track))
+    try:
+        page = _open(new_page, process, tools)
+        assert page.get_by_role("img", name="sound waveform").is_visible()
+        page.get_by_label("shot name").fill("lines")
+        page.get_by_role("button", name="new shot", exact=True).click()  # a gesture: audio on
+        _said(page, tools, "new shot 'lines'")
+        tools.wait_js(page, "puppetView.audio.buffer !== null", STUDIO_WAIT_S)
+        assert abs(page.evaluate("puppetView.audio.buffer.duration") - 8.0) < 0.01
+        _record(page, tools, "lines", 1, count_in="2")
+        start = page.evaluate("puppetView.audio.starts[0]")
+        # scheduled at the count-in's end (what was left of 2 s when the page heard of it)
+        assert start["offset_s"] == 0 and start["rate"] == 1
+        assert 0.5 < start["when"] - start["now"] <= 2.0, start
+        shot = page.evaluate("puppetView.studio.shots[0].key")
+
+        _select(page, "lines", 1)
+        page.get_by_role("button", name="review", exact=True).click()
+        _said(page, tools, "reviewing lines take 1")
+        stored = page.evaluate("puppetView.studio.reviewing.sound_offset_s")
+        assert stored is not None and 0 <= stored < 0.1  # the sound's time at the first reading
+        count = page.evaluate("puppetView.audio.starts.length")
+        page.get_by_role("button", name="play", exact=True).click()
+        tools.wait_js(page, f"puppetView.audio.starts.length > {count}", STUDIO_WAIT_S)
+        heard = page.evaluate("puppetView.audio.starts.at(-1)")
+        assert heard["piece_s"] is None and heard["rate"] == 1
+        assert abs(heard["offset_s"] - stored) < 0.5  # from the play position (near 0)
+        tools.wait_js(page, "puppetView.playback.paused", STUDIO_WAIT_S)
+        count = page.evaluate("puppetView.audio.starts.length")
+        page.get_by_label("play position").fill("1.0")
+        tools.wait_js(page, f"puppetView.audio.starts.length > {count}", STUDIO_WAIT_S)
+        piece = page.evaluate("puppetView.audio.starts.at(-1)")
+        assert piece["piece_s"] == pytest.approx(0.15) and piece["offset_s"] == pytest.approx(stored + 1.0)
+        drawn = page.evaluate("""(() => { const c = document.getElementById('waveform');
+            const d = c.getContext('2d').getImageData(0, 0, c.width, c.height).data; let n = 0;
+            const top = c.width * 4 * Math.floor(c.height / 4);  // the top quarter: only the clicks reach it
+            for (let i = 0; i < top; i += 4) if (d[i] > 150 && d[i + 1] > 150) n++; return n; })()""")
+        assert drawn > 20  # the clicks' bars
+    finally:
+        assert process.stop() == 0, process.stderr()
+    take = folder / "takes" / shot / "take001.mcap"
+    ref = TakeReader(take).metadata.sound
+    assert ref.sha256 == file_sha256(track) and ref.rate == 22050
+    assert track.read_bytes()[:4] == b"RIFF"  # the input untouched

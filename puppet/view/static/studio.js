@@ -221,3 +221,111 @@ function exportFields(scope) {
 }
 $("export-take").onclick = () => onSelected("export", exportFields("take"));
 $("export-circled").onclick = () => studioSend("export", exportFields("circled"));
+
+// ---- the shot's sound: waveform under the timeline, Web Audio from the take's time 0 ----------
+// The page plays the sound file the studio serves (/sound): from the count-in's end while
+// recording (its offset at the take's time 0), from the play position in review (at its speed),
+// and a short piece under the playhead while scrubbing (lip sync).
+const SCRUB_PIECE_S = 0.15;
+const audio = { ctx: null, buffer: null, loading: null, source: null, starts: [], playingReview: false };
+state.audio = audio;
+
+function audioContext() {
+  if (!audio.ctx) audio.ctx = new AudioContext({ latencyHint: "interactive" });
+  if (audio.ctx.state === "suspended") audio.ctx.resume();
+  return audio.ctx;
+}
+function loadSound() {
+  if (audio.loading || !(state.studio && state.studio.sound)) return audio.loading;
+  const url = "sound" + (token ? `?token=${encodeURIComponent(token)}` : "");
+  audio.loading = fetch(url).then(r => { if (!r.ok) throw new Error(`sound: ${r.status}`); return r.arrayBuffer(); })
+    .then(data => audioContext().decodeAudioData(data))
+    .then(buffer => { audio.buffer = buffer; drawWaveform(); })
+    .catch(err => note(`sound: cannot be played here (${err.message})`));
+  return audio.loading;
+}
+function stopSound() {
+  if (audio.source) { try { audio.source.stop(); } catch (e) { /* already stopped */ } audio.source = null; }
+}
+// offset_s: where in the sound; delay_s: from now; rate: speed; piece_s: how long (null: to its end)
+function playSound(offset_s, delay_s, rate, piece_s) {
+  if (!audio.buffer) return;
+  stopSound();
+  const ctx = audioContext();
+  const source = ctx.createBufferSource();
+  source.buffer = audio.buffer;
+  source.playbackRate.value = rate || 1;
+  source.connect(ctx.destination);
+  let when = ctx.currentTime + Math.max(0, delay_s);
+  if (offset_s < 0) { when += -offset_s / (rate || 1); offset_s = 0; }
+  if (offset_s >= audio.buffer.duration) return;
+  source.start(when, offset_s, piece_s == null ? undefined : piece_s);
+  audio.source = source;
+  audio.starts.push({ when, offset_s, rate: rate || 1, piece_s, now: ctx.currentTime });
+  if (audio.starts.length > 100) audio.starts.shift();
+}
+function soundOffset() {
+  const s = state.studio;
+  if (!s || !s.sound) return null;
+  if (s.reviewing) return s.reviewing.sound_offset_s;
+  return s.sound.offset_s;
+}
+function soundPosition() {
+  const s = state.studio, r = state.recording, offset = soundOffset();
+  if (offset == null) return null;
+  if (s.reviewing && state.playback) return offset + state.playback.position_s;
+  if (r.on && audio.recordZero != null) return offset + Math.max(0, (performance.now() - audio.recordZero) / 1000);
+  return offset;
+}
+function drawWaveform() {
+  const s = state.studio, canvas = $("waveform");
+  if (!s || !s.sound) { canvas.hidden = true; return; }
+  canvas.hidden = false;
+  const ctx = canvas.getContext("2d"), w = canvas.width, h = canvas.height, peaks = s.sound.peaks;
+  ctx.fillStyle = "#25282f"; ctx.fillRect(0, 0, w, h);
+  ctx.fillStyle = "#b8c4d6";
+  for (let x = 0; x < w; x++) {
+    const p = peaks[Math.floor(x * peaks.length / w)];
+    const y0 = (1 - p[1]) * h / 2, y1 = (1 - p[0]) * h / 2;
+    ctx.fillRect(x, y0, 1, Math.max(1, y1 - y0));
+  }
+  const at = soundPosition();
+  if (at != null) {
+    const x = Math.round(at / s.sound.duration_s * w);
+    ctx.fillStyle = "#ff3b30"; ctx.fillRect(Math.min(x, w - 2), 0, 2, h);
+  }
+}
+function followSound() {  // the review's play, pause and speed, heard
+  const s = state.studio, p = state.playback;
+  if (!s || !s.reviewing || !p) { if (audio.playingReview) { stopSound(); audio.playingReview = false; } return; }
+  const playing = !p.paused && p.position_s < p.duration_s - 1e-3;
+  const offset = soundOffset();
+  if (offset == null) return;
+  if (playing && (!audio.playingReview || audio.reviewRate !== p.speed)) {
+    playSound(offset + p.position_s, 0, p.speed, null);
+    audio.playingReview = true; audio.reviewRate = p.speed;
+  } else if (!playing && audio.playingReview) {
+    stopSound(); audio.playingReview = false;
+  }
+}
+document.addEventListener("pointerdown", () => { if (state.studio && state.studio.sound) { audioContext(); loadSound(); } }, true);
+const studioWithSound = handlers.studio;
+handlers.studio = m => { studioWithSound(m); if (m.sound) loadSound(); drawWaveform(); followSound(); };
+const recordingWithSound = handlers.recording;
+handlers.recording = m => {
+  const was = state.recording.on;
+  recordingWithSound(m);
+  if (!state.studio || !state.studio.sound) return;
+  if (m.on && !was) {
+    audio.recordZero = performance.now() + (m.starts_in_s || 0) * 1000;
+    playSound(state.studio.sound.offset_s, m.starts_in_s || 0, 1, null);  // heard from the take's time 0
+  } else if (!m.on && was) { stopSound(); audio.recordZero = null; }
+};
+const panelWithSound = handlers.panel;
+handlers.panel = m => { panelWithSound(m); if (state.studio && state.studio.sound) { followSound(); drawWaveform(); } };
+$("scrub").addEventListener("input", () => {  // the sound under the playhead
+  const offset = soundOffset();
+  if (offset == null || !state.studio.reviewing) return;
+  audio.playingReview = false;
+  playSound(offset + Number($("scrub").value), 0, 1, SCRUB_PIECE_S);
+});
