@@ -339,3 +339,51 @@ def test_the_shot_sound_under_the_timeline_heard_from_the_take_time_0(new_page, 
     ref = TakeReader(take).metadata.sound
     assert ref.sha256 == file_sha256(track) and ref.rate == 22050
     assert track.read_bytes()[:4] == b"RIFF"  # the input untouched
+
+
+CONTROLS_JS = """(() => Array.from(document.querySelectorAll('button, input, select'))
+  .filter(el => el.offsetParent !== null && el.type !== 'hidden')
+  .map(el => { const box = el.getBoundingClientRect();
+    const name = (el.getAttribute('aria-label') || (el.labels && el.labels.length ? el.labels[0].textContent : '')
+                  || el.textContent || el.title || el.placeholder || '').trim();
+    return { id: el.id || el.outerHTML.slice(0, 60), w: box.width, h: box.height, name,
+             disabled: el.disabled, opacity: Number(getComputedStyle(el).opacity) }; }))()"""
+
+
+def test_a_first_timer_can_use_the_page(new_page, tools, tmp_path):
+    """Every control named and at least 24 x 24 px, disabled ones look disabled, joint names
+    whole at 1024 px, no layout jump when the status line changes, one instruction line."""
+    process = _studio(tools, tmp_path / "shoot", tmp_path)
+    try:
+        page = _open(new_page, process, tools, width=1024, height=768)
+        controls = page.evaluate(CONTROLS_JS)
+        assert len(controls) > 20
+        unnamed = [c["id"] for c in controls if not c["name"]]
+        assert not unnamed, unnamed
+        small = [(c["id"], c["w"], c["h"]) for c in controls if c["w"] < 24 or c["h"] < 24]
+        assert not small, small
+        disabled = [c for c in controls if c["disabled"]]
+        assert disabled and all(c["opacity"] <= 0.5 for c in disabled)
+        assert all(c["opacity"] == 1 for c in controls if not c["disabled"])
+        tools.wait_js(page, "document.querySelectorAll('#servos tbody tr').length > 0", STUDIO_WAIT_S)
+        cut = page.evaluate("""Array.from(document.querySelectorAll('#servos tbody td:nth-child(2)'))
+            .filter(td => td.scrollWidth > td.clientWidth + 1).map(td => td.textContent)""")
+        assert not cut, cut
+        instruction = page.get_by_role("status").filter(has_text="Name a shot")
+        assert instruction.count() == 1
+        stage = page.locator("#stage").bounding_box()
+        takes = page.locator("#takes").bounding_box()
+        page.get_by_label("shot name").fill("")
+        page.get_by_role("button", name="new shot", exact=True).click()  # refused: a long status line
+        _said(page, tools, "must not be empty")
+        page.get_by_label("shot name").fill("a shot with a name long enough to wrap the status")
+        page.get_by_role("button", name="new shot", exact=True).click()
+        _said(page, tools, "new shot")
+        assert page.locator("#stage").bounding_box() == stage
+        assert page.locator("#takes").bounding_box()["y"] == takes["y"]
+        assert "refused" not in page.locator("#studio-said").get_attribute("class")
+    finally:
+        assert process.stop() == 0, process.stderr()
+    run = subprocess.run([*tools.PUPPET, "studio", str(tmp_path / "other")], capture_output=True,
+                         text=True, timeout=120)
+    assert run.returncode == 1 and "--demo" in run.stderr and "Traceback" not in run.stderr
