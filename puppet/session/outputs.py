@@ -410,15 +410,15 @@ class Studio(View):
 
     def open(self, run) -> None:
         sound = next((o for o in run.outputs if isinstance(o, Sound)), None)
-        self._sound = (sound.sound, sound.offset_s) if sound is not None else (None, 0.0)
-        if sound is not None:
-            self.desk.use_sound(sound.sound, sound.offset_s)  # its waveform and Web Audio
+        if sound is not None:  # the shot's sound until the page chooses another
+            self.desk.use_sound(sound.sound, sound.offset_s)
         self._fps = run.video_fps
         self.view.attach(run.pipeline, source=run.source.reading_source)
 
     def _open_take(self, path, zero_ns: int) -> "_TakeFromZero":
-        """The session's take recorder for a take of the page, its time 0 at ``zero_ns``."""
-        sound, offset_s = self._sound
+        """The session's take recorder for a take of the page, its time 0 at ``zero_ns``, with
+        the sound the page uses now (``StudioDesk.performed_to``)."""
+        sound, offset_s = self.desk.performed_to
         return _TakeFromZero(path, self.rig, force=False, zero_ns=zero_ns, from_ns=zero_ns,
                              sound=sound, sound_offset_s=offset_s, timecode_fps=self._fps)
 

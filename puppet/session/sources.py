@@ -309,3 +309,9 @@ class SwitchedReadings:
     def state(self):
         take = self._take
         return None if take is None else take.state()
+
+    @property
+    def position_s(self) -> float | None:
+        """The take's play position (s), None when live."""
+        take = self._take
+        return None if take is None else take.position_s

@@ -209,7 +209,7 @@ class Playback:
         first frame (the module docstring): R'_f = slerp(I, D, w_f) R_f per joint, D = R_0 R_N^T
         with R_N the frame after the last (R_{N-1} moved on by the last frame's motion) and
         w_f a smoothstep from 0 (blend start) to 1 (at frame N)."""
-        from scipy.spatial.transform import Rotation, Slerp
+        from scipy.spatial.transform import Rotation
 
         n = self._count
         k = len(self.ids)

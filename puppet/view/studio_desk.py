@@ -33,6 +33,8 @@ MAX_COUNT_IN_S = 10.0
 COMPARE_STEP_S = 1.0 / 15.0
 """The compared take's ghost follows the play position in steps this long (s): a ghost is a
 cold solve and two renders, so a playing review re-solves it at most this often."""
+SOUNDS = "sounds"
+"""The session's folder of sounds to choose from on the page (put there by a person)."""
 WAVEFORM_BARS = 2000
 """The sound's waveform on the page: this many (min, max) pairs over its length."""
 REFRESH_S = 1.0
@@ -67,6 +69,7 @@ ACTIONS = {
     "live": {},
     "compare": {"shot": _text, "take": _take},
     "compare_off": {},
+    "sound": {"name": _text},
     "segment": {"shot": _text, "take": _take, "name": _text, "in_s": _number,
                 "out_s": _number, "loop": lambda v: isinstance(v, bool)},
     "export": {"scope": lambda v: v in ("take", "circled"),
@@ -132,6 +135,7 @@ class StudioDesk:
         self._export_thread: threading.Thread | None = None
         self.comparing = None       # {"shot": key, "take": n}: its ghost over the reviewed take
         self.sound = None           # the shot's sound for the page (``use_sound``)
+        self.performed_to = (None, 0.0)  # (puppet.sound Sound, offset_s) the takes store
         self.sound_path: Path | None = None  # served to the page (Web Audio)
         self._compare = None        # its Playback
         self._compare_at = None     # the play position its ghost shows (s)
@@ -152,6 +156,7 @@ class StudioDesk:
         played by the page from the take's time 0 (after the count-in), in review and scrubbing."""
         import numpy as np
 
+        self.performed_to = (sound, float(offset_s))
         mono = sound.samples.mean(axis=1) if sound.samples.ndim == 2 else sound.samples
         bars = max(1, min(WAVEFORM_BARS, len(mono)))
         edges = np.linspace(0, len(mono), bars + 1).astype(np.int64)
@@ -164,17 +169,48 @@ class StudioDesk:
                       "peaks": [[round(float(a), 3), round(float(b), 3)]
                                 for a, b in zip(lows, highs)]}
 
+    def _sound_files(self) -> list[str]:
+        """The sound files a person put in the session's sounds/ folder (to choose on the page)."""
+        from puppet.sound import SUFFIXES
+
+        folder = self.writer.folder / SOUNDS
+        try:
+            return sorted(p.name for p in folder.iterdir()
+                          if p.is_file() and p.suffix.lower() in SUFFIXES)
+        except OSError:
+            return []
+
+    def _sound(self, m) -> None:
+        """The shot's sound: a file of the session's sounds/ ("": none); the takes recorded
+        from now on store its reference."""
+        from puppet.sound import load_sound
+
+        if self._recording.state()["on"]:
+            raise PuppetError("stop recording first to change the sound")
+        if m["name"] == "":
+            self.sound, self.sound_path, self.performed_to = None, None, (None, 0.0)
+            self._say("no sound: the next takes are silent")
+            return
+        if m["name"] not in self._sound_files():
+            raise PuppetError(f"{self.writer.folder / SOUNDS}: no sound file {m['name']!r} "
+                              "(put WAV, FLAC, OGG or MP3 files there)")
+        sound = load_sound(self.writer.folder / SOUNDS / m["name"])  # refused naming the file
+        self.use_sound(sound, 0.0)
+        self._say(f"sound {sound.name}: heard from each take's time 0; its waveform under "
+                  "the timeline")
+
     # ---- what the page shows ----
     def state(self) -> dict:
         listing = self.writer.listing()
         return {**listing, "said": self.said, "reviewing": self.reviewing,
                 "comparing": self.comparing, "sound": self.sound,
+                "sounds": self._sound_files(),
                 "export": self.export, "rig": self.rig.name}
 
     def _send(self) -> None:
         if self._server is not None:
             state = self.state()
-            self._shown = state["shots"]
+            self._shown = (state["shots"], state["sounds"])
             self._server.send_to(None, {"type": "studio", **state})
 
     def follow(self) -> None:
@@ -182,21 +218,22 @@ class StudioDesk:
         position (in COMPARE_STEP_S steps)."""
         if self._compare is None:
             return
-        state = self._source.state()
-        if state is None:
+        position = self._source.position_s
+        if position is None:
             return
-        at = round(state["position_s"] / COMPARE_STEP_S) * COMPARE_STEP_S
+        at = round(position / COMPARE_STEP_S) * COMPARE_STEP_S
         if at != self._compare_at:
             self._compare_at = at
             self._key_poses.compare(self._compare.at(min(at, self._compare.duration_s)))
 
     def refresh(self, now: float) -> None:
         """Every REFRESH_S (the loop thread): the pages are sent the listing again when a take
-        file changed behind the studio's back (removed: listed as missing)."""
+        file changed behind the studio's back (removed: listed as missing) or a sound file
+        came into sounds/."""
         if now - self._looked < REFRESH_S or self._server is None:
             return
         self._looked = now
-        if self.writer.listing()["shots"] != self._shown:
+        if (self.writer.listing()["shots"], self._sound_files()) != self._shown:
             self._send()
 
     def _say(self, text: str, ok: bool = True) -> None:

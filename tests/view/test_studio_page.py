@@ -341,6 +341,33 @@ def test_the_shot_sound_under_the_timeline_heard_from_the_take_time_0(new_page, 
     assert track.read_bytes()[:4] == b"RIFF"  # the input untouched
 
 
+def test_a_sound_chosen_on_the_page(new_page, tools, tmp_path):
+    from puppet.sound import file_sha256
+    from puppet.take import TakeReader
+
+    folder = tmp_path / "shoot"
+    process = _studio(tools, folder, tmp_path)
+    try:
+        page = _open(new_page, process, tools)
+        assert not page.get_by_role("img", name="sound waveform").is_visible()
+        (folder / "sounds").mkdir()
+        track = _click_track(folder / "sounds" / "line one.wav", seconds=4.0)
+        tools.wait_js(page, "puppetView.studio.sounds.includes('line one.wav')", STUDIO_WAIT_S)
+        page.get_by_label("shot sound").select_option("line one.wav")
+        _said(page, tools, "sound line one.wav")
+        assert page.get_by_role("img", name="sound waveform").is_visible()
+        page.get_by_label("shot name").fill("lines")
+        page.get_by_role("button", name="new shot", exact=True).click()
+        tools.wait_js(page, "puppetView.audio.buffer !== null", STUDIO_WAIT_S)
+        assert abs(page.evaluate("puppetView.audio.buffer.duration") - 4.0) < 0.01
+        _record(page, tools, "lines", 1, count_in="1")
+        shot = page.evaluate("puppetView.studio.shots[0].key")
+    finally:
+        assert process.stop() == 0, process.stderr()
+    ref = TakeReader(folder / "takes" / shot / "take001.mcap").metadata.sound
+    assert ref.sha256 == file_sha256(track)
+
+
 CONTROLS_JS = """(() => Array.from(document.querySelectorAll('button, input, select'))
   .filter(el => el.offsetParent !== null && el.type !== 'hidden')
   .map(el => { const box = el.getBoundingClientRect();

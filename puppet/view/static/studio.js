@@ -41,6 +41,12 @@ function renderStudio() {
     o.value = shot.key; o.textContent = shot.name; o.selected = shot.key === s.current_shot;
     return o;
   }));
+  const soundSelect = $("sound-file");
+  const chosen = s.sound ? s.sound.name : "";
+  const names = Array.from(new Set([...(s.sounds || []), ...(chosen ? [chosen] : [])]));
+  soundSelect.replaceChildren(new Option("none", ""), ...names.map(n => new Option(n, n, false, n === chosen)));
+  soundSelect.value = chosen;
+  soundSelect.disabled = state.recording.on;
   const shot = currentShot();
   if (state.selected && !selectedTake()) state.selected = null;
   const list = $("takes");
@@ -199,6 +205,7 @@ function onSelected(action, fields) {
 }
 $("review").onclick = () => { state.clip = { in_s: null, out_s: null }; onSelected("review"); };
 $("go-live").onclick = () => studioSend("live");
+$("sound-file").onchange = () => studioSend("sound", { name: $("sound-file").value });
 $("compare").onclick = () => onSelected("compare");
 $("compare-off").onclick = () => studioSend("compare_off");
 $("circle").onclick = () => { const sel = selectedTake(); if (sel) onSelected("circle", { on: !sel.take.circled }); };
@@ -236,7 +243,9 @@ function audioContext() {
   return audio.ctx;
 }
 function loadSound() {
-  if (audio.loading || !(state.studio && state.studio.sound)) return audio.loading;
+  const s = state.studio;
+  if (s && s.sound && audio.sha !== s.sound.sha256) { audio.sha = s.sound.sha256; audio.loading = null; audio.buffer = null; }
+  if (audio.loading || !(s && s.sound)) return audio.loading;
   const url = "sound" + (token ? `?token=${encodeURIComponent(token)}` : "");
   audio.loading = fetch(url).then(r => { if (!r.ok) throw new Error(`sound: ${r.status}`); return r.arrayBuffer(); })
     .then(data => audioContext().decodeAudioData(data))
