@@ -35,6 +35,10 @@ COMPARE_STEP_S = 1.0 / 15.0
 cold solve and two renders, so a playing review re-solves it at most this often."""
 SOUNDS = "sounds"
 """The session's folder of sounds to choose from on the page (put there by a person)."""
+KEY_FPS = 24.0
+"""A keyed shot's frame rate (``puppet keys``' default)."""
+KEY_STEP = 12
+"""Frames from one key to the next (``puppet keys``' default)."""
 WAVEFORM_BARS = 2000
 """The sound's waveform on the page: this many (min, max) pairs over its length."""
 REFRESH_S = 1.0
@@ -70,6 +74,8 @@ ACTIONS = {
     "compare": {"shot": _text, "take": _take},
     "compare_off": {},
     "sound": {"name": _text},
+    "keys_start": {},
+    "keys_done": {},
     "segment": {"shot": _text, "take": _take, "name": _text, "in_s": _number,
                 "out_s": _number, "loop": lambda v: isinstance(v, bool)},
     "export": {"scope": lambda v: v in ("take", "circled"),
@@ -137,6 +143,7 @@ class StudioDesk:
         self.sound = None           # the shot's sound for the page (``use_sound``)
         self.performed_to = (None, 0.0)  # (puppet.sound Sound, offset_s) the takes store
         self.sound_path: Path | None = None  # served to the page (Web Audio)
+        self.keying: Path | None = None  # the take being key-posed (a shot of keys), or None
         self._compare = None        # its Playback
         self._compare_at = None     # the play position its ghost shows (s)
         self._shown = None          # the listing the pages were last sent
@@ -204,7 +211,7 @@ class StudioDesk:
         listing = self.writer.listing()
         return {**listing, "said": self.said, "reviewing": self.reviewing,
                 "comparing": self.comparing, "sound": self.sound,
-                "sounds": self._sound_files(),
+                "sounds": self._sound_files(), "keying": self.keying is not None,
                 "export": self.export, "rig": self.rig.name}
 
     def _send(self) -> None:
@@ -287,7 +294,51 @@ class StudioDesk:
         shot = self.writer.use_shot(m["shot"])
         self._say(f"shot {shot.name!r}: the next take goes there")
 
+    def _keys_start(self, m) -> None:
+        """Key poses (``puppet keys --view``'s mode, on this page): the current shot's next take
+        is a shot of keys (Space or the key button takes the held pose), written after each
+        key; ``keys_done`` lists it."""
+        from puppet.keys.capture import KeyDesk, KeySession
+        from puppet.take.header import take_header
+
+        if self._recording.state()["on"]:
+            raise PuppetError("stop recording first to take key poses")
+        if self.keying is not None:
+            raise PuppetError("key poses are being taken already: press done first")
+        self._live(m)
+        if self.writer.current_shot is None:
+            self.writer.new_shot(self.writer._first_shot_name())
+        path = self.writer.new_take_path()
+        header = take_header(self.rig)
+        sound, offset_s = self.performed_to
+        if sound is not None:
+            from puppet.sound import sound_ref
+
+            header["sound"] = sound_ref(sound, offset_s)
+        self._key_poses.keys = KeyDesk(KeySession(path, header, fps=KEY_FPS, step=KEY_STEP))
+        self._key_poses.onion = True
+        self.keying = path
+        self._key_poses._send()
+        self._say(f"key poses for {self.writer.current_shot.name!r}: hold a pose, press Space "
+                  "(or key); done lists them as a take")
+
+    def _keys_done(self, m) -> None:
+        if self.keying is None:
+            raise PuppetError("no key poses are being taken")
+        path, self.keying = self.keying, None
+        desk, self._key_poses.keys = self._key_poses.keys, None
+        self._key_poses.onion = False
+        self._key_poses.version += 1
+        if not path.is_file():
+            self._say("no key taken: no take", ok=False)
+            return
+        take = self.writer.add_take(path)
+        keys = len(desk.session.keys.keys)
+        self._say(f"keyed {self.writer.current_shot.name} take {take.number} ({keys} keys)")
+
     def _record(self, m) -> None:
+        if self.keying is not None:
+            raise PuppetError("key poses are being taken: press done first, then record")
         self._live(m)
         self._recording.set(True, count_in_s=float(m["count_in"]))
         self._say(f"recording into {self.writer.current_shot.name!r} after a count-in of "

@@ -414,3 +414,35 @@ def test_a_first_timer_can_use_the_page(new_page, tools, tmp_path):
     run = subprocess.run([*tools.PUPPET, "studio", str(tmp_path / "other")], capture_output=True,
                          text=True, timeout=120)
     assert run.returncode == 1 and "--demo" in run.stderr and "Traceback" not in run.stderr
+
+
+def test_key_poses_are_a_mode_of_the_studio_page(new_page, tools, tmp_path):
+    from puppet.take import TakeReader
+
+    folder = tmp_path / "shoot"
+    process = _studio(tools, folder, tmp_path)
+    try:
+        page = _open(new_page, process, tools)
+        page.get_by_label("shot name").fill("poses")
+        page.get_by_role("button", name="new shot", exact=True).click()
+        _said(page, tools, "new shot 'poses'")
+        page.get_by_role("button", name="key poses", exact=True).click()
+        _said(page, tools, "key poses for 'poses'")
+        assert page.locator("#keys").is_visible()
+        assert page.get_by_role("button", name="● record", exact=True).is_disabled()
+        for n in (1, 2):
+            page.locator("#instruction").click()  # focus off any input: Space is the key
+            page.keyboard.press("Space")
+            tools.wait_js(page, f"puppetView.keys && puppetView.keys.keys.length === {n}",
+                          STUDIO_WAIT_S)
+        page.get_by_role("button", name="done keys", exact=True).click()
+        _said(page, tools, "keyed poses take 1 (2 keys)")
+        assert not page.locator("#keys").is_visible()
+        assert _takes(page, "poses")[0]["status"] == "ok"
+        _select(page, "poses", 1)
+        page.get_by_role("button", name="review", exact=True).click()
+        _said(page, tools, "reviewing poses take 1")
+    finally:
+        assert process.stop() == 0, process.stderr()
+    keys = TakeReader(folder / "takes" / "poses" / "take001.mcap").keys()
+    assert [k.frame for k in keys.keys] == [1, 13]

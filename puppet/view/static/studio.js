@@ -110,6 +110,11 @@ function renderStudio() {
   const said = $("studio-said");
   said.textContent = s.said ? s.said.text : " ";
   said.classList.toggle("refused", !!(s.said && !s.said.ok));
+  $("keys-start").disabled = !!s.keying || state.recording.on;
+  $("keys-done").disabled = !s.keying;
+  $("record").disabled = !!s.keying;
+  $("keys").hidden = !s.keying;
+  if (!s.keying) state.keys = null;
   const reviewing = !!s.reviewing;
   $("playback").hidden = !reviewing;
   $("clip-bar").hidden = !reviewing;
@@ -145,6 +150,7 @@ function showInstruction() {
   if (!s) return;
   if (r.on && r.starts_in_s > 0) text = "Count-in: get ready, recording starts at 0.";
   else if (r.on) text = "Recording: perform now; press marker to mark a moment, stop when done.";
+  else if (s.keying) text = "Key poses: hold the puppet still in a pose and press Space (or key); press done keys when the shot is posed.";
   else if (s.comparing) text = "Comparing: the magenta ghost is the other take at the same time; play or scrub to see both.";
   else if (s.reviewing) text = "Reviewing a take: play, pause, scrub and speed below; set in and out to make a clip; live goes back to the puppet.";
   else if (!currentShot()) text = "Name a shot and press new shot, then record.";
@@ -205,6 +211,8 @@ function onSelected(action, fields) {
 }
 $("review").onclick = () => { state.clip = { in_s: null, out_s: null }; onSelected("review"); };
 $("go-live").onclick = () => studioSend("live");
+$("keys-start").onclick = () => studioSend("keys_start");
+$("keys-done").onclick = () => studioSend("keys_done");
 $("sound-file").onchange = () => studioSend("sound", { name: $("sound-file").value });
 $("compare").onclick = () => onSelected("compare");
 $("compare-off").onclick = () => studioSend("compare_off");
