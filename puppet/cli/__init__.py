@@ -28,7 +28,8 @@ def _os_message(err: OSError) -> str:
     return f"{where}{err.strerror or err}"
 
 
-SIGNAL_COMMANDS = frozenset({"demo", "live", "record", "keys", "play", "view", "perform", "batch"})
+SIGNAL_COMMANDS = frozenset({"demo", "live", "record", "keys", "play", "view", "perform", "batch",
+                             "studio"})
 """Commands that stop through ``puppet.session.signals`` (a session, perform, batch): a signal
 before their handlers are set is theirs; every other command gets Python's own handlers back."""
 
@@ -79,16 +80,17 @@ def main() -> None:
       puppet rig axes creature.toml --out sheet.png       each joint turned: pick axes
       puppet calibrate --rig creature.toml --port /dev/ttyUSB0 --guided
       puppet batch session/*.mcap --out exports/ --formats gltf,usd
+      puppet studio shoot --demo           a session of shots and takes on one page
       puppet session list shoot            a studio session's shots and takes
     """
 
 
 def _register() -> None:
     from puppet.cli import (batch, blender, bus, demo, export, keys, live, perform, play, record,
-                            release, rig, session_folder, view)
+                            release, rig, session_folder, studio, view)
 
     for module in (demo, live, record, keys, play, export, batch, bus, rig, view, perform,
-                   release, blender, session_folder):
+                   release, blender, session_folder, studio):
         for command in module.COMMANDS:
             main.add_command(command)
 

@@ -38,11 +38,18 @@ from puppet.cli.common import (force_option, keys_option, keys_units_option, ope
 @click.option("--sound", "sound_path", default=None, metavar="FILE",
               help="The sound the glTF extras, USD layer data and BVH comment name (its file, "
                    "hash, rate, the take's offset); default: the take's own.")
+@click.option("--clip", nargs=2, type=float, default=None, metavar="IN OUT",
+              help="Only the segment from IN to OUT seconds of the take's play time (a "
+                   "studio clip).")
+@click.option("--loop", is_flag=True,
+              help="With --clip: a loop, its seam blended in solve space (no pop when it "
+                   "repeats).")
 @click.option("--json", "as_json", is_flag=True, help="Print the report as one JSON line.")
 @force_option
 def export(take: str, rig_path: str | None, gltf: str | None, usd: str | None, pc2: str | None,
            bvh: str | None, fps: str, up: str, space: str, keys: float | None,
-           keys_units: float | None, as_json: bool, force: bool, sound_path: str | None) -> None:
+           keys_units: float | None, as_json: bool, force: bool, sound_path: str | None,
+           clip: tuple[float, float] | None, loop: bool) -> None:
     """Export a take; frame 1 is the take's first reading in every format.
 
     An output estimated over 16 GiB (puppet.limits.EXPORT_BYTES: a long take of a dense mesh
@@ -57,6 +64,8 @@ def export(take: str, rig_path: str | None, gltf: str | None, usd: str | None, p
     from puppet.export import ExportError, Outputs, export_take
     from puppet.export.run import check_fps
 
+    if loop and clip is None:
+        raise click.UsageError("--loop is of a clip: give --clip IN OUT")
     fps_value = check_fps(fps)
     outputs = Outputs(gltf=gltf, usd=usd, pc2=pc2, bvh=bvh, force=force)
     if not outputs.items():
@@ -79,7 +88,8 @@ def export(take: str, rig_path: str | None, gltf: str | None, usd: str | None, p
 
     try:
         report = export_take(rig, reader, outputs, fps=fps_value, up=up, space=space, keys=keys,
-                             keys_units=keys_units, progress=progress, sound=sound)
+                             keys_units=keys_units, progress=progress, sound=sound,
+                             clip=None if clip is None else (clip[0], clip[1], loop))
     finally:
         if bar is not None:
             bar.__exit__(None, None, None)

@@ -227,7 +227,7 @@ def export_take(rig, reader, outputs: Outputs, *, fps: float = 30.0, up: str = "
                 meters_per_unit: float = 1.0, keys: float | None = None,
                 keys_units: float | None = None,
                 progress: Callable[[int, int], None] | None = None,
-                precompute=None, sound=None) -> ExportReport:
+                precompute=None, sound=None, clip=None) -> ExportReport:
     """Export a take (TakeReader) solved on ``rig`` into every file named in ``outputs``.
 
     fps:        output frames per second (> 0); frames by ``puppet.take.Playback``.
@@ -242,10 +242,12 @@ def export_take(rig, reader, outputs: Outputs, *, fps: float = 30.0, up: str = "
     progress:   called with (frames done, frames in all) after each frame.
     precompute: a shared ``puppet.loop.RigPrecompute`` of ``rig`` (batch), None: built here.
     sound:      a ``puppet.take.sync.SoundRef`` the files name (None: the take's own, if any).
+    clip:       (in_s, out_s, loop): only that segment of the take (``Playback.clip``; a loop
+                with its seam blended in solve space); None: the whole take.
     Raises ExportError (or the take's TakeRigMismatch) naming the file at fault.
     """
     start = time.monotonic()
-    frames = take_frames(rig, reader, fps)
+    frames = take_frames(rig, reader, fps, clip=clip)
     with ExportWriters(rig, reader, outputs, frames, up=up, space=space, influences=influences,
                        meters_per_unit=meters_per_unit, keys=keys, keys_units=keys_units,
                        sound=sound) as exports:
@@ -262,14 +264,23 @@ def export_take(rig, reader, outputs: Outputs, *, fps: float = 30.0, up: str = "
     return exports.report
 
 
-def take_frames(rig, reader, fps: float) -> Playback:
-    """The frames of a take for ``rig``'s servos (the take checked against the rig first)."""
+def take_frames(rig, reader, fps: float, clip=None) -> Playback:
+    """The frames of a take for ``rig``'s servos (the take checked against the rig first);
+    clip: (in_s, out_s, loop) of a segment, or None."""
     fps = check_fps(fps)
     ids = [int(i) for i in rig.servo_map.ids]
     if len(reader) == 0:
         raise ExportError(reader.path, "the take holds no readings")
     reader.check_rig(ids, dict(rig.servo_map.models), rig_name=rig.name)
-    return Playback.of_take(reader, ids, fps=fps, rig=rig)
+    frames = Playback.of_take(reader, ids, fps=fps, rig=rig)
+    if clip is None:
+        return frames
+    in_s, out_s, loop = clip
+
+    def joint_rotations(ticks):
+        return rig.skeleton.joint_rotations(rig.servo_map.angles(ticks.astype(np.int32)))
+
+    return frames.clip(in_s, out_s, loop=loop, joint_rotations=joint_rotations)
 
 
 PC2_HEADER_BYTES = 32

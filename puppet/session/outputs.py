@@ -360,13 +360,7 @@ class View(Output):
             factory = lambda path: open_take_writer(path, rig)  # noqa: E731
         self.view = LiveView(self.address, mode=self.mode, take_factory=factory,
                              takes_dir=self.takes_dir, keys=self.keys)  # errors name --view
-        logger = logging.getLogger("puppet.view")
-        if not logger.handlers:
-            handler = logging.StreamHandler()
-            handler.setFormatter(_ViewLogFormat())
-            logger.addHandler(handler)
-            logger.setLevel(logging.INFO)
-            logger.propagate = False
+        _view_log()
         self.tell(f"view: {self.view.url}")
 
     def open(self, run) -> None:
@@ -379,6 +373,77 @@ class View(Output):
             self.view = None
             self.handles = len(view.handles())
             view.close()
+
+
+class Studio(View):
+    """The studio page (``puppet studio SESSION``): the live view with the session folder's
+    shots and takes (puppet.view.studio_desk). At check the session folder is opened by its
+    one writer (made if new; its lock taken: a second studio is refused naming the first; a
+    damaged index rebuilt, said), before any servo is touched. The page's record button makes
+    take N of the current shot with the session's take recorder (``_TakeFromZero``: after the
+    page's count-in, with the Sound output's reference). The session's source must be a
+    ``puppet.session.sources.Switchable`` (review plays a take in its place)."""
+
+    def __init__(self, folder, address: str | None, rig, *, tell=print) -> None:
+        super().__init__(address, mode="live", rig=rig, tell=tell)
+        self.folder = Path(folder)
+        self.writer = None
+
+    def check(self, inputs) -> None:
+        from puppet.studio import SessionWriter
+        from puppet.view import View as LiveView
+        from puppet.view.studio_desk import StudioDesk
+
+        self.writer = SessionWriter.open(self.folder)
+        try:
+            for note in self.writer.notes:
+                self.tell(f"session: {note}")
+            self.desk = StudioDesk(self.writer, self.rig, open_take=self._open_take,
+                                   tell=self.tell)
+            self.view = LiveView(self.address, mode=self.mode, studio=self.desk)
+        except BaseException:
+            self.writer.close()
+            self.writer = None
+            raise
+        _view_log()
+        self.tell(f"studio: session {self.folder}")
+        self.tell(f"view: {self.view.url}")
+
+    def open(self, run) -> None:
+        sound = next((o for o in run.outputs if isinstance(o, Sound)), None)
+        if sound is not None:  # the shot's sound until the page chooses another
+            self.desk.use_sound(sound.sound, sound.offset_s)
+        self._fps = run.video_fps
+        self.view.attach(run.pipeline, source=run.source.reading_source)
+
+    def _open_take(self, path, zero_ns: int) -> "_TakeFromZero":
+        """The session's take recorder for a take of the page, its time 0 at ``zero_ns``, with
+        the sound the page uses now (``StudioDesk.performed_to``)."""
+        sound, offset_s = self.desk.performed_to
+        return _TakeFromZero(path, self.rig, force=False, zero_ns=zero_ns, from_ns=zero_ns,
+                             sound=sound, sound_offset_s=offset_s, timecode_fps=self._fps)
+
+    def close(self) -> None:
+        try:
+            super().close()
+        finally:
+            if self.writer is not None:
+                writer, self.writer = self.writer, None
+                writer.close()
+
+    def report(self) -> dict:
+        return {"session": str(self.folder)}
+
+
+def _view_log() -> None:
+    """The view's log lines on stderr, once."""
+    logger = logging.getLogger("puppet.view")
+    if not logger.handlers:
+        handler = logging.StreamHandler()
+        handler.setFormatter(_ViewLogFormat())
+        logger.addHandler(handler)
+        logger.setLevel(logging.INFO)
+        logger.propagate = False
 
 
 class _ViewLogFormat(logging.Formatter):

@@ -215,3 +215,103 @@ class TakeFrames(_Ready):
             self.take_s = k / self.fps
             self.shown_ns = time.monotonic_ns()
             yield reading
+
+
+class Switchable:
+    """A live source (``bus``: a BusSource or SimulatedBus) whose readings the studio can swap
+    for a take's (``puppet studio``: review without leaving the page). Its ``reading_source``
+    hands the loop the bus's readings, or, after ``review(playback)``, those of a TakeSource on
+    the wall clock (the bus reader's ring runs on; what it read meanwhile is dropped when
+    ``live()`` goes back).
+    Playback controls (pause, play, seek, set_speed, state) are the take's, refused when live."""
+
+    kind = LIVE
+
+    def __init__(self, bus) -> None:
+        self.bus = bus
+        self.reading_source = None
+
+    @property
+    def rate_hz(self):
+        return self.bus.rate_hz
+
+    def begin(self, hooks=()) -> None:
+        if list(hooks):
+            raise PuppetError("the studio drives no actuators (use `puppet live` for a rig "
+                              "with actuator servos)")
+        self.bus.begin()
+        self.reading_source = SwitchedReadings(self.bus.reading_source)
+
+    def ready(self, tell=None):
+        return self.bus.ready(tell)
+
+    def stop(self) -> None:
+        self.bus.stop()
+
+
+class SwitchedReadings:
+    """The loop's reading source of a Switchable (drain, latest, log): the bus's reader or a
+    take's TakeSource; switched from any thread (``review``, ``live``)."""
+
+    def __init__(self, reader) -> None:
+        self._reader = reader
+        self._take = None  # a puppet.view.TakeSource while reviewing
+
+    @property
+    def log(self):
+        return self._reader.log
+
+    @property
+    def reviewing(self) -> bool:
+        return self._take is not None
+
+    def review(self, playback, *, markers=()) -> None:
+        """Show ``playback`` (a puppet.take.Playback) on the wall clock, from its start, paused."""
+        from puppet.view import TakeSource
+
+        take = TakeSource(playback, markers=markers)
+        take.pause()
+        self._take = take
+
+    def live(self) -> None:
+        if self._take is not None:
+            self._take = None
+            self._reader.drain()  # the readings of the review: not the puppet's now
+
+    def drain(self):
+        readings = self._reader.drain()
+        return readings if self._take is None else []
+
+    def latest(self, timeout=1.0):
+        take = self._take
+        if take is None:
+            return self._reader.latest(timeout)
+        return take.latest(timeout)
+
+    def _playing(self):
+        take = self._take
+        if take is None:
+            raise PuppetError("playback controls need a take: choose one in the list (review)")
+        return take
+
+    def pause(self) -> None:
+        self._playing().pause()
+
+    def play(self) -> None:
+        self._playing().play()
+
+    def seek(self, seconds: float) -> None:
+        self._playing().seek(seconds)
+
+    def set_speed(self, factor: float) -> None:
+        self._playing().set_speed(factor)
+
+    def state(self):
+        take = self._take
+        return None if take is None else take.state()
+
+    @property
+    def position_s(self) -> float | None:
+        """The take's play position (s), None when live."""
+        take = self._take
+        return None if take is None else take.position_s

@@ -26,6 +26,14 @@ the key's rule (``puppet.take.inbetween``): the sensed joints' constraints of th
 which the FAST solve fills in the free bones. Ticks between keys are interpolated linearly (held
 after a "step" key): they are what servos are driven to (``perform``), not what the solve uses.
 At the shot's fps and speed 1 frame f is shot frame f + 1, so the frames are the last key's frame.
+
+Clips. ``clip(in_s, out_s)`` is the frames of play times [in_s, out_s] by the same rule (the
+take sampled at both ends). A clip played as a loop (``loop=True``, with the rig's
+``joint_rotations``) has its seam blended in solve space: each frame carries its joints'
+rotations (``Reading.rotations``: the solve is posed from them), and over the clip's last
+``loop_blend_s`` (at most half the clip) the rotations are turned, by a smoothstep share of the
+seam's rotation per joint, so that the frame after the last would be the first: the jump from the
+last frame back to the first is about one frame's motion, not the pose's difference.
 """
 
 from __future__ import annotations
@@ -43,6 +51,8 @@ from puppet.take.errors import TakeError
 MAX_GAP_S = 1.0
 """Longest gap between two readings played as recorded, seconds; a longer one plays as this."""
 MAX_GAP_NS = int(MAX_GAP_S * 1e9)
+LOOP_BLEND_S = 0.5
+"""How long before a looping clip's end its seam is blended, seconds (at most half the clip)."""
 ROTATION_BLOCK = 256
 """A shot's frames' joint rotations are interpolated this many frames at a time."""
 
@@ -130,7 +140,9 @@ class Playback:
 
     def __init__(self, t_ns, ticks, ok, ids, *, fps: float = 30.0, speed: float = 1.0,
                  source="take", interpolation=None, joint_rotations=None,
-                 ticks_per_turn=TICKS_PER_TURN):
+                 ticks_per_turn=TICKS_PER_TURN, loop: bool = False,
+                 loop_blend_s: float = LOOP_BLEND_S):
+        self.source = source
         self.fps = check_rate(fps, "frames per second", source)
         self.speed = check_rate(speed, "speed", source, SPEED)
         t = np.asarray(t_ns, np.int64)
@@ -178,6 +190,13 @@ class Playback:
         self._part = np.empty(k, np.float64)
         self._inbetweens = None
         self.layer_notes: list[str] = []
+        self._loop_rot = None  # (N, b, 3, 3) a looping clip's frames' blended rotations
+        self.loop = bool(loop)
+        if self.loop:
+            if joint_rotations is None or self.interpolation is not None:
+                raise TakeError(source, "a loop needs the rig's joint rotations (a take, not "
+                                        "a shot)")
+            self._loop_rot = self._blended_loop(joint_rotations, loop_blend_s)
         if self.interpolation is not None and joint_rotations is not None:
             from puppet.take.inbetween import Inbetweens
 
@@ -185,6 +204,62 @@ class Playback:
             self._inbetweens = Inbetweens(self.play_ns, key_rot, self.interpolation)
             self._block_start = 0  # frames [start, start + ROTATION_BLOCK) interpolated ahead
             self._block = None
+
+    def _blended_loop(self, joint_rotations, blend_s: float) -> np.ndarray:
+        """(N, b, 3, 3) every frame's joint rotations, the last ``blend_s`` turned toward the
+        first frame (the module docstring): R'_f = slerp(I, D, w_f) R_f per joint, D = R_0 R_N^T
+        with R_N the frame after the last (R_{N-1} moved on by the last frame's motion) and
+        w_f a smoothstep from 0 (blend start) to 1 (at frame N)."""
+        from scipy.spatial.transform import Rotation
+
+        n = self._count
+        k = len(self.ids)
+        ticks, ok = np.empty(k, np.int32), np.empty(k, bool)
+        rot = []
+        for f in range(n):
+            self.sample(self.frame_ns(f), ticks, ok)
+            rot.append(np.array(joint_rotations(ticks), np.float64))
+        rot = np.stack(rot)  # (N, b, 3, 3)
+        if n < 3:
+            return rot
+        b = rot.shape[1]
+        step = np.einsum("bij,bkj->bik", rot[-1], rot[-2])           # R_{N-1} R_{N-2}^T
+        after = np.einsum("bij,bjk->bik", step, rot[-1])              # R_N
+        seam = np.einsum("bij,bkj->bik", rot[0], after)               # D = R_0 R_N^T
+        frames = max(2, min(int(round(blend_s * self.fps / self.speed)), n // 2))
+        start = n - frames  # frame N has w = 1; frame start has w = 0
+        d = Rotation.from_matrix(seam)
+        for f in range(start, n):
+            x = (f - start) / frames
+            w = x * x * (3.0 - 2.0 * x)
+            turn = Rotation.from_rotvec(d.as_rotvec() * w).as_matrix()  # slerp(I, D, w)
+            rot[f] = np.einsum("bij,bjk->bik", turn, rot[f])
+        return np.ascontiguousarray(rot.reshape(n, b, 3, 3))
+
+    def clip(self, in_s: float, out_s: float, *, loop: bool = False, joint_rotations=None,
+             loop_blend_s: float = LOOP_BLEND_S) -> "Playback":
+        """The frames of play times [in_s, out_s] (a segment), by this rule; ``loop``: its seam
+        blended in solve space (needs the rig's ``joint_rotations(ticks) -> (b, 3, 3)``)."""
+        if self.interpolation is not None:
+            raise TakeError(self.source, "a clip is of a take, not of a shot's keys")
+        in_ns = int(round(min(max(in_s, 0.0), self.duration_s) * 1e9))
+        out_ns = int(round(min(max(out_s, 0.0), self.duration_s) * 1e9))
+        if out_ns <= in_ns:
+            raise TakeError(self.source, f"clip {in_s:g}-{out_s:g} s: the out point must come "
+                                         f"after the in point, within {self.duration_s:.3f} s")
+        k = len(self.ids)
+        ends = []
+        for at in (in_ns, out_ns):
+            ticks, ok = np.empty(k, np.int32), np.empty(k, bool)
+            self.sample(at, ticks, ok)
+            ends.append((ticks, ok))
+        inside = np.flatnonzero((self.play_ns > in_ns) & (self.play_ns < out_ns))
+        t = np.concatenate([[in_ns], self.play_ns[inside], [out_ns]]) + self.t_first_ns
+        ticks = np.vstack([ends[0][0], self.ticks[inside], ends[1][0]])
+        ok = np.vstack([ends[0][1], self.ok[inside], ends[1][1]])
+        return Playback(t, ticks, ok, self.ids, fps=self.fps, speed=self.speed,
+                        source=self.source, ticks_per_turn=self._turn, loop=loop,
+                        joint_rotations=joint_rotations, loop_blend_s=loop_blend_s)
 
     @classmethod
     def of_take(cls, reader, ids, *, fps: float = 30.0, speed: float = 1.0,
@@ -292,12 +367,16 @@ class Playback:
         that play time."""
         play_ns = int(round(seconds * 1e9))
         rotations = None if self._inbetweens is None else self._inbetweens.at([play_ns])[0]
+        if self._loop_rot is not None:  # the nearest frame's blended rotations
+            rotations = self._loop_rot[min(int(round(play_ns / self._step_ns)), self._count - 1)]
         return self._reading(play_ns, rotations)
 
     def reading(self, f: int) -> Reading:
         """Frame f (0-based) as a Reading."""
         if not 0 <= f < self._count:
             raise IndexError(f"frame {f} of {self._count}")
+        if self._loop_rot is not None:
+            return self._reading(self.frame_ns(f), self._loop_rot[f])
         return self._reading(self.frame_ns(f),
                              None if self._inbetweens is None else self._frame_rotations(f))
 

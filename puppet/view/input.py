@@ -11,10 +11,11 @@ from puppet.errors import PuppetError
 class PageInput:
     """commands: the deque of (client, message) the server thread appends to; the parts:
     cameras (Cameras), handle_desk (HandleDesk), recording (Recording), playback (Playback),
-    key_poses (KeyPoses), frames (ViewFrames: the overlay), server (the ViewServer)."""
+    key_poses (KeyPoses), frames (ViewFrames: the overlay), server (the ViewServer), studio
+    (StudioDesk, or None: studio input is refused)."""
 
     def __init__(self, commands: deque, *, cameras, handle_desk, recording, playback, key_poses, frames,
-                 server):
+                 server, studio=None):
         self._commands = commands
         self._cameras = cameras
         self._handles = handle_desk
@@ -23,6 +24,7 @@ class PageInput:
         self._key_poses = key_poses
         self._frames = frames
         self._server = server
+        self._studio = studio
 
     def apply(self, pipeline) -> None:
         """Apply the page input that arrived since the last frame (loop thread, before solving).
@@ -93,5 +95,9 @@ class PageInput:
             self._recording.mark(msg["name"])
         elif kind == "playback":
             self._playback.control(msg["action"], msg["value"])
+        elif kind == "studio":
+            if self._studio is None:
+                raise PuppetError("the studio's controls need `puppet studio SESSION`")
+            self._studio.input(client, msg)
         elif kind in ("key", "key_edit", "retime", "onion", "playhead"):
             self._key_poses.input(client, kind, msg)

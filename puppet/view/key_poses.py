@@ -15,9 +15,11 @@ class KeyPoses:
     lands); ``version``: counts changes of what the onion skins show.
     """
 
-    def __init__(self, keys):
+    def __init__(self, keys, *, ghosts: bool = False):
         self.keys = keys
         self.onion = keys is not None
+        self.ghosts = ghosts or keys is not None  # onion skins drawn (keys, or the studio's compare)
+        self.compare_pose = None  # a Reading shown as the compared take's ghost (studio)
         self.playhead: int | None = None
         self.version = 0
         self._said = None         # the last key command's outcome: (taken, words)
@@ -30,7 +32,7 @@ class KeyPoses:
         self._server = server
         self._renderer = renderer
         self._picker = picker
-        if self.keys is not None:
+        if self.ghosts:
             from puppet.view.onion import OnionSkins
 
             self._skins = OnionSkins(rig, width, height)
@@ -38,7 +40,18 @@ class KeyPoses:
     @property
     def shown(self) -> bool:
         """True when the frames get onion skins."""
-        return self.onion and self._skins is not None
+        return self._skins is not None and (self.compare_pose is not None
+                                            or (self.onion and self.keys is not None))
+
+    def compare(self, reading) -> None:
+        """Show ``reading`` (another take at the reviewed take's play position) as a ghost over
+        the frames; None: no compare ghost (loop thread)."""
+        if reading is None and self.compare_pose is None:
+            return
+        self.compare_pose = reading
+        self.version += 1
+        if self._skins is not None and reading is not None:
+            self._skins.forget([reading])
 
     def state(self) -> dict | None:
         """The shot's keys for the page's timeline and its key controls (None: no keys)."""
@@ -107,7 +120,13 @@ class KeyPoses:
         from puppet.view.onion import NEXT_RGB, PREVIOUS_RGB, neighbours, pose_id
 
         onion = self._skins
-        if self._ghosts[0] != self.version:  # once per change: solved, cached by pose
+        if self._ghosts[0] != self.version and self.compare_pose is not None:
+            from puppet.view.onion import COMPARE_RGB
+
+            pose = self.compare_pose
+            self._ghosts = (self.version, (pose_id(pose), COMPARE_RGB),
+                            [(onion.ghost_T(pose), COMPARE_RGB)])
+        elif self._ghosts[0] != self.version:  # once per change: solved, cached by pose
             state = self.state()
             previous, following = neighbours(self.keys.session.keys.keys, state["playhead"])
             chosen = [(key, rgb) for key, rgb in ((previous, PREVIOUS_RGB), (following, NEXT_RGB))

@@ -15,8 +15,14 @@ import numpy as np
 
 from puppet.reading import Reading
 
-PREVIOUS_RGB = (70.0, 130.0, 255.0)   # the previous key's tint (blue)
-NEXT_RGB = (60.0, 220.0, 120.0)       # the next key's tint (green)
+# Ghost tints, none of the bone legend's colours (puppet.render.BONE_STATE_COLORS: green, blue,
+# grey, red, yellow), each named in the page's ghost legend (GHOST_LEGEND).
+PREVIOUS_RGB = (150.0, 80.0, 255.0)   # the previous key's tint (violet)
+NEXT_RGB = (255.0, 140.0, 0.0)        # the next key's tint (orange)
+COMPARE_RGB = (255.0, 60.0, 220.0)    # another take compared with the one reviewed (magenta)
+GHOST_LEGEND = [{"what": "previous key", "color": "#9650ff"},
+                {"what": "next key", "color": "#ff8c00"},
+                {"what": "compared take", "color": "#ff3cdc"}]
 GHOST_ALPHA = 0.45                    # a ghost's body over the frame
 EDGE_ALPHA = 0.9                      # its outline
 TINT = 0.6                            # tint's share of a ghost's colour (the rest: its shading)

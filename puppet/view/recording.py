@@ -16,10 +16,14 @@ class Recording:
     """take_factory: path -> an open BackgroundTakeWriter (None: the button is refused);
     takes_dir: folder of the page's takes; cli_recorder: the command's own writer or None;
     server: the ViewServer told of every change; lock: guards ``markers`` (read by snapshots);
-    t0: monotonic time [s] the marks' times count from."""
+    t0: monotonic time [s] the marks' times count from; slate: the studio
+    (``puppet.view.studio_desk.StudioDesk``: ``new_take(count_in_s)`` -> (path, recorder),
+    ``recorded(path)``) or None: takes go to ``takes_dir``."""
 
-    def __init__(self, take_factory, takes_dir: Path, cli_recorder, server, lock, t0: float):
+    def __init__(self, take_factory, takes_dir: Path, cli_recorder, server, lock, t0: float,
+                 slate=None):
         self.take_factory = take_factory
+        self._slate = slate
         self.takes_dir = Path(takes_dir)
         self._cli_recorder = cli_recorder
         self._server = server
@@ -32,12 +36,19 @@ class Recording:
 
     def state(self) -> dict:
         rec = self._recorder
+        zero_ns = getattr(rec, "zero_ns", None)  # a count-in's end (the studio's takes)
+        starts_in = None if zero_ns is None else max(0.0, (zero_ns - time.monotonic_ns()) / 1e9)
         return {"on": rec is not None, "path": str(self._path) if self._path else None,
-                "readings": rec.writer.count if rec is not None else None}
+                "readings": rec.writer.count if rec is not None else None,
+                "starts_in_s": None if starts_in is None else round(starts_in, 3)}
 
-    def set(self, on: bool) -> None:
-        """Start (a new take-STAMP.mcap, never over an existing file) or stop recording."""
-        if on and self._recorder is None:
+    def set(self, on: bool, count_in_s: float = 0.0) -> None:
+        """Start (a new take-STAMP.mcap, never over an existing file; the studio's: its shot's
+        next take, after ``count_in_s``) or stop recording."""
+        if on and self._recorder is None and self._slate is not None:
+            self._path, self._recorder = self._slate.new_take(count_in_s)
+            log.warning("view: recording %s", self._path)
+        elif on and self._recorder is None:
             if self.take_factory is None:
                 raise PuppetError("recording is not available in this mode")
             self.takes_dir.mkdir(parents=True, exist_ok=True)
@@ -87,5 +98,8 @@ class Recording:
         """Close the page's take (complete), if one is open."""
         if self._recorder is not None:
             recorder, self._recorder = self._recorder, None
+            count = recorder.writer.count
             recorder.close()
-            log.warning("view: recorded %s (%d readings)", self._path, recorder.writer.count)
+            log.warning("view: recorded %s (%d readings)", self._path, count)
+            if self._slate is not None:
+                self._slate.recorded(self._path)

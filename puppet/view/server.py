@@ -188,6 +188,7 @@ class ViewServer:
         app.router.add_get("/", self._index)
         app.router.add_get("/static/{name}", self._file)
         app.router.add_get("/favicon.ico", self._no_icon)
+        app.router.add_get("/sound", self._sound)
         app.router.add_get("/ws/frames", self._frames_socket)
         app.router.add_get("/ws/control", self._control_socket)
         self._runner = web.AppRunner(app, access_log=None, handle_signals=False, shutdown_timeout=1.0)
@@ -272,6 +273,16 @@ class ViewServer:
 
     async def _no_icon(self, request: web.Request) -> web.Response:
         return web.Response(status=204)
+
+    async def _sound(self, request: web.Request) -> web.StreamResponse:
+        """The studio's sound file as it is (the page decodes and plays it: Web Audio); 404
+        when there is none."""
+        studio = getattr(self.view, "studio", None)
+        path = getattr(studio, "sound_path", None)
+        if path is None:
+            return web.Response(status=404, text="no sound\n")
+        return web.FileResponse(path, headers={"Cache-Control": "no-store",
+                                               "X-Content-Type-Options": "nosniff"})
 
     async def _file(self, request: web.Request) -> web.Response:
         item = self._static.get(request.match_info["name"])
@@ -627,6 +638,7 @@ INPUTS = {
                "frame": lambda v: _whole(v) and 1 <= v <= MAX_FRAME},
     "onion": {"on": lambda v: isinstance(v, bool)},
     "playhead": {"frame": lambda v: _whole(v) and 1 <= v <= MAX_FRAME},
+    "studio": {"action": lambda v: isinstance(v, str) and len(v) <= 20},  # its fields: StudioDesk
 }
 
 

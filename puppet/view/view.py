@@ -29,6 +29,7 @@ from puppet.view.frames import ViewFrames
 from puppet.view.handle_desk import HandleDesk
 from puppet.view.input import PageInput
 from puppet.view.key_poses import KeyPoses
+from puppet.view.onion import GHOST_LEGEND
 from puppet.view.panel import Panel, bone_legend
 from puppet.view.playback import Playback
 from puppet.view.recording import Recording
@@ -56,10 +57,14 @@ class View:
     drags), ``recording`` (Recording: the record button and marks), ``playback`` (Playback),
     ``key_poses`` (KeyPoses: keys and onion skins), the panel (Panel) and the page input
     (PageInput, which routes each message to its part).
+
+    studio:       a ``puppet.view.studio_desk.StudioDesk`` (``puppet studio``): the session's
+                  shots and takes on the page; the record button records its takes (count-in)
+                  and the source is the studio's switchable one (review); None: no studio.
     """
 
     def __init__(self, address: str | None = None, *, mode: str = "live", take_factory=None,
-                 takes_dir=".", max_fps: float = 40.0, keys=None):
+                 takes_dir=".", max_fps: float = 40.0, keys=None, studio=None):
         if mode not in MODES:
             raise ValueError(f"mode: {mode!r} is not one of {MODES}")
         host, port = parse_address(address, option="--view", default_port=DEFAULT_PORT)
@@ -72,7 +77,8 @@ class View:
         self.takes_dir = Path(takes_dir)
         self.max_fps = float(max_fps)
         self.keys = keys
-        self.key_poses = KeyPoses(keys)
+        self.studio = studio
+        self.key_poses = KeyPoses(keys, ghosts=studio is not None)
         self.server: ViewServer | None = None
         self.refactor_ms: list[float] = []
         self._commands: deque = deque()
@@ -106,13 +112,16 @@ class View:
                                  overlay=bool(pipeline.overlay), max_fps=self.max_fps, publish=self._publish)
         self.handle_desk = HandleDesk(rig.F, self._picker, self.cameras, server, self.frames.seen,
                                       self.refactor_ms)
-        self.recording = Recording(self.take_factory, self.takes_dir, recorder, server, self._lock, t0)
+        self.recording = Recording(self.take_factory, self.takes_dir, recorder, server, self._lock, t0,
+                                   slate=self.studio)
+        if self.studio is not None:
+            self.studio.attach(server, source, self.recording, self.key_poses)
         self.playback = Playback(source)
         self._panel = Panel(self._servo_ids, self._bone_names, width, height, self._picker.view_proj,
                             server, self._lock, t0)
         self._input = PageInput(self._commands, cameras=self.cameras, handle_desk=self.handle_desk,
                                 recording=self.recording, playback=self.playback, key_poses=self.key_poses,
-                                frames=self.frames, server=server)
+                                frames=self.frames, server=server, studio=self.studio)
         server.start()
         self._attached = True
 
@@ -135,9 +144,10 @@ class View:
                 "servos": [{"id": i, "joint": j} for i, j in zip(self._servo_ids, self._servo_joints)],
                 "bones": self._bone_names, "handles": handles, "faults": faults,
                 "markers": markers, "overlay": self.frames.overlay, "recording": self.recording.state(),
-                "legend": bone_legend(),
+                "legend": bone_legend(), "ghost_legend": GHOST_LEGEND,
                 "panel": panel, "playback": self.playback.state(),
-                "keys": self.key_poses.state()}
+                "keys": self.key_poses.state(),
+                "studio": self.studio.state() if self.studio is not None else None}
 
     def panel(self, camera: int) -> dict:
         """The newest panel, with the handles and bones as seen by ``camera``."""
@@ -161,6 +171,9 @@ class View:
         if log_source is not None:
             self._panel.take_events(log_source)
         self.key_poses.feed(batch)
+        if self.studio is not None:
+            self.studio.follow()
+            self.studio.refresh(now)
         if self._panel.due(now):
             self._panel.update(pipeline, reading, now, frames=self.frames.seq,
                                drops=self.frames.encoder.dropped + self.server.drops,
@@ -196,6 +209,8 @@ class View:
         try:
             if self._attached:
                 self.recording.close()
+            if self.studio is not None:
+                self.studio.close()
         finally:
             if self._attached:
                 self.frames.close()

@@ -123,6 +123,14 @@ const handlers = {
     $("record").disabled = m.mode !== "live";  // a take of the rest pose or of a take: nothing new
     if (m.panel && m.panel.servos) handlers.panel(m.panel);
     $("keys").hidden = !m.keys;
+    if (m.keys && m.ghost_legend) {  // the onion skins' colours, beside the bone legend
+      $("onion-legend").replaceChildren(...m.ghost_legend.filter(g => g.what.endsWith("key")).map(g => {
+        const li = document.createElement("li"), swatch = document.createElement("span");
+        swatch.className = "swatch"; swatch.style.background = g.color;
+        li.append(swatch, document.createTextNode(g.what)); return li;
+      }));
+      $("onion-legend").hidden = false;
+    }
     if (m.keys) handlers.keys(m.keys);
   },
   keys(m) {
