@@ -225,7 +225,7 @@ def test_every_using_it_command_runs_as_written(tmp_path, interrupt_and_wait):
                 port = port_for(line, ports, latest_port)
                 argv = [port if a == PORT_PLACEHOLDER else a for a in argv]
             outputs = [argv[k + 1] for k, a in enumerate(argv[:-1]) if a in OUTPUT_OPTIONS]
-            if "--view" in argv or argv[:2] == ["puppet", "view"]:  # serves until Ctrl-C
+            if "--view" in argv or argv[:2] in (["puppet", "view"], ["puppet", "studio"]):  # serves until Ctrl-C
                 take = option(argv, "--record")
                 run = Background(argv, tmp_path, interrupt_and_wait)
                 url = view_url(run, line)
