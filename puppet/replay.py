@@ -126,12 +126,13 @@ def open_take(take, rig: Rig | str | Path | None) -> tuple[Rig, TakeReader]:
 def play_take(rig: Rig, reader: TakeReader, sinks: Iterable, *, fps: float = 30.0,
               speed: float = 1.0, antialias: str = "msaa", size: tuple[int, int] = (640, 480),
               precompute=None, progress: Callable[[int, int], None] | None = None,
-              should_stop: Callable[[], bool] = lambda: False, frames=None, solved: Iterable = ()):
+              should_stop: Callable[[], bool] = lambda: False, frames=None, solved: Iterable = (),
+              layers=None):
     """Solve and render every frame of a take into ``sinks`` (objects with ``write(image)``).
 
     fps: frames per second of the output; speed: playback speed factor; the frames are
     ``puppet.take.Playback``'s (``frames``: one made earlier, e.g. shared with exports; None:
-    made here from fps and speed). size: (width, height) pixels; precompute: a shared
+    made here from fps, speed and ``layers``, a layered take's ``LayerOptions``). size: (width, height) pixels; precompute: a shared
     ``RigPrecompute`` of ``rig`` (None: built here). solved: more per-frame sinks of the solve,
     objects with ``write(pipeline)`` called after each frame's solve (batch's
     ``puppet.export.ExportWriters``: one solve for the video and every export). progress:
@@ -142,7 +143,8 @@ def play_take(rig: Rig, reader: TakeReader, sinks: Iterable, *, fps: float = 30.
     from puppet.take import Playback
 
     if frames is None:
-        frames = Playback.of_take(reader, rig.servo_map.ids, fps=fps, speed=speed, rig=rig)
+        frames = Playback.of_take(reader, rig.servo_map.ids, fps=fps, speed=speed, rig=rig,
+                                  layers=layers)
     solved = list(solved)
     with Pipeline(rig, overlay=True, antialias=antialias, width=size[0], height=size[1],
                   precompute=precompute) as pipeline:

@@ -34,7 +34,8 @@ MANIFEST_VERSION = 1
 def shaping_settings(settings) -> dict:
     """The settings (``task.Settings``) that shape the asked formats' bytes: fps always; up and
     space for PC2; keys and keys_units for glTF; size and antialias for the video. A setting no
-    asked format uses is left out (changing --size does not redo a batch of exports)."""
+    asked format uses is left out (changing --size does not redo a batch of exports); a layered
+    take's --mute/--solo/--punch (None, as a manifest without it reads: every stack as recorded)."""
     formats = settings.formats
     shaping: dict = {"fps": float(settings.fps)}
     if "pc2" in formats:
@@ -46,6 +47,7 @@ def shaping_settings(settings) -> dict:
     if "mp4" in formats:
         shaping["size"] = [int(settings.size[0]), int(settings.size[1])]
         shaping["antialias"] = settings.antialias
+    shaping["layers"] = None if settings.layers is None else settings.layers.as_dict()
     return shaping
 
 

@@ -171,7 +171,7 @@ def run_batch(takes: list[str], out: str | os.PathLike, *, rig: Rig | None = Non
               force: bool = False, retries: int | None = None,
               take_timeout: float | None = None, on_start: Callable[[int], None] | None = None,
               on_result: Callable[[TakeResult], None] | None = None,
-              base: Path | None = None) -> BatchReport:
+              base: Path | None = None, layers=None) -> BatchReport:
     """Solve and write every take; see the module docstring for the order of checks.
 
     takes: files, folders or glob patterns; out: the output folder (created); rig: the rig
@@ -187,7 +187,8 @@ def run_batch(takes: list[str], out: str | os.PathLike, *, rig: Rig | None = Non
     what would be done and why (rows "to do", "skipped", "failed"), writing nothing.
     on_start(number of takes to run) and on_result(row) as each ends drive the progress.
     base: the folder every take's outputs mirror below (a session's takes/ folder; default:
-    each argument's, ``plan.expand_takes``).
+    each argument's, ``plan.expand_takes``). layers: a layered take's ``LayerOptions``
+    (--mute/--solo/--punch, not strict: a take whose stack has none of them plays as recorded).
     SIGINT or SIGTERM (on the main thread) stops every worker, removes the staging folders and
     raises cancel.BatchCancelled with the report so far (takes not finished: cancelled).
     """
@@ -209,7 +210,7 @@ def run_batch(takes: list[str], out: str | os.PathLike, *, rig: Rig | None = Non
     report = BatchReport(engine=engine, workers=workers or getattr(runner, "workers", None),
                          out=str(folder), dry_run=dry_run)
     settings = Settings(formats=formats, fps=fps, up=up, space=space, size=size, keys=keys,
-                        keys_units=keys_units)
+                        keys_units=keys_units, layers=layers)
     finder = RigFinder(rig)
     jobs, rows, made = _decide(jobs, finder, shaping_settings(settings), resume)
     inputs = _refuse_rig_files(jobs, rows, finder, inputs, force)

@@ -24,6 +24,7 @@ from puppet.batch.row import TakeResult
 from puppet.errors import PuppetError
 from puppet.loop import RigPrecompute
 from puppet.rig import Rig
+from puppet.take.layers import LayerOptions
 
 EXPORT_FORMATS = ("gltf", "usd", "pc2", "bvh")
 
@@ -34,7 +35,8 @@ class Settings:
     output; up: PC2 up axis ('y' or 'z'); size: (width, height) pixels of the mp4; antialias:
     as ``puppet play --antialias`` (msaa by default, offline quality); space: the PC2's points'
     space as ``puppet export --space``; keys, keys_units: glTF key reduction as ``puppet export
-    --keys/--keys-units`` (None: a key on every frame)."""
+    --keys/--keys-units`` (None: a key on every frame); layers: a layered take's
+    ``LayerOptions`` as ``--mute/--solo/--punch`` (None: every stack as recorded)."""
 
     formats: tuple[str, ...]
     fps: float = 30.0
@@ -44,6 +46,7 @@ class Settings:
     antialias: str = "msaa"
     keys: float | None = None
     keys_units: float | None = None
+    layers: LayerOptions | None = None
 
 
 @dataclass
@@ -176,11 +179,11 @@ def run_take(job: Job, shared: Shared, staging: Path) -> TakeResult:
             report = export_take(rig, reader, exports, fps=settings.fps, up=settings.up,
                                  space=settings.space, keys=settings.keys,
                                  keys_units=settings.keys_units,
-                                 precompute=precompute)
+                                 precompute=precompute, layers=settings.layers)
             result.frames = report.frames
             result.add_report(report)
         else:  # one solve of every frame: the video and every export from the same T
-            frames = take_frames(rig, reader, settings.fps)
+            frames = take_frames(rig, reader, settings.fps, layers=settings.layers)
             with contextlib.ExitStack() as stack:
                 writers = [stack.enter_context(ExportWriters(
                     rig, reader, exports, frames, up=settings.up, space=settings.space,

@@ -8,8 +8,8 @@ import sys
 import click
 
 from puppet import limits
-from puppet.cli.common import (InRange, force_option, keys_option, keys_units_option, load_rig,
-                               rig_files, space_option)
+from puppet.cli.common import (InRange, force_option, keys_option, keys_units_option,
+                               layer_options, load_rig, rig_files, space_option)
 
 EXIT_DONE = 0       # every take done (or up to date with --resume)
 EXIT_SETUP = 1      # nothing done: a setup error (`Error: ...`: an option, the takes, --out, Ray)
@@ -65,6 +65,7 @@ EXIT_FAILED = 3     # some takes failed or timed out (their rows say why); the o
                    "take's row says why.")
 @click.option("--dry-run", is_flag=True,
               help="Print what would be done for each take and why; write nothing.")
+@layer_options(strict=False)
 @click.option("--json", "as_json", is_flag=True, help="Print the report as one JSON line.")
 @force_option
 def batch(takes: tuple[str, ...], out: str | None, circled: bool, rig_path: str | None,
@@ -72,7 +73,7 @@ def batch(takes: tuple[str, ...], out: str | None, circled: bool, rig_path: str 
           keys_units: float | None,
           engine: str, address: str | None, workers: int | None, retries: int,
           take_timeout: float | None, resume: bool, dry_run: bool, as_json: bool,
-          force: bool) -> None:
+          force: bool, layers) -> None:
     """Solve and write every take; a failed take is reported and the others go on.
 
     Exit status: 0 all done; 1 nothing done (setup error); 3 some takes failed or timed out
@@ -137,7 +138,7 @@ def batch(takes: tuple[str, ...], out: str | None, circled: bool, rig_path: str 
                            keys_units=keys_units, engine=engine,
                            workers=workers, address=address, resume=resume, dry_run=dry_run,
                            force=force, retries=retries, take_timeout=take_timeout,
-                           on_start=on_start, on_result=on_result, base=base)
+                           on_start=on_start, on_result=on_result, base=base, layers=layers)
     except BatchCancelled as stop:
         if bar is not None:
             bar.__exit__(None, None, None)

@@ -168,6 +168,35 @@ def rig_files(rig) -> list[Path]:
     return loaded_files(rig)
 
 
+def layer_options(strict: bool = True):
+    """--mute, --solo and --punch of a layered take (play, export; batch: ``strict`` False, a
+    take whose stack has none of the named layers plays as recorded): the command gets
+    ``layers``, a ``puppet.take.layers.LayerOptions`` or None (every stack as recorded)."""
+    import functools
+
+    def decorate(command):
+        @click.option("--mute", "mute", multiple=True, metavar="LAYER.mcap",
+                      help="A layer of the take's stack that holds nothing: its base plays "
+                           "through it (repeatable).")
+        @click.option("--solo", "solo", default=None, metavar="LAYER.mcap",
+                      help="The one layer of the stack that holds its joints (every other "
+                           "muted).")
+        @click.option("--punch", "punch", multiple=True, metavar="LAYER.mcap=IN:OUT",
+                      help="Where a layer holds its joints, overriding its recorded punch: "
+                           "seconds or marker names, either empty for the start / end "
+                           "(repeatable).")
+        @functools.wraps(command)
+        def wrapped(*args, mute, solo, punch, **kwargs):
+            from puppet.take.layers import LayerOptions
+
+            return command(*args, layers=LayerOptions.from_flags(mute, solo, punch, strict),
+                           **kwargs)
+
+        return wrapped
+
+    return decorate
+
+
 def open_take(take: str, rig_path: str | None):
     """(rig, TakeReader) for a take; the rig is the take's own when --rig is not given."""
     from puppet.replay import open_take as open_on_rig

@@ -8,8 +8,8 @@ import sys
 import click
 
 from puppet import limits
-from puppet.cli.common import (force_option, keys_option, keys_units_option, open_take,
-                               space_option)
+from puppet.cli.common import (force_option, keys_option, keys_units_option, layer_options,
+                               open_take, space_option)
 
 
 @click.command()
@@ -44,12 +44,13 @@ from puppet.cli.common import (force_option, keys_option, keys_units_option, ope
 @click.option("--loop", is_flag=True,
               help="With --clip: a loop, its seam blended in solve space (no pop when it "
                    "repeats).")
+@layer_options()
 @click.option("--json", "as_json", is_flag=True, help="Print the report as one JSON line.")
 @force_option
 def export(take: str, rig_path: str | None, gltf: str | None, usd: str | None, pc2: str | None,
            bvh: str | None, fps: str, up: str, space: str, keys: float | None,
            keys_units: float | None, as_json: bool, force: bool, sound_path: str | None,
-           clip: tuple[float, float] | None, loop: bool) -> None:
+           clip: tuple[float, float] | None, loop: bool, layers) -> None:
     """Export a take; frame 1 is the take's first reading in every format.
 
     An output estimated over 16 GiB (puppet.limits.EXPORT_BYTES: a long take of a dense mesh
@@ -60,6 +61,7 @@ def export(take: str, rig_path: str | None, gltf: str | None, usd: str | None, p
       puppet export take.mcap --gltf anim.glb --fps 24
       puppet export take.mcap --usd anim.usdc --pc2 mesh.pc2 --up z --bvh skeleton.bvh
       puppet export take.mcap --gltf anim.glb --keys 0.5   # editable keys
+      puppet export arms.mcap --gltf anim.glb --punch arms.mcap=2:8   # a layer held 2-8 s
     """
     from puppet.export import ExportError, Outputs, export_take
     from puppet.export.run import check_fps
@@ -89,7 +91,8 @@ def export(take: str, rig_path: str | None, gltf: str | None, usd: str | None, p
     try:
         report = export_take(rig, reader, outputs, fps=fps_value, up=up, space=space, keys=keys,
                              keys_units=keys_units, progress=progress, sound=sound,
-                             clip=None if clip is None else (clip[0], clip[1], loop))
+                             clip=None if clip is None else (clip[0], clip[1], loop),
+                             layers=layers)
     finally:
         if bar is not None:
             bar.__exit__(None, None, None)

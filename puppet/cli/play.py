@@ -7,8 +7,8 @@ import sys
 import click
 
 from puppet import limits
-from puppet.cli.common import (InRange, fail, force_option, open_take, rig_files, run_session,
-                               say)
+from puppet.cli.common import (InRange, fail, force_option, layer_options, open_take, rig_files,
+                               run_session, say)
 from puppet.cli.blender import link_option
 from puppet.cli.view import view_option
 
@@ -27,12 +27,13 @@ from puppet.cli.view import view_option
 @click.option("--sound", "sound_path", default=None, metavar="FILE",
               help="Sound (WAV, FLAC, OGG, MP3) muxed into --out at the take's offset (default: "
                    "the take's own, found by its hash at its path or beside the take).")
+@layer_options()
 @view_option
 @link_option
 @force_option
 def play(take: str, rig_path: str | None, out: str | None, frames: str | None, speed: float,
          fps: float, antialias: str, view_address: str | None, link_address: str | None,
-         force: bool, sound_path: str | None) -> None:
+         force: bool, sound_path: str | None, layers) -> None:
     """Replay a take through the solver and renderer (deterministic).
 
     \b
@@ -64,7 +65,7 @@ def play(take: str, rig_path: str | None, out: str | None, frames: str | None, s
     if view_address is not None:  # the take on the wall clock, driven from the page
         from puppet.take.markers import read_markers
 
-        playback = Playback.of_take(reader, rig.servo_map.ids, rig=rig)
+        playback = Playback.of_take(reader, rig.servo_map.ids, rig=rig, layers=layers)
         marks = [(playback.play_s(t), name) for t, name in read_markers(take)]
         source = TakeOnClock(playback, speed=speed, markers=marks)
         outputs.append(o.View(view_address, mode="play", tell=say))
@@ -72,7 +73,8 @@ def play(take: str, rig_path: str | None, out: str | None, frames: str | None, s
         on_frame = None
     else:  # the export's frames at --fps: as fast as possible, or on the clock into Blender
         playback = Playback.of_take(reader, rig.servo_map.ids, fps=fps,
-                                    speed=1.0 if link_address is not None else speed, rig=rig)
+                                    speed=1.0 if link_address is not None else speed, rig=rig,
+                                    layers=layers)
         source = TakeFrames(playback, fps=fps, speed=speed, paced=link_address is not None)
         if link_address is not None:
             outputs.append(o.Link(link_address, rig, fps=fps, take=reader.path.stem, tell=say))

@@ -227,7 +227,7 @@ def export_take(rig, reader, outputs: Outputs, *, fps: float = 30.0, up: str = "
                 meters_per_unit: float = 1.0, keys: float | None = None,
                 keys_units: float | None = None,
                 progress: Callable[[int, int], None] | None = None,
-                precompute=None, sound=None, clip=None) -> ExportReport:
+                precompute=None, sound=None, clip=None, layers=None) -> ExportReport:
     """Export a take (TakeReader) solved on ``rig`` into every file named in ``outputs``.
 
     fps:        output frames per second (> 0); frames by ``puppet.take.Playback``.
@@ -244,10 +244,12 @@ def export_take(rig, reader, outputs: Outputs, *, fps: float = 30.0, up: str = "
     sound:      a ``puppet.take.sync.SoundRef`` the files name (None: the take's own, if any).
     clip:       (in_s, out_s, loop): only that segment of the take (``Playback.clip``; a loop
                 with its seam blended in solve space); None: the whole take.
+    layers:     a layered take's ``puppet.take.layers.LayerOptions`` (mute, solo, punch; None:
+                as recorded).
     Raises ExportError (or the take's TakeRigMismatch) naming the file at fault.
     """
     start = time.monotonic()
-    frames = take_frames(rig, reader, fps, clip=clip)
+    frames = take_frames(rig, reader, fps, clip=clip, layers=layers)
     with ExportWriters(rig, reader, outputs, frames, up=up, space=space, influences=influences,
                        meters_per_unit=meters_per_unit, keys=keys, keys_units=keys_units,
                        sound=sound) as exports:
@@ -264,15 +266,16 @@ def export_take(rig, reader, outputs: Outputs, *, fps: float = 30.0, up: str = "
     return exports.report
 
 
-def take_frames(rig, reader, fps: float, clip=None) -> Playback:
+def take_frames(rig, reader, fps: float, clip=None, layers=None) -> Playback:
     """The frames of a take for ``rig``'s servos (the take checked against the rig first);
-    clip: (in_s, out_s, loop) of a segment, or None."""
+    clip: (in_s, out_s, loop) of a segment, or None; layers: a layered take's
+    ``LayerOptions`` (None: as recorded)."""
     fps = check_fps(fps)
     ids = [int(i) for i in rig.servo_map.ids]
     if len(reader) == 0:
         raise ExportError(reader.path, "the take holds no readings")
     reader.check_rig(ids, dict(rig.servo_map.models), rig_name=rig.name)
-    frames = Playback.of_take(reader, ids, fps=fps, rig=rig)
+    frames = Playback.of_take(reader, ids, fps=fps, rig=rig, layers=layers)
     if clip is None:
         return frames
     in_s, out_s, loop = clip

@@ -106,11 +106,14 @@ class LayerRef:
 class LayerOptions:
     """How a stack plays: ``mute`` layer paths that hold nothing, ``solo`` the one layer that
     holds (None: all), ``punch`` {layer path: (in, out)} overriding a layer's stored punch
-    (seconds or marker names, "" for the start / end). Paths are compared resolved."""
+    (seconds or marker names, "" for the start / end). Paths are compared resolved. ``strict``:
+    a named layer that is not in the played take's stack is refused (play, export); a batch's
+    options name layers of some of its takes (each named layer must exist)."""
 
     mute: frozenset = frozenset()
     solo: str | None = None
     punch: dict = field(default_factory=dict)
+    strict: bool = True
 
     def _key(self, path) -> str:
         return str(Path(path).resolve())
@@ -120,6 +123,41 @@ class LayerOptions:
         if key in {self._key(p) for p in self.mute}:
             return False
         return self.solo is None or key == self._key(self.solo)
+
+    @classmethod
+    def from_flags(cls, mute=(), solo: str | None = None, punch=(),
+                   strict: bool = True) -> "LayerOptions | None":
+        """The options of ``--mute LAYER`` (repeatable), ``--solo LAYER`` and ``--punch
+        LAYER=IN:OUT`` (repeatable; IN, OUT seconds or marker names, either empty for the
+        start / end); None when none is given (the stack plays as recorded). TakeError naming
+        the flag and its value when a punch is not LAYER=IN:OUT."""
+        punches = {}
+        for text in punch:
+            layer, eq, span = str(text).rpartition("=")
+            if not eq or not layer or span.count(":") != 1:
+                raise TakeError("--punch", f"{text!r} is not LAYER=IN:OUT (seconds or marker "
+                                           "names, e.g. layer.mcap=1.5:4 or layer.mcap=in:out)")
+            t_in, t_out = span.split(":")
+            punches[layer] = (t_in.strip(), t_out.strip())
+        if not mute and solo is None and not punches:
+            return None
+        options = cls(frozenset(mute), solo, punches, strict)
+        for flag, layer in options.named():
+            if not Path(layer).is_file():
+                raise TakeError(layer, f"{flag}: no such layer take")
+        return options
+
+    def named(self) -> list[tuple[str, str]]:
+        """[(flag, layer path)] of every layer these options name."""
+        return ([("--mute", str(p)) for p in sorted(map(str, self.mute))]
+                + ([("--solo", str(self.solo))] if self.solo is not None else [])
+                + [("--punch", str(p)) for p in self.punch])
+
+    def as_dict(self) -> dict:
+        """The options as JSON values, paths resolved (a batch manifest's settings)."""
+        return {"mute": sorted(self._key(p) for p in self.mute),
+                "solo": None if self.solo is None else self._key(self.solo),
+                "punch": {self._key(p): list(map(str, v)) for p, v in sorted(self.punch.items())}}
 
     def punch_of(self, path, ref: LayerRef) -> tuple[str, str]:
         for p, punch in self.punch.items():
@@ -141,6 +179,8 @@ class Composed:
     held: dict
     notes: list
     seams: list
+    stack: list = field(default_factory=list)
+    """The layer paths of the stack, bottom first (empty for a plain take)."""
 
 
 def base_path(reader) -> Path:
@@ -232,6 +272,8 @@ def compose(reader, ids, options: LayerOptions | None = None, _depth: int = 0) -
     t_ns, ticks, ok = reader.arrays(ids=ids)
     ref = reader.metadata.layer
     if ref is None:
+        if _depth == 0:
+            _check_named(reader, options, [])
         return Composed(t_ns, ticks, ok, {}, [], [])
     if _depth >= MAX_DEPTH:
         raise TakeError(reader.path, f"more than {MAX_DEPTH} layers in one stack")
@@ -291,7 +333,23 @@ def compose(reader, ids, options: LayerOptions | None = None, _depth: int = 0) -
             out_ok[np.ix_(inside, cols)] | (weight[inside] >= 1)[:, None])
         for n in cols:
             held[ids[n]] = reader.path
-    return Composed(t_ns, out, out_ok, held, notes, seams)
+    stack = [*below.stack, reader.path]
+    if _depth == 0:
+        _check_named(reader, options, stack)
+    return Composed(t_ns, out, out_ok, held, notes, seams, stack)
+
+
+def _check_named(reader, options: LayerOptions, stack) -> None:
+    """TakeError naming the flag and the layer when ``options`` name a layer that is not in
+    the stack of the take open in ``reader`` (a typo must not play the stack as recorded)."""
+    if not options.strict:
+        return
+    known = {str(Path(p).resolve()) for p in stack}
+    for flag, layer in options.named():
+        if str(Path(layer).resolve()) not in known:
+            have = ", ".join(str(p) for p in stack) or "none: it is not a layered take"
+            raise TakeError(reader.path, f"{flag} {layer}: not a layer of this take's stack "
+                                         f"(its layers: {have})")
 
 
 def _mark_play(marks, t_ns, play):

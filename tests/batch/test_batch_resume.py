@@ -45,7 +45,8 @@ def test_resume_redoes_a_take_when_what_shapes_it_changed_and_says_why(tmp_path,
     assert manifest["take"]["sha256"] == hashlib.sha256(takes[0].read_bytes()).hexdigest()
     assert manifest["rig"]["file"] == str(BUILTIN_RIG)
     assert manifest["character"]["sha256"] == character_sha256(critter)
-    assert manifest["settings"] == {"fps": 30.0, "up": "y", "space": "object"}
+    assert manifest["settings"] == {"fps": 30.0, "up": "y", "space": "object",
+                                   "layers": None}
     assert manifest["outputs"]["pc2"] == {
         "path": "t0.pc2", "bytes": (out / "t0.pc2").stat().st_size,
         "sha256": hashlib.sha256((out / "t0.pc2").read_bytes()).hexdigest()}
