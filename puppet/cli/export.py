@@ -8,7 +8,7 @@ import sys
 import click
 
 from puppet import limits
-from puppet.cli.common import (force_option, keys_option, keys_units_option, layer_options,
+from puppet.cli.common import (InRange, force_option, keys_option, keys_units_option, layer_options,
                                open_take, space_option)
 
 
@@ -38,7 +38,7 @@ from puppet.cli.common import (force_option, keys_option, keys_units_option, lay
 @click.option("--sound", "sound_path", default=None, metavar="FILE",
               help="The sound the glTF extras, USD layer data and BVH comment name (its file, "
                    "hash, rate, the take's offset); default: the take's own.")
-@click.option("--clip", nargs=2, type=float, default=None, metavar="IN OUT",
+@click.option("--clip", nargs=2, type=InRange(limits.SECONDS_FROM_START), default=None, metavar="IN OUT",
               help="Only the segment from IN to OUT seconds of the take's play time (a "
                    "studio clip).")
 @click.option("--loop", is_flag=True,

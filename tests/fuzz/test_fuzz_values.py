@@ -232,6 +232,20 @@ def fault_case(folder: Path, line: str, word: str, label: str, text: str) -> str
 # Command-line options: (command path, option, the other arguments it needs, values per use).
 OPTIONS = [
     (["perform"], "--speed", ["take.mcap", "--port", "p"], 1),
+    (["live"], "--count-in", ["--rig", "r.toml", "--port", "p"], 1),
+    (["live"], "--sound-offset", ["--rig", "r.toml", "--port", "p"], 1),
+    (["record"], "--count-in", ["--rig", "r.toml", "--port", "p", "--out", "t.mcap"], 1),
+    (["record"], "--sound-offset", ["--rig", "r.toml", "--port", "p", "--out", "t.mcap"], 1),
+    (["keys"], "--sound-offset", ["--rig", "r.toml", "--port", "p", "--out", "s.mcap"], 1),
+    (["export"], "--clip", ["take.mcap", "--gltf", "a.glb"], 2),
+    (["studio"], "--baud", ["s"], 1),
+    (["studio"], "--fps", ["s"], 1),
+    (["studio"], "--seconds", ["s"], 1),
+    (["studio"], "--size", ["s"], 2),
+    (["session", "circle"], "take", ["s", "shot"], 1),
+    (["session", "delete"], "take", ["s", "shot"], 1),
+    (["session", "lock"], "take", ["s", "shot"], 1),
+    (["session", "restore"], "take", ["s", "shot"], 1),
     (["perform"], "--rate", ["take.mcap", "--port", "p"], 1),
     (["perform"], "--watchdog-ms", ["take.mcap", "--port", "p"], 1),
     (["perform"], "--latency-ms", ["take.mcap", "--port", "p"], 1),
@@ -275,7 +289,9 @@ OPTIONS = [
     (["keys", "goto"], "--latency-ms", ["s.mcap", "1", "--port", "p"], 1),
 ]
 # Options whose value is checked when the command runs (a string until then).
-RUN_CHECKED = {("export", "--fps"), ("batch", "--fps")}
+RUN_CHECKED = {("export", "--fps"), ("batch", "--fps"),
+               # InRange arguments followed by more arguments (the sweep puts its value last)
+               ("note", "take"), ("segment", "take"), ("segment", "in_s"), ("segment", "out_s")}
 
 
 def option_cases():
