@@ -82,6 +82,7 @@ def test_play_streams_the_gltf_exports_keys_to_two_clients_latest_wins(
         assert hello["parents"] == [int(p) for p in critter.skeleton.parents]
         assert hello["fps"] == 30.0  # the rate play hands out frames at (--fps, the export's)
         assert hello["armature"] == np.eye(4).reshape(16).tolist()  # the critter: no nodes above
+        assert hello["sound"] is None  # a take recorded without sound
         fast_seqs, slow_seqs = [], []
         slow_first = slow.next()[1]  # then the slow client stops reading (and acking)
         while True:
