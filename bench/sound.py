@@ -18,12 +18,13 @@ can measure.
 3. Page: in headless Chromium (Debian's chromium through playwright), the sound's sample 0 as
    played against the take's time 0 on the page's frame clock (performance.now, the clock
    requestAnimationFrame stamps frames with). Time 0 is ``delay`` (the count-in left) after the
-   start is asked; the sound is scheduled as studio.js's playSound does (``when =
-   ctx.currentTime + delay``), and, for comparison, on the output clock (``when`` mapped from
-   the frame clock through ``ctx.getOutputTimestamp()``). Where sample 0 is heard: the
+   start is asked; the sound is scheduled by studio.js's own audioContext/heardAt/playSound (their
+   source, taken from the file), as its recording handler does. Where sample 0 is heard: the
    AudioContext's output timestamp (contextTime <-> performanceTime) taken once the output has
-   passed ``when``. Cold: the AudioContext made when the start is asked (its clock not yet
-   running); pre-rolled: made and running before. skew = heard - time 0, ms (positive: late).
+   passed the scheduled time. Cold: no AudioContext until the start is asked (its clock not
+   running yet); pre-rolled: made and running before. skew = heard - time 0, ms (positive:
+   late). Also the rule studio.js used before (``ctx.currentTime + delay``, output latency
+   not counted), pre-rolled, for comparison.
 
     python bench/sound.py --json sound.json
 """
@@ -141,39 +142,55 @@ def start_costs(path: Path, repeats: int) -> dict:
 
 
 PAGE_DELAY_S = 0.25  # the count-in left when the start is asked (studio: starts_in_s)
+STUDIO_JS = Path(__file__).resolve().parents[1] / "puppet" / "view" / "static" / "studio.js"
 PAGE_SKEW = """async ([mode, rule, delay, n]) => {
   const sleep = ms => new Promise(r => setTimeout(r, ms));
-  const rate = 48000, buffer = new AudioBuffer({ length: rate, sampleRate: rate });
-  let warm = null;
-  if (mode === "preroll") { warm = new AudioContext({ latencyHint: "interactive" });
-    await warm.resume(); await sleep(300); }
+  const rate = 48000;
+  audio.buffer = new AudioBuffer({ length: rate, sampleRate: rate });
+  audio.ctx = null;
+  if (mode === "preroll") { await audioContext().resume(); await sleep(300); }
   const skews = [];
   for (let i = 0; i < n; i++) {
-    const ctx = warm || new AudioContext({ latencyHint: "interactive" });
-    if (ctx.state === "suspended") ctx.resume();          // studio.js audioContext()
-    const zero = performance.now() + delay * 1000;       // the take's time 0, frame clock
-    let when;
-    if (rule === "studio") when = ctx.currentTime + delay;  // studio.js playSound()
-    else { const ts = ctx.getOutputTimestamp();
-      when = ts.contextTime + (zero - ts.performanceTime) / 1000; }
-    const source = ctx.createBufferSource();
-    source.buffer = buffer; source.connect(ctx.destination); source.start(when);
+    const zero = performance.now() + delay * 1000;       // the take's time 0 (audio.recordZero)
+    if (rule === "studio") playSound(0, delay, 1, null);  // as studio.js's recording handler
+    else { const ctx = audioContext(), source = ctx.createBufferSource();
+      source.buffer = audio.buffer; source.connect(ctx.destination);
+      source.start(ctx.currentTime + delay);
+      audio.source = source; audio.starts.push({ when: ctx.currentTime + delay }); }
+    const ctx = audio.ctx, when = audio.starts.at(-1).when;
     let ts = ctx.getOutputTimestamp();
     const deadline = performance.now() + 5000;
     while (!(ts.contextTime >= when) && performance.now() < deadline) {
       await sleep(5); ts = ctx.getOutputTimestamp(); }
-    const heard = ts.performanceTime + (when - ts.contextTime) * 1000;
-    skews.push(heard - zero);
-    source.stop();
-    if (!warm) await ctx.close(); else await sleep(50);
+    skews.push(ts.performanceTime + (when - ts.contextTime) * 1000 - zero);
+    stopSound();
+    if (mode === "cold") { await ctx.close(); audio.ctx = null; } else await sleep(50);
   }
-  if (warm) await warm.close();
+  if (audio.ctx) await audio.ctx.close();
   return skews;
 }"""
 
 
+def studio_functions(*names: str) -> str:
+    """The source of studio.js's functions ``names`` (each from ``function NAME(`` to its
+    closing brace), to run in a page of their own."""
+    text = STUDIO_JS.read_text()
+    out = []
+    for name in names:
+        start = text.index(f"function {name}(")
+        depth, i = 0, text.index("{", start)
+        while True:
+            depth += {"{": 1, "}": -1}.get(text[i], 0)
+            if depth == 0:
+                break
+            i += 1
+        out.append(text[start:i + 1])
+    return "\n".join(out)
+
+
 def page_skew(repeats: int) -> dict:
-    """The page's skew (ms) per case: {"cold studio", "preroll studio", "preroll output"}."""
+    """The page's skew (ms) per case: "cold studio", "preroll studio" (studio.js's scheduling)
+    and "preroll currentTime" (the rule it replaced)."""
     import shutil
 
     from playwright.sync_api import sync_playwright
@@ -189,12 +206,15 @@ def page_skew(repeats: int) -> dict:
                   "--autoplay-policy=no-user-gesture-required"])
         try:
             page = browser.new_page()
-            page.set_content("<!doctype html><title>sound skew</title>")
+            page.set_content("<!doctype html><title>sound skew</title><script>"
+                             "const audio = { ctx: null, buffer: null, source: null, starts: [] };\n"
+                             + studio_functions("audioContext", "stopSound", "heardAt", "playSound")
+                             + "</script>")
             out["output_latency_ms"] = 1e3 * page.evaluate(
                 "(async () => { const c = new AudioContext({latencyHint: 'interactive'}); "
                 "await c.resume(); await new Promise(r => setTimeout(r, 200)); "
                 "const l = c.outputLatency + c.baseLatency; await c.close(); return l; })()")
-            for mode, rule in (("cold", "studio"), ("preroll", "studio"), ("preroll", "output")):
+            for mode, rule in (("cold", "studio"), ("preroll", "studio"), ("preroll", "currentTime")):
                 skews = np.array(page.evaluate(PAGE_SKEW, [mode, rule, PAGE_DELAY_S, repeats]))
                 out[f"{mode} {rule}"] = {
                     "p50_ms": float(np.median(skews)), "p95_ms": float(np.percentile(skews, 95)),
@@ -239,7 +259,7 @@ def main() -> None:
               f"time 0 {1e3 * page['delay_s']:.0f} ms after the start; output latency "
               f"{page['output_latency_ms']:.1f} ms; target |skew| p95 <= 5 ms pre-rolled)")
         print(f"{'case':<22} {'p50 ms':>8} {'p95 ms':>8} {'|p95| ms':>9} {'worst ms':>9} {'n':>4}")
-        for case in ("cold studio", "preroll studio", "preroll output"):
+        for case in ("cold studio", "preroll studio", "preroll currentTime"):
             d = page[case]
             print(f"{case:<22} {d['p50_ms']:>8.2f} {d['p95_ms']:>8.2f} {d['abs_p95_ms']:>9.2f} "
                   f"{d['worst_ms']:>9.2f} {d['n']:>4d}")
