@@ -207,14 +207,15 @@ def page_skew(repeats: int) -> dict:
         try:
             page = browser.new_page()
             page.set_content("<!doctype html><title>sound skew</title><script>"
-                             "const audio = { ctx: null, buffer: null, source: null, starts: [] };\n"
+                             "const audio = {ctx: null, buffer: null, source: null, starts: []};\n"
                              + studio_functions("audioContext", "stopSound", "heardAt", "playSound")
                              + "</script>")
             out["output_latency_ms"] = 1e3 * page.evaluate(
                 "(async () => { const c = new AudioContext({latencyHint: 'interactive'}); "
                 "await c.resume(); await new Promise(r => setTimeout(r, 200)); "
                 "const l = c.outputLatency + c.baseLatency; await c.close(); return l; })()")
-            for mode, rule in (("cold", "studio"), ("preroll", "studio"), ("preroll", "currentTime")):
+            for mode, rule in (("cold", "studio"), ("preroll", "studio"),
+                               ("preroll", "currentTime")):
                 skews = np.array(page.evaluate(PAGE_SKEW, [mode, rule, PAGE_DELAY_S, repeats]))
                 out[f"{mode} {rule}"] = {
                     "p50_ms": float(np.median(skews)), "p95_ms": float(np.percentile(skews, 95)),

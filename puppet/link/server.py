@@ -67,7 +67,8 @@ class Link:
     take_start_ns: the reading time of take time 0 (None: the first frame's, or the take's
     first reading: ``start_take``); take: the take's name for the hello (the add-on names the
     recording's action after it; None: unknown); sound: (path, offset_s) of the take's sound
-    for the hello (the add-on puts it on the scene's timeline; None: none). Fields after close: see stats().
+    for the hello (the add-on puts it on the scene's timeline; None: none). Fields after
+    close: see stats().
     """
 
     def __init__(self, address: str | None, rig, *, fps: float = 60.0,

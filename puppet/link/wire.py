@@ -45,10 +45,10 @@ Recording: a frame with flags & RECORDING is part of a take being recorded (``pu
 --record``); its take_s is its reading's time on the take's time line (seconds after the take's
 first reading), so the client keys it at scene frame start + take_s × scene fps, where
 ``puppet export`` of that take puts it, and places the hello's sound (if any) so that its
-sample 0 plays at frame start - offset_s × scene fps. fps in the hello is the rate frames come at: the take's
-(play) or the live loop's target (live, demo). Latest wins: puppet
-keeps at most 2 frames unacknowledged per client and then sends the newest one (a slow client
-skips frames, none queue); the client applies the newest frame it has and acks it (acking only
+sample 0 plays at frame start - offset_s × scene fps. fps in the hello is the rate frames come
+at: the take's (play) or the live loop's target (live, demo). Latest wins: puppet keeps at
+most 2 frames unacknowledged per client and then sends the newest one (a slow client skips
+frames, none queue); the client applies the newest frame it has and acks it (acking only
 that one acks the older ones too). Except while recording: a frame flagged RECORDING, and every
 frame to a client that asked for "record", is never skipped: puppet keeps the last RING frames'
 solves and sends each in order (a client more than RING frames behind loses the oldest, counted

@@ -107,7 +107,8 @@ for f in range(math.ceil(keyed[0]), min(math.floor(keyed[-1]), last - 1) + 1):
 editor = scene.sequence_editor
 sound_strips = [{"name": x.name, "frame_start": x.frame_start, "path": x.sound.filepath}
                 for x in (editor.strips if editor is not None else []) if x.type == "SOUND"]
-print("RESULT " + json.dumps({"status": status, "sound_strips": sound_strips, "keyed": keyed, "frames": frames,
+print("RESULT " + json.dumps({"status": status, "sound_strips": sound_strips, "keyed": keyed,
+                              "frames": frames,
                               "recorded": recorded, "action": action.name,
                               "interpolation": sorted({p.interpolation for c in fcurves
                                                        for p in c.keyframe_points})}))

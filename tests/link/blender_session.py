@@ -82,7 +82,7 @@ def run(until):
 
 
 run(lambda: link.state == "waiting")  # no puppet yet: it retries
-editor = scene.sequence_editor_create()  # an earlier take's sound strip: the next take's replaces it
+editor = scene.sequence_editor_create()  # an earlier take's strip: the next take's replaces it
 strips = editor.strips if hasattr(editor, "strips") else editor.sequences
 
 

@@ -60,7 +60,7 @@ bl_info = {
     "category": "Animation",
 }
 
-SOUND_STRIP = "puppet sound"  # the take's sound on the scene's timeline (docs/blender.md names it so)
+SOUND_STRIP = "puppet sound"  # the take's sound on the timeline (as docs/blender.md names it)
 MAP_PREFIX = "puppet_map:"  # armature data custom property: joint -> bone, where names differ
 TICK_S = 0.004
 RETRY_S = 1.0  # seconds between attempts to reach puppet

@@ -269,7 +269,9 @@ function stopSound() {
 // is heard ~40 ms late in Chromium); ctx.currentTime + delay until the context runs.
 function heardAt(ctx, at_ms) {
   const ts = ctx.getOutputTimestamp();
-  if (ctx.state !== "running" || !(ts.performanceTime > 0)) return ctx.currentTime + (at_ms - performance.now()) / 1000;
+  if (ctx.state !== "running" || !(ts.performanceTime > 0)) {
+    return ctx.currentTime + (at_ms - performance.now()) / 1000;
+  }
   return ts.contextTime + (at_ms - ts.performanceTime) / 1000;
 }
 // offset_s: where in the sound; delay_s: from now; rate: speed; piece_s: how long (null: to its end)
