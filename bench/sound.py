@@ -15,6 +15,16 @@ can measure.
    (schedule time 0 on a running scheduler), CPU time, ratio in one run; and the callback's CPU
    time per 256-sample block against the block's duration (how much of the audio thread's
    deadline it uses).
+3. Page: in headless Chromium (Debian's chromium through playwright), the sound's sample 0 as
+   played against the take's time 0 on the page's frame clock (performance.now, the clock
+   requestAnimationFrame stamps frames with). Time 0 is ``delay`` (the count-in left) after the
+   start is asked; the sound is scheduled by studio.js's own audioContext/heardAt/playSound (their
+   source, taken from the file), as its recording handler does. Where sample 0 is heard: the
+   AudioContext's output timestamp (contextTime <-> performanceTime) taken once the output has
+   passed the scheduled time. Cold: no AudioContext until the start is asked (its clock not
+   running yet); pre-rolled: made and running before. skew = heard - time 0, ms (positive:
+   late). Also the rule studio.js used before (``ctx.currentTime + delay``, output latency
+   not counted), pre-rolled, for comparison.
 
     python bench/sound.py --json sound.json
 """
@@ -131,6 +141,91 @@ def start_costs(path: Path, repeats: int) -> dict:
             "callback_share_of_block": per_block / (256 / sound.rate)}
 
 
+PAGE_DELAY_S = 0.25  # the count-in left when the start is asked (studio: starts_in_s)
+STUDIO_JS = Path(__file__).resolve().parents[1] / "puppet" / "view" / "static" / "studio.js"
+PAGE_SKEW = """async ([mode, rule, delay, n]) => {
+  const sleep = ms => new Promise(r => setTimeout(r, ms));
+  const rate = 48000;
+  audio.buffer = new AudioBuffer({ length: rate, sampleRate: rate });
+  audio.ctx = null;
+  if (mode === "preroll") { await audioContext().resume(); await sleep(300); }
+  const skews = [];
+  for (let i = 0; i < n; i++) {
+    const zero = performance.now() + delay * 1000;       // the take's time 0 (audio.recordZero)
+    if (rule === "studio") playSound(0, delay, 1, null);  // as studio.js's recording handler
+    else { const ctx = audioContext(), source = ctx.createBufferSource();
+      source.buffer = audio.buffer; source.connect(ctx.destination);
+      source.start(ctx.currentTime + delay);
+      audio.source = source; audio.starts.push({ when: ctx.currentTime + delay }); }
+    const ctx = audio.ctx, when = audio.starts.at(-1).when;
+    let ts = ctx.getOutputTimestamp();
+    const deadline = performance.now() + 5000;
+    while (!(ts.contextTime >= when) && performance.now() < deadline) {
+      await sleep(5); ts = ctx.getOutputTimestamp(); }
+    skews.push(ts.performanceTime + (when - ts.contextTime) * 1000 - zero);
+    stopSound();
+    if (mode === "cold") { await ctx.close(); audio.ctx = null; } else await sleep(50);
+  }
+  if (audio.ctx) await audio.ctx.close();
+  return skews;
+}"""
+
+
+def studio_functions(*names: str) -> str:
+    """The source of studio.js's functions ``names`` (each from ``function NAME(`` to its
+    closing brace), to run in a page of their own."""
+    text = STUDIO_JS.read_text()
+    out = []
+    for name in names:
+        start = text.index(f"function {name}(")
+        depth, i = 0, text.index("{", start)
+        while True:
+            depth += {"{": 1, "}": -1}.get(text[i], 0)
+            if depth == 0:
+                break
+            i += 1
+        out.append(text[start:i + 1])
+    return "\n".join(out)
+
+
+def page_skew(repeats: int) -> dict:
+    """The page's skew (ms) per case: "cold studio", "preroll studio" (studio.js's scheduling)
+    and "preroll currentTime" (the rule it replaced)."""
+    import shutil
+
+    from playwright.sync_api import sync_playwright
+
+    chromium = shutil.which("chromium") or shutil.which("chromium-browser")
+    if chromium is None:
+        return {"measured": False, "why": "no chromium (apt-get install chromium)"}
+    out = {"measured": True, "delay_s": PAGE_DELAY_S}
+    with sync_playwright() as playwright:
+        browser = playwright.chromium.launch(
+            executable_path=chromium, headless=True,
+            args=["--disable-gpu", "--no-sandbox", "--disable-dev-shm-usage",
+                  "--autoplay-policy=no-user-gesture-required"])
+        try:
+            page = browser.new_page()
+            page.set_content("<!doctype html><title>sound skew</title><script>"
+                             "const audio = {ctx: null, buffer: null, source: null, starts: []};\n"
+                             + studio_functions("audioContext", "stopSound", "heardAt", "playSound")
+                             + "</script>")
+            out["output_latency_ms"] = 1e3 * page.evaluate(
+                "(async () => { const c = new AudioContext({latencyHint: 'interactive'}); "
+                "await c.resume(); await new Promise(r => setTimeout(r, 200)); "
+                "const l = c.outputLatency + c.baseLatency; await c.close(); return l; })()")
+            for mode, rule in (("cold", "studio"), ("preroll", "studio"),
+                               ("preroll", "currentTime")):
+                skews = np.array(page.evaluate(PAGE_SKEW, [mode, rule, PAGE_DELAY_S, repeats]))
+                out[f"{mode} {rule}"] = {
+                    "p50_ms": float(np.median(skews)), "p95_ms": float(np.percentile(skews, 95)),
+                    "abs_p95_ms": float(np.percentile(np.abs(skews), 95)),
+                    "worst_ms": float(skews[np.argmax(np.abs(skews))]), "n": int(len(skews))}
+        finally:
+            browser.close()
+    return out
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--json", default=None, help="write the figures here")
@@ -143,6 +238,7 @@ def main() -> None:
         sf.write(long_path, np.tile(clicks.click_track(48000, seconds=2.5, channels=2), (24, 1)), 48000)
         costs = start_costs(long_path, args.repeats)
         device = device_skew(load_sound(long_path), args.repeats)
+    page = page_skew(args.repeats)
     print(f"{'rate':>6} {'fps':>7} {'offset s':>9} {'lag samples':>12} {'AAC frames':>11} {'len err':>8}")
     for c in cases:
         print(f"{c['rate']:>6} {c['fps']:>7.3f} {c['offset_s']:>9.3f} {c['offset_samples']:>12d} "
@@ -159,9 +255,20 @@ def main() -> None:
                   f"worst {d['worst_ms']:.2f} ms (n={d['n']})")
     else:
         print(f"device skew: not measured on this machine: {device['why']}")
+    if page["measured"]:
+        print(f"\npage skew (headless Chromium, sample 0 heard - take time 0, frame clock; "
+              f"time 0 {1e3 * page['delay_s']:.0f} ms after the start; output latency "
+              f"{page['output_latency_ms']:.1f} ms; target |skew| p95 <= 5 ms pre-rolled)")
+        print(f"{'case':<22} {'p50 ms':>8} {'p95 ms':>8} {'|p95| ms':>9} {'worst ms':>9} {'n':>4}")
+        for case in ("cold studio", "preroll studio", "preroll currentTime"):
+            d = page[case]
+            print(f"{case:<22} {d['p50_ms']:>8.2f} {d['p95_ms']:>8.2f} {d['abs_p95_ms']:>9.2f} "
+                  f"{d['worst_ms']:>9.2f} {d['n']:>4d}")
+    else:
+        print(f"page skew: not measured: {page['why']}")
     if args.json:
-        Path(args.json).write_text(json.dumps({"mp4": cases, "start": costs, "device": device},
-                                              indent=1))
+        Path(args.json).write_text(json.dumps({"mp4": cases, "start": costs, "device": device,
+                                               "page": page}, indent=1))
 
 
 if __name__ == "__main__":

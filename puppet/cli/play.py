@@ -77,7 +77,8 @@ def play(take: str, rig_path: str | None, out: str | None, frames: str | None, s
                                     layers=layers)
         source = TakeFrames(playback, fps=fps, speed=speed, paced=link_address is not None)
         if link_address is not None:
-            outputs.append(o.Link(link_address, rig, fps=fps, take=reader.path.stem, tell=say))
+            outputs.append(o.Link(link_address, rig, fps=fps, take=reader.path.stem,
+                                  sound=_link_sound(reader), tell=say))
         pipeline = {"overlay": True, "antialias": antialias, "live": False}
         bar = click.progressbar(length=len(source), label="play", file=sys.stderr)
         on_frame = lambda done: bar.update(1)  # noqa: E731
@@ -111,6 +112,18 @@ def _sound(reader, sound_path: str | None, speed: float):
     if warning is not None:
         say(f"warning: {warning}")
     return sound, offset_s, timecode
+
+
+def _link_sound(reader):
+    """(path, offset_s) of the take's sound for the Blender link, or None (no sound; a missing
+    one is said once: Blender plays silent)."""
+    from puppet.sound import find_take_sound
+
+    ref = reader.metadata.sound
+    sound, warning = find_take_sound(ref, reader.path)
+    if warning is not None:
+        say(f"warning: {warning}")
+    return None if sound is None else (sound.path, ref.offset_s)
 
 
 COMMANDS = (play,)

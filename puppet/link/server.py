@@ -20,6 +20,7 @@ import selectors
 import socket
 import threading
 import time
+from pathlib import Path
 
 import numpy as np
 
@@ -65,17 +66,20 @@ class Link:
     fps: the frame rate announced in the hello (the take's; ``attach`` may give the loop's);
     take_start_ns: the reading time of take time 0 (None: the first frame's, or the take's
     first reading: ``start_take``); take: the take's name for the hello (the add-on names the
-    recording's action after it; None: unknown). Fields after close: see stats().
+    recording's action after it; None: unknown); sound: (path, offset_s) of the take's sound
+    for the hello (the add-on puts it on the scene's timeline; None: none). Fields after
+    close: see stats().
     """
 
     def __init__(self, address: str | None, rig, *, fps: float = 60.0,
-                 take_start_ns: int | None = None, take: str | None = None):
+                 take_start_ns: int | None = None, take: str | None = None,
+                 sound: tuple | None = None):
         host, port = parse_address(address, option="--link", default_port=DEFAULT_PORT)
         self.listener = bind(host, port, option="--link")
         port = self.listener.getsockname()[1]
         self.access = Access.for_host(host, port)
         self.rig, self.fps, self.take_start_ns = rig, float(fps), take_start_ns
-        self.take = take
+        self.take, self.sound = take, sound
         self.pose: LinkPose | None = None
         self._model = None
         self.latency_ms = Histogram()
@@ -165,7 +169,9 @@ class Link:
                 "rest_rotation": pose.rest_rotations.tolist(),
                 "above": pose.above.reshape(-1, 16).tolist(),
                 "armature": pose.armature.reshape(16).tolist(), "vertices": pose.n_vertices,
-                "fps": self.fps, "take_start_ns": self.take_start_ns, "take": self.take}
+                "fps": self.fps, "take_start_ns": self.take_start_ns, "take": self.take,
+                "sound": None if self.sound is None else
+                {"path": str(Path(self.sound[0]).absolute()), "offset_s": float(self.sound[1])}}
 
     # -- the link's thread --------------------------------------------------------------------
 

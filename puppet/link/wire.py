@@ -16,7 +16,9 @@ body, at most MAX_MESSAGE bytes. Kinds:
     b"H" hello    JSON {"protocol", "rig", "joints": [names], "parents": [int],
                   "rest_translation": [[x, y, z]], "rest_rotation": [[x, y, z, w]],
                   "above": [[16 floats]], "armature": [16 floats], "vertices": n,
-                  "fps", "take_start_ns", "take": str|null (the take's name, when known)}
+                  "fps", "take_start_ns", "take": str|null (the take's name, when known),
+                  "sound": {"path": str, "offset_s": float}|null (optional: the take's sound
+                  file, absolute, on puppet's machine, and where in it the take's time 0 is)}
     b"F" frame    FRAME header: seq (uint64), reading_ns (int64, puppet's monotonic clock),
                   take_s (float64, seconds into the take), joints b (uint32), vertices n
                   (uint32), flags (uint32: RECORDING); then b × 3 float64 local translations,
@@ -42,10 +44,11 @@ vertex order.
 Recording: a frame with flags & RECORDING is part of a take being recorded (``puppet live
 --record``); its take_s is its reading's time on the take's time line (seconds after the take's
 first reading), so the client keys it at scene frame start + take_s × scene fps, where
-``puppet export`` of that take puts it. fps in the hello is the rate frames come at: the take's
-(play) or the live loop's target (live, demo). Latest wins: puppet
-keeps at most 2 frames unacknowledged per client and then sends the newest one (a slow client
-skips frames, none queue); the client applies the newest frame it has and acks it (acking only
+``puppet export`` of that take puts it, and places the hello's sound (if any) so that its
+sample 0 plays at frame start - offset_s × scene fps. fps in the hello is the rate frames come
+at: the take's (play) or the live loop's target (live, demo). Latest wins: puppet keeps at
+most 2 frames unacknowledged per client and then sends the newest one (a slow client skips
+frames, none queue); the client applies the newest frame it has and acks it (acking only
 that one acks the older ones too). Except while recording: a frame flagged RECORDING, and every
 frame to a client that asked for "record", is never skipped: puppet keeps the last RING frames'
 solves and sends each in order (a client more than RING frames behind loses the oldest, counted

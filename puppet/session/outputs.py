@@ -458,14 +458,16 @@ class Link(Output):
     """The Blender live link (puppet.link.Link): bound at check; every solve streamed. ``fps``:
     the take's frame rate (play), or None: the loop's (live, demo). ``take``: the take's name
     (play); None: the stem of the session's --record take, if any (the add-on names a
-    recording's action after it)."""
+    recording's action after it). ``sound``: (path, offset_s) of the take's sound (play);
+    None: the session's ``Sound``, if any (the add-on puts it on the scene's timeline)."""
 
     def __init__(self, address: str | None, rig, *, fps: float | None = None,
-                 take: str | None = None, tell=print) -> None:
+                 take: str | None = None, sound: tuple | None = None, tell=print) -> None:
         self.address = address
         self.rig = rig
         self.fps = fps
         self.take = take
+        self.sound = sound
         self.tell = tell
         self.option = "--link" + (f" {address}" if address else "")
 
@@ -480,6 +482,8 @@ class Link(Output):
 
         self._link.take = self.take or next(
             (o.path.stem for o in run.outputs if isinstance(o, Take)), None)
+        self._link.sound = self.sound or next(
+            ((o.path, o.offset_s) for o in run.outputs if isinstance(o, Sound)), None)
         self._link.attach(run.pipeline, fps=None if self.fps else LIVE_FPS)
         self.link = self._link
 

@@ -14,13 +14,15 @@ TAKE_FPS = 30
 READINGS = 46  # 1.5 s at 30 fps: 37 frames at 24 fps
 
 
-def write_take(path, rig, readings=READINGS, jitter_ns=3_000_000, seed=5, rig_name=None):
-    """A take of ``rig`` at about 30 readings per second, times jittered, every servo moving."""
+def write_take(path, rig, readings=READINGS, jitter_ns=3_000_000, seed=5, rig_name=None,
+               sound=None):
+    """A take of ``rig`` at about 30 readings per second, times jittered, every servo moving
+    (sound: the take's SoundRef, or None)."""
     k = len(rig.servo_map)
     rng = np.random.default_rng(seed)
     with TakeWriter(path, ids=[int(i) for i in rig.servo_map.ids], models=dict(rig.servo_map.models),
                     rig_map_text="", calibration_text="", rig_name=rig_name or rig.name,
-                    overwrite=True) as writer:
+                    sound=sound, overwrite=True) as writer:
         for i in range(readings):
             ticks = (rig.servo_map.zero + 380 * np.sin(0.15 * i + np.arange(k))).astype(np.int32)
             t = 5_000_000_000 + round(i * 1e9 / TAKE_FPS)

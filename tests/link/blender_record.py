@@ -104,7 +104,11 @@ for f in range(math.ceil(keyed[0]), min(math.floor(keyed[-1]), last - 1) + 1):
                    "worst_bone": degrees(shown_turns, expected_turns)[1],
                    "streamed": [round(x, 3) for x in streamed if abs(x - f) <= 1.5],
                    "step_deg": degrees(expected_turns, following_turns)[0]})
-print("RESULT " + json.dumps({"status": status, "keyed": keyed, "frames": frames,
+editor = scene.sequence_editor
+sound_strips = [{"name": x.name, "frame_start": x.frame_start, "path": x.sound.filepath}
+                for x in (editor.strips if editor is not None else []) if x.type == "SOUND"]
+print("RESULT " + json.dumps({"status": status, "sound_strips": sound_strips, "keyed": keyed,
+                              "frames": frames,
                               "recorded": recorded, "action": action.name,
                               "interpolation": sorted({p.interpolation for c in fcurves
                                                        for p in c.keyframe_points})}))

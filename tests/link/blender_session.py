@@ -11,6 +11,8 @@ before and after. argv: ZIP CHARACTER GLB PORT CACHE STALL_AFTER.
    on ticking: the test starts a second ``puppet play`` on the same port, the add-on reconnects
    by itself and records it into a second action, with Exact mesh turned off and on again while
    it streams, then Record off and a 1 s stall (live frames are skipped: the panel says so).
+   The scene's strips are listed at TAKE1 and at the end: a strip named "puppet sound" made
+   before Connect stands for an earlier take's sound; the second take has a sound.
 3. Disconnect, snapshot the user's mesh again; import the first take's reference (GLB: the
    export of that take, scene at 30 fps) and measure, at every keyed frame of the first action, the largest
    distance of bone heads and tails (world) from it. Prints RESULT {json}.
@@ -80,6 +82,16 @@ def run(until):
 
 
 run(lambda: link.state == "waiting")  # no puppet yet: it retries
+editor = scene.sequence_editor_create()  # an earlier take's strip: the next take's replaces it
+strips = editor.strips if hasattr(editor, "strips") else editor.sequences
+
+
+def strip_list():
+    return [{"name": x.name, "frame_start": x.frame_start,
+             "path": x.sound.filepath if x.type == "SOUND" else x.type} for x in strips]
+
+
+strips.new_effect("puppet sound", "COLOR", 2, 1, length=10)  # standing for an earlier take's
 print("WAITING", flush=True)  # the test starts puppet now
 run(lambda: link.state == "connected")
 stalled = False
@@ -100,6 +112,7 @@ while link.state != "waiting" and time.monotonic() < deadline:
 first = bpy.data.actions[during["first_action"]]
 first_name, first_keys = first.name, len(first.layers[0].strips[0].channelbags[0].fcurves[0]
                                          .keyframe_points)
+strips_at_take1 = strip_list()
 print("TAKE1", flush=True)
 states.append("TAKE1")
 run(lambda: link.state == "connected")  # reconnected by itself to the second puppet
@@ -157,4 +170,4 @@ print("RESULT " + json.dumps({
     "before": before, "after": after, "during": during, "states": states,
     "panel": sorted(panel), "first": first_name, "first_keys_at_take1": first_keys,
     "actions": actions, "frames": frames, "status": link.status, "malformed": link.malformed,
-    "notes": link.notes}))
+    "notes": link.notes, "strips_at_take1": strips_at_take1, "strips": strip_list()}))

@@ -15,6 +15,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import soundfile as sf
 
 HERE = Path(__file__).resolve().parent
 SCRIPT = HERE / "blender_link.py"
@@ -167,15 +168,19 @@ def test_live_record_keys_blender_where_the_takes_export_puts_each_frame(
     (an offset of one frame, or a wrong take start, is that whole turn) plus two encoder ticks
     (the export rounds interpolated ticks). The free bones are not compared: FAST solves them
     warm-started from the frame before (every reading live, every 1/30 s in the export), so
-    they differ by how far each run's iterations got, not by time."""
+    they differ by how far each run's iterations got, not by time. Performed to a sound
+    (``--sound``, 0.3 s into it at time 0): its strip lands 9 frames before the take's start."""
     import hw_sim
     from puppet.demo import Performance
     from puppet.rig.load import BUILTIN_RIG
 
     take, reference = tmp_path / "take.mcap", tmp_path / "reference.glb"
+    sound = tmp_path / "line.wav"  # performed to: its strip lands 0.3 s (9 frames) before frame 1
+    sf.write(sound, np.zeros((44100, 1), np.float32), 44100)
     with hw_sim.serve(critter.servo_map.models, motion=Performance(critter)) as bus:
         puppet = helpers.Puppet(["live", "--rig", BUILTIN_RIG, "--port", bus.port, "--record",
-                                 take, "--link", "127.0.0.1:0"])
+                                 take, "--link", "127.0.0.1:0", "--sound", sound,
+                                 "--sound-offset", "0.3"])
         try:
             port, _ = puppet.listening(wait_until)
             sensed = ",".join(s.joint for s in critter.servo_map.servos)
@@ -196,6 +201,8 @@ def test_live_record_keys_blender_where_the_takes_export_puts_each_frame(
     assert blender.proc.wait(timeout=600) == 0, "\n".join(blender.lines[-30:])
     result = json.loads(next(x for x in blender.out if x.startswith("RESULT "))[len("RESULT "):])
     (tmp_path / "result.json").write_text(json.dumps(result))
+    assert result["sound_strips"] == [{"name": "puppet sound", "frame_start": 1 - 9,
+                                       "path": str(sound.absolute())}], result["sound_strips"]
     keyed = result["keyed"]
     assert keyed == list(range(keyed[0], keyed[-1] + 1))  # every integer frame, no holes
     assert result["interpolation"] == ["LINEAR"]

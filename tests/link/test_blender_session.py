@@ -2,19 +2,20 @@
 subprocess for the module), driving the critter as the README brings it into Blender
 (``puppet blender character``): the user's mesh is never written, a recording has no holes through
 a 1.5 s Blender stall and equals ``puppet export`` of the take, each take is its own action,
-the add-on reconnects by itself, and the panel reports the link's health."""
+the add-on reconnects by itself, the panel reports the link's health, and a take's sound lands
+on the scene's timeline where the take starts."""
 
 from __future__ import annotations
 
 import importlib.util
 import json
-import shutil
 import socket
 import subprocess
 from pathlib import Path
 
 import numpy as np
 import pytest
+import soundfile as sf
 
 HERE = Path(__file__).resolve().parent
 
@@ -31,7 +32,9 @@ helpers = _load("session_helpers", HERE / "helpers.py")
 readers = _load("session_pc2_readers", HERE.parent / "export" / "readers.py")
 suite = _load("session_suite_conftest", HERE.parent / "conftest.py")  # wait_until, for a module
 wait_until, interrupt_and_wait = suite.wait_until, suite._interrupt_and_wait
+suite_data = _load("session_export_data", HERE.parent / "export" / "conftest.py")
 STALL_AFTER = 8  # frames applied before Blender stalls 1.5 s
+SOUND_OFFSET_S = 0.5  # the second take's time 0 in its sound: 15 frames at the scene's 30 fps
 
 
 @pytest.fixture(scope="module", autouse=True)
@@ -42,7 +45,7 @@ def needs_bpy():
 
 
 @pytest.fixture(scope="module")
-def session(tmp_path_factory, take, exported):
+def session(tmp_path_factory, take, exported, critter):
     """The Blender session's RESULT, the point cache it wrote and the take's PC2 export."""
     folder = tmp_path_factory.mktemp("session")
     addon = folder / "puppet_link.zip"
@@ -53,8 +56,12 @@ def session(tmp_path_factory, take, exported):
     done = subprocess.run(["puppet", "blender", "character", "--out", str(character)],
                           capture_output=True, text=True, timeout=300)
     assert done.returncode == 0, done.stderr
-    second = folder / "take2.mcap"
-    shutil.copyfile(take, second)
+    from puppet.sound import load_sound, sound_ref
+
+    sound_path = folder / "line.wav"  # the second take's sound, its time 0 0.5 s into it
+    sf.write(sound_path, np.zeros((48000, 1), np.float32), 48000)
+    second = suite_data.write_take(folder / "take2.mcap", critter, readings=46,
+                                   sound=sound_ref(load_sound(sound_path), offset_s=SOUND_OFFSET_S))
     with socket.socket() as probe:  # a free port both puppets take in turn
         probe.bind(("127.0.0.1", 0))
         port = probe.getsockname()[1]
@@ -84,7 +91,8 @@ def session(tmp_path_factory, take, exported):
     done = subprocess.run(["puppet", "export", str(take), "--pc2", str(pc2), "--up", "z", "--fps",
                            "30"], capture_output=True, text=True, timeout=900)
     assert done.returncode == 0, done.stderr
-    return {"result": result, "cache": folder / "live_take.pc2", "pc2": pc2, "puppets": puppets}
+    return {"result": result, "cache": folder / "live_take.pc2", "pc2": pc2, "puppets": puppets,
+            "sound": sound_path}
 
 
 def test_the_users_mesh_is_as_imported_after_disconnect(session):
@@ -155,3 +163,13 @@ def test_each_take_is_its_own_action_and_the_addon_reconnects_by_itself(session,
 def test_the_panel_shows_latency_rate_and_a_stall(session):
     panel = set(session["result"]["panel"])
     assert {"reading->applied", "Blender", "recording", "dropping"} <= panel, panel
+
+
+def test_a_takes_sound_lands_on_the_timeline_where_the_take_starts(session):
+    """The second take has a sound (its time 0 at 0.5 s): its strip, named "puppet sound",
+    starts 15 frames (at 30 fps) before the take's start frame 1; the first take, without
+    sound, took away the strip of that name an earlier take had left."""
+    result = session["result"]
+    assert result["strips_at_take1"] == [], result["strips_at_take1"]
+    assert result["strips"] == [{"name": "puppet sound", "frame_start": 1 - 15,
+                                 "path": str(session["sound"].absolute())}], result["strips"]

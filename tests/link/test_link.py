@@ -82,6 +82,7 @@ def test_play_streams_the_gltf_exports_keys_to_two_clients_latest_wins(
         assert hello["parents"] == [int(p) for p in critter.skeleton.parents]
         assert hello["fps"] == 30.0  # the rate play hands out frames at (--fps, the export's)
         assert hello["armature"] == np.eye(4).reshape(16).tolist()  # the critter: no nodes above
+        assert hello["sound"] is None  # a take recorded without sound
         fast_seqs, slow_seqs = [], []
         slow_first = slow.next()[1]  # then the slow client stops reading (and acking)
         while True:
@@ -115,6 +116,37 @@ def test_play_streams_the_gltf_exports_keys_to_two_clients_latest_wins(
         assert "2 client(s)" in summary and "reading->applied median" in summary, summary
     finally:
         interrupt_and_wait(puppet.proc, read_stderr=False)
+
+
+def test_play_names_the_takes_sound_in_the_hello_or_warns_once_when_it_is_missing(
+        tmp_path, critter, wait_until, interrupt_and_wait):
+    """A take with a sound: the hello names its file (absolute) and offset; with the file gone,
+    the hello has none and play says so once (Blender keys it silent)."""
+    import soundfile as sf
+
+    from puppet.sound import load_sound, sound_ref
+
+    spec = importlib.util.spec_from_file_location("link_test_export_data_sound",
+                                                  HERE.parent / "export" / "conftest.py")
+    export_data = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(export_data)
+    sound = tmp_path / "line.wav"
+    sf.write(sound, np.zeros((8000, 1), np.float32), 8000)
+    take = export_data.write_take(tmp_path / "voiced.mcap", critter, readings=10,
+                                  sound=sound_ref(load_sound(sound), offset_s=0.25))
+    for present in (True, False):
+        if not present:
+            sound.unlink()
+        puppet, port, _ = _start(take, ["127.0.0.1:0"], wait_until)
+        try:
+            hello = Client(port).first[1]
+            expected = {"path": str(sound.absolute()), "offset_s": 0.25} if present else None
+            assert hello["sound"] == expected, hello["sound"]
+            assert puppet.proc.wait(timeout=120) == 0, "\n".join(puppet.lines)
+            warned = [x for x in puppet.lines if "line.wav" in x and "playing silent" in x]
+            assert len(warned) == (0 if present else 1), puppet.lines
+        finally:
+            interrupt_and_wait(puppet.proc, read_stderr=False)
 
 
 def test_a_recording_client_gets_every_frame_in_order_through_a_stall(

@@ -60,6 +60,7 @@ bl_info = {
     "category": "Animation",
 }
 
+SOUND_STRIP = "puppet sound"  # the take's sound on the timeline (as docs/blender.md names it)
 MAP_PREFIX = "puppet_map:"  # armature data custom property: joint -> bone, where names differ
 TICK_S = 0.004
 RETRY_S = 1.0  # seconds between attempts to reach puppet
@@ -532,6 +533,7 @@ class Link:
             name = hello.get("take") or f"{hello.get('rig', 'puppet')} {time.strftime('%H:%M:%S')}"
             self.recording = Recording(name, armature, [e[0] for e in self.bones],
                                        settings.point_cache or None)
+            self.place_sound(scene, settings.start_frame)
             self.recordings += 1
             self.keyed_q = {}
         co = None
@@ -542,6 +544,25 @@ class Link:
             co = points @ K[:3, :3].T + K[:3, 3]
         fps = scene.render.fps / scene.render.fps_base
         self.recording.add(settings.start_frame + frame.take_s * fps, self.values(frame), co)
+
+    def place_sound(self, scene, start_frame: int) -> None:
+        """Put the take's sound (the hello's) on the scene's timeline as the strip SOUND_STRIP,
+        its sample 0 at start_frame - offset_s x scene fps, so it plays in sync with the keys;
+        the previous take's strip of that name goes (a take without sound leaves none)."""
+        editor = scene.sequence_editor or scene.sequence_editor_create()
+        strips = editor.strips if hasattr(editor, "strips") else editor.sequences  # Blender 5
+        old = strips.get(SOUND_STRIP)
+        if old is not None:
+            strips.remove(old)
+        sound = self.hello.get("sound")
+        if not sound:
+            return
+        fps = scene.render.fps / scene.render.fps_base
+        frame = round(start_frame - float(sound["offset_s"]) * fps)
+        try:
+            strips.new_sound(SOUND_STRIP, sound["path"], 1, frame)
+        except RuntimeError as err:  # not readable from this machine
+            self.notes.append(f"sound {sound['path']}: {err}; the take is keyed without it")
 
     # -- health ------------------------------------------------------------------------------
 

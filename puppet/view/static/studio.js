@@ -264,6 +264,16 @@ function loadSound() {
 function stopSound() {
   if (audio.source) { try { audio.source.stop(); } catch (e) { /* already stopped */ } audio.source = null; }
 }
+// The context time heard at frame-clock time at_ms (performance.now's): the output timestamp
+// maps one clock onto the other, output latency included (bench/sound.py: ctx.currentTime + delay
+// is heard ~40 ms late in Chromium); ctx.currentTime + delay until the context runs.
+function heardAt(ctx, at_ms) {
+  const ts = ctx.getOutputTimestamp();
+  if (ctx.state !== "running" || !(ts.performanceTime > 0)) {
+    return ctx.currentTime + (at_ms - performance.now()) / 1000;
+  }
+  return ts.contextTime + (at_ms - ts.performanceTime) / 1000;
+}
 // offset_s: where in the sound; delay_s: from now; rate: speed; piece_s: how long (null: to its end)
 function playSound(offset_s, delay_s, rate, piece_s) {
   if (!audio.buffer) return;
@@ -273,8 +283,9 @@ function playSound(offset_s, delay_s, rate, piece_s) {
   source.buffer = audio.buffer;
   source.playbackRate.value = rate || 1;
   source.connect(ctx.destination);
-  let when = ctx.currentTime + Math.max(0, delay_s);
+  let when = heardAt(ctx, performance.now() + Math.max(0, delay_s) * 1000);
   if (offset_s < 0) { when += -offset_s / (rate || 1); offset_s = 0; }
+  when = Math.max(when, ctx.currentTime);  // (a time already past: as soon as it can)
   if (offset_s >= audio.buffer.duration) return;
   source.start(when, offset_s, piece_s == null ? undefined : piece_s);
   audio.source = source;
