@@ -114,7 +114,7 @@ def builtin_character():
     kind_state = {"full": "sensed", "relative": "relative", "free": "free"}
     state_of = {name: kind_state.get(kind, "free") for kind, names in character.bone_kinds().items() for name in names}
     states = [state_of.get(name, "free") for name in skeleton.names]
-    states[-1] = "faulted"  # show every state in the demo picture
+    states[-1] = "held"  # show every state in the demo picture
     V, F, W = (np.asarray(a) for a in (character.V, character.F, character.W))
     extra = int(getattr(getattr(character, "solver_options", None), "extra_weights", 0))
     return V, F, W, bones, np.asarray(skeleton.parents), states, "puppet.rig.builtin()", extra
@@ -201,7 +201,7 @@ def main(argv=None) -> None:
         W_bones = W
         args.extra = args.extra or 0
         W = add_extra_weights(V, W, args.extra)
-        states = ["sensed"] * 11 + ["relative"] * 2 + ["free"] * 3 + ["faulted"]
+        states = ["sensed"] * 11 + ["relative"] * 2 + ["free"] * 3 + ["held"]
         name = f"procedural ({len(BONES)} bones)"
     name += f", {args.extra} extra weights" if args.extra else ""
     m = W.shape[1]

@@ -102,9 +102,14 @@ class DeviceBus:
     # ---- faults on replies -------------------------------------------------------------------
     def _reply_fault(self, dxl_id: int) -> Fault | None:
         for f in self.reply_faults:
-            if f.hits(dxl_id) and (f.params["p"] >= 1.0 or self.rng.random() < f.params["p"]):
+            if f.kind != "late" and f.hits(dxl_id) and (f.params["p"] >= 1.0 or self.rng.random() < f.params["p"]):
                 return f
         return None
+
+    def _late_s(self, dxl_id: int) -> float:
+        """Seconds a ``late`` fault adds before ``dxl_id``'s reply (0 when none hits it)."""
+        return sum(f.params["ms"] / 1e3 for f in self.reply_faults if f.kind == "late" and f.hits(dxl_id)
+                   and (f.params["p"] >= 1.0 or self.rng.random() < f.params["p"]))
 
     def _finish(self, dxl_id: int, packets: list[bytes], error: int = 0) -> bytes | None:
         """Combine colliding packets and apply this id's reply fault, if any."""
@@ -167,7 +172,7 @@ class DeviceBus:
                 after(s)
         self._reindex()
         pkt = self._finish(dxl_id, packets, alert)
-        return [(pkt, delay)] if pkt else []
+        return [(pkt, delay + self._late_s(dxl_id))] if pkt else []
 
     def _ping(self, ins: Instruction, now: float) -> Replies:
         if ins.dxl_id != codec.BROADCAST_ID:
@@ -181,7 +186,7 @@ class DeviceBus:
                        for s in self._targets(dxl_id)]
             pkt = self._finish(dxl_id, packets)
             if pkt:
-                out.append((pkt, self.servo(dxl_id).return_delay_s))
+                out.append((pkt, self.servo(dxl_id).return_delay_s + self._late_s(dxl_id)))
         return out
 
     def _ping_data(self, s: Servo) -> tuple[int, bytes]:
@@ -289,12 +294,12 @@ class DeviceBus:
                         delay = s.return_delay_s
                 pkt = self._finish(dxl_id, packets, alert)
                 if pkt:
-                    out.append((pkt, delay))
+                    out.append((pkt, delay + self._late_s(dxl_id)))
             return out
         n = 1 + sum(length + 4 for _, _, length in requests)
         out = bytearray(codec.HEADER + bytes((codec.BROADCAST_ID, n & 0xFF, n >> 8, codec.STATUS)))
         crc = codec.crc16(out)
-        delay = None
+        delay, late = None, 0.0
         for dxl_id, addr, length in requests:
             segs = []
             for s in self._targets(dxl_id):
@@ -307,6 +312,7 @@ class DeviceBus:
             fault = self._reply_fault(dxl_id) if self.reply_faults else None
             if fault is not None and fault.kind == "drop":
                 continue
+            late += self._late_s(dxl_id) if self.reply_faults else 0.0  # a late segment holds the rest
             if fault is not None and fault.kind == "error_status":
                 segs = [bytes((fault.params["error"] | seg[0], dxl_id)) for seg in segs]
             # Each servo sends its segment and the CRC of everything it heard before plus its own
@@ -323,7 +329,7 @@ class DeviceBus:
             crc = codec.crc16(wire, crc)
         if delay is None:
             return []
-        return [(bytes(out), delay)]
+        return [(bytes(out), delay + late)]
 
     def _sync_read(self, ins: Instruction, now: float) -> Replies:
         p = ins.params

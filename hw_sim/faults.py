@@ -9,6 +9,9 @@ bad_crc            the reply's CRC is corrupted. params: p
 truncate           the reply is cut short. params: p, keep (bytes kept, default half)
 error_status       the reply carries an error number and no data. params: p, error (default 1;
                    on a Protocol 1.0 bus the status packet's error bits)
+late               the reply is sent whole, ``ms`` later (default 20) than its turn: a reply past
+                   the host's deadline, as a busy host sees one. params: p, ms. Needs the
+                   server's timing model (``timing=True``); without it replies have no time
 power_cycle        power off for the duration (default 0.2 s), then on: the servo reboots
 power_off          power off (silent) until ``power_on`` or the end of the duration
 power_on           power back on: the servo boots (RAM defaults, re-based position)
@@ -51,6 +54,7 @@ KINDS: dict[str, dict[str, tuple[type, object]]] = {
     "bad_crc": {"p": (float, 1.0)},
     "truncate": {"p": (float, 1.0), "keep": (int, None)},
     "error_status": {"p": (float, 1.0), "error": (int, 0x01)},
+    "late": {"p": (float, 1.0), "ms": (float, 20.0)},
     "power_cycle": {},
     "power_off": {},
     "power_on": {},
@@ -74,10 +78,11 @@ RANGES: dict[str, tuple[float, float]] = {
     "amplitude": (0, 4096),
     "current": (0.0, 10_000.0),  # load: mA drawn holding the shaft (X series stall: ~1.5 A)
     "heat": (0.0, 1000.0),       # load: heating speed factor (1 = as modelled)
+    "ms": (0.0, 10_000.0),       # late: how much later the reply goes out
 }
 MAX_TIME_S = 1e6
 """Start times and durations in a fault file: finite, 0..MAX_TIME_S seconds."""
-REPLY_KINDS = ("drop", "bad_crc", "truncate", "error_status")
+REPLY_KINDS = ("drop", "bad_crc", "truncate", "error_status", "late")
 BUS_KINDS = ("unplug", "replug", "echo")
 
 

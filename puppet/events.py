@@ -41,6 +41,10 @@ EVENT_KINDS: dict[str, EventKind] = {
         True, "servo missed a reading"),
     "servo_missing": EventKind("the servo stopped answering: out of the group read, probed now and then",
         True, "servo stopped answering (cable? power?)"),
+    "late_reply": EventKind("a servo's reply missed its deadline but the line shows it on its way, or "
+        "cannot tell (a starved host holds replies): its last good value held for that reading, no "
+        "failure booked (a servo unheard for the reader's stall_limit_s is booked failed)",
+        False, "reply came late (busy computer): last angle held a moment"),
     "servo_recovered": EventKind("the servo read cleanly again after a failure",
         False, "servo answering again"),
     "duplicate_id": EventKind("corrupt replies in a row while ping answers: two servos share the id",
@@ -85,12 +89,24 @@ EVENT_KINDS: dict[str, EventKind] = {
 }
 """Every kind of bus event, with its meaning. ``BusEvent.kind`` is always one of these keys."""
 
+HELD_READING = "held_reading"
+LOOP_KINDS: dict[str, EventKind] = {
+    HELD_READING: EventKind("a reading with a servo's value held (not read this time): its reply came "
+        "late (late_reply) or the servo is at fault (its own event says which)",
+        False, "servo's last angle held (reply late or missing)"),
+}
+"""What the loop counts in its summary beside the bus events (never logged by the bus)."""
+
+CONDITIONS: dict[str, EventKind] = {**EVENT_KINDS, **LOOP_KINDS}
+"""The one table of names: the summary, the terminal, the page and the overlay's legend name a
+condition by its key here and describe it in its ``words``."""
+
 
 def describe_counts(counts: dict[str, int]) -> str:
     """A count per kind ({kind: n}) as one line: faults first, then the other events (a kind
-    not in EVENT_KINDS, e.g. the summary's 'servo_not_ok', counts as a fault)."""
-    faults = [f"{k} {n}" for k, n in sorted(counts.items()) if k not in EVENT_KINDS or EVENT_KINDS[k].fault]
-    other = [f"{k} {n}" for k, n in sorted(counts.items()) if k in EVENT_KINDS and not EVENT_KINDS[k].fault]
+    not in CONDITIONS counts as a fault)."""
+    faults = [f"{k} {n}" for k, n in sorted(counts.items()) if k not in CONDITIONS or CONDITIONS[k].fault]
+    other = [f"{k} {n}" for k, n in sorted(counts.items()) if k in CONDITIONS and not CONDITIONS[k].fault]
     line = ", ".join(faults) or "none"
     return f"{line}; other events: {', '.join(other)}" if other else line
 

@@ -18,8 +18,8 @@ Per ``read()``:
    failure only once the line proves the servo silent (``BusLink.witness``: a servo that
    answered is asked for a read; its reply arriving with nothing before it proves the silence). On a
    starved machine the kernel can hold replies for hundreds of ms: a late or unproven
-   timeout leaves the reading flagged for that servo (its last good value held) but books
-   nothing, unless the servo has been unheard for ``stall_limit_s`` (a whole bus gone quiet
+   timeout leaves the reading flagged for that servo (its last good value held) and is logged
+   as a ``late_reply`` (not a fault), booking nothing, unless the servo has been unheard for ``stall_limit_s`` (a whole bus gone quiet
    has no witness).
 4. Every ``health_period_s`` (and at once when a status packet carries the alert bit): Hardware
    Error Status and Realtime Tick of every servo. A latched hardware error is reported (and the
@@ -48,7 +48,7 @@ from puppet.bus.codec import ALERT_BIT
 from puppet.bus.configure import (SetupReport, bus_protocol, check_baud, configure_servo,
                                   identify, p1_read_mode, supports_fast_sync_read)
 from puppet.bus.errors import PortError, ServoCorrupt, ServoError, ServoMissing, ServoTimeout
-from puppet.bus.link import SILENT, STALLED, BusLink, GroupRead
+from puppet.bus.link import LATE, SILENT, STALLED, BusLink, GroupRead
 from puppet.bus.unwrap import TurnUnwrapper, unwrap_period
 from puppet.events import EventLog
 from puppet.reading import Reading
@@ -89,7 +89,8 @@ class ServoReader:
     jump_window_s: only a good reading younger than this is a reference for that check.
     stall_limit_s: a servo unheard this long is booked failed even without a witness's proof.
 
-    ``stalls``: timeouts not booked because the line showed them late or could not judge them.
+    ``stalls``: timeouts not booked because the line showed them late or could not judge them
+    (each logged as a ``late_reply`` event).
     """
 
     def __init__(
@@ -411,6 +412,9 @@ class ServoReader:
         if now - since > self.stall_limit_ns:
             del self._unproven_since[dxl_id]
             return True
+        self.log.add("late_reply", [dxl_id], "the reply missed its deadline and the line shows it "
+                     "on its way" if verdict == LATE else "the reply missed its deadline and the "
+                     "line could not tell why (a starved host)")
         return False
 
     def _witness_for(self, dxl_id: int, heard=None) -> int | None:

@@ -28,7 +28,7 @@ def record(rig_path: str, port: str, out: str, baud: int, seconds: float | None,
     Example:
       puppet record --rig my.toml --port /dev/ttyUSB0 --out take.mcap --seconds 30
     """
-    from puppet.events import describe_counts
+    from puppet.events import HELD_READING, describe_counts
     from puppet.session import Session
     from puppet.session import outputs as o
     from puppet.session.sources import BusSource
@@ -42,9 +42,9 @@ def record(rig_path: str, port: str, out: str, baud: int, seconds: float | None,
     summary = session.run()
     if session.stopped_by is not None:
         say(f"stopped by {session.stopped_by}; the take holds every reading until then")
-    flagged = summary.faults.pop("servo_not_ok", 0)
+    held = summary.faults.pop(HELD_READING, 0)
     click.echo(f"take: {out}\nreadings: {take.readings} in {summary.seconds:.2f} s, "
-               f"{flagged} with a flagged servo\nfaults seen: {describe_counts(summary.faults)}")
+               f"{held} {HELD_READING}\nfaults seen: {describe_counts(summary.faults)}")
 
 
 COMMANDS = (record,)

@@ -54,6 +54,7 @@ from puppet.drive.guardian import Guardian
 from puppet.drive.health import (CURRENT_FRACTION, CURRENT_SUSTAIN_S, TEMPERATURE_CAP_C,
                                  TEMPERATURE_MARGIN_C, CurrentTemperatureStop)
 from puppet.drive.servos import DriveBus
+from puppet.events import HELD_READING
 from puppet.servo_models import describe_hardware_error, protocol_of
 from puppet.session.signals import Signals
 
@@ -161,10 +162,11 @@ class PerformReport:
             lines.append(f"take: {self.take_damage}")
         if self.rearmed:
             lines.append(f"Bus Watchdog re-armed after a stall (times per servo): {self.rearmed}")
-        for name in ("clamped", "rate_limited", "flagged"):
+        for name, label in (("clamped", "clamped"), ("rate_limited", "rate limited"), ("flagged", HELD_READING)):
             table = getattr(self, name)
             if table:
-                lines.append(f"{name.replace('_', ' ')} (cycles or readings per servo): {table}")
+                per_servo = ", ".join(f"servo {i} {n}" for i, n in sorted(table.items()))
+                lines.append(f"{label} (cycles or readings per servo): {per_servo}")
         if not self.torque_after:
             lines.append("torque: never turned on")
             return "\n".join(lines)
@@ -257,7 +259,8 @@ def perform(rig, reader, port: str, options: PerformOptions | None = None,
     if reader.recovery is not None:
         say(f"warning: {reader.path}: {reader.recovery}")
     if goals.flagged:
-        say(f"flagged readings in the take (those servos hold their last good value): {goals.flagged}")
+        held = ", ".join(f"servo {i} {n}" for i, n in sorted(goals.flagged.items()))
+        say(f"{HELD_READING} in the take (those servos hold their last good value): {held}")
     replay_s = goals.duration_s / opts.speed
     if replay_s > MAX_REPLAY_S and not opts.yes:
         raise DriveError(f"{reader.path}: the replay would last {replay_s:.0f} s at speed "

@@ -121,7 +121,7 @@ class Pipeline:
         self.solve_ns = 0           # the whole solve stage (angles .. iterations), all frames
         self.iterate_ns = 0         # the native iterations alone, all frames
         self.solver_iterations = 0  # iterations run, all frames
-        # Bone state per bone, and which bone each servo senses (for the "faulted" colour).
+        # Bone state per bone, and which bone each servo senses (for the "held" colour: a servo not read this time).
         kinds = rig.bone_kinds()
         index = {name: i for i, name in enumerate(rig.skeleton.names)}
         self._base_states = ["free"] * len(rig.skeleton.names)
@@ -203,7 +203,7 @@ class Pipeline:
         self.iterate_ns += stats.iterate_ns
         self.solver_iterations += int(stats.iterations)
         if not reading.ok.all():
-            self._mark_faulted(reading.ok)
+            self._mark_held(reading.ok)
         elif self.bone_states != self._base_states:
             self.bone_states[:] = self._base_states
         return self.T
@@ -225,10 +225,10 @@ class Pipeline:
         self.live.set_handles(points, self.T)
         return time.perf_counter() - start
 
-    def _mark_faulted(self, ok: np.ndarray) -> None:
+    def _mark_held(self, ok: np.ndarray) -> None:
         self.bone_states[:] = self._base_states
         for bone in self._servo_bone[~ok]:
-            self.bone_states[bone] = "faulted"
+            self.bone_states[bone] = "held"
 
     def draw(self) -> np.ndarray:
         """Render the current T: (height, width, 3) uint8 (``render`` then ``read``)."""

@@ -9,6 +9,7 @@ from functools import partial
 
 import numpy as np
 
+from puppet.events import HELD_READING
 from puppet.loop.late_latch import LateLatch
 from puppet.loop.pipeline import Pipeline
 from puppet.loop.stage_clock import STAGES, StageClock
@@ -87,14 +88,14 @@ def run_live(pipeline: Pipeline, source, *, seconds: float | None = None,
               the first reading recorded and every frame is flagged recording.
     feed:     callables given every batch of readings (a key desk without a view).
     pipeline None: readings only (``puppet record``): every reading recorded and fed, nothing
-              solved; ``frames`` then counts batches and faults count readings with a flagged servo.
+              solved; ``frames`` then counts batches and ``held_reading`` counts readings with a held servo.
     """
     sinks = list(sinks)
     feed = list(feed)
     keep_all = recorder is not None or bool(feed)
     render = bool(sinks) and pipeline is not None and pipeline.renderer is not None
     summary = Summary()
-    not_ok = 0
+    held = 0
     start = time.monotonic()
     clock = VideoClock(video_fps, start)
     stages = StageClock()
@@ -130,7 +131,7 @@ def run_live(pipeline: Pipeline, source, *, seconds: float | None = None,
         for take in feed:
             take(batch)
         if pipeline is None:  # readings only
-            not_ok += sum(not r.ok.all() for r in batch)
+            held += sum(not r.ok.all() for r in batch)
             summary.frames += 1
             if on_frame is not None:
                 on_frame(summary)
@@ -140,7 +141,7 @@ def run_live(pipeline: Pipeline, source, *, seconds: float | None = None,
         work_start = time.perf_counter()
         stages.set("age", (time.monotonic_ns() - reading.t_ns) / 1e6)
         if not reading.ok.all():
-            not_ok += 1
+            held += 1
         pipeline.solve(reading)
         if after_solve is not None:
             after_solve(pipeline, reading)
@@ -169,8 +170,8 @@ def run_live(pipeline: Pipeline, source, *, seconds: float | None = None,
     summary.seconds = time.monotonic() - start
     summary.stages_ms = stages.ms
     summary.faults = dict(source.log.counts)
-    if not_ok:
-        summary.faults["servo_not_ok"] = not_ok
+    if held:
+        summary.faults[HELD_READING] = held
     return summary if pipeline is None else _finish(summary, pipeline)
 
 
@@ -186,14 +187,14 @@ def run_frames(pipeline: Pipeline, readings: Iterable[Reading], *, sinks: Iterab
     sinks = list(sinks)
     render = bool(sinks) and pipeline.renderer is not None
     summary = Summary()
-    not_ok = 0
+    held = 0
     start = time.monotonic()
     stages = StageClock(tuple(s for s in STAGES if s != "age"))
     for reading in readings:
         if should_stop():
             break
         stages.lap("idle")  # reading the take
-        not_ok += not reading.ok.all()
+        held += not reading.ok.all()
         pipeline.solve(reading)
         stages.lap("solve")
         if render:
@@ -210,6 +211,6 @@ def run_frames(pipeline: Pipeline, readings: Iterable[Reading], *, sinks: Iterab
         stages.frame_done()
     summary.seconds = time.monotonic() - start
     summary.stages_ms = stages.ms
-    if not_ok:
-        summary.faults["servo_not_ok"] = not_ok  # flagged servos recorded in the take
+    if held:
+        summary.faults[HELD_READING] = held  # held servos recorded in the take
     return _finish(summary, pipeline)

@@ -35,7 +35,8 @@ class Summary:
     solver_us_per_iter: the FAST iterations' own time per iteration (native, mean).
     solve_other_us_per_frame: the rest of the solve stage per frame (angles, forward kinematics,
         constraint values, pattern switches), mean.
-    faults: {kind: count} of bus events, plus 'servo_not_ok' readings with a flagged servo.
+    faults: {kind: count} of bus events (puppet.events.EVENT_KINDS: the faults and the other events,
+        'late_reply' among them), plus 'held_reading': readings with a servo's value held.
     stages_ms: {stage: Histogram of ms per frame} (see puppet.loop.stage_clock.STAGES).
     first_frame_s: seconds from the process's start (the command) to the first finished frame.
     """

@@ -3,11 +3,13 @@
 A bone is a rest-pose segment (head, tail) that moves with the handle of the same index
 (skeleton bones are the first handles of the FAST model). States follow the solver's
 constraint kinds: sensed (full transform from the servos), relative (sensed joint under a free
-parent), free (solved), faulted (servo not answering; holding its last good angle).
+parent), free (solved), held (its servo not read this time, its reply late or missing: holding its
+last good angle; the words are puppet.events' ``held_reading``).
 """
 
 import numpy as np
 
+from puppet.events import CONDITIONS, HELD_READING
 from puppet.render.errors import RenderInputError
 
 #: Linear-light RGB of each bone state, and of bones drawn without a state.
@@ -15,7 +17,7 @@ BONE_STATE_COLORS = {
     "sensed": (0.15, 0.85, 0.3),
     "relative": (0.2, 0.6, 1.0),
     "free": (0.75, 0.75, 0.75),
-    "faulted": (1.0, 0.15, 0.1),
+    "held": (1.0, 0.15, 0.1),
     None: (1.0, 0.85, 0.2),
 }
 #: What each bone state means to a puppeteer (the live view's legend).
@@ -23,7 +25,7 @@ BONE_STATE_WORDS = {
     "sensed": "follows its servo",
     "relative": "follows its servo, under a free parent",
     "free": "no servo: solved from the others (and pins)",
-    "faulted": "servo not answering: holds its last angle",
+    "held": CONDITIONS[HELD_READING].words,
 }
 
 #: Diamond outline of a bone, as a triangle strip in (along, across) coordinates.

@@ -43,7 +43,9 @@ def test_no_false_faults_beside_two_busy_processes(busy_machine, wait_until):
             readings.extend(source.drain())
             assert all(proc.poll() is None for proc in busy_machine)   # the load was there
             assert source.report.missing == []
-            assert source.log.counts == {}, ([(e.kind, e.ids, e.detail) for e in source.log.events][:40], bus.counts())
+            # Replies the load held past their deadline are late replies (not faults); nothing else.
+            assert set(source.log.counts) <= {"late_reply"}, (
+                [(e.kind, e.ids, e.detail) for e in source.log.events if e.kind != "late_reply"][:40], bus.counts())
             assert len(readings) > 0
             # Every servo was read in the run (a reading may hold a servo whose reply is late).
             assert all(any(r.ok[k] for r in readings) for k in range(len(SERVOS)))
@@ -57,7 +59,7 @@ def test_no_false_faults_beside_two_busy_processes(busy_machine, wait_until):
             wait_until(lambda: source.drain() is not None and source.log.counts.get("servo_recovered"),
                        what="the dropped servo back")
             # A power cycle whose two ends are in the test's hands: a cycle shorter than a
-            # stall of the line cannot be told from the stall (and is only flagged, not booked).
+            # stall of the line cannot be told from the stall (and is only a late_reply, not booked).
             bus.inject("power_off", ids=[3])
             wait_until(lambda: source.drain() is not None and any(
                 e.kind in ("servo_failed", "servo_missing") and e.ids == (3,) for e in source.log.events),

@@ -59,8 +59,9 @@ def test_the_summary_line_lists_faults_then_the_other_events():
     from puppet.events import describe_counts
 
     assert describe_counts({}) == "none"
-    assert describe_counts({"servo_recovered": 1, "servo_missing": 2, "servo_not_ok": 5}) == \
-        "servo_missing 2, servo_not_ok 5; other events: servo_recovered 1"
+    assert describe_counts({"servo_recovered": 1, "servo_missing": 2, "held_reading": 5, "late_reply": 5}) == \
+        "servo_missing 2; other events: held_reading 5, late_reply 5, servo_recovered 1"
+    assert describe_counts({"servo_exploded": 1}) == "servo_exploded 1"  # not in the table: a fault
     assert describe_counts({"quiet": 3}) == "none; other events: quiet 3"
 
 

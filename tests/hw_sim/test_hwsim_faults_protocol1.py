@@ -16,7 +16,7 @@ from hw_sim.faults import KINDS
 POSITION, TORQUE, LOAD, GOAL = 36, 24, 40, 30
 SERVOS = {1: "AX-12A", 2: "MX-28", 3: "MX-64"}
 COVERED = {"drop", "bad_crc", "truncate", "error_status", "power_cycle", "power_off", "power_on",
-           "unplug", "replug", "duplicate_id", "hardware_error", "noise", "echo", "load"}
+           "unplug", "replug", "duplicate_id", "hardware_error", "noise", "echo", "load", "late"}
 
 
 @pytest.fixture
@@ -50,6 +50,21 @@ def test_drop_bad_crc_truncate_and_error_status(p1, short):
         ph.read2ByteTxRx(port, 1, POSITION)
     bus.clear_faults()
     assert ph.read2ByteTxRx(port, 1, POSITION) == (512, dxl.COMM_SUCCESS, 0)
+
+
+def test_late_sends_the_whole_reply_after_the_sdk_deadline(open_sdk, short, wait_until):
+    with hw_sim.serve(SERVOS, timing=True) as bus:
+        sdk = open_sdk(bus.port, protocol=1.0)
+        ph, port = sdk.packet, sdk.port
+        bus.inject("late", ids=[1], ms=3000)  # far past a ~4.5 ms deadline, even on a busy host
+        with short():
+            assert ph.read2ByteTxRx(port, 1, POSITION)[1] == dxl.COMM_RX_TIMEOUT
+        got = bytearray()
+        wait_until(lambda: got.extend(port.ser.read(port.ser.in_waiting)) or len(got) >= 8,
+                   what="the late reply")
+        assert bytes(got[:5]) == bytes((0xFF, 0xFF, 1, 4, 0))  # servo 1's whole status, no error
+        assert got[5] | got[6] << 8 == 512
+        bus.clear_faults()
 
 
 def test_power_off_on_and_cycle_reboot_the_servo(p1, short, wait_until):

@@ -25,16 +25,16 @@ def test_solve_follows_the_reading_and_keeps_full_constraints(critter):
     assert np.isfinite(pipeline.T).all()
 
 
-def test_faulted_servo_marks_its_bone(critter):
+def test_held_servo_marks_its_bone(critter):
     pipeline = Pipeline(critter, render=False)
     k = len(critter.servo_map)
     ok = np.ones(k, bool)
     ok[0] = False
     pipeline.solve(Reading(0, critter.servo_map.ids, critter.servo_map.zero.astype(np.int32), ok))
     bone = critter.skeleton.index(critter.servo_map.servos[0].joint)
-    assert pipeline.bone_states[bone] == "faulted"
+    assert pipeline.bone_states[bone] == "held"
     pipeline.solve(Reading(1, critter.servo_map.ids, critter.servo_map.zero.astype(np.int32), np.ones(k, bool)))
-    assert pipeline.bone_states[bone] != "faulted"
+    assert pipeline.bone_states[bone] != "held"
 
 
 def test_live_loop_keeps_running_through_faults(critter):
@@ -75,7 +75,7 @@ def test_live_loop_keeps_running_through_faults(critter):
     assert np.isfinite(pipeline.T).all()
     flagged = {int(r.ids[j]) for r in recorded for j in np.flatnonzero(~r.ok)}
     assert {ids[2], ids[5]} <= flagged
-    assert summary.faults.get("servo_not_ok", 0) >= 1
+    assert summary.faults.get("held_reading", 0) >= 1
     assert recorded[-1].ok.all()  # recovered by the end
     assert summary.readings == len(recorded)
 

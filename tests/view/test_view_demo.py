@@ -34,9 +34,9 @@ def test_frames_arrive_and_change(new_page, demo, tmp_path, tools):
 def test_servo_panel_flags_a_dropped_servo(new_page, demo, tmp_path, tools):
     page = tools.open_view(new_page, demo)
     row = f"#servos tbody tr[data-id='{tools.DROPPED_SERVO}']"
-    tools.wait_until(lambda: page.locator(row).get_attribute("class") == "flagged",
-                     what=f"servo {tools.DROPPED_SERVO} flagged on the panel")
-    assert page.locator(f"{row} td").nth(3).inner_text() == "flagged"
+    tools.wait_until(lambda: page.locator(row).get_attribute("class") == "held",
+                     what=f"servo {tools.DROPPED_SERVO} held on the panel")
+    assert page.locator(f"{row} td").nth(3).inner_text() == "held"
     # Its last fault is named: the bus event reaches the panel just after the flagged reading
     # (the reader writes the reading, then sends the event), so it may take one more update.
     tools.wait_until(lambda: page.locator(f"{row} td").nth(4).inner_text() != "",
@@ -226,7 +226,7 @@ def test_the_page_fits_every_width(new_page, demo, tmp_path, tools):
     page.evaluate("const row = document.querySelector('#servos tbody tr');"
                   "row.cells[1].textContent = 'a_joint_name_much_longer_than_the_column'.repeat(3);")
     legend = page.evaluate("Array.from(document.querySelectorAll('#legend li'), li => li.textContent)")
-    assert any(text.startswith("faulted: servo not answering") for text in legend)
+    assert any(text.startswith("held: servo's last angle held") for text in legend)
     for width, height in ((390, 844), (1024, 768), (1366, 768), (1920, 1080)):
         page.set_viewport_size({"width": width, "height": height})
         tools.wait_js(page, f"innerWidth === {width}")

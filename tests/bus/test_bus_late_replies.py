@@ -1,0 +1,69 @@
+"""A reply that comes after its deadline (a busy host; the servo did answer) is a late reply,
+never a servo fault: the reader logs ``late_reply`` and books nothing, and the live loop's
+summary says so; a servo that truly does not answer stays a fault. hw_sim's ``late`` fault sends
+the whole reply just past the SDK's deadline, through the real SDK on a pty."""
+
+from __future__ import annotations
+
+from puppet.bus import ReaderThread
+from puppet.events import CONDITIONS, EVENT_KINDS, HELD_READING, describe_counts
+
+LATE_MS = 25.0
+"""Just past the reads' deadline (~14 ms at the tests' 6 ms latency assumption)."""
+
+
+def _faults(counts) -> dict:
+    return {k: n for k, n in counts.items() if CONDITIONS[k].fault}
+
+
+def _held_reading_events(reader, bus, n: int, read_until) -> list:
+    seen = []
+    read_until(reader, lambda r: reader.log.counts.get("late_reply", 0) >= n, what=f"{n} late replies",
+               seen=seen)
+    bus.clear_faults()
+    return seen
+
+
+def test_a_late_reply_is_logged_late_and_books_no_fault(sim, open_reader, read_until):
+    bus = sim(timing=True)
+    reader = open_reader(bus, stall_limit_s=600.0)  # only the line's proof may book a failure
+    bus.inject("late", ids=[2], p=0.5, ms=LATE_MS)
+    seen = _held_reading_events(reader, bus, 5, read_until)
+    assert any(not r.ok.all() for r in seen)  # the late servo's value was held meanwhile
+    late = [e for e in reader.log.events if e.kind == "late_reply"]
+    assert {2} <= {i for e in late for i in e.ids}
+    assert _faults(reader.log.counts) == {}, reader.log.counts
+    assert not EVENT_KINDS["late_reply"].fault
+
+
+def test_a_servo_that_does_not_answer_is_still_a_fault(sim, open_reader, read_until):
+    bus = sim(timing=True)
+    reader = open_reader(bus)
+    bus.inject("drop", ids=[3])
+    read_until(reader, lambda r: reader.log.counts.get("servo_missing", 0) >= 1, what="servo 3 missing")
+    assert {3} == {i for e in reader.log.events if e.kind == "servo_missing" for i in e.ids}
+    assert "servo_missing" in describe_counts(reader.log.counts).split(";")[0]
+
+
+def test_the_live_summary_says_late_replies_not_a_fault(sim, open_reader):
+    from puppet.loop import run_live
+
+    class Counter:  # the loop's pipeline side, without a solve
+        iterations = solve_ns = iterate_ns = solver_iterations = 0
+        renderer = None
+
+        def solve(self, reading):
+            pass
+
+    bus = sim(timing=True)
+    reader = open_reader(bus, stall_limit_s=600.0)
+    bus.inject("late", ids=[2], p=0.5, ms=LATE_MS)
+    with ReaderThread(reader, rate_hz=200.0, queue_len=256) as thread:
+        summary = run_live(Counter(), thread, seconds=120,
+                           should_stop=lambda: reader.log.counts.get("late_reply", 0) >= 5)
+    assert summary.faults.get("late_reply", 0) >= 5
+    assert _faults(summary.faults) == {}, summary.faults
+    line = summary.text().splitlines()[-1]
+    assert line.startswith("faults seen: none; other events: "), line
+    assert "late_reply" in line and "servo_not_ok" not in line
+    assert set(summary.faults) <= set(CONDITIONS) and HELD_READING not in EVENT_KINDS
