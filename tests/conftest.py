@@ -7,7 +7,7 @@ the whole session (subprocesses started by tests inherit it).
 Tests on a loaded 2-core machine must not depend on speed: instead of sleeping a fixed time
 and then asserting a state, they wait for the state with ``wait_until`` and a generous timeout.
 
-The suite runs in parallel workers (pytest-xdist, ``-n 4 --dist loadgroup`` in pyproject.toml).
+The suite runs in parallel workers (pytest-xdist, ``-n 2 --dist loadgroup`` in pyproject.toml).
 Tests that share an expensive set-up or a resource run in one worker (``xdist_group``, set here
 at collection: see ``XDIST_GROUPS`` and ``_xdist_group``). At the end of a run pytest prints the
 25 slowest tests and the time per top-level folder (``pytest_terminal_summary``).
@@ -217,6 +217,11 @@ XDIST_GROUPS = {
     # one Blender set-up per character: mare_shown and the fixtures built on it here, the
     # tests of critter_shown (the param "critter" of the fixture shown) in their own group
     "tests/export/blender/": "blender-export",
+    # tests that load the host on purpose (busy processes beside the bus) or time a bus under
+    # load: one at a time, never two of them stacked on each other
+    "tests/drive/test_perform_busy.py": "host-load",
+    "tests/bus/test_bus_under_load.py": "host-load",
+    "tests/bus/test_bus_scan.py": "host-load",
 }
 """Path prefix (relative to the repository) -> xdist group: tests that share a session set-up
 run in one worker, so it is made once."""

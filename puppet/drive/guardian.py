@@ -66,8 +66,11 @@ class Guardian:
             self.proc = subprocess.Popen([sys.executable, "-m", "puppet.drive.guardian"],
                                          stdin=subprocess.PIPE, stdout=subprocess.PIPE,
                                          close_fds=True)
-        self.proc.stdin.write((json.dumps(self.orders) + "\n").encode())
-        self.proc.stdin.flush()
+        try:
+            self.proc.stdin.write((json.dumps(self.orders) + "\n").encode())
+            self.proc.stdin.flush()
+        except (BrokenPipeError, OSError):
+            pass  # it ended already: wait_ready says so (torque stays off)
 
     def wait_ready(self, timeout_s: float = READY_TIMEOUT_S) -> None:
         """Wait for the guardian's ``ready``; DriveError when it does not come (torque must
