@@ -429,8 +429,12 @@ class Server:
 
 
 
-def _child_main(server: Server, conn) -> None:
+def _child_main(server: Server, conn, parent_conn) -> None:
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    # The fork copied the parent's end of the control pipe: closed here, the parent's death (a
+    # SIGKILL, a crash) is an end of file on ``conn`` and the bus stops, instead of outliving it
+    # as an orphan that holds the pty and whatever else the parent had open.
+    parent_conn.close()
     server.run(conn)
 
 
@@ -499,7 +503,7 @@ class SimBus:
         self._conn, child_conn = multiprocessing.Pipe()
         if process:
             ctx = multiprocessing.get_context("fork")
-            self._worker = ctx.Process(target=_child_main, args=(server, child_conn),
+            self._worker = ctx.Process(target=_child_main, args=(server, child_conn, self._conn),
                                        name="hw_sim-bus", daemon=True)
         else:
             self._worker = threading.Thread(target=server.run, args=(child_conn,),

@@ -204,3 +204,37 @@ def test_ctrl_c_during_start_up_stops_cleanly_with_a_summary(after_s, tmp_path, 
     assert "faults seen" in out, out
     wait_until(lambda: _group_gone(proc.pid), what="every process of the command ended")
     assert [p.name for p in tmp_path.iterdir() if p.name.startswith(".")] == []
+
+
+def test_a_killed_demo_leaves_no_simulated_bus_holding_its_page(tmp_path, wait_until):
+    """SIGKILL of `puppet demo --view` (its process alone): the simulated bus it forked ends
+    with it (its end of the control pipe closes) and the page's port is free again at once."""
+    import socket
+
+    with socket.socket() as probe:
+        probe.bind(("127.0.0.1", 0))
+        port = probe.getsockname()[1]
+    proc = subprocess.Popen([*PUPPET, "demo", "--view", f"127.0.0.1:{port}", "--out",
+                             str(tmp_path / "v.mp4")], stdout=subprocess.DEVNULL,
+                            stderr=subprocess.PIPE, text=True, process_group=0, cwd=tmp_path)
+    try:
+        wait_until(lambda: proc.poll() is not None or _bigger(tmp_path / "v.mp4", 20_000)(),
+                   what="the demo under way")
+        assert proc.poll() is None, proc.stderr.read()
+        proc.kill()
+        proc.wait()
+
+        def port_free() -> bool:
+            with socket.socket() as again:
+                again.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+                try:
+                    again.bind(("127.0.0.1", port))
+                except OSError:
+                    return False
+                return True
+
+        wait_until(port_free, what="the page's port free after the kill")
+        wait_until(lambda: _group_gone(proc.pid), what="every process of the demo ended")
+    finally:
+        if not _group_gone(proc.pid):
+            os.killpg(proc.pid, signal.SIGKILL)
