@@ -263,6 +263,8 @@ class ReaderProcess:
         self.hook = hook
         self.torque_after: dict | None = None
         self.notes: list[str] = []
+        self.died: str | None = None   # set by stop(): the child had ended unasked, unexplained
+        self._said_error = False
         self._goal_shm = None
         self.servos = {int(i): str(m) for i, m in servos.items()}
         self.ids = np.array(list(self.servos), np.int64)
@@ -330,6 +332,7 @@ class ReaderProcess:
         elif kind == "torque_off":
             self.torque_after = payload
         elif kind == "error":
+            self._said_error = True
             self.stop()
             raise ReaderProcessError(
                 payload if payload.startswith(f"port {self.port}:") else f"port {self.port}: {payload}")
@@ -406,7 +409,13 @@ class ReaderProcess:
         return (self._delay_bus[:n] - self._delay_src[:n]) / 1e6
 
     def stop(self, timeout: float = 3.0) -> None:
+        """Stop the child and free the shared memory. A child that had ended before it was
+        asked to, without an error message (killed, crashed), is named in ``died``."""
         if self._proc is not None:
+            if not self._proc.is_alive() and self._proc.exitcode and not self._said_error:
+                code = self._proc.exitcode
+                how = (f"killed by {signal.Signals(-code).name}" if code < 0 else f"exit code {code}")
+                self.died = f"port {self.port}: the reader process stopped ({how})"
             self._stop_word[0] = 1
             try:
                 self._commands.send(("stop", None))   # wakes a child pacing its reads

@@ -114,6 +114,8 @@ class BusSource:
         if self.reading_source is not None and not self._stopped:
             self._stopped = True
             self.reading_source.stop()
+            if self.reading_source.died is not None:  # even when the loop ended on its own
+                raise PuppetError(self.reading_source.died)
 
 
 class SimulatedBus(BusSource):

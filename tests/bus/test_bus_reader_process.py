@@ -89,3 +89,19 @@ def test_a_request_to_a_dead_reader_is_reported_by_drain():
                     source.drain()
         finally:
             source.stop()
+
+
+def test_a_reader_killed_before_its_stop_is_named_by_the_stop():
+    """A consumer that stops before it drains again (a key session whose input ended just after
+    the kill) still learns that the child died; a plain stop names nothing."""
+    with hw_sim.serve(MODELS) as bus:
+        killed = ReaderProcess(bus.port, MODELS, rate_hz=300.0)
+        killed.start()
+        killed._proc.kill()
+        killed._proc.join()
+        killed.stop()
+        assert killed.died == f"port {bus.port}: the reader process stopped (killed by SIGKILL)"
+        asked = ReaderProcess(bus.port, MODELS, rate_hz=300.0)
+        asked.start()
+        asked.stop()
+        assert asked.died is None
