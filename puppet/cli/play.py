@@ -56,9 +56,9 @@ def play(take: str, rig_path: str | None, out: str | None, frames: str | None, s
     rig, reader = open_take(take, rig_path)
     outputs = []
     if out:
-        sound, offset_s, timecode = _sound(reader, sound_path, speed)
+        sound, offset_s, timecode = _sound(reader, sound_path)
         outputs.append(o.Video(out, fps, force=force, sound=sound, sound_offset_s=offset_s,
-                               timecode=timecode, tell=say))
+                               sound_speed=speed, timecode=timecode, tell=say))
     if frames:
         outputs.append(o.Frames(frames))
     bar = None
@@ -97,16 +97,14 @@ def play(take: str, rig_path: str | None, out: str | None, frames: str | None, s
     print_summary(session.summary, False, extra={"take": take, **session.report()})
 
 
-def _sound(reader, sound_path: str | None, speed: float):
+def _sound(reader, sound_path: str | None):
     """(sound, offset_s, start timecode) for the video: the take's own sound (or --sound FILE);
-    a missing one, or a --speed other than 1, plays silent with one warning."""
+    a missing one plays silent with one warning (at a --speed other than 1 the video's sound is
+    played at that speed: ``puppet.sound.mux``)."""
     from puppet.sound import sound_for_take
 
     timecode = reader.metadata.timecode
     if sound_path is None and reader.metadata.sound is None:
-        return None, 0.0, timecode
-    if speed != 1.0:
-        say(f"warning: --speed {speed:g}: the video is silent (its sound plays at speed 1 only)")
         return None, 0.0, timecode
     sound, offset_s, warning = sound_for_take(reader, sound_path)
     if warning is not None:

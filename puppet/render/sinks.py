@@ -109,6 +109,7 @@ class VideoSink:
     video, sound_offset_s (the sound's time at the first frame) on, exactly as long as the video;
     a longer sound is cut at its end, said once in ``notes``. The silent video is renamed into
     place first and replaced by the one with sound (a kill in between leaves it silent, playable).
+    sound_speed: take seconds per video second (``play --speed``): the sound plays at that speed.
     timecode: a ``puppet.timecode.StartTimecode`` of the first frame: the MP4's timecode track, at
     the video's rate when fps is a timecode rate (else left out, said in ``notes``).
     notes: what the sink did that the user should hear of, in words.
@@ -117,7 +118,7 @@ class VideoSink:
     def __init__(self, path, fps: float = 30.0, *, size: tuple[int, int] | None = None, quality: float = 7.0,
                  codec: str = "libx264", preset: str | None = DEFAULT_PRESET, encoder: str = "thread",
                  queue_frames: int = 8, nice: int = ENCODER_NICE, sound=None,
-                 sound_offset_s: float = 0.0, timecode=None):
+                 sound_offset_s: float = 0.0, sound_speed: float = 1.0, timecode=None):
         self.path = Path(path)
         if not fps > 0:
             raise SinkError(f"{self.path}: fps must be positive, got {fps}")
@@ -142,6 +143,7 @@ class VideoSink:
         self._reported = False   # the error was raised once already
         self._closed = False
         self.sound, self.sound_offset_s = sound, float(sound_offset_s)
+        self.sound_speed = float(sound_speed)
         self.notes: list[str] = []
         self.timecode = self._timecode_label(timecode)
         if size is not None:
@@ -284,14 +286,15 @@ class VideoSink:
         from puppet.sound.window import cut_at_take_end
 
         sound, seconds = self.sound, self.count / self.fps
-        cut = cut_at_take_end(sound.frames, sound.rate, self.sound_offset_s, seconds)
+        cut = cut_at_take_end(sound.frames, sound.rate, self.sound_offset_s,
+                              seconds * self.sound_speed)
         if cut > 0:
             self.notes.append(f"{sound.path}: the sound is cut at the video's end ({cut:.3f} s "
                               "of it left out)")
         partial = self.path.with_name(f".{self.path.stem}.{os.getpid()}.sound{self.path.suffix}")
         try:
             mux_sound(self.path, partial, sound.samples, sound.rate, self.sound_offset_s, seconds,
-                      timecode=self.timecode, source=str(sound.path))
+                      timecode=self.timecode, source=str(sound.path), speed=self.sound_speed)
             commit(partial, self.path)
         except OSError as err:
             raise SinkError(f"{self.path}: cannot write the video with its sound: {err}; the "

@@ -77,13 +77,15 @@ class Video(Output):
     renders = True
 
     def __init__(self, path, fps: float, *, force: bool = False, option: str = "--out",
-                 sound=None, sound_offset_s: float = 0.0, timecode=None, tell=print) -> None:
+                 sound=None, sound_offset_s: float = 0.0, sound_speed: float = 1.0, timecode=None,
+                 tell=print) -> None:
         self.path = Path(path)
         self.fps = fps
         self.force = force
         self.option = f"{option} {path}"
         self.sound = sound              # a puppet.sound Sound muxed in when finished (an input)
         self.sound_offset_s = sound_offset_s
+        self.sound_speed = sound_speed    # take seconds per video second (play --speed)
         self.timecode = timecode
         self.tell = tell
 
@@ -102,7 +104,8 @@ class Video(Output):
         from puppet.render import VideoSink
 
         self.sink = VideoSink(self.path, self.fps, sound=self.sound,
-                              sound_offset_s=self.sound_offset_s, timecode=self.timecode)
+                              sound_offset_s=self.sound_offset_s, sound_speed=self.sound_speed,
+                              timecode=self.timecode)
 
     def close(self) -> None:
         if self.sink is None:

@@ -91,3 +91,29 @@ def test_no_timecode_track_off_the_timecode_rates(tmp_path):
     assert "tmcd" not in ffmpeg_info(out) and "timecode  " not in ffmpeg_info(out)
     assert video.notes == [f"{out}: no timecode track: 60 fps is not a timecode rate (23.976, 24, "
                            "25, 29.97, 30)"]
+
+
+@pytest.mark.parametrize("speed", [0.5, 2.0, 0.2])
+def test_a_video_at_another_speed_keeps_its_clicks_on_their_frames(tmp_path, clicks, speed):
+    """``play --speed``: video frame k shows take time k · speed / fps; the sound under it is
+    played at that speed (tape-like), so each click is heard on the frame of its motion event."""
+    sound_path = tmp_path / "clicks.wav"
+    sf.write(sound_path, clicks.click_track(RATE, seconds=2.5), RATE)
+    sound = load_sound(sound_path)
+    n = 60
+    covered = n / FPS * speed  # take seconds the video shows
+    take_times = [c for c in clicks.CLICK_TIMES_S if c < covered]
+    event_frames = {int(t / speed * FPS) for t in take_times}
+    out = tmp_path / "take.mp4"
+    with VideoSink(out, FPS, sound=sound, sound_speed=speed) as video:
+        for k in range(n):
+            video.write(np.full((64, 64, 3), 255 if k in event_frames else 0, np.uint8))
+    audio = decoded_audio(out)
+    assert abs(len(audio) - round(n / FPS * RATE)) <= 1024  # the video's length, to an AAC frame
+    heard = clicks.onsets(audio, RATE)
+    assert len(heard) == len(take_times), (heard, take_times)
+    assert {int(t * FPS) for t in heard} == event_frames
+    lag_s = np.array(heard) - np.array(take_times) / speed
+    assert np.max(np.abs(lag_s)) < 1e-3 / min(speed, 1.0)  # the onset threshold's delay, slowed
+    white = set(np.flatnonzero(decoded_brightness(out) > 128).tolist())
+    assert white == event_frames
