@@ -174,6 +174,10 @@ class StartTimecode:
         """The label of frame k after time 0 at this rate (k = 0: the start)."""
         return frame_to_timecode(self.frame + int(k), self.rate)
 
+    def later(self, seconds: float) -> "StartTimecode":
+        """The label ``seconds`` after this one (the nearest frame at this rate)."""
+        return StartTimecode(self.at(round(seconds * self.rate.fps)), self.rate)
+
     def at_rate(self, rate) -> "StartTimecode":
         """The same start at another rate (the nearest frame of that rate)."""
         r = timecode_rate(rate)

@@ -252,7 +252,7 @@ def export_take(rig, reader, outputs: Outputs, *, fps: float = 30.0, up: str = "
     frames = take_frames(rig, reader, fps, clip=clip, layers=layers)
     with ExportWriters(rig, reader, outputs, frames, up=up, space=space, influences=influences,
                        meters_per_unit=meters_per_unit, keys=keys, keys_units=keys_units,
-                       sound=sound) as exports:
+                       sound=sound, start_s=0.0 if clip is None else max(clip[0], 0.0)) as exports:
         from puppet.loop import Pipeline, run_frames  # the solver's native module: only here
 
         with Pipeline(rig, render=False, iterations=iterations, precompute=precompute) as pipeline:
@@ -323,14 +323,17 @@ class ExportWriters:
 
     rig, reader: the rig solved on and the take (TakeReader, its path: the take is an input no
     output may overwrite). frames: the Playback the frames come from (its fps, count, cuts).
-    up, space, influences, meters_per_unit, keys, keys_units, sound: as export_take. Fields: report
+    up, space, influences, meters_per_unit, keys, keys_units, sound: as export_take; start_s: the
+    take time of the files' frame 1 (a clip's in point: its sound offset and timecode move on by
+    it, ``puppet.export.sync``). Fields: report
     (ExportReport), frames (written so far), sync (``puppet.export.sync.sync_fields``: the take's
     sound and start timecode, written into the glTF, USD and BVH).
     """
 
     def __init__(self, rig, reader, outputs: Outputs, frames: Playback, *, up: str = "y",
                  space: str = "object", influences: int = 4, meters_per_unit: float = 1.0,
-                 keys: float | None = None, keys_units: float | None = None, sound=None):
+                 keys: float | None = None, keys_units: float | None = None, sound=None,
+                 start_s: float = 0.0):
         if up not in UP_AXES:
             raise ExportError("--up", f"up axis must be one of {UP_AXES}, got {up!r}")
         self.to_space = point_space(rig, space)
@@ -367,7 +370,7 @@ class ExportWriters:
         self.rig, self.items, self.targets = rig, items, dict(items)
         self.up, self.influences, self.meters_per_unit = up, influences, meters_per_unit
         self.fps = frames.fps
-        self.sync = sync_fields(frames.fps, sound, getattr(metadata, "timecode", None))
+        self.sync = sync_fields(frames.fps, sound, getattr(metadata, "timecode", None), start_s)
         self.key_frames = frames.key_frames()  # a shot's key poses: glTF keys whatever --keys
         self.report = ExportReport(frames=len(frames), fps=frames.fps, cuts=list(frames.cuts),
                                    take_seconds=(frames.t_ns[-1] - frames.t_ns[0]) * 1e-9)

@@ -10,19 +10,30 @@ line after HIERARCHY, which importers skip).
                                    1 − offset_s · fps (Blender: the sound strip's frame_start)
   puppet_timecode_start, _rate     the label of frame 1, at the file's rate when fps is a
                                    timecode rate (23.976, 24, 25, 29.97, 30), else the take's
+
+A clip of a take (``export --clip IN OUT``, a studio segment) starts at take time IN: its frame 1
+is there, so its sound offset and start timecode are the take's moved on by IN (``start_s``).
 """
 
 from __future__ import annotations
 
+import dataclasses
+
 from puppet.timecode import rate_of_fps
 
 
-def sync_fields(fps: float, sound=None, timecode=None) -> dict:
+def sync_fields(fps: float, sound=None, timecode=None, start_s: float = 0.0) -> dict:
     """The flat dict above. sound: ``puppet.take.sync.SoundRef`` or None; timecode:
-    ``puppet.timecode.StartTimecode`` or None; fps: the file's frames per second. Empty for a
-    take with neither (its files are as before sound)."""
+    ``puppet.timecode.StartTimecode`` or None; fps: the file's frames per second; start_s: the
+    take time of the file's frame 1 (a clip's in point; 0: the whole take). Empty for a take
+    with neither (its files are as before sound)."""
     if sound is None and timecode is None:
         return {}
+    if start_s:
+        if sound is not None:
+            sound = dataclasses.replace(sound, offset_s=sound.offset_s + start_s)
+        if timecode is not None:
+            timecode = timecode.later(start_s)
     fields = {"puppet_fps": float(fps), "puppet_frame_start": 1}
     if sound is not None:
         fields.update({

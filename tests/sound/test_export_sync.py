@@ -73,6 +73,18 @@ def test_gltf_usd_bvh_carry_the_sound_and_timecode(tmp_path, critter, voiced_tak
     assert json.loads(lines[1][len("# puppet "):]) == expected
 
 
+def test_a_clip_carries_the_sound_and_timecode_of_its_in_point(tmp_path, critter, voiced_take):
+    """A clip from take time 0.2 s: its frame 1 is there, so the sound plays from 0.4 + 0.2 s
+    into the file's frame 1 and the timecode is 5 frames (at 25 fps) on."""
+    take, _ = voiced_take
+    out = Outputs(gltf=tmp_path / "clip.glb")
+    export_take(critter, TakeReader(take), out, fps=25.0, clip=(0.2, 0.4, False))
+    extras = pygltflib.GLTF2().load_binary(str(out.gltf)).scenes[0].extras
+    assert extras["puppet_sound_offset_s"] == pytest.approx(0.6)
+    assert extras["puppet_sound_frame"] == pytest.approx(1 - 0.6 * 25)
+    assert extras["puppet_timecode_start"] == "01:00:00:05"
+
+
 def test_the_timecode_follows_the_export_rate(tmp_path, critter, voiced_take):
     take, _ = voiced_take
     out = Outputs(gltf=tmp_path / "b.glb")
