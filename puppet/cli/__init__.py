@@ -37,11 +37,14 @@ before their handlers are set is theirs; every other command gets Python's own h
 class _PuppetGroup(click.Group):
     """A click group that turns library and file-system errors into ``Error: …``, exit 1."""
 
-    def invoke(self, ctx: click.Context):
-        name = ctx.protected_args[0] if ctx.protected_args else None
+    def resolve_command(self, ctx: click.Context, args: list[str]):
+        name, command, rest = super().resolve_command(ctx, args)
         if name not in SIGNAL_COMMANDS:  # no session: Ctrl-C is Python's KeyboardInterrupt there
             if _signals.release_early() is not None:
                 raise click.Abort()
+        return name, command, rest
+
+    def invoke(self, ctx: click.Context):
         try:
             return super().invoke(ctx)
         except (click.ClickException, click.exceptions.Exit, click.Abort, KeyboardInterrupt):
