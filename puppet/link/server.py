@@ -26,7 +26,7 @@ import numpy as np
 
 from puppet.link import wire
 from puppet.link.pose import LinkPose
-from puppet.loop.histogram import Histogram
+from puppet.histogram import Histogram
 from puppet.net.address import Access, bind, parse_address
 from puppet.net.guard import parse_message
 

@@ -8,7 +8,7 @@ bounded summary, and the reading-source interface.
 
 Modules: pipeline (Pipeline, RigPrecompute), dropout (the servo side of the solve: silent
 servos' bones, dynamics steps), run (run_live, run_frames), late_latch, stage_clock, summary,
-histogram (bounded per-frame statistics), source (the ReadingSource interface).
+source (the ReadingSource interface).
 """
 
 from puppet.loop.late_latch import LateLatch

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import time
 
-from puppet.loop.histogram import Histogram
+from puppet.histogram import Histogram
 
 #: The stages of one frame, in loop order (milliseconds per frame):
 #: age: how old the reading is when the loop takes it (bus timestamp to now); solve: servo map

@@ -7,7 +7,7 @@ import time
 from dataclasses import dataclass, field
 
 from puppet.events import describe_counts
-from puppet.loop.histogram import Histogram
+from puppet.histogram import Histogram
 
 
 def process_age_s() -> float | None:
