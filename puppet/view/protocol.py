@@ -20,6 +20,8 @@ carries small JSON messages both ways: panel, snapshot, faults, handles; input f
 
 from __future__ import annotations
 
+import math
+import os
 import struct
 
 #: Where the view listens when ``--view`` names no port (``puppet.net.address``).
@@ -51,6 +53,8 @@ EDIT_RATE_HZ, EDIT_BURST = 4.0, 8
 MAX_HANDLES = 16
 #: A viewer whose socket takes no data (a send waits) for this long is dropped, with a note.
 STALL_DROP_S = 10.0
+#: The environment setting that replaces STALL_DROP_S (seconds > 0; tests of the mechanism).
+STALL_DROP_ENV = "PUPPET_VIEW_STALL_DROP_S"
 #: Kernel send buffer per control socket (bytes; Linux doubles it): a stuck viewer's socket is
 #: full after this (and asyncio's 64 KiB) instead of after megabytes of autotuned buffer.
 CONTROL_SNDBUF = 32 * 1024
@@ -63,3 +67,20 @@ NOTICE_EVERY_S = 2.0
 
 def frame_header(flags: int, camera: int, seq: int, reading_t_ns: int, send_t_ns: int) -> bytes:
     return FRAME_HEADER.pack(FRAME_JPEG, flags, camera, seq & 0xFFFFFFFF, reading_t_ns, send_t_ns)
+
+
+def stall_drop_s() -> float:
+    """Seconds a viewer's socket may take no data before it is dropped: STALL_DROP_S, or
+    ``$PUPPET_VIEW_STALL_DROP_S`` when set (ViewError naming it when not a number > 0)."""
+    from puppet.view.errors import ViewError
+
+    text = os.environ.get(STALL_DROP_ENV)
+    if not text:
+        return STALL_DROP_S
+    try:
+        seconds = float(text)
+    except ValueError:
+        seconds = float("nan")
+    if not (seconds > 0 and math.isfinite(seconds)):
+        raise ViewError(f"{STALL_DROP_ENV}={text!r}: expected seconds > 0 (default {STALL_DROP_S:g})")
+    return seconds
