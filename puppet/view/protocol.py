@@ -20,8 +20,6 @@ carries small JSON messages both ways: panel, snapshot, faults, handles; input f
 
 from __future__ import annotations
 
-import math
-import os
 import struct
 
 #: Where the view listens when ``--view`` names no port (``puppet.net.address``).
@@ -71,16 +69,11 @@ def frame_header(flags: int, camera: int, seq: int, reading_t_ns: int, send_t_ns
 
 def stall_drop_s() -> float:
     """Seconds a viewer's socket may take no data before it is dropped: STALL_DROP_S, or
-    ``$PUPPET_VIEW_STALL_DROP_S`` when set (ViewError naming it when not a number > 0)."""
+    ``$PUPPET_VIEW_STALL_DROP_S`` when set (ViewError naming it when not a number of seconds)."""
+    from puppet.limits import SECONDS, from_environment
     from puppet.view.errors import ViewError
 
-    text = os.environ.get(STALL_DROP_ENV)
-    if not text:
-        return STALL_DROP_S
     try:
-        seconds = float(text)
-    except ValueError:
-        seconds = float("nan")
-    if not (seconds > 0 and math.isfinite(seconds)):
-        raise ViewError(f"{STALL_DROP_ENV}={text!r}: expected seconds > 0 (default {STALL_DROP_S:g})")
-    return seconds
+        return from_environment(STALL_DROP_ENV, STALL_DROP_S, SECONDS)
+    except ValueError as err:
+        raise ViewError(str(err)) from None

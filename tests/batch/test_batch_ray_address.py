@@ -12,6 +12,9 @@ import pytest
 
 pytest.importorskip("ray", reason="ray is not installed (pip install 'puppet[ray]')")
 
+from puppet.batch.errors import BatchError  # noqa: E402 - after the skip
+from puppet.batch.ray_engine import CONNECT_TIMEOUT_ENV, CONNECT_TIMEOUT_S, connect_timeout_s  # noqa: E402
+
 
 def batch(*args, timeout=600):
     return subprocess.run(["puppet", "batch", *map(str, args), "--engine", "ray"],
@@ -28,7 +31,9 @@ def assert_clean_error(result, address, words):
     assert words in lines[0]
 
 
-def test_an_address_that_accepts_but_is_not_ray_fails_naming_it(tmp_path, session):
+def test_an_address_that_accepts_but_is_not_ray_fails_naming_it(tmp_path, session, monkeypatch):
+    # the wait for an answer is the mechanism's (the default CONNECT_TIMEOUT_S is 10 s)
+    monkeypatch.setenv(CONNECT_TIMEOUT_ENV, "1.5")
     listener = socket.create_server(("127.0.0.1", 0))
     address = f"127.0.0.1:{listener.getsockname()[1]}"
     held = []
@@ -42,14 +47,14 @@ def test_an_address_that_accepts_but_is_not_ray_fails_naming_it(tmp_path, sessio
 
     threading.Thread(target=accept, daemon=True).start()
     try:
-        # the documented bound is about 10 s; the generous limit is for a loaded machine
+        # the generous limit is for a loaded machine
         result = batch(session[0], "--out", tmp_path / "out", "--address", address, timeout=120)
     finally:
         listener.close()
         for connection in held:
             connection.close()
     assert held, "the batch never connected"
-    assert_clean_error(result, address, "not a Ray head (no gRPC answer within 10 s)")
+    assert_clean_error(result, address, "not a Ray head (no gRPC answer within 1.5 s)")
     assert not any((tmp_path / "out").iterdir())
 
 
@@ -82,3 +87,14 @@ def test_a_private_instance_unless_address_auto_joins_the_running_cluster(tmp_pa
     assert [row["state"] for row in json.loads(joined.stdout)["takes"]] == ["done", "done"]
     for take in session[2:]:
         assert (out / f"{take.stem}.pc2").read_bytes() == serial_outputs[take.stem]["pc2"]
+
+
+def test_the_wait_for_a_ray_head_is_the_default_unless_the_environment_says(monkeypatch):
+    monkeypatch.delenv(CONNECT_TIMEOUT_ENV, raising=False)
+    assert connect_timeout_s() == CONNECT_TIMEOUT_S == 10.0
+    monkeypatch.setenv(CONNECT_TIMEOUT_ENV, "0.5")
+    assert connect_timeout_s() == 0.5
+    for bad in ("soon", "0", "-3", "nan"):
+        monkeypatch.setenv(CONNECT_TIMEOUT_ENV, bad)
+        with pytest.raises(BatchError, match=f"^{CONNECT_TIMEOUT_ENV}='{bad}': must be a number "):
+            connect_timeout_s()
