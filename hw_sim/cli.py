@@ -136,11 +136,11 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     signal.signal(signal.SIGTERM, lambda *_: server.stop())
     faulthandler.register(signal.SIGUSR1, all_threads=True)  # kill -USR1: where it is, on stderr
-    print(server.path, flush=True)
-    print(f"hw-sim: {len(servos)} servos ({describe(servos)}) at {args.baud} baud, "
-          f"motion {motion_name}; stable link {server.link}; Ctrl-C to stop", file=sys.stderr,
-          flush=True)
-    try:
+    try:  # a Ctrl-C as soon as the port is printed stops it as well as one later
+        print(server.path, flush=True)
+        print(f"hw-sim: {len(servos)} servos ({describe(servos)}) at {args.baud} baud, "
+              f"motion {motion_name}; stable link {server.link}; Ctrl-C to stop", file=sys.stderr,
+              flush=True)
         server.run()
     except KeyboardInterrupt:
         pass

@@ -65,6 +65,24 @@ class Range:
         return None if self.holds(value) else f"must be {self}, got {_show.repr(value)}"
 
 
+def from_environment(name: str, default: float, limit: Range) -> float:
+    """The number in environment variable ``name`` (a setting that makes a wait short for tests
+    of its mechanism), ``default`` when it is unset or empty. ValueError '<name>=<text>: must be
+    <range>, ...' when it is not a number within ``limit``."""
+    import os
+
+    text = os.environ.get(name, "")
+    if not text:
+        return default
+    try:
+        value = float(text)
+    except ValueError:
+        value = text
+    if (problem := limit.problem(value)) is not None:
+        raise ValueError(f"{name}={text!r}: {problem} (default {_num(default)})")
+    return value
+
+
 # Command-line options (their help text shows these ranges).
 BAUD = Range(9600, 10_500_000, "bit/s", integer=True)
 """Bus speed: Dynamixel baud rates run from 9 600 to 10.5 M bit/s (X series: up to 4.5 M)."""

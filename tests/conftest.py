@@ -228,6 +228,7 @@ run in one worker, so it is made once."""
 
 SHARED_FIXTURES = {
     "serial_outputs": "batch-serial",  # the serial exports every batch engine is compared with
+    "ray_cluster": "batch-ray",  # the session's Ray cluster (tests/batch/conftest.py)
 }
 """Fixture -> xdist group: the tests that use an expensive session fixture run in one worker."""
 

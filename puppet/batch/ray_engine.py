@@ -8,8 +8,9 @@ Ray is an optional dependency (``pip install 'puppet[ray]'``). Where it runs:
 - ``--address auto``: the cluster running on this machine (``ray start --head``).
 - ``--address host:6379`` or ``ray://host:10001``: that cluster. Before Ray is asked to
   connect, the address must answer as a Ray head does (gRPC: an HTTP/2 server preface) within
-  ``CONNECT_TIMEOUT_S``; anything else (nothing listening, a port of another program) is a
-  BatchError naming the address, never a hang of Ray's own reconnection loop.
+  ``CONNECT_TIMEOUT_S`` (``$PUPPET_RAY_CONNECT_TIMEOUT_S`` sets another); anything else
+  (nothing listening, a port of another program) is a BatchError naming the address, never
+  a hang of Ray's own reconnection loop.
 
 The shared rig and precompute are put once in Ray's object store (each node fetches them once;
 tasks on a node map the same copy). Every task writes into a staging folder on its own node
@@ -59,6 +60,8 @@ INSTALL_HINT = "pip install 'puppet[ray]'"
 DEFAULT_RETRIES = 2      # tries after the first, of a task whose worker process or node died
 CONNECT_TIMEOUT_S = 10.0
 """An --address must answer as a Ray head within this time (documented: about 10 s)."""
+CONNECT_TIMEOUT_ENV = "PUPPET_RAY_CONNECT_TIMEOUT_S"
+"""The environment setting that replaces CONNECT_TIMEOUT_S (seconds; tests of the mechanism)."""
 POLL_S = 0.5             # the driver wakes at least this often (signals, time limits)
 _RETRIED = ("WorkerCrashedError", "NodeDiedError", "OutOfMemoryError", "LocalRayletDiedError",
             "ObjectLostError", "OwnerDiedError")
@@ -90,13 +93,26 @@ def _host_port(address: str) -> tuple[str, int] | None:
                          "ray://host:10001 or auto") from None
 
 
-def check_ray_head(address: str, timeout_s: float = CONNECT_TIMEOUT_S) -> None:
+def connect_timeout_s() -> float:
+    """CONNECT_TIMEOUT_S, or ``$PUPPET_RAY_CONNECT_TIMEOUT_S`` when set (BatchError naming it
+    when not a number of seconds)."""
+    from puppet.limits import SECONDS, from_environment
+
+    try:
+        return from_environment(CONNECT_TIMEOUT_ENV, CONNECT_TIMEOUT_S, SECONDS)
+    except ValueError as err:
+        raise BatchError(str(err)) from None
+
+
+def check_ray_head(address: str, timeout_s: float | None = None) -> None:
     """BatchError naming ``address`` unless a gRPC server (a Ray head's GCS or Ray Client
-    server) answers there within ``timeout_s``: it must accept, and answer the HTTP/2 client
-    preface with its SETTINGS frame."""
+    server) answers there within ``timeout_s`` (None: ``connect_timeout_s()``): it must accept,
+    and answer the HTTP/2 client preface with its SETTINGS frame."""
     target = _host_port(address)
     if target is None:
         return
+    if timeout_s is None:
+        timeout_s = connect_timeout_s()
     deadline = time.monotonic() + timeout_s
     try:
         with socket.create_connection(target, timeout=timeout_s) as sock:

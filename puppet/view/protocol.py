@@ -51,6 +51,8 @@ EDIT_RATE_HZ, EDIT_BURST = 4.0, 8
 MAX_HANDLES = 16
 #: A viewer whose socket takes no data (a send waits) for this long is dropped, with a note.
 STALL_DROP_S = 10.0
+#: The environment setting that replaces STALL_DROP_S (seconds > 0; tests of the mechanism).
+STALL_DROP_ENV = "PUPPET_VIEW_STALL_DROP_S"
 #: Kernel send buffer per control socket (bytes; Linux doubles it): a stuck viewer's socket is
 #: full after this (and asyncio's 64 KiB) instead of after megabytes of autotuned buffer.
 CONTROL_SNDBUF = 32 * 1024
@@ -63,3 +65,15 @@ NOTICE_EVERY_S = 2.0
 
 def frame_header(flags: int, camera: int, seq: int, reading_t_ns: int, send_t_ns: int) -> bytes:
     return FRAME_HEADER.pack(FRAME_JPEG, flags, camera, seq & 0xFFFFFFFF, reading_t_ns, send_t_ns)
+
+
+def stall_drop_s() -> float:
+    """Seconds a viewer's socket may take no data before it is dropped: STALL_DROP_S, or
+    ``$PUPPET_VIEW_STALL_DROP_S`` when set (ViewError naming it when not a number of seconds)."""
+    from puppet.limits import SECONDS, from_environment
+    from puppet.view.errors import ViewError
+
+    try:
+        return from_environment(STALL_DROP_ENV, STALL_DROP_S, SECONDS)
+    except ValueError as err:
+        raise ViewError(str(err)) from None

@@ -4,7 +4,8 @@ per-viewer credit and latest-wins slots, access checks, flood limits.
 No viewer can stall another: each one has its own send path (frames: credit and a latest-wins
 slot; control: an ``Outbox`` with a latest-wins panel and a bounded message list, drained by that
 viewer's own writer task); nothing on the server's loop awaits a viewer's socket. A viewer whose
-socket takes no data for STALL_DROP_S seconds is dropped with a note. Page input passes per
+socket takes no data for STALL_DROP_S seconds (``$PUPPET_VIEW_STALL_DROP_S`` sets another) is
+dropped with a note. Page input passes per
 connection rate limits before it is parsed; notices about a viewer's bad input go to that viewer
 only, merged per kind; refused requests are only logged (rate-limited).
 
@@ -35,7 +36,7 @@ from puppet.net.guard import RateLimit, Throttle, parse_message
 from puppet.view.protocol import (CREDIT, EDIT_BURST, EDIT_RATE_HZ, FLAG_DRAFT, INPUT_BURST, INPUT_RATE_HZ,
                                   MAX_CLIENT_MESSAGE, CONTROL_SNDBUF, NOTICE_EVERY_S, OUTBOX_MESSAGES,
                                   PANEL_HZ, PICK_BURST, PICK_RATE_HZ,
-                                  STALL_DROP_S, frame_header)
+                                  frame_header, stall_drop_s)
 
 log = logging.getLogger("puppet.view")
 
@@ -147,6 +148,7 @@ class ViewServer:
         self.warnings = 0
         self.refused = 0
         self.dropped_viewers = 0
+        self.stall_drop_s = stall_drop_s()  # protocol.STALL_DROP_S unless the environment says
         self._notices = Throttle(NOTICE_EVERY_S)   # notices to every page
         self._log = Throttle(NOTICE_EVERY_S)       # the server's own log lines, per kind
         self._numbers = 0
@@ -533,7 +535,7 @@ class ViewServer:
     # ---- panel, notices, stuck viewers ----------------------------------------------------------
     async def _panel_task(self) -> None:
         """PANEL_HZ times a second: each viewer's newest panel into its outbox (nothing awaits a
-        viewer), merged notices out, viewers stuck for STALL_DROP_S dropped."""
+        viewer), merged notices out, viewers stuck for stall_drop_s dropped."""
         period = 1.0 / PANEL_HZ
         while True:
             await asyncio.sleep(period)
@@ -541,7 +543,7 @@ class ViewServer:
             latency = self.latency_summary()
             for viewer in list(self.viewers.values()):
                 stalled = self._stalled_s(viewer, now)
-                if stalled >= STALL_DROP_S:
+                if stalled >= self.stall_drop_s:
                     self._drop(viewer, stalled)
                     continue
                 for text in viewer.notices.due(now):

@@ -1,7 +1,15 @@
 """Shared data of the batch tests: short takes of the built-in critter, written with TakeWriter,
-and each take exported and played alone by the serial commands (the reference bytes)."""
+and each take exported and played alone by the serial commands (the reference bytes); one Ray
+cluster for the session (``ray_cluster``), joined by the Ray tests that need no private instance."""
 
+import os
+import shutil
+import signal
+import socket
 import subprocess
+import sys
+import tempfile
+import time
 from pathlib import Path
 
 import numpy as np
@@ -62,6 +70,51 @@ def serial_outputs(tmp_path_factory, session):
     """{take name: {format: bytes}} of every format made by the serial commands."""
     folder = tmp_path_factory.mktemp("serial")
     return {take.stem: serial(take, folder, ("mp4", "gltf", "usd", "pc2", "bvh")) for take in session}
+
+
+RAY_CPUS = 2
+RAY_READY_S = 300.0  # generous: `ray start` on a loaded 2-core machine
+
+
+@pytest.fixture(scope="session")
+def ray_cluster():
+    """A Ray cluster started on this machine as a user does (``ray start --head --block``), of
+    RAY_CPUS CPUs, shared by the session's Ray tests that join a running cluster (``--address``;
+    tests/conftest.py keeps them in one worker): one start instead of a private instance per
+    batch. Its address, "127.0.0.1:port", once it said it runs. Its processes (its own process
+    group only) are killed at the end: a graceful stop of `ray start --block` takes about 30 s,
+    and nothing of it outlives its group and temporary folder."""
+    with socket.socket() as sock:
+        sock.bind(("127.0.0.1", 0))
+        port = sock.getsockname()[1]
+    temp = tempfile.mkdtemp(prefix="ray-")  # short: Ray's socket paths live under it
+    log = Path(temp) / "start.log"
+    with open(log, "w") as out:
+        head = subprocess.Popen([sys.executable, "-m", "ray.scripts.scripts", "start", "--head",
+                                 "--block", f"--port={port}", f"--num-cpus={RAY_CPUS}",
+                                 "--include-dashboard=false", "--disable-usage-stats",
+                                 f"--temp-dir={temp}"],
+                                stdout=out, stderr=subprocess.STDOUT, start_new_session=True,
+                                env={**os.environ, "RAY_AUTH_MODE": "disabled"})
+    try:
+        deadline = time.monotonic() + RAY_READY_S
+        while "Ray runtime started" not in log.read_text():
+            assert head.poll() is None, f"ray start exited {head.returncode}: {log.read_text()}"
+            assert time.monotonic() < deadline, f"ray start not up in {RAY_READY_S} s"
+            time.sleep(0.2)
+        yield f"127.0.0.1:{port}"
+    finally:
+        os.killpg(head.pid, signal.SIGKILL)
+        head.wait()
+        shutil.rmtree(temp, ignore_errors=True)
+
+
+@pytest.fixture
+def on_ray_cluster(ray_cluster, monkeypatch):
+    """The arguments that run a batch on the session's cluster: ["--address", address] (Ray's
+    token mode off for the drivers, as the cluster was started)."""
+    monkeypatch.setenv("RAY_AUTH_MODE", "disabled")
+    return ["--address", ray_cluster]
 
 
 @pytest.fixture

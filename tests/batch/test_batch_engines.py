@@ -39,13 +39,13 @@ def test_local_engine_matches_the_serial_commands(tmp_path, session, serial_outp
 
 
 @pytest.mark.xdist_group("batch-ray")  # one Ray instance at a time (tests/conftest.py)
-def test_ray_engine_matches_the_serial_commands(tmp_path, session, serial_outputs):
+def test_ray_engine_matches_the_serial_commands(tmp_path, session, serial_outputs, request):
     pytest.importorskip("ray", reason="ray is not installed (pip install 'puppet[ray]')")
     out = tmp_path / "out"
     formats = ("mp4", "gltf", "pc2")
-    # a local Ray instance of 2 CPUs, started by the command and shut down at its end
+    # on the session's Ray cluster of 2 CPUs (a private instance: test_batch_ray_address.py)
     result = run_batch(*session, "--out", out, "--formats", ",".join(formats), "--engine", "ray",
-                       "--workers", 2)
+                       "--workers", 2, *request.getfixturevalue("on_ray_cluster"))
     assert result.returncode == 0, result.stderr
     report = json.loads(result.stdout)
     assert report["engine"] == "ray"

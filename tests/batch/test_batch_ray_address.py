@@ -3,12 +3,8 @@ running here is never joined, and ``--workers`` works), ``--address auto`` joins
 and an address that is not a Ray head fails at once naming it, with nothing raw of Ray's."""
 
 import json
-import os
-import shutil
-import signal
 import socket
 import subprocess
-import sys
 import tempfile
 import threading
 
@@ -16,17 +12,14 @@ import pytest
 
 pytest.importorskip("ray", reason="ray is not installed (pip install 'puppet[ray]')")
 
+from puppet.batch.errors import BatchError  # noqa: E402 - after the skip
+from puppet.batch.ray_engine import CONNECT_TIMEOUT_ENV, CONNECT_TIMEOUT_S, connect_timeout_s  # noqa: E402
+
 
 def batch(*args, timeout=600):
     return subprocess.run(["puppet", "batch", *map(str, args), "--engine", "ray"],
                           capture_output=True, text=True, timeout=timeout,
                           cwd=tempfile.gettempdir())
-
-
-def free_port() -> int:
-    with socket.socket() as sock:
-        sock.bind(("127.0.0.1", 0))
-        return sock.getsockname()[1]
 
 
 def assert_clean_error(result, address, words):
@@ -38,7 +31,9 @@ def assert_clean_error(result, address, words):
     assert words in lines[0]
 
 
-def test_an_address_that_accepts_but_is_not_ray_fails_naming_it(tmp_path, session):
+def test_an_address_that_accepts_but_is_not_ray_fails_naming_it(tmp_path, session, monkeypatch):
+    # the wait for an answer is the mechanism's (the default CONNECT_TIMEOUT_S is 10 s)
+    monkeypatch.setenv(CONNECT_TIMEOUT_ENV, "1.5")
     listener = socket.create_server(("127.0.0.1", 0))
     address = f"127.0.0.1:{listener.getsockname()[1]}"
     held = []
@@ -52,14 +47,14 @@ def test_an_address_that_accepts_but_is_not_ray_fails_naming_it(tmp_path, sessio
 
     threading.Thread(target=accept, daemon=True).start()
     try:
-        # the documented bound is about 10 s; the generous limit is for a loaded machine
+        # the generous limit is for a loaded machine
         result = batch(session[0], "--out", tmp_path / "out", "--address", address, timeout=120)
     finally:
         listener.close()
         for connection in held:
             connection.close()
     assert held, "the batch never connected"
-    assert_clean_error(result, address, "not a Ray head (no gRPC answer within 10 s)")
+    assert_clean_error(result, address, "not a Ray head (no gRPC answer within 1.5 s)")
     assert not any((tmp_path / "out").iterdir())
 
 
@@ -69,36 +64,13 @@ def test_an_address_that_is_not_host_and_port_is_refused_naming_it(tmp_path, ses
     assert_clean_error(result, "nonsense", "expected host:port")
 
 
-@pytest.fixture
-def running_cluster():
-    """A Ray cluster started on this machine as a user does (``ray start --head``), of one CPU;
-    its address in RAY_ADDRESS as `ray start` suggests. Stopped (its own processes only) after."""
-    port = free_port()
-    temp = tempfile.mkdtemp(prefix="ray-")  # short: Ray's socket paths live under it
-    head = subprocess.Popen([sys.executable, "-m", "ray.scripts.scripts", "start", "--head",
-                             "--block", f"--port={port}", "--num-cpus=1",
-                             "--include-dashboard=false", f"--temp-dir={temp}"],
-                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
-                            start_new_session=True, env={**os.environ, "RAY_AUTH_MODE": "disabled"})
-    address = f"127.0.0.1:{port}"
-    try:
-        yield address
-    finally:
-        os.killpg(head.pid, signal.SIGTERM)  # --block: it stops the processes it started
-        try:
-            head.wait(timeout=120)
-        except subprocess.TimeoutExpired:
-            os.killpg(head.pid, signal.SIGKILL)
-            head.wait()
-        shutil.rmtree(temp, ignore_errors=True)
-
-
 @pytest.mark.xdist_group("batch-ray")  # one Ray instance at a time (tests/conftest.py)
 def test_a_private_instance_unless_address_auto_joins_the_running_cluster(tmp_path, session,
                                                                        serial_outputs,
-                                                                       running_cluster,
+                                                                       ray_cluster,
                                                                        monkeypatch):
-    monkeypatch.setenv("RAY_ADDRESS", running_cluster)  # what `ray start` asks users to set
+    # the session's cluster (tests/batch/conftest.py), started as a user does
+    monkeypatch.setenv("RAY_ADDRESS", ray_cluster)  # what `ray start` asks users to set
     monkeypatch.setenv("RAY_AUTH_MODE", "disabled")
     out = tmp_path / "out"
     result = batch(*session[:2], "--out", out, "--formats", "pc2", "--workers", 2, "--json")
@@ -108,10 +80,21 @@ def test_a_private_instance_unless_address_auto_joins_the_running_cluster(tmp_pa
     for take in session[:2]:
         assert (out / f"{take.stem}.pc2").read_bytes() == serial_outputs[take.stem]["pc2"]
     assert result.stderr.count("\n") <= 2, result.stderr  # the progress bar, nothing of Ray's
-    # --address auto joins it (its one CPU: --workers only bounds the tasks at once)
+    # --address auto joins it (--workers only bounds the tasks at once there)
     joined = batch(*session[2:], "--out", out, "--formats", "pc2", "--workers", 2, "--json",
                    "--address", "auto")
     assert joined.returncode == 0, joined.stderr
     assert [row["state"] for row in json.loads(joined.stdout)["takes"]] == ["done", "done"]
     for take in session[2:]:
         assert (out / f"{take.stem}.pc2").read_bytes() == serial_outputs[take.stem]["pc2"]
+
+
+def test_the_wait_for_a_ray_head_is_the_default_unless_the_environment_says(monkeypatch):
+    monkeypatch.delenv(CONNECT_TIMEOUT_ENV, raising=False)
+    assert connect_timeout_s() == CONNECT_TIMEOUT_S == 10.0
+    monkeypatch.setenv(CONNECT_TIMEOUT_ENV, "0.5")
+    assert connect_timeout_s() == 0.5
+    for bad in ("soon", "0", "-3", "nan"):
+        monkeypatch.setenv(CONNECT_TIMEOUT_ENV, bad)
+        with pytest.raises(BatchError, match=f"^{CONNECT_TIMEOUT_ENV}='{bad}': must be a number "):
+            connect_timeout_s()

@@ -15,8 +15,9 @@ from puppet.fast.blas import ONE_THREAD_ENV
 API = """
 import json, sys
 from puppet.batch import run_batch
-report = run_batch(sys.argv[1:-2], sys.argv[-1], formats=("pc2", "gltf"), workers=1,
-                   engine=sys.argv[-2])
+takes, engine, address, out = sys.argv[1:-3], *sys.argv[-3:]
+report = run_batch(takes, out, formats=("pc2", "gltf"), workers=1, engine=engine,
+                   address=address or None)
 print(json.dumps([row.cpu_seconds for row in report.rows]))
 """
 
@@ -45,17 +46,20 @@ def run_watching(command, out, env, wait_until):
 @pytest.mark.parametrize("engine", ["local", pytest.param("ray", marks=pytest.mark.skipif(
     __import__("importlib").util.find_spec("ray") is None, reason="ray is not installed"))])
 def test_the_python_api_uses_the_command_lines_cpu_per_take(tmp_path, critter, tools, engine,
-                                                            wait_until):
+                                                            wait_until, request):
     takes = [tools.write_take(tmp_path / f"t{i}.mcap", critter, readings=300, seed=i)
              for i in range(3)]
     # a caller's environment with no thread settings at all: BLAS would take every core
+    # Ray: both on the session's cluster (what differs is the driver's environment)
+    cluster = request.getfixturevalue("on_ray_cluster") if engine == "ray" else []
     env = {k: v for k, v in os.environ.items() if k not in ONE_THREAD_ENV}
     api, api_threads = run_watching([sys.executable, "-P", "-c", API, *map(str, takes), engine,
-                                     str(tmp_path / "api")], tmp_path / "api", env, wait_until)
+                                     cluster[-1] if cluster else "", str(tmp_path / "api")],
+                                    tmp_path / "api", env, wait_until)
     cli, cli_threads = run_watching(["puppet", "batch", *map(str, takes), "--out",
                                      str(tmp_path / "cli"), "--formats", "pc2,gltf", "--workers",
-                                     "1", "--engine", engine, "--json"], tmp_path / "cli", env,
-                                    wait_until)
+                                     "1", "--engine", engine, "--json", *cluster],
+                                    tmp_path / "cli", env, wait_until)
     assert api_threads == cli_threads  # no BLAS thread pool of its own in the API's workers
     api_cpu = sum(json.loads(api.splitlines()[-1]))
     cli_cpu = sum(row["cpu_s"] for row in json.loads(cli.splitlines()[0])["takes"])

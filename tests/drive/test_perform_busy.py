@@ -15,7 +15,7 @@ from puppet.drive.perform import READ_FAILURES_TO_STOP
 from puppet.take import TakeReader
 
 TAKES = 10
-TAKE_S = 5.0
+TAKE_S = 2.5  # a whole take under load each time; ten of them (about 2500 cycles)
 
 
 @pytest.fixture

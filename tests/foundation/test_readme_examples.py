@@ -21,6 +21,12 @@ Ctrl-C once their take holds readings; ``--view`` commands and ``puppet view`` g
 their page answers (and their take, if any, holds readings). Every command must exit 0 and write the files it names
 (--out, --record, --pc2, --bvh, --frames). A README line the test has no input file or port for
 fails with the line quoted.
+
+The block runs as independent parts (``readme_parts``), one test each, so parallel workers
+share them: lines that name a common file (``my.toml``, ``take.mcap``, ``shoot/``) are in one part,
+in the README's order, with the ``hw-sim`` line that serves their port; a line batching
+``session/`` with every earlier line that records a take; every line that serves the page (its
+default port) in one part. Each part runs in a folder of its own with the inputs above.
 """
 
 from __future__ import annotations
@@ -36,6 +42,7 @@ import urllib.error
 import urllib.request
 from pathlib import Path
 
+import click
 import pytest
 
 from puppet.rig.load import BUILTIN_AX_RIG, BUILTIN_RIG
@@ -62,6 +69,84 @@ def using_it_commands() -> list[str]:
     block = re.search(r"```bash\n(.*?)```", section, re.S).group(1)
     return [line for line in (shlex.join(shlex.split(raw, comments=True)) for raw in block.splitlines())
             if line]
+
+
+def command_arguments(argv: list[str]) -> list[str]:
+    """A line's arguments after its command's words (``puppet keys retime a b``: ``[a, b]``)."""
+    if argv[0] != "puppet":
+        return argv[1:]
+    from puppet.cli import main
+
+    command, rest = main, argv[1:]
+    while isinstance(command, click.Group) and rest and rest[0] in command.commands:
+        command, rest = command.commands[rest[0]], rest[1:]
+    return rest
+
+
+def named_files(argv: list[str]) -> set[str]:
+    """The files and folders a line names (the first part of each path: ``shoot/takes/a.mcap``
+    is ``shoot``); option names, numbers and the port placeholder are not."""
+    return {arg.split("/")[0] for arg in command_arguments(argv)
+            if not arg.startswith("-") and arg != PORT_PLACEHOLDER
+            and not re.fullmatch(r"[\d.=:,+-]+", arg)}
+
+
+def serves_page(argv: list[str]) -> bool:
+    """The line serves the live page (until Ctrl-C) on its default port."""
+    return "--view" in argv or argv[:2] in (["puppet", "view"], ["puppet", "studio"])
+
+
+def records_take(argv: list[str]) -> bool:
+    """The line writes a take (.mcap) in the folder."""
+    return any(argv[k + 1].endswith(".mcap") for k, a in enumerate(argv[:-1])
+               if a in ("--out", "--record"))
+
+
+def readme_parts(commands: list[str]) -> list[list[str]]:
+    """The lines split into parts that run apart, each in the README's order: a line is in the
+    part of every earlier line it shares a named file with, of the ``hw-sim`` line that serves
+    its port (as ``port_for`` picks it), of every earlier take it batches as ``session/``; the
+    lines that serve the page share its default port, so they are one part."""
+    part = list(range(len(commands)))  # union-find over the lines
+
+    def root(i: int) -> int:
+        while part[i] != i:
+            part[i] = part[part[i]]
+            i = part[i]
+        return i
+
+    def join(i: int, j: int) -> None:
+        part[root(i)] = root(j)
+
+    servers: dict[str, int] = {}  # rig file -> its latest hw-sim line
+    latest = None
+    first_named: dict[str, int] = {}
+    takes: list[int] = []
+    page: int | None = None
+    for i, line in enumerate(commands):
+        argv = shlex.split(line)
+        for name in named_files(argv):
+            join(i, first_named.setdefault(name, i))
+        rig = option(argv, "--rig")
+        if argv[0] == "hw-sim" and rig is not None:
+            servers[rig] = latest = i
+        if PORT_PLACEHOLDER in argv:
+            server = latest if rig is None else servers.get(rig)
+            if server is not None:  # else the line fails as it runs, quoted (port_for)
+                join(i, server)
+        if any(a.startswith("session/") for a in argv):
+            for take in takes:
+                join(i, take)
+        if records_take(argv):
+            takes.append(i)
+        if serves_page(argv):
+            if page is None:
+                page = i
+            join(i, page)
+    groups: dict[int, list[str]] = {}
+    for i, line in enumerate(commands):
+        groups.setdefault(root(i), []).append(line)
+    return sorted(groups.values(), key=lambda lines: commands.index(lines[0]))
 
 
 def character_module():
@@ -196,14 +281,38 @@ def test_readme_lists_the_commands_a_user_needs():
     assert any(c.startswith("puppet calibrate") and "--guided" in c for c in commands)
 
 
-def test_every_using_it_command_runs_as_written(tmp_path, interrupt_and_wait):
+def _part_id(lines: list[str]) -> str:
+    """A test id for a part: its first line's words (``puppet demo --ax``: ``demo-ax``), and
+    how many lines it has."""
+    words = [w.strip("-") for w in lines[0].split()[:4] if w != "puppet"]
+    return re.sub(r"[^\w.-]+", "_", "-".join(words)) + f"+{len(lines) - 1}"
+
+
+PARTS = readme_parts(using_it_commands())
+
+
+def test_the_parts_hold_every_line_once_in_the_readmes_order():
+    commands = using_it_commands()
+    assert sorted(line for part in PARTS for line in part) == sorted(commands)
+    for part in PARTS:
+        assert part == [line for line in commands if line in part]
+    [page] = [part for part in PARTS if any(serves_page(shlex.split(line)) for line in part)]
+    assert all(line in page for line in commands if serves_page(shlex.split(line)))
+    [mine] = [part for part in PARTS if "hw-sim --rig my.toml" in part]
+    assert "puppet scan --port /dev/ttyUSB0" in mine  # a port of the latest hw-sim --rig
+    assert any(line.startswith("puppet batch 'session/") for line in mine)  # its takes
+    assert len(PARTS) > 4  # what runs apart
+
+
+@pytest.mark.parametrize("lines", PARTS, ids=[_part_id(p) for p in PARTS])
+def test_every_using_it_command_runs_as_written(tmp_path, interrupt_and_wait, lines):
     write_inputs(tmp_path)
     servers: list[Background] = []
     ports: dict[str, str] = {}   # rig file -> port of the latest hw-sim serving it
     latest_port = None
     servos_filled = False
     try:
-        for line in using_it_commands():
+        for line in lines:
             started = time.monotonic()
             argv = shlex.split(line)
             rig = option(argv, "--rig")
@@ -225,7 +334,7 @@ def test_every_using_it_command_runs_as_written(tmp_path, interrupt_and_wait):
                 port = port_for(line, ports, latest_port)
                 argv = [port if a == PORT_PLACEHOLDER else a for a in argv]
             outputs = [argv[k + 1] for k, a in enumerate(argv[:-1]) if a in OUTPUT_OPTIONS]
-            if "--view" in argv or argv[:2] in (["puppet", "view"], ["puppet", "studio"]):  # serves until Ctrl-C
+            if serves_page(argv):  # serves until Ctrl-C
                 take = option(argv, "--record")
                 run = Background(argv, tmp_path, interrupt_and_wait)
                 url = view_url(run, line)

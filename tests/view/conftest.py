@@ -54,11 +54,11 @@ def wait_until(condition, timeout: float = WAIT_S, what: str = "condition", inte
 class PuppetProcess:
     """A puppet command run with --view in its own folder; ``url`` once it printed it."""
 
-    def __init__(self, args: list[str], cwd: Path):
+    def __init__(self, args: list[str], cwd: Path, env: dict[str, str] | None = None):
         self.cwd = Path(cwd)
         self.stderr_path = self.cwd / "stderr.txt"
         self.stdout_path = self.cwd / "stdout.txt"
-        env = dict(os.environ, OPENBLAS_NUM_THREADS="1", PYTHONUNBUFFERED="1")
+        env = dict(os.environ, OPENBLAS_NUM_THREADS="1", PYTHONUNBUFFERED="1", **(env or {}))
         self._err = open(self.stderr_path, "w")
         self._out = open(self.stdout_path, "w")
         self.proc = subprocess.Popen(PUPPET + args, cwd=self.cwd, stdout=self._out, stderr=self._err,
@@ -149,12 +149,14 @@ DROPPED_SERVO = 5
 
 
 @pytest.fixture(scope="module")
-def demo(tmp_path_factory):
-    """``puppet demo --view`` for a test module; hw_sim drops servo 5 for good 3 s into the run."""
+def demo(tmp_path_factory, request):
+    """``puppet demo --view`` for a test module; hw_sim drops servo 5 for good 3 s into the run.
+    A module's ``DEMO_ENV`` ({name: value}) is added to the command's environment."""
     folder = tmp_path_factory.mktemp("demo_view")
     (folder / "faults.txt").write_text(f"3.0 drop ids={DROPPED_SERVO} for=900\n")
     process = PuppetProcess(["demo", "--view", str(free_port()), "--out", "demo.mp4",
-                             "--faults", "faults.txt"], folder)
+                             "--faults", "faults.txt"], folder,
+                            env=getattr(request.module, "DEMO_ENV", None))
     yield process
     status = process.stop()
     assert status == 0, process.stderr()

@@ -57,7 +57,7 @@ def _record(page, tools, shot: str, number: int, count_in: str = "1"):
                               "document.getElementById('countdown').innerText")
         assert shown is None or shown in {"1", "2", "3", "4", "5"}, shown
     tools.wait_js(page, "puppetView.recording.on && puppetView.recording.starts_in_s === 0 && "
-                        "puppetView.recording.readings > 300", STUDIO_WAIT_S)
+                        "puppetView.recording.readings > 150", STUDIO_WAIT_S)
     page.get_by_role("button", name="marker", exact=True).click()
     tools.wait_js(page, "puppetView.markers.length > 0", STUDIO_WAIT_S)
     page.get_by_role("button", name="■ stop", exact=True).click()

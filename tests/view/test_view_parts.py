@@ -307,3 +307,20 @@ def test_page_messages_parse_bounded_and_notices_merge_per_kind():
     assert notes.due(1.5) == []
     assert notes.due(2.0) == ["bad 3 (and 1 more like it)"]
     assert notes.due(5.0) == []
+
+
+def test_the_stall_before_a_viewer_is_dropped_is_the_default_unless_the_environment_says(
+        monkeypatch):
+    import pytest
+
+    from puppet.view.errors import ViewError
+    from puppet.view.protocol import STALL_DROP_ENV, STALL_DROP_S, stall_drop_s
+
+    monkeypatch.delenv(STALL_DROP_ENV, raising=False)
+    assert stall_drop_s() == STALL_DROP_S == 10.0
+    monkeypatch.setenv(STALL_DROP_ENV, "2.5")
+    assert stall_drop_s() == 2.5
+    for bad in ("soon", "0", "-1", "inf", "nan"):
+        monkeypatch.setenv(STALL_DROP_ENV, bad)
+        with pytest.raises(ViewError, match=f"^{STALL_DROP_ENV}='{bad}': must be a number "):
+            stall_drop_s()
