@@ -392,6 +392,7 @@ class ExportWriters:
             self.report.pc2_space = space
         if rig.source is not None and any(f in self.targets for f in ("gltf", "usd")):
             self.report.warnings += rig.source.warnings
+        self.report.warnings += frames.notes  # a clip ended at the take's end
         self.writers: dict[str, object] = {}
         self.frames = 0
         self._stack = contextlib.ExitStack()
