@@ -158,3 +158,22 @@ def test_play_refuses_a_video_over_the_size_limit_before_writing(tmp_path, critt
         _check_video_size(str(video), frames, 1000.0, force=False)
     # a video within the limit is not refused: the shot at its own rate
     _check_video_size(str(video), 24 * 600, 24.0, force=False)
+
+
+def test_a_key_given_twice_is_refused_and_a_cut_shot_says_where(tmp_path, critter):
+    from click.testing import CliRunner
+
+    from puppet.cli import main
+
+    shot = tmp_path / "shot.mcap"
+    write_shot(shot, header_of(critter), critter_keys(critter, step=12, fps=24))
+    out = tmp_path / "out.mcap"
+    twice = CliRunner().invoke(main, ["keys", "retime", str(shot), "1=5", "1=6", "--out", str(out)])
+    assert twice.exit_code == 2 and "key 1 given twice ('1=5' and '1=6')" in twice.output, twice.output
+    assert not out.exists()
+    cut = tmp_path / "cut.mcap"
+    cut.write_bytes(shot.read_bytes()[:3000])  # ends inside the keys
+    done = CliRunner().invoke(main, ["keys", "retime", str(cut), "1=5", "--out", str(out)])
+    assert done.exit_code == 0, done.output
+    said = next(line for line in done.output.splitlines() if "ends damaged after" in line)
+    assert "()" not in said, said  # the reason is named, never empty
