@@ -114,7 +114,7 @@ def builtin_character():
     kind_state = {"full": "sensed", "relative": "relative", "free": "free"}
     state_of = {name: kind_state.get(kind, "free") for kind, names in character.bone_kinds().items() for name in names}
     states = [state_of.get(name, "free") for name in skeleton.names]
-    states[-1] = "held"  # show every state in the demo picture
+    states[-1] = "fault"  # show every state in the demo picture
     V, F, W = (np.asarray(a) for a in (character.V, character.F, character.W))
     extra = int(getattr(getattr(character, "solver_options", None), "extra_weights", 0))
     return V, F, W, bones, np.asarray(skeleton.parents), states, "puppet.rig.builtin()", extra

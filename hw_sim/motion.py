@@ -200,10 +200,17 @@ class OneAtATime:
 
 def _read_table(path: Path) -> tuple[list[int], list[float], list[list[float]]]:
     """Parse the CSV format above: (ids, times, rows of positions)."""
+    if path.exists() and not path.is_file():  # a FIFO or device would block or never end
+        raise MotionFileError(path, None, "not a regular file (only regular files are read)")
     try:
-        text = path.read_text()
+        text = path.read_text(encoding="utf-8")
     except OSError as exc:
         raise MotionFileError(path, None, f"cannot read: {exc.strerror}") from exc
+    except UnicodeDecodeError as exc:
+        from hw_sim.faults import text_line
+
+        raise MotionFileError(path, text_line(path, exc.start), "not UTF-8 text (a motion file "
+                              "is a CSV of ticks)") from None
     ids: list[int] | None = None
     times: list[float] = []
     rows: list[list[float]] = []

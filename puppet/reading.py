@@ -17,6 +17,10 @@ class Reading:
     ticks: (k,) int32: signed, continuous encoder counts (4096 per turn); a failed servo
            holds its last good value.
     ok:    (k,) bool: False where this read failed for that servo.
+    late:  None, or (k,) bool: True where a servo's value is held only because its reply came
+           late or the line stalled (a ``late_reply``: nothing booked, not a fault); never True
+           where ``ok``. None (a take, a shot: the reason was not kept): every servo not ok
+           counts as at fault. ``fault_mask`` combines the two.
     rotations: None, or (b, 3, 3) float64 model-space joint rotations of every bone that stand
            for the ticks' (a shot's in-between frame, ``puppet.take.Playback``): the solve's
            sensed-joint constraints come from them instead of the angles.
@@ -27,3 +31,13 @@ class Reading:
     ticks: np.ndarray
     ok: np.ndarray
     rotations: np.ndarray | None = None
+    late: np.ndarray | None = None
+
+
+def fault_mask(reading: Reading, out: np.ndarray) -> np.ndarray:
+    """Into ``out`` (k,) bool: True where the servo's value is held because of a fault (not ok,
+    and not merely late). Allocates nothing."""
+    if reading.late is None:
+        return np.logical_not(reading.ok, out=out)
+    np.logical_or(reading.ok, reading.late, out=out)
+    return np.logical_not(out, out=out)

@@ -123,8 +123,12 @@ def open_take(take, rig: Rig | str | Path | None) -> tuple[Rig, TakeReader]:
     return rig, reader
 
 
+PLAY_SIZE = (640, 480)
+"""(width, height) pixels of a played take's video and frames (``puppet play``, batch's mp4)."""
+
+
 def play_take(rig: Rig, reader: TakeReader, sinks: Iterable, *, fps: float = 30.0,
-              speed: float = 1.0, antialias: str = "msaa", size: tuple[int, int] = (640, 480),
+              speed: float = 1.0, antialias: str = "msaa", size: tuple[int, int] = PLAY_SIZE,
               precompute=None, progress: Callable[[int, int], None] | None = None,
               should_stop: Callable[[], bool] = lambda: False, frames=None, solved: Iterable = (),
               layers=None):

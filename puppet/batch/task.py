@@ -161,7 +161,7 @@ def run_take(job: Job, shared: Shared, staging: Path) -> TakeResult:
     exception.
     """
     from puppet.export import ExportWriters, Outputs, export_take
-    from puppet.export.run import take_frames
+    from puppet.export.run import check_size, estimated_bytes, take_frames
     from puppet.render import VideoSink
     from puppet.replay import open_take, play_take
 
@@ -184,6 +184,10 @@ def run_take(job: Job, shared: Shared, staging: Path) -> TakeResult:
             result.add_report(report)
         else:  # one solve of every frame: the video and every export from the same T
             frames = take_frames(rig, reader, settings.fps, layers=settings.layers)
+            width, height = settings.size  # the size rule, as play's (before anything is written)
+            check_size(job.outputs["mp4"], "the mp4 output", estimated_bytes(
+                "mp4", len(frames), pixels=width * height),
+                f"{len(frames)} frames of {width}x{height} at {settings.fps:g} fps", False)
             with contextlib.ExitStack() as stack:
                 writers = [stack.enter_context(ExportWriters(
                     rig, reader, exports, frames, up=settings.up, space=settings.space,

@@ -164,6 +164,7 @@ class ServoReader:
         self._index = {int(i): k for k, i in enumerate(self.ids)}
         self._ticks = np.zeros(len(self.ids), dtype=np.int32)
         self._ok = np.zeros(len(self.ids), dtype=bool)
+        self._late = np.zeros(len(self.ids), dtype=bool)  # held, nothing booked (Reading.late)
         self._prev = [0] * len(self.ids)          # last two good values and their times (ns),
         self._prev2 = [0] * len(self.ids)         # for jitter
         self._prev_t = [0] * len(self.ids)
@@ -290,6 +291,7 @@ class ServoReader:
         self.reads += 1
         now = time.monotonic_ns()
         self._ok[:] = False
+        self._late[:] = False
         self._stalled = False
         if not self._port_up and not self._reconnect(now):
             return self._reading(now)
@@ -326,7 +328,7 @@ class ServoReader:
         return Reading(clean[-1].t_ns, self.ids, ticks, np.ones(len(self.ids), dtype=bool))
 
     def _reading(self, t_ns: int) -> Reading:
-        return Reading(t_ns, self.ids, self._ticks.copy(), self._ok.copy())
+        return Reading(t_ns, self.ids, self._ticks.copy(), self._ok.copy(), late=self._late.copy())
 
     def _group_read(self, ids: list[int]) -> GroupRead:
         """Present Position of ``ids`` (the group) by the fastest transactions their models have
@@ -370,8 +372,9 @@ class ServoReader:
 
     def _read_alone(self, dxl_id: int, group_exc: ServoError, now: int) -> None:
         """Individual read of a servo the group read failed for (skipped, nothing booked, when
-        this read already met a stalled line)."""
+        this read already met a stalled line: its value held, late, not a fault)."""
         if self._stalled:
+            self._late[self._index[dxl_id]] = True
             return
         try:
             raw, error = self.link.read_with_status(dxl_id, self.items[dxl_id].present_position)
@@ -386,10 +389,11 @@ class ServoReader:
         self._accept(dxl_id, raw, now)
 
     def _alone_failed(self, dxl_id: int, exc: ServoError, now: int) -> None:
-        """A servo's own read failed: booked once the failure is certain (see the docstring)."""
-        if self._stalled:
-            return
-        if exc.deadline and not self._silence_proven(dxl_id, now, stalled=exc.line_stalled):
+        """A servo's own read failed: booked once the failure is certain (see the docstring);
+        until then its value is held as late (``Reading.late``), not a fault."""
+        if self._stalled or exc.deadline and not self._silence_proven(dxl_id, now,
+                                                                       stalled=exc.line_stalled):
+            self._late[self._index[dxl_id]] = True
             return
         self._failed(dxl_id, exc, now)
 
@@ -506,6 +510,7 @@ class ServoReader:
             self._run[k] = 0
         self._ticks[k] = value
         self._ok[k] = True
+        self._late[k] = False
         if h.state != hs.OK:
             self.log.add("servo_recovered", [dxl_id], f"was {h.state}")
             h.state = hs.OK
@@ -538,6 +543,7 @@ class ServoReader:
         Error-status replies -> FAILING (they cost the group nothing)."""
         h = self.health[dxl_id]
         self._run[self._index[dxl_id]] = 0
+        self._late[self._index[dxl_id]] = False  # booked: a fault now
         h.failures += 1
         h.consecutive_failures += 1
         h.last_error = exc
@@ -710,6 +716,7 @@ class ServoReader:
         self._port_up = False
         self.link.close()
         self._ok[:] = False
+        self._late[:] = False
         self._run = [0] * len(self.ids)
         for h in self.health.values():
             h.last_error = exc

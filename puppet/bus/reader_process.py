@@ -6,7 +6,8 @@ time out) during every draw. In a process of its own the bus keeps its rate what
 consumer does.
 
 Shared ring (multiprocessing shared memory, ``slots`` entries, written only by the child):
-    t_ns (slots,) int64, ticks (slots, k) int32, ok (slots, k) bool, written (1,) int64.
+    t_ns (slots,) int64, ticks (slots, k) int32, ok (slots, k) bool, late (slots, k) bool
+    (``Reading.late``: held only because the reply came late, not a fault), written (1,) int64.
 The child fills slot ``written % slots`` and then increments ``written``; the consumer copies
 the slots it has not seen and re-checks ``written`` to drop any slot overwritten meanwhile.
 Setup report, bus events and errors come back over a pipe; commands (read now, stop) go down
@@ -80,14 +81,16 @@ def _ring_arrays(buf, slots: int, k: int):
     offset += 4 * slots * k
     ok = np.ndarray((slots, k), np.bool_, buf, offset)
     offset += slots * k
+    late = np.ndarray((slots, k), np.bool_, buf, offset)
+    offset += slots * k
     offset += (-offset) % 8
     written = np.ndarray((1,), np.int64, buf, offset)
     stop = np.ndarray((1,), np.int64, buf, offset + 8)
-    return t_ns, ticks, ok, written, stop
+    return t_ns, ticks, ok, late, written, stop
 
 
 def _ring_size(slots: int, k: int) -> int:
-    size = 8 * slots + 4 * slots * k + slots * k
+    size = 8 * slots + 4 * slots * k + 2 * slots * k
     return size + (-size) % 8 + 16
 
 
@@ -170,7 +173,7 @@ def _child(shm_name, slots, port, servos, options, rate_hz, events, commands,
     # A parent that dies is noticed (``parent``) and ends us the same way.
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGTERM, signal.SIG_IGN)
-    t_ns, ticks, ok, written, stop = _ring_arrays(shm.buf, slots, len(servos))
+    t_ns, ticks, ok, late, written, stop = _ring_arrays(shm.buf, slots, len(servos))
     if hook is not None:
         signal.signal(signal.SIGTERM, lambda *_: stop.__setitem__(0, 1))
     try:
@@ -215,6 +218,7 @@ def _child(shm_name, slots, port, servos, options, rate_hz, events, commands,
             t_ns[slot] = reading.t_ns
             ticks[slot] = reading.ticks
             ok[slot] = reading.ok
+            late[slot] = False if reading.late is None else reading.late
             written[0] += 1
             try:
                 for event in reader.log.drain():
@@ -236,7 +240,7 @@ def _child(shm_name, slots, port, servos, options, rate_hz, events, commands,
             del inbox
         if goal_shm is not None:
             goal_shm.close()
-        del t_ns, ticks, ok, written, stop
+        del t_ns, ticks, ok, late, written, stop
         shm.close()
 
 
@@ -282,8 +286,8 @@ class ReaderProcess:
     def start(self, timeout_s: float = 30.0):
         k = len(self.servos)
         self._shm = shared_memory.SharedMemory(create=True, size=_ring_size(self.slots, k))
-        self._t_ns, self._ticks, self._ok, self._written, self._stop_word = _ring_arrays(
-            self._shm.buf, self.slots, k)
+        (self._t_ns, self._ticks, self._ok, self._late, self._written,
+         self._stop_word) = _ring_arrays(self._shm.buf, self.slots, k)
         self._written[0] = 0
         self._stop_word[0] = 0
         self._events, child_events = self._ctx.Pipe(duplex=False)
@@ -360,7 +364,7 @@ class ReaderProcess:
         for n in range(first, written):
             slot = n % self.slots
             out.append(Reading(int(self._t_ns[slot]), self.ids, self._ticks[slot].copy(),
-                               self._ok[slot].copy()))
+                               self._ok[slot].copy(), late=self._late[slot].copy()))
         if int(self._written[0]) - first > self.slots - 1:  # overwritten while copying
             lost = int(self._written[0]) - self.slots + 1 - first
             out = out[lost:]
@@ -437,7 +441,7 @@ class ReaderProcess:
                     self.torque_after = self.hook.stop_from_parent(self.port, self.options,
                                                                    self.notes.append)
         if self._shm is not None:
-            del self._t_ns, self._ticks, self._ok, self._written, self._stop_word
+            del self._t_ns, self._ticks, self._ok, self._late, self._written, self._stop_word
             self._shm.close()
             self._shm.unlink()
             self._shm = None

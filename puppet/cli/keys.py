@@ -193,19 +193,25 @@ def retime(shot: str, moves: tuple[str, ...], out: str, force: bool) -> None:
     frames = {}
     for index, frame in _pairs(moves, "FRAME", "3=40").items():
         if not frame.isdigit():
-            raise click.BadParameter(f"{index}={frame}: FRAME is a whole number, e.g. 3=40")
+            raise click.BadParameter(f"{index}={frame}: FRAME is a whole number from 1, e.g. 3=40")
         frames[index] = int(frame)
     _edit(shot, out, force, lambda k: retime_keys(k, frames, shot))
 
 
 def _pairs(items: tuple[str, ...], right: str, example: str) -> dict[int, str]:
-    """{index: value} of INDEX=VALUE arguments; BadParameter naming a malformed one."""
-    pairs = {}
+    """{index: value} of INDEX=VALUE arguments; BadParameter naming a malformed one, or a key
+    given twice (which one was meant is not for us to guess)."""
+    pairs: dict[int, str] = {}
+    given: dict[int, str] = {}
     for item in items:
         index, _, value = item.partition("=")
         if not index.strip().isdigit() or not value.strip():
             raise click.BadParameter(f"{item!r}: expected INDEX={right}, e.g. {example}")
-        pairs[int(index)] = value.strip()
+        key = int(index)
+        if key in pairs:
+            raise click.BadParameter(f"key {key} given twice ({given[key]!r} and {item!r}): "
+                                     "give each key once")
+        pairs[key], given[key] = value.strip(), item
     return pairs
 
 

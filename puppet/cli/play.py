@@ -36,12 +36,16 @@ def play(take: str, rig_path: str | None, out: str | None, frames: str | None, s
          force: bool, sound_path: str | None, layers) -> None:
     """Replay a take through the solver and renderer (deterministic).
 
+    A video estimated over 16 GiB (puppet.limits.EXPORT_BYTES, as every export: a long take or
+    shot at a high --fps) is refused before anything is written, unless --force.
+
     \b
     Example:
       puppet play take.mcap --out take.mp4 --speed 0.5
       puppet play take.mcap --view       pause, scrub and change speed in the browser
       puppet play take.mcap --link       into Blender (the puppet_link add-on), on the clock
     """
+    from puppet.replay import PLAY_SIZE
     from puppet.session import Session
     from puppet.session import outputs as o
     from puppet.session.sources import TakeFrames, TakeOnClock
@@ -76,10 +80,13 @@ def play(take: str, rig_path: str | None, out: str | None, frames: str | None, s
                                     speed=1.0 if link_address is not None else speed, rig=rig,
                                     layers=layers)
         source = TakeFrames(playback, fps=fps, speed=speed, paced=link_address is not None)
+        if out:  # before anything is written: the export's size rule (puppet.limits.EXPORT_BYTES)
+            _check_video_size(out, len(source), fps, force)
         if link_address is not None:
             outputs.append(o.Link(link_address, rig, fps=fps, take=reader.path.stem,
                                   sound=_link_sound(reader), tell=say))
-        pipeline = {"overlay": True, "antialias": antialias, "live": False}
+        pipeline = {"overlay": True, "antialias": antialias, "live": False,
+                    "width": PLAY_SIZE[0], "height": PLAY_SIZE[1]}
         bar = click.progressbar(length=len(source), label="play", file=sys.stderr)
         on_frame = lambda done: bar.update(1)  # noqa: E731
     session = Session(rig, source, outputs, inputs=[take, *rig_files(rig)], video_fps=fps,
@@ -95,6 +102,16 @@ def play(take: str, rig_path: str | None, out: str | None, frames: str | None, s
     from puppet.cli.common import print_summary
 
     print_summary(session.summary, False, extra={"take": take, **session.report()})
+
+
+def _check_video_size(out: str, frames: int, fps: float, force: bool) -> None:
+    """Refuse, unless ``force``, a video whose estimate is over the export's size limit."""
+    from puppet.export.run import check_size, estimated_bytes
+    from puppet.replay import PLAY_SIZE
+
+    width, height = PLAY_SIZE
+    check_size(out, "the --out video", estimated_bytes("mp4", frames, pixels=width * height),
+               f"{frames} frames of {width}x{height} at {fps:g} fps", force, "--fps or --speed")
 
 
 def _sound(reader, sound_path: str | None):

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import sys
 import time
 
 import click
@@ -48,14 +49,21 @@ def rig_init(character: str, out: str | None, skin: int | None, force: bool) -> 
 @click.option("--all", "every_joint", is_flag=True, help="Also joints without a servo, about x, y and z.")
 @click.option("--angle", default=30.0, show_default=True, type=InRange(limits.ANGLE_DEG),
               help=f"Turn shown each way ({limits.ANGLE_DEG}).")
+@click.option("--from", "first", default=1, show_default=True, type=click.IntRange(1, None),
+              help="Show the turns from this one on (1 = the first): the next sheet of a model "
+                   "with more turns than one sheet holds.")
 @force_option
-def rig_axes(rig_path: str, out: str, every_joint: bool, angle: float, force: bool) -> None:
+def rig_axes(rig_path: str, out: str, every_joint: bool, angle: float, force: bool,
+             first: int) -> None:
     """Render each servo's joint turned -ANGLE and +ANGLE: pick axis and sign by looking.
 
     One pair of panels per servo (per joint axis with --all), the positive side framed green,
     each pair seen along its turn's axis and framed on what the joint moves, with the axis, an
     arrow the way it turns and the turn in rig init's words.
     A rig without [[servo]] blocks yet (fresh from `rig init`) shows every joint, as --all.
+    One sheet holds at most 120 pairs (puppet.render.axes_sheet.MAX_PAIRS; servos first): a
+    model of many joints shows the first ones (--from N: the next sheet), says how many it left
+    out, and its progress; Ctrl-C ends it and writes nothing.
 
     \b
     Example:
@@ -74,15 +82,31 @@ def rig_axes(rig_path: str, out: str, every_joint: bool, angle: float, force: bo
                    "(as --all); fill in a block's joint and axis to see just its servo", err=True)
         every_joint = True
     turns = [Turn(*t) for t in axis_turns(loaded, every_joint)]
-    if len(turns) > MAX_PAIRS:
-        click.echo(f"warning: {len(turns)} turns to show; one sheet holds {MAX_PAIRS} pairs "
-                   "(puppet.render.axes_sheet.MAX_PAIRS): showing the first "
-                   f"{MAX_PAIRS} (servos first), {len(turns) - MAX_PAIRS} left out; give the "
-                   "joints you mean servos and run it without --all", err=True)
+    total = len(turns)
+    if first > total:
+        fail(f"--from {first}: {rig_path} has {total} turns to show")
+    turns = turns[first - 1:]
+    if first > 1 or len(turns) > MAX_PAIRS:
+        last = first - 1 + min(len(turns), MAX_PAIRS)
+        rest = total - last
+        click.echo(f"warning: {total} turns to show; one sheet holds {MAX_PAIRS} pairs "
+                   f"(puppet.render.axes_sheet.MAX_PAIRS): showing turns {first} to {last} "
+                   f"(servos first), {total - (last - first + 1)} left out"
+                   + (f"; --from {last + 1} shows the next ones, or give the joints you mean "
+                      "servos and run it without --all" if rest else ""), err=True)
         turns = turns[:MAX_PAIRS]
     sk = loaded.skeleton
-    sheet = render_turn_sheet(loaded.V, loaded.F, loaded.W, sk.heads, sk.tails, sk.parents, turns,
-                              angle_deg=angle)
+    # a pair's two renders take a moment on a CPU renderer: a sheet of many shows its progress
+    # (Ctrl-C ends it, nothing written)
+    with click.progressbar(length=len(turns), label="axes sheet", file=sys.stderr) as bar:
+        done = [0]
+
+        def on_pair(pairs: int) -> None:
+            bar.update(pairs - done[0])
+            done[0] = pairs
+
+        sheet = render_turn_sheet(loaded.V, loaded.F, loaded.W, sk.heads, sk.tails, sk.parents,
+                                  turns, angle_deg=angle, on_pair=on_pair)
     path = save_sheet(sheet, out, inputs=inputs, force=force)
     click.echo(f"axes sheet: {path} ({len(sheet.panels)} panels: {len(turns)} pairs of -{angle:g}° and "
                f"+{angle:g}°, the positive side framed green)")

@@ -14,13 +14,17 @@ from pathlib import Path
 import numpy as np
 
 from puppet.atomic import atomic_output
+from puppet.export.errors import ExportError
 from puppet.export.gltf import GltfWriter
 from puppet.export.source_order import SourceOrder
 
 
 def write_character(rig, out, *, inputs=(), force: bool = False) -> Path:
     """Write ``rig``'s character at rest to ``out`` (.glb; the one rule for outputs:
-    ``puppet.atomic``; inputs: files it was read from, never written over). Returns the path."""
+    ``puppet.atomic``; inputs: files it was read from, never written over). Returns the path.
+    ExportError naming ``out`` for another suffix (Blender's importer goes by the name)."""
+    if Path(out).suffix.lower() != ".glb":
+        raise ExportError(out, "the character is a glTF binary: name it *.glb (e.g. critter.glb)")
     sk = rig.skeleton
     order = SourceOrder(rig)
     with atomic_output(out, kind="glb", inputs=inputs, force=force,

@@ -290,12 +290,22 @@ PC2_HEADER_BYTES = 32
 BVH_BYTES_PER_CHANNEL = 10  # a channel's value as BVH text, with its separator
 
 
-def estimated_bytes(fmt: str, frames: int, vertices: int, joints: int) -> int:
+VIDEO_BYTES_PER_PIXEL = 0.25
+"""What an H.264 frame of the renderer's pictures is taken to cost, per pixel (a sixth of the raw
+yuv420p frame; the character on a plain ground at VideoSink's quality encodes to far less): a
+bound for the size rule, not a prediction."""
+
+
+def estimated_bytes(fmt: str, frames: int, vertices: int = 0, joints: int = 0,
+                    pixels: int = 0) -> int:
     """About how many bytes an export of ``frames`` frames writes (exact for PC2: a header and
     3 float32 per vertex per frame; USD: the points alone, 3 float32 per vertex per frame;
     glTF: a key time and a rotation, translation and scale per joint per frame before key
-    reduction; BVH: six channels of text per joint per frame). Checked against
-    ``puppet.limits.EXPORT_BYTES`` before anything is written."""
+    reduction; BVH: six channels of text per joint per frame; mp4: ``pixels`` (width × height)
+    at VIDEO_BYTES_PER_PIXEL per frame). Checked against ``puppet.limits.EXPORT_BYTES`` before
+    anything is written (``check_size``)."""
+    if fmt == "mp4":
+        return int(frames * pixels * VIDEO_BYTES_PER_PIXEL)
     if fmt == "pc2":
         return PC2_HEADER_BYTES + frames * vertices * 12
     if fmt == "usd":
@@ -303,6 +313,18 @@ def estimated_bytes(fmt: str, frames: int, vertices: int, joints: int) -> int:
     if fmt == "gltf":
         return frames * (4 + joints * (16 + 12 + 12))
     return frames * joints * 6 * BVH_BYTES_PER_CHANNEL
+
+
+def check_size(target, what: str, size: int, made_of: str, force: bool, option: str = "--fps") -> None:
+    """Refuse (ExportError naming ``target``) an output of about ``size`` bytes over
+    ``puppet.limits.EXPORT_BYTES`` unless ``force``, before anything is written. what: the output
+    in words ("the --pc2 output"); made_of: what the size comes from, in words; option: the
+    option that makes it smaller."""
+    if size > limits.EXPORT_BYTES.hi and not force:
+        raise ExportError(target, f"{what} would be about {_bytes(size)} ({made_of}), over the "
+                                  f"{_bytes(limits.EXPORT_BYTES.hi)} an export writes without "
+                                  f"--force (puppet.limits.EXPORT_BYTES); lower {option}, or "
+                                  "pass --force to write it")
 
 
 def _bytes(n: float) -> str:
@@ -357,14 +379,9 @@ class ExportWriters:
         self.order = SourceOrder(rig)
         for fmt, target in items:  # before anything is written: a size no one meant
             size = estimated_bytes(fmt, len(frames), self.order.n_out, rig.skeleton.bone_count)
-            if size > limits.EXPORT_BYTES.hi and not self.force:
-                raise ExportError(target, f"the --{fmt} output would be about {_bytes(size)} "
-                                          f"({len(frames)} frames at {frames.fps:g} fps, "
-                                          f"{self.order.n_out} vertices, "
-                                          f"{rig.skeleton.bone_count} joints), over the "
-                                          f"{_bytes(limits.EXPORT_BYTES.hi)} an export writes "
-                                          "without --force (puppet.limits.EXPORT_BYTES); "
-                                          "lower --fps, or pass --force to write it")
+            check_size(target, f"the --{fmt} output", size,
+                       f"{len(frames)} frames at {frames.fps:g} fps, {self.order.n_out} vertices, "
+                       f"{rig.skeleton.bone_count} joints", self.force)
         if "bvh" in dict(items):
             self._bvh_offsets, self._end_sites = _bvh_skeleton(rig)
         self.rig, self.items, self.targets = rig, items, dict(items)
@@ -378,6 +395,7 @@ class ExportWriters:
             self.report.pc2_space = space
         if rig.source is not None and any(f in self.targets for f in ("gltf", "usd")):
             self.report.warnings += rig.source.warnings
+        self.report.warnings += frames.notes  # a clip ended at the take's end
         self.writers: dict[str, object] = {}
         self.frames = 0
         self._stack = contextlib.ExitStack()

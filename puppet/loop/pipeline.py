@@ -22,7 +22,7 @@ from puppet.fast.factor import Factor
 from puppet.fast.live_solve import LiveSolve
 from puppet.fast.solver import Dynamics
 from puppet.loop.dropout import Dropout, Steps
-from puppet.reading import Reading
+from puppet.reading import Reading, fault_mask
 from puppet.render.passes.antialias import ANTIALIAS, LIVE_PIXELS_PER_TRIANGLE, is_software_gl, resolve_antialias
 from puppet.rig import Rig
 
@@ -121,14 +121,16 @@ class Pipeline:
         self.solve_ns = 0           # the whole solve stage (angles .. iterations), all frames
         self.iterate_ns = 0         # the native iterations alone, all frames
         self.solver_iterations = 0  # iterations run, all frames
-        # Bone state per bone, and which bone each servo senses (for the "held" colour: a servo not read this time).
+        # Bone state per bone, and which bone each servo senses (for the "fault" colour: a servo
+        # held at fault; one held only because its reply came late keeps its bone's colour).
         kinds = rig.bone_kinds()
         index = {name: i for i, name in enumerate(rig.skeleton.names)}
         self._base_states = ["free"] * len(rig.skeleton.names)
         for kind, names in kinds.items():
             for name in names:
                 self._base_states[index[name]] = BONE_KIND_STATES[kind]
-        self._servo_bone = np.array([index[s.joint] for s in rig.servo_map.servos], np.int64)
+        self._servo_bone = [index[s.joint] for s in rig.servo_map.servos]
+        self.fault = np.zeros(len(self._servo_bone), bool)  # per servo, this reading (fault_mask)
         self.bone_states = list(self._base_states)
         sk = rig.skeleton  # rest bones for the overlay
         self.bone_segments = np.ascontiguousarray(np.stack([sk.heads, sk.tails], axis=1))  # (b, 2, 3)
@@ -182,7 +184,9 @@ class Pipeline:
     def solve(self, reading: Reading) -> np.ndarray:
         """Solve this reading's pose into ``self.T`` (in place) and return it.
 
-        A servo flagged not ok keeps the tick value the reader held for it (its last good one);
+        A servo flagged not ok keeps the tick value the reader held for it (its last good one),
+        and its bone is painted ``fault`` unless the reading says it was only late
+        (``Reading.late``, a busy host: the bone keeps its colour);
         with the rig option ``on_dropout = "free"`` its bones are solved instead once it has been
         silent long enough (puppet.loop.dropout); dynamics step by the readings' times. A
         reading with ``rotations`` (a shot's frame) is posed from them, not from its angles. The
@@ -202,8 +206,8 @@ class Pipeline:
         self.solve_ns += time.perf_counter_ns() - start
         self.iterate_ns += stats.iterate_ns
         self.solver_iterations += int(stats.iterations)
-        if not reading.ok.all():
-            self._mark_held(reading.ok)
+        if fault_mask(reading, self.fault).any():
+            self._mark_fault()
         elif self.bone_states != self._base_states:
             self.bone_states[:] = self._base_states
         return self.T
@@ -225,10 +229,14 @@ class Pipeline:
         self.live.set_handles(points, self.T)
         return time.perf_counter() - start
 
-    def _mark_held(self, ok: np.ndarray) -> None:
+    def _mark_fault(self) -> None:
+        """The bones of the servos at fault this reading ``fault``, the others their own state
+        (allocates nothing)."""
         self.bone_states[:] = self._base_states
-        for bone in self._servo_bone[~ok]:
-            self.bone_states[bone] = "held"
+        fault = self.fault
+        for k, bone in enumerate(self._servo_bone):
+            if fault[k]:
+                self.bone_states[bone] = "fault"
 
     def draw(self) -> np.ndarray:
         """Render the current T: (height, width, 3) uint8 (``render`` then ``read``)."""

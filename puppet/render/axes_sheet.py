@@ -19,6 +19,7 @@ is exactly what the joint moves.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -265,14 +266,16 @@ def draw_axis(panel: np.ndarray, camera: Camera, turn: Turn, sign: int, angle_de
 
 def render_turn_sheet(V, F, W, heads, tails, parents, turns: list[Turn], *, angle_deg: float = 30.0,
                       panel_size: tuple[int, int] = (320, 260), pairs_per_row: int = 2,
-                      up=(0.0, 1.0, 0.0), context=None) -> Sheet:
+                      up=(0.0, 1.0, 0.0), context=None,
+                      on_pair: Callable[[int], None] | None = None) -> Sheet:
     """Render every turn at −angle and +angle into one sheet, each pair from its own camera
     (``turn_camera``: along the turn's axis, framing what it moves).
 
     V (n, 3), F (f, 3), W (n, m): the rest character (handles 0..b-1 are the bones);
     heads, tails: (b, 3) rest bones; parents: (b,) parent index or -1; turns: one pair each.
     panel_size: (width, height) px of one panel; pairs_per_row: pairs side by side (fewer when
-    there are fewer turns); up: (3,) world up; context: a moderngl context to share.
+    there are fewer turns); up: (3,) world up; context: a moderngl context to share;
+    on_pair: called with the pairs done after each pair (a progress bar).
     """
     from puppet.render.renderer import Renderer
 
@@ -316,6 +319,8 @@ def render_turn_sheet(V, F, W, heads, tails, parents, turns: list[Turn], *, angl
                 panel[:BORDER_PX], panel[-BORDER_PX:] = border, border
                 panel[:, :BORDER_PX], panel[:, -BORDER_PX:] = border, border
                 panels.append(Panel(text, sign, (top, left, height, width), words, camera, pivot_px))
+            if on_pair is not None:
+                on_pair(k + 1)
     return Sheet(image, panels)
 
 

@@ -3,13 +3,14 @@
 A bone is a rest-pose segment (head, tail) that moves with the handle of the same index
 (skeleton bones are the first handles of the FAST model). States follow the solver's
 constraint kinds: sensed (full transform from the servos), relative (sensed joint under a free
-parent), free (solved), held (its servo not read this time, its reply late or missing: holding its
-last good angle; the words are puppet.events' ``held_reading``).
+parent), free (solved), fault (its servo at fault this reading: not answering, an error, out of
+its limits, ...: holding its last good angle; the fault log names the condition). A servo whose
+value is held only because its reply came late (``late_reply``, a busy host: not a fault,
+``Reading.late``) leaves its bone in its own colour: one late reply is not worth a flash of red.
 """
 
 import numpy as np
 
-from puppet.events import CONDITIONS, HELD_READING
 from puppet.render.errors import RenderInputError
 
 #: Linear-light RGB of each bone state, and of bones drawn without a state.
@@ -17,7 +18,7 @@ BONE_STATE_COLORS = {
     "sensed": (0.15, 0.85, 0.3),
     "relative": (0.2, 0.6, 1.0),
     "free": (0.75, 0.75, 0.75),
-    "held": (1.0, 0.15, 0.1),
+    "fault": (1.0, 0.15, 0.1),
     None: (1.0, 0.85, 0.2),
 }
 #: What each bone state means to a puppeteer (the live view's legend).
@@ -25,7 +26,7 @@ BONE_STATE_WORDS = {
     "sensed": "follows its servo",
     "relative": "follows its servo, under a free parent",
     "free": "no servo: solved from the others (and pins)",
-    "held": CONDITIONS[HELD_READING].words,
+    "fault": "servo at fault (the fault log says why): holds its last angle",
 }
 
 #: Diamond outline of a bone, as a triangle strip in (along, across) coordinates.

@@ -279,7 +279,7 @@ class Renderer:
         T: (4m, 3) float32, rows 4j..4j+3 are handle j's 3x4 affine transform transposed
         (v' = [v 1] @ T[4j:4j+4]). bones: optional (b, 2, 3) rest heads and tails, bone i moves
         with handle i, drawn over the character; bone_states: b states ("sensed", "relative",
-        "free", "held") or None. out: optional (height, width, 3) uint8 C-contiguous array.
+        "free", "fault") or None. out: optional (height, width, 3) uint8 C-contiguous array.
         Returns (height, width, 3) uint8 RGB, top row first: `out`, or the renderer's own
         `image` array, which the next draw overwrites.
         """

@@ -185,7 +185,11 @@ class _OverBase:
         known = ~np.isnan(base[cols])
         ticks[cols[known]] = np.rint(base[cols[known]]).astype(np.int32)
         ok[cols[known]] = True
-        return OverReading(t_ns=reading.t_ns, ids=reading.ids, ticks=ticks, ok=ok,
+        late = None
+        if reading.late is not None:  # a base servo is the base's: never late
+            late = reading.late.copy()
+            late[cols[known]] = False
+        return OverReading(t_ns=reading.t_ns, ids=reading.ids, ticks=ticks, ok=ok, late=late,
                            raw_ticks=reading.ticks, raw_ok=reading.ok)
 
     def drain(self) -> list:

@@ -233,7 +233,8 @@ def read_keys(path, k: int) -> Keys | None:
                     keys.append(key)
     except (McapError, EOFError, ValueError) as err:
         if channel is not None:
-            skipped.append(f"the file ends damaged after {len(keys)} keys ({err})")
+            skipped.append(f"the file ends damaged after {len(keys)} keys"
+                           + (f" ({err})" if str(err) else ""))  # the record's own words follow
     except OSError as err:
         raise TakeError(path, f"cannot read keys: {err.strerror}") from err
     if channel is None:

@@ -190,6 +190,7 @@ class Playback:
         self._part = np.empty(k, np.float64)
         self._inbetweens = None
         self.layer_notes: list[str] = []
+        self.notes: list[str] = []  # what making these frames changed of what was asked (a clip)
         self._loop_rot = None  # (N, b, 3, 3) a looping clip's frames' blended rotations
         self.loop = bool(loop)
         if self.loop:
@@ -239,12 +240,20 @@ class Playback:
     def clip(self, in_s: float, out_s: float, *, loop: bool = False, joint_rotations=None,
              loop_blend_s: float = LOOP_BLEND_S) -> "Playback":
         """The frames of play times [in_s, out_s] (a segment), by this rule; ``loop``: its seam
-        blended in solve space (needs the rig's ``joint_rotations(ticks) -> (b, 3, 3)``)."""
+        blended in solve space (needs the rig's ``joint_rotations(ticks) -> (b, 3, 3)``). An in
+        point at or past the take's end is refused; an out point past it ends the clip at the
+        end, said in the clip's ``notes``."""
         if self.interpolation is not None:
             raise TakeError(self.source, "a clip is of a take, not of a shot's keys")
+        if out_s <= in_s:
+            raise TakeError(self.source, f"clip {in_s:g}-{out_s:g} s: the out point must come "
+                                         f"after the in point, within {self.duration_s:.3f} s")
+        if in_s >= self.duration_s:
+            raise TakeError(self.source, f"clip {in_s:g}-{out_s:g} s: the in point is at or past "
+                                         f"the take's end, {self.duration_s:.3f} s")
         in_ns = int(round(min(max(in_s, 0.0), self.duration_s) * 1e9))
         out_ns = int(round(min(max(out_s, 0.0), self.duration_s) * 1e9))
-        if out_ns <= in_ns:
+        if out_ns <= in_ns:  # within a nanosecond of each other
             raise TakeError(self.source, f"clip {in_s:g}-{out_s:g} s: the out point must come "
                                          f"after the in point, within {self.duration_s:.3f} s")
         k = len(self.ids)
@@ -257,9 +266,14 @@ class Playback:
         t = np.concatenate([[in_ns], self.play_ns[inside], [out_ns]]) + self.t_first_ns
         ticks = np.vstack([ends[0][0], self.ticks[inside], ends[1][0]])
         ok = np.vstack([ends[0][1], self.ok[inside], ends[1][1]])
-        return Playback(t, ticks, ok, self.ids, fps=self.fps, speed=self.speed,
-                        source=self.source, ticks_per_turn=self._turn, loop=loop,
-                        joint_rotations=joint_rotations, loop_blend_s=loop_blend_s)
+        clipped = Playback(t, ticks, ok, self.ids, fps=self.fps, speed=self.speed,
+                           source=self.source, ticks_per_turn=self._turn, loop=loop,
+                           joint_rotations=joint_rotations, loop_blend_s=loop_blend_s)
+        if out_s > self.duration_s + 5e-4:  # past the end by more than the rounding of a time
+            clipped.notes.append(f"{self.source}: clip {in_s:g}-{out_s:g} s: the take ends at "
+                                 f"{self.duration_s:.3f} s: the clip is {in_s:g}-"
+                                 f"{self.duration_s:.3f} s")
+        return clipped
 
     @classmethod
     def of_take(cls, reader, ids, *, fps: float = 30.0, speed: float = 1.0,

@@ -28,6 +28,20 @@ def bone_legend() -> list[dict]:
             for state, rgb in BONE_STATE_COLORS.items() if state is not None]
 
 
+SERVO_STATES = {
+    "ok": "read this time",
+    "late": "reply came late (busy computer): its last angle held, not a fault",
+    "fault": "at fault (its last fault says why): its last angle held",
+}
+"""A servo's state on the page's servo table, and what it means; ``fault`` is also its bone's
+state (puppet.render.overlay), a late servo's bone keeps its colour."""
+
+
+def servo_state(ok: bool, fault: bool) -> str:
+    """The key of SERVO_STATES for a servo read ``ok`` and at ``fault`` (Pipeline.fault)."""
+    return "ok" if ok else "fault" if fault else "late"
+
+
 def posed_bones(pipeline) -> np.ndarray:
     """(b, 2, 3) bone heads and tails moved by their handles."""
     seg = pipeline.bone_segments
@@ -108,8 +122,9 @@ class Panel:
         recent = [t for t in times if now - t <= 1.0]
         loop_fps = (len(recent) - 1) / max(recent[-1] - recent[0], 1e-6) if len(recent) > 1 else 0.0
         servos = [{"id": sid, "deg": round(float(deg), 1), "ok": bool(ok),
-                   "fault": self._last_fault.get(sid, "")}
-                  for sid, deg, ok in zip(self._servo_ids, self._angles_deg, reading.ok)]
+                   "state": servo_state(ok, fault), "fault": self._last_fault.get(sid, "")}
+                  for sid, deg, ok, fault in zip(self._servo_ids, self._angles_deg, reading.ok,
+                                                 pipeline.fault)]
         panel = {"type": "panel", "t_s": round(now - self._t0, 2), "servos": servos,
                  "loop_fps": round(loop_fps, 1), "frames": frames, "drops": drops,
                  "recording": recording, "playback": playback,

@@ -30,6 +30,10 @@ def test_a_late_reply_is_logged_late_and_books_no_fault(sim, open_reader, read_u
     bus.inject("late", ids=[2], p=0.5, ms=LATE_MS)
     seen = _held_reading_events(reader, bus, 5, read_until)
     assert any(not r.ok.all() for r in seen)  # the late servo's value was held meanwhile
+    # ... as late (Reading.late: the view paints no fault for it), never for a servo read fine
+    assert any(r.late[1] for r in seen)
+    assert all(not (r.late & r.ok).any() for r in seen)
+    assert all(r.late[1] for r in seen if not r.ok[1]), [(r.ok, r.late) for r in seen]
     late = [e for e in reader.log.events if e.kind == "late_reply"]
     assert {2} <= {i for e in late for i in e.ids}
     assert _faults(reader.log.counts) == {}, reader.log.counts
@@ -40,7 +44,10 @@ def test_a_servo_that_does_not_answer_is_still_a_fault(sim, open_reader, read_un
     bus = sim(timing=True)
     reader = open_reader(bus)
     bus.inject("drop", ids=[3])
-    read_until(reader, lambda r: reader.log.counts.get("servo_missing", 0) >= 1, what="servo 3 missing")
+    seen = []
+    read_until(reader, lambda r: reader.log.counts.get("servo_missing", 0) >= 1, what="servo 3 missing",
+               seen=seen)
+    assert not seen[-1].ok[2] and not seen[-1].late[2]  # held at fault, not late
     assert {3} == {i for e in reader.log.events if e.kind == "servo_missing" for i in e.ids}
     assert "servo_missing" in describe_counts(reader.log.counts).split(";")[0]
 

@@ -119,3 +119,18 @@ def test_replay_of_a_recorded_puppet_take(tmp_path, open_sdk):
         bad = tmp_path / "bad.mcap"
         bad.write_bytes(b"not mcap at all")
         Replay.from_file(bad)
+
+
+def test_a_motion_file_that_is_not_text_or_not_a_file_is_named(tmp_path):
+    import os
+
+    binary = tmp_path / "motion.csv"
+    binary.write_bytes(b"t, 1\n0, 5\n\xf1\xff\n")
+    for spec in (str(binary), f"replay:{binary}"):
+        with pytest.raises(hw_sim.MotionFileError) as info:
+            hw_sim.motion.make_motion(spec)
+        assert str(info.value) == f"{binary}:3: not UTF-8 text (a motion file is a CSV of ticks)"
+    fifo = tmp_path / "fifo.csv"
+    os.mkfifo(fifo)  # read, it would block for ever
+    with pytest.raises(hw_sim.MotionFileError, match="not a regular file"):
+        hw_sim.motion.make_motion(f"replay:{fifo}")

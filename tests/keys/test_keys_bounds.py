@@ -129,3 +129,51 @@ def test_a_capture_with_no_key_writes_nothing(tmp_path, critter):
     desk.step()
     assert desk.finished and session.interpolation == "smooth"
     assert not session.written and not path.exists()
+
+
+def test_play_refuses_a_video_over_the_size_limit_before_writing(tmp_path, critter):
+    import subprocess
+
+    from puppet.cli.play import _check_video_size
+    from puppet.export.run import estimated_bytes
+    from puppet.replay import PLAY_SIZE
+
+    keys = critter_keys(critter, step=12, fps=24)
+    last = keys.keys[-1]
+    long_keys = type(keys)(24.0, keys.keys[:-1] + [Key(24 * 600, last.ticks, last.ok, id=last.id)])
+    shot = tmp_path / "long.mcap"
+    write_shot(shot, header_of(critter), long_keys)  # ten minutes: at 1000 fps, 600 000 frames
+    video = tmp_path / "long.mp4"
+    done = subprocess.run(["puppet", "play", str(shot), "--out", str(video), "--fps", "1000"],
+                          capture_output=True, text=True, timeout=300)
+    assert done.returncode == 1, done.stderr
+    assert done.stderr.startswith(f"Error: {video}: the --out video would be about "), done.stderr
+    assert "640x480 at 1000 fps" in done.stderr and "puppet.limits.EXPORT_BYTES" in done.stderr
+    assert "Traceback" not in done.stderr and not video.exists()
+    assert list(tmp_path.iterdir()) == [shot]  # no partial file either
+    frames = 600_000
+    assert estimated_bytes("mp4", frames, pixels=PLAY_SIZE[0] * PLAY_SIZE[1]) > limits.EXPORT_BYTES.hi
+    _check_video_size(str(video), frames, 1000.0, force=True)  # --force: past the rule
+    with pytest.raises(ExportError, match="--out video"):
+        _check_video_size(str(video), frames, 1000.0, force=False)
+    # a video within the limit is not refused: the shot at its own rate
+    _check_video_size(str(video), 24 * 600, 24.0, force=False)
+
+
+def test_a_key_given_twice_is_refused_and_a_cut_shot_says_where(tmp_path, critter):
+    from click.testing import CliRunner
+
+    from puppet.cli import main
+
+    shot = tmp_path / "shot.mcap"
+    write_shot(shot, header_of(critter), critter_keys(critter, step=12, fps=24))
+    out = tmp_path / "out.mcap"
+    twice = CliRunner().invoke(main, ["keys", "retime", str(shot), "1=5", "1=6", "--out", str(out)])
+    assert twice.exit_code == 2 and "key 1 given twice ('1=5' and '1=6')" in twice.output, twice.output
+    assert not out.exists()
+    cut = tmp_path / "cut.mcap"
+    cut.write_bytes(shot.read_bytes()[:3000])  # ends inside the keys
+    done = CliRunner().invoke(main, ["keys", "retime", str(cut), "1=5", "--out", str(out)])
+    assert done.exit_code == 0, done.output
+    said = next(line for line in done.output.splitlines() if "ends damaged after" in line)
+    assert "()" not in said, said  # the reason is named, never empty

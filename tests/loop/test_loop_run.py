@@ -25,16 +25,25 @@ def test_solve_follows_the_reading_and_keeps_full_constraints(critter):
     assert np.isfinite(pipeline.T).all()
 
 
-def test_held_servo_marks_its_bone(critter):
+def test_a_servo_at_fault_marks_its_bone_a_late_one_does_not(critter):
     pipeline = Pipeline(critter, render=False)
     k = len(critter.servo_map)
+    ids, zero = critter.servo_map.ids, critter.servo_map.zero.astype(np.int32)
     ok = np.ones(k, bool)
-    ok[0] = False
-    pipeline.solve(Reading(0, critter.servo_map.ids, critter.servo_map.zero.astype(np.int32), ok))
+    ok[0] = ok[1] = False
+    late = np.zeros(k, bool)
+    late[1] = True  # servo 1's reply came late: held, not a fault
     bone = critter.skeleton.index(critter.servo_map.servos[0].joint)
-    assert pipeline.bone_states[bone] == "held"
-    pipeline.solve(Reading(1, critter.servo_map.ids, critter.servo_map.zero.astype(np.int32), np.ones(k, bool)))
-    assert pipeline.bone_states[bone] != "held"
+    late_bone = critter.skeleton.index(critter.servo_map.servos[1].joint)
+    base = list(pipeline.bone_states)
+    pipeline.solve(Reading(0, ids, zero, ok, late=late))
+    assert pipeline.bone_states[bone] == "fault"
+    assert pipeline.bone_states[late_bone] == base[late_bone] != "fault"
+    assert pipeline.fault.tolist() == [True] + [False] * (k - 1)
+    pipeline.solve(Reading(1, ids, zero, np.ones(k, bool)))
+    assert pipeline.bone_states == base
+    pipeline.solve(Reading(2, ids, zero, ok))  # no late mask (a take): every held servo at fault
+    assert pipeline.bone_states[bone] == pipeline.bone_states[late_bone] == "fault"
 
 
 def test_live_loop_keeps_running_through_faults(critter):

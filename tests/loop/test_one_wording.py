@@ -1,5 +1,5 @@
-"""One name per condition, one wording everywhere: the summary, the page and the overlay's legend
-name a servo held this reading (its reply late or missing) by puppet.events' table alone."""
+"""One name per condition, one wording everywhere: the summary names a servo held this reading
+(its reply late or missing) by puppet.events' table alone; the page's legend is the overlay's."""
 
 from __future__ import annotations
 
@@ -39,14 +39,17 @@ def test_a_held_reading_is_named_by_the_table_and_is_not_a_fault():
 
 def test_the_overlay_legend_and_the_page_use_the_same_name_and_words():
     from puppet.render.overlay import BONE_STATE_COLORS, BONE_STATE_WORDS
-    from puppet.view.panel import bone_legend
+    from puppet.view.panel import SERVO_STATES, bone_legend, servo_state
 
-    assert BONE_STATE_WORDS["held"] == CONDITIONS[HELD_READING].words
     assert set(BONE_STATE_WORDS) == set(BONE_STATE_COLORS) - {None}
-    assert {"state": "held", "words": CONDITIONS[HELD_READING].words}.items() <= \
-        next(item for item in bone_legend() if item["state"] == "held").items()
+    assert [(i["state"], i["words"]) for i in bone_legend()] == list(BONE_STATE_WORDS.items())
+    # a servo at fault: "fault" on the table and on its bone; a late one: no bone state of its own
+    assert servo_state(False, True) == "fault" and "fault" in BONE_STATE_WORDS
+    assert servo_state(False, False) == "late" and "late" not in BONE_STATE_WORDS
+    assert servo_state(True, False) == "ok" and set(SERVO_STATES) == {"ok", "late", "fault"}
+    assert "not a fault" in SERVO_STATES["late"]
     js = (ROOT / "view" / "static" / "view.js").read_text()
-    assert 's.ok ? "ok" : "held"' in js  # the servo table's state: the bone state's name
+    assert "setText(row.cells[3], s.state)" in js  # the servo table's state: the panel's name
 
 
 def test_no_old_name_is_left_in_the_source():

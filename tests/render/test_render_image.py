@@ -47,7 +47,7 @@ def test_skeleton_overlay_colors_bones_by_state(gl_context, bar, helpers):
     bones = np.array([[[0.0, 0, 0], [1.0, 0, 0]], [[1.0, 0, 0], [2.0, 0, 0]]])
     with Renderer(V, F, W, width=160, height=120, camera=front_camera(), ground=False, context=gl_context) as renderer:
         plain = renderer.draw(T).astype(int)
-        image = renderer.draw(T, bones=bones, bone_states=["sensed", "held"]).astype(int)
+        image = renderer.draw(T, bones=bones, bone_states=["sensed", "fault"]).astype(int)
         sensed_px = pixel_of(renderer, [0.5, 0, 0])
         faulted_px = pixel_of(renderer, [1.0, 0.5, 0])  # bone 1 moved with handle 1
         with pytest.raises(RenderInputError, match=r"bone_states\[1\]: unknown state 'broken'"):

@@ -563,3 +563,24 @@ def pillar(moved=True) -> Character:
                      image=("pillar_skin", PILLAR_IMAGE), empties=[("Marker", "mid", (0.0, 0.2, 0.0))],
                      sampler=g.Sampler(magFilter=9728, minFilter=9728, wrapS=10497, wrapT=10497),
                      scene_name="Scene")
+
+
+def chain(joints: int, *, bone_length: float = 0.05, sides: int = 6) -> Character:
+    """A snake of ``joints`` joints in one chain along +Z (each a child of the one before), a
+    capped tube around them, each vertex following the two nearest joints: a model as large as a
+    test of many joints needs (e.g. 1000), built in a second."""
+    heads = [(0.0, 0.0, k * bone_length) for k in range(joints)]
+    bones = [(f"j{k}", f"j{k - 1}" if k else None, frame_at(bone_frame((0, 0, 1)), head))
+             for k, head in enumerate(heads)]
+    body = tube((0.0, 0.0, 0.0), (0.0, 0.0, joints * bone_length), joints + 1, 0.1, sides, split=False)
+    centres = (np.arange(joints) + 0.5) * bone_length
+    W = hat_weights(body.V[:, 2], centres, list(range(joints)), joints)
+    return Character("snake", bones, [{"V": body.V.astype(np.float32), "F": body.F, "W": W}])
+
+
+def write_chain_glb(path, joints: int, **kwargs) -> Path:
+    """Write ``chain(joints)`` as a .glb at ``path``; returns the path."""
+    doc, blob = document(chain(joints, **kwargs))
+    doc.set_binary_blob(blob)
+    doc.save_binary(str(path))
+    return Path(path)

@@ -2,7 +2,8 @@
 device (``/dev/zero`` never ends), of a model of 50 000 joints (refused from its JSON's counts,
 before the document is parsed into objects: ``puppet.rig.gltf.MAX_NODES``/``MAX_JOINTS``);
 ``rig axes --all`` of more turns than a sheet holds (``puppet.render.axes_sheet.MAX_PAIRS``)
-shows the first ones and says how many it left out."""
+shows the first ones, its progress, says how many it left out and how to see the next ones (a
+real generated model of 1000 joints: bounded, one sheet, --from for the next)."""
 
 import json
 import os
@@ -81,3 +82,32 @@ def test_rig_axes_shows_at_most_a_sheet_of_pairs_and_says_what_it_left_out(
     assert iio.imread(tmp_path / "sheet.png").shape[0] == 2 * 260
     with pytest.raises(RenderInputError, match="5 pairs; a sheet holds at most 4"):
         render_turn_sheet(None, None, None, None, None, None, [None] * 5)
+
+
+def test_rig_axes_all_of_a_real_1000_joint_model_is_one_bounded_sheet_with_a_next_one(
+        tmp_path, character):
+    import imageio.v3 as iio
+
+    from puppet.render.axes_sheet import MAX_PAIRS
+
+    glb = character.write_chain_glb(tmp_path / "snake.glb", 1000)
+    made = _puppet("rig", "init", glb)
+    assert made.returncode == 0 and "1000 joints" in made.stdout, made.stderr
+    rig = tmp_path / "snake.toml"
+    sheet = tmp_path / "sheet.png"
+    first = _puppet("rig", "axes", rig, "--all", "--out", sheet)
+    assert first.returncode == 0, first.stderr
+    assert (f"warning: 3000 turns to show; one sheet holds {MAX_PAIRS} pairs" in first.stderr
+            and f"showing turns 1 to {MAX_PAIRS}" in first.stderr
+            and f"{3000 - MAX_PAIRS} left out; --from {MAX_PAIRS + 1} shows the next ones" in first.stderr)
+    assert "axes sheet" in first.stderr  # the progress bar's label
+    assert f"{2 * MAX_PAIRS} panels: {MAX_PAIRS} pairs" in first.stdout
+    assert iio.imread(sheet).shape[:2] == (MAX_PAIRS // 2 * 260, 4 * 320)
+    last = _puppet("rig", "axes", rig, "--all", "--from", 2951, "--out", tmp_path / "last.png")
+    assert last.returncode == 0, last.stderr
+    assert "showing turns 2951 to 3000" in last.stderr and "2950 left out" in last.stderr
+    assert "--from 3001" not in last.stderr and "100 panels: 50 pairs" in last.stdout
+    beyond = _puppet("rig", "axes", rig, "--all", "--from", 3001, "--out", tmp_path / "none.png")
+    assert beyond.returncode == 1 and "Traceback" not in beyond.stderr
+    assert f"Error: --from 3001: {rig} has 3000 turns to show" in beyond.stderr
+    assert not (tmp_path / "none.png").exists()

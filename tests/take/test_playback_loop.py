@@ -63,3 +63,18 @@ def test_a_clip_keeps_the_take_frames_and_refuses_a_bad_span(rig):
     assert np.array_equal(clip.at(0.25).ticks, take.at(0.75).ticks)
     with pytest.raises(TakeError, match="out point must come after"):
         take.clip(1.5, 0.5)
+
+
+def test_a_clip_past_the_takes_end_says_so_and_one_starting_past_it_is_refused(rig):
+    take = _take(rig)
+    end = take.duration_s
+    clip = take.clip(0.5, end + 100)
+    assert clip.duration_s == pytest.approx(end - 0.5)
+    assert clip.notes == [f"{take.source}: clip 0.5-{end + 100:g} s: the take ends at {end:.3f} s: "
+                          f"the clip is 0.5-{end:.3f} s"]
+    assert take.clip(0.5, end).notes == []  # to the end exactly: as asked
+    with pytest.raises(TakeError, match=rf"clip 100-200 s: the in point is at or past the take's "
+                                        rf"end, {end:.3f} s"):
+        take.clip(100, 200)
+    with pytest.raises(TakeError, match="out point must come after"):
+        take.clip(200, 100)

@@ -34,9 +34,9 @@ def test_frames_arrive_and_change(new_page, demo, tmp_path, tools):
 def test_servo_panel_flags_a_dropped_servo(new_page, demo, tmp_path, tools):
     page = tools.open_view(new_page, demo)
     row = f"#servos tbody tr[data-id='{tools.DROPPED_SERVO}']"
-    tools.wait_until(lambda: page.locator(row).get_attribute("class") == "held",
-                     what=f"servo {tools.DROPPED_SERVO} held on the panel")
-    assert page.locator(f"{row} td").nth(3).inner_text() == "held"
+    tools.wait_until(lambda: page.locator(row).get_attribute("class") == "fault",
+                     what=f"servo {tools.DROPPED_SERVO} at fault on the panel")
+    assert page.locator(f"{row} td").nth(3).inner_text() == "fault"
     # Its last fault is named: the bus event reaches the panel just after the flagged reading
     # (the reader writes the reading, then sends the event), so it may take one more update.
     tools.wait_until(lambda: page.locator(f"{row} td").nth(4).inner_text() != "",

@@ -221,12 +221,13 @@ function updateServos(servos) {
     const row = body.rows[i];
     if (!row) return;
     setText(row.cells[2], s.deg.toFixed(1));
-    setText(row.cells[3], s.ok ? "ok" : "held");
-    const state = s.ok ? "state-ok" : "";
+    setText(row.cells[3], s.state);  // ok, late (held, not a fault) or fault (panel.SERVO_STATES)
+    const state = "state-" + s.state;
     if (row.cells[3].className !== state) row.cells[3].className = state;
     setText(row.cells[4], s.fault);
     if (row.cells[4].title !== s.fault) row.cells[4].title = s.fault;
-    if (row.classList.contains("held") === s.ok) row.classList.toggle("held", !s.ok);
+    const rowClass = s.state === "fault" ? "fault" : "";
+    if (row.className !== rowClass) row.className = rowClass;
   });
 }
 
