@@ -73,6 +73,8 @@ ACTIONS = {
                      "shot": _text, "take": _take,
                      "joints": lambda v: isinstance(v, list) and 0 < len(v) <= 200
                      and all(_text(j) for j in v)},
+    "pick_joint": {"x": _number, "y": _number, "seq": lambda v: isinstance(v, int),
+                   "bone": lambda v: v is None or isinstance(v, int)},
     "stop": {},
     "note": {"shot": _text, "take": _take, "text": lambda v: isinstance(v, str)},
     "circle": {"shot": _text, "take": _take, "on": lambda v: isinstance(v, bool)},
@@ -159,6 +161,7 @@ class StudioDesk:
         self._shown = None          # the listing the pages were last sent
         self.layering = None        # {"shot", "take", "joints"}: the layer being recorded
         self._layer = None          # its puppet.session.layers.LayerPlan
+        self._client = None         # the page whose input is being applied
         self._looked = 0.0          # when the take files were last looked at (monotonic s)
 
     def attach(self, server, source, recording, key_poses) -> None:
@@ -303,11 +306,16 @@ class StudioDesk:
         self._send()
 
     # ---- page input (the loop thread) ----
+    def check_pick(self, message: dict) -> bool:
+        """A ``pick_joint`` message's click is well formed (``PageInput`` then finds its bone)."""
+        return check_action({**message, "bone": None}) is None
+
     def input(self, client: str, message: dict) -> None:
         problem = check_action(message)
         if problem is not None:
             raise PuppetError(problem)
         action = message["action"]
+        self._client = client
         try:
             getattr(self, "_compare_take" if action == "compare" else f"_{action}")(message)
         except PuppetError as err:
@@ -412,6 +420,25 @@ class StudioDesk:
         self._say(f"recording a layer of {', '.join(m['joints'])} over {shot.name} take "
                   f"{take.number} after a count-in of {m['count_in']:g} s: the base plays on "
                   "the page (the studio drives no motors; `puppet live --over` does)")
+
+    def _pick_joint(self, m) -> None:
+        """A click on the figure picks the layer's joint there (the page that clicked ticks or
+        unticks it): the joint with a servo of the bone under the click, or of the nearest bone
+        above it (a hand picks its forearm)."""
+        bone = m["bone"]
+        if bone is None:
+            raise PuppetError("no joint there: click on the figure to pick a layer's joint")
+        skeleton = self.rig.skeleton
+        joints = self._joints()
+        at = bone
+        while at >= 0 and skeleton.names[at] not in joints:
+            at = int(skeleton.parents[at])
+        if at < 0:
+            raise PuppetError(f"bone {skeleton.names[bone]!r} has no joint with a servo (nor "
+                              "any bone above it): pick another")
+        joint = skeleton.names[at]
+        self._server.send_to(self._client, {"type": "layer_joint", "joint": joint})
+        self._say(f"joint {joint} picked for the layer (click it again to drop it)")
 
     def _layer_note(self, text: str) -> None:
         """A layer's note (its base's end, the layers it composes): said on the page and stderr."""

@@ -1,6 +1,7 @@
 """The studio page's "record a layer" (``puppet studio SESSION --demo``: the critter on hw_sim,
 read by the real SDK) in Chromium: a base take recorded, then a layer of the arms over it from
-the page (the base selected, the arms' joints ticked, a count-in); the new take is take 2 of the
+the page (the base selected, a joint picked by a click on the figure, the others ticked in the
+list, a count-in); the new take is take 2 of the
 shot, a layer over take 1 (the same file as ``puppet live --over ... --record`` writes); it plays
 and exports as one composed take: the arms from pass 2, the others from pass 1."""
 
@@ -21,6 +22,24 @@ from puppet.take.layers import LayerOptions
 STUDIO_WAIT_S = 120.0
 ARMS = ("upperarm_L", "forearm_L", "upperarm_R", "forearm_R")
 LEGS = ("thigh_L", "shin_L", "thigh_R", "shin_R")
+
+
+PAGE_POINT_JS = """name => {  // a bone's middle as seen on the page (client px), or null
+  const bone = (puppetView.bones || []).find(b => b.name === name);
+  if (!bone) return null;
+  const marks = document.getElementById("marks"), box = marks.getBoundingClientRect();
+  const x = (bone.a[0] + bone.b[0]) / 2, y = (bone.a[1] + bone.b[1]) / 2;
+  return [box.left + x * box.width / marks.width, box.top + y * box.height / marks.height];
+}"""
+
+
+def _still_point(page, bone: str):
+    """The bone's middle on the page (client px) when two panels 0.3 s apart agree, else None."""
+    first = page.evaluate(PAGE_POINT_JS, bone)
+    page.wait_for_timeout(300)  # the next panel (PANEL_HZ), compared: nothing asserted on it
+    second = page.evaluate(PAGE_POINT_JS, bone)
+    return first if first and second and max(abs(a - b) for a, b in zip(first, second)) < 0.5 \
+        else None
 
 
 def _said(page, tools, text: str):
@@ -100,6 +119,18 @@ def test_a_layer_recorded_from_the_page_is_the_next_take_and_plays_composed(new_
         page.get_by_role("button", name="walk take 1").click()
         layer_button = page.get_by_role("button", name="● record a layer over take 1")
         assert layer_button.is_disabled()
+        # one joint picked on the figure (a plain click on the bone; the base reviewed, paused:
+        # the figure holds still), the others from the list
+        page.get_by_role("button", name="review", exact=True).click()
+        _said(page, tools, "reviewing walk take 1")
+        page.get_by_role("button", name="pick on the figure", exact=True).click()
+        still = tools.wait_until(lambda: _still_point(page, "forearm_L"), STUDIO_WAIT_S,
+                                 "the reviewed figure's forearm_L to hold still on the page")
+        page.mouse.click(*still)
+        picked = _said(page, tools, "picked for the layer")
+        assert picked.startswith("joint forearm_L picked"), picked
+        assert page.get_by_label("layer joint forearm_L", exact=True).is_checked()
+        page.get_by_role("button", name="pick on the figure", exact=True).click()
         for joint in ARMS:
             page.get_by_label(f"layer joint {joint}", exact=True).check()
         assert layer_button.is_enabled()

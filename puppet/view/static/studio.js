@@ -5,7 +5,7 @@
 "use strict";
 
 Object.assign(state, { studio: null, selected: null, clip: { in_s: null, out_s: null }, countdownTimer: null,
-                       layerJoints: new Set(), shownJoints: "" });
+                       layerJoints: new Set(), shownJoints: "", pickJoints: false, layerPress: null });
 
 function studioSend(action, fields) { send({ type: "studio", action, ...(fields || {}) }); }
 
@@ -160,6 +160,7 @@ function renderLayerBox(s, take, usable) {
       return label;
     }));
   }
+  $("layer-joints").querySelectorAll("input").forEach(box => { box.checked = state.layerJoints.has(box.value); });
   const button = $("record-layer");
   button.disabled = !usable || take.status !== "ok" || !state.layerJoints.size || state.recording.on || !!s.keying;
   button.textContent = take ? `● record a layer over take ${take.number}` : "● record a layer";
@@ -227,6 +228,25 @@ $("record").onclick = () => {
 };
 $("record-layer").onclick = () => onSelected("record_layer", { count_in: Number($("count-in").value),
   joints: (state.studio.joints || []).filter(name => state.layerJoints.has(name)) });
+// "pick on the figure": a plain click (no drag) on the character ticks the joint under it
+$("pick-joints").onclick = () => {
+  state.pickJoints = !state.pickJoints;
+  $("pick-joints").setAttribute("aria-pressed", String(state.pickJoints));
+};
+marks.addEventListener("pointerdown", event => {
+  state.layerPress = state.pickJoints && event.button === 0 && !event.shiftKey
+    ? { x: event.clientX, y: event.clientY, at: imagePoint(event), seq: Math.max(state.shownSeq, 0) } : null;
+});
+marks.addEventListener("pointerup", event => {
+  const p = state.layerPress;
+  state.layerPress = null;
+  if (!p || !state.pickJoints || Math.hypot(event.clientX - p.x, event.clientY - p.y) >= PIN_DRAG_PX) return;
+  studioSend("pick_joint", { x: p.at[0], y: p.at[1], seq: p.seq });
+});
+handlers.layer_joint = m => {
+  if (state.layerJoints.has(m.joint)) state.layerJoints.delete(m.joint); else state.layerJoints.add(m.joint);
+  renderStudio();
+};
 $("new-shot").onclick = () => studioSend("new_shot", { name: $("shot-name").value });
 $("rename-shot").onclick = () => { const s = currentShot(); if (s) studioSend("rename_shot", { shot: s.key, name: $("shot-name").value }); };
 $("shot").onchange = () => { state.selected = null; studioSend("use_shot", { shot: $("shot").value }); };
