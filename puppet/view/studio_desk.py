@@ -441,8 +441,8 @@ class StudioDesk:
         self._say(f"joint {joint} picked for the layer (click it again to drop it)")
 
     def _layer_note(self, text: str) -> None:
-        """A layer's note (its base's end, the layers it composes): said on the page and stderr."""
-        self.tell(text)
+        """A layer's note (its base's end, the layers it composes): said on the page (and in
+        the log, on stderr)."""
         self._say(text.removeprefix("note: "))
         self._send()
 

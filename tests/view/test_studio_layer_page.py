@@ -2,8 +2,9 @@
 read by the real SDK) in Chromium: a base take recorded, then a layer of the arms over it from
 the page (the base selected, a joint picked by a click on the figure, the others ticked in the
 list, a count-in); the new take is take 2 of the
-shot, a layer over take 1 (the same file as ``puppet live --over ... --record`` writes); it plays
-and exports as one composed take: the arms from pass 2, the others from pass 1."""
+shot, a layer over take 1 (the same file as ``puppet live --over ... --record`` writes); the
+base, ending first, holds its last frame, said; the layer plays and exports as one composed
+take: the arms from pass 2, the others from pass 1."""
 
 from __future__ import annotations
 
@@ -46,6 +47,10 @@ def _said(page, tools, text: str):
     return tools.wait_js(page, f"puppetView.studio && puppetView.studio.said && "
                                f"puppetView.studio.said.text.includes({json.dumps(text)}) && "
                                "puppetView.studio.said.text", STUDIO_WAIT_S)
+
+
+def _takes_of(page, shot: str = "walk") -> list:
+    return page.evaluate(f"puppetView.studio.shots.find(s => s.name === {json.dumps(shot)}).takes")
 
 
 def _record_until_read(page, tools, button: str):
@@ -140,12 +145,13 @@ def test_a_layer_recorded_from_the_page_is_the_next_take_and_plays_composed(new_
                       STUDIO_WAIT_S)
         tools.wait_js(page, "document.getElementById('instruction').textContent"
                             ".startsWith('Recording a layer over take 1')", STUDIO_WAIT_S)
+        base_readings = _takes_of(page)[0]["readings"]
         tools.wait_js(page, "puppetView.recording.on && puppetView.recording.starts_in_s === 0 && "
-                            "puppetView.recording.readings > 600", STUDIO_WAIT_S)
-        page.get_by_role("button", name="■ stop", exact=True).click()
+                            f"puppetView.recording.readings > {base_readings + 300}", STUDIO_WAIT_S)
+        page.get_by_role("button", name="■ stop", exact=True).click()  # after the base's end
         said = _said(page, tools, "recorded walk take 2")
         assert "a layer of upperarm_L, forearm_L, upperarm_R, forearm_R over take 1" in said
-        takes = page.evaluate("puppetView.studio.shots.find(s => s.name === 'walk').takes")
+        takes = _takes_of(page)
         assert [(t["number"], t["status"]) for t in takes] == [(1, "ok"), (2, "ok")]
         assert page.evaluate("puppetView.studio.layering") is None
 
@@ -156,6 +162,8 @@ def test_a_layer_recorded_from_the_page_is_the_next_take_and_plays_composed(new_
     finally:
         assert process.stop() == 0, process.stderr()
     assert "Traceback" not in process.stderr()
+    said = process.stderr()  # the base ended first: it held its last frame, said once
+    assert said.count("the base holds its last frame") == 1, said
 
     base = folder / "takes" / "walk" / "take001.mcap"
     layer = folder / "takes" / "walk" / "take002.mcap"
