@@ -43,7 +43,8 @@ READ_RATE_HZ = 500.0
                    "--fps and --step.")
 @sound_options
 @click.option("--over", "base_path", default=None,
-              help="Record a layer over this take (its base): the base plays from the same start, "
+              help="Record a layer over this take (its base): the base plays from the layer's "
+                   "time 0 (after --count-in, holding its first frame until then), "
                    "driven on the puppet where its servos can drive, on screen otherwise; name "
                    "the layer's joints with --joints or --servos.")
 @click.option("--joints", default=None, help="With --over: the layer's joints, e.g. head,neck.")
@@ -87,9 +88,6 @@ def live(rig_path: str, port: str, baud: int, take_path: str | None, out: str | 
         if take_path is not None:
             outputs.append(o.Take(take_path, rig, force=force))
     else:
-        if count_in > 0:  # the base plays from the session's start; a count-in would shift it
-            raise click.UsageError("--count-in with --over: a layer starts with its base, "
-                                   "give one of them")
         from puppet.session.layers import layer_parts
 
         _, source, outputs = layer_parts(rig, port, base_path, take_path, joints=_names(joints),

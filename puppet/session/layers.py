@@ -37,7 +37,7 @@ import numpy as np
 from puppet.drive.actuators import ActuatorHook
 from puppet.errors import PuppetError
 from puppet.reading import Reading
-from puppet.session.outputs import Actuators, Take, open_take_writer
+from puppet.session.outputs import Actuators, Take, _TakeFromZero
 from puppet.session.sources import BusSource
 
 FEED_PERIOD_S = 0.002
@@ -82,6 +82,7 @@ class LayerPlan:
         self.base_servos = [rig.servo_map.servos[n] for n in self.base_cols]
         self.ended = False  # the base's end was said
         self.tell = print
+        self.from_ns = 0  # readings before this are a count-in's: the base holds its first frame
         self.goal_delays_ms = np.zeros(0)  # base frame -> its goal on the bus, ms (after a drive)
         self._t0_ns: int | None = None
         self._lock = threading.Lock()
@@ -143,10 +144,17 @@ class LayerPlan:
 
     # ---- the base's clock ----------------------------------------------------------------------
     def start_at(self, t_ns: int) -> None:
-        """Play time 0 of the base: the first reading's time (monotonic ns); once."""
+        """Play time 0 of the base: the first reading's time at or after ``from_ns`` (the
+        session's take time 0, the count-in's end; monotonic ns), as the layer's take starts
+        (``puppet.session.outputs._TakeFromZero``); once. An earlier reading starts nothing."""
         with self._lock:
-            if self._t0_ns is None:
+            if self._t0_ns is None and t_ns >= self.from_ns:
                 self._t0_ns = int(t_ns)
+
+    def play_at(self, t_ns: int) -> float:
+        """The base's play time at ``t_ns``: 0 before its start (a count-in holds its first frame)."""
+        play = self.play_s(t_ns)
+        return 0.0 if play is None else play
 
     def play_s(self, t_ns: int) -> float | None:
         """The base's play time at monotonic ``t_ns`` (None before the start)."""
@@ -159,9 +167,10 @@ class LayerPlan:
         return LayerRef.over(self.base, path, self.servos, rig_name=self.rig.name)
 
 
-class _OverBase:
+class OverBase:
     """The loop's reading source (``ReadingSource``): the reader's readings shown over the base
-    (``OverReading``); everything else is the reader's (log, rate, hook, notes, torque)."""
+    (``OverReading``); everything else is the reader's (log, rate, hook, notes, torque). Used by
+    ``BaseOverLive`` and by the studio's ``Switchable`` while it records a layer."""
 
     def __init__(self, inner, plan: LayerPlan) -> None:
         self._inner = inner
@@ -173,7 +182,7 @@ class _OverBase:
     def _over(self, reading: Reading) -> OverReading:
         plan = self._plan
         plan.start_at(reading.t_ns)
-        play = plan.play_s(reading.t_ns)
+        play = plan.play_at(reading.t_ns)
         if play > plan.goals.duration_s and not plan.ended:
             plan.ended = True
             plan.tell(f"note: the base {plan.base} ended at {plan.goals.duration_s:.2f} s: "
@@ -215,7 +224,7 @@ class BaseOverLive(BusSource):
     def begin(self, hooks=()) -> None:
         super().begin(hooks)
         self.reader = self.reading_source
-        self.reading_source = _OverBase(self.reader, self.plan)
+        self.reading_source = OverBase(self.reader, self.plan)
 
     def ready(self, tell=None):
         report = super().ready(tell)
@@ -233,10 +242,8 @@ class BaseOverLive(BusSource):
         """The base's goals at the base's play time, to the reader process's hook."""
         plan, reader, cols = self.plan, self.reader, self.plan.base_cols
         while not self._stop_feed.wait(FEED_PERIOD_S):
-            now = time.monotonic_ns()
-            play = plan.play_s(now)
-            if play is not None:
-                reader.set_goals(plan.drive_goals.at(play)[cols], now)
+            now = time.monotonic_ns()  # before the start (a count-in): the base's first frame
+            reader.set_goals(plan.drive_goals.at(plan.play_at(now))[cols], now)
 
     def stop(self) -> None:
         self._stop_feed.set()
@@ -244,7 +251,7 @@ class BaseOverLive(BusSource):
             self._feeder.join()
             self._feeder = None
             self.plan.goal_delays_ms = self.reader.goal_delays_ms().copy()
-        if isinstance(self.reading_source, _OverBase):
+        if isinstance(self.reading_source, OverBase):
             self.reading_source = self.reader
         super().stop()
 
@@ -265,6 +272,7 @@ class BaseDrive(Actuators):
             self.hook = EasedHook(self.plan)
 
     def open(self, run) -> None:
+        self.layer.from_ns = run.record_from_ns  # the base starts at the take's time 0
         if self.plan is not None:
             self._source = run.source.reader  # its goals are fed by the source (BaseOverLive)
 
@@ -289,8 +297,8 @@ class EasedHook(ActuatorHook):
 
 
 class LayerTake(Take):
-    """``--record`` of a layer: the raw readings (``OverReading.raw_*``) with the layer record
-    and the base's sound and timecode."""
+    """``--record`` of a layer: ``layer_recorder`` from the session's take time 0 (after its
+    count-in, where the base starts)."""
 
     def __init__(self, path, plan: LayerPlan, *, force: bool = False) -> None:
         super().__init__(path, plan.rig, force=force)
@@ -300,33 +308,35 @@ class LayerTake(Take):
         super().check([*inputs, self.layer.base])
 
     def open(self, run) -> None:
-        plan = self.layer
-        self._writer = open_take_writer(self.path, self.rig, force=self.force, sound=plan.sound,
-                                        timecode=plan.timecode, layer=plan.layer_ref(self.path))
-        self.recorder = _RawRecorder(self._writer)
+        self.recorder = layer_recorder(self.layer, self.path, zero_ns=run.take_zero_ns,
+                                       from_ns=run.record_from_ns, force=self.force)
 
-    def close(self) -> None:
-        if self.recorder is not None:
-            self.recorder = None
-            writer, self._writer = self._writer, None
-            self.readings = writer.writer.count
-            writer.close()
+
+def layer_recorder(plan: LayerPlan, path, *, zero_ns: int, from_ns: int, force: bool = False):
+    """The take recorder of a layer (``--record``, the studio page's "record a layer"): the
+    session's take recorder (``_TakeFromZero``: the file made at the first reading at or after
+    ``from_ns``, the base's time 0 too) fed the raw readings (``OverReading.raw_*``), with the
+    layer record and the base's sound and timecode."""
+    header = {"sound": plan.sound, "timecode": plan.timecode, "layer": plan.layer_ref(path)}
+    return _RawRecorder(_TakeFromZero(path, plan.rig, force=force, zero_ns=zero_ns,
+                                      from_ns=from_ns, header=header))
 
 
 class _RawRecorder:
-    """The take writer fed the readings as the bus read them."""
+    """A take recorder fed the readings as the bus read them (``write``, ``mark``, ``close``,
+    ``writer``, ``started_ns``: the recorder's)."""
 
-    def __init__(self, writer) -> None:
-        self.writer = writer
+    def __init__(self, recorder) -> None:
+        self.recorder = recorder
 
     def write(self, reading) -> None:
         raw = getattr(reading, "raw_ticks", None)
         if raw is not None:
             reading = Reading(reading.t_ns, reading.ids, raw, reading.raw_ok)
-        self.writer.write(reading)
+        self.recorder.write(reading)
 
     def __getattr__(self, name):
-        return getattr(self.writer, name)
+        return getattr(self.recorder, name)
 
 
 def layer_parts(rig, port: str, base, take_path=None, *, joints=(), servos=(),

@@ -170,11 +170,14 @@ class _TakeFromZero:
     the file made at the first of them (nothing recorded: no file), with the sound's reference
     (its offset: the sound's time at that first reading, so the two stay in sync by
     construction) and the start timecode of that moment. ``started_ns``: the first reading's
-    time (the take's time 0; None until then)."""
+    time (the take's time 0; None until then). ``header``: TakeWriter header keywords given
+    instead (a layer's: its record and the base's sound and timecode, ``puppet.session.layers``)."""
 
     def __init__(self, path, rig, *, force: bool, zero_ns: int, from_ns: int, sound=None,
-                 sound_offset_s: float = 0.0, timecode_fps: float = 30.0) -> None:
+                 sound_offset_s: float = 0.0, timecode_fps: float = 30.0,
+                 header: dict | None = None) -> None:
         self.path, self.rig, self.force = path, rig, force
+        self.header = header
         self.zero_ns = zero_ns   # when the sound's offset_s plays (monotonic ns)
         self.from_ns = from_ns   # readings before this are the count-in's
         self.sound, self.sound_offset_s = sound, sound_offset_s
@@ -194,6 +197,11 @@ class _TakeFromZero:
         from puppet.take.header import take_writer
         from puppet.timecode import StartTimecode, TimecodeError
 
+        if self.header is not None:
+            self._writer = BackgroundTakeWriter(take_writer(self.path, self.rig, force=self.force,
+                                                            **self.header))
+            self.started_ns = t_ns
+            return
         sound_ref = None
         if self.sound is not None:
             from puppet.sound import sound_ref as make_ref

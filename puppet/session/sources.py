@@ -224,7 +224,8 @@ class Switchable:
     for a take's (``puppet studio``: review without leaving the page). Its ``reading_source``
     hands the loop the bus's readings, or, after ``review(playback)``, those of a TakeSource on
     the wall clock (the bus reader's ring runs on; what it read meanwhile is dropped when
-    ``live()`` goes back).
+    ``live()`` goes back), or, after ``over(plan)``, the bus's shown over a layer's base
+    (``puppet.session.layers.OverBase``, as ``puppet live --over`` shows them).
     Playback controls (pause, play, seek, set_speed, state) are the take's, refused when live."""
 
     kind = LIVE
@@ -257,6 +258,7 @@ class SwitchedReadings:
 
     def __init__(self, reader) -> None:
         self._reader = reader
+        self._live = reader  # the bus's readings, or them over a layer's base (``over``)
         self._take = None  # a puppet.view.TakeSource while reviewing
 
     @property
@@ -280,14 +282,21 @@ class SwitchedReadings:
             self._take = None
             self._reader.drain()  # the readings of the review: not the puppet's now
 
+    def over(self, plan) -> None:
+        """Live readings shown over ``plan``'s base (a puppet.session.layers.LayerPlan; its
+        layer's servos as read, its base's from the base on the base's clock); None: as read."""
+        from puppet.session.layers import OverBase
+
+        self._live = self._reader if plan is None else OverBase(self._reader, plan)
+
     def drain(self):
-        readings = self._reader.drain()
+        readings = self._live.drain()
         return readings if self._take is None else []
 
     def latest(self, timeout=1.0):
         take = self._take
         if take is None:
-            return self._reader.latest(timeout)
+            return self._live.latest(timeout)
         return take.latest(timeout)
 
     def _playing(self):

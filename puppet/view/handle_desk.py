@@ -40,16 +40,30 @@ class HandleDesk:
     def as_dicts(self) -> list[dict]:
         return [h.as_dict() for h in self.handles]
 
-    def pick(self, pipeline, client: str, msg: dict) -> None:
-        """Pin a handle where the viewer clicked (or take the one already there)."""
+    def _hit(self, pipeline, msg: dict):
+        """(hit or None, x, y) of the viewer's click at (msg x, y) on the frame it saw (seq)."""
         frame = self._seen(msg["seq"])
         if frame is not None:
             T, camera = frame
         else:  # the frame is older than the ring: pick on the current pose
             T, camera = pipeline.T, self._cameras.get(msg["camera"]).camera()
         x, y = math.floor(msg["x"]), math.floor(msg["y"])
+        return self._picker.pick(T, camera, x, y), x, y
+
+    def bone_at(self, pipeline, msg: dict) -> int | None:
+        """The bone (index into the rig's skeleton) that moves the surface most where the viewer
+        clicked (its skin weights at the picked point); None: the background."""
+        hit, _, _ = self._hit(pipeline, msg)
+        if hit is None:
+            return None
+        corners = self._F[int(hit.triangle)]
+        weights = np.asarray(surface_bary(hit.bary), float) @ np.asarray(pipeline.rig.W)[corners]
+        return int(np.argmax(weights))
+
+    def pick(self, pipeline, client: str, msg: dict) -> None:
+        """Pin a handle where the viewer clicked (or take the one already there)."""
         start = time.perf_counter()
-        hit = self._picker.pick(T, camera, x, y)
+        hit, x, y = self._hit(pipeline, msg)
         pick_ms = (time.perf_counter() - start) * 1e3
         if hit is None:
             self._server.send_to(client, {"type": "pick_miss", "key": msg["key"]})

@@ -98,6 +98,9 @@ class PageInput:
         elif kind == "studio":
             if self._studio is None:
                 raise PuppetError("the studio's controls need `puppet studio SESSION`")
+            if msg.get("action") == "pick_joint":  # the bone under the click, for the desk
+                msg = {**msg, "bone": self._handles.bone_at(pipeline, msg)
+                       if self._studio.check_pick(msg) else None}
             self._studio.input(client, msg)
         elif kind in ("key", "key_edit", "retime", "onion", "playhead"):
             self._key_poses.input(client, kind, msg)

@@ -4,9 +4,15 @@ segments, export) applied through the one writer (``puppet.studio.SessionWriter`
 session's listing sent to every page after each change.
 
 Recording goes through the view's Recording part: ``new_take_path`` gives the path, the take is
-written by the session's take recorder (``puppet.session.outputs.take_from_zero``: readings from
+written by the session's take recorder (``puppet.session.outputs._TakeFromZero``: readings from
 the count-in's end, the sound's reference, the start timecode) and ``recorded`` lists it as
-take N of the current shot the moment it is closed. Review switches the session's source
+take N of the current shot the moment it is closed. "Record a layer" (``record_layer``: a take
+of the shot as its base, the layer's joints) is the same recording with the parts of ``puppet
+live --over``: the base checked and held by ``puppet.session.layers.LayerPlan``, the live
+readings shown over it (``SwitchedReadings.over``: the base from the same count-in, on the
+page), the take written by ``layer_recorder`` (raw readings, the layer record): the next take
+of the shot is a layer over its base. The studio drives no motors (its bus reader has no cycle
+hook): the base plays on the page, said. Review switches the session's source
 (``puppet.session.sources.SwitchedReadings``) between the bus and a take on the wall clock.
 """
 
@@ -63,6 +69,12 @@ ACTIONS = {
     "rename_shot": {"shot": _text, "name": _text},
     "use_shot": {"shot": _text},
     "record": {"count_in": lambda v: _number(v) and 0 <= v <= MAX_COUNT_IN_S},
+    "record_layer": {"count_in": lambda v: _number(v) and 0 <= v <= MAX_COUNT_IN_S,
+                     "shot": _text, "take": _take,
+                     "joints": lambda v: isinstance(v, list) and 0 < len(v) <= 200
+                     and all(_text(j) for j in v)},
+    "pick_joint": {"x": _number, "y": _number, "seq": lambda v: isinstance(v, int),
+                   "bone": lambda v: v is None or isinstance(v, int)},
     "stop": {},
     "note": {"shot": _text, "take": _take, "text": lambda v: isinstance(v, str)},
     "circle": {"shot": _text, "take": _take, "on": lambda v: isinstance(v, bool)},
@@ -147,6 +159,9 @@ class StudioDesk:
         self._compare = None        # its Playback
         self._compare_at = None     # the play position its ghost shows (s)
         self._shown = None          # the listing the pages were last sent
+        self.layering = None        # {"shot", "take", "joints"}: the layer being recorded
+        self._layer = None          # its puppet.session.layers.LayerPlan
+        self._client = None         # the page whose input is being applied
         self._looked = 0.0          # when the take files were last looked at (monotonic s)
 
     def attach(self, server, source, recording, key_poses) -> None:
@@ -212,7 +227,16 @@ class StudioDesk:
         return {**listing, "said": self.said, "reviewing": self.reviewing,
                 "comparing": self.comparing, "sound": self.sound,
                 "sounds": self._sound_files(), "keying": self.keying is not None,
-                "export": self.export, "rig": self.rig.name}
+                "export": self.export, "rig": self.rig.name, "layering": self.layering,
+                "joints": self._joints()}
+
+    def _joints(self) -> list[str]:
+        """The rig's joints with a sensor servo: what a layer can hold (rig order)."""
+        names: list[str] = []
+        for servo in self.rig.servo_map.servos:
+            if servo.role == "sensor" and servo.joint not in names:
+                names.append(servo.joint)
+        return names
 
     def _send(self) -> None:
         if self._server is not None:
@@ -254,25 +278,44 @@ class StudioDesk:
             self.writer.new_shot(self.writer._first_shot_name())
         path = self.writer.new_take_path()  # a read-only or full disk fails here, naming it
         zero_ns = time.monotonic_ns() + int(count_in_s * 1e9)
-        return path, self._open_take(path, zero_ns)
+        plan = self._layer
+        if plan is None:
+            return path, self._open_take(path, zero_ns)
+        from puppet.session.layers import layer_recorder
+
+        plan.from_ns = zero_ns  # the base starts where the take does
+        recorder = layer_recorder(plan, path, zero_ns=zero_ns, from_ns=zero_ns)
+        self._source.over(plan)
+        return path, recorder
 
     def recorded(self, path: Path) -> None:
         """The take at ``path`` was closed: listed as take N of its shot (nothing recorded:
         no file, said)."""
+        layer, self.layering, self._layer = self.layering, None, None
+        if layer is not None:
+            self._source.over(None)
         if not Path(path).is_file():
             self._say(f"nothing recorded (stopped during the count-in): no take", ok=False)
         else:
             take = self.writer.add_take(path)
             shot = self.writer.index.shot(Path(path).parent.name)
-            self._say(f"recorded {shot.name} take {take.number} ({take.duration_s or 0:.1f} s)")
+            over = "" if layer is None else \
+                f": a layer of {', '.join(layer['joints'])} over take {layer['take']}"
+            self._say(f"recorded {shot.name} take {take.number} ({take.duration_s or 0:.1f} s)"
+                      + over)
         self._send()
 
     # ---- page input (the loop thread) ----
+    def check_pick(self, message: dict) -> bool:
+        """A ``pick_joint`` message's click is well formed (``PageInput`` then finds its bone)."""
+        return check_action({**message, "bone": None}) is None
+
     def input(self, client: str, message: dict) -> None:
         problem = check_action(message)
         if problem is not None:
             raise PuppetError(problem)
         action = message["action"]
+        self._client = client
         try:
             getattr(self, "_compare_take" if action == "compare" else f"_{action}")(message)
         except PuppetError as err:
@@ -343,6 +386,65 @@ class StudioDesk:
         self._recording.set(True, count_in_s=float(m["count_in"]))
         self._say(f"recording into {self.writer.current_shot.name!r} after a count-in of "
                   f"{m['count_in']:g} s")
+
+    def _record_layer(self, m) -> None:
+        """The next take of the base's shot, a layer of ``joints`` over its take ``take``: the
+        base plays on the page from the count-in's end while the joints are read (refusals
+        name the joint, the take or both rigs: ``LayerPlan.make``)."""
+        from puppet.session.layers import LayerPlan
+
+        if self.keying is not None:
+            raise PuppetError("key poses are being taken: press done first, then record")
+        if self._recording.state()["on"]:
+            raise PuppetError("stop recording first to record a layer")
+        shot, take = self.writer.take(m["shot"], m["take"])
+        status = self.writer.status(shot, take)
+        if status != "ok":
+            raise PuppetError(f"shot {shot.name!r} take {take.number} is {status}: no base to "
+                              "record a layer over")
+        plan = LayerPlan.make(self.rig, self.writer.path(shot, take), joints=m["joints"],
+                              drive=False)
+        plan.tell = self._layer_note
+        for note in plan.notes:
+            self._layer_note(f"note: {note}")
+        self._live(m)
+        self.writer.use_shot(shot.key)
+        self._layer = plan
+        self.layering = {"shot": shot.key, "take": take.number, "joints": list(m["joints"])}
+        try:
+            self._recording.set(True, count_in_s=float(m["count_in"]))
+        except BaseException:
+            self._layer = self.layering = None
+            self._source.over(None)
+            raise
+        self._say(f"recording a layer of {', '.join(m['joints'])} over {shot.name} take "
+                  f"{take.number} after a count-in of {m['count_in']:g} s: the base plays on "
+                  "the page (the studio drives no motors; `puppet live --over` does)")
+
+    def _pick_joint(self, m) -> None:
+        """A click on the figure picks the layer's joint there (the page that clicked ticks or
+        unticks it): the joint with a servo of the bone under the click, or of the nearest bone
+        above it (a hand picks its forearm)."""
+        bone = m["bone"]
+        if bone is None:
+            raise PuppetError("no joint there: click on the figure to pick a layer's joint")
+        skeleton = self.rig.skeleton
+        joints = self._joints()
+        at = bone
+        while at >= 0 and skeleton.names[at] not in joints:
+            at = int(skeleton.parents[at])
+        if at < 0:
+            raise PuppetError(f"bone {skeleton.names[bone]!r} has no joint with a servo (nor "
+                              "any bone above it): pick another")
+        joint = skeleton.names[at]
+        self._server.send_to(self._client, {"type": "layer_joint", "joint": joint})
+        self._say(f"joint {joint} picked for the layer (click it again to drop it)")
+
+    def _layer_note(self, text: str) -> None:
+        """A layer's note (its base's end, the layers it composes): said on the page (and in
+        the log, on stderr)."""
+        self._say(text.removeprefix("note: "))
+        self._send()
 
     def _stop(self, m) -> None:
         self._recording.set(False)  # recorded() says the take

@@ -293,3 +293,38 @@ def test_a_layer_with_nothing_left_to_perform_and_unknown_joints_are_refused(tmp
     assert "Error:" in err and "'wing'" in err, err
     err = _refused("--joints", "head")
     assert "--over" in err, err
+
+
+def _lag_s(base: Path, layer: Path, servo: int) -> tuple[float, float, float]:
+    """(lag s, its RMS ticks, the RMS ticks 1 s late): the shift of the layer's raw readings of ``servo`` (driven to the
+    base) against the base's that fits best, both on their take time (time 0: first reading)."""
+    with TakeReader(base) as reader:
+        bt, bticks, _ = reader.arrays()
+        col = list(reader.metadata.ids).index(servo)
+        b_t, b = (bt - bt[0]) / 1e9, bticks[:, col].astype(float)
+    with TakeReader(layer) as reader:
+        lt, lticks, _ = reader.arrays()
+        l_t, lay = (lt - lt[0]) / 1e9, lticks[:, col].astype(float)
+    keep = (l_t > 0.3) & (l_t < b_t[-1] - 0.3)  # the base plays (the gentle start left out)
+    fits = {round(d, 2): float(np.sqrt(np.mean((lay[keep] - np.interp(l_t[keep] - d, b_t, b)) ** 2)))
+            for d in np.arange(-0.6, 1.21, 0.01)}
+    lag = min(fits, key=fits.get)
+    return lag, fits[lag], fits[1.0]
+
+
+def test_a_count_in_over_a_base_starts_the_base_at_the_layer_s_time_0(rig, base, tmp_path):
+    layer = tmp_path / "arms.mcap"
+    with hw_sim.serve(dict(rig.servo_map.models), motion=Swing(ARM_IDS, 1.5)) as bus:
+        code, out, err = Live(bus.port, "--count-in", "1", "--seconds", "2.5", "--over",
+                              str(base), "--joints", ARMS, "--record", str(layer)).finish()
+        assert code == 0, err
+        assert "Traceback" not in err
+        assert all(bus.servo(i).get("Torque Enable") == 0 for i in rig.servo_map.ids)
+    with TakeReader(layer) as reader:
+        t, _, _ = reader.arrays()
+        assert reader.metadata.layer.servos == ARM_IDS
+        assert (t[-1] - t[0]) / 1e9 < 2.6  # from the count-in's end: the count-in not kept
+    # the driven legs follow the base from the layer's time 0: not a count-in (1 s) late
+    lag, rms, late = _lag_s(base, layer, LEG_IDS[0])
+    assert abs(lag) < 0.2, (lag, rms, late)
+    assert rms < 0.5 * late, (lag, rms, late)  # a clear fit: the servo follows the base

@@ -4,7 +4,8 @@
 // with the session's listing ({type: "studio", shots: [...], said, reviewing, export}).
 "use strict";
 
-Object.assign(state, { studio: null, selected: null, clip: { in_s: null, out_s: null }, countdownTimer: null });
+Object.assign(state, { studio: null, selected: null, clip: { in_s: null, out_s: null }, countdownTimer: null,
+                       layerJoints: new Set(), shownJoints: "", pickJoints: false, layerPress: null });
 
 function studioSend(action, fields) { send({ type: "studio", action, ...(fields || {}) }); }
 
@@ -113,6 +114,7 @@ function renderStudio() {
   $("keys-start").disabled = !!s.keying || state.recording.on;
   $("keys-done").disabled = !s.keying;
   $("record").disabled = !!s.keying;
+  renderLayerBox(s, take, usable);
   $("keys").hidden = !s.keying;
   if (!s.keying) state.keys = null;
   const reviewing = !!s.reviewing;
@@ -143,12 +145,34 @@ function showClip() {
   $("clip-make").disabled = !ok;
 }
 
+// "Record a layer": a tick box per joint the layer can hold; the selected take is its base.
+function renderLayerBox(s, take, usable) {
+  const joints = s.joints || [];
+  if (state.shownJoints !== joints.join(",")) {
+    state.shownJoints = joints.join(",");
+    $("layer-joints").replaceChildren(...joints.map(name => {
+      const label = document.createElement("label");
+      const box = document.createElement("input");
+      box.type = "checkbox"; box.value = name; box.setAttribute("aria-label", `layer joint ${name}`);
+      box.checked = state.layerJoints.has(name);
+      box.onchange = () => { if (box.checked) state.layerJoints.add(name); else state.layerJoints.delete(name); renderStudio(); };
+      label.append(box, document.createTextNode(` ${name}`));
+      return label;
+    }));
+  }
+  $("layer-joints").querySelectorAll("input").forEach(box => { box.checked = state.layerJoints.has(box.value); });
+  const button = $("record-layer");
+  button.disabled = !usable || take.status !== "ok" || !state.layerJoints.size || state.recording.on || !!s.keying;
+  button.textContent = take ? `● record a layer over take ${take.number}` : "● record a layer";
+}
+
 // One line that says what to do now, for the current mode.
 function showInstruction() {
   const s = state.studio, r = state.recording;
   let text;
   if (!s) return;
   if (r.on && r.starts_in_s > 0) text = "Count-in: get ready, recording starts at 0.";
+  else if (r.on && s.layering) text = `Recording a layer over take ${s.layering.take}: the base plays; perform ${s.layering.joints.join(", ")} now, stop when done.`;
   else if (r.on) text = "Recording: perform now; press marker to mark a moment, stop when done.";
   else if (s.keying) text = "Key poses: hold the puppet still in a pose and press Space (or key); press done keys when the shot is posed.";
   else if (s.comparing) text = "Comparing: the magenta ghost is the other take at the same time; play or scrub to see both.";
@@ -201,6 +225,27 @@ $("record").onclick = () => {
   if (!state.studio) { send({ type: "record", on: !state.recording.on }); return; }
   if (state.recording.on) studioSend("stop");
   else studioSend("record", { count_in: Number($("count-in").value) });
+};
+$("record-layer").onclick = () => onSelected("record_layer", { count_in: Number($("count-in").value),
+  joints: (state.studio.joints || []).filter(name => state.layerJoints.has(name)) });
+// "pick on the figure": a plain click (no drag) on the character ticks the joint under it
+$("pick-joints").onclick = () => {
+  state.pickJoints = !state.pickJoints;
+  $("pick-joints").setAttribute("aria-pressed", String(state.pickJoints));
+};
+marks.addEventListener("pointerdown", event => {
+  state.layerPress = state.pickJoints && event.button === 0 && !event.shiftKey
+    ? { x: event.clientX, y: event.clientY, at: imagePoint(event), seq: Math.max(state.shownSeq, 0) } : null;
+});
+marks.addEventListener("pointerup", event => {
+  const p = state.layerPress;
+  state.layerPress = null;
+  if (!p || !state.pickJoints || Math.hypot(event.clientX - p.x, event.clientY - p.y) >= PIN_DRAG_PX) return;
+  studioSend("pick_joint", { x: p.at[0], y: p.at[1], seq: p.seq });
+});
+handlers.layer_joint = m => {
+  if (state.layerJoints.has(m.joint)) state.layerJoints.delete(m.joint); else state.layerJoints.add(m.joint);
+  renderStudio();
 };
 $("new-shot").onclick = () => studioSend("new_shot", { name: $("shot-name").value });
 $("rename-shot").onclick = () => { const s = currentShot(); if (s) studioSend("rename_shot", { shot: s.key, name: $("shot-name").value }); };

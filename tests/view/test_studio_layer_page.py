@@ -1,0 +1,194 @@
+"""The studio page's "record a layer" (``puppet studio SESSION --demo``: the critter on hw_sim,
+read by the real SDK) in Chromium: a base take recorded, then a layer of the arms over it from
+the page (the base selected, a joint picked by a click on the figure, the others ticked in the
+list, a count-in); the new take is take 2 of the
+shot, a layer over take 1 (the same file as ``puppet live --over ... --record`` writes); the
+base, ending first, holds its last frame, said; the layer plays and exports as one composed
+take: the arms from pass 2, the others from pass 1."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+
+import numpy as np
+import pygltflib
+from scipy.spatial.transform import Rotation
+
+from puppet.rig import load_rig
+from puppet.rig.load import BUILTIN_RIG
+from puppet.take import Playback, TakeReader, TakeWriter
+from puppet.take.layers import LayerOptions
+
+STUDIO_WAIT_S = 120.0
+ARMS = ("upperarm_L", "forearm_L", "upperarm_R", "forearm_R")
+LEGS = ("thigh_L", "shin_L", "thigh_R", "shin_R")
+
+
+PAGE_POINT_JS = """name => {  // a bone's middle as seen on the page (client px), or null
+  const bone = (puppetView.bones || []).find(b => b.name === name);
+  if (!bone) return null;
+  const marks = document.getElementById("marks"), box = marks.getBoundingClientRect();
+  const x = (bone.a[0] + bone.b[0]) / 2, y = (bone.a[1] + bone.b[1]) / 2;
+  return [box.left + x * box.width / marks.width, box.top + y * box.height / marks.height];
+}"""
+
+
+def _still_point(page, bone: str):
+    """The bone's middle on the page (client px) when two panels 0.3 s apart agree, else None."""
+    first = page.evaluate(PAGE_POINT_JS, bone)
+    page.wait_for_timeout(300)  # the next panel (PANEL_HZ), compared: nothing asserted on it
+    second = page.evaluate(PAGE_POINT_JS, bone)
+    return first if first and second and max(abs(a - b) for a, b in zip(first, second)) < 0.5 \
+        else None
+
+
+def _said(page, tools, text: str):
+    return tools.wait_js(page, f"puppetView.studio && puppetView.studio.said && "
+                               f"puppetView.studio.said.text.includes({json.dumps(text)}) && "
+                               "puppetView.studio.said.text", STUDIO_WAIT_S)
+
+
+def _takes_of(page, shot: str = "walk") -> list:
+    return page.evaluate(f"puppetView.studio.shots.find(s => s.name === {json.dumps(shot)}).takes")
+
+
+def _record_until_read(page, tools, button: str):
+    page.get_by_role("button", name=button, exact=True).click()
+    tools.wait_js(page, "puppetView.recording.on && puppetView.recording.starts_in_s === 0 && "
+                        "puppetView.recording.readings > 600", STUDIO_WAIT_S)
+    page.get_by_role("button", name="■ stop", exact=True).click()
+
+
+def _playback(path, rig, **options):
+    with TakeReader(path) as reader:
+        return np.stack([r.ticks for r in Playback.of_take(reader, rig.servo_map.ids, fps=30.0,
+                                                           **options)]).astype(np.int64)
+
+
+def _raw_copy(layer, path):
+    """The layer's raw readings as a plain take (what the bus read in pass 2)."""
+    from puppet.reading import Reading
+
+    with TakeReader(layer) as reader:
+        m = reader.metadata
+        t, ticks, ok = reader.arrays()
+        with TakeWriter(path, ids=m.ids, models=m.models, rig_map_text=m.rig_map_text,
+                        calibration_text=m.calibration_text, rig_name=m.rig_name) as w:
+            for r in range(len(t)):
+                w.write(Reading(int(t[r]), m.ids, ticks[r], ok[r]))
+    return path
+
+
+def _export(tools, take, out):
+    done = subprocess.run([*tools.PUPPET, "export", str(take), "--gltf", str(out)],
+                          capture_output=True, text=True, timeout=600)
+    assert done.returncode == 0, done.stderr
+    gltf = pygltflib.GLTF2().load(str(out))
+    anim = gltf.animations[0]
+    import importlib.util
+    from pathlib import Path
+
+    spec = importlib.util.spec_from_file_location(
+        "studio_layer_gltf_readers", Path(__file__).parents[1] / "export" / "readers.py")
+    readers = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(readers)
+    return {gltf.nodes[c.target.node].name: readers.accessor(gltf, anim.samplers[c.sampler].output)
+            for c in anim.channels if c.target.path == "rotation"}
+
+
+def _angle_deg(a, b):
+    n = min(len(a), len(b))
+    return np.degrees((Rotation.from_quat(a[:n]).inv() * Rotation.from_quat(b[:n])).magnitude())
+
+
+def test_a_layer_recorded_from_the_page_is_the_next_take_and_plays_composed(new_page, tools,
+                                                                          tmp_path):
+    rig = load_rig(BUILTIN_RIG)
+    folder = tmp_path / "shoot"
+    process = tools.PuppetProcess(["studio", str(folder), "--demo", "--address",
+                                   f"127.0.0.1:{tools.free_port()}"], tmp_path)
+    try:
+        page = new_page()
+        page.set_viewport_size({"width": 1280, "height": 900})
+        page.goto(process.url)
+        tools.wait_js(page, "puppetView.studio !== null && puppetView.shownSeq >= 0", STUDIO_WAIT_S)
+        page.get_by_label("shot name").fill("walk")
+        page.get_by_role("button", name="new shot", exact=True).click()
+        _said(page, tools, "new shot 'walk'")
+        page.get_by_label("count-in seconds").select_option("0")
+        _record_until_read(page, tools, "● record")  # pass 1: the base
+        _said(page, tools, "recorded walk take 1")
+
+        # pass 2: the arms over take 1, after a count-in; nothing ticked: refused by the button
+        page.get_by_role("button", name="walk take 1").click()
+        layer_button = page.get_by_role("button", name="● record a layer over take 1")
+        assert layer_button.is_disabled()
+        # one joint picked on the figure (a plain click on the bone; the base reviewed, paused:
+        # the figure holds still), the others from the list
+        page.get_by_role("button", name="review", exact=True).click()
+        _said(page, tools, "reviewing walk take 1")
+        page.get_by_role("button", name="pick on the figure", exact=True).click()
+        still = tools.wait_until(lambda: _still_point(page, "forearm_L"), STUDIO_WAIT_S,
+                                 "the reviewed figure's forearm_L to hold still on the page")
+        page.mouse.click(*still)
+        picked = _said(page, tools, "picked for the layer")
+        assert picked.startswith("joint forearm_L picked"), picked
+        assert page.get_by_label("layer joint forearm_L", exact=True).is_checked()
+        page.get_by_role("button", name="pick on the figure", exact=True).click()
+        for joint in ARMS:
+            page.get_by_label(f"layer joint {joint}", exact=True).check()
+        assert layer_button.is_enabled()
+        page.get_by_label("count-in seconds").select_option("1")
+        layer_button.click()
+        tools.wait_js(page, "puppetView.studio.layering && puppetView.studio.layering.take === 1",
+                      STUDIO_WAIT_S)
+        tools.wait_js(page, "document.getElementById('instruction').textContent"
+                            ".startsWith('Recording a layer over take 1')", STUDIO_WAIT_S)
+        base_readings = _takes_of(page)[0]["readings"]
+        tools.wait_js(page, "puppetView.recording.on && puppetView.recording.starts_in_s === 0 && "
+                            f"puppetView.recording.readings > {base_readings + 300}", STUDIO_WAIT_S)
+        page.get_by_role("button", name="■ stop", exact=True).click()  # after the base's end
+        said = _said(page, tools, "recorded walk take 2")
+        assert "a layer of upperarm_L, forearm_L, upperarm_R, forearm_R over take 1" in said
+        takes = _takes_of(page)
+        assert [(t["number"], t["status"]) for t in takes] == [(1, "ok"), (2, "ok")]
+        assert page.evaluate("puppetView.studio.layering") is None
+
+        # the layer reviews on the page as one take
+        page.get_by_role("button", name="walk take 2").click()
+        page.get_by_role("button", name="review", exact=True).click()
+        _said(page, tools, "reviewing walk take 2")
+    finally:
+        assert process.stop() == 0, process.stderr()
+    assert "Traceback" not in process.stderr()
+    said = process.stderr()  # the base ended first: it held its last frame, said once
+    assert said.count("the base holds its last frame") == 1, said
+
+    base = folder / "takes" / "walk" / "take001.mcap"
+    layer = folder / "takes" / "walk" / "take002.mcap"
+    arm_ids = tuple(int(s.id) for s in rig.servo_map.servos if s.joint in ARMS)
+    with TakeReader(layer) as reader:
+        ref = reader.metadata.layer
+        assert ref is not None and ref.servos == arm_ids
+        assert ref.base == "take001.mcap" and ref.base_rig == rig.name
+        t, _, _ = reader.arrays()
+        assert len(t) > 600
+    # played: the arms as performed in pass 2, every other servo as the base plays them
+    cols = [n for n, i in enumerate(rig.servo_map.ids) if int(i) in arm_ids]
+    others = [n for n in range(len(rig.servo_map.ids)) if n not in cols]
+    composed = _playback(layer, rig)
+    through = _playback(layer, rig, layers=LayerOptions(mute=frozenset({layer})))  # the base
+    raw = _playback(_raw_copy(layer, tmp_path / "pass2.mcap"), rig)
+    np.testing.assert_array_equal(composed[:, others], through[:, others])
+    assert np.abs(composed[:, cols] - raw[:, cols]).max() <= 1  # (a tick of rounding)
+    assert np.abs(composed[:, cols] - through[:, cols]).max() > 50  # pass 2's arms, not pass 1's
+    # exported: the legs of pass 1, the arms of pass 2
+    got = _export(tools, layer, tmp_path / "layered.glb")
+    pass1 = _export(tools, base, tmp_path / "pass1.glb")
+    pass2 = _export(tools, tmp_path / "pass2.mcap", tmp_path / "pass2.glb")
+    for bone in LEGS:
+        assert _angle_deg(got[bone], pass1[bone]).max() < 2.0, bone
+    for bone in ARMS:
+        assert _angle_deg(got[bone], pass2[bone]).max() < 0.5, bone
+        assert _angle_deg(got[bone], pass1[bone]).max() > 5.0, bone
