@@ -198,10 +198,16 @@ class OneAtATime:
         return rest + reach * min(out, 1.0)
 
 
+def _check_regular(path: Path) -> None:
+    """MotionFileError unless ``path`` is missing (its reader says so) or a regular file: a FIFO
+    or a device would block or never end."""
+    if path.exists() and not path.is_file():
+        raise MotionFileError(path, None, "not a regular file (only regular files are read)")
+
+
 def _read_table(path: Path) -> tuple[list[int], list[float], list[list[float]]]:
     """Parse the CSV format above: (ids, times, rows of positions)."""
-    if path.exists() and not path.is_file():  # a FIFO or device would block or never end
-        raise MotionFileError(path, None, "not a regular file (only regular files are read)")
+    _check_regular(path)
     try:
         text = path.read_text(encoding="utf-8")
     except OSError as exc:
@@ -259,6 +265,7 @@ def _read_take(path: Path) -> tuple[list[int], list[float], list[list[float]]]:
     from mcap.records import Channel, Message, Metadata
     from mcap.stream_reader import StreamReader
 
+    _check_regular(path)
     ids: list[int] | None = None
     channel_ids: set[int] = set()
     times: list[float] = []
@@ -343,6 +350,8 @@ class Replay(_Table):
             return cls(*_read_take(path), loop=loop)
         if path.suffix == ".npz":
             import numpy as np
+
+            _check_regular(path)
             try:
                 data = np.load(path)
                 t = data["t"] if "t" in data else data["t_ns"] * 1e-9

@@ -76,7 +76,7 @@ def file_kind(path: str | os.PathLike) -> str:
     return "text"
 
 
-def _node_kind(mode: int) -> str | None:
+def node_kind(mode: int) -> str | None:
     """A non-regular file's kind in words; None for a regular file."""
     for test, name in ((stat.S_ISDIR, "a folder"), (stat.S_ISCHR, "a character device"),
                        (stat.S_ISBLK, "a block device"), (stat.S_ISFIFO, "a FIFO (named pipe)"),
@@ -120,7 +120,7 @@ def check_output(target: str | os.PathLike, *, kind: str, inputs: Iterable = (),
     except OSError as err:
         raise OutputError(f"{path}: cannot use it as the {what}: {err.strerror or err}") from None
     if mode is not None:
-        node = _node_kind(mode)
+        node = node_kind(mode)
         if node is not None:
             raise OutputError(f"{path}: exists and is {node}, not a regular file; the {what} "
                               "must be a file path")
@@ -147,7 +147,7 @@ def check_folder_output(folder: str | os.PathLike, *, what: str = "frame folder"
     except OSError:  # absent (or a file on its way): making it says what is wrong
         return path
     if not stat.S_ISDIR(mode):
-        raise OutputError(f"{path}: exists and is {_node_kind(mode) or 'a file'}, not a folder; "
+        raise OutputError(f"{path}: exists and is {node_kind(mode) or 'a file'}, not a folder; "
                           f"the {what} must be a folder path")
     return path
 

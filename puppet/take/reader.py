@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import json
 import mmap
+import os
+import stat
 import struct
 import zlib
 from array import array
@@ -20,6 +22,7 @@ from mcap.opcode import Opcode
 from mcap.records import Channel, Chunk, Header, Message, Metadata, Schema
 from mcap.stream_reader import breakup_chunk
 
+from puppet.atomic import node_kind
 from puppet.reading import Reading
 from puppet.take import format as fmt
 from puppet.take import sync
@@ -209,7 +212,15 @@ class TakeReader:
 
     # ---- opening and scanning ----
     def _open_map(self, first: bool = False) -> mmap.mmap:
-        """The file mapped read-only; first: check (and report) its magic bytes."""
+        """The file mapped read-only; first: check (and report) its magic bytes. A FIFO, device
+        or socket is refused unopened (opening a FIFO blocks until a writer comes)."""
+        try:
+            mode = os.stat(self.path).st_mode
+        except OSError:
+            mode = None  # open() below names what is wrong
+        if mode is not None and not stat.S_ISDIR(mode) and node_kind(mode) is not None:
+            raise TakeError(self.path, f"is {node_kind(mode)}, not a take file (only regular "
+                                       "files are read)")
         try:
             f = open(self.path, "rb")
         except FileNotFoundError:

@@ -130,7 +130,8 @@ def test_a_motion_file_that_is_not_text_or_not_a_file_is_named(tmp_path):
         with pytest.raises(hw_sim.MotionFileError) as info:
             hw_sim.motion.make_motion(spec)
         assert str(info.value) == f"{binary}:3: not UTF-8 text (a motion file is a CSV of ticks)"
-    fifo = tmp_path / "fifo.csv"
-    os.mkfifo(fifo)  # read, it would block for ever
-    with pytest.raises(hw_sim.MotionFileError, match="not a regular file"):
-        hw_sim.motion.make_motion(f"replay:{fifo}")
+    for name in ("fifo.csv", "fifo.mcap", "fifo.npz"):  # each reader of a replay
+        fifo = tmp_path / name
+        os.mkfifo(fifo)  # read, it would block for ever
+        with pytest.raises(hw_sim.MotionFileError, match="not a regular file"):
+            hw_sim.motion.make_motion(f"replay:{fifo}")

@@ -25,6 +25,15 @@ def test_directory(tmp_path):
     assert "directory" in open_error(tmp_path)
 
 
+def test_a_fifo_or_a_device_is_refused_unopened(tmp_path):
+    import os
+
+    fifo = tmp_path / "fifo.mcap"
+    os.mkfifo(fifo)  # opened, it would block until a writer came: for ever
+    assert open_error(fifo) == "is a FIFO (named pipe), not a take file (only regular files are read)"
+    assert open_error("/dev/zero").startswith("is a character device, not a take file")
+
+
 def test_empty_file(tmp_path):
     p = tmp_path / "empty.mcap"
     p.write_bytes(b"")

@@ -226,7 +226,7 @@ def test_the_page_fits_every_width(new_page, demo, tmp_path, tools):
     page.evaluate("const row = document.querySelector('#servos tbody tr');"
                   "row.cells[1].textContent = 'a_joint_name_much_longer_than_the_column'.repeat(3);")
     legend = page.evaluate("Array.from(document.querySelectorAll('#legend li'), li => li.textContent)")
-    assert any(text.startswith("held: servo's last angle held") for text in legend)
+    assert any(text.startswith("fault: servo at fault") for text in legend)
     for width, height in ((390, 844), (1024, 768), (1366, 768), (1920, 1080)):
         page.set_viewport_size({"width": width, "height": height})
         tools.wait_js(page, f"innerWidth === {width}")
