@@ -127,6 +127,7 @@ class Solver:
                 np.array([b[3:] for b in lim], np.float64).reshape(-1, 3),
             )
         self._native.set_probes(*model.tolerance_probes())
+        self._solve = _native.SolveCall(self._native)  # keeps the last call's arrays, checked once
         self.stats = self._native.stats
         self._history = self._native.history
 
@@ -171,7 +172,7 @@ class Solver:
         if tol is not None and not (np.isfinite(tol) and tol > 0):
             raise FastError(f"solve: tol must be a positive number (a fraction of the bounding-box diagonal) or None, "
                             f"got {tol!r}")
-        self._native.solve(
+        self._solve(
             values.full,
             values.relative,
             values.positional,

@@ -1,6 +1,7 @@
-// The per-frame numeric kernels, compiled twice: for the baseline instruction set of the build
-// and for AVX2+FMA (x86-64), chosen once at run time from the CPU. A wheel built without
-// -march=native therefore still runs the 8-wide FMA kernels where the CPU has them.
+// The per-frame numeric kernels, compiled three times: for the baseline instruction set of the
+// build, for AVX2+FMA and for AVX-512 on 8-lane vectors (x86-64), chosen once at run time from the
+// CPU. A wheel built without -march=native therefore still runs the 8-wide FMA kernels where the
+// CPU has them.
 #pragma once
 
 #include <cstddef>
@@ -25,6 +26,7 @@ namespace puppet {
   }
 PUPPET_DECLARE_KERNELS(generic)
 PUPPET_DECLARE_KERNELS(avx2)
+PUPPET_DECLARE_KERNELS(avx512)
 #undef PUPPET_DECLARE_KERNELS
 
 // Batches of eight matrices the rotation fit runs interleaved (at most): three batches' dependency

@@ -186,3 +186,41 @@ def test_malformed_patterns_are_refused(bar_model):
         model.solver(rigid)
     with pytest.raises(PatternError, match="over-determine"):
         model.solver(Pattern(full=(0,), relative=((1, 2, (1.0, 0, 0)), (2, 1, (2.0, 0, 0)))))
+
+
+def test_a_solve_follows_its_arrays_when_they_change_or_are_replaced(bar_model):
+    """The native call keeps the last call's arrays (checked once): the same objects with new
+    contents, new objects, and a good call after a refused one all solve what they are handed."""
+    pattern = Pattern(full=(0,), positional=(int(np.argmax(bar_model.V[:, 0])),))
+    solver, fresh = bar_model.solver(pattern), bar_model.solver(pattern)
+    values = pattern.values()
+    values.full[0] = bar_model.rest_T()[:4]
+    tip = bar_model.V[pattern.positional[0]]
+
+    def reference(target, T0):  # a solver that has never seen these arrays
+        v = pattern.values()
+        v.full[:], v.positional[0] = values.full, target
+        T = T0.copy()
+        fresh.solve(v, T, iterations=5, accelerate=False)
+        return T
+
+    T = bar_model.rest_T()
+    for k, target in enumerate((tip + [0, 0.3, 0], tip + [0, -0.2, 0.1])):  # same objects, new contents
+        values.positional[0] = target
+        want = reference(target, T)
+        solver.solve(values, T, iterations=5, accelerate=False)
+        np.testing.assert_array_equal(T, want, err_msg=f"frame {k}")
+    moved = T.copy()
+    values.positional = np.array([tip + [0.1, 0.4, 0]], np.float32)  # a new positional array
+    T2 = bar_model.rest_T()  # and a new T: the old one is left alone
+    want = reference(values.positional[0], T2)
+    solver.solve(values, T2, iterations=5, accelerate=False)
+    np.testing.assert_array_equal(T2, want)
+    np.testing.assert_array_equal(T, moved)
+    with pytest.raises(TypeError, match="solve: T must be a C-contiguous float32 array"):
+        solver.solve(values, T2.astype(np.float64))
+    with pytest.raises(ValueError, match="T has"):
+        solver.solve(values, np.zeros((4 * bar_model.m + 4, 3), np.float32))
+    want = reference(values.positional[0], T)
+    solver.solve(values, T, iterations=5, accelerate=False)
+    np.testing.assert_array_equal(T, want)

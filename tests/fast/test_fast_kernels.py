@@ -1,6 +1,7 @@
-"""Both native kernel sets (baseline build and run-time-selected AVX2+FMA) give the same solve, and
-in each the interleaved rotation fit (several batches of eight in flight) agrees with the plain
-one-batch-at-a-time schedule to float32 rounding."""
+"""The native kernel sets (baseline build, AVX2+FMA, AVX-512 on 8-lane vectors; the best the CPU has
+is selected at run time, PUPPET_SIMD caps it) give the same solve, and in each the interleaved
+rotation fit (several batches of eight in flight) agrees with the plain one-batch-at-a-time schedule
+to float32 rounding."""
 
 import json
 import os
@@ -71,35 +72,43 @@ def run(env_extra):
     return json.loads(out.stdout)
 
 
-def cpu_has_avx2_fma() -> bool:
-    """Whether this CPU has AVX2 and FMA (Linux /proc/cpuinfo flags; False elsewhere)."""
+def cpu_flags() -> set:
+    """This CPU's feature flags (Linux /proc/cpuinfo; empty elsewhere)."""
     try:
         with open("/proc/cpuinfo") as f:
-            flags = next((line.split(":", 1)[1].split() for line in f if line.startswith("flags")), [])
+            return set(next((line.split(":", 1)[1].split() for line in f if line.startswith("flags")), []))
     except OSError:
-        return False
-    return "avx2" in flags and "fma" in flags
+        return set()
+
+
+def expected_sets() -> dict:
+    """PUPPET_SIMD setting -> the kernel set it must select on this CPU."""
+    flags = cpu_flags()
+    avx2 = {"avx2", "fma"} <= flags
+    avx512 = avx2 and {"avx512f", "avx512vl", "avx512dq", "avx512bw"} <= flags
+    return {"avx2": "avx2+fma" if avx2 else None, "": "avx512" if avx512 else ("avx2+fma" if avx2 else None)}
 
 
 def test_generic_and_selected_kernels_agree():
     generic = run({"PUPPET_SIMD": "generic"})
-    chosen = run({"PUPPET_SIMD": ""})
-    # The two runs must use two different kernel sets, or the comparison below proves nothing.
     # The default build's baseline is below AVX2 (a -march=native build, PUPPET_NATIVE_ARCH, is
-    # for benchmarks only), so forcing generic gives the baseline set, and a CPU with AVX2+FMA
-    # gets the AVX2+FMA set at run time.
+    # for benchmarks only), so forcing generic gives the baseline set; a CPU with AVX2+FMA gets the
+    # AVX2+FMA set at run time (PUPPET_SIMD=avx2 caps it there), one with AVX-512 the AVX-512 set.
     assert generic["simd"] in ("sse2", "avx", "scalar")
-    assert chosen["simd"] == ("avx2+fma" if cpu_has_avx2_fma() else generic["simd"])
-    np.testing.assert_allclose(np.array(generic["T"]), np.array(chosen["T"]), atol=2e-5)
-    np.testing.assert_allclose(np.array(generic["R"]), np.array(chosen["R"]), atol=2e-5)
-    assert abs(generic["E"] - chosen["E"]) <= 1e-4 * max(1.0, abs(chosen["E"]))
+    for setting, want in expected_sets().items():
+        chosen = run({"PUPPET_SIMD": setting})
+        # Each run must use the set named, or the comparison below proves nothing.
+        assert chosen["simd"] == (want or generic["simd"]), setting
+        np.testing.assert_allclose(np.array(generic["T"]), np.array(chosen["T"]), atol=2e-5)
+        np.testing.assert_allclose(np.array(generic["R"]), np.array(chosen["R"]), atol=2e-5)
+        assert abs(generic["E"] - chosen["E"]) <= 1e-4 * max(1.0, abs(chosen["E"]))
 
 
-def test_interleaved_rotation_fit_agrees_with_the_plain_schedule_in_both_kernel_sets():
+def test_interleaved_rotation_fit_agrees_with_the_plain_schedule_in_every_kernel_set():
     from puppet import _native
 
     assert _native.rotation_interleave >= 2  # there is an interleaved schedule to compare
-    for env in ({"PUPPET_SIMD": "generic"}, {"PUPPET_SIMD": ""}):
+    for env in ({"PUPPET_SIMD": "generic"}, {"PUPPET_SIMD": "avx2"}, {"PUPPET_SIMD": ""}):
         agree = run(env)["agree"]
         # Random matrices include ill-conditioned ones (close singular values), where a rounding-
         # level change in the eigenbasis moves the rotation by ulps times the conditioning: the
