@@ -89,8 +89,8 @@ def run_case(case: str, variant: str, args, folder: Path) -> dict:
 
     loop_cpu = {}
 
-    def on_frame(summary) -> None:
-        if summary.frames == 1:  # CPU of the loop's thread from the first frame on
+    def on_frame(done: int) -> None:
+        if done == 1:  # CPU of the loop's thread from the first frame on
             loop_cpu["start"] = time.thread_time()
         loop_cpu["end"] = time.thread_time()
 
@@ -101,7 +101,7 @@ def run_case(case: str, variant: str, args, folder: Path) -> dict:
                                antialias=antialias, video_fps=args.fps, timing=True,
                                baud=1_000_000, rate_hz=settings["rate_hz"] or args.rate,
                                render_options=settings["render"],
-                               started_s=time.monotonic(), on_frame=on_frame, latch_fps=settings["latch_fps"])
+                               on_frame=on_frame, latch_fps=settings["latch_fps"])
     d = summary.as_dict()
     frames = max(1, d["frames"])
 
