@@ -25,6 +25,14 @@ can measure.
    running yet); pre-rolled: made and running before. skew = heard - time 0, ms (positive:
    late). Also the rule studio.js used before (``ctx.currentTime + delay``, output latency
    not counted), pre-rolled, for comparison.
+4. perform: a take of ``--perform-seconds`` (60 by default) performed on hw_sim (timing model,
+   1 Mbps) as ``puppet perform --sound`` runs it: the sound's take time 0 scheduled when the
+   playback phase begins, on the clock the motors' schedule runs on (a device's stream clock is
+   that clock on Linux: ALSA's PortAudio time is CLOCK_MONOTONIC). Three servos' Goal Position is
+   sampled from the simulated bus in turn, one query every 10 ms, stamped at its middle; their
+   lag behind the take at the sound's position (least squares over shifts of 0.5 ms), over the
+   whole run and its first and last 10 s (a drift would grow from one to the other); target
+   <= 1 frame (33.3 ms at 30 fps).
 
     python bench/sound.py --json sound.json
 """
@@ -34,6 +42,7 @@ from __future__ import annotations
 import argparse
 import importlib.util
 import json
+import os
 import subprocess
 import sys
 import tempfile
@@ -226,10 +235,89 @@ def page_skew(repeats: int) -> dict:
     return out
 
 
+def _lag_ms(t: np.ndarray, goals: np.ndarray, take_t: np.ndarray, take: np.ndarray) -> float:
+    """How far goals sampled at times t (n,) lag the take (its readings at take_t, values take),
+    ms: the shift d (+/- MAX_LAG_S, 0.5 ms steps) that brings take(t - d) nearest the goals,
+    least squares."""
+    shifts = np.arange(-MAX_LAG_S, MAX_LAG_S + 1e-9, 0.0005)
+    cost = [np.mean((goals - np.interp(t - d, take_t, take)) ** 2) for d in shifts]
+    return float(shifts[int(np.argmin(cost))] * 1e3)
+
+
+MAX_LAG_S = 0.2
+
+
+def perform_sync(seconds: float) -> dict:
+    """{whole, first, last}: the largest |lag| (ms) of three servos' goals behind the take at
+    the sound's position (see 4. in the module text), the samples taken and one frame in ms."""
+    import threading
+
+    import hw_sim
+    from puppet.drive.perform import PerformOptions, perform
+    from puppet.reading import Reading
+    from puppet.rig import builtin
+    from puppet.take import TakeReader, TakeWriter
+
+    rig = builtin()
+    sm = rig.servo_map
+    k = len(sm.ids)
+    take_t = np.arange(int(seconds * 100) + 1) / 100  # every joint swinging, 0.4 Hz, 100 readings/s
+    take = sm.zero + 200 * np.sin(2 * np.pi * 0.4 * take_t[:, None] + np.arange(k))
+    chosen = [0, 1, 2]
+    zero, samples, done = [], [], threading.Event()
+    with tempfile.TemporaryDirectory(prefix="puppet-bench-perform-") as tmp:
+        path = Path(tmp) / "swing.mcap"
+        with TakeWriter(path, ids=[int(i) for i in sm.ids], models=dict(sm.models),
+                        rig_map_text="", calibration_text="", rig_name=rig.name) as writer:
+            for t, ticks in zip(take_t, take):
+                writer.write(Reading(round(t * 1e9), sm.ids, ticks.astype(np.int32),
+                                     np.ones(k, bool)))
+        with hw_sim.serve(dict(sm.models), timing=True) as bus:
+            def sample() -> None:  # one query each 10 ms, the servos in turn (a light touch
+                n = 0              # on the process the motors' loop runs in), stamped mid-query
+                while not done.is_set():
+                    c = chosen[n % len(chosen)]
+                    before = time.monotonic()
+                    value = bus.servo(int(sm.ids[c])).get("Goal Position")
+                    samples.append((c, (before + time.monotonic()) / 2, value))
+                    n += 1
+                    done.wait(0.01)
+
+            def on_phase(phase: str) -> None:
+                if phase == "playback":  # perform --sound: player.start(player.clock()) here
+                    zero.append(time.monotonic())
+
+            sampler = threading.Thread(target=sample, daemon=True)
+            sampler.start()
+            try:
+                with TakeReader(path) as reader:
+                    perform(rig, reader, bus.port, PerformOptions(yes=True, watchdog_ms=500.0),
+                            log=lambda line: None, on_phase=on_phase)
+            finally:
+                done.set()
+                sampler.join()
+    got = np.array(samples)
+    out = {"samples": len(samples), "seconds": seconds, "frame_ms": 1e3 / 30.0,
+           "load_1min": os.getloadavg()[0]}
+    windows = {"whole": (0.5, seconds - 0.5), "first": (0.5, 10.5),
+               "last": (seconds - 10.5, seconds - 0.5)}
+    for name, (lo, hi) in windows.items():
+        lags = []
+        for c in chosen:
+            mine = got[got[:, 0] == c]
+            t = mine[:, 1] - zero[0]
+            keep = (t >= lo) & (t <= hi)
+            lags.append(_lag_ms(t[keep], mine[keep, 2], take_t, take[:, c]))
+        out[name] = max(lags, key=abs)
+    return out
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--json", default=None, help="write the figures here")
     parser.add_argument("--repeats", type=int, default=20)
+    parser.add_argument("--perform-seconds", type=float, default=60.0,
+                        help="length of the performed take (0: skip)")
     args = parser.parse_args()
     with tempfile.TemporaryDirectory(prefix="puppet-bench-sound-") as tmp:
         folder = Path(tmp)
@@ -239,6 +327,7 @@ def main() -> None:
         costs = start_costs(long_path, args.repeats)
         device = device_skew(load_sound(long_path), args.repeats)
     page = page_skew(args.repeats)
+    performed = perform_sync(args.perform_seconds) if args.perform_seconds > 0 else None
     print(f"{'rate':>6} {'fps':>7} {'offset s':>9} {'lag samples':>12} {'AAC frames':>11} {'len err':>8}")
     for c in cases:
         print(f"{c['rate']:>6} {c['fps']:>7.3f} {c['offset_s']:>9.3f} {c['offset_samples']:>12d} "
@@ -266,9 +355,15 @@ def main() -> None:
                   f"{d['worst_ms']:>9.2f} {d['n']:>4d}")
     else:
         print(f"page skew: not measured: {page['why']}")
+    if performed is not None:
+        print(f"\nperform (hw_sim, 1 Mbps, {performed['seconds']:g} s, {performed['samples']} goal "
+              f"samples): the goals' lag behind the take at the sound's position: whole "
+              f"{performed['whole']:.1f} ms, first 10 s {performed['first']:.1f} ms, last 10 s "
+              f"{performed['last']:.1f} ms (target <= 1 frame, {performed['frame_ms']:.1f} ms; load "
+              f"{performed['load_1min']:.1f}: a loaded host's late cycles read as lag)")
     if args.json:
         Path(args.json).write_text(json.dumps({"mp4": cases, "start": costs, "device": device,
-                                               "page": page}, indent=1))
+                                               "page": page, "perform": performed}, indent=1))
 
 
 if __name__ == "__main__":
