@@ -269,8 +269,13 @@ class BaseDrive(Actuators):
 
     def open(self, run) -> None:
         self.layer.from_ns = run.record_from_ns  # the base starts at the take's time 0
+        self.drive(run.source.reader)
+
+    def drive(self, reader) -> None:
+        """``reader``: the reader process whose hook drives the base (BaseOverLive's; its goals
+        are fed by that source): its torque read back is said at ``close``."""
         if self.plan is not None:
-            self._source = run.source.reader  # its goals are fed by the source (BaseOverLive)
+            self._source = reader
 
     def report(self) -> dict:
         delays = self.layer.goal_delays_ms

@@ -422,6 +422,7 @@ class Studio(View):
         if sound is not None:  # the shot's sound until the page chooses another
             self.desk.use_sound(sound.sound, sound.offset_s)
         self._fps = run.video_fps
+        self.desk.switch = run.source  # a layer's take hands it the base (Switchable.layer)
         self.view.attach(run.pipeline, source=run.source.reading_source)
 
     def _open_take(self, path, zero_ns: int) -> "_TakeFromZero":
