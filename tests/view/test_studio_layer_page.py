@@ -9,10 +9,12 @@ take: the arms from pass 2, the others from pass 1."""
 from __future__ import annotations
 
 import json
+import signal
 import subprocess
 
 import numpy as np
 import pygltflib
+import pytest
 from scipy.spatial.transform import Rotation
 
 from puppet.rig import load_rig
@@ -218,3 +220,57 @@ def test_a_layer_recorded_from_the_page_is_the_next_take_and_plays_composed(new_
     for bone in ARMS:
         assert _angle_deg(got[bone], pass2[bone]).max() < 0.5, bone
         assert _angle_deg(got[bone], pass1[bone]).max() > 5.0, bone
+
+
+class _Swing:
+    """hw_sim motion: every servo swings slowly (torque off; a driven servo follows its goals)."""
+
+    def position(self, joint: int, t: float) -> float:
+        return 2048.0 + 285.0 * np.sin(2 * np.pi * 0.7 * t + joint)
+
+
+@pytest.mark.parametrize("stop", ["SIGINT", "SIGTERM"])
+def test_a_studio_stopped_while_a_layer_drives_its_base_turns_torque_off(new_page, tools,
+                                                                        tmp_path, stop):
+    """``puppet studio --rig --port`` on hw_sim: the base's servos driven (torque on, read from
+    hw_sim's registers) during the layer, the layer's in hand; a signal mid-layer: torque off,
+    read back, said; the layer's take kept, a layer over take 1."""
+    import hw_sim
+
+    rig = load_rig(BUILTIN_RIG)
+    driven = [int(i) for i in rig.servo_map.ids if int(i) not in ARM_IDS]
+    folder = tmp_path / "shoot"
+    with hw_sim.serve(dict(rig.servo_map.models), motion=_Swing()) as bus:
+        process = tools.PuppetProcess(["studio", str(folder), "--rig", str(BUILTIN_RIG), "--port",
+                                       bus.port, "--address", f"127.0.0.1:{tools.free_port()}"],
+                                      tmp_path)
+        try:
+            page = new_page()
+            page.goto(process.url)
+            tools.wait_js(page, "puppetView.studio !== null && puppetView.shownSeq >= 0",
+                          STUDIO_WAIT_S)
+            page.get_by_label("shot name").fill("walk")
+            page.get_by_role("button", name="new shot", exact=True).click()
+            _said(page, tools, "new shot 'walk'")
+            page.get_by_label("count-in seconds").select_option("0")
+            _record_until_read(page, tools, "● record")
+            _said(page, tools, "recorded walk take 1")
+            page.get_by_role("button", name="walk take 1").click()
+            for joint in ARMS:
+                page.get_by_label(f"layer joint {joint}", exact=True).check()
+            page.get_by_role("button", name="● record a layer over take 1").click()
+            tools.wait_until(lambda: all(bus.servo(i).get("Torque Enable") == 1 for i in driven),
+                             STUDIO_WAIT_S, "the base's servos driven")
+            assert all(bus.servo(i).get("Torque Enable") == 0 for i in ARM_IDS)  # in hand
+            tools.wait_js(page, "puppetView.recording.on && puppetView.recording.readings > 100",
+                          STUDIO_WAIT_S)
+            process.proc.send_signal(getattr(signal, stop))
+            assert process.stop() == 0, process.stderr()
+        finally:
+            process.stop()
+        said = process.stderr()
+        assert "Traceback" not in said
+        assert f"actuators {driven}: torque off (read back)" in said, said
+        assert all(bus.servo(i).get("Torque Enable") == 0 for i in rig.servo_map.ids)
+    with TakeReader(folder / "takes" / "walk" / "take002.mcap") as reader:
+        assert reader.metadata.layer.servos == ARM_IDS and len(reader) > 100
