@@ -235,13 +235,16 @@ class BaseOverLive(BusSource):
         return report
 
     def _feed(self) -> None:
-        """The base's goals at the base's play time, to the reader process's hook; none before
-        its start (a count-in: the driven servos hold, then ease to the base from its time 0;
-        feeding the first frame during it tracked worse in bench/layers.py: 2.5 deg RMS, not 0.3)."""
+        """The base's goals at the base's play time, to the reader process's hook. Before its
+        start: during a count-in (``from_ns`` set) its first frame, so that the driven servos
+        are there at time 0; without one nothing (feeding the first frame before the first
+        reading made bench/layers.py's tracking 2.5 deg RMS, not 0.3: not understood yet)."""
         plan, reader, cols = self.plan, self.reader, self.plan.base_cols
         while not self._stop_feed.wait(FEED_PERIOD_S):
             now = time.monotonic_ns()
             play = plan.play_s(now)
+            if play is None and plan.from_ns:
+                play = 0.0
             if play is not None:
                 reader.set_goals(plan.drive_goals.at(play)[cols], now)
 

@@ -77,6 +77,8 @@ class Recording:
         except PuppetError as err:
             self._server.warn(f"recording stopped: {err}", None, None)
             self._recorder = None
+            if self._slate is not None:  # the studio lists what was kept (a layer's base stops)
+                self._slate.recorded(self._path)
 
     def mark(self, name: str) -> None:
         """A named mark at the newest reading's time (now before any) in every take being recorded."""

@@ -69,6 +69,18 @@ def _lag_s(base, layer, servo: int) -> tuple[float, float, float]:
     return lag, fits[lag], fits[1.0]
 
 
+def _recording(page, tools, process, condition: str):
+    """Wait until the page's recording state meets ``condition`` (JS); a timeout says the
+    page's state and the studio's stderr."""
+    try:
+        tools.wait_js(page, f"puppetView.recording.on && ({condition})", STUDIO_WAIT_S)
+    except Exception as err:  # noqa: BLE001 - a playwright timeout, said with what was seen
+        seen = page.evaluate("JSON.stringify({recording: puppetView.recording, "
+                             "said: puppetView.studio && puppetView.studio.said})")
+        raise AssertionError(f"{condition}: {err}; page: {seen}; "
+                             f"studio: {process.stderr()}") from None
+
+
 def _takes_of(page, shot: str = "walk") -> list:
     return page.evaluate(f"puppetView.studio.shots.find(s => s.name === {json.dumps(shot)}).takes")
 
@@ -166,8 +178,8 @@ def test_a_layer_recorded_from_the_page_is_the_next_take_and_plays_composed(new_
         tools.wait_js(page, "document.getElementById('instruction').textContent"
                             ".startsWith('Recording a layer over take 1')", STUDIO_WAIT_S)
         base_readings = _takes_of(page)[0]["readings"]
-        tools.wait_js(page, "puppetView.recording.on && puppetView.recording.starts_in_s === 0 && "
-                            f"puppetView.recording.readings > {base_readings + 300}", STUDIO_WAIT_S)
+        _recording(page, tools, process, "puppetView.recording.starts_in_s === 0 && "
+                   f"puppetView.recording.readings > {base_readings + 300}")
         page.get_by_role("button", name="■ stop", exact=True).click()  # after the base's end
         said = _said(page, tools, "recorded walk take 2")
         assert "a layer of upperarm_L, forearm_L, upperarm_R, forearm_R over take 1" in said
@@ -262,8 +274,7 @@ def test_a_studio_stopped_while_a_layer_drives_its_base_turns_torque_off(new_pag
             tools.wait_until(lambda: all(bus.servo(i).get("Torque Enable") == 1 for i in driven),
                              STUDIO_WAIT_S, "the base's servos driven")
             assert all(bus.servo(i).get("Torque Enable") == 0 for i in ARM_IDS)  # in hand
-            tools.wait_js(page, "puppetView.recording.on && puppetView.recording.readings > 100",
-                          STUDIO_WAIT_S)
+            _recording(page, tools, process, "puppetView.recording.readings > 100")
             process.proc.send_signal(getattr(signal, stop))
             assert process.stop() == 0, process.stderr()
         finally:
