@@ -308,6 +308,15 @@ class StudioDesk:
                       + over)
         self._send()
 
+    def failed(self, path: Path, err) -> None:
+        """The take at ``path`` failed while recording (the Recording part dropped it): a
+        layer's base stops (torque off, read back, said), the failure said."""
+        layer, self.layering, self._layer = self.layering, None, None
+        if layer is not None:
+            self.switch.unlayer(tell=self.tell)
+        self._say(f"recording stopped: {err}", ok=False)
+        self._send()
+
     # ---- page input (the loop thread) ----
     def check_pick(self, message: dict) -> bool:
         """A ``pick_joint`` message's click is well formed (``PageInput`` then finds its bone)."""
