@@ -9,7 +9,8 @@ composed by the one take-to-frames rule, converted through both calibrations). T
 of one session, each the session's own kind of part (``layer_parts`` makes all three):
 
   ``BaseOverLive``  the source: the bus read live; each reading's base servos show the base at
-                    that reading's play time (time 0: the first reading), its layer servos what
+                    that reading's play time (time 0: the first reading from the count-in's end on;
+                    the base's first frame before), its layer servos what
                     the puppeteer does; the raw reading rides along (``raw_ticks``). With a
                     cycle hook it feeds the base's goals on the base's clock from a thread of its
                     own, stopped before the reader stops.

@@ -155,7 +155,7 @@ class Frames(Output):
 def open_take_writer(path, rig, *, force: bool = False, **more):
     """A take of ``rig`` at ``path`` written on a thread of its own (a periodic fsync never
     stalls a frame): the writer every recording uses (--record, the page's record button).
-    ``more``: TakeWriter's header keywords (a layer's sound, timecode and layer record)."""
+    ``more``: TakeWriter's header keywords."""
     from puppet.take import BackgroundTakeWriter
     from puppet.take.header import take_writer
 
