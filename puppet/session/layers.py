@@ -9,7 +9,8 @@ composed by the one take-to-frames rule, converted through both calibrations). T
 of one session, each the session's own kind of part (``layer_parts`` makes all three):
 
   ``BaseOverLive``  the source: the bus read live; each reading's base servos show the base at
-                    that reading's play time (time 0: the first reading), its layer servos what
+                    that reading's play time (time 0: the first reading from the count-in's end on;
+                    the base's first frame before), its layer servos what
                     the puppeteer does; the raw reading rides along (``raw_ticks``). With a
                     cycle hook it feeds the base's goals on the base's clock from a thread of its
                     own, stopped before the reader stops.
@@ -239,11 +240,18 @@ class BaseOverLive(BusSource):
         return report
 
     def _feed(self) -> None:
-        """The base's goals at the base's play time, to the reader process's hook."""
+        """The base's goals at the base's play time, to the reader process's hook. Before its
+        start: during a count-in (``from_ns`` set) its first frame, so that the driven servos
+        are there at time 0; without one nothing (feeding the first frame before the first
+        reading made bench/layers.py's tracking 2.5 deg RMS, not 0.3: not understood yet)."""
         plan, reader, cols = self.plan, self.reader, self.plan.base_cols
         while not self._stop_feed.wait(FEED_PERIOD_S):
-            now = time.monotonic_ns()  # before the start (a count-in): the base's first frame
-            reader.set_goals(plan.drive_goals.at(plan.play_at(now))[cols], now)
+            now = time.monotonic_ns()
+            play = plan.play_s(now)
+            if play is None and plan.from_ns:
+                play = 0.0
+            if play is not None:
+                reader.set_goals(plan.drive_goals.at(play)[cols], now)
 
     def stop(self) -> None:
         self._stop_feed.set()
@@ -273,8 +281,13 @@ class BaseDrive(Actuators):
 
     def open(self, run) -> None:
         self.layer.from_ns = run.record_from_ns  # the base starts at the take's time 0
+        self.drive(run.source.reader)
+
+    def drive(self, reader) -> None:
+        """``reader``: the reader process whose hook drives the base (BaseOverLive's; its goals
+        are fed by that source): its torque read back is said at ``close``."""
         if self.plan is not None:
-            self._source = run.source.reader  # its goals are fed by the source (BaseOverLive)
+            self._source = reader
 
     def report(self) -> dict:
         delays = self.layer.goal_delays_ms

@@ -158,7 +158,7 @@ class Frames(Output):
 def open_take_writer(path, rig, *, force: bool = False, **more):
     """A take of ``rig`` at ``path`` written on a thread of its own (a periodic fsync never
     stalls a frame): the writer every recording uses (--record, the page's record button).
-    ``more``: TakeWriter's header keywords (a layer's sound, timecode and layer record)."""
+    ``more``: TakeWriter's header keywords."""
     from puppet.take import BackgroundTakeWriter
     from puppet.take.header import take_writer
 
@@ -425,6 +425,7 @@ class Studio(View):
         if sound is not None:  # the shot's sound until the page chooses another
             self.desk.use_sound(sound.sound, sound.offset_s)
         self._fps = run.video_fps
+        self.desk.switch = run.source  # a layer's take hands it the base (Switchable.layer)
         self.view.attach(run.pipeline, source=run.source.reading_source)
 
     def _open_take(self, path, zero_ns: int) -> "_TakeFromZero":

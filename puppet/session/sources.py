@@ -76,20 +76,45 @@ class BusSource:
         self.rate_hz = rate_hz
         self.latency_ms = latency_ms
         self.reading_source = None   # the ReaderProcess once begun (kept after stop: its log)
+        self.link = port             # what the reader opens (the demo's: hw_sim's pty)
         self._starting: _Starting | None = None
         self._stopped = False
 
     def begin(self, hooks=()) -> None:
-        from puppet.bus.reader_process import ReaderProcess
-
         hooks = list(hooks)
         if len(hooks) > 1:
             raise PuppetError("the bus reader takes one cycle hook")
-        extra = {} if self.latency_ms is None else {"latency_ms": self.latency_ms}
-        self.reading_source = ReaderProcess(self._port(), self.rig.servo_map.models,
-                                            rate_hz=self.rate_hz, baud=self.baud,
-                                            hook=hooks[0] if hooks else None, **extra)
+        self.link = self._port()
+        self.reading_source = self._reader(hooks[0] if hooks else None)
         self._starting = _Starting(self.reading_source.start)
+
+    def _reader(self, hook):
+        from puppet.bus.reader_process import ReaderProcess
+
+        extra = {} if self.latency_ms is None else {"latency_ms": self.latency_ms}
+        return ReaderProcess(self.link, self.rig.servo_map.models, rate_hz=self.rate_hz,
+                             baud=self.baud, hook=hook, **extra)
+
+    def hand_over(self) -> None:
+        """Stop reading (the reader process ends; hw_sim, the port's server, runs on): the port
+        is another reader's (a layer's, ``Switchable.layer``) until ``take_back``."""
+        self.reading_source.stop()
+        if self.reading_source.died is not None:
+            raise PuppetError(self.reading_source.died)
+
+    def take_back(self, tell=None):
+        """Read again after ``hand_over``: a new reader process on the same port, ready."""
+        from puppet.bus.reader_process import ReaderProcessError
+
+        self.reading_source = self._reader(None)
+        try:
+            report = self.reading_source.start()
+        except ReaderProcessError as err:
+            raise PuppetError(str(err)) from None
+        if tell is not None:
+            for line in setup_lines(report, self.port):
+                tell(line)
+        return report
 
     def _port(self) -> str:
         return self.port
@@ -226,13 +251,22 @@ class Switchable:
     the wall clock (the bus reader's ring runs on; what it read meanwhile is dropped when
     ``live()`` goes back), or, after ``over(plan)``, the bus's shown over a layer's base
     (``puppet.session.layers.OverBase``, as ``puppet live --over`` shows them).
-    Playback controls (pause, play, seek, set_speed, state) are the take's, refused when live."""
+    Playback controls (pause, play, seek, set_speed, state) are the take's, refused when live.
+
+    ``layer(plan)`` for a layer's take (the studio's "record a layer"): the readings shown over
+    the base; on a rig that can drive the base (``plan.drive``) the bus is handed to the layer's
+    source for the take (``BaseOverLive`` with ``BaseDrive``'s hook: the base's servos driven,
+    torque on, as ``puppet live --over`` drives them) and taken back by ``unlayer`` (torque off,
+    read back, said), or by ``stop`` on every way out."""
 
     kind = LIVE
 
-    def __init__(self, bus) -> None:
+    def __init__(self, bus, *, watchdog_ms: float = 100.0) -> None:
         self.bus = bus
+        self.watchdog_ms = watchdog_ms  # a driven base's Bus Watchdog (``puppet live``'s default)
         self.reading_source = None
+        self._layered = None  # (BaseOverLive, BaseDrive) while a layer drives the base
+        self._stopped = False
 
     @property
     def rate_hz(self):
@@ -248,8 +282,62 @@ class Switchable:
     def ready(self, tell=None):
         return self.bus.ready(tell)
 
+    def layer(self, plan, tell=print) -> None:
+        """Show the readings over ``plan``'s base (a LayerPlan) from its ``from_ns`` on, its
+        base driven where the plan can drive (see the class)."""
+        from puppet.session.layers import BaseDrive, BaseOverLive
+
+        if plan.drive and self._layered is None:
+            bus = self.bus
+            drive = BaseDrive(plan, bus.rate_hz, watchdog_ms=self.watchdog_ms, tell=tell)
+            layered = BaseOverLive(bus.rig, bus.link, plan, baud=bus.baud, rate_hz=bus.rate_hz,
+                                   latency_ms=bus.latency_ms)
+            bus.hand_over()
+            try:
+                layered.begin([drive.hook])
+                layered.ready(None)  # (the plan's notes: said by the caller)
+            except BaseException:
+                try:
+                    layered.stop()
+                finally:
+                    bus.take_back()
+                    self.reading_source.use(bus.reading_source)
+                raise
+            drive.drive(layered.reader)
+            self._layered = (layered, drive)
+            self.reading_source.use(layered.reader)
+        self.reading_source.over(plan)
+
+    def unlayer(self, tell=print) -> None:
+        """Back to the bus as read: a driven base's torque off (read back, said), the bus taken
+        back."""
+        self.reading_source.over(None)
+        layered = self._layered
+        if layered is None or self._stopped:
+            return
+        self._layered = None
+        try:
+            self._stop_layer(layered)
+        finally:
+            self.bus.take_back(tell)
+            self.reading_source.use(self.bus.reading_source)
+
+    @staticmethod
+    def _stop_layer(layered) -> None:
+        source, drive = layered
+        try:
+            source.stop()  # the feeder, then the reader: its hook turns torque off, read back
+        finally:
+            drive.close()  # says the torque read back
+
     def stop(self) -> None:
-        self.bus.stop()
+        self._stopped = True
+        layered, self._layered = self._layered, None
+        try:
+            if layered is not None:
+                self._stop_layer(layered)
+        finally:
+            self.bus.stop()
 
 
 class SwitchedReadings:
@@ -281,6 +369,11 @@ class SwitchedReadings:
         if self._take is not None:
             self._take = None
             self._reader.drain()  # the readings of the review: not the puppet's now
+
+    def use(self, reader) -> None:
+        """Read from ``reader`` (a layer's reader process while it drives the base, the bus's
+        again after)."""
+        self._reader = self._live = reader
 
     def over(self, plan) -> None:
         """Live readings shown over ``plan``'s base (a puppet.session.layers.LayerPlan; its

@@ -18,7 +18,7 @@ class Recording:
     server: the ViewServer told of every change; lock: guards ``markers`` (read by snapshots);
     t0: monotonic time [s] the marks' times count from; slate: the studio
     (``puppet.view.studio_desk.StudioDesk``: ``new_take(count_in_s)`` -> (path, recorder),
-    ``recorded(path)``) or None: takes go to ``takes_dir``."""
+    ``recorded(path)``, ``failed(path, err)``) or None: takes go to ``takes_dir``."""
 
     def __init__(self, take_factory, takes_dir: Path, cli_recorder, server, lock, t0: float,
                  slate=None):
@@ -77,6 +77,8 @@ class Recording:
         except PuppetError as err:
             self._server.warn(f"recording stopped: {err}", None, None)
             self._recorder = None
+            if self._slate is not None:  # the studio: a layer's base stops driving
+                self._slate.failed(self._path, err)
 
     def mark(self, name: str) -> None:
         """A named mark at the newest reading's time (now before any) in every take being recorded."""

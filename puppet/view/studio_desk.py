@@ -11,8 +11,10 @@ of the shot as its base, the layer's joints) is the same recording with the part
 live --over``: the base checked and held by ``puppet.session.layers.LayerPlan``, the live
 readings shown over it (``SwitchedReadings.over``: the base from the same count-in, on the
 page), the take written by ``layer_recorder`` (raw readings, the layer record): the next take
-of the shot is a layer over its base. The studio drives no motors (its bus reader has no cycle
-hook): the base plays on the page, said. Review switches the session's source
+of the shot is a layer over its base. The studio's bus reader drives nothing (no cycle hook):
+on a rig that can drive, the bus is handed to the layer's source for the
+take (``Switchable.layer``: the base's servos driven, torque on, as ``live --over`` drives them;
+torque off, read back, when the take ends); elsewhere the base plays on the page, said. Review switches the session's source
 (``puppet.session.sources.SwitchedReadings``) between the bus and a take on the wall clock.
 """
 
@@ -162,6 +164,7 @@ class StudioDesk:
         self.layering = None        # {"shot", "take", "joints"}: the layer being recorded
         self._layer = None          # its puppet.session.layers.LayerPlan
         self._client = None         # the page whose input is being applied
+        self.switch = None          # the session's Switchable source (its bus for a layer)
         self._looked = 0.0          # when the take files were last looked at (monotonic s)
 
     def attach(self, server, source, recording, key_poses) -> None:
@@ -277,23 +280,23 @@ class StudioDesk:
         if self.writer.current_shot is None:
             self.writer.new_shot(self.writer._first_shot_name())
         path = self.writer.new_take_path()  # a read-only or full disk fails here, naming it
-        zero_ns = time.monotonic_ns() + int(count_in_s * 1e9)
         plan = self._layer
         if plan is None:
+            zero_ns = time.monotonic_ns() + int(count_in_s * 1e9)
             return path, self._open_take(path, zero_ns)
         from puppet.session.layers import layer_recorder
 
+        self.switch.layer(plan, tell=self.tell)  # a base driven: the bus handed over (waits)
+        zero_ns = time.monotonic_ns() + int(count_in_s * 1e9)
         plan.from_ns = zero_ns  # the base starts where the take does
-        recorder = layer_recorder(plan, path, zero_ns=zero_ns, from_ns=zero_ns)
-        self._source.over(plan)
-        return path, recorder
+        return path, layer_recorder(plan, path, zero_ns=zero_ns, from_ns=zero_ns)
 
     def recorded(self, path: Path) -> None:
         """The take at ``path`` was closed: listed as take N of its shot (nothing recorded:
         no file, said)."""
         layer, self.layering, self._layer = self.layering, None, None
         if layer is not None:
-            self._source.over(None)
+            self.switch.unlayer(tell=self.tell)  # a driven base: torque off, read back, said
         if not Path(path).is_file():
             self._say(f"nothing recorded (stopped during the count-in): no take", ok=False)
         else:
@@ -303,6 +306,15 @@ class StudioDesk:
                 f": a layer of {', '.join(layer['joints'])} over take {layer['take']}"
             self._say(f"recorded {shot.name} take {take.number} ({take.duration_s or 0:.1f} s)"
                       + over)
+        self._send()
+
+    def failed(self, path: Path, err) -> None:
+        """The take at ``path`` failed while recording (the Recording part dropped it): a
+        layer's base stops (torque off, read back, said), the failure said."""
+        layer, self.layering, self._layer = self.layering, None, None
+        if layer is not None:
+            self.switch.unlayer(tell=self.tell)
+        self._say(f"recording stopped: {err}", ok=False)
         self._send()
 
     # ---- page input (the loop thread) ----
@@ -402,8 +414,7 @@ class StudioDesk:
         if status != "ok":
             raise PuppetError(f"shot {shot.name!r} take {take.number} is {status}: no base to "
                               "record a layer over")
-        plan = LayerPlan.make(self.rig, self.writer.path(shot, take), joints=m["joints"],
-                              drive=False)
+        plan = LayerPlan.make(self.rig, self.writer.path(shot, take), joints=m["joints"])
         plan.tell = self._layer_note
         for note in plan.notes:
             self._layer_note(f"note: {note}")
@@ -415,11 +426,12 @@ class StudioDesk:
             self._recording.set(True, count_in_s=float(m["count_in"]))
         except BaseException:
             self._layer = self.layering = None
-            self._source.over(None)
+            self.switch.unlayer(tell=self.tell)
             raise
+        where = ("on the page and on the motors (its servos driven, torque on)" if plan.drive
+                 else "on the page")
         self._say(f"recording a layer of {', '.join(m['joints'])} over {shot.name} take "
-                  f"{take.number} after a count-in of {m['count_in']:g} s: the base plays on "
-                  "the page (the studio drives no motors; `puppet live --over` does)")
+                  f"{take.number} after a count-in of {m['count_in']:g} s: the base plays {where}")
 
     def _pick_joint(self, m) -> None:
         """A click on the figure picks the layer's joint there (the page that clicked ticks or
