@@ -151,7 +151,7 @@ def test_a_signal_mid_batch_stops_every_process_and_removes_staging(tmp_path, cr
 @pytest.mark.parametrize("engine", ENGINES)
 def test_a_killed_drivers_workers_die_and_the_next_run_removes_its_staging(tmp_path, critter,
                                                                          tools, wait_until,
-                                                                         engine):
+                                                                         engine, request):
     long_take = tools.write_take(tmp_path / "long.mcap", critter, readings=900, seed=1)
     other = tools.write_take(tmp_path / "other.mcap", critter, seed=2)
     out = tmp_path / "out"
@@ -172,9 +172,11 @@ def test_a_killed_drivers_workers_die_and_the_next_run_removes_its_staging(tmp_p
         wait_until(lambda: not still_running(snapshot, -1), timeout=PATIENCE_S,
                    what="the killed driver's workers gone")
     assert staging_left(out, batch.pid) != []  # what the killed driver left
+    # the next run (Ray: on the session's cluster; the stale staging is the driver's, wherever
+    # its tasks run)
     after = subprocess.run(["puppet", "batch", other, "--out", out, "--formats", "pc2", "--json",
-                            "--engine", engine], capture_output=True, text=True, timeout=600,
-                           cwd=tempfile.gettempdir())
+                            "--engine", engine, *on_cluster(engine, request)],
+                           capture_output=True, text=True, timeout=600, cwd=tempfile.gettempdir())
     assert after.returncode == EXIT_DONE, after.stderr
     assert staging_left(out, batch.pid) == []
     assert outputs(out) == ["other.pc2"]
