@@ -126,6 +126,9 @@ KEY_INDEX = Range(0, 100_000, integer=True)
 """keys delete / goto: a key's index in its shot (0 = the first key)."""
 SKIN_INDEX = Range(0, 1_000_000, integer=True)
 """glTF skin index."""
+AXES_FROM = Range(1, 3 * 2048, integer=True)
+"""rig axes --from: the first turn a sheet shows (three turns a joint, at most puppet.rig.gltf's
+MAX_JOINTS = 2048 joints)."""
 SHOT_SECONDS = Range(0.0, 3600.0, "s")
 """A shot's length: its last key's time, (frame − 1) / fps. Keys are posed by hand, so an hour is
 far beyond any shot (86 401 frames at 24 fps) while everything made from it stays bounded (a

@@ -49,7 +49,7 @@ def rig_init(character: str, out: str | None, skin: int | None, force: bool) -> 
 @click.option("--all", "every_joint", is_flag=True, help="Also joints without a servo, about x, y and z.")
 @click.option("--angle", default=30.0, show_default=True, type=InRange(limits.ANGLE_DEG),
               help=f"Turn shown each way ({limits.ANGLE_DEG}).")
-@click.option("--from", "first", default=1, show_default=True, type=click.IntRange(1, None),
+@click.option("--from", "first", default=1, show_default=True, type=InRange(limits.AXES_FROM),
               help="Show the turns from this one on (1 = the first): the next sheet of a model "
                    "with more turns than one sheet holds.")
 @force_option

@@ -273,6 +273,7 @@ OPTIONS = [
     (["batch"], "--workers", ["t.mcap", "--out", "o"], 1),
     (["rig", "init"], "--skin", ["c.glb"], 1),
     (["rig", "axes"], "--angle", ["r.toml"], 1),
+    (["rig", "axes"], "--from", ["r.toml"], 1),
     (["export"], "--keys", ["take.mcap", "--gltf", "a.glb"], 1),
     (["export"], "--keys-units", ["take.mcap", "--gltf", "a.glb", "--keys", "1"], 1),
     (["batch"], "--keys", ["t.mcap", "--out", "o", "--formats", "gltf"], 1),
