@@ -40,7 +40,8 @@ STALL_PATIENCE_S = 1.0
 (replies still pending: a busy host) is tried again before it fails."""
 IDENTIFY_ROUNDS = 3
 IDENTIFY_PAUSE_S = 0.5
-"""Rounds of pings (3 each) for servos that did not answer, this far apart, before refusing."""
+"""Rounds for servos that did not answer (each asked patiently, ``_find_missing``), this far apart,
+before refusing: a servo still booting."""
 
 
 @dataclass
@@ -162,6 +163,23 @@ class DriveBus:
                 if tries >= attempts:
                     raise
 
+    def _find_missing(self, report: SetupReport) -> None:
+        """Ask each servo of ``report.missing`` again, patiently (``_patient``: a ping's timeout
+        counts once the line proves the silence; a starved host's late reply does not make a
+        servo missing), and identify those that answer into ``report``."""
+        missing, report.missing = report.missing, []
+        answered = {}
+        for dxl_id in missing:
+            try:
+                self._patient(lambda: self.link.ping(dxl_id), dxl_id)
+                answered[dxl_id] = self.models[dxl_id]
+            except PortError:
+                raise
+            except BusError:
+                report.missing.append(dxl_id)
+        if answered:
+            identify(self.link, answered, report)
+
     def _change(self, dxl_id: int, what, old: int, new: int, why: str = "") -> None:
         item = self.item(dxl_id, what)
         self.write(dxl_id, item, new)
@@ -179,8 +197,7 @@ class DriveBus:
             if not report.missing:
                 break
             time.sleep(IDENTIFY_PAUSE_S)
-            missing, report.missing = report.missing, []
-            identify(self.link, {i: self.models[i] for i in missing}, report)
+            self._find_missing(report)
         if report.missing:
             raise DriveError(f"servos {report.missing} did not answer on {self.link.port_name}")
         for dxl_id in self.ids:

