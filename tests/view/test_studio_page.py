@@ -29,7 +29,13 @@ def _open(new_page, process, tools, width=1280, height=800):
     page = new_page()
     page.set_viewport_size({"width": width, "height": height})
     page.goto(process.url)
-    tools.wait_js(page, "puppetView.studio !== null && puppetView.shownSeq >= 0", STUDIO_WAIT_S)
+    try:
+        tools.wait_js(page, "puppetView.studio !== null && puppetView.shownSeq >= 0", STUDIO_WAIT_S)
+    except Exception as err:  # what the page and the studio were doing, for the report
+        seen = page.evaluate("({studio: puppetView.studio !== null, shown: puppetView.shownSeq, "
+                             "connected: puppetView.connected || null})")
+        raise AssertionError(f"{err}\npage: {seen}\nstudio stderr:\n{process.stderr()[-3000:]}"
+                             ) from None
     return page
 
 
