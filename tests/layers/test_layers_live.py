@@ -25,6 +25,7 @@ from puppet.rig.load import BUILTIN_AX_RIG, BUILTIN_RIG
 from puppet.take import TakeReader, TakeWriter
 from puppet.take.header import take_header
 from puppet.take.sync import SoundRef
+from tests.layers.layer_takes import lag_s, raw_copy
 
 _spec = importlib.util.spec_from_file_location(
     "layers_gltf_readers", Path(__file__).parents[1] / "export" / "readers.py")
@@ -124,20 +125,6 @@ def _angle_deg(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return np.degrees((Rotation.from_quat(a[:n]).inv() * Rotation.from_quat(b[:n])).magnitude())
 
 
-def _raw_copy(layer: Path, path: Path) -> Path:
-    """The layer's raw readings as a plain take (the layer dropped from its stack)."""
-    with TakeReader(layer) as reader:
-        m = reader.metadata
-        t, ticks, ok = reader.arrays()
-        with TakeWriter(path, ids=m.ids, models=m.models, rig_map_text=m.rig_map_text,
-                        calibration_text=m.calibration_text, rig_name=m.rig_name) as w:
-            from puppet.reading import Reading
-
-            for r in range(len(t)):
-                w.write(Reading(int(t[r]), m.ids, ticks[r], ok[r]))
-    return path
-
-
 def test_two_passes_export_legs_of_pass_1_arms_of_pass_2_and_free_bones_from_both(
         rig, base, tmp_path):
     layer = tmp_path / "arms.mcap"
@@ -159,7 +146,7 @@ def test_two_passes_export_legs_of_pass_1_arms_of_pass_2_and_free_bones_from_bot
         assert len(reader) > 100
     layered, said = _export(layer)
     legs, _ = _export(base)
-    arms, _ = _export(_raw_copy(layer, tmp_path / "arms_raw.mcap"))
+    arms, _ = _export(raw_copy(layer, tmp_path / "arms_raw.mcap"))
     got, pass1, pass2 = _rotations(layered), _rotations(legs), _rotations(arms)
     for bone in LEGS:
         assert _angle_deg(got[bone], pass1[bone]).max() < 2.0, bone  # pass 1's legs
@@ -295,23 +282,6 @@ def test_a_layer_with_nothing_left_to_perform_and_unknown_joints_are_refused(tmp
     assert "--over" in err, err
 
 
-def _lag_s(base: Path, layer: Path, servo: int) -> tuple[float, float, float]:
-    """(lag s, its RMS ticks, the RMS ticks 1 s late): the shift of the layer's raw readings of ``servo`` (driven to the
-    base) against the base's that fits best, both on their take time (time 0: first reading)."""
-    with TakeReader(base) as reader:
-        bt, bticks, _ = reader.arrays()
-        col = list(reader.metadata.ids).index(servo)
-        b_t, b = (bt - bt[0]) / 1e9, bticks[:, col].astype(float)
-    with TakeReader(layer) as reader:
-        lt, lticks, _ = reader.arrays()
-        l_t, lay = (lt - lt[0]) / 1e9, lticks[:, col].astype(float)
-    keep = (l_t > 0.3) & (l_t < b_t[-1] - 0.3)  # the base plays (the gentle start left out)
-    fits = {round(d, 2): float(np.sqrt(np.mean((lay[keep] - np.interp(l_t[keep] - d, b_t, b)) ** 2)))
-            for d in np.arange(-0.6, 1.21, 0.01)}
-    lag = min(fits, key=fits.get)
-    return lag, fits[lag], fits[1.0]
-
-
 def test_a_count_in_over_a_base_starts_the_base_at_the_layer_s_time_0(rig, base, tmp_path):
     layer = tmp_path / "arms.mcap"
     with hw_sim.serve(dict(rig.servo_map.models), motion=Swing(ARM_IDS, 1.5)) as bus:
@@ -325,6 +295,6 @@ def test_a_count_in_over_a_base_starts_the_base_at_the_layer_s_time_0(rig, base,
         assert reader.metadata.layer.servos == ARM_IDS
         assert (t[-1] - t[0]) / 1e9 < 2.6  # from the count-in's end: the count-in not kept
     # the driven legs follow the base from the layer's time 0: not a count-in (1 s) late
-    lag, rms, late = _lag_s(base, layer, LEG_IDS[0])
+    lag, rms, late = lag_s(base, layer, LEG_IDS[0], settle_s=0.3)
     assert abs(lag) < 0.2, (lag, rms, late)
     assert rms < 0.5 * late, (lag, rms, late)  # a clear fit: the servo follows the base

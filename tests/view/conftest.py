@@ -183,6 +183,22 @@ def open_view(new_page, target, frames: int = 3):
     return page
 
 
+def open_studio(new_page, process, width: int = 1280, height: int = 800, timeout: float = 120.0):
+    """A page on a running ``puppet studio`` (a PuppetProcess), once it shows the studio and a
+    frame; a page that never does says what it saw and the studio's stderr."""
+    page = new_page()
+    page.set_viewport_size({"width": width, "height": height})
+    page.goto(process.url)
+    try:
+        wait_js(page, "puppetView.studio !== null && puppetView.shownSeq >= 0", timeout)
+    except Exception as err:  # what the page and the studio were doing, for the report
+        seen = page.evaluate("({studio: puppetView.studio !== null, shown: puppetView.shownSeq, "
+                             "connected: puppetView.connected})")
+        raise AssertionError(f"{err}\npage: {seen}\nstudio stderr:\n{process.stderr()[-3000:]}"
+                             ) from None
+    return page
+
+
 def is_character(block) -> bool:
     """Any pixel of the (warm, orange) character in a block (h, w, 3) of a frame."""
     rgb = block.reshape(-1, 3).astype(int)

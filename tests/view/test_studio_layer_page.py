@@ -19,8 +19,9 @@ from scipy.spatial.transform import Rotation
 
 from puppet.rig import load_rig
 from puppet.rig.load import BUILTIN_RIG
-from puppet.take import Playback, TakeReader, TakeWriter
+from puppet.take import Playback, TakeReader
 from puppet.take.layers import LayerOptions
+from tests.layers.layer_takes import lag_s, raw_copy
 
 STUDIO_WAIT_S = 120.0
 ARMS = ("upperarm_L", "forearm_L", "upperarm_R", "forearm_R")
@@ -52,23 +53,6 @@ def _said(page, tools, text: str):
                                "puppetView.studio.said.text", STUDIO_WAIT_S)
 
 
-def _lag_s(base, layer, servo: int) -> tuple[float, float, float]:
-    """(lag s, its RMS ticks, the RMS ticks 1 s late): the shift of the layer's raw readings of
-    ``servo`` (driven to the base) against the base's that fits best (time 0: first reading)."""
-    with TakeReader(base) as reader:
-        bt, bticks, _ = reader.arrays()
-        col = list(reader.metadata.ids).index(servo)
-        b_t, b = (bt - bt[0]) / 1e9, bticks[:, col].astype(float)
-    with TakeReader(layer) as reader:
-        lt, lticks, _ = reader.arrays()
-        l_t, lay = (lt - lt[0]) / 1e9, lticks[:, col].astype(float)
-    keep = (l_t > 0.5) & (l_t < b_t[-1] - 0.3)  # the base plays (the gentle start left out)
-    fits = {round(d, 2): float(np.sqrt(np.mean((lay[keep] - np.interp(l_t[keep] - d, b_t, b)) ** 2)))
-            for d in np.arange(-0.6, 1.21, 0.01)}
-    lag = min(fits, key=fits.get)
-    return lag, fits[lag], fits[1.0]
-
-
 def _recording(page, tools, process, condition: str):
     """Wait until the page's recording state meets ``condition`` (JS); a timeout says the
     page's state and the studio's stderr."""
@@ -96,20 +80,6 @@ def _playback(path, rig, **options):
     with TakeReader(path) as reader:
         return np.stack([r.ticks for r in Playback.of_take(reader, rig.servo_map.ids, fps=30.0,
                                                            **options)]).astype(np.int64)
-
-
-def _raw_copy(layer, path):
-    """The layer's raw readings as a plain take (what the bus read in pass 2)."""
-    from puppet.reading import Reading
-
-    with TakeReader(layer) as reader:
-        m = reader.metadata
-        t, ticks, ok = reader.arrays()
-        with TakeWriter(path, ids=m.ids, models=m.models, rig_map_text=m.rig_map_text,
-                        calibration_text=m.calibration_text, rig_name=m.rig_name) as w:
-            for r in range(len(t)):
-                w.write(Reading(int(t[r]), m.ids, ticks[r], ok[r]))
-    return path
 
 
 def _export(tools, take, out):
@@ -141,10 +111,7 @@ def test_a_layer_recorded_from_the_page_is_the_next_take_and_plays_composed(new_
     process = tools.PuppetProcess(["studio", str(folder), "--demo", "--address",
                                    f"127.0.0.1:{tools.free_port()}"], tmp_path)
     try:
-        page = new_page()
-        page.set_viewport_size({"width": 1280, "height": 900})
-        page.goto(process.url)
-        tools.wait_js(page, "puppetView.studio !== null && puppetView.shownSeq >= 0", STUDIO_WAIT_S)
+        page = tools.open_studio(new_page, process, 1280, 900, STUDIO_WAIT_S)
         page.get_by_label("shot name").fill("walk")
         page.get_by_role("button", name="new shot", exact=True).click()
         _said(page, tools, "new shot 'walk'")
@@ -214,12 +181,12 @@ def test_a_layer_recorded_from_the_page_is_the_next_take_and_plays_composed(new_
     others = [n for n in range(len(rig.servo_map.ids)) if n not in cols]
     composed = _playback(layer, rig)
     through = _playback(layer, rig, layers=LayerOptions(mute=frozenset({layer})))  # the base
-    raw = _playback(_raw_copy(layer, tmp_path / "pass2.mcap"), rig)
+    raw = _playback(raw_copy(layer, tmp_path / "pass2.mcap"), rig)
     np.testing.assert_array_equal(composed[:, others], through[:, others])
     assert np.abs(composed[:, cols] - raw[:, cols]).max() <= 1  # (a tick of rounding)
     assert np.abs(composed[:, cols] - through[:, cols]).max() > 50  # pass 2's arms, not pass 1's
     # on the motors: the base's servos, driven, followed the base from the layer's time 0
-    lag, rms, late = _lag_s(base, layer, driven[0])
+    lag, rms, late = lag_s(base, layer, driven[0], settle_s=0.5)
     # (the fit is looser than live --over's on a loaded machine: the page's renders share the
     # process with the goal feeder; the lag is the check)
     assert abs(lag) < 0.25 and rms < 0.8 * late, (lag, rms, late)
@@ -257,10 +224,7 @@ def test_a_studio_stopped_while_a_layer_drives_its_base_turns_torque_off(new_pag
                                        bus.port, "--address", f"127.0.0.1:{tools.free_port()}"],
                                       tmp_path)
         try:
-            page = new_page()
-            page.goto(process.url)
-            tools.wait_js(page, "puppetView.studio !== null && puppetView.shownSeq >= 0",
-                          STUDIO_WAIT_S)
+            page = tools.open_studio(new_page, process, timeout=STUDIO_WAIT_S)
             page.get_by_label("shot name").fill("walk")
             page.get_by_role("button", name="new shot", exact=True).click()
             _said(page, tools, "new shot 'walk'")

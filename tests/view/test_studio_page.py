@@ -26,17 +26,7 @@ def _studio(tools, folder: Path, cwd: Path, *extra: str):
 
 
 def _open(new_page, process, tools, width=1280, height=800):
-    page = new_page()
-    page.set_viewport_size({"width": width, "height": height})
-    page.goto(process.url)
-    try:
-        tools.wait_js(page, "puppetView.studio !== null && puppetView.shownSeq >= 0", STUDIO_WAIT_S)
-    except Exception as err:  # what the page and the studio were doing, for the report
-        seen = page.evaluate("({studio: puppetView.studio !== null, shown: puppetView.shownSeq, "
-                             "connected: puppetView.connected || null})")
-        raise AssertionError(f"{err}\npage: {seen}\nstudio stderr:\n{process.stderr()[-3000:]}"
-                             ) from None
-    return page
+    return tools.open_studio(new_page, process, width, height, STUDIO_WAIT_S)
 
 
 def _said(page, tools, text: str):
@@ -325,7 +315,8 @@ def test_the_shot_sound_under_the_timeline_heard_from_the_take_time_0(new_page, 
         page.get_by_role("button", name="review", exact=True).click()
         _said(page, tools, "reviewing lines take 1")
         stored = page.evaluate("puppetView.studio.reviewing.sound_offset_s")
-        assert stored is not None and 0 <= stored < 0.1  # the sound's time at the first reading
+        # the sound's time at the first reading: just after the count-in (later on a loaded host)
+        assert stored is not None and 0 <= stored < 1.0
         count = page.evaluate("puppetView.audio.starts.length")
         page.get_by_role("button", name="play", exact=True).click()
         tools.wait_js(page, f"puppetView.audio.starts.length > {count}", STUDIO_WAIT_S)
@@ -385,6 +376,31 @@ CONTROLS_JS = """(() => Array.from(document.querySelectorAll('button, input, sel
                   || el.textContent || el.title || el.placeholder || '').trim();
     return { id: el.id || el.outerHTML.slice(0, 60), w: box.width, h: box.height, name,
              disabled: el.disabled, opacity: Number(getComputedStyle(el).opacity) }; }))()"""
+
+
+def test_the_studio_shows_when_its_script_loads_after_the_first_messages(new_page, tools,
+                                                                       tmp_path):
+    """studio.js held back 1.5 s (a slow fetch, a loaded machine): the page connects once every
+    script has run, so the snapshot reaches the studio's handler (it went to the plain view's,
+    and the page never showed its studio: a CI failure)."""
+    import time
+
+    process = _studio(tools, tmp_path / "shoot", tmp_path)
+    try:
+        page = new_page()
+
+        def slow(route):
+            time.sleep(1.5)  # the stimulus: a script that arrives late
+            route.continue_()
+
+        page.route("**/static/studio.js", slow)
+        page.goto(process.url)
+        tools.wait_js(page, "puppetView.shownSeq >= 0", STUDIO_WAIT_S)
+        tools.wait_js(page, "puppetView.studio !== null && puppetView.studio.shots !== undefined",
+                      STUDIO_WAIT_S)
+        assert page.is_visible("#studio")
+    finally:
+        assert process.stop() == 0, process.stderr()
 
 
 def test_a_first_timer_can_use_the_page(new_page, tools, tmp_path):

@@ -563,5 +563,9 @@ setInterval(() => {
   $("fps").textContent = state.fps.toFixed(0);
 }, 500);
 
-connectControl();
-connectFrames();
+// Connect once every script of the page has run: the studio's (studio.js, after this one) extends
+// the handlers, and a snapshot that arrived while it was still loading went to the plain view's
+// (the page then never showed its studio).
+function connect() { connectControl(); connectFrames(); }
+if (document.readyState === "loading") document.addEventListener("DOMContentLoaded", connect);
+else connect();
