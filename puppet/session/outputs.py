@@ -93,12 +93,19 @@ class Video(Output):
         import imageio_ffmpeg
 
         from puppet.atomic import check_output
+        from puppet.child_signals import children_deaf_to_ctrl_c
 
         if self.sound is not None:
             inputs = [*inputs, self.sound.path]
         check_output(self.path, kind="video", inputs=inputs, force=self.force, what="video")
         _writable_folder(self.path, self.option)
-        imageio_ffmpeg.get_ffmpeg_exe()  # found (and cached) now: its probe runs no later
+        # found (and cached) now: its probe (``ffmpeg -version``, a child) runs no later, deaf to
+        # a Ctrl-C, which is the session's (a probe killed by it read as "no ffmpeg")
+        with children_deaf_to_ctrl_c():
+            try:
+                imageio_ffmpeg.get_ffmpeg_exe()
+            except RuntimeError as err:
+                raise PuppetError(f"{self.option}: no ffmpeg to encode the video ({err})") from None
 
     def open(self, run) -> None:
         from puppet.render import VideoSink
