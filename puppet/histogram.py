@@ -17,7 +17,7 @@ import math
 import numpy as np
 
 BIN_MS = 0.05
-"""Width of one bin, milliseconds (a percentile is within half of it of the exact value)."""
+"""Width of one bin, milliseconds (a percentile is within one bin of the exact value)."""
 RANGE_MS = 1000.0
 """Values up to this many milliseconds are binned exactly; larger ones share the last bin."""
 BINS = int(RANGE_MS / BIN_MS) + 1
