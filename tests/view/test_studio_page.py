@@ -404,6 +404,15 @@ EXPORTS_SEEN_JS = """(() => { window.exportsSeen = []; const shown = handlers.st
                                     total: m.export.total, value: bar.value, max: bar.max}); }; })()"""
 
 
+def _video_frames_and_fps(path: Path) -> tuple[int, float]:
+    import imageio_ffmpeg
+
+    reader = imageio_ffmpeg.read_frames(str(path))
+    meta = next(reader)
+    count = sum(1 for _ in reader)
+    return count, float(meta["fps"])
+
+
 def _export_on_page(page, tools, button: str) -> list:
     """Press an export button; wait until the export ended. Returns the progress the page was
     sent and showed ({running, done, total, value, max} per studio message), this export's."""
@@ -417,7 +426,7 @@ def _export_on_page(page, tools, button: str) -> list:
 def test_an_export_from_the_page_at_the_shots_rate_with_keys_and_progress(new_page, tools,
                                                                          tmp_path):
     """A 24 fps shot (``--fps 24``) exports at 24 unless the page says otherwise; the keys
-    reduction field is the export's ``--keys``; BVH beside glTF; the progress bar shows the
+    reduction field is the export's ``--keys``; BVH and MP4 beside glTF; the progress bar shows the
     export running, then done; outputs in the session's exports/<shot>/."""
     folder = tmp_path / "shoot"
     process = _studio(tools, folder, tmp_path, "--fps", "24")
@@ -430,6 +439,7 @@ def test_an_export_from_the_page_at_the_shots_rate_with_keys_and_progress(new_pa
         _record(page, tools, "walk", 1, count_in="0")
         _select(page, "walk", 1)
         page.get_by_role("checkbox", name="BVH").check()
+        page.get_by_role("checkbox", name="MP4").check()
         page.get_by_label("keys reduction degrees").fill("0.5")
         seen = _export_on_page(page, tools, "export take")
         said = _said(page, tools, "exported walk take 1")
@@ -446,8 +456,11 @@ def test_an_export_from_the_page_at_the_shots_rate_with_keys_and_progress(new_pa
         assert max(counts) <= frames and min(counts) < frames / 2, (frames, counts)  # reduced
         bvh = (folder / "exports" / "walk" / "take001.bvh").read_text()
         assert "Frame Time: 0.041666667" in bvh and f"Frames: {frames}" in bvh
+        video = folder / "exports" / "walk" / "take001.mp4"  # the picture, at the shot's rate
+        assert _video_frames_and_fps(video) == (frames, 24.0)
 
         page.get_by_role("checkbox", name="BVH").uncheck()
+        page.get_by_role("checkbox", name="MP4").uncheck()
         page.get_by_label("keys reduction degrees").fill("")
         page.get_by_label("export fps").fill("12")  # told otherwise: at 12, every frame
         _export_on_page(page, tools, "export take")
