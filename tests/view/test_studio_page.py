@@ -63,6 +63,30 @@ def _record(page, tools, shot: str, number: int, count_in: str = "1"):
     return takes[-1]
 
 
+def _seam_and_median_step(gltf) -> tuple[float, float]:
+    """(the largest bone rotation from the animation's last frame to its first, the median
+    over frames of the largest from one frame to the next), radians, from a glTF's keys."""
+    import numpy as np
+
+    blob = gltf.binary_blob()
+    quats = []
+    for channel in gltf.animations[0].channels:
+        if channel.target.path != "rotation":
+            continue
+        sampler = gltf.animations[0].samplers[channel.sampler]
+        accessor = gltf.accessors[sampler.output]
+        view = gltf.bufferViews[accessor.bufferView]
+        quats.append(np.frombuffer(blob, np.float32, accessor.count * 4, (view.byteOffset or 0)
+                                   + (accessor.byteOffset or 0)).reshape(-1, 4))
+    q = np.stack(quats)  # (bones, frames, 4)
+
+    def angle(a, b):
+        return 2 * np.arccos(np.clip(np.abs((a * b).sum(-1)), 0.0, 1.0))
+
+    steps = angle(q[:, 1:], q[:, :-1]).max(axis=0)
+    return float(angle(q[:, -1], q[:, 0]).max()), float(np.median(steps))
+
+
 def _select(page, shot: str, number: int):
     page.get_by_label("current shot").select_option(label=shot)
     page.get_by_role("button", name=f"{shot} take {number}").click()
@@ -219,6 +243,10 @@ def test_a_session_of_two_shots_and_three_takes(new_page, tools, tmp_path):
     frames = clip.scenes[clip.scene or 0].extras
     whole = gltf.scenes[gltf.scene or 0].extras
     assert frames["puppet_frame_end"] < whole["puppet_frame_end"]  # the clip: 60 % of the take
+    # the loop's seam, in the file: its last frame to its first jumps no more than the clip's
+    # median frame-to-frame motion (a performance's clip: the out point may fall in a fast move)
+    seam, median = _seam_and_median_step(clip)
+    assert seam <= median, (seam, median)
     video = tmp_path / "walk1.mp4"
     run = subprocess.run([*tools.PUPPET, "play", str(folder / "takes" / "walk" / "take001.mcap"),
                           "--out", str(video)], capture_output=True, text=True, timeout=600)
