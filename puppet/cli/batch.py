@@ -33,8 +33,9 @@ EXIT_FAILED = 3     # some takes failed or timed out (their rows say why); the o
 @click.option("--formats", default="gltf,usd,pc2,bvh", show_default=True,
               help="Comma-separated, of mp4 (as puppet play), gltf, usd, pc2, bvh (as puppet "
                    "export).")
-@click.option("--fps", default="30", show_default=True,
-              help=f"Frames per second of every output ({limits.FPS}).")
+@click.option("--fps", default=None,
+              help=f"Frames per second of every output ({limits.FPS}) [default: 30; a session "
+                   "folder's: the rate its takes were recorded at, when they agree].")
 @click.option("--size", nargs=2, type=InRange(limits.FRAME_SIZE), default=(640, 480),
               show_default=True, metavar="W H",
               help=f"Video size in pixels (mp4), each {limits.FRAME_SIZE}.")
@@ -104,11 +105,14 @@ def batch(takes: tuple[str, ...], out: str | None, circled: bool, rig_path: str 
         for note in chosen.notes:
             click.echo(f"warning: {note}", err=True)
         takes, base, out = tuple(map(str, chosen.takes)), chosen.base, out or str(chosen.out)
+        if fps is None and chosen.fps is not None:  # a 24 fps shot exports at 24
+            fps = f"{chosen.fps:g}"
     elif circled:
         raise BatchError(f"--circled: picks a session folder's circled takes; {takes[0]} is not "
                          "a session folder (no session.json, no takes/)")
     if out is None:
         raise BatchError("--out: missing (only a session folder has a default: its exports/)")
+    fps = "30" if fps is None else fps
     rig = None if rig_path is None else load_rig(rig_path)
     bar = None
     total = finished = 0

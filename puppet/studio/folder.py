@@ -134,6 +134,10 @@ class SessionFolder:
                 status = self.status(shot, take)
                 if status != OK:
                     flags.append(status)
+                if take.layer_over is not None:
+                    base = next((t for t in shot.takes if t.file == take.layer_over), None)
+                    flags.insert(0, f"layer over take {base.number}" if base is not None
+                                 else f"layer over {take.layer_over}")
                 duration = "?" if take.duration_s is None else f"{take.duration_s:.2f} s"
                 segments = f"  segments: {', '.join(s.name for s in take.segments)}" \
                     if take.segments else ""

@@ -8,11 +8,15 @@
                            "duration_s": 12.4, "readings": 372, "note": "", "circled": true,
                            "locked": false, "trashed": false,
                            "segments": [{"name": "step", "in_s": 1.0, "out_s": 3.5,
-                                         "loop": true}]}]}]}
+                                         "loop": true}],
+                           "layer_over": null}]}]}
 
 Dates are UTC, ISO 8601. ``duration_s`` is seconds from the take's first reading to its last
 (None when the take could not be read); a segment's ``in_s`` / ``out_s`` are seconds on the same
-clock (0 = the first reading). ``file`` is where the take lives (``layout.take_file``), written
+clock (0 = the first reading). ``layer_over`` (optional: absent reads as null) is the base of a
+layer take (``puppet live --over``, "record a layer" on the page): its ``file`` when the base is a
+take of this session (takes/walk/take003.mcap), else its absolute path; null for a take of its
+own. ``file`` is where the take lives (``layout.take_file``), written
 for a person reading the index; a trashed take lies at ``layout.trash_file`` instead.
 
 ``decode`` checks every field and raises IndexDamaged naming the first bad one
@@ -37,6 +41,8 @@ from puppet.studio.errors import IndexDamaged, IndexTooNew
 
 FORMAT = "puppet session"
 VERSION = 1
+LAYER_OVER_CHARS = 4096
+"""A layer's base path in the index: at most this long (a path, PATH_MAX)."""
 
 
 def utc_text(unix_ns: int | None = None) -> str:
@@ -64,7 +70,9 @@ class Take:
     started (UTC, ISO 8601); rig: the rig's name it was recorded with (None: unreadable take);
     duration_s: first to last reading, seconds (None: unreadable); readings: how many; note:
     the user's words (at most limits.NOTE_CHARS); circled: a good one; locked: read-only (no
-    note, circle, segment or delete); trashed: in the session's trash (restorable)."""
+    note, circle, segment or delete); trashed: in the session's trash (restorable);
+    layer_over: the base of a layer take (the base's ``file`` when it is a take of the session,
+    else its absolute path), None for a take of its own."""
 
     number: int
     file: str
@@ -77,6 +85,7 @@ class Take:
     locked: bool = False
     trashed: bool = False
     segments: list[Segment] = field(default_factory=list)
+    layer_over: str | None = None
 
 
 @dataclass
@@ -190,7 +199,9 @@ def _decode_take(check: "_Fields", item, at: str, key: str) -> Take:
                 readings=check.integer(data, "readings", at, None),
                 note=check.text(data, "note", at, limits.NOTE_CHARS),
                 circled=check.flag(data, "circled", at), locked=check.flag(data, "locked", at),
-                trashed=check.flag(data, "trashed", at))
+                trashed=check.flag(data, "trashed", at),
+                layer_over=(check.text(data, "layer_over", at, LAYER_OVER_CHARS, none=True)
+                            if "layer_over" in data else None))
     segments = check.list(data, "segments", at, limits.SEGMENTS_PER_TAKE)
     for s, segment_item in enumerate(segments):
         sat = f"{at}.segments[{s}]"

@@ -21,14 +21,16 @@ from puppet.studio.index import Index, Shot, Take, utc_text
 @dataclass(frozen=True)
 class TakeFacts:
     """What a take file says about itself: date (UTC ISO 8601, when recording started), rig
-    (its rig's name), duration_s (first to last reading, s), readings (how many); rig and
-    duration_s are None, and problem says why, when the file cannot be read as a take."""
+    (its rig's name), duration_s (first to last reading, s), readings (how many), layer_over
+    (a layer's base: ``layer_base``); rig and duration_s are None, and problem says why, when
+    the file cannot be read as a take."""
 
     date: str
     rig: str | None
     duration_s: float | None
     readings: int
     problem: str | None = None
+    layer_over: str | None = None
 
 
 def take_facts(path: str | os.PathLike) -> TakeFacts:
@@ -42,7 +44,26 @@ def take_facts(path: str | os.PathLike) -> TakeFacts:
         return TakeFacts(_file_date(path), None, None, 0, err.reason)
     created = reader.metadata.created_unix_ns
     return TakeFacts(utc_text(created) if created > 0 else _file_date(path),
-                     reader.metadata.rig_name, round(reader.duration_s, 6), len(reader))
+                     reader.metadata.rig_name, round(reader.duration_s, 6), len(reader),
+                     layer_over=layer_base(reader))
+
+
+def layer_base(reader) -> str | None:
+    """The base of the layer take open in ``reader`` as the index names it: the base's ``file``
+    (takes/<shot>/take003.mcap) when it is a take of the same session folder (the layer in
+    takes/ or trash/), else its absolute path; None when the take is no layer."""
+    from puppet.take.layers import base_path
+
+    if reader.metadata.layer is None:
+        return None
+    base = base_path(reader).resolve()
+    session = Path(reader.path).resolve().parent.parent.parent
+    number = layout.take_number(base.name)
+    if (number is not None and base.parent.parent in (session / layout.TAKES,
+                                                      session / layout.TRASH)
+            and layout.is_shot_key(base.parent.name)):
+        return layout.take_file(base.parent.name, number)
+    return str(base)
 
 
 def _file_date(path) -> str:
@@ -56,7 +77,7 @@ def new_take(shot_key: str, number: int, facts: TakeFacts, *, trashed: bool = Fa
     """An index entry for take ``number`` of a shot, from its facts."""
     return Take(number=number, file=layout.take_file(shot_key, number), date=facts.date,
                 rig=facts.rig, duration_s=facts.duration_s, readings=facts.readings,
-                trashed=trashed)
+                trashed=trashed, layer_over=facts.layer_over)
 
 
 def found_takes(folder: Path) -> dict[tuple[str, int], tuple[Path, bool]]:

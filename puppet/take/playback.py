@@ -32,8 +32,10 @@ take sampled at both ends). A clip played as a loop (``loop=True``, with the rig
 ``joint_rotations``) has its seam blended in solve space: each frame carries its joints'
 rotations (``Reading.rotations``: the solve is posed from them), and over the clip's last
 ``loop_blend_s`` (at most half the clip) the rotations are turned, by a smoothstep share of the
-seam's rotation per joint, so that the frame after the last would be the first: the jump from the
-last frame back to the first is about one frame's motion, not the pose's difference.
+seam's rotation per joint, so that the last frame is one step before the first: the clip's last
+step per joint, no larger than that joint's median step in the clip. The jump from the last frame
+back to the first is then no larger than the clip's median frame-to-frame motion, not the pose's
+difference (nor a fast last step's).
 """
 
 from __future__ import annotations
@@ -208,9 +210,10 @@ class Playback:
 
     def _blended_loop(self, joint_rotations, blend_s: float) -> np.ndarray:
         """(N, b, 3, 3) every frame's joint rotations, the last ``blend_s`` turned toward the
-        first frame (the module docstring): R'_f = slerp(I, D, w_f) R_f per joint, D = R_0 R_N^T
-        with R_N the frame after the last (R_{N-1} moved on by the last frame's motion) and
-        w_f a smoothstep from 0 (blend start) to 1 (at frame N)."""
+        first frame (the module docstring): R'_f = slerp(I, D, w_f) R_f per joint, D = T R_{N-1}^T
+        with T = S^T R_0 the pose one step S before the first frame (S: the last frame's step,
+        its angle at most the joint's median step over the clip) and w_f a smoothstep from 0
+        (blend start) to 1 (at the last frame, which becomes T)."""
         from scipy.spatial.transform import Rotation
 
         n = self._count
@@ -224,16 +227,21 @@ class Playback:
         if n < 3:
             return rot
         b = rot.shape[1]
-        step = np.einsum("bij,bkj->bik", rot[-1], rot[-2])           # R_{N-1} R_{N-2}^T
-        after = np.einsum("bij,bjk->bik", step, rot[-1])              # R_N
-        seam = np.einsum("bij,bkj->bik", rot[0], after)               # D = R_0 R_N^T
+        steps = Rotation.from_matrix(np.einsum("nbij,nbkj->nbik", rot[1:], rot[:-1])
+                                     .reshape(-1, 3, 3)).as_rotvec().reshape(n - 1, b, 3)
+        angles = np.linalg.norm(steps, axis=2)                        # (N - 1, b) rad
+        most = np.median(angles, axis=0)                              # each joint's median step
+        scale = np.minimum(1.0, most / np.maximum(angles[-1], 1e-12))
+        step = Rotation.from_rotvec(steps[-1] * scale[:, None]).as_matrix()  # S
+        target = np.einsum("bji,bjk->bik", step, rot[0])              # T = S^T R_0
+        seam = np.einsum("bij,bkj->bik", target, rot[-1])             # D = T R_{N-1}^T
         frames = max(2, min(int(round(blend_s * self.fps / self.speed)), n // 2))
-        start = n - frames  # frame N has w = 1; frame start has w = 0
-        d = Rotation.from_matrix(seam)
+        start = n - frames  # frame start has w = 0; the last frame has w = 1
+        d = Rotation.from_matrix(seam).as_rotvec()
         for f in range(start, n):
-            x = (f - start) / frames
+            x = (f - start) / (frames - 1)
             w = x * x * (3.0 - 2.0 * x)
-            turn = Rotation.from_rotvec(d.as_rotvec() * w).as_matrix()  # slerp(I, D, w)
+            turn = Rotation.from_rotvec(d * w).as_matrix()            # slerp(I, D, w)
             rot[f] = np.einsum("bij,bjk->bik", turn, rot[f])
         return np.ascontiguousarray(rot.reshape(n, b, 3, 3))
 

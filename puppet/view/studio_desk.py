@@ -124,18 +124,6 @@ def _file_part(name: str) -> str:
     return "".join(c if c.isalnum() or c in "-_" else "_" for c in name)[:60] or "clip"
 
 
-def _recorded_fps(paths) -> float | None:
-    """The frame rate the takes were recorded at (their start timecode's), when they agree: a
-    24 fps shot exports at 24 unless told otherwise; None: the export's default."""
-    from puppet.take import TakeReader
-
-    rates = set()
-    for path in paths:
-        timecode = TakeReader(path).metadata.timecode
-        rates.add(None if timecode is None else float(timecode.rate.fps))
-    return rates.pop() if len(rates) == 1 else None
-
-
 class StudioDesk:
     """writer: the open SessionWriter (its lock held for the session's life); rig: the
     session's rig; open_take(path, zero_ns): the take recorder of the session (count-in end at
@@ -575,7 +563,9 @@ class StudioDesk:
             chosen = [(shot, take, self.writer.path(shot, take))]
             batch = ["batch", str(chosen[0][2]), "--out", str(folder / "exports" / shot.key)]
             what = f"{shot.name} take {take.number}"
-        fps = m["fps"] if m["fps"] is not None else _recorded_fps([p for _, _, p in chosen])
+        from puppet.studio.exports import recorded_fps
+
+        fps = m["fps"] if m["fps"] is not None else recorded_fps([p for _, _, p in chosen])
         rate = [] if fps is None else ["--fps", f"{fps:g}"]
         keys = [] if m["keys"] is None else ["--keys", f"{m['keys']:g}"]
         jobs = [[*batch, "--formats", ",".join(formats), "--workers", "1", *rate, *keys]]

@@ -15,14 +15,15 @@ MODELS = {3: "XL430-W250", 7: "XL430-W250", 11: "XM430-W350"}
 
 
 def write_take(path, readings=31, rate_hz=30.0, rig_name="bench", ids=IDS, models=MODELS,
-               zero=None, seed=0):
+               zero=None, seed=0, layer=None, timecode=None):
     """A take of ``readings`` readings at ``rate_hz`` (its duration: (readings - 1) / rate_hz);
-    ticks move around ``zero`` (default 2048)."""
+    ticks move around ``zero`` (default 2048); layer: its layer record (a LayerRef), if any;
+    timecode: its start timecode (a StartTimecode: the rate it was recorded at), if any."""
     ids = np.asarray(ids)
     k = len(ids)
     zero = np.full(k, 2048) if zero is None else np.asarray(zero)
     with TakeWriter(path, ids=ids, models=models, rig_map_text="", calibration_text="",
-                    rig_name=rig_name) as writer:
+                    rig_name=rig_name, layer=layer, timecode=timecode) as writer:
         for i in range(readings):
             ticks = (zero + 300 * np.sin(0.2 * i + seed + np.arange(k))).astype(np.int32)
             writer.write(Reading(1_000_000_000 + round(i * 1e9 / rate_hz), ids, ticks,

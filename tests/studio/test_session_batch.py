@@ -94,3 +94,39 @@ def test_batch_session_bad_input(shoot, tmp_path, kit):
     assert result.returncode == 1
     assert f"Error: {tmp_path / 'plain'}: no circled takes to batch" in result.stderr
     assert not any((tmp_path / "plain" / "exports").iterdir())
+
+
+def test_batch_of_a_24_fps_session_exports_at_24_unless_told(tmp_path, kit, critter):
+    """Takes recorded at 24 fps (``puppet studio --fps 24``: their start timecode's rate)
+    export at 24 from ``puppet batch SESSION``, as from the page; --fps says otherwise; takes
+    of two rates (or none) export at the default 30."""
+    import pygltflib
+
+    from puppet.timecode import StartTimecode
+
+    servo_map = critter.servo_map
+    rig = dict(ids=[int(i) for i in servo_map.ids], models=dict(servo_map.models),
+               zero=servo_map.zero, rig_name=critter.name, readings=13)
+    folder = tmp_path / "shoot"
+    with SessionWriter.open(folder) as session:
+        session.new_shot("walk")
+        kit.record(session, timecode=StartTimecode("01:00:00:00", "24"), **rig)
+        session.circle("walk", 1)
+
+    def fps_of(glb):
+        return pygltflib.GLTF2().load_binary(str(glb)).scenes[0].extras["puppet_fps"]
+
+    glb = folder / "exports" / "walk" / "take001.glb"
+    result = run("batch", folder, "--circled", "--formats", "gltf", "--workers", 1)
+    assert result.returncode == 0, result.stderr
+    assert fps_of(glb) == 24.0
+    result = run("batch", folder, "--circled", "--formats", "gltf", "--workers", 1, "--fps", 30)
+    assert result.returncode == 0, result.stderr
+    assert fps_of(glb) == 30.0
+
+    with SessionWriter.open(folder) as session:
+        kit.record(session, timecode=StartTimecode("01:00:00:00", "25"), **rig)
+        session.circle("walk", 2)
+    result = run("batch", folder, "--circled", "--formats", "gltf", "--workers", 1)
+    assert result.returncode == 0, result.stderr
+    assert fps_of(glb) == fps_of(folder / "exports" / "walk" / "take002.glb") == 30.0

@@ -203,6 +203,46 @@ def test_takes_found_on_disk_are_listed(tmp_path, kit):
         assert session.take("shot 1", 1)[1].readings == 31
 
 
+def test_a_layer_take_names_its_base(tmp_path, kit):
+    """A layer take (recorded over take 1) is listed naming its base, in the index, in the
+    listing and in the table; so after a rebuild, from takes/ and from the trash; an index
+    written before the field existed reads as no layer."""
+    from puppet.take.layers import LayerRef
+
+    folder = tmp_path / "s"
+    with SessionWriter.open(folder) as session:
+        session.new_shot("walk")
+        base = kit.record(session)
+        path = session.new_take_path()
+        kit.write_take(path, layer=LayerRef.over(folder / base.file, path, [3], rig_name="bench"))
+        layer = session.add_take(path)
+        plain = kit.record(session)
+    assert (base.layer_over, layer.layer_over, plain.layer_over) == (
+        None, "takes/walk/take001.mcap", None)
+    assert [t["layer_over"] for t in index_of(folder)["shots"][0]["takes"]] == [
+        None, "takes/walk/take001.mcap", None]
+    reader = SessionFolder.read(folder)
+    assert [t["layer_over"] for t in reader.listing()["shots"][0]["takes"]] == [
+        None, "takes/walk/take001.mcap", None]
+    assert "take   2" in reader.table() and "layer over take 1" in reader.table()
+    assert reader.table().count("layer over") == 1
+
+    with SessionWriter.open(folder) as session:
+        session.delete("walk", 2)
+    (folder / "session.json").unlink()
+    with SessionWriter.open(folder) as session:  # rebuilt: the layer (in the trash) still names it
+        assert session.take("walk", 2)[1].trashed
+        assert session.take("walk", 2)[1].layer_over == "takes/walk/take001.mcap"
+        assert session.take("walk", 3)[1].layer_over is None
+
+    data = index_of(folder)
+    for take in data["shots"][0]["takes"]:
+        del take["layer_over"]  # an index from before the field
+    (folder / "session.json").write_text(json.dumps(data))
+    again = SessionFolder.read(folder)
+    assert again.notes == [] and [t.layer_over for _, t in again.index.takes()] == [None] * 3
+
+
 @pytest.mark.parametrize("damage", ["garbage", "bad field", "empty", "absent"])
 def test_a_damaged_index_is_rebuilt_from_the_takes(tmp_path, kit, damage):
     folder = tmp_path / "s"

@@ -78,3 +78,29 @@ def test_a_clip_past_the_takes_end_says_so_and_one_starting_past_it_is_refused(r
         take.clip(100, 200)
     with pytest.raises(TakeError, match="out point must come after"):
         take.clip(200, 100)
+
+
+def test_a_loop_ending_on_a_fast_move_has_no_pop_at_its_seam(rig):
+    """The out point in a fast move (the last 0.2 s six times as fast as the rest): the seam is
+    one step no larger than the clip's median step, not the fast last step (it was: a pop of
+    several frames' motion)."""
+    ids = rig.servo_map.ids
+    k = len(ids)
+    rate_hz = 120.0
+    t = np.arange(int(3.0 * rate_hz)) / rate_hz
+    phase = 2 * np.pi * (0.3 * t + 1.5 * np.clip(t - 1.9, 0.0, None))
+    zero = np.asarray(rig.servo_map.zero, float)
+    ticks = zero + 250 * np.sin(phase[:, None] + np.arange(k)[None, :])
+    take = Playback((1_000_000_000 + t * 1e9).astype(np.int64), ticks.astype(np.int32),
+                    np.ones((len(t), k), bool), ids, fps=30.0, source="synthetic.mcap")
+    rotations = _rotations(rig)
+    plain = take.clip(0.3, 2.1)
+    raw = [rotations(plain.reading(f).ticks) for f in range(len(plain))]
+    raw_steps = [_motion(a, b) for a, b in zip(raw, raw[1:])]
+    assert raw_steps[-1] > 3 * np.median(raw_steps)  # the clip does end on a fast move
+    loop = take.clip(0.3, 2.1, loop=True, joint_rotations=rotations)
+    frames = [loop.reading(f).rotations for f in range(len(loop))]
+    steps = [_motion(a, b) for a, b in zip(frames, frames[1:])]
+    seam = _motion(frames[-1], frames[0])
+    assert 0 < seam <= np.median(steps), (seam, np.median(steps))
+    assert np.allclose(frames[5], raw[5])  # before the blend the frames are the take's own

@@ -131,3 +131,24 @@ def test_interpolation_is_chosen_per_key_while_capturing(tmp_path):
     written = TakeReader(shot).keys().keys
     assert [k.interpolation for k in written] == ["linear", "smooth", "linear", "linear", "step"]
     assert [k.frame for k in written] == [1, 13, 25, 37, 49]
+
+
+def test_ghost_colours_are_their_tints_and_none_is_a_bone_colour():
+    """The page's ghost legend names the tints the ghosts are drawn in, and none of them is
+    near a colour of the bone legend (a violet ghost is never read as a 'relative' bone)."""
+    from puppet.view import onion
+    from puppet.view.panel import bone_legend
+
+    def rgb(hex_text):
+        return np.array([int(hex_text[i:i + 2], 16) for i in (1, 3, 5)], float)
+
+    tints = {"previous key": onion.PREVIOUS_RGB, "next key": onion.NEXT_RGB,
+             "compared take": onion.COMPARE_RGB}
+    assert {g["what"]: tuple(rgb(g["color"])) for g in onion.GHOST_LEGEND} == tints
+    bones = [rgb(b["color"]) for b in bone_legend()]
+    assert len(bones) >= 4
+    ghosts = [rgb(g["color"]) for g in onion.GHOST_LEGEND]
+    nearest = min(np.linalg.norm(g - b) for g in ghosts for b in bones)
+    assert nearest > 80, nearest  # apart in sRGB (0-255 a channel)
+    apart = min(np.linalg.norm(a - b) for i, a in enumerate(ghosts) for b in ghosts[i + 1:])
+    assert apart > 80, apart

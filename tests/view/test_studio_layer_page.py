@@ -152,6 +152,10 @@ def test_a_layer_recorded_from_the_page_is_the_next_take_and_plays_composed(new_
         assert "a layer of upperarm_L, forearm_L, upperarm_R, forearm_R over take 1" in said
         takes = _takes_of(page)
         assert [(t["number"], t["status"]) for t in takes] == [(1, "ok"), (2, "ok")]
+        # the takes list marks the layer over its base
+        assert [t["layer_over"] for t in takes] == [None, "takes/walk/take001.mcap"]
+        assert "layer over take 1" in page.get_by_role(
+            "button", name="walk take 2, layer over take 1", exact=True).inner_text()
         assert page.evaluate("puppetView.studio.layering") is None
 
         # the layer reviews on the page as one take

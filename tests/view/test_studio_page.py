@@ -63,6 +63,30 @@ def _record(page, tools, shot: str, number: int, count_in: str = "1"):
     return takes[-1]
 
 
+def _seam_and_median_step(gltf) -> tuple[float, float]:
+    """(the largest bone rotation from the animation's last frame to its first, the median
+    over frames of the largest from one frame to the next), radians, from a glTF's keys."""
+    import numpy as np
+
+    blob = gltf.binary_blob()
+    quats = []
+    for channel in gltf.animations[0].channels:
+        if channel.target.path != "rotation":
+            continue
+        sampler = gltf.animations[0].samplers[channel.sampler]
+        accessor = gltf.accessors[sampler.output]
+        view = gltf.bufferViews[accessor.bufferView]
+        quats.append(np.frombuffer(blob, np.float32, accessor.count * 4, (view.byteOffset or 0)
+                                   + (accessor.byteOffset or 0)).reshape(-1, 4))
+    q = np.stack(quats)  # (bones, frames, 4)
+
+    def angle(a, b):
+        return 2 * np.arccos(np.clip(np.abs((a * b).sum(-1)), 0.0, 1.0))
+
+    steps = angle(q[:, 1:], q[:, :-1]).max(axis=0)
+    return float(angle(q[:, -1], q[:, 0]).max()), float(np.median(steps))
+
+
 def _select(page, shot: str, number: int):
     page.get_by_label("current shot").select_option(label=shot)
     page.get_by_role("button", name=f"{shot} take {number}").click()
@@ -111,6 +135,11 @@ def test_a_session_of_two_shots_and_three_takes(new_page, tools, tmp_path):
         page.get_by_role("button", name="restore", exact=True).click()
         _said(page, tools, "restored from the trash")
         assert (folder / "takes" / "run" / "take001.mcap").is_file()
+        page.get_by_label("shot name").fill("sprint")  # the current shot renamed: no file moves
+        page.get_by_role("button", name="rename shot", exact=True).click()
+        _said(page, tools, "shot 'run' is now 'sprint'")
+        assert page.get_by_label("current shot").locator("option:checked").inner_text() == "sprint"
+        assert (folder / "takes" / "run" / "take001.mcap").is_file()
 
         # review walk 1: play, scrub, a looping clip
         _select(page, "walk", 1)
@@ -120,8 +149,28 @@ def test_a_session_of_two_shots_and_three_takes(new_page, tools, tmp_path):
                       STUDIO_WAIT_S)
         page.get_by_role("button", name="play", exact=True).click()
         tools.wait_js(page, "puppetView.playback.position_s > 0.2", STUDIO_WAIT_S)
-        tools.wait_js(page, "puppetView.playback.paused", STUDIO_WAIT_S)  # played to its end
+        page.get_by_role("button", name="pause", exact=True).click()
+        held = tools.wait_js(page, "puppetView.playback.paused && puppetView.playback.position_s",
+                             STUDIO_WAIT_S)
+        seq = page.evaluate("puppetView.shownSeq")
+        tools.wait_js(page, f"puppetView.shownSeq > {seq} + 3", STUDIO_WAIT_S)
+        assert page.evaluate("puppetView.playback.position_s") == held  # paused: it holds
+        page.get_by_label("speed").select_option("2")
+        tools.wait_js(page, "puppetView.playback.speed === 2", STUDIO_WAIT_S)
+        page.get_by_role("button", name="play", exact=True).click()
+        tools.wait_js(page, "puppetView.playback.paused && puppetView.playback.position_s >= "
+                            "puppetView.playback.duration_s - 0.05", STUDIO_WAIT_S)  # its end
         duration = page.evaluate("puppetView.playback.duration_s")
+        # the take's marks (the marker pressed while recording): a click jumps there
+        mark = page.locator("#take-mark-list button")
+        tools.wait_js(page, "document.querySelectorAll('#take-mark-list button').length === 1",
+                      STUDIO_WAIT_S)
+        assert mark.inner_text().startswith("mark · ")
+        mark_s = page.evaluate("puppetView.playback.markers[0].t_s")
+        assert 0 < mark_s < duration
+        mark.click()
+        tools.wait_js(page, f"Math.abs(puppetView.playback.position_s - {mark_s}) < 0.05",
+                      STUDIO_WAIT_S)
         assert duration > 0.5
         scrub = page.get_by_label("play position")
         scrub.fill(str(round(duration * 0.2, 3)))
@@ -148,6 +197,10 @@ def test_a_session_of_two_shots_and_three_takes(new_page, tools, tmp_path):
         image = tools.frame_image(page)
         magenta = ((image[..., 0] > image[..., 1] + 60) & (image[..., 2] > image[..., 1] + 60)).sum()
         assert magenta > 200, magenta
+        # every take's facts start at one place, a take with clips too (its rows stay aligned)
+        xs = page.evaluate("Array.from(document.querySelectorAll('#takes button.take "
+                           ".facts:not(.clips)'), e => Math.round(e.getBoundingClientRect().x))")
+        assert len(xs) == 2 and len(set(xs)) == 1, xs
         page.get_by_role("button", name="compare off", exact=True).click()
         _said(page, tools, "compare off")
         page.get_by_role("button", name="live", exact=True).click()
@@ -173,14 +226,14 @@ def test_a_session_of_two_shots_and_three_takes(new_page, tools, tmp_path):
     session = SessionFolder.read(folder)
     listing = session.listing()
     by_name = {s["name"]: s for s in listing["shots"]}
-    assert set(by_name) == {"walk", "run"}
+    assert set(by_name) == {"walk", "sprint"}
     assert [t["number"] for t in by_name["walk"]["takes"]] == [1, 2]
-    assert [t["number"] for t in by_name["run"]["takes"]] == [1]
+    assert [t["number"] for t in by_name["sprint"]["takes"]] == [1]
     walk = {t["number"]: t for t in by_name["walk"]["takes"]}
     assert walk[1]["circled"] and not walk[2]["circled"]
     assert walk[2]["note"] == "too fast at the turn" and walk[2]["locked"]
     assert [(s["name"], s["loop"]) for s in walk[1]["segments"]] == [("cycle", True)]
-    assert not by_name["run"]["takes"][0]["trashed"]
+    assert not by_name["sprint"]["takes"][0]["trashed"]
     page_walk = next(s for s in shown if s["name"] == "walk")
     assert [t["note"] for t in page_walk["takes"]] == [t["note"] for t in by_name["walk"]["takes"]]
     glb = folder / "exports" / "walk" / "take001.glb"
@@ -190,6 +243,10 @@ def test_a_session_of_two_shots_and_three_takes(new_page, tools, tmp_path):
     frames = clip.scenes[clip.scene or 0].extras
     whole = gltf.scenes[gltf.scene or 0].extras
     assert frames["puppet_frame_end"] < whole["puppet_frame_end"]  # the clip: 60 % of the take
+    # the loop's seam, in the file: its last frame to its first jumps no more than the clip's
+    # median frame-to-frame motion (a performance's clip: the out point may fall in a fast move)
+    seam, median = _seam_and_median_step(clip)
+    assert seam <= median, (seam, median)
     video = tmp_path / "walk1.mp4"
     run = subprocess.run([*tools.PUPPET, "play", str(folder / "takes" / "walk" / "take001.mcap"),
                           "--out", str(video)], capture_output=True, text=True, timeout=600)
@@ -367,6 +424,83 @@ def test_a_sound_chosen_on_the_page(new_page, tools, tmp_path):
         assert process.stop() == 0, process.stderr()
     ref = TakeReader(folder / "takes" / shot / "take001.mcap").metadata.sound
     assert ref.sha256 == file_sha256(track)
+
+
+EXPORTS_SEEN_JS = """(() => { window.exportsSeen = []; const shown = handlers.studio;
+  handlers.studio = m => { shown(m); const bar = document.getElementById('export-progress');
+    if (m.export) exportsSeen.push({running: m.export.running, done: m.export.done,
+                                    total: m.export.total, value: bar.value, max: bar.max}); }; })()"""
+
+
+def _video_frames_and_fps(path: Path) -> tuple[int, float]:
+    import imageio_ffmpeg
+
+    reader = imageio_ffmpeg.read_frames(str(path))
+    meta = next(reader)
+    count = sum(1 for _ in reader)
+    return count, float(meta["fps"])
+
+
+def _export_on_page(page, tools, button: str) -> list:
+    """Press an export button; wait until the export ended. Returns the progress the page was
+    sent and showed ({running, done, total, value, max} per studio message), this export's."""
+    before = page.evaluate("exportsSeen.length")
+    page.get_by_role("button", name=button, exact=True).click()
+    tools.wait_js(page, f"exportsSeen.length > {before} && !exportsSeen.at(-1).running",
+                  STUDIO_WAIT_S * 3)
+    return page.evaluate(f"exportsSeen.slice({before})")
+
+
+def test_an_export_from_the_page_at_the_shots_rate_with_keys_and_progress(new_page, tools,
+                                                                         tmp_path):
+    """A 24 fps shot (``--fps 24``) exports at 24 unless the page says otherwise; the keys
+    reduction field is the export's ``--keys``; BVH and MP4 beside glTF; the progress bar shows the
+    export running, then done; outputs in the session's exports/<shot>/."""
+    folder = tmp_path / "shoot"
+    process = _studio(tools, folder, tmp_path, "--fps", "24")
+    try:
+        page = _open(new_page, process, tools)
+        page.evaluate(EXPORTS_SEEN_JS)
+        page.get_by_label("shot name").fill("walk")
+        page.get_by_role("button", name="new shot", exact=True).click()
+        _said(page, tools, "new shot 'walk'")
+        _record(page, tools, "walk", 1, count_in="0")
+        _select(page, "walk", 1)
+        page.get_by_role("checkbox", name="BVH").check()
+        page.get_by_role("checkbox", name="MP4").check()
+        page.get_by_label("keys reduction degrees").fill("0.5")
+        seen = _export_on_page(page, tools, "export take")
+        said = _said(page, tools, "exported walk take 1")
+        assert said.endswith(str(folder / "exports")), said
+        assert seen[0]["running"] and seen[0]["done"] == 0 and seen[0]["value"] == 0, seen
+        last = seen[-1]
+        assert last["done"] == last["total"] == last["value"] == last["max"] == 1, seen
+        glb = folder / "exports" / "walk" / "take001.glb"
+        gltf = pygltflib.GLTF2().load_binary(str(glb))
+        extras = gltf.scenes[gltf.scene or 0].extras
+        assert extras["puppet_fps"] == 24.0 and extras["puppet_timecode_rate"] == "24"
+        frames = extras["puppet_frame_end"]
+        counts = [gltf.accessors[s.input].count for s in gltf.animations[0].samplers]
+        assert max(counts) <= frames and min(counts) < frames / 2, (frames, counts)  # reduced
+        bvh = (folder / "exports" / "walk" / "take001.bvh").read_text()
+        assert "Frame Time: 0.041666667" in bvh and f"Frames: {frames}" in bvh
+        video = folder / "exports" / "walk" / "take001.mp4"  # the picture, at the shot's rate
+        assert _video_frames_and_fps(video) == (frames, 24.0)
+
+        page.get_by_role("checkbox", name="BVH").uncheck()
+        page.get_by_role("checkbox", name="MP4").uncheck()
+        page.get_by_label("keys reduction degrees").fill("")
+        page.get_by_label("export fps").fill("12")  # told otherwise: at 12, every frame
+        _export_on_page(page, tools, "export take")
+        _said(page, tools, "exported walk take 1")
+    finally:
+        assert process.stop() == 0, process.stderr()
+    gltf = pygltflib.GLTF2().load_binary(str(glb))
+    extras = gltf.scenes[gltf.scene or 0].extras
+    assert extras["puppet_fps"] == 12.0
+    counts = {gltf.accessors[s.input].count for s in gltf.animations[0].samplers}
+    assert counts == {extras["puppet_frame_end"]}
+    assert abs(extras["puppet_frame_end"] - frames / 2) <= 1
 
 
 CONTROLS_JS = """(() => Array.from(document.querySelectorAll('button, input, select'))

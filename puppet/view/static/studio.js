@@ -22,8 +22,21 @@ function selectedTake() {
   return take ? { shot, take } : null;
 }
 
+// "layer over take 3": a layer take names its base (another shot's or a file's when elsewhere)
+function layerOver(take) {
+  if (!take.layer_over) return null;
+  for (const shot of (state.studio && state.studio.shots) || []) {
+    const base = shot.takes.find(t => t.file === take.layer_over);
+    if (base) return shot.key === take.file.split("/")[1] ? `layer over take ${base.number}`
+      : `layer over ${shot.name} take ${base.number}`;
+  }
+  return `layer over ${take.layer_over}`;
+}
+
 function takeLine(take) {
   const flags = [];
+  const layer = layerOver(take);
+  if (layer) flags.push(layer);
   if (take.circled) flags.push("circled");
   if (take.locked) flags.push("locked");
   if (take.status !== "ok") flags.push(take.status);
@@ -67,7 +80,7 @@ function renderStudio() {
     const note = document.createElement("span"); note.className = "take-note"; note.textContent = t.note;
     button.append(head, facts, flags, note);
     if (take.segments && take.segments.length) {
-      const segs = document.createElement("span"); segs.className = "facts";
+      const segs = document.createElement("span"); segs.className = "facts clips";
       segs.textContent = "clips: " + take.segments.map(x => `${x.name}${x.loop ? " (loop)" : ""}`).join(", ");
       button.append(segs);
     }
