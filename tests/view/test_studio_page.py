@@ -512,65 +512,69 @@ CONTROLS_JS = """(() => Array.from(document.querySelectorAll('button, input, sel
              disabled: el.disabled, opacity: Number(getComputedStyle(el).opacity) }; }))()"""
 
 
+@pytest.fixture(scope="module")
+def fresh_studio(tools, tmp_path_factory):
+    """One ``puppet studio --demo`` on a new session, shared by the tests that find it as it
+    started: the late-script test (which changes nothing) and the first-timer's (which needs no
+    shot yet, and adds one). It must stop with exit 0 and no traceback."""
+    folder = tmp_path_factory.mktemp("fresh_studio")
+    process = _studio(tools, folder / "shoot", folder)
+    yield process
+    assert process.stop() == 0, process.stderr()
+    assert "Traceback" not in process.stderr()
+
+
 def test_the_studio_shows_when_its_script_loads_after_the_first_messages(new_page, tools,
-                                                                       tmp_path):
+                                                                       fresh_studio):
     """studio.js held back 1.5 s (a slow fetch, a loaded machine): the page connects once every
     script has run, so the snapshot reaches the studio's handler (it went to the plain view's,
     and the page never showed its studio: a CI failure)."""
     import time
 
-    process = _studio(tools, tmp_path / "shoot", tmp_path)
-    try:
-        page = new_page()
+    page = new_page()
 
-        def slow(route):
-            time.sleep(1.5)  # the stimulus: a script that arrives late
-            route.continue_()
+    def slow(route):
+        time.sleep(1.5)  # the stimulus: a script that arrives late
+        route.continue_()
 
-        page.route("**/static/studio.js", slow)
-        page.goto(process.url)
-        tools.wait_js(page, "puppetView.shownSeq >= 0", STUDIO_WAIT_S)
-        tools.wait_js(page, "puppetView.studio !== null && puppetView.studio.shots !== undefined",
-                      STUDIO_WAIT_S)
-        assert page.is_visible("#studio")
-    finally:
-        assert process.stop() == 0, process.stderr()
+    page.route("**/static/studio.js", slow)
+    page.goto(fresh_studio.url)
+    tools.wait_js(page, "puppetView.shownSeq >= 0", STUDIO_WAIT_S)
+    tools.wait_js(page, "puppetView.studio !== null && puppetView.studio.shots !== undefined",
+                  STUDIO_WAIT_S)
+    assert page.is_visible("#studio")
 
 
-def test_a_first_timer_can_use_the_page(new_page, tools, tmp_path):
+def test_a_first_timer_can_use_the_page(new_page, tools, fresh_studio, tmp_path):
     """Every control named and at least 24 x 24 px, disabled ones look disabled, joint names
     whole at 1024 px, no layout jump when the status line changes, one instruction line."""
-    process = _studio(tools, tmp_path / "shoot", tmp_path)
-    try:
-        page = _open(new_page, process, tools, width=1024, height=768)
-        controls = page.evaluate(CONTROLS_JS)
-        assert len(controls) > 20
-        unnamed = [c["id"] for c in controls if not c["name"]]
-        assert not unnamed, unnamed
-        small = [(c["id"], c["w"], c["h"]) for c in controls if c["w"] < 24 or c["h"] < 24]
-        assert not small, small
-        disabled = [c for c in controls if c["disabled"]]
-        assert disabled and all(c["opacity"] <= 0.5 for c in disabled)
-        assert all(c["opacity"] == 1 for c in controls if not c["disabled"])
-        tools.wait_js(page, "document.querySelectorAll('#servos tbody tr').length > 0", STUDIO_WAIT_S)
-        cut = page.evaluate("""Array.from(document.querySelectorAll('#servos tbody td:nth-child(2)'))
-            .filter(td => td.scrollWidth > td.clientWidth + 1).map(td => td.textContent)""")
-        assert not cut, cut
-        instruction = page.get_by_role("status").filter(has_text="Name a shot")
-        assert instruction.count() == 1
-        stage = page.locator("#stage").bounding_box()
-        takes = page.locator("#takes").bounding_box()
-        page.get_by_label("shot name").fill("")
-        page.get_by_role("button", name="new shot", exact=True).click()  # refused: a long status line
-        _said(page, tools, "must not be empty")
-        page.get_by_label("shot name").fill("a shot with a name long enough to wrap the status")
-        page.get_by_role("button", name="new shot", exact=True).click()
-        _said(page, tools, "new shot")
-        assert page.locator("#stage").bounding_box() == stage
-        assert page.locator("#takes").bounding_box()["y"] == takes["y"]
-        assert "refused" not in page.locator("#studio-said").get_attribute("class")
-    finally:
-        assert process.stop() == 0, process.stderr()
+    page = _open(new_page, fresh_studio, tools, width=1024, height=768)
+    controls = page.evaluate(CONTROLS_JS)
+    assert len(controls) > 20
+    unnamed = [c["id"] for c in controls if not c["name"]]
+    assert not unnamed, unnamed
+    small = [(c["id"], c["w"], c["h"]) for c in controls if c["w"] < 24 or c["h"] < 24]
+    assert not small, small
+    disabled = [c for c in controls if c["disabled"]]
+    assert disabled and all(c["opacity"] <= 0.5 for c in disabled)
+    assert all(c["opacity"] == 1 for c in controls if not c["disabled"])
+    tools.wait_js(page, "document.querySelectorAll('#servos tbody tr').length > 0", STUDIO_WAIT_S)
+    cut = page.evaluate("""Array.from(document.querySelectorAll('#servos tbody td:nth-child(2)'))
+        .filter(td => td.scrollWidth > td.clientWidth + 1).map(td => td.textContent)""")
+    assert not cut, cut
+    instruction = page.get_by_role("status").filter(has_text="Name a shot")
+    assert instruction.count() == 1
+    stage = page.locator("#stage").bounding_box()
+    takes = page.locator("#takes").bounding_box()
+    page.get_by_label("shot name").fill("")
+    page.get_by_role("button", name="new shot", exact=True).click()  # refused: a long status line
+    _said(page, tools, "must not be empty")
+    page.get_by_label("shot name").fill("a shot with a name long enough to wrap the status")
+    page.get_by_role("button", name="new shot", exact=True).click()
+    _said(page, tools, "new shot")
+    assert page.locator("#stage").bounding_box() == stage
+    assert page.locator("#takes").bounding_box()["y"] == takes["y"]
+    assert "refused" not in page.locator("#studio-said").get_attribute("class")
     run = subprocess.run([*tools.PUPPET, "studio", str(tmp_path / "other")], capture_output=True,
                          text=True, timeout=120)
     assert run.returncode == 1 and "--demo" in run.stderr and "Traceback" not in run.stderr
