@@ -96,10 +96,15 @@ def test_a_moved_turned_scaled_armature_is_driven_as_its_gltf_export_plays(
                mare["rig_file"])
 
 
+HEALTH = {"applied_median_ms": 12.5, "applied_p99_ms": 40.0, "acked": 1, "published": 1,
+          "sent": 1, "skipped": 0, "lost": 3, "acked_per_s": 29.5}  # the fake puppet's word
+
+
 def _fake_puppet(critter, listener):
     """Serve one client as a puppet would, then stop without a bye: a hello whose rig has one
     joint more than the critter's armature, a malformed frame, then a frame with the second
-    joint turned 90° about x."""
+    joint turned 90° about x; once it is acked a health message (HEALTH) and no frame more (a
+    stalled link) until the client asks for every frame (its Record ticked)."""
     from puppet.link import wire
     from puppet.link.pose import LinkPose
 
@@ -123,8 +128,18 @@ def _fake_puppet(critter, listener):
         bad = bytearray(good)
         wire.LENGTH.pack_into(bad, 0, len(good) - wire.LENGTH.size - 8)  # 8 bytes short
         sock.sendall(bytes(bad[:-8]) + good)
-        while sock.recv(4096):  # until the add-on acks (then it closes)
-            break
+        healthy = False
+        while True:
+            data = sock.recv(4096)
+            if not data:
+                break
+            reader.feed(data)
+            kinds = [kind for kind, _ in reader.messages()]
+            if wire.ACK_KIND in kinds and not healthy:
+                healthy = True
+                sock.sendall(wire.encode_json(wire.HEALTH, HEALTH))
+            if wire.MESH in kinds:  # Record ticked: stop without a word
+                break
 
 
 def test_the_addon_reports_refusal_mapping_problems_malformed_frames_and_a_stop(
@@ -152,6 +167,11 @@ def test_the_addon_reports_refusal_mapping_problems_malformed_frames_and_a_stop(
         "joint extra_joint: no bone 'extra_joint' (same name); not driven"], result["notes"]
     assert result["notes"][3] == f"1 bones not driven: {first}"
     assert (result["malformed"], result["applied"]) == (1, 1)
+    assert result["health_lines"][:3] == [
+        "reading->applied median 12.5 ms, p99 40.0 ms; applied 29.5/s",
+        "LOST 3 recorded frames (Blender too far behind)",
+        result["health_lines"][2]], result["health_lines"]  # puppet's figures, as it sent them
+    assert result["health_lines"][2].startswith("stalled: no frame from puppet for ")
     assert result["status"] == "puppet stopped streaming; last pose kept"
     assert result["posed"] == result["kept"]
     assert np.abs(np.array(result["posed"]) - np.eye(4)).max() > 0.5  # the 90° turn applied
