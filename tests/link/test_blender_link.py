@@ -237,9 +237,13 @@ def test_live_record_keys_blender_where_the_takes_export_puts_each_frame(
     sound = tmp_path / "line.wav"  # performed to: its strip lands 0.3 s (9 frames) before frame 1
     sf.write(sound, np.zeros((44100, 1), np.float32), 44100)
     with hw_sim.serve(critter.servo_map.models, motion=Performance(critter)) as bus:
-        puppet = helpers.Puppet(["live", "--rig", BUILTIN_RIG, "--port", bus.port, "--record",
-                                 take, "--link", "127.0.0.1:0", "--sound", sound,
-                                 "--sound-offset", "0.3"])
+        # 57600 bit/s: the SDK's reply timeout (the reply's bytes at the bus speed + 2 latencies
+        # + 2 ms) is tens of ms, not a few as at 1 Mbit/s, so a busy host's late simulator
+        # replies still count (a reading with a servo not read holds its last value: no frame
+        # the export and the add-on both interpolate from it is compared)
+        puppet = helpers.Puppet(["live", "--rig", BUILTIN_RIG, "--port", bus.port, "--baud",
+                                 "57600", "--record", take, "--link", "127.0.0.1:0", "--sound",
+                                 sound, "--sound-offset", "0.3"])
         try:
             port, _ = puppet.listening(wait_until)
             sensed = ",".join(s.joint for s in critter.servo_map.servos)
@@ -265,6 +269,7 @@ def test_live_record_keys_blender_where_the_takes_export_puts_each_frame(
     keyed = result["keyed"]
     assert keyed == list(range(keyed[0], keyed[-1] + 1))  # every integer frame, no holes
     assert result["interpolation"] == ["LINEAR"]
+    assert result["action"] == "take"  # its own action, named after the take
     at, ok, solved, elsewhere = _readings_around(take, critter, result["streamed"], 30.0, 1)
     assert elsewhere == [], elsewhere  # every streamed frame where the export puts its reading
     compared = [f for f in result["frames"] if _same_readings(f["frame"], at, ok, solved)]
