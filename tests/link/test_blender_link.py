@@ -217,14 +217,16 @@ def test_live_record_keys_blender_where_the_takes_export_puts_each_frame(
     x scene fps; between two readings their blend), LINEAR, and every frame puppet streamed is
     a reading of the take at the scene frame ``puppet export --gltf`` of the take puts it on
     (an offset, or a wrong take start, moves them all). Blender's action agrees with the export
-    at every scene frame where both interpolate the same two readings: each sensed joint's
-    rotation within a tenth of what the export turns it in one frame plus two encoder ticks
-    (the export rounds interpolated ticks). Elsewhere the export interpolates readings puppet
+    at every scene frame where both interpolate the same two readings, at most a frame apart
+    (the add-on blends keys, the export each servo's ticks: alike over a small turn): each
+    sensed joint's rotation within a tenth of what the export turns it in one frame plus two
+    encoder ticks (the export rounds interpolated ticks). Elsewhere the export interpolates readings puppet
     recorded but never solved (live solves the newest of each batch the bus gives), and on a
     loaded host hw_sim answers some reads late: such a reading sits up to a frame's turn off the
     line through its neighbours (a reading stamped before its read, the position sampled when
-    the simulator got to it), so the two differ by as much, by design; a reading with a servo
-    not read holds its last value and its joint may go free. The free bones are not compared:
+    the simulator got to it), so the two differ by as much, by design; next to a reading with
+    a servo not read, each solve holds the last angle it saw (not the same one live and in the
+    export). The free bones are not compared:
     FAST solves them warm-started from the frame before (every reading live, every 1/30 s in the
     export), so they differ by how far each run's iterations got, not by time. Performed to a
     sound (``--sound``, 0.3 s into it at time 0): its strip lands 9 frames before the take's
