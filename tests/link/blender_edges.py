@@ -4,8 +4,10 @@
    refused.
 2. A puppet (the test's fake server) whose rig has one joint more than the armature, with a
    saved mapping naming a bone the armature lacks, that sends a malformed frame, a good one,
-   then stops without a word: notes name both joints, the malformed frame is counted and
-   skipped, the good one applied, the status says puppet stopped, the last pose stays.
+   then a health message and nothing for a while (a stalled link), and stops without a word
+   once Record is ticked: notes name both joints, the malformed frame is counted and skipped,
+   the good one applied, the panel's health lines (once one says the link stalled) give
+   puppet's figures, the status says puppet stopped, the last pose stays.
 Prints RESULT {json}.
 """
 
@@ -46,6 +48,13 @@ first_bone = armature.pose.bones[0].name
 armature.data[puppet_link.MAP_PREFIX + first_bone] = "no_such_bone"
 settings.port, settings.token = fake, ""
 assert bpy.ops.puppet_link.connect() == {"FINISHED"}
+deadline = time.monotonic() + 60  # the link stalls after STALL_S (1 s)
+while (link.sock is not None and time.monotonic() < deadline
+       and not any(line.startswith("stalled:") for line in link.health_lines())):
+    puppet_link.tick()
+    time.sleep(0.002)
+result["health_lines"] = link.health_lines()
+settings.record = True  # the fake puppet stops when it hears this
 run_until_closed()
 second = armature.pose.bones[1]
 kept = [list(r) for r in second.matrix_basis]

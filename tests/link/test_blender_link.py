@@ -96,10 +96,15 @@ def test_a_moved_turned_scaled_armature_is_driven_as_its_gltf_export_plays(
                mare["rig_file"])
 
 
+HEALTH = {"applied_median_ms": 12.5, "applied_p99_ms": 40.0, "acked": 1, "published": 1,
+          "sent": 1, "skipped": 0, "lost": 3, "acked_per_s": 29.5}  # the fake puppet's word
+
+
 def _fake_puppet(critter, listener):
     """Serve one client as a puppet would, then stop without a bye: a hello whose rig has one
     joint more than the critter's armature, a malformed frame, then a frame with the second
-    joint turned 90° about x."""
+    joint turned 90° about x; once it is acked a health message (HEALTH) and no frame more (a
+    stalled link) until the client asks for every frame (its Record ticked)."""
     from puppet.link import wire
     from puppet.link.pose import LinkPose
 
@@ -123,8 +128,18 @@ def _fake_puppet(critter, listener):
         bad = bytearray(good)
         wire.LENGTH.pack_into(bad, 0, len(good) - wire.LENGTH.size - 8)  # 8 bytes short
         sock.sendall(bytes(bad[:-8]) + good)
-        while sock.recv(4096):  # until the add-on acks (then it closes)
-            break
+        healthy = False
+        while True:
+            data = sock.recv(4096)
+            if not data:
+                break
+            reader.feed(data)
+            kinds = [kind for kind, _ in reader.messages()]
+            if wire.ACK_KIND in kinds and not healthy:
+                healthy = True
+                sock.sendall(wire.encode_json(wire.HEALTH, HEALTH))
+            if wire.MESH in kinds:  # Record ticked: stop without a word
+                break
 
 
 def test_the_addon_reports_refusal_mapping_problems_malformed_frames_and_a_stop(
@@ -152,9 +167,46 @@ def test_the_addon_reports_refusal_mapping_problems_malformed_frames_and_a_stop(
         "joint extra_joint: no bone 'extra_joint' (same name); not driven"], result["notes"]
     assert result["notes"][3] == f"1 bones not driven: {first}"
     assert (result["malformed"], result["applied"]) == (1, 1)
+    assert result["health_lines"][:3] == [
+        "reading->applied median 12.5 ms, p99 40.0 ms; applied 29.5/s",
+        "LOST 3 recorded frames (Blender too far behind)",
+        result["health_lines"][2]], result["health_lines"]  # puppet's figures, as it sent them
+    assert result["health_lines"][2].startswith("stalled: no frame from puppet for ")
     assert result["status"] == "puppet stopped streaming; last pose kept"
     assert result["posed"] == result["kept"]
     assert np.abs(np.array(result["posed"]) - np.eye(4)).max() > 0.5  # the 90° turn applied
+
+
+def _readings_around(take, rig, streamed, fps: float, start: int):
+    """Where ``puppet export --fps FPS`` of ``take`` and the add-on's keys come from the same
+    readings. Returns (at, ok, solved, elsewhere): per reading of the take its scene frame on
+    the export's time line (start + play time x fps), whether every servo was read, whether
+    puppet streamed it (a streamed frame on that scene frame); and the streamed frames on no
+    reading's scene frame."""
+    from puppet.take import TakeReader
+    from puppet.take.playback import play_times_ns
+
+    t_ns, _ticks, ok = TakeReader(take).arrays(rig.servo_map.ids)
+    at = start + play_times_ns(t_ns)[0] * 1e-9 * fps
+    streamed = np.asarray(streamed, float)
+    nearest = np.clip(np.searchsorted(at, streamed), 1, len(at) - 1)
+    nearest = np.where(np.abs(at[nearest - 1] - streamed) < np.abs(at[nearest] - streamed),
+                       nearest - 1, nearest)
+    on_reading = np.abs(at[nearest] - streamed) <= 1e-6
+    solved = np.zeros(len(at), bool)
+    solved[nearest[on_reading]] = True
+    return at, ok.all(1), solved, streamed[~on_reading].tolist()
+
+
+def _same_readings(frame: int, at, ok, solved) -> bool:
+    """Whether the export's frame ``frame`` and the add-on's key there interpolate the same two
+    readings (one, on a reading), at most a scene frame apart, each with every servo read."""
+    i = int(np.searchsorted(at, frame + 1e-6, side="right")) - 1
+    if i < 0:
+        return False
+    j = i if at[i] >= frame - 1e-6 else i + 1
+    return (j < len(at) and at[j] - at[i] <= 1.0 and bool(solved[i] and solved[j])
+            and bool(ok[i] and ok[j]))
 
 
 def test_live_record_keys_blender_where_the_takes_export_puts_each_frame(
@@ -162,14 +214,24 @@ def test_live_record_keys_blender_where_the_takes_export_puts_each_frame(
     """``puppet live --record TAKE --link`` on hw_sim (the demo's motion) with Blender connected
     and Record off in the panel: puppet's frames are flagged recording, the add-on keys every
     integer scene frame from them (a frame at start + (reading time - the take's first reading)
-    x scene fps; between two readings their blend), LINEAR, and Blender's action at every
-    scene frame agrees with ``puppet export --gltf`` of the take at the scene's
-    fps: each sensed joint's rotation within a tenth of what the export turns it in one frame
-    (an offset of one frame, or a wrong take start, is that whole turn) plus two encoder ticks
-    (the export rounds interpolated ticks). The free bones are not compared: FAST solves them
-    warm-started from the frame before (every reading live, every 1/30 s in the export), so
-    they differ by how far each run's iterations got, not by time. Performed to a sound
-    (``--sound``, 0.3 s into it at time 0): its strip lands 9 frames before the take's start."""
+    x scene fps; between two readings their blend), LINEAR, and every frame puppet streamed is
+    a reading of the take at the scene frame ``puppet export --gltf`` of the take puts it on
+    (an offset, or a wrong take start, moves them all). Blender's action agrees with the export
+    at every scene frame where both interpolate the same two readings, at most a frame apart
+    (the add-on blends keys, the export each servo's ticks: alike over a small turn): each
+    sensed joint's rotation within a tenth of what the export turns it in one frame plus two
+    encoder ticks (the export rounds interpolated ticks). Elsewhere the export interpolates readings puppet
+    recorded but never solved (live solves the newest of each batch the bus gives), and on a
+    loaded host hw_sim answers some reads late: such a reading sits up to a frame's turn off the
+    line through its neighbours (a reading stamped before its read, the position sampled when
+    the simulator got to it), so the two differ by as much, by design; a reading with a servo
+    not read holds that servo's last good value, so the turn to the next reading is a jump, too
+    large for a blend of keys and a blend of ticks to agree (2.7 degrees apart at one such
+    frame, 43 degrees turned). The free bones are not compared:
+    FAST solves them warm-started from the frame before (every reading live, every 1/30 s in the
+    export), so they differ by how far each run's iterations got, not by time. Performed to a
+    sound (``--sound``, 0.3 s into it at time 0): its strip lands 9 frames before the take's
+    start."""
     import hw_sim
     from puppet.demo import Performance
     from puppet.rig.load import BUILTIN_RIG
@@ -178,14 +240,18 @@ def test_live_record_keys_blender_where_the_takes_export_puts_each_frame(
     sound = tmp_path / "line.wav"  # performed to: its strip lands 0.3 s (9 frames) before frame 1
     sf.write(sound, np.zeros((44100, 1), np.float32), 44100)
     with hw_sim.serve(critter.servo_map.models, motion=Performance(critter)) as bus:
-        puppet = helpers.Puppet(["live", "--rig", BUILTIN_RIG, "--port", bus.port, "--record",
-                                 take, "--link", "127.0.0.1:0", "--sound", sound,
-                                 "--sound-offset", "0.3"])
+        # 57600 bit/s: the SDK's reply timeout (the reply's bytes at the bus speed + 2 latencies
+        # + 2 ms) is tens of ms, not a few as at 1 Mbit/s, so a busy host's late simulator
+        # replies still count (a reading with a servo not read holds its last value: no frame
+        # the export and the add-on both interpolate from it is compared)
+        puppet = helpers.Puppet(["live", "--rig", BUILTIN_RIG, "--port", bus.port, "--baud",
+                                 "57600", "--record", take, "--link", "127.0.0.1:0", "--sound",
+                                 sound, "--sound-offset", "0.3"])
         try:
             port, _ = puppet.listening(wait_until)
             sensed = ",".join(s.joint for s in critter.servo_map.servos)
             blender = helpers.Puppet.python(["-c", (HERE / "blender_record.py").read_text(),
-                                             addon_zip, exported["glb"], port, "40", reference,
+                                             addon_zip, exported["glb"], port, "150", reference,
                                              sensed])
             wait_until(lambda: "RECORDED" in blender.out or blender.proc.poll() is not None,
                        timeout=600)
@@ -206,9 +272,13 @@ def test_live_record_keys_blender_where_the_takes_export_puts_each_frame(
     keyed = result["keyed"]
     assert keyed == list(range(keyed[0], keyed[-1] + 1))  # every integer frame, no holes
     assert result["interpolation"] == ["LINEAR"]
-    frames = result["frames"]
-    assert len(frames) >= 6, result
+    assert result["action"] == "take"  # its own action, named after the take
+    at, ok, solved, elsewhere = _readings_around(take, critter, result["streamed"], 30.0, 1)
+    assert elsewhere == [], elsewhere  # every streamed frame where the export puts its reading
+    compared = [f for f in result["frames"] if _same_readings(f["frame"], at, ok, solved)]
+    (tmp_path / "compared.json").write_text(json.dumps(compared))
+    assert len(compared) >= 6, (len(compared), result["lost"], result["frames"])
     tick_deg = 360.0 / 4096  # the critter's XL330s
-    for f in frames:
-        assert f["worst_deg"] <= 0.1 * f["step_deg"] + 2 * tick_deg, (f, frames)
-    assert max(f["step_deg"] for f in frames) > 1.0  # the servos were moving
+    for f in compared:
+        assert f["worst_deg"] <= 0.1 * f["step_deg"] + 2 * tick_deg, (f, compared)
+    assert max(f["step_deg"] for f in compared) > 1.0  # the servos were moving

@@ -250,6 +250,17 @@ def test_demo_streams_the_live_loop_with_reading_times(tmp_path, critter, wait_u
         interrupt_and_wait(puppet.proc, read_stderr=False)
 
 
+def test_demo_link_without_out_streams_and_writes_no_video(tmp_path):
+    """``puppet demo --link`` without ``--out`` runs the loop for the link only: no video is
+    encoded (``puppet demo`` alone writes demo.mp4 into the working folder), nothing is drawn."""
+    done = subprocess.run(["puppet", "demo", "--link", "127.0.0.1:0", "--seconds", "2"],
+                          cwd=tmp_path, capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr
+    assert "link: listening on 127.0.0.1:" in done.stderr + done.stdout
+    assert list(tmp_path.iterdir()) == []  # no demo.mp4
+    assert "draw 0.0/0.0" in done.stdout, done.stdout  # nothing rendered for a video
+
+
 def test_keys_streams_the_loop_it_shows_on_the_page(tmp_path, critter, wait_until,
                                                     interrupt_and_wait):
     """``puppet keys --view --link``: the capture's live loop goes to Blender as live does;
