@@ -61,14 +61,15 @@ def test_a_missing_folder_is_named_before_the_bus(tmp_path):
     assert NO_PORT not in result.output
 
 
-def test_a_taken_view_address_fails_before_the_bus():
+@pytest.mark.parametrize("option", ["--view", "--link"])
+def test_a_taken_address_fails_before_the_bus_naming_the_option(option):
     with socket.socket() as taken:
         taken.bind(("127.0.0.1", 0))
         taken.listen()
         port = taken.getsockname()[1]
-        result = _live("--view", f"127.0.0.1:{port}")
+        result = _live(option, f"127.0.0.1:{port}")
     assert result.exit_code == 1, result.output
-    assert "--view" in result.output and f"127.0.0.1:{port}" in result.output, result.output
+    assert f"{option}: address 127.0.0.1:{port} is already in use" in result.output, result.output
     assert NO_PORT not in result.output
 
 
