@@ -91,3 +91,27 @@ def test_two_outputs_on_one_file_are_refused(tmp_path):
     result = _live("--record", same, "--out", same)
     assert result.exit_code == 1, result.output
     assert "given for both --record and --out" in result.output, result.output
+
+
+def test_a_video_that_made_nothing_leaves_no_file_and_one_that_made_a_frame_keeps_it(tmp_path):
+    """The stop rule for a frame sink (``puppet.session.outputs.close_sink``), as every video
+    output and the benchmarks' demo sinks (``puppet.demo.run_demo``) close by it."""
+    import imageio_ffmpeg
+    import numpy as np
+
+    from puppet.session.outputs import Video
+
+    said: list = []
+    empty = Video(tmp_path / "empty.mp4", 30.0, tell=said.append)
+    empty.check([])
+    empty.open(None)
+    empty.close()
+    assert list(tmp_path.iterdir()) == [] and said == []
+    made = Video(tmp_path / "one.mp4", 30.0, tell=said.append)
+    made.check([])
+    made.open(None)
+    made.sink.write(np.full((48, 64, 3), 128, np.uint8))
+    made.close()
+    assert made.frames == 1
+    assert imageio_ffmpeg.count_frames_and_secs(str(tmp_path / "one.mp4"))[0] == 1
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["one.mp4"]
