@@ -80,6 +80,27 @@ def test_view_and_link_on_one_address_are_refused_naming_both():
     assert NO_PORT not in result.output
 
 
+@pytest.mark.parametrize("view, link", [("0.0.0.0:9333", "127.0.0.1:9333"),
+                                        ("localhost:9333", "127.0.0.1:9333"),
+                                        ("9100", "")])  # the link's default port
+def test_view_and_link_that_would_share_a_port_are_refused_naming_both(view, link):
+    """Two spellings of one place (a name and its address, the wildcard and any address) are one
+    address too: refused naming both options, not 'already in use, stop the other program'."""
+    result = _live("--view", view, "--link", link)
+    assert result.exit_code == 1, result.output
+    assert f"--view {view} and --link" in result.output and "name one address" in result.output, \
+        result.output
+    assert "already in use" not in result.output and NO_PORT not in result.output
+
+
+def test_view_and_link_on_one_port_of_two_hosts_both_listen():
+    from puppet.net.address import one_place
+
+    assert not one_place(("127.0.0.1", 9333), ("127.0.0.2", 9333))
+    assert not one_place(("127.0.0.1", 0), ("127.0.0.1", 0))
+    assert one_place(("::", 9333), ("127.0.0.1", 9333))
+
+
 def test_an_input_given_as_an_output_is_refused_before_the_bus():
     result = _live("--out", str(BUILTIN_RIG))
     assert result.exit_code == 1, result.output
