@@ -76,15 +76,15 @@ def run_case(viewers: int, seconds: float, warmup: float, size) -> dict:
     pages = Pages(view.url, viewers) if viewers else None
     marks = {}
 
-    def on_frame(summary) -> None:
+    def on_frame(frames: int) -> None:  # run_demo's: the frames done so far
         now = time.monotonic()
         if "start" not in marks and now - marks["t0"] >= warmup:
             server = view.server
-            marks["start"] = (now, summary.frames, (len(server.latency_ms), len(server.latency_split)),
+            marks["start"] = (now, frames, (len(server.latency_ms), len(server.latency_split)),
                               server.bytes_sent,
                               {v.client: v.shown for v in server.viewers.values()},
                               sum(v.sent for v in server.viewers.values()))
-        marks["end"] = (now, summary.frames)
+        marks["end"] = (now, frames)
 
     def sinks_for(_pipeline):
         marks["t0"] = time.monotonic()

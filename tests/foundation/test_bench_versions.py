@@ -5,6 +5,7 @@ checkout, instead of measuring this version twice under two names."""
 from __future__ import annotations
 
 import importlib.util
+import json
 from pathlib import Path
 
 import pytest
@@ -34,3 +35,22 @@ def test_a_checkout_whose_code_the_interpreter_would_not_import_is_refused(tmp_p
 def test_this_checkout_runs_its_own_code(tmp_path):
     python, _env = _versions().interpreter(ROOT)
     assert Path(python).exists()
+
+
+@pytest.mark.parametrize("script, args", [
+    ("e2e.py", ["--video", "--antialias", "fxaa", "--seconds", "1"]),
+    ("view.py", ["--viewers", "0", "--seconds", "1", "--warmup", "0.5"])])
+def test_the_live_benchmarks_run_and_report_their_figures(script, args, tmp_path):
+    """The two benchmarks a change to the live loop is measured by (before/after through
+    versions.py) run on this checkout and write their figures: a loop's callback that changed
+    shape once left view.py failing at its first frame."""
+    import subprocess
+    import sys
+
+    out = tmp_path / "bench.json"
+    done = subprocess.run([sys.executable, str(ROOT / "bench" / script), *args, "--json", str(out)],
+                          cwd=tmp_path, capture_output=True, text=True, timeout=600)
+    assert done.returncode == 0, done.stderr[-3000:]
+    figures = _versions().flatten(json.loads(out.read_text()))
+    fps = [v for k, v in figures.items() if k.rsplit(".", 1)[-1] in ("fps", "loop_fps")]
+    assert fps and all(v > 0 for v in fps), figures
