@@ -20,8 +20,8 @@ FXAA in one pass over the whole frame, the character lit per pixel, the contact 
 default preset and this process's priority, the bus read at 250 Hz, no late latching and so no
 reading requested ahead; the ground's backdrop has no switch), interleaved with the current
 ones, and reports current / baseline ratios. (Dense skinning stays: the sparse "pairs" layout measured 2x slower
-on llvmpipe, see puppet/render/renderer.py.) ``first_frame_s`` here runs from the call of run_demo (setup: rig, hw_sim,
-reader, pipeline) to the first frame; ``puppet demo --json`` reports it from the command's start.
+on llvmpipe, see puppet/render/renderer.py.) ``first_frame_s`` runs from this process's start (imports, then run_demo's
+setup: rig, hw_sim, reader, pipeline) to the first frame, as ``puppet demo --json`` reports it.
 ``cpu_ms_per_frame``: CPU time per frame of the loop's thread (the critical path), of this
 whole process (llvmpipe's rasterizer threads, the encoder thread) and of the child processes
 (ffmpeg, the bus reader, hw_sim): figures a shared machine's load disturbs much less than fps.

@@ -7,7 +7,7 @@ checkout (an earlier commit), run in turns, with after/before ratios of every fi
 
 Each round runs the benchmark script of each checkout (``<checkout>/bench/<script>``, with the
 checkout's own ``.venv/bin/python`` when it has one, else this interpreter with the checkout first
-on the path) with ``--json FILE`` added; numeric figures of the JSON files are flattened to
+on the path; refused when that interpreter imports ``puppet`` from elsewhere) with ``--json FILE`` added; numeric figures of the JSON files are flattened to
 paths (``cases.0.us_per_iter``) and the median over rounds is compared for every path both
 versions report. Turns (before, after, before, after, ...) put a shared machine's load on both.
 """
@@ -42,12 +42,29 @@ def flatten(node, prefix: str = "") -> dict[str, float]:
     return out
 
 
-def run_once(checkout: Path, script: str, args: list[str]) -> dict[str, float]:
+def interpreter(checkout: Path) -> tuple[Path, dict]:
+    """(python, environment) that run ``checkout``'s own code: its ``.venv/bin/python``, else
+    this interpreter with the checkout first on the path. SystemExit when that interpreter
+    imports ``puppet`` from elsewhere (an editable install's finder comes before the path:
+    the run would measure the other version's code under this one's name)."""
     python = checkout / ".venv" / "bin" / "python"
     env = dict(os.environ)
     if not python.exists():
         python = Path(sys.executable)
         env["PYTHONPATH"] = os.pathsep.join([str(checkout), env.get("PYTHONPATH", "")])
+    found = subprocess.run([str(python), "-c", "import puppet; print(puppet.__file__)"],
+                           cwd=checkout, env=env, capture_output=True, text=True)
+    where = Path(found.stdout.strip()).resolve() if found.returncode == 0 else None
+    if where is None or checkout.resolve() not in where.parents:
+        raise SystemExit(f"{checkout}: {python} imports puppet from "
+                         f"{where or found.stderr.strip()[-200:]}, not from this checkout: "
+                         f"build it there (python -m venv {checkout / '.venv'}, then pip install -e "
+                         f"{checkout})")
+    return python, env
+
+
+def run_once(checkout: Path, script: str, args: list[str]) -> dict[str, float]:
+    python, env = interpreter(checkout)
     with tempfile.TemporaryDirectory() as tmp:
         out = Path(tmp) / "bench.json"
         subprocess.run([str(python), str(checkout / "bench" / script), *args, "--json", str(out)],

@@ -12,7 +12,7 @@ from collections.abc import Callable
 from typing import TYPE_CHECKING
 
 from puppet.rig import Rig, builtin
-from puppet.session.outputs import Output
+from puppet.session.outputs import Output, close_sink
 from puppet.session.sources import SimulatedBus
 
 if TYPE_CHECKING:
@@ -91,10 +91,7 @@ class _Given(Output):
     def close(self) -> None:
         sinks, self.sinks = self.sinks, []
         for sink in sinks:
-            if getattr(sink, "count", 1) == 0 and hasattr(sink, "abort"):
-                sink.abort()
-            else:
-                sink.close()
+            close_sink(sink)
 
 
 def run_demo(*, seconds: float | None, sinks_for: Callable[[Pipeline], list], faults=None,

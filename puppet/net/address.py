@@ -63,6 +63,25 @@ def is_loopback(host: str) -> bool:
         return False
 
 
+def one_place(a: tuple[str, int], b: tuple[str, int]) -> bool:
+    """Whether two (host, port) addresses would take one listening place: the same port (not 0:
+    each of those gets a free one) on hosts that resolve to a shared address, or either host
+    the wildcard (0.0.0.0, ::: every address). A host that does not resolve shares nothing
+    (``bind`` names it)."""
+    if a[1] != b[1] or a[1] == 0:
+        return False
+    ips = []
+    for host in (a[0], b[0]):
+        try:
+            infos = socket.getaddrinfo(host, a[1], type=socket.SOCK_STREAM, flags=socket.AI_PASSIVE)
+        except socket.gaierror:
+            return False
+        ips.append({ipaddress.ip_address(info[4][0].split("%", 1)[0]) for info in infos})
+    if any(ip.is_unspecified for ip in ips[0] | ips[1]):
+        return True
+    return bool(ips[0] & ips[1])
+
+
 def bind(host: str, port: int, *, option: str) -> socket.socket:
     """A listening TCP socket on (host, port); AddressError naming ``option`` and the address
     when it cannot be had (taken, unresolvable, not allowed)."""

@@ -37,6 +37,15 @@ def _writable_folder(path: Path, option: str) -> None:
         raise OutputError(f"{option}: folder {folder} is not writable")
 
 
+def close_sink(sink) -> None:
+    """A frame sink by the stop rule: one that made nothing leaves no file (``abort``, where it
+    has one); otherwise it is finished and closed, whatever was made kept."""
+    if getattr(sink, "count", 1) == 0 and hasattr(sink, "abort"):
+        sink.abort()
+    else:
+        sink.close()
+
+
 class Output:
     """The defaults: an output that plays no role in the loop (see the module's docstring)."""
 
@@ -119,13 +128,10 @@ class Video(Output):
             return
         sink, self.sink = self.sink, None
         self.frames = sink.count
-        if sink.count == 0:
-            sink.abort()  # nothing made: no file
-            return
         try:
-            sink.close()
+            close_sink(sink)
         finally:
-            for note in sink.notes:
+            for note in sink.notes if sink.count else ():  # nothing made: no file, nothing said
                 self.tell(f"warning: {note}")
 
     def report(self) -> dict:

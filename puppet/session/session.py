@@ -90,14 +90,16 @@ class Session:
         links = [o for o in self.outputs if isinstance(o, Link)]
         if views and links:
             from puppet.link.server import DEFAULT_PORT as LINK_PORT
-            from puppet.net.address import parse_address
+            from puppet.net.address import one_place, parse_address
             from puppet.view.protocol import DEFAULT_PORT as VIEW_PORT
 
             view_at = parse_address(views[0].address, option="--view", default_port=VIEW_PORT)
             link_at = parse_address(links[0].address, option="--link", default_port=LINK_PORT)
-            if view_at == link_at and view_at[1] != 0:  # port 0: each gets a free one
+            if one_place(view_at, link_at):  # e.g. localhost and 127.0.0.1, or 0.0.0.0 and any
+                where = (f"{view_at[0]}:{view_at[1]}" if view_at[0] == link_at[0] else
+                         f"port {view_at[1]} on {view_at[0]} and {link_at[0]}")
                 raise OutputError(f"{views[0].option} and {links[0].option} name one address "
-                                  f"({view_at[0]}:{view_at[1]}): give them two")
+                                  f"({where}): give them two")
         for output in self.outputs:
             checked.append(output)
             output.check(self.inputs)

@@ -90,3 +90,17 @@ def test_play_and_export_run_without_the_servo_stack(tmp_path):
     assert (export.returncode, export.stderr.count("Error")) == (0, 0), export.stderr
     for name in ("x.mp4", "x.glb", "x.pc2"):
         assert (tmp_path / name).stat().st_size > 1000
+
+
+def test_the_link_and_the_view_share_the_net_module_not_each_other():
+    """The Blender link's server reaches the live view's address, token and flood rules through
+    ``puppet.net``, never the view's own modules (and the view never the link's)."""
+    code = ("import json, sys\nimport puppet.link\nlink = sorted(sys.modules)\n"
+            "for m in [m for m in sys.modules if m.startswith('puppet.')]:\n    del sys.modules[m]\n"
+            "import puppet.view\nprint(json.dumps({'link': link, 'view': sorted(sys.modules)}))\n")
+    out = _child(code)
+    assert out.returncode == 0, out.stderr
+    loaded = json.loads(out.stdout)
+    assert "puppet.net.address" in loaded["link"] and "puppet.net.address" in loaded["view"]
+    assert [m for m in loaded["link"] if m.startswith("puppet.view")] == []
+    assert [m for m in loaded["view"] if m.startswith("puppet.link")] == []

@@ -2,6 +2,9 @@
 
 Each command runs as a user's terminal job (its own process group) and is ended by: the end of
 its input or --seconds, one Ctrl-C, two Ctrl-C, SIGTERM, or SIGKILL of its bus reader's child.
+The commands: demo, live, record, keys, view, play (--out; --view; --link, with a client of the
+link), the page's record button (``demo --view``, a take recording from the page) and the studio
+(``studio --demo``, a take recording from its page).
 Every cell must give the same outcome: exit 0 and the summary on the signals and the end, exit 1
 naming the reader when it is killed; every video asked for closed and playable with its frames;
 every take readable with its readings; no traceback; no process of the command left behind; no
@@ -10,12 +13,15 @@ temporary file left under a final name.
 
 from __future__ import annotations
 
+import asyncio
+import importlib.util
 import os
 import signal
 import subprocess
 import sys
 import urllib.request
 from pathlib import Path
+from urllib.parse import urlsplit
 
 import imageio_ffmpeg
 import numpy as np
@@ -63,7 +69,64 @@ def _page_up(stderr: Path):
     return up
 
 
-def _case(name: str, stop: str, tmp: Path, port: str | None):
+def _page_url(stderr: Path) -> str | None:
+    return next((line[6:].strip() for line in stderr.read_text().splitlines()
+                 if line.startswith("view: ")), None)
+
+
+def _press(url: str, message: dict) -> None:
+    """Send ``message`` on the page's control socket, as the page's buttons do."""
+    import aiohttp
+
+    where = urlsplit(url).netloc
+
+    async def send() -> None:
+        async with aiohttp.ClientSession() as client:
+            async with client.ws_connect(f"ws://{where}/ws/control?client=contract",
+                                         origin=f"http://{where}") as ws:
+                await ws.send_json(message)
+
+    asyncio.run(send())
+
+
+def _pressed(stderr: Path, message: dict, made: Path, pattern: str):
+    """Under way once the page is up, ``message`` pressed on it, and a take under ``made``
+    (``pattern``) holds readings."""
+    pressed = []
+
+    def up() -> bool:
+        if not pressed:
+            if not _page_up(stderr)():
+                return False
+            _press(_page_url(stderr), message)
+            pressed.append(True)
+        return any(p.stat().st_size > 20_000 for p in made.glob(pattern) if p.is_file())
+    return up
+
+
+def _link_client():
+    spec = importlib.util.spec_from_file_location(
+        "contract_link_client", Path(__file__).resolve().parents[1] / "link" / "client.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module.Client
+
+
+def _linked(stderr: Path, video: Path, clients: list):
+    """Under way once a client of the link is connected (play --link waits for one) and the
+    video grows."""
+    def up() -> bool:
+        if not clients:
+            line = next((x for x in stderr.read_text().splitlines()
+                         if x.startswith("link: listening on ")), None)
+            if line is None:
+                return False
+            clients.append(_link_client()(int(line.split()[3].rsplit(":", 1)[1])))
+        return _bigger(video, 20_000)()
+    return up
+
+
+def _case(name: str, stop: str, tmp: Path, port: str | None, clients: list):
     """(argv, under_way predicate, video or None, take or None, stdin)."""
     seconds = ["--seconds", "2"] if stop == "end" else []
     video, take = tmp / "v.mp4", tmp / "t.mcap"
@@ -83,10 +146,23 @@ def _case(name: str, stop: str, tmp: Path, port: str | None):
     if name == "view":
         return (["view", "--address", "127.0.0.1:0", *seconds], _page_up(tmp / "stderr.txt"),
                 None, None, None)
+    pressed_seconds = ["--seconds", "10"] if stop == "end" else []  # time to press the button
+    if name == "view-record":  # the page's record button: a take in the command's folder
+        return (["demo", "--view", "127.0.0.1:0", "--out", str(video), *pressed_seconds],
+                _pressed(tmp / "stderr.txt", {"type": "record", "on": True}, tmp, "take-*.mcap"),
+                video, tmp / "take-*.mcap", None)
+    if name == "studio":  # the studio page's record button: take 1 of the session's shot
+        return (["studio", "shoot", "--demo", "--address", "127.0.0.1:0", *pressed_seconds],
+                _pressed(tmp / "stderr.txt", {"type": "studio", "action": "record", "count_in": 0},
+                         tmp / "shoot", "takes/*/*.mcap"),
+                None, tmp / "shoot" / "takes" / "*" / "*.mcap", None)
     long = _take(tmp / "long.mcap", 2.0 if stop == "end" else 120.0)
     if name == "play":  # the take's frames as fast as they solve, into the video
         return (["play", str(long), "--out", str(video), "--antialias", "none"],
                 _bigger(video, 20_000), video, None, None)
+    if name == "play-link":  # on the clock into a client of the link
+        return (["play", str(long), "--link", "127.0.0.1:0", "--out", str(video)],
+                _linked(tmp / "stderr.txt", video, clients), video, None, None)
     return (["play", str(long), "--view", "127.0.0.1:0", "--out", str(video)],
             _bigger(video, 20_000), video, None, None)
 
@@ -116,15 +192,21 @@ def _group_gone(group: int) -> bool:
 
 CASES = ([(n, s) for n in BUS for s in STOPS] + [("view", s) for s in STOPS if s != "kill-reader"]
          + [("play", s) for s in STOPS if s != "kill-reader"]
-         + [("play-view", s) for s in STOPS if s not in ("kill-reader", "end")])  # a take on the page
-                                                                                 # holds its last frame
+         + [("play-view", s) for s in STOPS if s not in ("kill-reader", "end")]  # a take on the page
+                                                                                # holds its last frame
+         + [("play-link", s) for s in STOPS if s != "kill-reader"]
+         + [(n, s) for n in ("view-record", "studio") for s in STOPS])
+PRESSED = ("play-link", "view-record", "studio")
+"""Cases under way only once the test did its part (a client connected, a button pressed),
+also when the run ends by itself."""
 
 
 @pytest.mark.parametrize("name, stop", CASES, ids=[f"{n}-{s}" for n, s in CASES])
 def test_every_command_keeps_what_it_made_on_every_way_out(name, stop, tmp_path, wait_until):
     rig = builtin()
     with hw_sim.serve(dict(rig.servo_map.models), motion="wave") as bus:
-        argv, under_way, video, take, stdin = _case(name, stop, tmp_path, bus.port)
+        clients: list = []
+        argv, under_way, video, take, stdin = _case(name, stop, tmp_path, bus.port, clients)
         err_path, out_path = tmp_path / "stderr.txt", tmp_path / "stdout.txt"
         err_path.write_text("")
         out_path.write_text("")
@@ -132,8 +214,9 @@ def test_every_command_keeps_what_it_made_on_every_way_out(name, stop, tmp_path,
             proc = subprocess.Popen([*PUPPET, *argv], stdin=stdin, stdout=stdout,
                                     stderr=err, text=True, process_group=0, cwd=tmp_path)
             try:
-                if stop != "end":
+                if stop != "end" or name in PRESSED:
                     wait_until(lambda: proc.poll() is not None or under_way(), what=f"{name} under way")
+                if stop != "end":
                     assert proc.poll() is None, err_path.read_text()
                     if stop == "ctrl-c":
                         os.killpg(proc.pid, signal.SIGINT)
@@ -150,6 +233,8 @@ def test_every_command_keeps_what_it_made_on_every_way_out(name, stop, tmp_path,
                 if proc.poll() is None:
                     os.killpg(proc.pid, signal.SIGKILL)
                     proc.wait()
+                for client in clients:
+                    client.close()
     stderr, out = err_path.read_text(), out_path.read_text()
     assert "Traceback" not in stderr and "KeyboardInterrupt" not in stderr, stderr
     assert "Aborted" not in stderr, stderr
@@ -164,8 +249,12 @@ def test_every_command_keeps_what_it_made_on_every_way_out(name, stop, tmp_path,
         frames, _ = imageio_ffmpeg.count_frames_and_secs(str(video))  # playable: it has its index
         assert frames > 0
     if take is not None:
-        assert len(TakeReader(take)) > 0
-    assert [p.name for p in tmp_path.iterdir() if ".partial" in p.name or p.name.startswith(".")] == []
+        takes = sorted(tmp_path.glob(str(take.relative_to(tmp_path)))) if "*" in str(take) else [take]
+        assert takes, f"no take at {take}"
+        for path in takes:
+            assert len(TakeReader(path)) > 0, path
+    assert [p.name for p in tmp_path.iterdir() if p.name.startswith(".")] == []
+    assert [str(p) for p in tmp_path.rglob("*") if ".partial" in p.name] == []  # the studio's too
 
 
 def _catches_sigterm(pid: int) -> bool:
