@@ -12,13 +12,15 @@ from urllib.parse import urlsplit
 
 import aiohttp
 
-from puppet.view.protocol import MAX_HANDLES, STALL_DROP_ENV, STALL_DROP_S
+from puppet.view.protocol import MAX_HANDLES, NOTICE_EVERY_S, STALL_DROP_ENV, STALL_DROP_S
 
 STALL_S = 4.0
 """The stall after which this module's demo drops a viewer: the mechanism's, shorter than the
 default STALL_DROP_S (the test waits it out, after the stuck sockets' buffers filled)."""
 assert STALL_S < STALL_DROP_S
 DEMO_ENV = {STALL_DROP_ENV: str(STALL_S)}  # tests/view/conftest.py's demo
+MERGED_WAIT_S = 60.0 + 3 * NOTICE_EVERY_S
+"""How long the flood test waits for the merged notices (they come NOTICE_EVERY_S apart)."""
 
 
 def stuck_socket(url: str, path: str, client: str) -> socket.socket:
@@ -112,7 +114,15 @@ async def _flood(url: str, bones: list, pickers: int) -> dict:
                 x, y = on_character()
                 await sockets[f"picker{i}"].send_str(json.dumps({"type": "pick", "key": key, "seq": 0,
                                                                  "x": x, "y": y}))
-        await asyncio.sleep(3 * 2.0)  # the merged notices come NOTICE_EVERY_S apart
+        # the merged notices come NOTICE_EVERY_S after the first of their kind: wait for the
+        # flooder's merged line and the handle cap's notice (a generous deadline, no fixed wait)
+        deadline = asyncio.get_running_loop().time() + MERGED_WAIT_S
+        while not (any("more like it" in text for text in notices["flood"])
+                   and any(f"at most {MAX_HANDLES} handles" in text
+                           for texts in notices.values() for text in texts)):
+            assert asyncio.get_running_loop().time() < deadline, \
+                f"no merged notice within {MERGED_WAIT_S} s: {notices}"
+            await asyncio.sleep(0.05)
         for ws in sockets.values():
             await ws.close()
         await asyncio.gather(*readers, return_exceptions=True)
