@@ -43,7 +43,8 @@ vertex order.
 
 Recording: a frame with flags & RECORDING is part of a take being recorded (``puppet live
 --record``); its take_s is its reading's time on the take's time line (seconds after the take's
-first reading), so the client keys it at scene frame start + take_s × scene fps, where
+first reading, every gap between readings longer than MAX_GAP_S cut to it, as playback cuts
+them), so the client keys it at scene frame start + take_s × scene fps, where
 ``puppet export`` of that take puts it, and places the hello's sound (if any) so that its
 sample 0 plays at frame start - offset_s × scene fps. fps in the hello is the rate frames come
 at: the take's (play) or the live loop's target (live, demo). Latest wins: puppet keeps at

@@ -85,7 +85,8 @@ def run_live(pipeline: Pipeline, source, *, seconds: float | None = None,
               actuators' goals from ``pipeline.T``).
     link:     a live link (puppet.link.Link) or None: ``link.frame(pipeline, reading)`` after
               each solve (it copies T; its own thread sends); with a recorder, take time 0 is
-              the first reading recorded and every frame is flagged recording.
+              the first reading recorded, every frame is flagged recording and its take time
+              is the recorder's ``play_s`` (long gaps cut, as the take's outputs cut them).
     feed:     callables given every batch of readings (a key desk without a view).
     pipeline None: readings only (``puppet record``): every reading recorded and fed, nothing
               solved; ``frames`` then counts batches and ``held_reading`` counts readings with a held servo.
@@ -146,8 +147,9 @@ def run_live(pipeline: Pipeline, source, *, seconds: float | None = None,
         if after_solve is not None:
             after_solve(pipeline, reading)
         if link is not None:
-            link.frame(pipeline, reading, recording=recorder is not None
-                       and getattr(recorder, "started_ns", 0) is not None)
+            recording = recorder is not None and getattr(recorder, "started_ns", 0) is not None
+            link.frame(pipeline, reading, recording=recording,  # the take's outputs' time line
+                       take_s=getattr(recorder, "play_s", None) if recording else None)
         stages.lap("solve")
         if render:
             image = _draw(pipeline, stages, request)

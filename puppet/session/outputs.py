@@ -183,8 +183,10 @@ class _TakeFromZero:
     the file made at the first of them (nothing recorded: no file), with the sound's reference
     (its offset: the sound's time at that first reading, so the two stay in sync by
     construction) and the start timecode of that moment. ``started_ns``: the first reading's
-    time (the take's time 0; None until then). ``header``: TakeWriter header keywords given
-    instead (a layer's: its record and the base's sound and timecode, ``puppet.session.layers``)."""
+    time (the take's time 0; None until then); ``play_s``: the last reading's time on the
+    take's outputs' time line (``PlayClock``: long gaps cut as playback cuts them). ``header``:
+    TakeWriter header keywords given instead (a layer's: its record and the base's sound and
+    timecode, ``puppet.session.layers``)."""
 
     def __init__(self, path, rig, *, force: bool, zero_ns: int, from_ns: int, sound=None,
                  sound_offset_s: float = 0.0, timecode_fps: float = 30.0,
@@ -197,6 +199,9 @@ class _TakeFromZero:
         self.timecode_fps = timecode_fps
         self.started_ns: int | None = None
         self._writer = None  # the BackgroundTakeWriter once the first reading came
+        from puppet.take.playback import PlayClock
+
+        self._clock = PlayClock()
 
     @property
     def writer(self):
@@ -235,6 +240,11 @@ class _TakeFromZero:
                 return  # the count-in
             self._open(reading.t_ns)
         self._writer.write(reading)
+        self._clock.advance(reading.t_ns)
+
+    @property
+    def play_s(self) -> float:
+        return self._clock.play_ns * 1e-9
 
     def mark(self, t_ns: int, name: str) -> None:
         if self._writer is not None:

@@ -92,6 +92,23 @@ def play_times_ns(t_ns: np.ndarray, max_gap_ns: int = MAX_GAP_NS) -> tuple[np.nd
     return play, cuts
 
 
+class PlayClock:
+    """``play_times_ns``'s rule for readings as they come (a live recording's link keys them
+    where the take's outputs will put them): ``advance(t_ns)`` -> the reading's play time, ns
+    after the first reading, every gap cut to max_gap_ns."""
+
+    def __init__(self, max_gap_ns: int = MAX_GAP_NS) -> None:
+        self.max_gap_ns = max_gap_ns
+        self.play_ns = 0
+        self._last_ns: int | None = None
+
+    def advance(self, t_ns: int) -> int:
+        if self._last_ns is not None:
+            self.play_ns += min(t_ns - self._last_ns, self.max_gap_ns)
+        self._last_ns = t_ns
+        return self.play_ns
+
+
 def gap_note(t_ns: np.ndarray) -> str | None:
     """The warning for a take whose readings at t_ns ((R,) int64) have gaps that playback cuts,
     naming the longest gap and the bound; None when there are none."""
