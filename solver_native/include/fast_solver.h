@@ -129,6 +129,8 @@ class FastSolver {
   int m_, r_, kf_, kp_, kr_, mp_, rp_, window_;
   std::vector<float> csm_, g_, p2_, q_;
   std::vector<int32_t> tile_off_, tile_k_;  // per gather row tile: the columns of csm_ not zero there
+  std::vector<int32_t> gtile_off_, gtile_k_;  // per row tile of g_: its columns not zero there (not the
+                                              // padding clusters'), visited by the global product
   std::vector<double> h_;
   double c0_;
   const Kernels* k_;  // SIMD kernels for this CPU

@@ -13,8 +13,8 @@
 //
 // Degenerate covariances (rank < 3, zero, non-finite) still give a proper
 // rotation: zero or non-finite S gives the identity. Eight matrices per SIMD
-// register; the kernel set (baseline, AVX2+FMA or AVX-512 on 8 lanes) is chosen at run time
-// (kernels.h).
+// register (sixteen in the AVX-512 set's interleaved schedule while 48 remain); the kernel set
+// (baseline, AVX2+FMA or AVX-512) is chosen at run time (kernels.h).
 #pragma once
 
 #include <cstddef>

@@ -31,6 +31,7 @@ PUPPET_DECLARE_KERNELS(avx512)
 
 // Batches of eight matrices the rotation fit runs interleaved (at most): three batches' dependency
 // chains in flight at once hide each other's latency; 1 is the plain schedule, one batch at a time.
+// (At 3 the AVX-512 set runs its batches sixteen lanes wide while 48 matrices remain.)
 constexpr int kRotationInterleave = 3;
 
 // One kernel set. fit_rotations_soa: see fit_rotations.h; gemm3: out[c*ldo + i] (+)= sum_k A[k*lda + i] B[k*bk + c*bc], c < 3, i < rows

@@ -66,6 +66,22 @@ void cholesky_solve(const double* l, int n, double* b) {
   }
 }
 
+// Per row tile of A (see for_each_tile; column k of A at a[k * lda]): the columns k < K not zero on
+// that tile, listed in ks, tile t's from off[t] to off[t + 1] (gemm3_sparse visits only those).
+void nonzero_columns(const float* a, std::ptrdiff_t lda, int rows, int K, std::vector<int32_t>& off,
+                     std::vector<int32_t>& ks) {
+  off.assign(1, 0);
+  ks.clear();
+  for_each_tile(rows, [&](int i, int size) {
+    for (int k = 0; k < K; ++k) {
+      bool nonzero = false;
+      for (int t = 0; t < size; ++t) nonzero |= a[k * lda + i + t] != 0.0f;
+      if (nonzero) ks.push_back(k);
+    }
+    off.push_back(static_cast<int32_t>(ks.size()));
+  });
+}
+
 }  // namespace
 
 FastSolver::FastSolver(int m, int r, int kf, int kp, int kr, const float* csm, const float* g,
@@ -84,16 +100,8 @@ FastSolver::FastSolver(int m, int r, int kf, int kp, int kr, const float* csm, c
         csm_[static_cast<size_t>(k) * rr + rho] = normal_or_zero(csm[static_cast<size_t>(k) * 3 * r + 3 * gg + i]);
         g_[static_cast<size_t>(rho) * mp_ + k] = normal_or_zero(g[static_cast<size_t>(k) * 3 * r + 3 * gg + i]);
       }
-  tile_off_.assign(1, 0);
-  tile_k_.clear();
-  for_each_tile(rr, [&](int i, int size) {
-    for (int k = 0; k < n4; ++k) {
-      bool nonzero = false;
-      for (int t = 0; t < size; ++t) nonzero |= csm_[static_cast<size_t>(k) * rr + i + t] != 0.0f;
-      if (nonzero) tile_k_.push_back(k);
-    }
-    tile_off_.push_back(static_cast<int32_t>(tile_k_.size()));
-  });
+  nonzero_columns(csm_.data(), rr, rr, n4, tile_off_, tile_k_);
+  nonzero_columns(g_.data(), mp_, mp_, rr, gtile_off_, gtile_k_);
   p2_.assign(static_cast<size_t>(std::max(nb, 1)) * mp_, 0.0f);
   for (int k = 0; k < n4; ++k)
     for (int j = 0; j < nb; ++j) p2_[static_cast<size_t>(j) * mp_ + k] = normal_or_zero(p2[static_cast<size_t>(k) * nb + j]);
@@ -604,7 +612,7 @@ void FastSolver::global_step(float* out) {
 
 void FastSolver::base_global_step(float* out) {
   const int rr = 3 * rp_;
-  k_->gemm3(g_.data(), mp_, mp_, rr, rot_.data(), 1, rr, out, mp_, false);
+  k_->gemm3_sparse(g_.data(), mp_, mp_, gtile_off_.data(), gtile_k_.data(), rot_.data(), 1, rr, out, mp_);
   for (int i = 0; i < 3 * mp_; ++i) out[i] += tb_[i];
   if (kc_ > 0) {
     const int nR = 3 * kr_, n4 = 4 * m_;
