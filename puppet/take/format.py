@@ -168,6 +168,11 @@ class ReadingCodec:
         n2 = int.from_bytes(payload[16 + 4 * self.k : 20 + 4 * self.k], "little")
         if n1 != self.k or n2 != self.k:
             return "malformed reading", f"sequence lengths {n1}/{n2}, expected {self.k}"
+        if self.version >= 3:
+            at = 20 + 4 * self.k
+            worst = max(payload[at : at + self.k], default=0)
+            if worst > OK_BYTE_LATE:
+                return "malformed reading", f"ok byte {worst}, expected 0, 1 or {OK_BYTE_LATE}"
         return None
 
     def decode(self, payload) -> tuple[int, np.ndarray, np.ndarray, np.ndarray | None]:

@@ -116,3 +116,17 @@ def _as_version_2(data: bytes) -> bytes:
                       publish_time=message.publish_time, sequence=message.sequence)
     w.finish()
     return out.getvalue()
+
+
+def test_an_ok_byte_no_version_3_writes_is_a_malformed_reading():
+    """A payload whose checksum holds but whose ok byte is none of 0, 1, 2 (a writer's bug, a
+    foreign tool): refused as malformed, never read as a fault or a late reply."""
+    import zlib
+
+    codec = fmt.ReadingCodec(4)
+    payload = bytearray(codec.encode(5, np.arange(4, dtype=np.int32), np.ones(4, bool),
+                                     np.zeros(4, bool)))
+    assert codec.check(bytes(payload)) is None
+    payload[20 + 4 * 4 + 1] = 7
+    payload[codec.crc_at:] = zlib.crc32(payload[:codec.crc_at]).to_bytes(4, "little")
+    assert codec.check(bytes(payload)) == ("malformed reading", "ok byte 7, expected 0, 1 or 2")
