@@ -74,3 +74,35 @@ def test_the_live_summary_says_late_replies_not_a_fault(sim, open_reader):
     assert line.startswith("faults seen: none; other events: "), line
     assert "late_reply" in line and "servo_not_ok" not in line
     assert set(summary.faults) <= set(CONDITIONS) and HELD_READING not in EVENT_KINDS
+
+
+def test_a_bus_where_no_servo_of_the_map_answers_is_refused_after_one_wait(sim):
+    """Protocol 2.0 servos in the map, AX-12A on the bus: nothing answers and nothing can
+    witness the line, so the stall limit is waited once for the whole bus, not once per
+    servo (15 servos x 5 s outran the reader's start: 'the reader process did not start'),
+    and the setup fails naming the port, its speed and protocol and what to check."""
+    import time
+
+    import hw_sim
+    import pytest
+
+    from puppet.bus import ServoReader
+    from puppet.bus.errors import ServoMissing
+
+    ids = range(1, 9)
+    with hw_sim.serve(servos={i: "AX-12A" for i in ids}) as bus:
+        reader = ServoReader(bus.link, {i: "XL430-W250" for i in ids}, latency_ms=6.0,
+                             stall_limit_s=1.0)
+        start = time.monotonic()
+        try:
+            with pytest.raises(ServoMissing) as refused:
+                reader.open()
+        finally:
+            reader.close()
+        took = time.monotonic() - start
+    assert refused.value.ids == list(ids)
+    said = str(refused.value)
+    assert f"no servo of the map answered on {bus.link} at 1000000 bit/s (Protocol 2.0" in said
+    assert "puppet scan --port PORT --baud all" in said
+    # one stall limit for the bus, then a ping each: well under one limit per servo
+    assert took < len(ids) * 1.0, took
