@@ -114,7 +114,7 @@ def _check_video_size(out: str, frames: int, fps: float, force: bool) -> None:
 
     width, height = PLAY_SIZE
     check_size(out, "the --out video", estimated_bytes("mp4", frames, pixels=width * height),
-               f"{frames} frames of {width}x{height} at {fps:g} fps", force, "--fps or --speed")
+               f"{frames} frames of {width}x{height} at {fps:g} fps", force, "--fps (or raise --speed)")
 
 
 def _check_frames_size(folder: str, frames: int, fps: float, force: bool) -> None:
@@ -124,7 +124,7 @@ def _check_frames_size(folder: str, frames: int, fps: float, force: bool) -> Non
 
     width, height = PLAY_SIZE
     check_size(folder, "the --frames PNGs", estimated_bytes("png", frames, pixels=width * height),
-               f"{frames} frames of {width}x{height} at {fps:g} fps", force, "--fps or --speed")
+               f"{frames} frames of {width}x{height} at {fps:g} fps", force, "--fps (or raise --speed)")
 
 
 def _sound(reader, sound_path: str | None):
