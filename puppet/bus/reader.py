@@ -259,7 +259,8 @@ class ServoReader:
                 if tries < 3:
                     continue
                 if exc.deadline and not self._silence_proven(
-                        dxl_id, time.monotonic_ns(), report.found, stalled=exc.line_stalled):
+                        dxl_id, time.monotonic_ns(), report.found, stalled=exc.line_stalled,
+                        late=exc.reply_late):
                     continue
                 self._mark_missing(dxl_id, exc)
                 report.missing.append(dxl_id)
@@ -404,19 +405,24 @@ class ServoReader:
     def _alone_failed(self, dxl_id: int, exc: ServoError, now: int) -> None:
         """A servo's own read failed: booked once the failure is certain (see the docstring);
         until then its value is held as late (``Reading.late``), not a fault."""
-        if self._stalled or exc.deadline and not self._silence_proven(dxl_id, now,
-                                                                       stalled=exc.line_stalled):
+        if self._stalled or exc.deadline and not self._silence_proven(
+                dxl_id, now, stalled=exc.line_stalled, late=exc.reply_late):
             self._late[self._index[dxl_id]] = True
             return
         self._failed(dxl_id, exc, now)
 
-    def _silence_proven(self, dxl_id: int, now: int, heard=None, stalled: bool = False) -> bool:
+    def _silence_proven(self, dxl_id: int, now: int, heard=None, stalled: bool = False,
+                        late: bool = False) -> bool:
         """Whether a timeout of ``dxl_id`` is a proven silence (see the module doc): a witness
         (a servo that answered: in ``heard`` at setup, else ok in this reading or heard last)
         is asked for a read. False (counted in ``stalls``) when the line shows the reply was late or
-        cannot judge, unless ``dxl_id``'s timeouts have gone unproven for ``stall_limit_s``."""
+        cannot judge, unless ``dxl_id``'s timeouts have gone unproven for ``stall_limit_s``.
+        ``late``: a witness already showed this reply late (``ServoError.reply_late``): no second
+        witness, which would find the line clean and call the servo silent."""
         witness = self._witness_for(dxl_id, heard)
-        if stalled or witness is None or heard is None and self._stalled:
+        if late:
+            verdict = LATE
+        elif stalled or witness is None or heard is None and self._stalled:
             verdict = STALLED
         else:
             verdict = self.link.witness(witness)

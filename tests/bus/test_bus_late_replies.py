@@ -106,3 +106,17 @@ def test_a_bus_where_no_servo_of_the_map_answers_is_refused_after_one_wait(sim):
     assert "puppet scan --port PORT --baud all" in said
     # one stall limit for the bus, then a ping each: well under one limit per servo
     assert took < len(ids) * 1.0, took
+
+
+def test_a_reply_a_witness_showed_late_at_setup_never_makes_its_servo_missing(sim, open_reader):
+    """Setup on a busy host: a servo's Status Return Level read misses its deadline, the ping
+    that judges it shows the reply on its way (late) and reads it off the line; that verdict is
+    kept (``ServoError.reply_late``). Judged again, the clean line would say 'silent' and the
+    servo was booked missing ('servo_missing' in a plain `puppet demo` beside two busy loops)."""
+    bus = sim(timing=True)
+    bus.inject("late", ids=[2], p=0.5, ms=LATE_MS, duration_s=3.0)  # half its replies, at setup
+    reader = open_reader(bus, stall_limit_s=600.0)  # only the line's proof may book a failure
+    assert reader.report.missing == [] and 2 in reader.report.found
+    assert "servo_missing" not in reader.log.counts, [
+        (e.kind, e.ids, e.detail) for e in reader.log.events]
+    assert reader.log.counts.get("late_reply", 0) >= 1  # the late replies were met, and said
