@@ -120,3 +120,36 @@ def test_a_reply_a_witness_showed_late_at_setup_never_makes_its_servo_missing(si
     assert "servo_missing" not in reader.log.counts, [
         (e.kind, e.ids, e.detail) for e in reader.log.events]
     assert reader.log.counts.get("late_reply", 0) >= 1  # the late replies were met, and said
+
+
+def test_a_ping_witness_is_not_judged_by_an_earlier_pings_late_reply(sim):
+    """A ping witness whose reply comes late (STALLED) leaves that reply on its way; a second
+    ping witness of the same servo would take it for its own (a ping reply carries no sequence
+    number), judge the line by it, and leave its own reply to answer a later 1-byte read (a
+    Status Return Level 2 read as Torque Enable 2, as Hardware Error Status 0x02: a reboot sent
+    for nothing, seen beside two busy loops). It says STALLED until a witness puts the line in
+    order again."""
+    import time
+
+    from puppet.bus.link import LATE, SILENT, STALLED, BusLink
+
+    def judged(ask):  # a loaded host may stall any witness: ask until one judges
+        deadline = time.monotonic() + 60
+        while (verdict := ask()) == STALLED and time.monotonic() < deadline:
+            pass
+        return verdict
+
+    bus = sim(timing=True)
+    link = BusLink(bus.port, latency_ms=6.0)
+    link.open()
+    try:
+        assert judged(lambda: link.witness(2, ping=True)) in (LATE, SILENT)
+        bus.inject("late", ids=[2], ms=200.0)
+        assert link.witness(2, ping=True) == STALLED  # its reply is 200 ms away
+        bus.clear_faults()
+        time.sleep(0.4)  # the late reply has arrived: the stimulus, not a wait for a state
+        assert link.witness(2, ping=True) == STALLED  # never judged by that reply
+        assert judged(lambda: link.witness(1)) in (LATE, SILENT)  # a read orders the line ...
+        assert judged(lambda: link.witness(2, ping=True)) in (LATE, SILENT)  # ... pings judge
+    finally:
+        link.close()
