@@ -154,6 +154,22 @@ def _parse(record_cls, body: bytes):
     return record_cls.read(ReadDataStream(BytesIO(body)))
 
 
+def _written_length(opcode: int, body: bytes) -> int | None:
+    """Bytes a metadata, schema or channel record's fields take, as written again from what
+    parses of ``body`` (None for another record, or one that does not parse)."""
+    from mcap.data_stream import RecordBuilder
+
+    cls = {Opcode.METADATA: Metadata, Opcode.SCHEMA: Schema, Opcode.CHANNEL: Channel}.get(opcode)
+    if cls is None:
+        return None
+    try:
+        builder = RecordBuilder()
+        _parse(cls, body).write(builder)
+    except _PARSE_ERRORS:
+        return None
+    return len(builder.end()) - _RECORD_HEAD.size
+
+
 def _schema_version(schema: Schema | None) -> int | None:
     """The take format version whose reading schema this is, or None."""
     if schema is None or schema.name != fmt.SCHEMA_NAME:
@@ -294,6 +310,16 @@ class TakeReader:
                 if problem is not None:
                     damage = ("corrupt record", f"damaged {_opname(opcode)} record at byte {pos} "
                               f"({problem})", end)
+                else:
+                    exact = _written_length(opcode, mm[body:end])
+                    if exact is not None and exact != length and self._boundary(mm, s, body + exact):
+                        # its length field is damaged (a take's writer adds nothing after a
+                        # record's fields): the record ends where its content does, and the
+                        # reading after it is read, not swallowed
+                        report.notes.append(f"{_opname(opcode)} record at byte {pos}: its length "
+                                            f"field says {length} bytes, its content {exact}")
+                        pos = body + exact
+                        continue
             elif opcode in _QUIET_OPCODES:
                 pass
             else:
