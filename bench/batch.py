@@ -134,8 +134,9 @@ def run_case(engine: str, workers: int, takes: list[Path], out: Path, rig, forma
     load_before = os.getloadavg()[0]
     report = run_batch([str(t) for t in takes], out, rig=rig, formats=formats,
                        fps=fps, size=size, engine=engine, workers=workers)
-    if report.failed:
-        sys.exit(f"bench: {engine} case failed: {report.failed[0].take}: {report.failed[0].error}")
+    if report.failed:  # the failed take's whole row and log: the worker's own error
+        sys.exit(f"bench: {engine} case failed: {report.failed[0].take}: {report.failed[0].error}"
+                 f"\n{report.failed[0].log_text()}")
     busy = sum(r.seconds for r in report.rows) / workers
     overhead = max(0.0, report.seconds - report.precompute_s - busy) / len(takes)
     return {"engine": engine, "workers": workers, "takes": len(takes), "formats": formats,

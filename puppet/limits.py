@@ -139,7 +139,8 @@ EXPORT_BYTES = Range(0, 16 * 2**30, "bytes", integer=True)
 frames, vertices and joints before anything is written (``puppet.export.run.estimated_bytes``):
 a point cache of a long take of a dense mesh grows as frames × vertices × 12 bytes. ``puppet
 play --out`` and batch's mp4 follow the same rule (a video frame estimated at
-``puppet.export.run.VIDEO_BYTES_PER_PIXEL``)."""
+``puppet.export.run.VIDEO_BYTES_PER_PIXEL``), and so do ``puppet play --frames``' PNG frames,
+all of them together (``puppet.export.run.PNG_BYTES_PER_PIXEL``)."""
 
 SOUND_SECONDS_MAX = 900.0
 """A sound (--sound FILE) lasts at most 15 minutes: a performance to a voice or a song, and

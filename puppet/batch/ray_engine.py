@@ -310,23 +310,42 @@ class RayEngine:
         except ray.exceptions.RayError as err:
             if type(err).__name__ in _RETRIED and tries <= self.retries:
                 return None
-            what = "its Ray worker or node died" if type(err).__name__ in _RETRIED else \
-                "the Ray task failed"
-            cause = getattr(err, "cause", None)  # a RayTaskError: the task's own exception
-            if isinstance(cause, BaseException):
-                result = internal_error(job.take, cause)
-                result.reason = f"{what} ({tries} tries): {result.reason}"
-            else:
-                lines = [plain(line) for line in str(err).strip().splitlines() if line.strip()]
-                last = lines[-1] if lines else type(err).__name__
-                result = TakeResult.failed(job.take, f"{what} ({tries} tries): "
-                                                     f"{type(err).__name__}: {last}")
-                for line in lines[-TRACEBACK_LINES:]:
-                    result.add_log(line)
-            result.retries = tries - 1
-            return result
+            return failed_row(err, job.take, tries)
         result.retries = tries - 1
         return result
+
+
+def failed_row(err, take, tries: int) -> TakeResult:
+    """The row of a take whose Ray task raised ``err`` (a RayError) after ``tries`` tries: a
+    RayTaskError carries the task's own exception (its ``cause``) and the worker's traceback as
+    text (its ``traceback_str``): the reason names the exception and where it was raised, the
+    log holds the end of that traceback; any other RayError: its last line, and its lines."""
+    what = "its Ray worker or node died" if type(err).__name__ in _RETRIED else \
+        "the Ray task failed"
+    cause = getattr(err, "cause", None)  # a RayTaskError: the task's own exception
+    if isinstance(cause, BaseException):
+        # its traceback stayed in the worker: Ray sends it as text
+        # (what ray.get raises: the cause's class and RayTaskError both; its text is the
+        # worker's traceback under a first line "ray::_ray_task() (pid=..., ip=...)")
+        text = plain(getattr(err, "traceback_str", None) or str(err))
+        result = internal_error(take, cause, traceback_text=text, worker=_worker_of(text))
+        result.reason = f"{what} ({tries} tries): {result.reason}"
+    else:
+        lines = [plain(line) for line in str(err).strip().splitlines() if line.strip()]
+        last = lines[-1] if lines else type(err).__name__
+        result = TakeResult.failed(take, f"{what} ({tries} tries): {type(err).__name__}: {last}")
+        for line in lines[-TRACEBACK_LINES:]:
+            result.add_log(line)
+    result.retries = tries - 1
+    return result
+
+
+def _worker_of(text: str) -> str:
+    """'ip:pid' of the Ray worker a RayTaskError's text names ('' when it does not)."""
+    import re
+
+    found = re.search(r"\(pid=(\d+), ip=([^)\s]+)\)", text)
+    return f"{found[2]}:{found[1]}" if found else ""
 
 
 @contextmanager

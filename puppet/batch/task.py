@@ -92,20 +92,31 @@ TRACEBACK_LINES = 8
 """Lines of a worker's traceback (its end) kept in a failed take's log."""
 
 
-def internal_error(take, err: BaseException, *, worker: str = "") -> TakeResult:
+def internal_error(take, err: BaseException, *, worker: str = "",
+                   traceback_text: str | None = None) -> TakeResult:
     """The failed row of a take whose worker raised what no take should (a bug, not a bad take):
     the reason names the exception and where it was raised (file:line in function); the log
-    lines hold the end of the worker's own traceback. The same on every engine."""
+    lines hold the end of the worker's own traceback. The same on every engine.
+    traceback_text: the worker's traceback as text, for an exception that crossed a process
+    (its ``__traceback__`` did not: Ray's ``RayTaskError.traceback_str``)."""
+    import re
     import traceback
 
-    frames = traceback.extract_tb(err.__traceback__)
-    where = f" (at {Path(frames[-1].filename).name}:{frames[-1].lineno} in {frames[-1].name})" \
-        if frames else ""
-    result = TakeResult.failed(take, f"internal error: {type(err).__name__}: {err}{where}",
+    if traceback_text is None:
+        frames = traceback.extract_tb(err.__traceback__)
+        where = f" (at {Path(frames[-1].filename).name}:{frames[-1].lineno} in " \
+                f"{frames[-1].name})" if frames else ""
+        traceback_text = "".join(traceback.format_exception(type(err), err,
+                                                            err.__traceback__))
+    else:
+        frames = re.findall(r'File "([^"]+)", line (\d+), in (\S+)', traceback_text)
+        where = f" (at {Path(frames[-1][0]).name}:{frames[-1][1]} in {frames[-1][2]})" \
+            if frames else ""
+    said = next((line for line in str(err).splitlines() if line.strip()), "")  # one line
+    result = TakeResult.failed(take, f"internal error: {type(err).__name__}: {said}{where}",
                                worker=worker)
-    text = "".join(traceback.format_exception(type(err), err, err.__traceback__)).rstrip()
     result.add_log("the worker's traceback (its end):")
-    for line in text.splitlines()[-TRACEBACK_LINES:]:
+    for line in traceback_text.rstrip().splitlines()[-TRACEBACK_LINES:]:
         result.add_log(line)
     return result
 

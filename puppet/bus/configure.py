@@ -6,7 +6,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 
 from puppet.bus.errors import BusError, ServoError, ServoModelMismatch, ServoStatusError, ServoTimeout
-from puppet.bus.link import SILENT, BusLink
+from puppet.bus.link import LATE, SILENT, BusLink
 from puppet.servo_models import MODELS_BY_NUMBER, X_ITEMS, ControlItems, model_named, protocol_of
 
 
@@ -137,10 +137,12 @@ def ensure_status_return(link: BusLink, dxl_id: int, changes: list[Change],
     srl = items.status_return_level
     try:
         level = link.read(dxl_id, srl)
-    except ServoTimeout:
+    except ServoTimeout as exc:
         # A pinged servo that ignores reads is at level 0, or its reply is only late (a loaded
         # machine): it answers pings, so a ping tells, by what arrives before its reply.
-        if link.witness(dxl_id, ping=True) != SILENT:
+        verdict = link.witness(dxl_id, ping=True)
+        if verdict != SILENT:
+            exc.reply_late = verdict == LATE  # the late reply is read off the line: said so
             raise
         level = 0
     if level >= 2:

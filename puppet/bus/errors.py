@@ -51,6 +51,9 @@ class ServoError(BusError):
     deadline = False
     """True when the SDK gave up at its deadline (no reply, or one cut short): on a loaded
     machine such a reply may only be late (see ``BusLink.witness``)."""
+    reply_late = False
+    """True when a witness already judged this transaction's reply LATE (and read it off the
+    line): proven late. Judging it again would find a clean line and call the servo silent."""
 
     def __init__(self, ids: Iterable[int], instruction: str, detail: str = ""):
         self.ids = sorted(int(i) for i in ids)

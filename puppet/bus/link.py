@@ -61,6 +61,9 @@ def _failure(code: int, ids: Iterable[int], instruction: str, detail: str = "",
     return error
 
 
+PING_PENDING = 0
+"""In a witness's pending sizes: a ping witness of it is still unanswered (sizes are >= 5), so
+no later ping can be judged (its reply and the earlier one's look alike)."""
 WITNESS_SIZES = range(5, 21)
 """Data sizes of witness reads (of the control table from address 0, present on every model):
 each outstanding witness of a servo reads a size of its own, so a late reply to an earlier
@@ -207,8 +210,9 @@ class BusLink:
         -> SILENT (the failed servo really did not answer); nothing within ``timeout_s``
         (default: the SDK's own deadline for that reply) -> STALLED (no proof either way).
         Everything read is consumed; after STALLED the next instruction lets the line settle.
-        ``ping``: ask with a ping instead (for a servo that answers nothing else; a late
-        reply to an earlier ping would pass for its answer).
+        ``ping``: ask with a ping instead (for a servo that answers nothing else); while an
+        earlier ping witness of it is unanswered, STALLED at once (that late reply would pass for
+        this one's, and this one's would then arrive unseen and answer a later read).
         """
         with self._transaction([witness_id], "witness", tx=False):
             return self._witness(witness_id, timeout_s, ping)
@@ -216,6 +220,9 @@ class BusLink:
     def _witness(self, witness_id: int, timeout_s: float | None = None, ping: bool = False) -> str:
         pending = self._witness_pending.setdefault(witness_id, set())
         wire = self.wire
+        if ping and PING_PENDING in pending:  # an earlier ping's reply would pass for this one's
+            self._unsettled = True
+            return STALLED
         size = wire.ping_size() if ping else next((n for n in WITNESS_SIZES if n not in pending), None)
         if size is None:  # every size still awaits its reply: the line is stalled
             self._unsettled = True
@@ -235,14 +242,15 @@ class BusLink:
                 break
             if time.monotonic() > deadline:
                 self._unsettled = True
-                if not ping:
-                    pending.add(size)
+                pending.add(PING_PENDING if ping else size)
                 return STALLED
             got += self.port.ser.read(max(1, self.port.ser.in_waiting))
         before = bytes(got[:at])
         if before.endswith(tx):  # a half-duplex adapter echoes the host's own bytes
             before = before[: -len(tx)]
         pending.clear()  # the line is in order: every earlier witness reply came before this one
+        for other in self._witness_pending.values():  # ... every earlier ping's too
+            other.discard(PING_PENDING)
         self._unsettled = len(got) > at + reply_size
         return LATE if before else SILENT
 

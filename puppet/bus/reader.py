@@ -61,6 +61,10 @@ DUPLICATE_PINGS_OK = 5
 """Pings (of DUPLICATE_PROBES) that must answer for a duplicate id."""
 
 
+BUS_UNHEARD = -1
+"""Key of ``ServoReader._unproven_since`` while no servo has answered at all (no witness)."""
+
+
 class ServoReader:
     """Reads the Present Position of a fixed list of servos, surviving bus faults.
 
@@ -157,7 +161,8 @@ class ServoReader:
         self.stall_limit_ns = int(stall_limit_s * 1e9)
         self.stalls = 0
         self._stalled = False           # this read() met a stalled line: spare further timeouts
-        self._unproven_since: dict[int, int] = {}  # id -> first unproven timeout in a row (ns)
+        # id (BUS_UNHEARD: the whole bus, no witness) -> first unproven timeout in a row (ns)
+        self._unproven_since: dict[int, int] = {}
 
         self.ids = np.array(list(self.servos), dtype=np.int64)
         self.ids.setflags(write=False)
@@ -195,7 +200,8 @@ class ServoReader:
         broadcast_ping: also list servos on the bus that the map lacks (costs ~0.8 s).
         strict: raise ServoMissing when a mapped servo does not answer (otherwise it is
                 flagged and probed until it appears).
-        Raises PortError (no port), ServoModelMismatch (map and bus disagree).
+        Raises PortError (no port), ServoModelMismatch (map and bus disagree), ServoMissing
+        when no servo of the map answers at all (a wrong port, baud rate or protocol).
         """
         self.link.open()
         self._port_up = True
@@ -207,6 +213,13 @@ class ServoReader:
             report.unexpected = {i: m for i, (m, _) in found.items() if i not in self.servos}
         identify(self.link, self.servos, report)
         self._identify_again(report)
+        if self.servos and not report.found:  # nothing to read: a wrong port, baud or protocol
+            protocol = "1.0" if self.link.wire.p1 else "2.0"
+            raise ServoMissing(report.missing, "ping", (
+                f"no servo of the map answered on {self.link.port_name} at {self.link.baud} "
+                f"bit/s (Protocol {protocol}, the rig's servos' protocol): check the power, "
+                "the --baud and the servos' protocol (puppet scan --port PORT --baud all "
+                "lists what answers)"))
         if report.missing and strict:
             raise ServoMissing(report.missing, "ping", f"on {self.link.port_name}")
         fast_ok = supports_fast_sync_read(self.servos, report.found)
@@ -246,7 +259,8 @@ class ServoReader:
                 if tries < 3:
                     continue
                 if exc.deadline and not self._silence_proven(
-                        dxl_id, time.monotonic_ns(), report.found, stalled=exc.line_stalled):
+                        dxl_id, time.monotonic_ns(), report.found, stalled=exc.line_stalled,
+                        late=exc.reply_late):
                     continue
                 self._mark_missing(dxl_id, exc)
                 report.missing.append(dxl_id)
@@ -391,19 +405,24 @@ class ServoReader:
     def _alone_failed(self, dxl_id: int, exc: ServoError, now: int) -> None:
         """A servo's own read failed: booked once the failure is certain (see the docstring);
         until then its value is held as late (``Reading.late``), not a fault."""
-        if self._stalled or exc.deadline and not self._silence_proven(dxl_id, now,
-                                                                       stalled=exc.line_stalled):
+        if self._stalled or exc.deadline and not self._silence_proven(
+                dxl_id, now, stalled=exc.line_stalled, late=exc.reply_late):
             self._late[self._index[dxl_id]] = True
             return
         self._failed(dxl_id, exc, now)
 
-    def _silence_proven(self, dxl_id: int, now: int, heard=None, stalled: bool = False) -> bool:
+    def _silence_proven(self, dxl_id: int, now: int, heard=None, stalled: bool = False,
+                        late: bool = False) -> bool:
         """Whether a timeout of ``dxl_id`` is a proven silence (see the module doc): a witness
         (a servo that answered: in ``heard`` at setup, else ok in this reading or heard last)
         is asked for a read. False (counted in ``stalls``) when the line shows the reply was late or
-        cannot judge, unless ``dxl_id``'s timeouts have gone unproven for ``stall_limit_s``."""
+        cannot judge, unless ``dxl_id``'s timeouts have gone unproven for ``stall_limit_s``.
+        ``late``: a witness already showed this reply late (``ServoError.reply_late``): no second
+        witness, which would find the line clean and call the servo silent."""
         witness = self._witness_for(dxl_id, heard)
-        if stalled or witness is None or heard is None and self._stalled:
+        if late:
+            verdict = LATE
+        elif stalled or witness is None or heard is None and self._stalled:
             verdict = STALLED
         else:
             verdict = self.link.witness(witness)
@@ -412,9 +431,13 @@ class ServoReader:
             return True
         self.stalls += 1
         self._stalled = verdict == STALLED
-        since = self._unproven_since.setdefault(dxl_id, now)
+        # no servo ever answered: one wait for the whole silent bus, not one per servo (a
+        # rig of 15 on a bus where nothing answers would wait 15 stall limits)
+        key = dxl_id if witness is not None else BUS_UNHEARD
+        since = self._unproven_since.setdefault(key, now)
         if now - since > self.stall_limit_ns:
-            del self._unproven_since[dxl_id]
+            if key == dxl_id:
+                del self._unproven_since[dxl_id]
             return True
         self.log.add("late_reply", [dxl_id], "the reply missed its deadline and the line shows it "
                      "on its way" if verdict == LATE else "the reply missed its deadline and the "
@@ -518,6 +541,7 @@ class ServoReader:
         h.corrupt_in_a_row = 0
         h.last_ok_ns = now
         self._unproven_since.pop(dxl_id, None)
+        self._unproven_since.pop(BUS_UNHEARD, None)  # the bus answers
 
     def _track_jitter(self, h: hs.ServoHealth, k: int, value: int, t_ns: int) -> None:
         """Running mean of the error of a linear prediction from the last two good readings

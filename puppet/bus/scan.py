@@ -8,8 +8,9 @@ deadline: ~4 ms at 1 Mbit/s with a 1 ms latency timer, about 1.5 s for the 254 i
 1.0 ping carries no data: the model number and firmware are read after it (``BusLink.ping``).
 
 A reply later than that deadline (a busy host, a noisy line) is lost, so where a Protocol 1.0
-pass found servos the ids that did not answer are pinged again, up to ``P1_PASSES`` passes, until
-a pass finds nothing new; a pass that found more is said (``log``). A Protocol 2.0 broadcast ping
+pass found servos the ids that did not answer are pinged again, ``P1_PASSES`` passes in all (a
+pass that finds nothing new does not end it: a busy host can lose the same reply twice, about
+1.5 s a pass at 1 Mbit/s); a pass that found more is said (``log``). A Protocol 2.0 broadcast ping
 waits its whole window for every reply, so one is asked once (``puppet release`` pings twice).
 """
 
@@ -32,7 +33,8 @@ ascending (9600 .. 4 Mbit/s)."""
 
 
 P1_PASSES = 3
-"""Most passes of Protocol 1.0 pings over the ids that did not answer (see the module text)."""
+"""Passes of Protocol 1.0 pings, the first over every id, the others over the ids that did not
+answer (see the module text)."""
 P1_IDS = range(254)
 """The ids a Protocol 1.0 scan pings (254 is the broadcast id)."""
 
@@ -79,15 +81,15 @@ def scan(port: str, bauds: Iterable[int], protocols: Iterable[float] = (2.0, 1.0
 
 
 def _ping_p1(link: BusLink, baud: int, log: Callable[[str], None]) -> dict:
-    """Protocol 1.0: every id pinged, then again those that did not answer while a pass finds
-    more (at most ``P1_PASSES``) -> {id: (model number, firmware)}."""
+    """Protocol 1.0: every id pinged, then again those that did not answer, ``P1_PASSES``
+    passes in all where the first found any -> {id: (model number, firmware)}."""
     found = link.ping_each(P1_IDS)
     for n in range(2, P1_PASSES + 1):
         if not found:
             break  # nothing of this protocol at this rate
         more = link.ping_each([i for i in P1_IDS if i not in found])
         if not more:
-            break
+            continue  # a busy host may have lost the same replies again: one more pass
         found |= more
         log(f"{link.port_name} at {baud} bps, Protocol 1.0: pass {n} found servo"
             f"{'s' if len(more) > 1 else ''} {sorted(more)} that pass {n - 1} missed (replies "

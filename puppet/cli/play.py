@@ -36,8 +36,8 @@ def play(take: str, rig_path: str | None, out: str | None, frames: str | None, s
          force: bool, sound_path: str | None, layers) -> None:
     """Replay a take through the solver and renderer (deterministic).
 
-    A video estimated over 16 GiB (puppet.limits.EXPORT_BYTES, as every export: a long take or
-    shot at a high --fps) is refused before anything is written, unless --force.
+    A video or PNG frames estimated over 16 GiB (puppet.limits.EXPORT_BYTES, as every export: a
+    long take or shot at a high --fps) are refused before anything is written, unless --force.
 
     \b
     Example:
@@ -80,8 +80,11 @@ def play(take: str, rig_path: str | None, out: str | None, frames: str | None, s
                                     speed=1.0 if link_address is not None else speed, rig=rig,
                                     layers=layers)
         source = TakeFrames(playback, fps=fps, speed=speed, paced=link_address is not None)
-        if out:  # before anything is written: the export's size rule (puppet.limits.EXPORT_BYTES)
+        # before anything is written: the export's size rule (puppet.limits.EXPORT_BYTES)
+        if out:
             _check_video_size(out, len(source), fps, force)
+        if frames:
+            _check_frames_size(frames, len(source), fps, force)
         if link_address is not None:
             outputs.append(o.Link(link_address, rig, fps=fps, take=reader.path.stem,
                                   sound=_link_sound(reader), tell=say))
@@ -111,7 +114,17 @@ def _check_video_size(out: str, frames: int, fps: float, force: bool) -> None:
 
     width, height = PLAY_SIZE
     check_size(out, "the --out video", estimated_bytes("mp4", frames, pixels=width * height),
-               f"{frames} frames of {width}x{height} at {fps:g} fps", force, "--fps or --speed")
+               f"{frames} frames of {width}x{height} at {fps:g} fps", force, "--fps (or raise --speed)")
+
+
+def _check_frames_size(folder: str, frames: int, fps: float, force: bool) -> None:
+    """Refuse, unless ``force``, PNG frames whose estimate is over the export's size limit."""
+    from puppet.export.run import check_size, estimated_bytes
+    from puppet.replay import PLAY_SIZE
+
+    width, height = PLAY_SIZE
+    check_size(folder, "the --frames PNGs", estimated_bytes("png", frames, pixels=width * height),
+               f"{frames} frames of {width}x{height} at {fps:g} fps", force, "--fps (or raise --speed)")
 
 
 def _sound(reader, sound_path: str | None):

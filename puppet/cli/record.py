@@ -40,10 +40,13 @@ def record(rig_path: str, port: str, out: str, baud: int, seconds: float | None,
                       inputs=[*rig_files(rig), sound_path], seconds=seconds, solve=False,
                       latch_fps=None, tell=say, count_in_s=count_in)
     summary = session.run()
+    written = take.readings > 0  # the take file is made with its first reading
     if session.stopped_by is not None:
-        say(f"stopped by {session.stopped_by}; the take holds every reading until then")
+        say(f"stopped by {session.stopped_by}; " + ("the take holds every reading until then"
+                                                    if written else "before the first reading"))
     held = summary.faults.pop(HELD_READING, 0)
-    click.echo(f"take: {out}\nreadings: {take.readings} in {summary.seconds:.2f} s, "
+    click.echo(f"take: {take.report()['take']}\n"  # the output's own words: no file, said
+               f"readings: {take.readings} in {summary.seconds:.2f} s, "
                f"{held} {HELD_READING}\nfaults seen: {describe_counts(summary.faults)}")
 
 

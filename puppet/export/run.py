@@ -295,6 +295,11 @@ VIDEO_BYTES_PER_PIXEL = 0.25
 yuv420p frame; the character on a plain ground at VideoSink's quality encodes to far less): a
 bound for the size rule, not a prediction."""
 
+PNG_BYTES_PER_PIXEL = 1.0
+"""What a PNG frame of the renderer's pictures is taken to cost, per pixel (a third of the raw
+RGB frame; the character on a plain ground compresses to far less): a bound for the size rule of
+``--frames FOLDER``, not a prediction."""
+
 
 def estimated_bytes(fmt: str, frames: int, vertices: int = 0, joints: int = 0,
                     pixels: int = 0) -> int:
@@ -302,10 +307,13 @@ def estimated_bytes(fmt: str, frames: int, vertices: int = 0, joints: int = 0,
     3 float32 per vertex per frame; USD: the points alone, 3 float32 per vertex per frame;
     glTF: a key time and a rotation, translation and scale per joint per frame before key
     reduction; BVH: six channels of text per joint per frame; mp4: ``pixels`` (width × height)
-    at VIDEO_BYTES_PER_PIXEL per frame). Checked against ``puppet.limits.EXPORT_BYTES`` before
+    at VIDEO_BYTES_PER_PIXEL per frame; png: a folder of PNG frames, ``pixels`` at
+    PNG_BYTES_PER_PIXEL per frame). Checked against ``puppet.limits.EXPORT_BYTES`` before
     anything is written (``check_size``)."""
     if fmt == "mp4":
         return int(frames * pixels * VIDEO_BYTES_PER_PIXEL)
+    if fmt == "png":
+        return int(frames * pixels * PNG_BYTES_PER_PIXEL)
     if fmt == "pc2":
         return PC2_HEADER_BYTES + frames * vertices * 12
     if fmt == "usd":

@@ -72,7 +72,8 @@ class BackgroundTakeWriter:
             raise TakeError(self.path, "write() after close()")
         self._raise_error()
         copy = Reading(t_ns=reading.t_ns, ids=reading.ids, ticks=reading.ticks.copy(),
-                       ok=reading.ok.copy())
+                       ok=reading.ok.copy(),
+                       late=None if reading.late is None else reading.late.copy())
         try:
             self._queue.put_nowait(copy)
         except queue.Full:

@@ -30,6 +30,11 @@ layout (every field is naturally aligned), k = number of servos:
   offset 20+5k    p bytes  zero padding to 4-byte alignment, p = (-k) mod 4
   offset 20+5k+p  uint32   crc: CRC-32 (zlib.crc32) of payload bytes [0, 20+5k+p)
   version 2 total 24+5k+p bytes
+  version 3: the layout of version 2; each ok byte is 1 (read), 0 (failed: a fault) or 2 (late:
+  the value held only because the reply came late on a busy host, ``Reading.late``, not a fault)
+
+Versions 1 and 2 did not keep why a read failed: their readings come back with late None (every
+servo not ok counts as at fault).
 
 Every reading of a take has the same size, so a reader that meets a damaged record finds the
 next one (see puppet.take.reader). Version 2 also protects the metadata: the "puppet.take"
@@ -45,8 +50,8 @@ import zlib
 
 import numpy as np
 
-FORMAT_VERSION = 2
-READABLE_VERSIONS = (1, 2)
+FORMAT_VERSION = 3
+READABLE_VERSIONS = (1, 2, 3)
 
 TAKE_METADATA = "puppet.take"
 RIG_MAP_METADATA = "puppet.rig_map"
@@ -63,7 +68,18 @@ SCHEMA_TEXT_V1 = (
 SCHEMA_TEXT = SCHEMA_TEXT_V1 + (
     "uint32 crc      # CRC-32 (zlib) of every payload byte before this field\n"
 )
-SCHEMA_TEXTS = {1: SCHEMA_TEXT_V1, 2: SCHEMA_TEXT}
+SCHEMA_TEXT_V2 = SCHEMA_TEXT
+SCHEMA_TEXT = (
+    "# One group read of every servo of a puppet rig (Present Position, raw encoder ticks).\n"
+    "int64 t_ns      # monotonic clock of the read, nanoseconds\n"
+    "int32[] ticks   # signed continuous encoder counts, 4096 per turn, in the take's ids order\n"
+    "uint8[] ok      # 1 read; 0 failed, a fault (ticks hold the last good value); 2 late, held only "
+    "because the reply came late (not a fault)\n"
+    "uint32 crc      # CRC-32 (zlib) of every payload byte before this field\n"
+)
+SCHEMA_TEXTS = {1: SCHEMA_TEXT_V1, 2: SCHEMA_TEXT_V2, 3: SCHEMA_TEXT}
+OK_BYTE_LATE = 2
+"""Version 3: an ok byte that says the servo's value is held because its reply came late."""
 MESSAGE_ENCODING = "cdr"
 TOPIC = "/puppet/servo_readings"
 
@@ -117,14 +133,18 @@ class ReadingCodec:
         if self.crc_at is not None:
             self._crc = np.frombuffer(self.buffer, dtype="<u4", count=1, offset=self.crc_at)
 
-    def encode(self, t_ns: int, ticks: np.ndarray, ok: np.ndarray) -> bytearray:
+    def encode(self, t_ns: int, ticks: np.ndarray, ok: np.ndarray,
+               late: np.ndarray | None = None) -> bytearray:
         """Write one reading into self.buffer and return it (valid until the next call).
 
-        ticks: (k,) integer encoder counts; ok: (k,) bool.
+        ticks: (k,) integer encoder counts; ok: (k,) bool; late: None or (k,) bool, True where
+        a servo not ok is only late (``Reading.late``; kept from version 3 on). Allocates nothing.
         """
         self._t[0] = t_ns
         self._ticks[:] = ticks
         self._ok[:] = ok
+        if late is not None and self.version >= 3:
+            np.copyto(self._ok, OK_BYTE_LATE, where=late)  # never where ok (Reading.late)
         if self.crc_at is not None:
             self._crc[0] = zlib.crc32(self._view[: self.crc_at])
         return self.buffer
@@ -148,14 +168,28 @@ class ReadingCodec:
         n2 = int.from_bytes(payload[16 + 4 * self.k : 20 + 4 * self.k], "little")
         if n1 != self.k or n2 != self.k:
             return "malformed reading", f"sequence lengths {n1}/{n2}, expected {self.k}"
+        if self.version >= 3:
+            at = 20 + 4 * self.k
+            worst = max(payload[at : at + self.k], default=0)
+            if worst > OK_BYTE_LATE:
+                return "malformed reading", f"ok byte {worst}, expected 0, 1 or {OK_BYTE_LATE}"
         return None
 
-    def decode(self, payload) -> tuple[int, np.ndarray, np.ndarray]:
-        """(t_ns, ticks (k,) int32, ok (k,) bool), fresh arrays, from a checked payload."""
+    def decode(self, payload) -> tuple[int, np.ndarray, np.ndarray, np.ndarray | None]:
+        """(t_ns, ticks (k,) int32, ok (k,) bool, late (k,) bool or None before version 3),
+        fresh arrays, from a checked payload."""
         t_ns = int(np.frombuffer(payload, dtype="<i8", count=1, offset=4)[0])
         ticks = np.frombuffer(payload, dtype="<i4", count=self.k, offset=16).astype(np.int32)
-        ok = np.frombuffer(payload, dtype=np.uint8, count=self.k, offset=20 + 4 * self.k) != 0
-        return t_ns, ticks, ok
+        ok, late = self.ok_late(np.frombuffer(payload, dtype=np.uint8, count=self.k,
+                                              offset=20 + 4 * self.k))
+        return t_ns, ticks, ok, late
+
+    def ok_late(self, ok_bytes: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
+        """(ok, late) bool arrays of the shape of ``ok_bytes`` (the payloads' ok bytes); late
+        None before version 3 (the reason was not kept)."""
+        if self.version < 3:
+            return ok_bytes != 0, None
+        return ok_bytes == 1, ok_bytes == OK_BYTE_LATE
 
     @staticmethod
     def t_ns_of(payload) -> int:

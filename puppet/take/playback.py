@@ -145,6 +145,9 @@ class Playback:
     t_ns:  (R,) int64 reading times, non-decreasing, R >= 1.
     ticks: (R, k) int32 continuous encoder counts, one column per servo.
     ok:    (R, k) bool, False where a servo's read failed (its ticks hold the last good value).
+    late:  None, or (R, k) bool: True where a servo not ok was only late (``Reading.late``, a
+           take of format 3); a frame's servo is late where it is not ok and neither reading
+           around it holds a fault. None: every servo not ok counts as at fault.
     ids:   (k,) servo ids, shared by every Reading made.
     ticks_per_turn: (k,) or scalar, each servo's model's (``ServoModel.ticks_per_turn``).
     fps:   frames per second (> 0); speed: take seconds per output second (> 0).
@@ -160,7 +163,7 @@ class Playback:
     def __init__(self, t_ns, ticks, ok, ids, *, fps: float = 30.0, speed: float = 1.0,
                  source="take", interpolation=None, joint_rotations=None,
                  ticks_per_turn=TICKS_PER_TURN, loop: bool = False,
-                 loop_blend_s: float = LOOP_BLEND_S):
+                 loop_blend_s: float = LOOP_BLEND_S, late=None):
         self.source = source
         self.fps = check_rate(fps, "frames per second", source)
         self.speed = check_rate(speed, "speed", source, SPEED)
@@ -177,6 +180,11 @@ class Playback:
         if self.ticks.shape != (len(t), len(ids)) or self.ok.shape != self.ticks.shape:
             raise TakeError(source, f"ticks {self.ticks.shape} / ok {self.ok.shape} do not fit "
                                     f"{len(t)} readings of {len(ids)} servos")
+        self.late = None if late is None else np.asarray(late, bool)
+        if self.late is not None and self.late.shape != self.ok.shape:
+            raise TakeError(source, f"late {self.late.shape} does not fit ok {self.ok.shape}")
+        # (R, k) where a servo's value is held for a fault (not ok, not merely late)
+        self._fault = None if self.late is None else ~self.ok & ~self.late
         self.ids = np.asarray(ids)
         self.t_ns = t
         self.t_first_ns = int(t[0])
@@ -284,16 +292,19 @@ class Playback:
         k = len(self.ids)
         ends = []
         for at in (in_ns, out_ns):
-            ticks, ok = np.empty(k, np.int32), np.empty(k, bool)
-            self.sample(at, ticks, ok)
-            ends.append((ticks, ok))
+            ticks, ok, late = np.empty(k, np.int32), np.empty(k, bool), np.empty(k, bool)
+            self.sample(at, ticks, ok, late)
+            ends.append((ticks, ok, late))
         inside = np.flatnonzero((self.play_ns > in_ns) & (self.play_ns < out_ns))
         t = np.concatenate([[in_ns], self.play_ns[inside], [out_ns]]) + self.t_first_ns
         ticks = np.vstack([ends[0][0], self.ticks[inside], ends[1][0]])
         ok = np.vstack([ends[0][1], self.ok[inside], ends[1][1]])
+        late = None if self.late is None else np.vstack([ends[0][2], self.late[inside],
+                                                          ends[1][2]])
         clipped = Playback(t, ticks, ok, self.ids, fps=self.fps, speed=self.speed,
                            source=self.source, ticks_per_turn=self._turn, loop=loop,
-                           joint_rotations=joint_rotations, loop_blend_s=loop_blend_s)
+                           joint_rotations=joint_rotations, loop_blend_s=loop_blend_s,
+                           late=late)
         if out_s > self.duration_s + 5e-4:  # past the end by more than the rounding of a time
             clipped.notes.append(f"{self.source}: clip {in_s:g}-{out_s:g} s: the take ends at "
                                  f"{self.duration_s:.3f} s: the clip is {in_s:g}-"
@@ -335,8 +346,11 @@ class Playback:
         from puppet.take.layers import compose
 
         stack = compose(reader, ids, layers)  # a layer over its base; a plain take as recorded
+        # a plain take's late replies stay late (a composed layer: every servo not ok, a fault)
+        late = reader.late(ids) if reader.metadata.layer is None else None
         playback = cls(stack.t_ns, stack.ticks, stack.ok, np.asarray(ids), fps=fps, speed=speed,
-                       source=reader.path, ticks_per_turn=turns_of(reader.metadata.models, ids))
+                       source=reader.path, ticks_per_turn=turns_of(reader.metadata.models, ids),
+                       late=late)
         playback.layer_notes = stack.notes
         return playback
 
@@ -378,9 +392,11 @@ class Playback:
             return self.duration_s
         return float(play[i] + min(take_t_ns - t[i], play[i + 1] - play[i])) * 1e-9
 
-    def sample(self, play_ns: float, ticks: np.ndarray, ok: np.ndarray) -> None:
+    def sample(self, play_ns: float, ticks: np.ndarray, ok: np.ndarray,
+               late: np.ndarray | None = None) -> None:
         """The take at play time play_ns (ns after the first reading, clamped to the take)
-        into ticks ((k,) int32) and ok ((k,) bool); allocates nothing."""
+        into ticks ((k,) int32) and ok ((k,) bool), and ``late`` ((k,) bool, when given: False
+        everywhere without the take's late mask); allocates nothing."""
         play = self.play_ns
         i = int(np.searchsorted(play, play_ns, side="right")) - 1
         if i < 0:
@@ -388,6 +404,8 @@ class Playback:
         if i >= len(play) - 1 or play_ns <= play[i] or (self._hold is not None and self._hold[i]):
             ticks[...] = self.ticks[i]
             ok[...] = self.ok[i]
+            if late is not None:
+                late[...] = False if self.late is None else self.late[i]
             return
         a = float(play_ns - play[i]) / float(play[i + 1] - play[i])
         step, part = self._step, self._part
@@ -400,6 +418,13 @@ class Playback:
         np.floor(part, out=part)
         np.add(self.ticks[i], part, out=ticks, casting="unsafe")
         np.logical_and(self.ok[i], self.ok[i + 1], out=ok)
+        if late is not None:  # not ok, and no fault on either side: late
+            if self._fault is None:
+                late[...] = False
+            else:
+                np.logical_or(self._fault[i], self._fault[i + 1], out=late)
+                np.logical_or(late, ok, out=late)
+                np.logical_not(late, out=late)
 
     def at(self, seconds: float) -> Reading:
         """The take at play time ``seconds`` as a Reading (fresh arrays), stamped t_first_ns +
@@ -422,9 +447,10 @@ class Playback:
     def _reading(self, play_ns: int, rotations=None) -> Reading:
         k = len(self.ids)
         ticks, ok = np.empty(k, np.int32), np.empty(k, bool)
-        self.sample(play_ns, ticks, ok)
+        late = None if self.late is None else np.empty(k, bool)
+        self.sample(play_ns, ticks, ok, late)
         return Reading(t_ns=self.t_first_ns + play_ns, ids=self.ids, ticks=ticks, ok=ok,
-                       rotations=rotations)
+                       rotations=rotations, late=late)
 
     def __iter__(self) -> Iterator[Reading]:
         for f in range(self._count):

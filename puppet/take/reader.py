@@ -154,6 +154,22 @@ def _parse(record_cls, body: bytes):
     return record_cls.read(ReadDataStream(BytesIO(body)))
 
 
+def _written_length(opcode: int, body: bytes) -> int | None:
+    """Bytes a metadata, schema or channel record's fields take, as written again from what
+    parses of ``body`` (None for another record, or one that does not parse)."""
+    from mcap.data_stream import RecordBuilder
+
+    cls = {Opcode.METADATA: Metadata, Opcode.SCHEMA: Schema, Opcode.CHANNEL: Channel}.get(opcode)
+    if cls is None:
+        return None
+    try:
+        builder = RecordBuilder()
+        _parse(cls, body).write(builder)
+    except _PARSE_ERRORS:
+        return None
+    return len(builder.end()) - _RECORD_HEAD.size
+
+
 def _schema_version(schema: Schema | None) -> int | None:
     """The take format version whose reading schema this is, or None."""
     if schema is None or schema.name != fmt.SCHEMA_NAME:
@@ -294,6 +310,16 @@ class TakeReader:
                 if problem is not None:
                     damage = ("corrupt record", f"damaged {_opname(opcode)} record at byte {pos} "
                               f"({problem})", end)
+                else:
+                    exact = _written_length(opcode, mm[body:end])
+                    if exact is not None and exact != length and self._boundary(mm, s, body + exact):
+                        # its length field is damaged (a take's writer adds nothing after a
+                        # record's fields): the record ends where its content does, and the
+                        # reading after it is read, not swallowed
+                        report.notes.append(f"{_opname(opcode)} record at byte {pos}: its length "
+                                            f"field says {length} bytes, its content {exact}")
+                        pos = body + exact
+                        continue
             elif opcode in _QUIET_OPCODES:
                 pass
             else:
@@ -667,7 +693,7 @@ class TakeReader:
             raise TakeError(
                 self.path,
                 f"take format version {version} ({newer}); this puppet reads versions "
-                f"{' and '.join(map(str, fmt.READABLE_VERSIONS))}",
+                f"{', '.join(map(str, fmt.READABLE_VERSIONS[:-1]))} and {fmt.READABLE_VERSIONS[-1]}",
             )
         if version >= 2 and crc is None:
             return "no crc32 entry"
@@ -730,7 +756,8 @@ class TakeReader:
 
         ids: optional (k,) servo ids of the rig, a permutation of the take's ids; readings are
              then reordered to it (TakeRigMismatch when the sets differ).
-        Yields Reading with fresh ticks (k,) int32 and ok (k,) bool arrays; ids is shared.
+        Yields Reading with fresh ticks (k,) int32 and ok (k,) bool arrays (and late (k,) bool
+        from take format 3 on; None before: the reason a read failed was not kept); ids is shared.
         """
         order = self._order(ids)
         out_ids = self.metadata.ids if order is None else np.asarray(ids)
@@ -738,12 +765,13 @@ class TakeReader:
         with self._open_map() as mm:
             for off in self._offsets:
                 if self._payloads is not None:
-                    t_ns, ticks, ok = codec.decode(self._payloads[off])
+                    t_ns, ticks, ok, late = codec.decode(self._payloads[off])
                 else:
-                    t_ns, ticks, ok = codec.decode(mm[off : off + codec.size])
+                    t_ns, ticks, ok, late = codec.decode(mm[off : off + codec.size])
                 if order is not None:
                     ticks, ok = ticks[order], ok[order]
-                yield Reading(t_ns=t_ns, ids=out_ids, ticks=ticks, ok=ok)
+                    late = None if late is None else late[order]
+                yield Reading(t_ns=t_ns, ids=out_ids, ticks=ticks, ok=ok, late=late)
 
     def __iter__(self) -> Iterator[Reading]:
         return self.readings()
@@ -751,8 +779,18 @@ class TakeReader:
     def arrays(self, ids=None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """All readings at once: t_ns (N,) int64, ticks (N, k) int32, ok (N, k) bool.
 
-        ids: as in readings().
+        ids: as in readings(). ``late(ids)``: which of the servos not ok were only late.
         """
+        t_ns, ticks, ok, _ = self._arrays(ids)
+        return t_ns, ticks, ok
+
+    def late(self, ids=None) -> np.ndarray | None:
+        """(N, k) bool: True where a servo's value is held only because its reply came late
+        (``Reading.late``); None for a take of format 1 or 2 (the reason was not kept).
+        ids: as in readings()."""
+        return self._arrays(ids)[3]
+
+    def _arrays(self, ids=None):
         order = self._order(ids)
         k, size = self._codec.k, self._codec.size
         n = len(self._offsets)
@@ -766,10 +804,11 @@ class TakeReader:
                 del raw
         t_ns = rows[:, 4:12].copy().view("<i8").reshape(n)
         ticks = rows[:, 16 : 16 + 4 * k].copy().view("<i4").reshape(n, k).astype(np.int32)
-        ok = rows[:, 20 + 4 * k : 20 + 5 * k] != 0
+        ok, late = self._codec.ok_late(rows[:, 20 + 4 * k : 20 + 5 * k])
         if order is not None:
             ticks, ok = ticks[:, order], ok[:, order]
-        return t_ns.astype(np.int64), ticks, ok
+            late = None if late is None else late[:, order]
+        return t_ns.astype(np.int64), ticks, ok, late
 
     def keys(self):
         """The shot's keys (``puppet.take.keys.Keys``, in the take's ids order), or None for a

@@ -154,7 +154,7 @@ class TakeWriter:
             raise TakeError(
                 self.path, f"reading t_ns {t_ns} is earlier than the previous {self._last_t_ns}"
             )
-        payload = self._codec.encode(t_ns, reading.ticks, reading.ok)
+        payload = self._codec.encode(t_ns, reading.ticks, reading.ok, reading.late)
         try:
             self._mcap.add_message(
                 self._channel, log_time=t_ns, data=payload, publish_time=t_ns, sequence=self.count

@@ -65,6 +65,44 @@ def test_a_ray_tasks_unexpected_error_is_carried_with_its_traceback(tmp_path, cr
     assert any("KeyError: 'no such rig'" in line for line in row.log_lines)
 
 
+def _staging_of(name: str) -> None:
+    """A worker-side failure outside the take's own run (as a staging folder that cannot be
+    made would raise), two calls deep."""
+    Path("/dev/null", name).mkdir()
+
+
+def test_a_ray_task_error_that_crossed_processes_keeps_the_workers_traceback():
+    """What ray.get raises in the driver: Ray's own RayTaskError, pickled as it crosses from the
+    worker (the cause's __traceback__ stays behind, the traceback comes as text). The row says
+    the exception and where the worker raised it; the log holds the traceback's end, not only
+    "ray::_ray_task() (pid=..., ip=...)"."""
+    import pickle
+    import traceback
+
+    import pytest
+
+    exceptions = pytest.importorskip("ray.exceptions")  # the optional extra: 'puppet[ray]'
+    from puppet.batch.ray_engine import failed_row
+
+    try:
+        _staging_of("take00.4242")
+    except OSError as err:
+        sent = exceptions.RayTaskError("_ray_task", traceback.format_exc(), err,
+                                       proctitle="ray::_ray_task", pid=4242, ip="10.0.0.5")
+    got = pickle.loads(pickle.dumps(sent)).as_instanceof_cause()  # as ray.get raises it
+    assert got.cause.__traceback__ is None  # what the driver gets: no frames, only the text
+    row = failed_row(got, "take00.mcap", tries=1)
+    assert row.state == "failed" and row.retries == 0 and row.worker == "10.0.0.5:4242"
+    assert row.reason.startswith("the Ray task failed (1 tries): internal error: "
+                                 "NotADirectoryError: "), row.reason
+    assert row.reason.endswith(" in mkdir)"), row.reason  # where it was raised: pathlib's
+    assert "\n" not in row.reason
+    assert row.log_lines[0] == "the worker's traceback (its end):"
+    assert any("line" in line and "in _staging_of" in line for line in row.log_lines), row.log_lines
+    assert row.log_lines[-1].startswith("NotADirectoryError: "), row.log_lines
+    assert "NotADirectoryError" in row.log_text()
+
+
 def _swallowing_handlers(path: Path) -> list[str]:
     """``except Exception`` / ``BaseException`` / bare handlers in a file that neither re-raise
     nor name the error they catch and use that name (report it, hand it on)."""

@@ -72,7 +72,7 @@ def test_scan_across_bauds_finds_protocol_1_servos_at_their_rate_only():
 def test_a_protocol_1_scan_pings_the_missing_ids_again_and_says_what_it_found(monkeypatch):
     """Servos 3 and 5 do not answer the first pass (their replies dropped, as replies late on a
     busy host are lost); the fault is lifted once that pass is over: the second pass finds them
-    and says so; a third finds nothing new and ends the scan."""
+    and says so; every pass runs (a busy host can lose the same reply twice)."""
     from puppet.bus.link import BusLink
 
     models = {1: "AX-12A", 2: "AX-12A", 3: "AX-18A", 4: "MX-28", 5: "AX-12A", 6: "AX-12A"}
@@ -94,14 +94,18 @@ def test_a_protocol_1_scan_pings_the_missing_ids_again_and_says_what_it_found(mo
         found = scan(port, (1_000_000,), (1.0,), log=lines.append)
     assert [f.id for f in found] == sorted(models)
     assert [f.model for f in found] == [models[i] for i in sorted(models)]
-    # A loaded host may lose more replies than the dropped ones: a later pass finds those too.
-    first, second = passes[0], passes[1]
+    # A loaded host may lose more replies than the dropped ones, and lose them again in the
+    # next pass: a later pass finds those too.
+    first = passes[0]
     assert first[0] == 254 and set(first[1]) <= {1, 2, 4, 6} and first[1]
-    assert second[0] == 254 - len(first[1]) and {3, 5} <= set(second[1])
-    assert passes[-1][1] == [] or len(passes) == P1_PASSES
-    assert lines[0] == (f"{port} at 1000000 bps, Protocol 1.0: pass 2 found servos {second[1]} "
-                        "that pass 1 missed (replies late: a busy host or a noisy line)")
-    assert len(lines) == len([p for p in passes[1:] if p[1]])
+    assert len(passes) == P1_PASSES  # a pass that finds nothing new does not end the scan
+    later = [(n, ids) for n, (_, ids) in enumerate(passes[1:], start=2) if ids]
+    assert {3, 5} <= {i for _, ids in later for i in ids}
+    n, ids = later[0]
+    assert lines[0] == (f"{port} at 1000000 bps, Protocol 1.0: pass {n} found servo"
+                        f"{'s' if len(ids) > 1 else ''} {ids} that pass {n - 1} missed (replies "
+                        "late: a busy host or a noisy line)")
+    assert len(lines) == len(later)
 
 
 def test_a_protocol_1_scan_of_nothing_pings_once(monkeypatch):

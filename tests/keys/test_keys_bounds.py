@@ -160,6 +160,36 @@ def test_play_refuses_a_video_over_the_size_limit_before_writing(tmp_path, critt
     _check_video_size(str(video), 24 * 600, 24.0, force=False)
 
 
+def test_play_refuses_png_frames_over_the_size_limit_before_writing(tmp_path, critter):
+    """--frames FOLDER is under the export's size rule as --out is: refused before the folder
+    is made, naming it; --force passes."""
+    import subprocess
+
+    from puppet.cli.play import _check_frames_size
+    from puppet.export.run import estimated_bytes
+    from puppet.replay import PLAY_SIZE
+
+    keys = critter_keys(critter, step=12, fps=24)
+    last = keys.keys[-1]
+    long_keys = type(keys)(24.0, keys.keys[:-1] + [Key(24 * 600, last.ticks, last.ok, id=last.id)])
+    shot = tmp_path / "long.mcap"
+    write_shot(shot, header_of(critter), long_keys)  # ten minutes: at 1000 fps, 600 000 frames
+    folder = tmp_path / "frames"
+    done = subprocess.run(["puppet", "play", str(shot), "--frames", str(folder), "--fps", "1000"],
+                          capture_output=True, text=True, timeout=300)
+    assert done.returncode == 1, done.stderr
+    assert done.stderr.startswith(f"Error: {folder}: the --frames PNGs would be about "), done.stderr
+    assert "640x480 at 1000 fps" in done.stderr and "puppet.limits.EXPORT_BYTES" in done.stderr
+    assert "Traceback" not in done.stderr
+    assert list(tmp_path.iterdir()) == [shot]  # not even the folder
+    frames = 600_000
+    assert estimated_bytes("png", frames, pixels=PLAY_SIZE[0] * PLAY_SIZE[1]) > limits.EXPORT_BYTES.hi
+    _check_frames_size(str(folder), frames, 1000.0, force=True)  # --force: past the rule
+    with pytest.raises(ExportError, match="--frames PNGs"):
+        _check_frames_size(str(folder), frames, 1000.0, force=False)
+    _check_frames_size(str(folder), 24 * 600, 24.0, force=False)  # the shot at its own rate
+
+
 def test_a_key_given_twice_is_refused_and_a_cut_shot_says_where(tmp_path, critter):
     from click.testing import CliRunner
 

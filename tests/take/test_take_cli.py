@@ -150,3 +150,34 @@ def test_sigterm_closes_the_take(tmp_path):
     reader = TakeReader(take)
     assert reader.truncated is False and reader.recovery is None
     assert len(reader) == readings > 0
+
+
+def test_a_record_stopped_before_its_first_reading_says_no_file_was_made(tmp_path):
+    """SIGTERM during the count-in (no reading belongs to the take yet): the summary says no
+    file was made, as none is, instead of naming a take that does not exist."""
+    take = tmp_path / "take.mcap"
+    with hw_sim.serve(models()) as bus:
+        proc = subprocess.Popen([str(PUPPET), "record", "--rig", str(BUILTIN_RIG), "--port",
+                                 bus.port, "--out", str(take), "--count-in", "60"],
+                                stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        try:
+            deadline = time.monotonic() + 120
+            seen = ""
+            line = ""
+            while time.monotonic() < deadline and not line.strip().isdigit() \
+                    and proc.poll() is None:
+                line = proc.stderr.readline()  # the count-in's first number: setup is done
+                seen += line
+            os.kill(proc.pid, signal.SIGTERM)
+            out, err = proc.communicate(timeout=60)
+        finally:
+            if proc.poll() is None:
+                proc.kill()
+                proc.communicate()
+    err = seen + err
+    assert proc.returncode == 0, err
+    assert "Traceback" not in err
+    assert f"take: {take} (nothing recorded: no file)" in out, out
+    assert "readings: 0 " in out, out
+    assert "the take holds every reading" not in err, err
+    assert not take.exists()

@@ -80,9 +80,9 @@ def test_wrong_schema(tmp_path):
 
 def test_newer_format_version(tmp_path):
     p = tmp_path / "future.mcap"
-    write_foreign_mcap(p, puppet_info={**GOOD_INFO, "format_version": "3"})
+    write_foreign_mcap(p, puppet_info={**GOOD_INFO, "format_version": "4"})
     reason = open_error(p)
-    assert "version 3 (newer)" in reason and "reads versions 1 and 2" in reason
+    assert "version 4 (newer)" in reason and "reads versions 1, 2 and 3" in reason
 
 
 def test_malformed_take_metadata(tmp_path):

@@ -1,4 +1,4 @@
-"""Take format 2: checksummed readings and metadata; version-1 takes still read; damage is
+"""Take formats 2 and 3: checksummed readings and metadata; version-1 takes still read; damage is
 skipped and reported, never replayed, and never loses the intact readings around it."""
 
 import json
@@ -60,7 +60,8 @@ def test_payload_layout_and_checksum(kit):
             bad = bytearray(payload)
             bad[off] ^= 0x5A
             assert codec.check(bytes(bad)) is not None, (k, off)
-    assert fmt.SCHEMA_TEXT.startswith(fmt.SCHEMA_TEXT_V1) and "uint32 crc" in fmt.SCHEMA_TEXT
+    assert fmt.SCHEMA_TEXT_V2.startswith(fmt.SCHEMA_TEXT_V1) and "uint32 crc" in fmt.SCHEMA_TEXT
+    assert "uint8[] ok" in fmt.SCHEMA_TEXT  # version 3: 0 a fault, 1 read, 2 late
 
 
 def test_metadata_checksums(tmp_path, kit):
@@ -68,7 +69,7 @@ def test_metadata_checksums(tmp_path, kit):
     write_take(p, kit, 3)
     r = TakeReader(p)
     assert r.recovery is None and r.report.clean
-    assert r.metadata.format_version == 2
+    assert r.metadata.format_version == fmt.FORMAT_VERSION == 3
     info = {"a": "1", "b": "x"}
     assert fmt.info_checksum(info) == fmt.info_checksum({**info, "crc32": "whatever"})
     assert fmt.info_checksum(info) != fmt.info_checksum({"a": "2", "b": "x"})
@@ -194,7 +195,7 @@ def test_damaged_take_metadata_falls_back_to_the_channel_record(tmp_path, kit):
     assert_readings(r, kit, range(6))
     assert "take metadata record is damaged (checksum mismatch)" in r.recovery
     assert r.metadata.ids.tolist() == kit.IDS.tolist() and r.metadata.models == {}
-    assert r.metadata.format_version == 2
+    assert r.metadata.format_version == fmt.FORMAT_VERSION  # from the schema
 
 
 def test_damaged_magic_bytes(tmp_path, kit):

@@ -118,3 +118,28 @@ def test_garbage_appended_to_a_crashed_take(tmp_path, kit):
         r = TakeReader(p)
         assert len(r) == 5 and r.truncated is True
         np.testing.assert_array_equal(list(r.readings())[4].ticks, kit.reading_at(4, 0).ticks)
+
+
+def test_a_channel_record_whose_length_field_is_damaged_swallows_no_reading(tmp_path, kit):
+    """One flipped byte makes the readings' channel record claim 43 bytes more than it holds:
+    it parses all the same, and ends where its content does (said in the notes), so the first
+    reading after it is read, not swallowed (a seeded fuzz case lost it)."""
+    import struct
+
+    from puppet.take import TakeReader
+    from puppet.take import format as fmt
+
+    path = tmp_path / "t.mcap"
+    with kit.open_writer(path) as w:
+        for i in range(5):
+            w.write(kit.reading_at(i, 1_000 + i * 2_000_000))
+    data = bytearray(path.read_bytes())
+    at = data.find(fmt.TOPIC.encode()) - 4 - 2 - 2 - 9  # the channel record's opcode
+    assert data[at] == 0x04
+    length = struct.unpack_from("<Q", data, at + 1)[0]
+    struct.pack_into("<Q", data, at + 1, length + 43)
+    path.write_bytes(bytes(data))
+    reader = TakeReader(path)
+    assert [r.t_ns for r in reader.readings()] == [1_000 + i * 2_000_000 for i in range(5)]
+    assert any(f"its length field says {length + 43} bytes, its content {length}" in note
+               for note in reader.report.notes), reader.report.notes
