@@ -21,10 +21,11 @@ def _versions():
 
 
 def test_a_checkout_whose_code_the_interpreter_would_not_import_is_refused(tmp_path):
+    """A checkout with no .venv of its own whose ``puppet`` this interpreter would take from
+    elsewhere (here: the checkout has none, so the installed one answers; with an editable
+    install, any checkout's would be shadowed the same way)."""
     before = tmp_path / "before"
-    (before / "puppet").mkdir(parents=True)
-    (before / "puppet" / "__init__.py").write_text("")
-    (before / "bench").mkdir()
+    (before / "bench").mkdir(parents=True)
     (before / "bench" / "where.py").write_text(  # what a run would report: a figure
         "import json, sys, puppet\njson.dump({'figure': 1}, open(sys.argv[-1], 'w'))\n")
     with pytest.raises(SystemExit) as refused:

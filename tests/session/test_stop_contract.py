@@ -19,6 +19,7 @@ import os
 import signal
 import subprocess
 import sys
+import threading
 import urllib.request
 from pathlib import Path
 from urllib.parse import urlsplit
@@ -86,7 +87,21 @@ def _press(url: str, message: dict) -> None:
                                          origin=f"http://{where}") as ws:
                 await ws.send_json(message)
 
-    asyncio.run(send())
+    # In a thread of its own: a worker that ran a page test before holds Playwright's event loop
+    # running in this thread (asyncio.run refuses to start a second one there).
+    failed: list[BaseException] = []
+
+    def run() -> None:
+        try:
+            asyncio.run(send())
+        except BaseException as exc:  # handed to the test's thread
+            failed.append(exc)
+
+    sender = threading.Thread(target=run, name="press")
+    sender.start()
+    sender.join()
+    if failed:
+        raise failed[0]
 
 
 def _pressed(stderr: Path, message: dict, made: Path, pattern: str):
