@@ -414,12 +414,12 @@ class ReaderProcess:
 
     def stop(self, timeout: float = 3.0) -> None:
         """Stop the child and free the shared memory. A child that had ended before it was
-        asked to, without an error message (killed, crashed), is named in ``died``."""
+        asked to, without an error message (killed, crashed), is named in ``died``; so is one
+        that a signal killed while it was being asked (a SIGKILL not yet carried out when the
+        stop began: a busy host runs the dying child late), other than this stop's own."""
         if self._proc is not None:
             if not self._proc.is_alive() and self._proc.exitcode and not self._said_error:
-                code = self._proc.exitcode
-                how = (f"killed by {signal.Signals(-code).name}" if code < 0 else f"exit code {code}")
-                self.died = f"port {self.port}: the reader process stopped ({how})"
+                self.died = self._death(self._proc.exitcode)
             self._stop_word[0] = 1
             try:
                 self._commands.send(("stop", None))   # wakes a child pacing its reads
@@ -427,9 +427,14 @@ class ReaderProcess:
                 pass  # the child is gone already: its end of the pipe is closed
             # with a hook the child stops it first (torque off: a few transactions)
             self._proc.join(timeout if self.hook is None else max(timeout, 20.0))
-            if self._proc.is_alive():
+            killed_here = self._proc.is_alive()
+            if killed_here:
                 self._proc.kill()
                 self._proc.join()
+            code = self._proc.exitcode
+            if (self.died is None and not self._said_error and not killed_here and code is not None
+                    and code < 0 and -code not in (signal.SIGINT, signal.SIGTERM)):  # the group's stops
+                self.died = self._death(code)
             self._proc = None
             if self.hook is not None and self.report is not None:
                 while not self._events_closed and self._events.poll():
@@ -451,6 +456,10 @@ class ReaderProcess:
             self._goal_shm.close()
             self._goal_shm.unlink()
             self._goal_shm = None
+
+    def _death(self, code: int) -> str:
+        how = f"killed by {signal.Signals(-code).name}" if code < 0 else f"exit code {code}"
+        return f"port {self.port}: the reader process stopped ({how})"
 
     def __enter__(self) -> ReaderProcess:
         self.start()

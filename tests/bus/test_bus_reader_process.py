@@ -1,5 +1,8 @@
 """ReaderProcess: the bus read in a child process, readings through a shared ring."""
 
+import os
+import signal
+import threading
 import time
 
 import numpy as np
@@ -105,3 +108,25 @@ def test_a_reader_killed_before_its_stop_is_named_by_the_stop():
         asked.start()
         asked.stop()
         assert asked.died is None
+
+
+def test_a_reader_killed_as_its_stop_begins_is_named_by_the_stop(wait_until):
+    """A SIGKILL that a busy host carries out only after the stop began (the child still
+    alive when asked: a key session whose input closed just after the kill, in CI) is named
+    too; the stop's own kill of a child that would not stop is not."""
+    with hw_sim.serve(MODELS) as bus:
+        source = ReaderProcess(bus.port, MODELS, rate_hz=300.0)
+        source.start()
+        pid = source._proc.pid
+        os.kill(pid, signal.SIGSTOP)  # alive and not running: a starved child
+        stopping = threading.Thread(target=source.stop, kwargs={"timeout": 120.0})
+        stopping.start()
+        wait_until(lambda: source._stop_word[0] == 1, what="the stop under way")
+        os.kill(pid, signal.SIGKILL)
+        stopping.join()
+        assert source.died == f"port {bus.port}: the reader process stopped (killed by SIGKILL)"
+        stuck = ReaderProcess(bus.port, MODELS, rate_hz=300.0)
+        stuck.start()
+        os.kill(stuck._proc.pid, signal.SIGSTOP)  # never answers the stop: killed by it
+        stuck.stop(timeout=0.5)
+        assert stuck.died is None
