@@ -15,6 +15,7 @@ from pathlib import Path
 import pygltflib
 import pytest
 
+from puppet.rig import builtin
 from puppet.studio import SessionFolder
 
 STUDIO_WAIT_S = 120.0
@@ -63,27 +64,31 @@ def _record(page, tools, shot: str, number: int, count_in: str = "1"):
     return takes[-1]
 
 
-def _seam_and_median_step(gltf) -> tuple[float, float]:
-    """(the largest bone rotation from the animation's last frame to its first, the median
-    over frames of the largest from one frame to the next), radians, from a glTF's keys."""
+def _seam_and_median_step(gltf, bones) -> tuple[float, float]:
+    """(the largest rotation of ``bones`` from the animation's last frame to its first, the
+    median over frames of their largest from one frame to the next), radians, from a glTF's
+    keys (angles by atan2 of the relative quaternion: exact to float32's storage)."""
     import numpy as np
 
     blob = gltf.binary_blob()
     quats = []
     for channel in gltf.animations[0].channels:
-        if channel.target.path != "rotation":
+        if channel.target.path != "rotation" or gltf.nodes[channel.target.node].name not in bones:
             continue
         sampler = gltf.animations[0].samplers[channel.sampler]
         accessor = gltf.accessors[sampler.output]
         view = gltf.bufferViews[accessor.bufferView]
         quats.append(np.frombuffer(blob, np.float32, accessor.count * 4, (view.byteOffset or 0)
-                                   + (accessor.byteOffset or 0)).reshape(-1, 4))
-    q = np.stack(quats)  # (bones, frames, 4)
+                                   + (accessor.byteOffset or 0)).reshape(-1, 4).astype(float))
+    q = np.stack(quats)  # (bones, frames, 4) x y z w
+    assert len(q) == len(bones), "a bone without rotation keys"
 
-    def angle(a, b):
-        return 2 * np.arccos(np.clip(np.abs((a * b).sum(-1)), 0.0, 1.0))
+    def angle(a, b):  # of b relative to a: 2 atan2(|xyz of a* b|, |w of a* b|)
+        w = (a * b).sum(-1)
+        xyz = a[..., 3:] * b[..., :3] - b[..., 3:] * a[..., :3] - np.cross(a[..., :3], b[..., :3])
+        return 2 * np.arctan2(np.linalg.norm(xyz, axis=-1), np.abs(w))
 
-    steps = angle(q[:, 1:], q[:, :-1]).max(axis=0)
+    steps = angle(q[:, :-1], q[:, 1:]).max(axis=0)
     return float(angle(q[:, -1], q[:, 0]).max()), float(np.median(steps))
 
 
@@ -244,9 +249,11 @@ def test_a_session_of_two_shots_and_three_takes(new_page, tools, tmp_path):
     whole = gltf.scenes[gltf.scene or 0].extras
     assert frames["puppet_frame_end"] < whole["puppet_frame_end"]  # the clip: 60 % of the take
     # the loop's seam, in the file: its last frame to its first jumps no more than the clip's
-    # median frame-to-frame motion (a performance's clip: the out point may fall in a fast move)
-    seam, median = _seam_and_median_step(clip)
-    assert seam <= median, (seam, median)
+    # median frame-to-frame motion (a performance's clip: the out point may fall in a fast move),
+    # on the joints the blend turns (the servos'; the solver fills the others from its history)
+    sensed = {servo.joint for servo in builtin().servo_map.servos}
+    seam, median = _seam_and_median_step(clip, sensed)
+    assert seam <= median + 1e-5, (seam, median)  # (float32 keys)
     video = tmp_path / "walk1.mp4"
     run = subprocess.run([*tools.PUPPET, "play", str(folder / "takes" / "walk" / "take001.mcap"),
                           "--out", str(video)], capture_output=True, text=True, timeout=600)
