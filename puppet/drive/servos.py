@@ -452,8 +452,11 @@ class DriveBus:
         return after
 
     def _clear_watchdog(self, dxl_id: int) -> None:
+        """Bus Watchdog := 0, always written and read back (a read first that found it 0 could
+        skip the write: CI once left a stopped actuator's watchdog armed, torque read back off)."""
+        self.write(dxl_id, "bus_watchdog", 0)
         if self.read(dxl_id, "bus_watchdog") != 0:
-            self.write(dxl_id, "bus_watchdog", 0)
+            raise ServoCorrupt([dxl_id], "clear bus_watchdog", "it still reads armed after the write")
 
 
 STOP_ATTEMPTS = 3
