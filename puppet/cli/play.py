@@ -82,9 +82,9 @@ def play(take: str, rig_path: str | None, out: str | None, frames: str | None, s
         source = TakeFrames(playback, fps=fps, speed=speed, paced=link_address is not None)
         # before anything is written: the export's size rule (puppet.limits.EXPORT_BYTES)
         if out:
-            _check_video_size(out, len(source), fps, force)
+            _check_size("mp4", out, "the --out video", len(source), fps, force)
         if frames:
-            _check_frames_size(frames, len(source), fps, force)
+            _check_size("png", frames, "the --frames PNGs", len(source), fps, force)
         if link_address is not None:
             outputs.append(o.Link(link_address, rig, fps=fps, take=reader.path.stem,
                                   sound=_link_sound(reader), tell=say))
@@ -107,23 +107,14 @@ def play(take: str, rig_path: str | None, out: str | None, frames: str | None, s
     print_summary(session.summary, False, extra={"take": take, **session.report()})
 
 
-def _check_video_size(out: str, frames: int, fps: float, force: bool) -> None:
-    """Refuse, unless ``force``, a video whose estimate is over the export's size limit."""
+def _check_size(kind: str, path: str, what: str, frames: int, fps: float, force: bool) -> None:
+    """Refuse, unless ``force``, play's output ``path`` (``kind``: "mp4" or "png", ``what``:
+    its option as the message names it) whose estimated size is over the export's limit."""
     from puppet.export.run import check_size, estimated_bytes
     from puppet.replay import PLAY_SIZE
 
     width, height = PLAY_SIZE
-    check_size(out, "the --out video", estimated_bytes("mp4", frames, pixels=width * height),
-               f"{frames} frames of {width}x{height} at {fps:g} fps", force, "--fps (or raise --speed)")
-
-
-def _check_frames_size(folder: str, frames: int, fps: float, force: bool) -> None:
-    """Refuse, unless ``force``, PNG frames whose estimate is over the export's size limit."""
-    from puppet.export.run import check_size, estimated_bytes
-    from puppet.replay import PLAY_SIZE
-
-    width, height = PLAY_SIZE
-    check_size(folder, "the --frames PNGs", estimated_bytes("png", frames, pixels=width * height),
+    check_size(path, what, estimated_bytes(kind, frames, pixels=width * height),
                f"{frames} frames of {width}x{height} at {fps:g} fps", force, "--fps (or raise --speed)")
 
 

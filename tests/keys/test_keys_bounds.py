@@ -134,7 +134,7 @@ def test_a_capture_with_no_key_writes_nothing(tmp_path, critter):
 def test_play_refuses_a_video_over_the_size_limit_before_writing(tmp_path, critter):
     import subprocess
 
-    from puppet.cli.play import _check_video_size
+    from puppet.cli.play import _check_size
     from puppet.export.run import estimated_bytes
     from puppet.replay import PLAY_SIZE
 
@@ -152,12 +152,16 @@ def test_play_refuses_a_video_over_the_size_limit_before_writing(tmp_path, critt
     assert "Traceback" not in done.stderr and not video.exists()
     assert list(tmp_path.iterdir()) == [shot]  # no partial file either
     frames = 600_000
+
+    def check(frames, fps, force):
+        _check_size("mp4", str(video), "the --out video", frames, fps, force)
+
     assert estimated_bytes("mp4", frames, pixels=PLAY_SIZE[0] * PLAY_SIZE[1]) > limits.EXPORT_BYTES.hi
-    _check_video_size(str(video), frames, 1000.0, force=True)  # --force: past the rule
+    check(frames, 1000.0, force=True)  # --force: past the rule
     with pytest.raises(ExportError, match="--out video"):
-        _check_video_size(str(video), frames, 1000.0, force=False)
+        check(frames, 1000.0, force=False)
     # a video within the limit is not refused: the shot at its own rate
-    _check_video_size(str(video), 24 * 600, 24.0, force=False)
+    check(24 * 600, 24.0, force=False)
 
 
 def test_play_refuses_png_frames_over_the_size_limit_before_writing(tmp_path, critter):
@@ -165,7 +169,7 @@ def test_play_refuses_png_frames_over_the_size_limit_before_writing(tmp_path, cr
     is made, naming it; --force passes."""
     import subprocess
 
-    from puppet.cli.play import _check_frames_size
+    from puppet.cli.play import _check_size
     from puppet.export.run import estimated_bytes
     from puppet.replay import PLAY_SIZE
 
@@ -183,11 +187,15 @@ def test_play_refuses_png_frames_over_the_size_limit_before_writing(tmp_path, cr
     assert "Traceback" not in done.stderr
     assert list(tmp_path.iterdir()) == [shot]  # not even the folder
     frames = 600_000
+
+    def check_frames(frames, fps, force):
+        _check_size("png", str(folder), "the --frames PNGs", frames, fps, force)
+
     assert estimated_bytes("png", frames, pixels=PLAY_SIZE[0] * PLAY_SIZE[1]) > limits.EXPORT_BYTES.hi
-    _check_frames_size(str(folder), frames, 1000.0, force=True)  # --force: past the rule
+    check_frames(frames, 1000.0, force=True)  # --force: past the rule
     with pytest.raises(ExportError, match="--frames PNGs"):
-        _check_frames_size(str(folder), frames, 1000.0, force=False)
-    _check_frames_size(str(folder), 24 * 600, 24.0, force=False)  # the shot at its own rate
+        check_frames(frames, 1000.0, force=False)
+    check_frames(24 * 600, 24.0, force=False)  # the shot at its own rate
 
 
 def test_a_key_given_twice_is_refused_and_a_cut_shot_says_where(tmp_path, critter):
