@@ -184,8 +184,13 @@ def run_frames(pipeline: Pipeline, readings: Iterable[Reading], *, sinks: Iterab
     ``should_stop()`` (Ctrl-C, SIGTERM) ends it early, after a whole frame.
 
     Deterministic: the same readings give the same T on every run (fixed iterations, warm
-    start from the rest pose, no wall clock in the path).
+    start from the rest pose, no wall clock in the path). A looping clip (a ``Playback`` with
+    ``loop``) is solved through once first, unused: its first frame then follows its last, so
+    the bones the solver fills (and dynamics) meet at the seam as the blended servos' do.
     """
+    if getattr(readings, "loop", False):
+        for reading in readings:  # the pre-roll
+            pipeline.solve(reading)
     sinks = list(sinks)
     render = bool(sinks) and pipeline.renderer is not None
     summary = Summary()
