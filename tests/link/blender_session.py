@@ -122,11 +122,13 @@ while link.state != "waiting" and time.monotonic() < deadline:
     puppet_link.tick()
     if link.frames_applied > applied:
         toggled += 1
-        if toggled == 5:
+        if toggled == 3:
             settings.use_mesh = False
-        elif toggled == 10:
+        elif toggled == 6:
             settings.use_mesh = True
-        elif toggled == 20:  # Record off, then a stall: live display skips to the newest
+        elif toggled == 10:  # Record off, then a stall: live display skips to the newest
+            # (early in the take: a loaded host applies few of its frames, and a take that ends
+            # within the stall ends the link, and the panel's line, in the same tick)
             settings.record = False
             time.sleep(1.0)
     panel.update(line.split(":")[0].split(" ")[0] for line in link.health_lines())
