@@ -77,6 +77,11 @@ def build_parser() -> argparse.ArgumentParser:
                              "limits leave more room), a keyframe CSV "
                              "path, or replay:PATH (CSV, NPZ or a take of recorded ticks); "
                              "default: wave, or with --rig a swing within the rig's limits")
+    parser.add_argument("--pace", type=float, default=None,
+                        help=f"with --motion {GUIDED}: how quick the simulated person is, a factor "
+                             "on its timings (default 1: it rests 5 s from the host's first read, "
+                             "then turns each servo in 0.4 s, holds it 3 s, brings it back and "
+                             "rests 1.2 s; 2 is twice as quick)")
     parser.add_argument("--faults", default=None, help="fault schedule file")
     parser.add_argument("--baud", type=int, default=1_000_000, help="bus baud rate (bit/s)")
     parser.add_argument("--timing", action="store_true",
@@ -118,8 +123,15 @@ def main(argv: list[str] | None = None) -> int:
             print(f"hw-sim: --servos {args.servos!r}: {exc}", file=sys.stderr)
             return 2
         rig_servos = [RigServo(i, model) for i, model in sorted(servos.items())]
+    if args.pace is not None and motion != GUIDED:
+        print(f"hw-sim: --pace is the pace of --motion {GUIDED}; give both or neither", file=sys.stderr)
+        return 2
     if motion == GUIDED:
-        motion = OneAtATime(rig_servos)
+        try:
+            motion = OneAtATime.at_pace(rig_servos, 1.0 if args.pace is None else args.pace)
+        except ValueError as exc:
+            print(f"hw-sim: --pace {args.pace}: {exc}", file=sys.stderr)
+            return 2
     if isinstance(motion, WithinLimits):
         motion_name = "within the rig's limits"
     elif isinstance(motion, OneAtATime):

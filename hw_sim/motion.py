@@ -151,6 +151,10 @@ def guided_direction(limits_deg) -> int:
     return 1 if high >= GUIDED_TURN_DEG or high >= -low else -1
 
 
+#: ``OneAtATime.at_pace``'s accepted pace (both included): at 4 a joint is held 0.75 s.
+PACE = (0.1, 4.0)
+
+
 class OneAtATime:
     """A person following ``puppet calibrate --guided``: the puppet rests, then each servo in turn
     (in the order given: the rig file's) is turned the way calibrate asks (``guided_direction``:
@@ -182,6 +186,14 @@ class OneAtATime:
                                       reach * s.sign * s.gear * TICKS_PER_TURN / 360.0, k)
         self.start: float | None = None    # when the current sequence began, s
         self.last_asked: float | None = None
+
+    @classmethod
+    def at_pace(cls, servos, pace: float) -> "OneAtATime":
+        """A person ``pace`` times as quick as the default one (``hw-sim --pace``): every
+        duration but ``quiet_s`` divided by ``pace`` (2: rests 2.5 s, holds each joint 1.5 s)."""
+        if not (math.isfinite(pace) and PACE[0] <= pace <= PACE[1]):
+            raise ValueError(f"must be {PACE[0]:g}..{PACE[1]:g} (1: the default person), got {pace}")
+        return cls(servos, settle_s=5.0 / pace, ramp_s=0.4 / pace, hold_s=3.0 / pace, rest_s=1.2 / pace)
 
     def position(self, joint: int, t: float) -> float:
         if t > 0.0:

@@ -148,6 +148,20 @@ def test_cli_names_the_motion_and_its_servos(tmp_path):
     assert proc.returncode == 0
 
 
+def test_pace_makes_the_person_quicker_and_is_refused_out_of_range_or_without_guided(tmp_path):
+    quick = OneAtATime.at_pace(_servos(tmp_path), 2.0)
+    assert (quick.settle_s, quick.ramp_s, quick.hold_s, quick.rest_s, quick.quiet_s) == (2.5, 0.2, 1.5, 0.6, 2.0)
+    (tmp_path / "three.toml").write_text(RIG)
+    rig = str(tmp_path / "three.toml")
+    for args, said in ((["--motion", "guided", "--pace", "0"], "hw-sim: --pace 0.0: must be 0.1..4 "
+                                                                "(1: the default person), got 0.0"),
+                       (["--pace", "2"], "hw-sim: --pace is the pace of --motion guided")):
+        result = subprocess.run([sys.executable, "-m", "hw_sim.cli", "--rig", rig, *args], capture_output=True,
+                                text=True, timeout=60)
+        assert result.returncode == 2 and said in result.stderr, result.stderr
+        assert "Traceback" not in result.stderr and not result.stdout
+
+
 def test_the_simulated_person_turns_the_way_calibrate_asks():
     """hw_sim's device-side copy of the rule (it imports nothing of puppet) agrees with
     calibrate's: positive, or negative where the limits leave more room that way; the turn stays
