@@ -106,8 +106,9 @@ def test_servos_without_a_rig_go_in_id_order():
 
 
 def test_on_the_bus_one_servo_at_a_time_read_with_the_sdk(tmp_path, open_sdk):
-    """The motion served to the real SDK: each servo leaves its rest alone, in the file's order."""
-    motion = OneAtATime(_servos(tmp_path), settle_s=1.0, ramp_s=0.2, hold_s=3.0, rest_s=0.8)
+    """The motion served to the real SDK: each servo leaves its rest alone, in the file's order.
+    Read every 10 ms (as calibrate polls): each 1.5 s hold is seen many times over."""
+    motion = OneAtATime(_servos(tmp_path), settle_s=1.0, ramp_s=0.2, hold_s=1.5, rest_s=0.5)
     with hw_sim.serve({s.id: s.model for s in _servos(tmp_path)}, motion=motion) as bus:
         sdk = open_sdk(bus.port)
         moved: list[int] = []
@@ -122,6 +123,7 @@ def test_on_the_bus_one_servo_at_a_time_read_with_the_sdk(tmp_path, open_sdk):
                 assert abs(ticks[i] - EXPECTED[i][0]) <= abs(EXPECTED[i][1]) + 1, ticks
                 if not moved or moved[-1] != i:
                     moved.append(i)
+            time.sleep(0.01)
     assert moved == [4, 2, 9]
 
 
