@@ -12,7 +12,8 @@ from dataclasses import replace
 from hw_sim.control_table import MODELS, to_shaft
 from hw_sim.errors import HwSimError
 from hw_sim.faults import parse_ids
-from hw_sim.motion import BUILTIN, OneAtATime, WithinLimits
+from hw_sim.motion import (BUILTIN, GUIDED_HOLD_S, GUIDED_RAMP_S, GUIDED_REST_S, GUIDED_SETTLE_S, PACE,
+                           OneAtATime, WithinLimits)
 from hw_sim.rig_servos import RigServo, read_rig_servos
 
 #: ``--motion guided``: each servo in turn out and back, as a person following calibrate --guided.
@@ -79,9 +80,10 @@ def build_parser() -> argparse.ArgumentParser:
                              "default: wave, or with --rig a swing within the rig's limits")
     parser.add_argument("--pace", type=float, default=None,
                         help=f"with --motion {GUIDED}: how quick the simulated person is, a factor "
-                             "on its timings (default 1: it rests 5 s from the host's first read, "
-                             "then turns each servo in 0.4 s, holds it 3 s, brings it back and "
-                             "rests 1.2 s; 2 is twice as quick)")
+                             f"on its timings (default 1: it rests {GUIDED_SETTLE_S:g} s from the "
+                             f"host's first read, then turns each servo in {GUIDED_RAMP_S:g} s, holds "
+                             f"it {GUIDED_HOLD_S:g} s, brings it back and rests {GUIDED_REST_S:g} s; "
+                             f"2 is twice as quick; {PACE[0]:g}..{PACE[1]:g})")
     parser.add_argument("--faults", default=None, help="fault schedule file")
     parser.add_argument("--baud", type=int, default=1_000_000, help="bus baud rate (bit/s)")
     parser.add_argument("--timing", action="store_true",
