@@ -12,7 +12,8 @@ from dataclasses import replace
 from hw_sim.control_table import MODELS, to_shaft
 from hw_sim.errors import HwSimError
 from hw_sim.faults import parse_ids
-from hw_sim.motion import BUILTIN, OneAtATime, WithinLimits
+from hw_sim.motion import (BUILTIN, GUIDED_HOLD_S, GUIDED_RAMP_S, GUIDED_REST_S, GUIDED_SETTLE_S, PACE,
+                           OneAtATime, WithinLimits)
 from hw_sim.rig_servos import RigServo, read_rig_servos
 
 #: ``--motion guided``: each servo in turn out and back, as a person following calibrate --guided.
@@ -77,6 +78,12 @@ def build_parser() -> argparse.ArgumentParser:
                              "limits leave more room), a keyframe CSV "
                              "path, or replay:PATH (CSV, NPZ or a take of recorded ticks); "
                              "default: wave, or with --rig a swing within the rig's limits")
+    parser.add_argument("--pace", type=float, default=None,
+                        help=f"with --motion {GUIDED}: how quick the simulated person is, a factor "
+                             f"on its timings (default 1: it rests {GUIDED_SETTLE_S:g} s from the "
+                             f"host's first read, then turns each servo in {GUIDED_RAMP_S:g} s, holds "
+                             f"it {GUIDED_HOLD_S:g} s, brings it back and rests {GUIDED_REST_S:g} s; "
+                             f"2 is twice as quick; {PACE[0]:g}..{PACE[1]:g})")
     parser.add_argument("--faults", default=None, help="fault schedule file")
     parser.add_argument("--baud", type=int, default=1_000_000, help="bus baud rate (bit/s)")
     parser.add_argument("--timing", action="store_true",
@@ -118,8 +125,15 @@ def main(argv: list[str] | None = None) -> int:
             print(f"hw-sim: --servos {args.servos!r}: {exc}", file=sys.stderr)
             return 2
         rig_servos = [RigServo(i, model) for i, model in sorted(servos.items())]
+    if args.pace is not None and motion != GUIDED:
+        print(f"hw-sim: --pace is the pace of --motion {GUIDED}; give both or neither", file=sys.stderr)
+        return 2
     if motion == GUIDED:
-        motion = OneAtATime(rig_servos)
+        try:
+            motion = OneAtATime.at_pace(rig_servos, 1.0 if args.pace is None else args.pace)
+        except ValueError as exc:
+            print(f"hw-sim: --pace {args.pace}: {exc}", file=sys.stderr)
+            return 2
     if isinstance(motion, WithinLimits):
         motion_name = "within the rig's limits"
     elif isinstance(motion, OneAtATime):

@@ -26,7 +26,8 @@ noise              Present Position jitters by +-amplitude counts (default 2)
 echo               half-duplex echo: the host sees its own instruction before each reply (bus-wide)
 load               an external load on the shaft: params current (mA drawn holding it, default
                    800, 0..10000), heat (heating speed factor, default 1: larger heats faster,
-                   0..1000)
+                   0..1000), temperature (deg C the servo is at as the load starts, 0..150:
+                   an already warm servo; default: as it is)
 =================  ==========================================================================
 
 Fault file (one fault per line, ``#`` comments)::
@@ -64,7 +65,7 @@ KINDS: dict[str, dict[str, tuple[type, object]]] = {
     "hardware_error": {"error": (str, "overload"), "bits": (int, None)},
     "noise": {"amplitude": (int, 2)},
     "echo": {},
-    "load": {"current": (float, 800.0), "heat": (float, 1.0)},
+    "load": {"current": (float, 800.0), "heat": (float, 1.0), "temperature": (float, None)},
 }
 # param -> (lowest, highest) accepted value (both included); every number must also be finite.
 # Every numeric parameter of KINDS has one (a test checks). hw_sim keeps its own ranges: it
@@ -78,6 +79,7 @@ RANGES: dict[str, tuple[float, float]] = {
     "amplitude": (0, 4096),
     "current": (0.0, 10_000.0),  # load: mA drawn holding the shaft (X series stall: ~1.5 A)
     "heat": (0.0, 1000.0),       # load: heating speed factor (1 = as modelled)
+    "temperature": (0.0, 150.0),  # load: deg C at its start (150: the model's ceiling)
     "ms": (0.0, 10_000.0),       # late: how much later the reply goes out
 }
 MAX_TIME_S = 1e6

@@ -151,6 +151,13 @@ def guided_direction(limits_deg) -> int:
     return 1 if high >= GUIDED_TURN_DEG or high >= -low else -1
 
 
+#: The default guided person's timings, s: rest before the first servo, ramp out (and back),
+#: hold, rest after each (``OneAtATime``; ``OneAtATime.at_pace`` divides them).
+GUIDED_SETTLE_S, GUIDED_RAMP_S, GUIDED_HOLD_S, GUIDED_REST_S = 5.0, 0.4, 3.0, 1.2
+#: ``OneAtATime.at_pace``'s accepted pace (both included): at 4 a joint is held 0.75 s.
+PACE = (0.1, 4.0)
+
+
 class OneAtATime:
     """A person following ``puppet calibrate --guided``: the puppet rests, then each servo in turn
     (in the order given: the rig file's) is turned the way calibrate asks (``guided_direction``:
@@ -167,8 +174,9 @@ class OneAtATime:
     hold 2048. The boot-time position (t = 0) is not a host asking.
     """
 
-    def __init__(self, servos, reach_deg: float = GUIDED_TURN_DEG, settle_s: float = 5.0,
-                 ramp_s: float = 0.4, hold_s: float = 3.0, rest_s: float = 1.2, quiet_s: float = 2.0):
+    def __init__(self, servos, reach_deg: float = GUIDED_TURN_DEG, settle_s: float = GUIDED_SETTLE_S,
+                 ramp_s: float = GUIDED_RAMP_S, hold_s: float = GUIDED_HOLD_S, rest_s: float = GUIDED_REST_S,
+                 quiet_s: float = 2.0):
         self.settle_s, self.ramp_s, self.hold_s, self.rest_s = settle_s, ramp_s, hold_s, rest_s
         self.quiet_s = quiet_s
         self.period_s = 2.0 * ramp_s + hold_s + rest_s   # one servo's turn, s
@@ -182,6 +190,15 @@ class OneAtATime:
                                       reach * s.sign * s.gear * TICKS_PER_TURN / 360.0, k)
         self.start: float | None = None    # when the current sequence began, s
         self.last_asked: float | None = None
+
+    @classmethod
+    def at_pace(cls, servos, pace: float) -> "OneAtATime":
+        """A person ``pace`` times as quick as the default one (``hw-sim --pace``): every
+        duration but ``quiet_s`` divided by ``pace`` (2: rests 2.5 s, holds each joint 1.5 s)."""
+        if not (math.isfinite(pace) and PACE[0] <= pace <= PACE[1]):
+            raise ValueError(f"must be {PACE[0]:g}..{PACE[1]:g} (1: the default person), got {pace}")
+        return cls(servos, settle_s=GUIDED_SETTLE_S / pace, ramp_s=GUIDED_RAMP_S / pace,
+                   hold_s=GUIDED_HOLD_S / pace, rest_s=GUIDED_REST_S / pace)
 
     def position(self, joint: int, t: float) -> float:
         if t > 0.0:

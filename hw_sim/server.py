@@ -214,6 +214,8 @@ class Server:
             for s in self._hit(fault):
                 s.refresh(now)
                 s.load_ma, s.heat_gain = fault.params["current"], fault.params["heat"]
+                if fault.params["temperature"] is not None:  # already warm: heats on from there
+                    s.temperature = fault.params["temperature"]
                 undo.append(s)
         if kind not in ("power_on", "replug", "hardware_error") or end is not None:
             self.windows.append((end, fault, undo))

@@ -63,8 +63,9 @@ def make_take():
 
 @pytest.fixture
 def wave_take(tmp_path, rig):
-    """A 1 s take at 100 Hz: every joint swings 15 degrees about rest, out of phase."""
-    t = np.arange(100) / 100.0
+    """A 0.5 s take at 100 Hz: every joint swings 15 degrees about rest, out of phase (short:
+    a performance that ends plays it in real time; tests that stop one mid-way loop it)."""
+    t = np.arange(50) / 100.0
     k = len(rig.servo_map.ids)
     angles = 15.0 * np.sin(2 * np.pi * 0.5 * t[:, None] + np.arange(k)[None, :])
     return _make_take(tmp_path / "wave.mcap", rig, angles)

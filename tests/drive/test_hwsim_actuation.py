@@ -3,7 +3,10 @@ Moving Status, torque on by goal update (the real dynamixel_sdk over a pty)."""
 
 from __future__ import annotations
 
+import pytest
+
 import hw_sim
+from hw_sim.faults import Fault, FaultError
 from hw_sim.servo import VELOCITY_UNIT_TICKS_S
 
 DATA_RANGE = 0x04
@@ -113,6 +116,23 @@ def test_current_rises_with_acceleration(open_sdk, wait_until):
             return all(bus.servo(i).get("Moving Status") & 0x01 for i in (1, 2))
         wait_until(done, what="both arrive", interval=0.001)
         assert peaks[2] > peaks[1]
+
+
+def test_a_load_may_start_on_an_already_warm_servo(open_sdk, wait_until):
+    """The load fault's ``temperature``: the servo is that warm as the load starts and heats on
+    from there (0..150 C, else refused naming it)."""
+    with hw_sim.serve([1]) as bus:
+        sdk = open_sdk(bus.port)
+        servo = bus.servo(1)
+        assert sdk.write(1, 64, 1, 1) == 0
+        assert servo.get("Present Temperature") < 40
+        bus.inject("load", 1, current=1500, heat=2, temperature=60)
+        # at once (less a moment's cooling while the current builds): ~2 C/s from room
+        # temperature would take over ten seconds to get there
+        assert servo.get("Present Temperature") >= 55
+        wait_until(lambda: servo.get("Present Temperature") >= 61, what="heating on from 60 C")
+    with pytest.raises(FaultError, match="temperature=151.0 is not in 0..150"):
+        Fault.make("load", 1, temperature=151)
 
 
 def test_temperature_rises_with_sustained_current(open_sdk, wait_until):

@@ -33,6 +33,13 @@ def _wait_for(predicate, timeout_s=60.0):
     return False
 
 
+def _wait_past(end: float) -> None:
+    """Wait until ``time.monotonic()`` passes ``end``: the end of a fault's window, on a clock
+    behind the bus's (its t0 came first), so a ping after it finds the fault over (a ping in
+    the window would wait out the SDK's whole ~2 s deadline)."""
+    assert _wait_for(lambda: time.monotonic() > end)
+
+
 def test_drop_times_out_and_fails_the_whole_group(bus, sdk, short):
     bus.inject("drop", ids=[2])
     with short():
@@ -79,8 +86,10 @@ def test_power_cycle_reboots(bus, sdk, short):
     tick_before = sdk.packet.read2ByteTxRx(sdk.port, 1, 120)[0]
     cycled = time.monotonic()
     bus.inject("power_cycle", ids=[1], duration_s=0.3)
+    injected = time.monotonic()   # the window began before this: it ends before injected + 0.3
     with short():
         assert sdk.packet.ping(sdk.port, 1)[1] == dxl.COMM_RX_TIMEOUT
+    _wait_past(injected + 0.3)
     assert _wait_for(lambda: sdk.packet.ping(sdk.port, 1)[1] == dxl.COMM_SUCCESS)
     assert sdk.packet.read4ByteTxRx(sdk.port, 1, PRESENT_POSITION)[0] == 300  # re-based
     assert sdk.packet.read1ByteTxRx(sdk.port, 1, 65)[0] == 0  # RAM defaults
@@ -214,18 +223,22 @@ def test_scheduled_fault_file(tmp_path, open_sdk, short):
     path = tmp_path / "faults.txt"
     path.write_text("# at kind\n0.0 drop ids=2 for=0.4\n0.0 noise ids=1-3 amplitude=0\n")
     with hw_sim.serve([1, 2, 3], faults=str(path)) as bus:
+        served = time.monotonic()   # the bus's clock started before this
         sdk = open_sdk(bus.port)
         with short():
             assert sdk.packet.ping(sdk.port, 2)[1] == dxl.COMM_RX_TIMEOUT
+        _wait_past(served + 0.4)
         assert _wait_for(lambda: sdk.packet.ping(sdk.port, 2)[1] == dxl.COMM_SUCCESS)
 
 
 def test_fault_schedule_objects(open_sdk, short):
     schedule = [Fault.make("power_off", [1], start_s=0.0, duration_s=0.3)]
     with hw_sim.serve([1, 2], faults=schedule) as bus:
+        served = time.monotonic()   # the bus's clock started before this
         sdk = open_sdk(bus.port)
         with short():
             assert _wait_for(lambda: sdk.packet.ping(sdk.port, 1)[1] == dxl.COMM_RX_TIMEOUT)
+        _wait_past(served + 0.3)
         assert _wait_for(lambda: sdk.packet.ping(sdk.port, 1)[1] == dxl.COMM_SUCCESS)
 
 

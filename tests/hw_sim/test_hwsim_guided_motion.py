@@ -106,8 +106,9 @@ def test_servos_without_a_rig_go_in_id_order():
 
 
 def test_on_the_bus_one_servo_at_a_time_read_with_the_sdk(tmp_path, open_sdk):
-    """The motion served to the real SDK: each servo leaves its rest alone, in the file's order."""
-    motion = OneAtATime(_servos(tmp_path), settle_s=1.0, ramp_s=0.2, hold_s=3.0, rest_s=0.8)
+    """The motion served to the real SDK: each servo leaves its rest alone, in the file's order.
+    Read every 10 ms (as calibrate polls): each 1.5 s hold is seen many times over."""
+    motion = OneAtATime(_servos(tmp_path), settle_s=1.0, ramp_s=0.2, hold_s=1.5, rest_s=0.5)
     with hw_sim.serve({s.id: s.model for s in _servos(tmp_path)}, motion=motion) as bus:
         sdk = open_sdk(bus.port)
         moved: list[int] = []
@@ -122,6 +123,7 @@ def test_on_the_bus_one_servo_at_a_time_read_with_the_sdk(tmp_path, open_sdk):
                 assert abs(ticks[i] - EXPECTED[i][0]) <= abs(EXPECTED[i][1]) + 1, ticks
                 if not moved or moved[-1] != i:
                     moved.append(i)
+            time.sleep(0.01)
     assert moved == [4, 2, 9]
 
 
@@ -146,6 +148,20 @@ def test_cli_names_the_motion_and_its_servos(tmp_path):
         proc.terminate()
         proc.wait(timeout=60)
     assert proc.returncode == 0
+
+
+def test_pace_makes_the_person_quicker_and_is_refused_out_of_range_or_without_guided(tmp_path):
+    quick = OneAtATime.at_pace(_servos(tmp_path), 2.0)
+    assert (quick.settle_s, quick.ramp_s, quick.hold_s, quick.rest_s, quick.quiet_s) == (2.5, 0.2, 1.5, 0.6, 2.0)
+    (tmp_path / "three.toml").write_text(RIG)
+    rig = str(tmp_path / "three.toml")
+    for args, said in ((["--motion", "guided", "--pace", "0"], "hw-sim: --pace 0.0: must be 0.1..4 "
+                                                                "(1: the default person), got 0.0"),
+                       (["--pace", "2"], "hw-sim: --pace is the pace of --motion guided")):
+        result = subprocess.run([sys.executable, "-m", "hw_sim.cli", "--rig", rig, *args], capture_output=True,
+                                text=True, timeout=60)
+        assert result.returncode == 2 and said in result.stderr, result.stderr
+        assert "Traceback" not in result.stderr and not result.stdout
 
 
 def test_the_simulated_person_turns_the_way_calibrate_asks():

@@ -267,6 +267,7 @@ def test_hw_sim_rig_serves_exactly_the_rigs_servos_within_limits(tmp_path, open_
                 if result == 0:
                     ticks -= (1 << 32) if ticks >= 1 << 31 else 0
                     seen[s.id].append(s.sign * (ticks - s.zero_ticks) * 360 / TICKS_PER_TURN / s.gear)
+            time.sleep(0.005)   # sampled, not spun: the period is the wait
         for s in servos:
             assert len(seen[s.id]) > 10
             assert s.limits_deg[0] - 0.2 <= min(seen[s.id]) and max(seen[s.id]) <= s.limits_deg[1] + 0.2

@@ -353,6 +353,7 @@ def test_hw_sim_rig_with_ax_servos_swings_inside_the_limits(tmp_path, open_sdk, 
                 ticks, result, _ = sdk.packet.read2ByteTxRx(sdk.port, i, POSITION)
                 if result == dxl.COMM_SUCCESS:
                     seen[i].append(sign[i] * (ticks - zero[i]) * 300 / 1024)  # degrees
+            time.sleep(0.005)   # sampled, not spun: the period is the wait
         for i, (low, high) in {1: (-40, 40), 2: (0, 60)}.items():
             assert len(seen[i]) > 10
             assert low - 0.6 <= min(seen[i]) and max(seen[i]) <= high + 0.6  # a tick is 0.29°

@@ -24,11 +24,19 @@ HOLD = CONFIRM + HELD + 2
 ZERO = {21: 1900, 14: 2300, 7: 2048, 3: 3950, 9: 1000}   # servo 3 passes 4095 when moved; 9 is not in the rig
 
 
+def _rig_init(glb) -> None:
+    """``puppet rig init GLB`` (in this process: rig init is not what these tests are about)."""
+    from click.testing import CliRunner
+
+    from puppet.cli import main
+
+    result = CliRunner().invoke(main, ["rig", "init", str(glb)])
+    assert result.exit_code == 0, result.output
+
+
 def _rig(tmp_path, character):
     character.write_glb(tmp_path / "beast.glb")
-    result = subprocess.run(["puppet", "rig", "init", tmp_path / "beast.glb"], capture_output=True, text=True,
-                            timeout=120)
-    assert result.returncode == 0, result.stderr
+    _rig_init(tmp_path / "beast.glb")
     rig = tmp_path / "beast.toml"
     text = character.enable_servos(rig.read_text(), {j: {"axis": axis} for j, (_, _, axis) in SECRET.items()})
     # a servo on the root: take it out of 'fixed', as the rig file says above its block
@@ -100,7 +108,7 @@ def test_guided_calibration_times_out_naming_the_joint_and_keeps_the_file(tmp_pa
     with hw_sim.serve(MODELS) as bus:
         bus.set_positions(ZERO)
         result = subprocess.run(["puppet", "calibrate", "--rig", rig, "--port", bus.port, "--guided", "--yes",
-                                 "--timeout", "2"], capture_output=True, text=True, timeout=120)
+                                 "--timeout", "1"], capture_output=True, text=True, timeout=120)
     assert result.returncode == 1
     assert "Traceback" not in result.stderr
     error = result.stderr.strip().splitlines()[-1]
@@ -111,7 +119,7 @@ def test_guided_calibration_times_out_naming_the_joint_and_keeps_the_file(tmp_pa
 
 def test_guided_calibration_needs_servo_blocks(tmp_path, character):
     character.write_glb(tmp_path / "beast.glb")
-    subprocess.run(["puppet", "rig", "init", tmp_path / "beast.glb"], check=True, capture_output=True, timeout=120)
+    _rig_init(tmp_path / "beast.glb")
     result = subprocess.run(["puppet", "calibrate", "--rig", tmp_path / "beast.toml", "--port", "/dev/null-none",
                              "--guided", "--yes"], capture_output=True, text=True, timeout=120)
     assert result.returncode == 1
@@ -198,6 +206,10 @@ READS = (0x02, 0x82, 0x8A, 0x92)   # READ, Sync Read, Fast Sync Read, Bulk Read
 
 
 PATIENCE_S = 60.0  # as tests/conftest.py: a generous wait, never a threshold
+PACE = 2.0
+"""hw_sim's simulated person (``OneAtATime``) this many times as quick as its default: it rests
+2.5 s from the first read, holds each joint 1.5 s. A move counts from three readings past the
+threshold and the asks follow its timing (a joint already turned when asked is taken)."""
 
 
 class _Hand:
@@ -351,7 +363,9 @@ def test_a_joint_with_little_room_positive_is_asked_the_other_way_and_gets_its_o
     person.write_text("".join(f'[[servo]]\nid = {i}\nmodel = "{m}"\nsign = {s}\nzero_ticks = {z}\n'
                               f"limits_deg = {limits[j]}\n" for j, (i, s, z, m) in truth.items()))
     servos = read_rig_servos(person)
-    with hw_sim.serve({s.id: s.model for s in servos}, motion=OneAtATime(servos)) as bus:
+    # twice as quick as the default person (hw-sim --pace 2): calibrate takes a move from three
+    # readings past the threshold, a quiet machine's 30 ms into the 1.5 s hold
+    with hw_sim.serve({s.id: s.model for s in servos}, motion=OneAtATime.at_pace(servos, PACE)) as bus:
         session = _Calibrate(rig, bus.port, "--timeout", "60")
         prompts = [line for line in session.lines() if line.startswith("[")]
         code, stdout = session.finish()
@@ -372,9 +386,7 @@ def test_a_joint_with_little_room_positive_is_asked_the_other_way_and_gets_its_o
 
 def _rig_with(tmp_path, character, servos):
     character.write_glb(tmp_path / "beast.glb")
-    result = subprocess.run(["puppet", "rig", "init", tmp_path / "beast.glb"], capture_output=True, text=True,
-                            timeout=120)
-    assert result.returncode == 0, result.stderr
+    _rig_init(tmp_path / "beast.glb")
     rig = tmp_path / "beast.toml"
     text = character.enable_servos(rig.read_text(), servos)
     if "hips" in servos:  # a servo on the root: out of 'fixed', as the rig file says
@@ -487,7 +499,8 @@ def test_guided_calibration_on_an_ax_rig_against_hw_sim_guided_motion(tmp_path, 
     """AX-12A servos (1024 positions over 300°: a 30° joint turn is 102 ticks, under the 150
     ticks an X-series threshold was): ``hw-sim --rig person.toml --motion guided`` turns each
     joint the way calibrate asks, and ``calibrate --guided`` finds every id, sign, zero and model
-    with no unsure ask, the threshold converted by each servo's own ticks per turn."""
+    with no unsure ask, the threshold converted by each servo's own ticks per turn (the person at
+    ``--pace 2``, as in the test above)."""
     truth = {"neck": (12, -1, 400, "AX-12A"), "tail base": (15, 1, 620, "AX-12A"),
              "leg.L": (17, -1, 512, "AX-12A")}
     axes = {"neck": '"x"', "tail base": '"z"', "leg.L": '"x"'}
@@ -497,8 +510,8 @@ def test_guided_calibration_on_an_ax_rig_against_hw_sim_guided_motion(tmp_path, 
     person = tmp_path / "person.toml"   # what the simulated puppet is: true ids, signs and zeros
     person.write_text("".join(f'[[servo]]\nid = {i}\nmodel = "{m}"\nsign = {s}\nzero_ticks = {z}\n'
                               f"limits_deg = {limits[j]}\n" for j, (i, s, z, m) in truth.items()))
-    sim = subprocess.Popen(["hw-sim", "--rig", str(person), "--motion", "guided"], stdout=subprocess.PIPE,
-                           stderr=subprocess.PIPE, text=True)
+    sim = subprocess.Popen(["hw-sim", "--rig", str(person), "--motion", "guided", "--pace", str(PACE)],
+                           stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
         port = sim.stdout.readline().strip()
         assert port.startswith("/dev/"), sim.stderr.read() if sim.poll() is not None else port

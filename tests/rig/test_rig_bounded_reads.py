@@ -90,12 +90,17 @@ def test_rig_axes_all_of_a_real_1000_joint_model_is_one_bounded_sheet_with_a_nex
 
     from puppet.render.axes_sheet import MAX_PAIRS
 
+    from puppet.cli import main
+
+    def puppet_here(*args):  # the commands after the first sheet: in this process (no start-up)
+        return CliRunner().invoke(main, list(map(str, args)))
+
     glb = character.write_chain_glb(tmp_path / "snake.glb", 1000)
-    made = _puppet("rig", "init", glb)
-    assert made.returncode == 0 and "1000 joints" in made.stdout, made.stderr
+    made = puppet_here("rig", "init", glb)
+    assert made.exit_code == 0 and "1000 joints" in made.stdout, made.output
     rig = tmp_path / "snake.toml"
     sheet = tmp_path / "sheet.png"
-    first = _puppet("rig", "axes", rig, "--all", "--out", sheet)
+    first = _puppet("rig", "axes", rig, "--all", "--out", sheet)   # the command as a user runs it
     assert first.returncode == 0, first.stderr
     assert (f"warning: 3000 turns to show; one sheet holds {MAX_PAIRS} pairs" in first.stderr
             and f"showing turns 1 to {MAX_PAIRS}" in first.stderr
@@ -103,11 +108,12 @@ def test_rig_axes_all_of_a_real_1000_joint_model_is_one_bounded_sheet_with_a_nex
     assert "axes sheet" in first.stderr  # the progress bar's label
     assert f"{2 * MAX_PAIRS} panels: {MAX_PAIRS} pairs" in first.stdout
     assert iio.imread(sheet).shape[:2] == (MAX_PAIRS // 2 * 260, 4 * 320)
-    last = _puppet("rig", "axes", rig, "--all", "--from", 2951, "--out", tmp_path / "last.png")
-    assert last.returncode == 0, last.stderr
-    assert "showing turns 2951 to 3000" in last.stderr and "2950 left out" in last.stderr
-    assert "--from 3001" not in last.stderr and "100 panels: 50 pairs" in last.stdout
-    beyond = _puppet("rig", "axes", rig, "--all", "--from", 3001, "--out", tmp_path / "none.png")
-    assert beyond.returncode == 1 and "Traceback" not in beyond.stderr
+    last = puppet_here("rig", "axes", rig, "--all", "--from", 2991, "--out", tmp_path / "last.png")
+    assert last.exit_code == 0, last.output
+    assert "showing turns 2991 to 3000" in last.stderr and "2990 left out" in last.stderr
+    assert "--from 3001" not in last.stderr and "20 panels: 10 pairs" in last.stdout
+    assert iio.imread(tmp_path / "last.png").shape[:2] == (10 // 2 * 260, 4 * 320)
+    beyond = puppet_here("rig", "axes", rig, "--all", "--from", 3001, "--out", tmp_path / "none.png")
+    assert beyond.exit_code == 1 and isinstance(beyond.exception, SystemExit)   # an Error line, no traceback
     assert f"Error: --from 3001: {rig} has 3000 turns to show" in beyond.stderr
     assert not (tmp_path / "none.png").exists()

@@ -98,7 +98,7 @@ def test_character_to_take_and_video(tmp_path, character):
     try:
         port = sim.stdout.readline().strip()
         assert port.startswith("/dev/"), sim.stderr.read() if sim.poll() is not None else port
-        result = run("record", "--rig", rig, "--port", port, "--out", take, "--seconds", 2, "--rate", 200)
+        result = run("record", "--rig", rig, "--port", port, "--out", take, "--seconds", 1, "--rate", 200)
         assert result.returncode == 0, result.stderr
     finally:
         sim.send_signal(signal.SIGTERM)
