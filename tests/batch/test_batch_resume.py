@@ -5,10 +5,13 @@ why. --dry-run says per take what would be done and why, and writes nothing."""
 
 import hashlib
 import json
+import signal
 import subprocess
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
+import pytest
 
 from puppet.rig.checksum import character_sha256
 from puppet.rig import builtin, load_rig
@@ -16,10 +19,27 @@ from puppet.rig.load import BUILTIN_RIG
 
 
 def batch(*args):
-    result = subprocess.run(["puppet", "batch", *map(str, args), "--json"], capture_output=True,
-                            text=True, timeout=600)
+    """``puppet batch ARGS --json`` run in this process (the command's own code, click to the
+    report: what --resume decides lives there; end-to-end runs of the command: the other
+    batch tests): (returncode, stdout, stderr)."""
+    from click.testing import CliRunner
+
+    from puppet.cli import main
+
+    result = CliRunner().invoke(main, ["batch", *map(str, args), "--json"])
     assert "Traceback" not in result.stderr
-    return result
+    assert result.exception is None or isinstance(result.exception, SystemExit), result.exc_info
+    return SimpleNamespace(returncode=result.exit_code, stdout=result.stdout, stderr=result.stderr)
+
+
+@pytest.fixture(autouse=True)
+def own_signal_handlers():
+    """The test process's SIGINT and SIGTERM handlers given back after each test (importing the
+    command line keeps early signals for its commands: ``puppet.session.signals.early``)."""
+    saved = {sig: signal.getsignal(sig) for sig in (signal.SIGINT, signal.SIGTERM)}
+    yield
+    for sig, handler in saved.items():
+        signal.signal(sig, handler)
 
 
 def rows_of(result) -> list[tuple[str, str, str]]:
