@@ -13,6 +13,7 @@ import tempfile
 import time
 from collections.abc import Callable
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -51,6 +52,31 @@ def serial(take: Path, folder: Path, formats) -> dict[str, bytes]:
         subprocess.run(["puppet", "play", take, "--out", files["mp4"]], check=True,
                        capture_output=True, timeout=300)
     return {f: p.read_bytes() for f, p in files.items()}
+
+
+def puppet_here(*args) -> SimpleNamespace:
+    """``puppet ARGS`` run in this process (click's CliRunner through ``puppet.cli.main``: the
+    same command, its errors and its output; no fresh interpreter): (returncode, stdout,
+    stderr). End-to-end runs of the command stay where the process is the subject (signals,
+    exit of workers, Ray)."""
+    from click.testing import CliRunner
+
+    from puppet.cli import main
+
+    result = CliRunner().invoke(main, [*map(str, args)])
+    assert result.exception is None or isinstance(result.exception, SystemExit), result.exc_info
+    return SimpleNamespace(returncode=result.exit_code, stdout=result.stdout,
+                           stderr=result.stderr)
+
+
+@pytest.fixture(autouse=True)
+def _own_signal_handlers():
+    """The test process's SIGINT and SIGTERM handlers given back after each test (importing the
+    command line keeps early signals for its commands: ``puppet.session.signals.early``)."""
+    saved = {sig: signal.getsignal(sig) for sig in (signal.SIGINT, signal.SIGTERM)}
+    yield
+    for sig, handler in saved.items():
+        signal.signal(sig, handler)
 
 
 @pytest.fixture(scope="session")
@@ -150,6 +176,4 @@ def on_ray_cluster(ray_cluster, monkeypatch):
 
 @pytest.fixture
 def tools():
-    from types import SimpleNamespace
-
-    return SimpleNamespace(write_take=write_take, serial=serial)
+    return SimpleNamespace(write_take=write_take, serial=serial, puppet=puppet_here)

@@ -5,10 +5,8 @@ why. --dry-run says per take what would be done and why, and writes nothing."""
 
 import hashlib
 import json
-import signal
 import subprocess
 from pathlib import Path
-from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -18,28 +16,15 @@ from puppet.rig import builtin, load_rig
 from puppet.rig.load import BUILTIN_RIG
 
 
-def batch(*args):
-    """``puppet batch ARGS --json`` run in this process (the command's own code, click to the
-    report: what --resume decides lives there; end-to-end runs of the command: the other
-    batch tests): (returncode, stdout, stderr)."""
-    from click.testing import CliRunner
-
-    from puppet.cli import main
-
-    result = CliRunner().invoke(main, ["batch", *map(str, args), "--json"])
-    assert "Traceback" not in result.stderr
-    assert result.exception is None or isinstance(result.exception, SystemExit), result.exc_info
-    return SimpleNamespace(returncode=result.exit_code, stdout=result.stdout, stderr=result.stderr)
-
-
-@pytest.fixture(autouse=True)
-def own_signal_handlers():
-    """The test process's SIGINT and SIGTERM handlers given back after each test (importing the
-    command line keeps early signals for its commands: ``puppet.session.signals.early``)."""
-    saved = {sig: signal.getsignal(sig) for sig in (signal.SIGINT, signal.SIGTERM)}
-    yield
-    for sig, handler in saved.items():
-        signal.signal(sig, handler)
+@pytest.fixture
+def batch(tools):
+    """``puppet batch ARGS --json`` in this process (what --resume decides lives in the command's
+    code; end-to-end runs: the other batch tests and this file's table run)."""
+    def run(*args):
+        result = tools.puppet("batch", *args, "--json")
+        assert "Traceback" not in result.stderr
+        return result
+    return run
 
 
 def rows_of(result) -> list[tuple[str, str, str]]:
@@ -54,7 +39,8 @@ def snapshot(folder: Path) -> dict:
             for p in sorted(folder.rglob("*")) if p.is_file()}
 
 
-def test_resume_redoes_a_take_when_what_shapes_it_changed_and_says_why(tmp_path, critter, tools):
+def test_resume_redoes_a_take_when_what_shapes_it_changed_and_says_why(tmp_path, critter, tools,
+                                                                       batch):
     takes = [tools.write_take(tmp_path / f"t{i}.mcap", critter, seed=i) for i in range(2)]
     out = tmp_path / "out"
     args = [*takes, "--out", out, "--formats", "pc2,bvh", "--workers", 1]
@@ -122,7 +108,8 @@ def test_resume_redoes_a_take_when_what_shapes_it_changed_and_says_why(tmp_path,
         ("done", f"the rig changed ({BUILTIN_RIG} -> {rig_copy})")] * 2
 
 
-def test_dry_run_says_what_would_be_done_and_writes_nothing(tmp_path, critter, tools):
+def test_dry_run_says_what_would_be_done_and_writes_nothing(tmp_path, critter, tools,
+                                                            batch):
     takes = [tools.write_take(tmp_path / f"t{i}.mcap", critter, seed=i) for i in range(2)]
     out = tmp_path / "out"
     args = [*takes, "--out", out, "--formats", "pc2", "--workers", 1]
@@ -162,7 +149,8 @@ def test_the_character_checksum_follows_the_character_not_its_file(tmp_path):
     assert character_sha256(load_rig(folder / "my.toml")) != character_sha256(builtin())
 
 
-def test_keys_shape_the_gltf_as_in_export_and_a_change_redoes_it(tmp_path, critter, tools):
+def test_keys_shape_the_gltf_as_in_export_and_a_change_redoes_it(tmp_path, critter, tools,
+                                                                 batch):
     take = tools.write_take(tmp_path / "t.mcap", critter)
     out = tmp_path / "out"
     args = [take, "--out", out, "--formats", "gltf,bvh", "--workers", 1]
@@ -182,7 +170,8 @@ def test_keys_shape_the_gltf_as_in_export_and_a_change_redoes_it(tmp_path, critt
         assert refused.returncode == 1 and f"Error: {words}" in refused.stderr
 
 
-def test_a_given_rig_s_calibration_file_is_part_of_the_rig(tmp_path, critter, tools):
+def test_a_given_rig_s_calibration_file_is_part_of_the_rig(tmp_path, critter, tools,
+                                                           batch):
     take = tools.write_take(tmp_path / "t.mcap", critter)  # records no calibration of its own
     rig_path = tmp_path / "rig" / "my.toml"
     rig_path.parent.mkdir()
