@@ -2,6 +2,7 @@
 and each take exported and played alone by the serial commands (the reference bytes); one Ray
 cluster for the session (``ray_cluster``), joined by the Ray tests that need no private instance."""
 
+import fcntl
 import os
 import shutil
 import signal
@@ -10,7 +11,9 @@ import subprocess
 import sys
 import tempfile
 import time
+from collections.abc import Callable
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -51,6 +54,31 @@ def serial(take: Path, folder: Path, formats) -> dict[str, bytes]:
     return {f: p.read_bytes() for f, p in files.items()}
 
 
+def puppet_here(*args) -> SimpleNamespace:
+    """``puppet ARGS`` run in this process (click's CliRunner through ``puppet.cli.main``: the
+    same command, its errors and its output; no fresh interpreter): (returncode, stdout,
+    stderr). End-to-end runs of the command stay where the process is the subject (signals,
+    exit of workers, Ray)."""
+    from click.testing import CliRunner
+
+    from puppet.cli import main
+
+    result = CliRunner().invoke(main, [*map(str, args)])
+    assert result.exception is None or isinstance(result.exception, SystemExit), result.exc_info
+    return SimpleNamespace(returncode=result.exit_code, stdout=result.stdout,
+                           stderr=result.stderr)
+
+
+@pytest.fixture(autouse=True)
+def _own_signal_handlers():
+    """The test process's SIGINT and SIGTERM handlers given back after each test (importing the
+    command line keeps early signals for its commands: ``puppet.session.signals.early``)."""
+    saved = {sig: signal.getsignal(sig) for sig in (signal.SIGINT, signal.SIGTERM)}
+    yield
+    for sig, handler in saved.items():
+        signal.signal(sig, handler)
+
+
 @pytest.fixture(scope="session")
 def critter():
     from puppet.rig import builtin
@@ -58,18 +86,47 @@ def critter():
     return builtin()
 
 
+def made_once(tmp_path_factory, name: str, fill: Callable[[Path], object]) -> Path:
+    """A folder that ``fill(folder)`` fills once per test run, read-only after. Under
+    pytest-xdist the workers share it (in the run's own temporary folder, above each worker's):
+    the first to need it fills it under a file lock while the others wait, then they all read
+    the same files; in one process, a temporary folder of its own."""
+    if os.environ.get("PYTEST_XDIST_WORKER") is None:
+        folder = tmp_path_factory.mktemp(name)
+        fill(folder)
+        return folder
+    folder = tmp_path_factory.getbasetemp().parent / name
+    with open(f"{folder}.lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)  # released when closed
+        filled = folder / ".filled"
+        if not filled.exists():
+            shutil.rmtree(folder, ignore_errors=True)  # a worker that died while filling it
+            folder.mkdir()
+            fill(folder)
+            filled.touch()
+    return folder
+
+
 @pytest.fixture(scope="session")
 def session(tmp_path_factory, critter):
-    """Four short takes of the critter, different motions: [Path]."""
-    folder = tmp_path_factory.mktemp("session")
-    return [write_take(folder / f"take{i:02d}.mcap", critter, seed=i) for i in range(4)]
+    """Four short takes of the critter, different motions (read only: every worker of the run
+    reads the same files): [Path]."""
+    names = [f"take{i:02d}.mcap" for i in range(4)]
+    folder = made_once(tmp_path_factory, "batch-session", lambda folder: [
+        write_take(folder / name, critter, seed=i) for i, name in enumerate(names)])
+    return [folder / name for name in names]
 
 
 @pytest.fixture(scope="session")
 def serial_outputs(tmp_path_factory, session):
-    """{take name: {format: bytes}} of every format made by the serial commands."""
-    folder = tmp_path_factory.mktemp("serial")
-    return {take.stem: serial(take, folder, ("mp4", "gltf", "usd", "pc2", "bvh")) for take in session}
+    """{take name: {format: bytes}} of every format made by the serial commands (made once per
+    run: the serial-batch and Ray workers compare with the same files)."""
+    formats = ("mp4", "gltf", "usd", "pc2", "bvh")
+    folder = made_once(tmp_path_factory, "batch-serial", lambda folder: [
+        serial(take, folder, formats) for take in session])
+    suffixes = {**SERIAL_FORMATS, "mp4": ".mp4"}
+    return {take.stem: {f: (folder / f"{take.stem}{suffixes[f]}").read_bytes() for f in formats}
+            for take in session}
 
 
 RAY_CPUS = 2
@@ -119,6 +176,4 @@ def on_ray_cluster(ray_cluster, monkeypatch):
 
 @pytest.fixture
 def tools():
-    from types import SimpleNamespace
-
-    return SimpleNamespace(write_take=write_take, serial=serial)
+    return SimpleNamespace(write_take=write_take, serial=serial, puppet=puppet_here)

@@ -22,25 +22,28 @@ def assert_clean_error(result, *words):
         assert word in result.stderr, result.stderr
 
 
-def test_no_takes_matched(tmp_path):
+def test_no_takes_matched(tmp_path, tools):
     assert_clean_error(run(tmp_path / "nothing*.mcap", "--out", tmp_path / "out"),
-                       "nothing*.mcap", "no takes matched")
-    assert_clean_error(run(tmp_path / "missing.mcap", "--out", tmp_path / "out"),
+                       "nothing*.mcap", "no takes matched")  # the command, end to end
+    assert_clean_error(tools.puppet("batch", tmp_path / "missing.mcap", "--out", tmp_path / "out"),
                        "missing.mcap", "no such take file")
-    assert_clean_error(run("--out", tmp_path / "out"), "no takes given")
+    assert_clean_error(tools.puppet("batch", "--out", tmp_path / "out"), "no takes given")
     assert not (tmp_path / "out").exists()
 
 
-def test_an_output_folder_that_cannot_be_written(tmp_path, session):
+def test_an_output_folder_that_cannot_be_written(tmp_path, session, tools):
     blocker = tmp_path / "file"
     blocker.write_text("not a folder")
-    assert_clean_error(run(session[0], "--out", blocker / "out"), str(blocker / "out"),
-                       "cannot create the output folder")
-    assert_clean_error(run(session[0], "--out", blocker), str(blocker))
+    assert_clean_error(tools.puppet("batch", session[0], "--out", blocker / "out"),
+                       str(blocker / "out"), "cannot create the output folder")
+    assert_clean_error(tools.puppet("batch", session[0], "--out", blocker), str(blocker))
     assert blocker.read_text() == "not a folder"
 
 
-def test_bad_formats_and_sizes(tmp_path, session):
+def test_bad_formats_and_sizes(tmp_path, session, tools):
+    def run(*args):
+        return tools.puppet("batch", *args)
+
     assert_clean_error(run(session[0], "--out", tmp_path, "--formats", "gltf,fbx"), "'fbx'",
                        "mp4, gltf, usd, pc2, bvh")
     assert_clean_error(run(session[0], "--out", tmp_path, "--formats", "mp4", "--size", 641, 480),
@@ -66,7 +69,8 @@ def test_an_unreachable_ray_address_fails_before_any_work(tmp_path, session):
                        "--address is for --engine ray")
 
 
-def test_a_fifo_or_folder_named_like_a_take_is_a_failed_row_not_a_hang(tmp_path, session):
+def test_a_fifo_or_folder_named_like_a_take_is_a_failed_row_not_a_hang(tmp_path, session,
+                                                                        tools):
     import json
     import os
 
@@ -76,9 +80,8 @@ def test_a_fifo_or_folder_named_like_a_take_is_a_failed_row_not_a_hang(tmp_path,
     (folder / "folder.mcap").mkdir()
     (folder / "good.mcap").write_bytes(session[0].read_bytes())
     out = tmp_path / "out"
-    result = subprocess.run(["puppet", "batch", str(folder), "--out", str(out), "--formats",
-                             "bvh", "--workers", "1", "--json"], capture_output=True, text=True,
-                            timeout=300)
+    result = tools.puppet("batch", folder, "--out", out, "--formats", "bvh", "--workers", 1,
+                          "--json")
     assert result.returncode == 3 and "Traceback" not in result.stderr  # some takes failed
     rows = {r["take"]: r for r in json.loads(result.stdout)["takes"]}
     for name in ("pipe.mcap", "folder.mcap"):

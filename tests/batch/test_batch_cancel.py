@@ -16,7 +16,7 @@ import pytest
 from puppet.cli.batch import EXIT_DONE, EXIT_FAILED
 
 PATIENCE_S = 120.0  # generous: a loaded 2-core machine, Ray shutting down
-TAKE_TIMEOUT_S = 15  # --take-timeout of the hung-take test (the default scales with the take)
+TAKE_TIMEOUT_S = 10  # --take-timeout of the hung-take test (the default scales with the take)
 
 ENGINES = ["local", pytest.param("ray", marks=pytest.mark.skipif(
     __import__("importlib").util.find_spec("ray") is None, reason="ray is not installed"))]
@@ -221,7 +221,9 @@ def test_a_hung_take_times_out_and_its_worker_is_freed(tmp_path, critter, tools,
 @pytest.mark.parametrize("retries", [0, 1])
 def test_retries_are_counted_per_take(tmp_path, critter, tools, wait_until, engine, retries,
                                      request):
-    long_take = tools.write_take(tmp_path / "long.mcap", critter, readings=600, seed=7)
+    # long enough to be caught mid-take; the worker is stopped before it is looked at, so a
+    # take found unfinished is killed unfinished
+    long_take = tools.write_take(tmp_path / "long.mcap", critter, readings=200, seed=7)
     out = tmp_path / "out"
     batch = start([long_take, "--out", out, "--formats", "pc2", "--workers", 1,
                    "--retries", retries, *on_cluster(engine, request)], engine)
@@ -229,7 +231,12 @@ def test_retries_are_counted_per_take(tmp_path, critter, tools, wait_until, engi
         folder = wait_until(lambda: take_folders(out, engine, batch.pid, "long")
                             or batch.poll() is not None, timeout=300, what="the take started")
         assert batch.poll() is None, batch.communicate()[1]
-        os.kill(int(folder[0].suffix[1:]), signal.SIGKILL)  # out of memory, say
+        worker = int(folder[0].suffix[1:])
+        os.kill(worker, signal.SIGSTOP)
+        # unfinished: its output neither written in its staging folder nor moved into --out
+        ended = (folder[0] / "long.pc2").exists() or (out / "long.pc2").exists()
+        os.kill(worker, signal.SIGKILL)  # out of memory, say
+        assert not ended, "the take ended before its worker was stopped"
         stdout, stderr = batch.communicate(timeout=600)
     finally:
         if batch.poll() is None:

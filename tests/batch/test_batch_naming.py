@@ -3,15 +3,23 @@ take's folder below the folder its argument names (a folder, or a pattern's lead
 two takes that would still write the same files are refused before any work, naming both."""
 
 import json
-import subprocess
+
+import pytest
 
 
-def batch(*args, cwd=None):
-    return subprocess.run(["puppet", "batch", *map(str, args), "--json"], capture_output=True,
-                          text=True, timeout=600, cwd=cwd)
+@pytest.fixture
+def batch(tools, monkeypatch):
+    """``puppet batch ARGS --json`` in this process, from the folder ``cwd`` (the command's
+    code: end-to-end runs in the other batch tests)."""
+    def run(*args, cwd=None):
+        if cwd is not None:
+            monkeypatch.chdir(cwd)
+        return tools.puppet("batch", *args, "--json")
+    return run
 
 
-def test_takes_of_one_name_in_different_folders_mirror_their_folders(tmp_path, critter, tools):
+def test_takes_of_one_name_in_different_folders_mirror_their_folders(tmp_path, critter, tools,
+                                                                     batch):
     shoot = tmp_path / "shoot"
     for day in ("day1", "day2", "day2/pickups"):
         (shoot / day).mkdir(parents=True)
@@ -37,7 +45,7 @@ def test_takes_of_one_name_in_different_folders_mirror_their_folders(tmp_path, c
 
 
 def test_two_takes_that_would_write_the_same_files_are_refused_naming_both(tmp_path, critter,
-                                                                           tools):
+                                                                           tools, batch):
     for name in ("a", "b"):
         (tmp_path / name).mkdir()
     a = tools.write_take(tmp_path / "a" / "take.mcap", critter)
@@ -51,7 +59,8 @@ def test_two_takes_that_would_write_the_same_files_are_refused_naming_both(tmp_p
     assert list(out.iterdir()) == []
 
 
-def test_a_file_where_a_mirrored_folder_goes_is_refused_naming_it(tmp_path, critter, tools):
+def test_a_file_where_a_mirrored_folder_goes_is_refused_naming_it(tmp_path, critter, tools,
+                                                                  batch):
     (tmp_path / "shoot" / "day1").mkdir(parents=True)
     tools.write_take(tmp_path / "shoot" / "day1" / "take.mcap", critter)
     out = tmp_path / "out"

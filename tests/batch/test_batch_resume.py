@@ -9,17 +9,22 @@ import subprocess
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 from puppet.rig.checksum import character_sha256
 from puppet.rig import builtin, load_rig
 from puppet.rig.load import BUILTIN_RIG
 
 
-def batch(*args):
-    result = subprocess.run(["puppet", "batch", *map(str, args), "--json"], capture_output=True,
-                            text=True, timeout=600)
-    assert "Traceback" not in result.stderr
-    return result
+@pytest.fixture
+def batch(tools):
+    """``puppet batch ARGS --json`` in this process (what --resume decides lives in the command's
+    code; end-to-end runs: the other batch tests and this file's table run)."""
+    def run(*args):
+        result = tools.puppet("batch", *args, "--json")
+        assert "Traceback" not in result.stderr
+        return result
+    return run
 
 
 def rows_of(result) -> list[tuple[str, str, str]]:
@@ -34,7 +39,8 @@ def snapshot(folder: Path) -> dict:
             for p in sorted(folder.rglob("*")) if p.is_file()}
 
 
-def test_resume_redoes_a_take_when_what_shapes_it_changed_and_says_why(tmp_path, critter, tools):
+def test_resume_redoes_a_take_when_what_shapes_it_changed_and_says_why(tmp_path, critter, tools,
+                                                                       batch):
     takes = [tools.write_take(tmp_path / f"t{i}.mcap", critter, seed=i) for i in range(2)]
     out = tmp_path / "out"
     args = [*takes, "--out", out, "--formats", "pc2,bvh", "--workers", 1]
@@ -102,7 +108,8 @@ def test_resume_redoes_a_take_when_what_shapes_it_changed_and_says_why(tmp_path,
         ("done", f"the rig changed ({BUILTIN_RIG} -> {rig_copy})")] * 2
 
 
-def test_dry_run_says_what_would_be_done_and_writes_nothing(tmp_path, critter, tools):
+def test_dry_run_says_what_would_be_done_and_writes_nothing(tmp_path, critter, tools,
+                                                            batch):
     takes = [tools.write_take(tmp_path / f"t{i}.mcap", critter, seed=i) for i in range(2)]
     out = tmp_path / "out"
     args = [*takes, "--out", out, "--formats", "pc2", "--workers", 1]
@@ -142,7 +149,8 @@ def test_the_character_checksum_follows_the_character_not_its_file(tmp_path):
     assert character_sha256(load_rig(folder / "my.toml")) != character_sha256(builtin())
 
 
-def test_keys_shape_the_gltf_as_in_export_and_a_change_redoes_it(tmp_path, critter, tools):
+def test_keys_shape_the_gltf_as_in_export_and_a_change_redoes_it(tmp_path, critter, tools,
+                                                                 batch):
     take = tools.write_take(tmp_path / "t.mcap", critter)
     out = tmp_path / "out"
     args = [take, "--out", out, "--formats", "gltf,bvh", "--workers", 1]
@@ -162,7 +170,8 @@ def test_keys_shape_the_gltf_as_in_export_and_a_change_redoes_it(tmp_path, critt
         assert refused.returncode == 1 and f"Error: {words}" in refused.stderr
 
 
-def test_a_given_rig_s_calibration_file_is_part_of_the_rig(tmp_path, critter, tools):
+def test_a_given_rig_s_calibration_file_is_part_of_the_rig(tmp_path, critter, tools,
+                                                           batch):
     take = tools.write_take(tmp_path / "t.mcap", critter)  # records no calibration of its own
     rig_path = tmp_path / "rig" / "my.toml"
     rig_path.parent.mkdir()

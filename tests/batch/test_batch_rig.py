@@ -8,6 +8,7 @@ import subprocess
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 from puppet.bus import Reading
 from puppet.take.header import take_writer
@@ -29,11 +30,15 @@ def record(take: Path, rig_path: Path, count: int = 10) -> Path:
     return take
 
 
-def batch(*args):
-    result = subprocess.run(["puppet", "batch", *map(str, args), "--json"], capture_output=True,
-                            text=True, timeout=600)
-    assert "Traceback" not in result.stderr
-    return result
+@pytest.fixture
+def batch(tools):
+    """``puppet batch ARGS --json`` in this process (the command's code: end-to-end runs in the
+    other batch tests)."""
+    def run(*args):
+        result = tools.puppet("batch", *args, "--json")
+        assert "Traceback" not in result.stderr
+        return result
+    return run
 
 
 def export(take: Path, pc2: Path, *rig) -> bytes:
@@ -42,7 +47,8 @@ def export(take: Path, pc2: Path, *rig) -> bytes:
     return pc2.read_bytes()
 
 
-def test_a_take_of_another_rig_file_with_the_same_name_is_solved_on_its_own_rig(tmp_path):
+def test_a_take_of_another_rig_file_with_the_same_name_is_solved_on_its_own_rig(tmp_path,
+                                                                                batch):
     take = record(tmp_path / "dynamics.mcap", BUILTIN_DYNAMICS_RIG)
     assert load_rig(BUILTIN_DYNAMICS_RIG).name == load_rig(BUILTIN_RIG).name  # both "critter"
     out = tmp_path / "out"
@@ -67,7 +73,7 @@ def test_a_take_of_another_rig_file_with_the_same_name_is_solved_on_its_own_rig(
 
 
 def test_a_take_whose_rig_is_neither_found_nor_given_is_refused_naming_its_rig_file(tmp_path,
-                                                                                   session):
+                                                                                   session, batch):
     studio = tmp_path / "studio"
     studio.mkdir()
     shutil.copy(BUILTIN_RIG.parent / "critter.npz", studio / "critter.npz")
@@ -87,7 +93,8 @@ def test_a_take_whose_rig_is_neither_found_nor_given_is_refused_naming_its_rig_f
     assert f"recorded with rig file {rig_path.resolve()}" in (out / "lost.log").read_text()
 
 
-def test_a_given_rig_of_other_servos_is_refused_naming_both_rig_files(tmp_path, session):
+def test_a_given_rig_of_other_servos_is_refused_naming_both_rig_files(tmp_path, session,
+                                                                       batch):
     tail = record(tmp_path / "tail.mcap", TAIL_RIG)
     out = tmp_path / "out"
     result = batch(tail, session[0], "--out", out, "--formats", "bvh", "--workers", 1, "--rig",
@@ -101,7 +108,8 @@ def test_a_given_rig_of_other_servos_is_refused_naming_both_rig_files(tmp_path, 
     assert not (out / "tail.bvh").exists()
 
 
-def test_a_take_whose_character_changed_since_recording_is_refused_without_rig(tmp_path):
+def test_a_take_whose_character_changed_since_recording_is_refused_without_rig(tmp_path,
+                                                                                batch):
     studio = tmp_path / "studio"
     studio.mkdir()
     shutil.copy(BUILTIN_RIG.parent / "critter.npz", studio / "critter.npz")

@@ -7,6 +7,7 @@ import os
 import subprocess
 import sys
 import tempfile
+from pathlib import Path
 
 import pytest
 
@@ -22,25 +23,39 @@ print(json.dumps([row.cpu_seconds for row in report.rows]))
 """
 
 
-def run_watching(command, out, env, wait_until):
-    """Run a batch; (its stdout, its first worker's thread count while it ran a take: local
-    workers only, None on Ray)."""
-    batch = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                             env=env, cwd=tempfile.gettempdir())
-    threads = None
+def run_watching(commands: dict[str, list], outs: dict[str, Path], env, wait_until):
+    """Run the batches at once; {name: (its stdout, its first worker's thread count while it
+    ran a take: local workers only, None on Ray)}. Each worker is counted the moment its first
+    take's staging folder is seen (the worker lives until its batch ends)."""
+    batches = {name: subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                                      text=True, env=env, cwd=tempfile.gettempdir())
+               for name, command in commands.items()}
+    threads = {name: None for name in commands if "ray" in commands[name]}
+
+    def counted() -> bool:
+        for name, batch in batches.items():
+            if name in threads:
+                continue
+            found = list(outs[name].glob(".puppet-batch.*.partial/t*.*"))
+            if found:
+                threads[name] = len(os.listdir(f"/proc/{found[0].suffix[1:]}/task"))
+            elif batch.poll() is not None:
+                threads[name] = None  # ended before a take was seen: compared, and fails
+        return len(threads) == len(batches)
+
+    results = {}
     try:
-        if "ray" not in command:
-            found = wait_until(lambda: list(out.glob(".puppet-batch.*.partial/t*.*"))
-                               or batch.poll() is not None, timeout=300, what="a take started")
-            if found is not True:
-                threads = len(os.listdir(f"/proc/{found[0].suffix[1:]}/task"))
-        stdout, stderr = batch.communicate(timeout=900)
+        wait_until(counted, timeout=300, what="a take started in every batch")
+        for name, batch in batches.items():
+            stdout, stderr = batch.communicate(timeout=900)
+            assert batch.returncode == 0, stderr
+            results[name] = stdout, threads[name]
     finally:
-        if batch.poll() is None:
-            batch.kill()
-            batch.wait()
-    assert batch.returncode == 0, stderr
-    return stdout, threads
+        for batch in batches.values():
+            if batch.poll() is None:
+                batch.kill()
+                batch.wait()
+    return results
 
 
 @pytest.mark.parametrize("engine", ["local", pytest.param("ray", marks=pytest.mark.skipif(
@@ -48,20 +63,22 @@ def run_watching(command, out, env, wait_until):
 def test_the_python_api_uses_the_command_lines_cpu_per_take(tmp_path, critter, tools, engine,
                                                             wait_until, request):
     # two takes: the first is running when a local worker's threads are counted, and the CPU
-    # compared is per take (each 300 readings: the solve dominates a take's CPU)
-    takes = [tools.write_take(tmp_path / f"t{i}.mcap", critter, readings=300, seed=i)
+    # compared is per take (each 120 readings: the solve, per frame as a BLAS thread pool's
+    # cost is, dominates a take's CPU)
+    takes = [tools.write_take(tmp_path / f"t{i}.mcap", critter, readings=120, seed=i)
              for i in range(2)]
     # a caller's environment with no thread settings at all: BLAS would take every core
     # Ray: both on the session's cluster (what differs is the driver's environment)
     cluster = request.getfixturevalue("on_ray_cluster") if engine == "ray" else []
     env = {k: v for k, v in os.environ.items() if k not in ONE_THREAD_ENV}
-    api, api_threads = run_watching([sys.executable, "-P", "-c", API, *map(str, takes), engine,
-                                     cluster[-1] if cluster else "", str(tmp_path / "api")],
-                                    tmp_path / "api", env, wait_until)
-    cli, cli_threads = run_watching(["puppet", "batch", *map(str, takes), "--out",
-                                     str(tmp_path / "cli"), "--formats", "pc2,gltf", "--workers",
-                                     "1", "--engine", engine, "--json", *cluster],
-                                    tmp_path / "cli", env, wait_until)
+    # both at once: what is compared is each take's own CPU and each worker's threads
+    ran = run_watching({"api": [sys.executable, "-P", "-c", API, *map(str, takes), engine,
+                                cluster[-1] if cluster else "", str(tmp_path / "api")],
+                        "cli": ["puppet", "batch", *map(str, takes), "--out",
+                                str(tmp_path / "cli"), "--formats", "pc2,gltf", "--workers",
+                                "1", "--engine", engine, "--json", *cluster]},
+                       {"api": tmp_path / "api", "cli": tmp_path / "cli"}, env, wait_until)
+    (api, api_threads), (cli, cli_threads) = ran["api"], ran["cli"]
     assert api_threads == cli_threads  # no BLAS thread pool of its own in the API's workers
     api_cpu = sum(json.loads(api.splitlines()[-1]))
     cli_cpu = sum(row["cpu_s"] for row in json.loads(cli.splitlines()[0])["takes"])
