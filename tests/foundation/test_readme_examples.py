@@ -11,7 +11,7 @@ Substitutions a reader makes too:
   fault file; ``creature.glb`` is the skinned test character of ``tests/rig/character.py``;
   ``ax.toml`` is the built-in Protocol 1.0 variant (``critter_ax.toml``) copied the same way;
 - the manual step the README describes below the block: once ``rig init`` has written
-  ``creature.toml``, before the first line that serves or calibrates it, the test fills in three
+  ``creature.toml``, before the first line that serves or calibrates it, the test fills in two
   of its commented ``[[servo]]`` blocks (``model``, ``joint``, ``axis``) as a user would;
 - Enter is pressed when a command asks (``calibrate --guided``: "hold the rest pose");
 - ``session/`` (a day of takes, for ``batch``) holds copies of the takes recorded so far.
@@ -58,8 +58,9 @@ CHARACTER_RIG = "creature.toml"
 CHARACTER_SERVOS = {
     "neck": {"model": '"XL330-M288"', "axis": '"x"'},
     "tail base": {"model": '"XL430-W250"', "axis": '"z"'},
-    "leg.L": {"model": '"XM430-W350"', "axis": '"x"'},
 }
+"""Two servos of two models on two axes: each more is 5 s more of hw-sim's guided person (one
+servo at a time) and the same steps of calibrate --guided again."""
 
 
 def using_it_commands() -> list[str]:

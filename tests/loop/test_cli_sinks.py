@@ -92,9 +92,10 @@ def test_sigterm_during_play_finishes_a_playable_video(tmp_path):
     proc = subprocess.Popen(["puppet", "play", str(take), "--out", str(video), "--antialias", "none",
                              "--fps", "30"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
-        # Frames are flowing into the encoder's temporary file.
-        wait_for(lambda: any(p.stat().st_size > 50_000 for p in tmp_path.glob(".long.*.partial.mp4")),
-                 what="encoded frames in the temporary video")
+        # The encoder has its first frame: ffmpeg writes its temporary file's header once the
+        # first frame reaches it.
+        wait_for(lambda: any(p.stat().st_size > 0 for p in tmp_path.glob(".long.*.partial.mp4")),
+                 what="a frame in the encoder's temporary video")
         proc.send_signal(signal.SIGTERM)
         stdout, stderr = proc.communicate(timeout=60)
     finally:

@@ -32,7 +32,7 @@ import hw_sim
 from puppet.reading import Reading
 from puppet.rig import builtin
 from puppet.rig.load import BUILTIN_RIG
-from puppet.take import TakeReader, TakeWriter
+from puppet.take import TakeError, TakeReader, TakeWriter
 
 PATIENCE_S = 60.0
 PUPPET = [sys.executable, "-m", "puppet.cli"]
@@ -52,9 +52,26 @@ def _take(path: Path, seconds: float) -> Path:
     return path
 
 
-def _bigger(path: Path, size: int):
-    return lambda: any(p.stat().st_size > size for p in path.parent.glob(f"*{path.suffix}")
+def _encoding(video: Path):
+    """Under way once the video's encoder has its first frame: ffmpeg writes the file's header
+    (its hidden partial file, renamed to ``video`` when finished) once the first frame reaches
+    it, and the sink starts ffmpeg at the first frame."""
+    return lambda: any(p.stat().st_size > 0 for p in video.parent.glob(f"*{video.suffix}")
                        if p.is_file())
+
+
+def _readings(folder: Path, pattern: str):
+    """Under way once a take under ``folder`` (``pattern``) holds a reading: each reading is
+    in the file when its write returns (TakeWriter), readable before the take is closed."""
+    def holds() -> bool:
+        for path in folder.glob(pattern):
+            try:
+                if path.is_file() and len(TakeReader(path)) > 0:
+                    return True
+            except (TakeError, OSError):  # its header not all written yet
+                pass
+        return False
+    return holds
 
 
 def _page_up(stderr: Path):
@@ -106,7 +123,7 @@ def _press(url: str, message: dict) -> None:
 
 def _pressed(stderr: Path, message: dict, made: Path, pattern: str):
     """Under way once the page is up, ``message`` pressed on it, and a take under ``made``
-    (``pattern``) holds readings."""
+    (``pattern``) holds a reading."""
     pressed = []
 
     def up() -> bool:
@@ -115,7 +132,7 @@ def _pressed(stderr: Path, message: dict, made: Path, pattern: str):
                 return False
             _press(_page_url(stderr), message)
             pressed.append(True)
-        return any(p.stat().st_size > 20_000 for p in made.glob(pattern) if p.is_file())
+        return _readings(made, pattern)()
     return up
 
 
@@ -129,7 +146,7 @@ def _link_client():
 
 def _linked(stderr: Path, video: Path, clients: list):
     """Under way once a client of the link is connected (play --link waits for one) and the
-    video grows."""
+    video has its first frame."""
     def up() -> bool:
         if not clients:
             line = next((x for x in stderr.read_text().splitlines()
@@ -137,49 +154,64 @@ def _linked(stderr: Path, video: Path, clients: list):
             if line is None:
                 return False
             clients.append(_link_client()(int(line.split()[3].rsplit(":", 1)[1])))
-        return _bigger(video, 20_000)()
+        return _encoding(video)()
     return up
 
 
-def _case(name: str, stop: str, tmp: Path, port: str | None, clients: list):
+@pytest.fixture(scope="module", name="takes")
+def _takes(tmp_path_factory) -> dict[str, Path]:
+    """The takes the play cells read (never written to): "short" ends by itself in 2 s, "long"
+    (120 s) outlasts every stop."""
+    folder = tmp_path_factory.mktemp("takes")
+    return {"short": _take(folder / "short.mcap", 2.0), "long": _take(folder / "long.mcap", 120.0)}
+
+
+SMALL = ["--size", "160", "120"]
+"""Small frames where a command takes --size: the image is not what the contract is about."""
+
+
+def _case(name: str, stop: str, tmp: Path, port: str | None, clients: list, takes: dict):
     """(argv, under_way predicate, video or None, take or None, stdin)."""
     seconds = ["--seconds", "2"] if stop == "end" else []
     video, take = tmp / "v.mp4", tmp / "t.mcap"
     rig = ["--rig", str(BUILTIN_RIG), "--port", str(port)]
     if name == "demo":
-        return (["demo", "--out", str(video), *seconds], _bigger(video, 20_000), video, None, None)
+        return (["demo", "--out", str(video), *SMALL, *seconds], _encoding(video), video, None, None)
     if name == "live":
         return (["live", *rig, "--record", str(take), "--out", str(video), *seconds],
-                _bigger(video, 20_000), video, take, None)
+                _encoding(video), video, take, None)
     if name == "record":
-        return (["record", *rig, "--out", str(take), *seconds], _bigger(take, 20_000), None, take,
-                None)
+        return (["record", *rig, "--out", str(take), *seconds], _readings(tmp, take.name), None,
+                take, None)
     if name == "keys":  # end of input ends a key session; otherwise stdin stays open
         return (["keys", *rig, "--out", str(tmp / "shot.mcap")],
                 lambda: "hold a pose" in (tmp / "stdout.txt").read_text(), None, None,
                 subprocess.DEVNULL if stop == "end" else subprocess.PIPE)
     if name == "view":
-        return (["view", "--address", "127.0.0.1:0", *seconds], _page_up(tmp / "stderr.txt"),
-                None, None, None)
-    pressed_seconds = ["--seconds", "10"] if stop == "end" else []  # time to press the button
+        return (["view", "--address", "127.0.0.1:0", *SMALL, *seconds],
+                _page_up(tmp / "stderr.txt"), None, None, None)
+    # time to press the button: the page serves before the run's clock starts, and the press
+    # takes effect at the run's next frame (a loaded machine's press lands well under a second
+    # after the clock starts)
+    pressed_seconds = ["--seconds", "5"] if stop == "end" else []
     if name == "view-record":  # the page's record button: a take in the command's folder
-        return (["demo", "--view", "127.0.0.1:0", "--out", str(video), *pressed_seconds],
+        return (["demo", "--view", "127.0.0.1:0", "--out", str(video), *SMALL, *pressed_seconds],
                 _pressed(tmp / "stderr.txt", {"type": "record", "on": True}, tmp, "take-*.mcap"),
                 video, tmp / "take-*.mcap", None)
     if name == "studio":  # the studio page's record button: take 1 of the session's shot
-        return (["studio", "shoot", "--demo", "--address", "127.0.0.1:0", *pressed_seconds],
+        return (["studio", "shoot", "--demo", "--address", "127.0.0.1:0", *SMALL, *pressed_seconds],
                 _pressed(tmp / "stderr.txt", {"type": "studio", "action": "record", "count_in": 0},
                          tmp / "shoot", "takes/*/*.mcap"),
                 None, tmp / "shoot" / "takes" / "*" / "*.mcap", None)
-    long = _take(tmp / "long.mcap", 2.0 if stop == "end" else 120.0)
+    long = takes["short" if stop == "end" else "long"]
     if name == "play":  # the take's frames as fast as they solve, into the video
         return (["play", str(long), "--out", str(video), "--antialias", "none"],
-                _bigger(video, 20_000), video, None, None)
+                _encoding(video), video, None, None)
     if name == "play-link":  # on the clock into a client of the link
         return (["play", str(long), "--link", "127.0.0.1:0", "--out", str(video)],
                 _linked(tmp / "stderr.txt", video, clients), video, None, None)
     return (["play", str(long), "--view", "127.0.0.1:0", "--out", str(video)],
-            _bigger(video, 20_000), video, None, None)
+            _encoding(video), video, None, None)
 
 
 def _reader_child(pid: int) -> int | None:
@@ -198,11 +230,24 @@ def _reader_child(pid: int) -> int | None:
 
 
 def _group_gone(group: int) -> bool:
+    """True once every process of process group ``group`` has exited. One left as a zombie has
+    exited: only its reaper has not collected it yet (an orphan's is init, which does so in its
+    own time: multiprocessing's resource tracker outlives the command by a moment and ends on
+    its own, then waits as a zombie for init)."""
     try:
         os.killpg(group, 0)
     except ProcessLookupError:
         return True
-    return False
+    for entry in Path("/proc").iterdir():
+        if not entry.name.isdigit():
+            continue
+        try:
+            state, _, pgid = (entry / "stat").read_text().rsplit(")", 1)[1].split()[:3]
+        except (OSError, ValueError):  # gone meanwhile
+            continue
+        if int(pgid) == group and state != "Z":
+            return False
+    return True
 
 
 CASES = ([(n, s) for n in BUS for s in STOPS] + [("view", s) for s in STOPS if s != "kill-reader"]
@@ -217,11 +262,11 @@ also when the run ends by itself."""
 
 
 @pytest.mark.parametrize("name, stop", CASES, ids=[f"{n}-{s}" for n, s in CASES])
-def test_every_command_keeps_what_it_made_on_every_way_out(name, stop, tmp_path, wait_until):
+def test_every_command_keeps_what_it_made_on_every_way_out(name, stop, tmp_path, wait_until, takes):
     rig = builtin()
     with hw_sim.serve(dict(rig.servo_map.models), motion="wave") as bus:
         clients: list = []
-        argv, under_way, video, take, stdin = _case(name, stop, tmp_path, bus.port, clients)
+        argv, under_way, video, take, stdin = _case(name, stop, tmp_path, bus.port, clients, takes)
         err_path, out_path = tmp_path / "stderr.txt", tmp_path / "stdout.txt"
         err_path.write_text("")
         out_path.write_text("")
@@ -322,7 +367,7 @@ def test_a_killed_demo_leaves_no_simulated_bus_holding_its_page(tmp_path, wait_u
                              str(tmp_path / "v.mp4")], stdout=subprocess.DEVNULL,
                             stderr=subprocess.PIPE, text=True, process_group=0, cwd=tmp_path)
     try:
-        wait_until(lambda: proc.poll() is not None or _bigger(tmp_path / "v.mp4", 20_000)(),
+        wait_until(lambda: proc.poll() is not None or _encoding(tmp_path / "v.mp4")(),
                    what="the demo under way")
         assert proc.poll() is None, proc.stderr.read()
         proc.kill()
