@@ -165,6 +165,25 @@ def demo(tmp_path_factory, request):
     assert (folder / "demo.mp4").stat().st_size > 0  # --view works together with --out
 
 
+def wait_still(page, ready: str = "true", timeout: float = WAIT_S) -> int:
+    """Wait until the picture is still after the page's JavaScript ``ready`` became true: a frame
+    rendered after a panel on which ``ready`` held, then a panel period with no frame rendered
+    (the loop renders a picture that changes; a still one only every KEEPALIVE_S), and the page
+    showing that frame; returns its seq. A panel carries the count of frames rendered before it."""
+    first, seen = [], {}
+
+    def still():
+        panels, frames, shown, is_ready = page.evaluate(
+            f"[puppetView.panels, puppetView.panel && puppetView.panel.frames, puppetView.shownSeq, "
+            f"!!(puppetView.panel && ({ready}))]")
+        if not is_ready:
+            return None
+        first.append(frames)
+        seen.setdefault(frames, panels)
+        return frames > first[0] and seen[frames] < panels and shown >= frames and frames
+    return wait_until(still, timeout, what=f"a still picture after {ready}", interval=0.05)
+
+
 def frame_image(page):
     """The frame canvas as shown: (h, w, 3) uint8."""
     import io

@@ -91,25 +91,6 @@ def changed_pixels(a, b) -> int:
     return int((np.abs(a.astype(int) - b.astype(int)).sum(axis=2) > 60).sum())
 
 
-def still_frame(tools, page, ready: str):
-    """The frame shown once the picture is still after the page's JavaScript ``ready`` became
-    true: a frame rendered after a panel on which ``ready`` held, then a panel period with no
-    frame rendered (the loop renders a pose that moves; a still one only every KEEPALIVE_S),
-    and the page showing that frame. A panel carries the frames rendered before it."""
-    first, seen = [], {}
-
-    def still():
-        panels, frames, shown, is_ready = page.evaluate(
-            f"[puppetView.panels, puppetView.panel.frames, puppetView.shownSeq, !!({ready})]")
-        if not is_ready:
-            return False
-        first.append(frames)
-        seen.setdefault(frames, panels)
-        return frames > first[0] and seen[frames] < panels and shown >= frames
-    tools.wait_until(still, what=f"a still frame after {ready}")
-    return tools.frame_image(page)
-
-
 def changed_frame(tools, page, other, what: str):
     """The frame shown once it differs from ``other`` by more than JPEG noise in over 300
     pixels (the pose is still: only a change of what the frames show does that)."""
@@ -166,8 +147,9 @@ def test_keys_from_the_page_onion_skins_and_timeline(new_page, tools, tmp_path):
             # onion skins: the previous key (pose 1) over the live character (pose 2)
             bus.set_positions(poses[2])
             assert page.evaluate("puppetView.keys.onion") is True
-            with_onion = still_frame(tools, page, "puppetView.panel.servos.find(s => s.id === 7) && "
-                                     "Math.abs(puppetView.panel.servos.find(s => s.id === 7).deg + 80) < 2")
+            tools.wait_still(page, "puppetView.panel.servos.find(s => s.id === 7) && "
+                                   "Math.abs(puppetView.panel.servos.find(s => s.id === 7).deg + 80) < 2")
+            with_onion = tools.frame_image(page)
             # toggled off, the ghost of key 1 goes where pose 2 is not; on, it is back
             page.click("#onion")
             tools.wait_js(page, "puppetView.keys.onion === false")
