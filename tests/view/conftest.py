@@ -51,6 +51,18 @@ def wait_until(condition, timeout: float = WAIT_S, what: str = "condition", inte
         time.sleep(interval)
 
 
+def cli(*args):
+    """``puppet ARGS`` run in this process (click's test runner): its Result (``exit_code``,
+    ``stderr``); an exception that escaped the command line (a traceback for a user) fails."""
+    from click.testing import CliRunner
+
+    from puppet.cli import main
+
+    result = CliRunner().invoke(main, [str(a) for a in args], prog_name="puppet")
+    assert isinstance(result.exception, SystemExit), result.exc_info
+    return result
+
+
 class PuppetProcess:
     """A puppet command run with --view in its own folder; ``url`` once it printed it."""
 

@@ -340,10 +340,8 @@ def test_play_view_of_a_shot_shows_its_keys_at_their_frames(new_page, tools, tmp
 
 
 def test_live_keys_needs_the_view(tools, tmp_path):
-    result = subprocess.run(tools.PUPPET + ["live", "--rig", str(BUILTIN_RIG), "--port", "x",
-                                            "--keys", str(tmp_path / "s.mcap")],
-                            capture_output=True, text=True, timeout=300)
-    assert result.returncode == 2 and "--keys takes keys from the page: add --view" in result.stderr
+    result = tools.cli("live", "--rig", BUILTIN_RIG, "--port", "x", "--keys", tmp_path / "s.mcap")
+    assert result.exit_code == 2 and "--keys takes keys from the page: add --view" in result.stderr
 
 
 def test_key_inputs_from_the_page_are_checked():
@@ -367,11 +365,9 @@ def test_keys_view_on_a_taken_port_fails_before_the_bus(tools, tmp_path):
         taken.bind(("127.0.0.1", 0))
         taken.listen()
         port = taken.getsockname()[1]
-        result = subprocess.run(tools.PUPPET + ["keys", "--rig", str(BUILTIN_RIG), "--port",
-                                                str(tmp_path / "no-such-port"), "--out",
-                                                str(tmp_path / "shot.mcap"), "--view", str(port)],
-                                capture_output=True, text=True, timeout=300, stdin=subprocess.DEVNULL)
-    assert result.returncode == 1
+        result = tools.cli("keys", "--rig", BUILTIN_RIG, "--port", tmp_path / "no-such-port",
+                           "--out", tmp_path / "shot.mcap", "--view", port)
+    assert result.exit_code == 1
     assert f"Error: --view: address 127.0.0.1:{port} is already in use" in result.stderr
     assert "no-such-port" not in result.stderr and "Traceback" not in result.stderr
     assert not (tmp_path / "shot.mcap").exists()
