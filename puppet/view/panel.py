@@ -86,8 +86,9 @@ class Panel:
 
     def for_camera(self, camera: int) -> dict:
         """The newest panel, with the handles and bones as seen by ``camera``."""
-        cams = self._camera_panels
-        return {**self.latest, **cams.get(camera, cams.get(0, {}))}
+        with self._lock:  # both from one update: its bones with its own figures
+            latest, cams = self.latest, self._camera_panels
+        return {**latest, **cams.get(camera, cams.get(0, {}))}
 
     def take_events(self, source_log) -> None:
         """The source's new bus events to every page (faults also as each servo's last fault)."""
@@ -144,6 +145,5 @@ class Panel:
                 "handles": [{"id": handle.id, "x": round(float(p[0]), 1), "y": round(float(p[1]), 1)}
                             for handle, p in zip(handles, spots)],
             }
-        self._camera_panels = cams
         with self._lock:
-            self.latest = panel
+            self.latest, self._camera_panels = panel, cams

@@ -51,6 +51,18 @@ def wait_until(condition, timeout: float = WAIT_S, what: str = "condition", inte
         time.sleep(interval)
 
 
+def cli(*args):
+    """``puppet ARGS`` run in this process (click's test runner): its Result (``exit_code``,
+    ``stderr``); an exception that escaped the command line (a traceback for a user) fails."""
+    from click.testing import CliRunner
+
+    from puppet.cli import main
+
+    result = CliRunner().invoke(main, [str(a) for a in args], prog_name="puppet")
+    assert isinstance(result.exception, SystemExit), result.exc_info
+    return result
+
+
 class PuppetProcess:
     """A puppet command run with --view in its own folder; ``url`` once it printed it."""
 
@@ -165,6 +177,25 @@ def demo(tmp_path_factory, request):
     assert (folder / "demo.mp4").stat().st_size > 0  # --view works together with --out
 
 
+def wait_still(page, ready: str = "true", timeout: float = WAIT_S) -> int:
+    """Wait until the picture is still after the page's JavaScript ``ready`` became true: a frame
+    rendered after a panel on which ``ready`` held, then a panel period with no frame rendered
+    (the loop renders a picture that changes; a still one only every KEEPALIVE_S), and the page
+    showing that frame; returns its seq. A panel carries the count of frames rendered before it."""
+    first, seen = [], {}
+
+    def still():
+        panels, frames, shown, is_ready = page.evaluate(
+            f"[puppetView.panels, puppetView.panel && puppetView.panel.frames, puppetView.shownSeq, "
+            f"!!(puppetView.panel && ({ready}))]")
+        if not is_ready:
+            return None
+        first.append(frames)
+        seen.setdefault(frames, panels)
+        return frames > first[0] and seen[frames] < panels and shown >= frames and frames
+    return wait_until(still, timeout, what=f"a still picture after {ready}", interval=0.05)
+
+
 def frame_image(page):
     """The frame canvas as shown: (h, w, 3) uint8."""
     import io
@@ -176,8 +207,9 @@ def frame_image(page):
     return np.asarray(Image.open(io.BytesIO(png)).convert("RGB"))
 
 
-def open_view(new_page, target, frames: int = 3):
-    """A page on a running view (a PuppetProcess or a URL), once it has shown some frames."""
+def open_view(new_page, target, frames: int = 1):
+    """A page on a running view (a PuppetProcess or a URL), once it has shown ``frames`` frames
+    (a still picture gets a new frame only every KEEPALIVE_S: wait for more only when moving)."""
     page = new_page(target if isinstance(target, str) else target.url)
     wait_js(page, f"window.puppetView && puppetView.shown >= {frames}")
     return page
@@ -205,6 +237,16 @@ def is_character(block) -> bool:
     return bool(((rgb[:, 0] - rgb[:, 2]) > 45).any())
 
 
+def side_panel(page, before):
+    """The page's panel once the tail's bone moved over 5 px from ``before`` (x, y) on it (the
+    camera turned), else None."""
+    import numpy as np
+
+    panel = page.evaluate("({frames: puppetView.panel.frames, "
+                          "tail: puppetView.bones.find(b => b.name === 'tail3').b})")
+    return panel if np.hypot(*np.subtract(panel["tail"], before)) > 5 else None
+
+
 def drag_tail(page):
     """Turn the shared camera to the side, press on the tail and drag it onto the background.
     Returns the target (x, y) image position; fails if the press missed the surface."""
@@ -213,11 +255,10 @@ def drag_tail(page):
     wait_js(page, "puppetView.bones.length > 0")
     before = page.evaluate("puppetView.bones.find(b => b.name === 'tail3').b")
     page.click("button[data-preset='side']")
-    wait_until(lambda: np.hypot(*np.subtract(
-        page.evaluate("puppetView.bones.find(b => b.name === 'tail3').b"), before)) > 5,
-        what="the side view")
-    seq = page.evaluate("puppetView.shownSeq")
-    wait_js(page, f"puppetView.shownSeq > {seq} + 3")
+    side = wait_until(lambda: side_panel(page, before), what="the side view")
+    # A sharp frame rendered after that panel: it shows the side view (a panel carries the
+    # frames rendered before it; the loop turns the camera before its panel and frame).
+    wait_js(page, f"!puppetView.draft && puppetView.shownSeq > {side['frames']}")
     tail = page.evaluate("puppetView.bones.find(b => b.name === 'tail3')")
     grab = (np.array(tail["a"]) + 2 * np.array(tail["b"])) / 3
     image = frame_image(page)

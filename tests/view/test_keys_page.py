@@ -91,13 +91,13 @@ def changed_pixels(a, b) -> int:
     return int((np.abs(a.astype(int) - b.astype(int)).sum(axis=2) > 60).sum())
 
 
-def settled_frame(tools, page, after_updates: int):
-    """The frame shown once the page has the keys update ``after_updates`` and a few frames
-    rendered after it (the loop re-renders on every change of what the onion skins show)."""
-    tools.wait_js(page, f"puppetView.keysUpdates >= {after_updates}")
-    seq = page.evaluate("puppetView.shownSeq")
-    tools.wait_js(page, f"puppetView.shownSeq > {seq} + 3")
-    return tools.frame_image(page)
+def changed_frame(tools, page, other, what: str):
+    """The frame shown once it differs from ``other`` by more than JPEG noise in over 300
+    pixels (the pose is still: only a change of what the frames show does that)."""
+    def changed():
+        image = tools.frame_image(page)
+        return [image] if changed_pixels(image, other) > 300 else None
+    return tools.wait_until(changed, what=what)[0]
 
 
 def test_keys_from_the_page_onion_skins_and_timeline(new_page, tools, tmp_path):
@@ -146,19 +146,18 @@ def test_keys_from_the_page_onion_skins_and_timeline(new_page, tools, tmp_path):
 
             # onion skins: the previous key (pose 1) over the live character (pose 2)
             bus.set_positions(poses[2])
-            tools.wait_js(page, "puppetView.panel && puppetView.panel.servos.find(s => s.id === 7)"
-                                " && Math.abs(puppetView.panel.servos.find(s => s.id === 7).deg + 80) < 2")
-            updates = page.evaluate("puppetView.keysUpdates")
             assert page.evaluate("puppetView.keys.onion") is True
-            with_onion = settled_frame(tools, page, updates)
+            tools.wait_still(page, "puppetView.panel.servos.find(s => s.id === 7) && "
+                                   "Math.abs(puppetView.panel.servos.find(s => s.id === 7).deg + 80) < 2")
+            with_onion = tools.frame_image(page)
+            # toggled off, the ghost of key 1 goes where pose 2 is not; on, it is back
             page.click("#onion")
             tools.wait_js(page, "puppetView.keys.onion === false")
-            without = settled_frame(tools, page, updates + 1)
+            without = changed_frame(tools, page, with_onion, "the frame without the onion skins")
             page.click("#onion")
             tools.wait_js(page, "puppetView.keys.onion === true")
-            again = settled_frame(tools, page, updates + 2)
-            assert changed_pixels(with_onion, without) > 300  # the ghost of key 1 where pose 2 is not
-            assert changed_pixels(again, without) > 300
+            again = changed_frame(tools, page, without, "the frame with the onion skins again")
+            assert changed_pixels(with_onion, without) > 300
             assert changed_pixels(again, with_onion) < changed_pixels(again, without) / 4
             ghost = (with_onion.astype(int) - without.astype(int))
             assert (ghost[..., 2] > ghost[..., 0] + 40).sum() > 100  # tinted blue: the previous key
@@ -303,8 +302,8 @@ def test_live_view_takes_keys_into_a_shot_from_the_page(new_page, tools, tmp_pat
 
 
 def test_play_view_of_a_shot_shows_its_keys_at_their_frames(new_page, tools, tmp_path):
-    """``play SHOT --view``: the shot plays for (last key frame − 1) / fps seconds and, paused
-    on a key's time, the page's servo angles are that key's."""
+    """``play SHOT --view``: the shot plays for (last key frame − 1) / fps seconds and holds its
+    end (paused); sought to a key's time, the page's servo angles are that key's."""
     from puppet.take.header import take_header
     from puppet.keys import write_shot
     from puppet.keys.example import critter_keys
@@ -320,8 +319,10 @@ def test_play_view_of_a_shot_shows_its_keys_at_their_frames(new_page, tools, tmp
         tools.wait_js(page, "puppetView.playback !== null && puppetView.playback !== undefined")
         duration = page.evaluate("puppetView.playback.duration_s")
         assert abs(duration - (keys.keys[-1].frame - 1) / 24) < 1e-6
-        page.click("#pause")
-        tools.wait_js(page, "puppetView.playback.paused")
+        # at its end the shot holds, paused (a click on pause could land there and play it
+        # again: the page's button plays from the start at the end)
+        tools.wait_js(page, "puppetView.playback.paused && "
+                            "puppetView.playback.position_s === puppetView.playback.duration_s")
         key = keys.keys[2]
         at = (key.frame - 1) / 24
         page.evaluate(f"const s = document.getElementById('scrub'); s.value = '{at}';"
@@ -339,10 +340,8 @@ def test_play_view_of_a_shot_shows_its_keys_at_their_frames(new_page, tools, tmp
 
 
 def test_live_keys_needs_the_view(tools, tmp_path):
-    result = subprocess.run(tools.PUPPET + ["live", "--rig", str(BUILTIN_RIG), "--port", "x",
-                                            "--keys", str(tmp_path / "s.mcap")],
-                            capture_output=True, text=True, timeout=300)
-    assert result.returncode == 2 and "--keys takes keys from the page: add --view" in result.stderr
+    result = tools.cli("live", "--rig", BUILTIN_RIG, "--port", "x", "--keys", tmp_path / "s.mcap")
+    assert result.exit_code == 2 and "--keys takes keys from the page: add --view" in result.stderr
 
 
 def test_key_inputs_from_the_page_are_checked():
@@ -366,11 +365,9 @@ def test_keys_view_on_a_taken_port_fails_before_the_bus(tools, tmp_path):
         taken.bind(("127.0.0.1", 0))
         taken.listen()
         port = taken.getsockname()[1]
-        result = subprocess.run(tools.PUPPET + ["keys", "--rig", str(BUILTIN_RIG), "--port",
-                                                str(tmp_path / "no-such-port"), "--out",
-                                                str(tmp_path / "shot.mcap"), "--view", str(port)],
-                                capture_output=True, text=True, timeout=300, stdin=subprocess.DEVNULL)
-    assert result.returncode == 1
+        result = tools.cli("keys", "--rig", BUILTIN_RIG, "--port", tmp_path / "no-such-port",
+                           "--out", tmp_path / "shot.mcap", "--view", port)
+    assert result.exit_code == 1
     assert f"Error: --view: address 127.0.0.1:{port} is already in use" in result.stderr
     assert "no-such-port" not in result.stderr and "Traceback" not in result.stderr
     assert not (tmp_path / "shot.mcap").exists()

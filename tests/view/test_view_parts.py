@@ -238,7 +238,7 @@ def test_nothing_is_rendered_or_encoded_without_a_viewer():
 
     view = View("127.0.0.1:0")
     try:
-        summary, _ = run_demo(seconds=2.0, sinks_for=lambda _p: [], view=view)
+        summary, _ = run_demo(seconds=1.0, sinks_for=lambda _p: [], view=view, width=160, height=120)
         stats = view.stats()
     finally:
         view.close()
