@@ -32,21 +32,28 @@ class Recording:
         self._recorder = None
         self._path: Path | None = None
         self._last_reading = None  # the loop's newest: the time of a mark
+        self.changes = 0  # starts and stops so far: a page shows no state older than its own
         self.markers: list[dict] = []
 
     def state(self) -> dict:
+        """on, path, readings, starts_in_s (the count-in left, s) and ``changes`` (the starts
+        and stops so far: the panel, sent after the messages, may carry a state the page has
+        seen replaced; the page keeps the newer)."""
+        changes = self.changes
         rec = self._recorder
         zero_ns = getattr(rec, "zero_ns", None)  # a count-in's end (the studio's takes)
         starts_in = None if zero_ns is None else max(0.0, (zero_ns - time.monotonic_ns()) / 1e9)
         return {"on": rec is not None, "path": str(self._path) if self._path else None,
                 "readings": rec.writer.count if rec is not None else None,
-                "starts_in_s": None if starts_in is None else round(starts_in, 3)}
+                "starts_in_s": None if starts_in is None else round(starts_in, 3),
+                "changes": changes}
 
     def set(self, on: bool, count_in_s: float = 0.0) -> None:
         """Start (a new take-STAMP.mcap, never over an existing file; the studio's: its shot's
         next take, after ``count_in_s``) or stop recording."""
         if on and self._recorder is None and self._slate is not None:
             self._path, self._recorder = self._slate.new_take(count_in_s)
+            self.changes += 1
             log.warning("view: recording %s", self._path)
         elif on and self._recorder is None:
             if self.take_factory is None:
@@ -60,6 +67,7 @@ class Recording:
                 path = self.takes_dir / f"take-{stamp}-{n}.mcap"
             self._recorder = self.take_factory(path)
             self._path = path
+            self.changes += 1
             log.warning("view: recording %s", path)
         elif not on and self._recorder is not None:
             self.close()
@@ -77,6 +85,7 @@ class Recording:
         except PuppetError as err:
             self._server.warn(f"recording stopped: {err}", None, None)
             self._recorder = None
+            self.changes += 1
             if self._slate is not None:  # the studio: a layer's base stops driving
                 self._slate.failed(self._path, err)
 
@@ -100,6 +109,7 @@ class Recording:
         """Close the page's take (complete), if one is open."""
         if self._recorder is not None:
             recorder, self._recorder = self._recorder, None
+            self.changes += 1
             count = recorder.writer.count
             recorder.close()
             log.warning("view: recorded %s (%d readings)", self._path, count)

@@ -108,8 +108,8 @@ def test_a_layer_recorded_from_the_page_is_the_next_take_and_plays_composed(new_
                                                                           tmp_path):
     rig = load_rig(BUILTIN_RIG)
     folder = tmp_path / "shoot"
-    process = tools.PuppetProcess(["studio", str(folder), "--demo", "--address",
-                                   f"127.0.0.1:{tools.free_port()}"], tmp_path)
+    process = tools.PuppetProcess(["studio", str(folder), "--demo", "--size", "320", "240",
+                                   "--address", f"127.0.0.1:{tools.free_port()}"], tmp_path)
     try:
         page = tools.open_studio(new_page, process, 1280, 900, STUDIO_WAIT_S)
         page.get_by_label("shot name").fill("walk")
@@ -148,6 +148,10 @@ def test_a_layer_recorded_from_the_page_is_the_next_take_and_plays_composed(new_
         _recording(page, tools, process, "puppetView.recording.starts_in_s === 0 && "
                    f"puppetView.recording.readings > {base_readings + 300}")
         page.get_by_role("button", name="■ stop", exact=True).click()  # after the base's end
+        # the bus's events so far (a starved host: late replies, goal writes not sent on
+        # a stalled line, Bus Watchdog trips), said if the driven servos did not follow
+        bus_events = page.evaluate("(() => { const n = {}; for (const f of puppetView.faults) "
+                                   "n[f.kind] = (n[f.kind] || 0) + 1; return n; })()")
         said = _said(page, tools, "recorded walk take 2")
         assert "a layer of upperarm_L, forearm_L, upperarm_R, forearm_R over take 1" in said
         takes = _takes_of(page)
@@ -191,9 +195,10 @@ def test_a_layer_recorded_from_the_page_is_the_next_take_and_plays_composed(new_
     assert np.abs(composed[:, cols] - through[:, cols]).max() > 50  # pass 2's arms, not pass 1's
     # on the motors: the base's servos, driven, followed the base from the layer's time 0
     lag, rms, late = lag_s(base, layer, driven[0], settle_s=0.5)
-    # (the fit is looser than live --over's on a loaded machine: the page's renders share the
-    # process with the goal feeder; the lag is the check)
-    assert abs(lag) < 0.25 and rms < 0.8 * late, (lag, rms, late)
+    # (the fit is looser than live --over's on a loaded machine; the lag is the check. A host
+    # starved past the bus's deadlines holds the goal writes and trips the Bus Watchdog: the
+    # servos then hold and ease back, by design; bus_events says so)
+    assert abs(lag) < 0.25 and rms < 0.8 * late, (lag, rms, late, bus_events)
     # exported: the legs of pass 1, the arms of pass 2
     got = _export(tools, layer, tmp_path / "layered.glb")
     pass1 = _export(tools, base, tmp_path / "pass1.glb")

@@ -21,9 +21,11 @@ from puppet.studio import SessionFolder
 STUDIO_WAIT_S = 120.0
 
 
-def _studio(tools, folder: Path, cwd: Path, *extra: str):
-    return tools.PuppetProcess(["studio", str(folder), "--demo", "--address",
-                                f"127.0.0.1:{tools.free_port()}", *extra], cwd)
+def _studio(tools, folder: Path, cwd: Path, *extra: str, size=("320", "240")):
+    """``puppet studio FOLDER --demo`` at ``size`` (320x240 where the frames are no subject:
+    less render CPU beside the simulated bus)."""
+    return tools.PuppetProcess(["studio", str(folder), "--demo", "--size", *size,
+                                "--address", f"127.0.0.1:{tools.free_port()}", *extra], cwd)
 
 
 def _open(new_page, process, tools, width=1280, height=800):
@@ -92,6 +94,27 @@ def _seam_and_median_step(gltf, bones) -> tuple[float, float]:
     return float(angle(q[:, -1], q[:, 0]).max()), float(np.median(steps))
 
 
+RECORDING_SEEN_JS = """(() => {  // every recording state the page shows, [on, path], in order
+  window.recordingSeen = [];
+  const shown = window.setRecording;
+  window.setRecording = (...args) => {
+    shown(...args);
+    recordingSeen.push([puppetView.recording.on, puppetView.recording.path]);
+  };
+})()"""
+
+
+def _never_back(page):
+    """The page's recording state only went forward: each state it showed (on or off, of a
+    take's path) came in one run; a panel sent before a start or stop and delivered after it
+    (the panel goes after the messages) is not shown over the newer state."""
+    runs = []
+    for state in page.evaluate("recordingSeen"):
+        if not runs or runs[-1] != state:
+            runs.append(state)
+    assert len(runs) == len({tuple(r) for r in runs}), runs
+
+
 def _select(page, shot: str, number: int):
     page.get_by_label("current shot").select_option(label=shot)
     page.get_by_role("button", name=f"{shot} take {number}").click()
@@ -100,9 +123,10 @@ def _select(page, shot: str, number: int):
 
 def test_a_session_of_two_shots_and_three_takes(new_page, tools, tmp_path):
     folder = tmp_path / "shoot"
-    process = _studio(tools, folder, tmp_path)
+    process = _studio(tools, folder, tmp_path, size=("640", "480"))  # the ghost's magenta seen
     try:
         page = _open(new_page, process, tools)
+        page.evaluate(RECORDING_SEEN_JS)
         assert page.locator("#instruction").inner_text().startswith("Name a shot")
         assert page.get_by_role("button", name="rename shot", exact=True).is_disabled()
 
@@ -116,6 +140,7 @@ def test_a_session_of_two_shots_and_three_takes(new_page, tools, tmp_path):
         page.get_by_role("button", name="new shot", exact=True).click()
         _said(page, tools, "new shot 'run'")
         _record(page, tools, "run", 1, count_in="0")
+        _never_back(page)
 
         # circle walk 1, note and lock walk 2; a locked take's edits are refused
         _select(page, "walk", 1)

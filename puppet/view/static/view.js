@@ -118,7 +118,7 @@ const handlers = {
     buildServoTable(m.servos);
     $("faults").replaceChildren(); $("events").replaceChildren(); m.faults.forEach(addFault);
     showLegend(m.legend || []);
-    setOverlay(m.overlay); setRecording(m.recording);
+    setOverlay(m.overlay); setRecording(m.recording, true);
     $("playback").hidden = m.mode !== "play";
     $("record").disabled = m.mode !== "live";  // a take of the rest pose or of a take: nothing new
     if (m.panel && m.panel.servos) handlers.panel(m.panel);
@@ -255,7 +255,13 @@ function showLegend(legend) {
 
 function setOverlay(on) { state.overlay = on; $("overlay").setAttribute("aria-pressed", String(on)); }
 
-function setRecording(r) {
+// r.changes: the recording's starts and stops so far; a panel sent before a start or stop can
+// arrive after it (the panel goes after the messages): the older state is not shown over the
+// newer (a stale "on" would make the button send stop instead of record). A snapshot is the
+// server's word (a studio started again counts from 0).
+function setRecording(r, snapshot = false) {
+  if (!snapshot && r.changes !== undefined && state.recording.changes !== undefined &&
+      r.changes < state.recording.changes) return;
   state.recording = r;
   const button = $("record");
   button.textContent = r.on ? "■ stop" : "● record";
