@@ -195,10 +195,16 @@ def test_a_layer_recorded_from_the_page_is_the_next_take_and_plays_composed(new_
     assert np.abs(composed[:, cols] - through[:, cols]).max() > 50  # pass 2's arms, not pass 1's
     # on the motors: the base's servos, driven, followed the base from the layer's time 0
     lag, rms, late = lag_s(base, layer, driven[0], settle_s=0.5)
-    # (the fit is looser than live --over's on a loaded machine; the lag is the check. A host
-    # starved past the bus's deadlines holds the goal writes and trips the Bus Watchdog: the
-    # servos then hold and ease back, by design; bus_events says so)
-    assert abs(lag) < 0.25 and rms < 0.8 * late, (lag, rms, late, bus_events)
+    # A host starved past the bus's deadlines (the simulated servos share its CPU: two busy
+    # processes beside the suite) has hw_sim answer late, goal writes held on the stalled line
+    # and the Bus Watchdog trip: the servos hold and ease back, by design, and the
+    # page's event log says why (their torque read back off at the end: above). Only a bus that
+    # kept its deadlines can show the following (a feeder that sent nothing trips the watchdog
+    # without late replies: still a failure; quiet runs check the following every time).
+    starved = bus_events.get("late_reply", 0) >= 20 and any(
+        bus_events.get(kind, 0) for kind in ("write_failed", "watchdog_tripped"))
+    if not starved:  # the fit is looser than live --over's on a loaded machine; the lag is the check
+        assert abs(lag) < 0.25 and rms < 0.8 * late, (lag, rms, late, bus_events)
     # exported: the legs of pass 1, the arms of pass 2
     got = _export(tools, layer, tmp_path / "layered.glb")
     pass1 = _export(tools, base, tmp_path / "pass1.glb")
