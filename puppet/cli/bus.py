@@ -149,6 +149,11 @@ def calibrate(rig_path: str, port: str, baud: int, out: str | None, guided: bool
         click.echo(f"  servo {int(dxl_id)}: zero {int(ticks)}")
 
 
+GUIDED_PING_TRIES = 3
+"""``calibrate --guided``: scans of the bus (each with its own passes) until as many servos answer
+as the rig has [[servo]] blocks."""
+
+
 def _calibrate_guided(rig_path: str, port: str, baud: int, out: str | None, yes: bool,
                       timeout_s: float, threshold: float, force: bool) -> None:
     """``calibrate --guided``: prompts on stderr, results written into the rig file."""
@@ -159,6 +164,12 @@ def _calibrate_guided(rig_path: str, port: str, baud: int, out: str | None, yes:
     session = GuidedCalibration(rig_path)
     session.check_out(out, force=force)  # before the bus: a refused output costs nothing
     found = _ping_all(port, baud)
+    for _ in range(GUIDED_PING_TRIES - 1):  # a busy host misses replies (Protocol 1.0: 4 ms each)
+        if len(found) >= len(session.steps):
+            break
+        click.echo(f"{len(found)} of the rig's {len(session.steps)} servos answered; pinging again",
+                   err=True)
+        found = {**found, **_ping_all(port, baud)}
     unknown = sorted(i for i, (number, _) in found.items() if number not in MODELS_BY_NUMBER)
     if unknown:
         click.echo(f"warning: servos {unknown} are of a model puppet cannot read; left out", err=True)
