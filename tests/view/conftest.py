@@ -253,12 +253,17 @@ def drag_tail(page):
     import numpy as np
 
     wait_js(page, "puppetView.bones.length > 0")
-    before = page.evaluate("puppetView.bones.find(b => b.name === 'tail3').b")
+    before, drafts = page.evaluate("[puppetView.bones.find(b => b.name === 'tail3').b, puppetView.drafts]")
     page.click("button[data-preset='side']")
     side = wait_until(lambda: side_panel(page, before), what="the side view")
-    # A sharp frame rendered after that panel: it shows the side view (a panel carries the
-    # frames rendered before it; the loop turns the camera before its panel and frame).
-    wait_js(page, f"!puppetView.draft && puppetView.shownSeq > {side['frames']}")
+    # A sharp frame of the side view: rendered after that panel (a panel carries the frames
+    # rendered before it) and after a draft (frames are drafts while the camera turns), or, when
+    # no draft was shown, four frames after it (as many as can be on the way); then the bones
+    # of a panel built after that frame.
+    shown = wait_js(page, f"!puppetView.draft && puppetView.shownSeq > {side['frames']} && "
+                          f"(puppetView.drafts > {drafts} || puppetView.shownSeq > {side['frames']} + 3) "
+                          f"&& puppetView.shownSeq")
+    wait_js(page, f"puppetView.panel.frames >= {shown}")
     tail = page.evaluate("puppetView.bones.find(b => b.name === 'tail3')")
     grab = (np.array(tail["a"]) + 2 * np.array(tail["b"])) / 3
     image = frame_image(page)
