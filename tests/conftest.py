@@ -98,6 +98,27 @@ def _stuck_report(pid: int) -> str:
     return "; ".join(parts)
 
 
+def group_gone(group: int) -> bool:
+    """True once every process of process group ``group`` has exited. One left as a zombie has
+    exited: only its reaper has not collected it yet (an orphan's is init, which does so in its
+    own time: multiprocessing's resource tracker outlives the command by a moment and ends on
+    its own, then waits as a zombie for init)."""
+    try:
+        os.killpg(group, 0)
+    except ProcessLookupError:
+        return True
+    for entry in Path("/proc").iterdir():
+        if not entry.name.isdigit():
+            continue
+        try:
+            state, _, pgid = (entry / "stat").read_text().rsplit(")", 1)[1].split()[:3]
+        except (OSError, ValueError):  # gone meanwhile
+            continue
+        if int(pgid) == group and state != "Z":
+            return False
+    return True
+
+
 @pytest.fixture(name="interrupt_and_wait")
 def _interrupt_and_wait_fixture():
     return _interrupt_and_wait

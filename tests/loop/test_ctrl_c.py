@@ -16,6 +16,7 @@ from puppet.bus import Reading
 from puppet.rig import builtin
 from puppet.rig.load import BUILTIN_RIG
 from puppet.take import TakeWriter
+from tests.conftest import group_gone
 
 PATIENCE_S = 60.0  # as tests/conftest.py: a generous wait, never a threshold
 
@@ -144,25 +145,4 @@ def test_ctrl_c_to_batch_leaves_no_worker_traceback(tmp_path, wait_until):
     stderr = err_path.read_text()
     assert "Traceback" not in stderr and "KeyboardInterrupt" not in stderr, stderr
     wait_until(lambda: not list(out.glob(".puppet-batch.*")), what="the staging folder removed")
-    wait_until(lambda: _group_gone(proc.pid), what="every worker of the group ended")
-
-
-def _group_gone(group: int) -> bool:
-    """True when every process of process group ``group`` has exited. One left as a zombie has
-    exited: only its reaper has not collected it yet (an orphan's is init, which does so in its
-    own time: multiprocessing's resource tracker outlives the command by a moment and ends on
-    its own, then waits as a zombie for init)."""
-    try:
-        os.killpg(group, 0)
-    except ProcessLookupError:
-        return True
-    for entry in Path("/proc").iterdir():
-        if not entry.name.isdigit():
-            continue
-        try:
-            state, _, pgid = (entry / "stat").read_text().rsplit(")", 1)[1].split()[:3]
-        except (OSError, ValueError):  # gone meanwhile
-            continue
-        if int(pgid) == group and state != "Z":
-            return False
-    return True
+    wait_until(lambda: group_gone(proc.pid), what="every worker of the group ended")

@@ -33,6 +33,7 @@ from puppet.reading import Reading
 from puppet.rig import builtin
 from puppet.rig.load import BUILTIN_RIG
 from puppet.take import TakeError, TakeReader, TakeWriter
+from tests.conftest import group_gone
 
 PATIENCE_S = 60.0
 PUPPET = [sys.executable, "-m", "puppet.cli"]
@@ -229,27 +230,6 @@ def _reader_child(pid: int) -> int | None:
     return None
 
 
-def _group_gone(group: int) -> bool:
-    """True once every process of process group ``group`` has exited. One left as a zombie has
-    exited: only its reaper has not collected it yet (an orphan's is init, which does so in its
-    own time: multiprocessing's resource tracker outlives the command by a moment and ends on
-    its own, then waits as a zombie for init)."""
-    try:
-        os.killpg(group, 0)
-    except ProcessLookupError:
-        return True
-    for entry in Path("/proc").iterdir():
-        if not entry.name.isdigit():
-            continue
-        try:
-            state, _, pgid = (entry / "stat").read_text().rsplit(")", 1)[1].split()[:3]
-        except (OSError, ValueError):  # gone meanwhile
-            continue
-        if int(pgid) == group and state != "Z":
-            return False
-    return True
-
-
 CASES = ([(n, s) for n in BUS for s in STOPS] + [("view", s) for s in STOPS if s != "kill-reader"]
          + [("play", s) for s in STOPS if s != "kill-reader"]
          + [("play-view", s) for s in STOPS if s not in ("kill-reader", "end")]  # a take on the page
@@ -304,7 +284,7 @@ def test_every_command_keeps_what_it_made_on_every_way_out(name, stop, tmp_path,
     else:
         assert proc.returncode == 0, stderr
         assert "faults seen" in out, out  # the summary
-    wait_until(lambda: _group_gone(proc.pid), what="every process of the command ended")
+    wait_until(lambda: group_gone(proc.pid), what="every process of the command ended")
     if video is not None:
         frames, _ = imageio_ffmpeg.count_frames_and_secs(str(video))  # playable: it has its index
         assert frames > 0
@@ -351,7 +331,7 @@ def test_ctrl_c_during_start_up_stops_cleanly_with_a_summary(after_s, tmp_path, 
     assert proc.returncode == 0, err
     assert "Traceback" not in err and "Aborted" not in err, err
     assert "faults seen" in out, out
-    wait_until(lambda: _group_gone(proc.pid), what="every process of the command ended")
+    wait_until(lambda: group_gone(proc.pid), what="every process of the command ended")
     assert [p.name for p in tmp_path.iterdir() if p.name.startswith(".")] == []
 
 
@@ -383,7 +363,7 @@ def test_a_killed_demo_leaves_no_simulated_bus_holding_its_page(tmp_path, wait_u
                 return True
 
         wait_until(port_free, what="the page's port free after the kill")
-        wait_until(lambda: _group_gone(proc.pid), what="every process of the demo ended")
+        wait_until(lambda: group_gone(proc.pid), what="every process of the demo ended")
     finally:
-        if not _group_gone(proc.pid):
+        if not group_gone(proc.pid):
             os.killpg(proc.pid, signal.SIGKILL)
