@@ -333,13 +333,17 @@ class DriveBus:
 
     def rearm(self, dxl_id: int, units: int) -> int:
         """A servo its Bus Watchdog stopped (it reads -1, refuses goals; torque stays on):
-        clear the watchdog, Goal Position := Present Position, watchdog ``units`` again ->
-        that present position, raw ticks."""
+        clear the watchdog, Goal Position := Present Position (within the servo's own goal
+        limits: a shaft pushed past one would have the goal refused, "data range error"),
+        watchdog ``units`` again -> that goal, raw ticks."""
         self.write(dxl_id, "bus_watchdog", 0)
-        raw = self.read(dxl_id, "present_position")
-        self.write(dxl_id, "goal_position", raw)
+        goal = self.read(dxl_id, "present_position")
+        setup = self.setup.get(dxl_id)
+        if setup is not None and setup.lo is not None and setup.hi is not None:
+            goal = min(max(goal, setup.lo), setup.hi)
+        self.write(dxl_id, "goal_position", goal)
         self.write(dxl_id, "bus_watchdog", units)
-        return raw
+        return goal
 
     def unanswered(self, ids, patience_s: float = SILENCE_PATIENCE_S) -> dict[int, BusError]:
         """Of ``ids``, those that fail a read of their own -> {id: its error}. A group read

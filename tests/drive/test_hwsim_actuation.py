@@ -146,3 +146,29 @@ def test_temperature_rises_with_sustained_current(open_sdk, wait_until):
         # Past its own limit the servo latches overheating and lets go.
         wait_until(lambda: servo.get("Hardware Error Status") & 0x04, what="overheating")
         assert servo.get("Torque Enable") == 0
+
+
+def test_a_rearm_sets_a_goal_within_the_servos_limits_when_its_shaft_is_past_one(wait_until):
+    """A shaft past its Min Position Limit when the Bus Watchdog trips: the re-arm's Goal
+    Position is the limit, not the present position (which the servo refuses: data range)."""
+    from puppet.bus.link import BusLink
+    from puppet.drive.servos import DriveBus
+
+    with hw_sim.serve([1]) as bus:
+        servo = bus.servo(1)
+        present = servo.get("Present Position")
+        link = BusLink(str(bus.port), baud=1_000_000, latency_ms=20, protocol=2.0)
+        link.open()
+        try:
+            drive = DriveBus(link, [1], {1: servo.model}, lambda _line: None)
+            drive.write(1, "min_position_limit", present + 100)  # the shaft is past it
+            drive.prepare(use_watchdog=True)
+            assert drive.setup[1].lo == present + 100
+            drive.write(1, "torque_enable", 1)
+            drive.write(1, "bus_watchdog", 5)  # 100 ms, then the host falls silent
+            wait_until(lambda: servo.get("Bus Watchdog") == -1, what="watchdog trip")
+            goal = drive.rearm(1, 5)
+            assert goal == present + 100 == servo.get("Goal Position")
+            assert servo.get("Bus Watchdog") == 5 and servo.get("Torque Enable") == 1
+        finally:
+            link.close()
