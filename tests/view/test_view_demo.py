@@ -381,6 +381,11 @@ async def _flood(url: str, bones: list, pickers: int) -> dict:
 
 def test_one_clients_flood_costs_the_others_nothing(new_page, demo, tools):
     page = tools.open_view(new_page, demo)
+    # The shared camera as the demo starts it, facing the pickers (the tests before turned it:
+    # a drag on the background orbits it); a draft frame shows the reset was applied.
+    drafts = page.evaluate("puppetView.drafts")
+    page.click("#reset")
+    tools.wait_js(page, f"puppetView.drafts > {drafts} && !puppetView.draft")
     tools.wait_js(page, "puppetView.bones.length > 0")
     bones = page.evaluate("puppetView.bones")
     shown, panels = page.evaluate("[puppetView.shown, puppetView.panels]")
