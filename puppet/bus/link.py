@@ -140,6 +140,7 @@ class BusLink:
         set_latency_assumption(self.latency_ms)
         self.settle_s = (self.latency_ms + 1) / 1000.0
         self._unsettled = False
+        self.late_bytes = False  # ping_each's: a failed ping read bytes (a late reply)
         self._answered: dict[int, None] = {}  # servos that answered, oldest first: flush witnesses
         self._witness_pending: dict[int, set[int]] = {}  # id -> sizes of unanswered witness reads
         self.baud = int(baud)
@@ -378,15 +379,31 @@ class BusLink:
 
     def ping_each(self, ids: Iterable[int]) -> dict[int, tuple[int, int]]:
         """Ping each of ``ids`` in turn -> {id: (model number, firmware)} of those that
-        answered cleanly (a silent id costs one SDK deadline: ~4 ms with a 1 ms latency timer)."""
+        answered cleanly (a silent id costs one SDK deadline: ~4 ms with a 1 ms latency timer).
+        ``late_bytes``: afterwards, whether a ping that failed read bytes (another id's reply,
+        past its deadline: something answers, on a busy host)."""
         found = {}
-        for dxl_id in ids:
-            try:
-                found[int(dxl_id)] = self.ping(int(dxl_id))
-            except ServoError:
-                # No settling before the next ping: a late reply carries this id, and the next
-                # ping takes only its own id's status (the SDK drops the others).
-                self._unsettled = False
+        self.late_bytes = False
+        read, heard = self.port.readPort, [0]
+
+        def counted(length):  # the SDK drops another id's reply unseen: its bytes are counted
+            data = read(length)
+            heard[0] += len(data)
+            return data
+
+        self.port.readPort = counted
+        try:
+            for dxl_id in ids:
+                before = heard[0]
+                try:
+                    found[int(dxl_id)] = self.ping(int(dxl_id))
+                except ServoError:
+                    # No settling before the next ping: a late reply carries this id, and the
+                    # next ping takes only its own id's status (the SDK drops the others).
+                    self._unsettled = False
+                    self.late_bytes = self.late_bytes or heard[0] > before
+        finally:
+            del self.port.readPort  # the SDK's own again
         return found
 
     def read(self, dxl_id: int, item: Item) -> int:

@@ -82,10 +82,11 @@ def scan(port: str, bauds: Iterable[int], protocols: Iterable[float] = (2.0, 1.0
 
 def _ping_p1(link: BusLink, baud: int, log: Callable[[str], None]) -> dict:
     """Protocol 1.0: every id pinged, then again those that did not answer, ``P1_PASSES``
-    passes in all where the first found any -> {id: (model number, firmware)}."""
+    passes in all where the first found any or heard a reply past its deadline (a busy host can
+    miss every reply of a pass) -> {id: (model number, firmware)}."""
     found = link.ping_each(P1_IDS)
     for n in range(2, P1_PASSES + 1):
-        if not found:
+        if not found and not link.late_bytes:
             break  # nothing of this protocol at this rate
         more = link.ping_each([i for i in P1_IDS if i not in found])
         if not more:

@@ -118,3 +118,27 @@ def test_a_protocol_1_scan_of_nothing_pings_once(monkeypatch):
     with hw_sim.serve({1: "XL330-M288"}) as bus:  # a Protocol 2.0 bus: nothing answers 1.0
         assert scan(bus.port, (1_000_000,), (1.0,)) == []
     assert calls == [1]
+
+
+def test_a_protocol_1_pass_that_hears_only_late_replies_is_followed_by_another(monkeypatch):
+    """Every reply of the first pass past its deadline (a starved host: the pass finds nothing),
+    the fault lifted once that pass is over: the late bytes on the line say something answers,
+    so the next pass runs and finds the servos (it ended the scan with nothing before)."""
+    from puppet.bus.link import BusLink
+
+    models = {2: "AX-12A", 9: "MX-28"}
+    with hw_sim.serve(models, timing=True) as bus:
+        bus.inject("late", ms=30)
+        passes = []
+        ping_each = BusLink.ping_each
+
+        def counted(link, ids):
+            found = ping_each(link, list(ids))
+            passes.append((sorted(found), link.late_bytes))
+            bus.clear_faults()  # after the first pass
+            return found
+
+        monkeypatch.setattr(BusLink, "ping_each", counted)
+        found = scan(bus.port, (1_000_000,), (1.0,))
+    assert passes[0] == ([], True)
+    assert [f.id for f in found] == sorted(models)
