@@ -276,6 +276,11 @@ class VideoSink:
             if self.sound is not None and self.count:
                 self._mux_sound()
         finally:
+            if self._error is not None:  # the rest of the encoder's session: an ffmpeg whose
+                try:  # shell was killed would otherwise write the file after it is removed
+                    os.killpg(self._process.pid, signal.SIGKILL)
+                except ProcessLookupError:
+                    pass
             self._temporary.unlink(missing_ok=True)
             if self._log is not None:
                 self._log.close()
