@@ -7,7 +7,7 @@ the whole session (subprocesses started by tests inherit it).
 Tests on a loaded 2-core machine must not depend on speed: instead of sleeping a fixed time
 and then asserting a state, they wait for the state with ``wait_until`` and a generous timeout.
 
-The suite runs in parallel workers (pytest-xdist, ``-n 2 --dist loadgroup`` in pyproject.toml).
+The suite runs in parallel workers (pytest-xdist, ``-n 3 --dist loadgroup`` in pyproject.toml).
 Tests that share an expensive set-up or a resource run in one worker (``xdist_group``, set here
 at collection: see ``XDIST_GROUPS`` and ``_xdist_group``). At the end of a run pytest prints the
 25 slowest tests and the time per top-level folder (``pytest_terminal_summary``).
