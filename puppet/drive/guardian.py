@@ -4,8 +4,9 @@
 own process, which holds the port. Killed there (SIGKILL, the OOM killer, a hang-up, a crash in
 native code), no ``finally`` runs and the servos would keep torque on: the Bus Watchdog stops
 their motion, never their torque. So before the port opens, the command starts a guardian: a
-fresh interpreter (``python -m puppet.drive.guardian``) deaf to SIGINT, SIGTERM and SIGHUP,
-holding nothing, that reads its orders (one JSON line on stdin: port, baud, latency, servos),
+fresh interpreter (``LAUNCH``: not ``python -m``, which would run this module a second time
+after the package imported it, with a warning on the user's terminal) deaf to SIGINT, SIGTERM
+and SIGHUP, holding nothing, that reads its orders (one JSON line on stdin: port, baud, latency, servos),
 answers ``ready`` and waits on stdin.
 
 - The command ends its own way (torque off, read back): it writes ``done`` and the guardian
@@ -41,6 +42,8 @@ READY_TIMEOUT_S = 60.0
 STAND_DOWN_S = 10.0
 """How long the command waits for its guardian to exit after ``done``."""
 READY, DONE = "ready", "done"
+LAUNCH = "import sys; from puppet.drive.guardian import main; sys.exit(main())"
+"""The guardian's command line after ``python -c``."""
 
 
 class Guardian:
@@ -63,7 +66,7 @@ class Guardian:
         from puppet.child_signals import children_deaf_to_ctrl_c
 
         with children_deaf_to_ctrl_c():  # the command alone sees a Ctrl-C and stops its way
-            self.proc = subprocess.Popen([sys.executable, "-m", "puppet.drive.guardian"],
+            self.proc = subprocess.Popen([sys.executable, "-c", LAUNCH],
                                          stdin=subprocess.PIPE, stdout=subprocess.PIPE,
                                          close_fds=True)
         try:
@@ -180,6 +183,3 @@ def main() -> int:
     after = take_over(orders)
     return 0 if after and set(after.values()) == {0} else 1
 
-
-if __name__ == "__main__":
-    sys.exit(main())

@@ -198,11 +198,12 @@ def test_a_layer_recorded_from_the_page_is_the_next_take_and_plays_composed(new_
     # A host starved past the bus's deadlines (the simulated servos share its CPU: two busy
     # processes beside the suite) has hw_sim answer late, goal writes held on the stalled line
     # and the Bus Watchdog trip: the servos hold and ease back, by design, and the
-    # page's event log says why (their torque read back off at the end: above). Only a bus that
-    # kept its deadlines can show the following (a feeder that sent nothing trips the watchdog
-    # without late replies: still a failure; quiet runs check the following every time).
-    starved = bus_events.get("late_reply", 0) >= 20 and any(
-        bus_events.get(kind, 0) for kind in ("write_failed", "watchdog_tripped"))
+    # page's event log says why (their torque read back off at the end: above). Late replies
+    # also put each reading's position after its time stamp by up to their delay, so the lag
+    # fit measures the host, not the feeder. Only a bus that kept its deadlines can show the
+    # following (a feeder that sent nothing trips the watchdog without late replies: still a
+    # failure; quiet runs check the following every time).
+    starved = bus_events.get("late_reply", 0) >= 20
     if not starved:  # the fit is looser than live --over's on a loaded machine; the lag is the check
         assert abs(lag) < 0.25 and rms < 0.8 * late, (lag, rms, late, bus_events)
     # exported: the legs of pass 1, the arms of pass 2
