@@ -420,17 +420,36 @@ class BusLink:
         return self._read_raw(dxl_id, address, size, instruction)[0]
 
     def _read_raw(self, dxl_id: int, address: int, size: int, instruction: str) -> tuple[list, int]:
+        """One read. When it follows a failure with no servo left to witness the line (the
+        settling was a wait and a flush, which prove nothing), its answer is kept only once a
+        witness of the same servo shows the line in order behind it: replies a stalled line
+        held (the same or another read of this size, sent again while it was stalled) may
+        still be coming, and the first would pass for this read's (a Status Return Level of 2
+        as Hardware Error Status 0x02). Bytes before the witness's reply: read again;
+        no witness reply: ServoTimeout with ``line_stalled`` (not proven: the caller's
+        patience tries again)."""
         wire = self.wire
-        with self._transaction([dxl_id], instruction):
-            rx, code = self._exchange(wire.read_tx(dxl_id, address, size), dxl_id, size)
-        if code != rd.COMM_SUCCESS:
-            raise self._fail(code, [dxl_id], instruction)
-        data, error = wire.data(rx), wire.error(rx)
-        if error & 0x7F or len(data) != size:
-            raise ServoStatusError([dxl_id], instruction, describe_status_error(error)
-                                   + f", {len(data)} of {size} data bytes", error=error)
-        self._heard(dxl_id)
-        return data, int(error)
+        while True:
+            unproven = self._unsettled and not self._answered
+            with self._transaction([dxl_id], instruction):
+                rx, code = self._exchange(wire.read_tx(dxl_id, address, size), dxl_id, size)
+            if code != rd.COMM_SUCCESS:
+                raise self._fail(code, [dxl_id], instruction)
+            data, error = wire.data(rx), wire.error(rx)
+            if error & 0x7F or len(data) != size:
+                raise ServoStatusError([dxl_id], instruction, describe_status_error(error)
+                                       + f", {len(data)} of {size} data bytes", error=error)
+            self._heard(dxl_id)
+            if not unproven:
+                return data, int(error)
+            verdict = self.witness(dxl_id)
+            if verdict == SILENT:  # nothing was held: the answer was this read's own
+                return data, int(error)
+            if verdict == STALLED:
+                stalled = ServoTimeout([dxl_id], instruction,
+                                       "answered, but the line could not show it was the answer")
+                stalled.deadline = stalled.line_stalled = True
+                raise stalled
 
     def write(self, dxl_id: int, item: Item, value: int) -> None:
         """Write one item of one servo and wait for its status."""

@@ -8,6 +8,8 @@ from __future__ import annotations
 from puppet.bus import ReaderThread
 from puppet.events import CONDITIONS, EVENT_KINDS, HELD_READING, describe_counts
 
+MODEL = "XL330-M288"  # the servos of the `sim` fixture (tests/bus/conftest.py)
+
 LATE_MS = 25.0
 """Just past the reads' deadline (~14 ms at the tests' 6 ms latency assumption)."""
 
@@ -153,3 +155,57 @@ def test_a_ping_witness_is_not_judged_by_an_earlier_pings_late_reply(sim):
         assert judged(lambda: link.witness(2, ping=True)) in (LATE, SILENT)  # ... pings judge
     finally:
         link.close()
+
+
+def test_replies_a_stalled_line_held_never_answer_the_next_read(sim):
+    """The bus stalls (its process held: a host starved past every deadline) while the host
+    asks one servo for the same 1-byte item again and again; no servo answered before, so each
+    try settles the line with a wait and a flush, which prove nothing. The line moves just after
+    the last flush: the held replies come one after another (57600 bit/s: ~2.5 ms each), the
+    first answers that try, and the others must not answer the next 1-byte read (a Status
+    Return Level of 2 read as Hardware Error Status 0x02: a false 'hardware error latched',
+    seen with hw_sim starved on a loaded machine)."""
+    import os
+    import signal
+
+    import pytest
+
+    from puppet.bus.errors import ServoTimeout
+    from puppet.bus.link import BusLink
+    from puppet.servo_models import model_named
+
+    baud = 57_600
+    bus = sim(timing=True, baud=baud)
+    items = model_named(MODEL).items
+    link = BusLink(bus.port, baud=baud, latency_ms=6)
+    link.open()
+    server = bus._worker.pid
+
+    def read(item):  # as every caller does, an instruction the line left unproven again
+        for _ in range(100):
+            try:
+                return link.read(1, item)
+            except ServoTimeout as err:
+                if not err.line_stalled:
+                    raise
+        raise AssertionError("the line stayed stalled")
+
+    os.kill(server, signal.SIGSTOP)
+    try:
+        for _ in range(8):
+            with pytest.raises(ServoTimeout):
+                link.read(1, items.status_return_level)
+        flush = link.port.ser.reset_input_buffer
+
+        def flush_then_move():  # the held line moves just after the host's flush
+            link.port.ser.reset_input_buffer = flush
+            flush()
+            os.kill(server, signal.SIGCONT)
+
+        link.port.ser.reset_input_buffer = flush_then_move
+        assert read(items.status_return_level) == 2
+    finally:
+        os.kill(server, signal.SIGCONT)
+    assert read(items.hardware_error_status) == 0
+    assert read(items.status_return_level) == 2
+    link.close()

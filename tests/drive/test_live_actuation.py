@@ -60,16 +60,29 @@ def expected_tail(tail_rig):
 
 class Live:
     """A ``puppet live`` subprocess (in a process group of its own: the loop and its reader)
-    whose stderr lines are collected as they come."""
+    whose stderr lines are collected as they come. ``started``: those of the running test
+    (``_no_live_left`` kills what is left of each group when it ends)."""
+
+    started: list[Live] = []
 
     def __init__(self, port, *extra, watchdog_ms: str = "2000"):
+        Live.started.append(self)
         self.proc = subprocess.Popen(["puppet", "live", "--rig", str(TAIL_RIG), "--port", str(port),
                                       "--watchdog-ms", watchdog_ms, *extra],
                                      stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
                                      start_new_session=True)
         self.err: list[str] = []
         self._lines: queue.Queue = queue.Queue()
+        self._out: queue.Queue = queue.Queue()
         threading.Thread(target=self._pump, daemon=True).start()
+        threading.Thread(target=lambda: self._out.put(self.proc.stdout.read()), daemon=True).start()
+
+    def kill_group(self) -> None:
+        """SIGKILL whatever is left of live's process group (its reader too)."""
+        try:
+            os.killpg(self.proc.pid, signal.SIGKILL)
+        except ProcessLookupError:
+            pass
 
     def _pump(self):
         for line in self.proc.stderr:
@@ -77,11 +90,26 @@ class Live:
         self._lines.put(None)
 
     def finish(self, timeout_s: float = WAIT_S) -> tuple[int, str, str]:
-        out = self.proc.stdout.read()
-        code = self.proc.wait(timeout=timeout_s)
-        while (line := self._lines.get(timeout=timeout_s)) is not None:
-            self.err.append(line)
+        """(exit code, stdout, stderr) once live and every process of its group (its reader)
+        let its output go; whatever of the group is left after that (or ``timeout_s``) is
+        killed, so that no test leaves a process holding a port that the next pty reuses."""
+        try:
+            code = self.proc.wait(timeout=timeout_s)
+            out = self._out.get(timeout=timeout_s)
+            while (line := self._lines.get(timeout=timeout_s)) is not None:
+                self.err.append(line)
+        finally:
+            self.kill_group()
         return code, out, "".join(self.err)
+
+
+@pytest.fixture(autouse=True)
+def _no_live_left():
+    """A test that failed half-way leaves no live behind: one holding its port's lock would
+    refuse the next test whose pseudo-terminal reuses the number (the lock is the device's)."""
+    yield
+    while Live.started:
+        Live.started.pop().kill_group()
 
 
 def _wait_for(condition, what: str, proc, timeout_s: float = WAIT_S):
@@ -220,7 +248,4 @@ def test_sigkill_of_live_has_its_reader_process_turn_the_tail_off(tail_rig, read
             _, _, err = live.finish()  # its stderr ends when the reader process has
             assert "Traceback" not in err, err
         finally:
-            try:
-                os.killpg(live.proc.pid, signal.SIGKILL)
-            except ProcessLookupError:
-                pass
+            live.kill_group()

@@ -4,6 +4,8 @@ tail servo follows the angle the solve gives the tail; it is driven only with --
 
 from __future__ import annotations
 
+import contextlib
+import os
 import signal
 import subprocess
 import time
@@ -73,11 +75,15 @@ def test_an_ax_tail_follows_the_solve_and_sigterm_leaves_torque_off(protocol1_ri
         proc = subprocess.Popen(["puppet", "live", "--rig", str(path), "--port", bus.port,
                                  "--no-watchdog", "--seconds", "600"], stdout=subprocess.PIPE,
                                 stderr=subprocess.PIPE, text=True, start_new_session=True)
-        _wait_for(lambda: tail.get("Torque Enable") == 1, "torque on", proc)
-        _wait_for(lambda: abs(tail.get("Present Position") - goal) <= bound,
-                  f"the tail near {goal:.0f} ticks", proc)
-        proc.send_signal(signal.SIGTERM)
-        out, err = proc.communicate(timeout=WAIT_S)
+        try:
+            _wait_for(lambda: tail.get("Torque Enable") == 1, "torque on", proc)
+            _wait_for(lambda: abs(tail.get("Present Position") - goal) <= bound,
+                      f"the tail near {goal:.0f} ticks", proc)
+            proc.send_signal(signal.SIGTERM)
+            out, err = proc.communicate(timeout=WAIT_S)
+        finally:  # nothing left holding the port (a pty reusing its number would be refused)
+            with contextlib.suppress(ProcessLookupError):
+                os.killpg(proc.pid, signal.SIGKILL)
         assert proc.returncode == 0, err
         assert "Traceback" not in err
         assert f"actuators [{TAIL}]: torque off (read back)" in err, err
