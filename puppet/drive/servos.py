@@ -33,11 +33,18 @@ from puppet.drive.errors import DriveError
 from puppet.servo_models import MODELS, describe_hardware_error, protocol_of
 ATTEMPTS = 3
 """Tries of a single-servo read or write outside the loop (a reply lost to noise is retried)."""
-SILENCE_PATIENCE_S = 2.0
-"""How long ``unanswered`` goes on asking a servo whose timeouts the line cannot prove silent."""
-STALL_PATIENCE_S = 1.0
+SILENCE_PATIENCE_S = 4.0
+"""How long ``unanswered`` goes on asking servos whose timeouts the line cannot prove silent
+(all of them together). A starved machine held a simulated bus's process off the CPU for
+1-3.4 s (measured beside busy processes)."""
+STALL_PATIENCE_S = 3.0
 """How long an instruction outside the loop that was not sent because the line was stalled
-(replies still pending: a busy host) is tried again before it fails."""
+(replies still pending: a busy host), or whose timeout the line cannot prove a silence, is
+tried again before it fails (see ``SILENCE_PATIENCE_S``)."""
+UNHEARD_PATIENCE_S = 1.0
+"""The same, for a servo asked again at setup when no servo has answered at all (a wrong
+port, baud rate or protocol, or a bus still powering up): not worth ``STALL_PATIENCE_S`` per
+servo."""
 IDENTIFY_ROUNDS = 3
 IDENTIFY_PAUSE_S = 0.5
 """Rounds for servos that did not answer (each asked patiently, ``_find_missing``), this far apart,
@@ -141,12 +148,13 @@ class DriveBus:
         ``read``."""
         return self._patient(lambda: self.link.hardware_error(dxl_id, self.items[dxl_id]), dxl_id)
 
-    def _patient(self, call, dxl_id: int | None = None, attempts: int = ATTEMPTS):
+    def _patient(self, call, dxl_id: int | None = None, attempts: int = ATTEMPTS,
+                 patience_s: float = STALL_PATIENCE_S):
         """call() until it succeeds: tried ``attempts`` times on a corrupt reply or a timeout
         the line proves silent (``BusLink.witness``, asking the servo heard last), and for up
-        to ``STALL_PATIENCE_S`` while it was not sent (the line stalled) or its reply may only
+        to ``patience_s`` while it was not sent (the line stalled) or its reply may only
         be late (a busy host holds replies)."""
-        deadline = time.monotonic() + STALL_PATIENCE_S
+        deadline = time.monotonic() + patience_s
         tries = 0
         while True:
             try:
@@ -169,9 +177,10 @@ class DriveBus:
         servo missing), and identify those that answer into ``report``."""
         missing, report.missing = report.missing, []
         answered = {}
+        patience_s = STALL_PATIENCE_S if report.found else UNHEARD_PATIENCE_S
         for dxl_id in missing:
             try:
-                self._patient(lambda: self.link.ping(dxl_id), dxl_id)
+                self._patient(lambda: self.link.ping(dxl_id), dxl_id, patience_s=patience_s)
                 answered[dxl_id] = self.models[dxl_id]
             except PortError:
                 raise

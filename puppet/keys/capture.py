@@ -60,8 +60,9 @@ def held_pose(readings, press_ns: int, ids) -> tuple[np.ndarray, np.ndarray, int
     """(ticks (k,) int32, ok (k,) bool, readings used) of the readings with
     press_ns <= t_ns <= press_ns + HOLD_NS: each servo's median over its good readings there.
 
-    KeyRefused naming the servos flagged in more than half of the window (silent, out of
-    range): a single flagged reading (one late reply on a busy bus) does not refuse the key.
+    KeyRefused naming the servos without a reading in more than half of the window: said as
+    late replies (a busy host; press again) when every one missing was late, else as flagged
+    (silent, out of range); a single missing reading does not refuse the key.
     """
     window = [r for r in readings if press_ns <= r.t_ns <= press_ns + HOLD_NS]
     if not window:
@@ -70,6 +71,10 @@ def held_pose(readings, press_ns: int, ids) -> tuple[np.ndarray, np.ndarray, int
     bad = (~ok).sum(axis=0) * 2 > len(window)
     if bad.any():
         named = [int(i) for i in np.asarray(ids)[bad]]
+        late = np.stack([r.late if r.late is not None else np.zeros_like(r.ok) for r in window])
+        if (ok | late)[:, bad].all():
+            raise KeyRefused(f"servo(s) {named}: their replies came late while holding (a busy "
+                             "host, not a fault): key not taken; press again")
         raise KeyRefused(f"servo(s) {named} flagged (silent or out of range) while holding: "
                          "key refused; check them and press again")
     ticks = np.where(ok, np.stack([r.ticks for r in window]), np.nan)

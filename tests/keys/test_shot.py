@@ -216,6 +216,12 @@ def test_a_key_is_the_median_of_the_good_readings_in_the_hold_window():
     with pytest.raises(KeyRefused) as err:
         held_pose(silent, press, ids)
     assert "servo(s) [3] flagged" in str(err.value)
+    late = [Reading(press + t, ids, np.array([1, 2, 3], np.int32), np.array([True, True, False]),
+                    late=np.array([False, False, True])) for t in (0, 60_000_000, 120_000_000)]
+    with pytest.raises(KeyRefused) as err:  # late replies on a busy host: not a fault
+        held_pose(late, press, ids)
+    assert "servo(s) [3]: their replies came late" in str(err.value)
+    assert "flagged" not in str(err.value)
     with pytest.raises(KeyRefused) as err:
         held_pose(readings[:1], press, ids)
     assert "no reading in the hold window" in str(err.value)

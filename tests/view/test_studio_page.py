@@ -627,10 +627,17 @@ def test_key_poses_are_a_mode_of_the_studio_page(new_page, tools, tmp_path):
         assert page.locator("#keys").is_visible()
         assert page.get_by_role("button", name="● record", exact=True).is_disabled()
         for n in (1, 2):
-            page.locator("#instruction").click()  # focus off any input: Space is the key
-            page.keyboard.press("Space")
-            tools.wait_js(page, f"puppetView.keys && puppetView.keys.keys.length === {n}",
-                          STUDIO_WAIT_S)
+            for _ in range(5):  # a key refused (replies late on a busy host: said) is pressed again
+                updates = page.evaluate("puppetView.keysUpdates")
+                page.locator("#instruction").click()  # focus off any input: Space is the key
+                page.keyboard.press("Space")
+                tools.wait_js(page, f"puppetView.keys && (puppetView.keys.keys.length === {n} || "
+                                    f"puppetView.keysUpdates > {updates} && "
+                                    "puppetView.keys.taken === false)", STUDIO_WAIT_S)
+                if page.evaluate(f"puppetView.keys.keys.length === {n}"):
+                    break
+                assert "came late" in page.evaluate("puppetView.keys.said"), \
+                    page.evaluate("puppetView.keys.said")
         page.get_by_role("button", name="done keys", exact=True).click()
         _said(page, tools, "keyed poses take 1 (2 keys)")
         assert not page.locator("#keys").is_visible()
