@@ -6,8 +6,8 @@ native code), no ``finally`` runs and the servos would keep torque on: the Bus W
 their motion, never their torque. So before the port opens, the command starts a guardian: a
 fresh interpreter (``LAUNCH``: not ``python -m``, which would run this module a second time
 after the package imported it, with a warning on the user's terminal) deaf to SIGINT, SIGTERM
-and SIGHUP, holding nothing, that reads its orders (one JSON line on stdin: port, baud, latency, servos),
-answers ``ready`` and waits on stdin.
+and SIGHUP, holding nothing, that reads its orders (one JSON line on stdin: port, baud,
+latency, servos), answers ``ready`` and waits on stdin.
 
 - The command ends its own way (torque off, read back): it writes ``done`` and the guardian
   exits without touching the bus.
